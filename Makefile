@@ -1,0 +1,27 @@
+# Two commands (see README): `make demo` and `make test`. Each creates .venv if missing.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+DEMO   ?= demo_out
+
+.PHONY: demo test bench clean
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+
+demo: $(PY)
+	$(PY) -m pip install -q -e .
+	$(VENV)/bin/divas generate ribs --out $(DEMO)/ribs --size 50000 --seed 0
+	$(VENV)/bin/divas info $(DEMO)/ribs/scene.ply
+
+test: $(PY)
+	$(PY) -m pip install -q -e ".[test]"
+	$(PY) -m pytest -q
+
+bench: $(PY)
+	$(PY) -m pip install -q -e .
+	$(PY) benchmarks/bench_load.py
+
+clean:
+	rm -rf $(DEMO) build *.egg-info

@@ -1,0 +1,187 @@
+"""The one camera type of the engine (NOTES "Conventions").
+
+OpenCV convention: camera x right, y down, z forward. ``c2w`` maps camera to
+world coordinates (4×4). Intrinsics are in pixels with pixel *centres* at +0.5:
+pixel index ``(i, j)`` is the continuous point ``(i + 0.5, j + 0.5)`` and a camera
+point ``(x, y, z)`` projects to ``(fx x/z + cx, fy y/z + cy)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Camera"]
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole camera.
+
+    Attributes:
+        width, height: image size in pixels.
+        fx, fy, cx, cy: intrinsics in pixels (principal point in the +0.5 convention).
+        c2w: ``[4,4]`` float64 camera-to-world transform (OpenCV axes).
+        name: optional identifier (training image name, anchor id, …).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    c2w: np.ndarray = field(default_factory=lambda: np.eye(4))
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        c2w = np.asarray(self.c2w, dtype=np.float64)
+        if c2w.shape == (3, 4):
+            c2w = np.vstack([c2w, [0, 0, 0, 1]])
+        if c2w.shape != (4, 4):
+            raise ValueError(f"camera {self.name!r}: c2w must be 4x4, got shape {c2w.shape}")
+        if not np.all(np.isfinite(c2w)):
+            raise ValueError(f"camera {self.name!r}: c2w contains NaN/Inf")
+        r = c2w[:3, :3]
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
+            raise ValueError(f"camera {self.name!r}: c2w rotation is not a proper rotation")
+        for k in ("fx", "fy"):
+            v = float(getattr(self, k))
+            if not math.isfinite(v) or v <= 0:
+                raise ValueError(f"camera {self.name!r}: focal length {k}={v} must be positive")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ValueError(f"camera {self.name!r}: image size {self.width}x{self.height} is empty")
+        object.__setattr__(self, "c2w", c2w)
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        for k in ("fx", "fy", "cx", "cy"):
+            object.__setattr__(self, k, float(getattr(self, k)))
+
+    # --- pose -------------------------------------------------------------
+    @property
+    def w2c(self) -> np.ndarray:
+        r, t = self.c2w[:3, :3], self.c2w[:3, 3]
+        out = np.eye(4)
+        out[:3, :3] = r.T
+        out[:3, 3] = -r.T @ t
+        return out
+
+    @property
+    def center(self) -> np.ndarray:
+        return self.c2w[:3, 3].copy()
+
+    @property
+    def forward(self) -> np.ndarray:
+        """World direction of the optical axis (+z of the camera)."""
+        return self.c2w[:3, 2].copy()
+
+    @property
+    def up(self) -> np.ndarray:
+        """World up of the image (−y of the OpenCV camera)."""
+        return -self.c2w[:3, 1]
+
+    @property
+    def right(self) -> np.ndarray:
+        return self.c2w[:3, 0].copy()
+
+    # --- intrinsics -------------------------------------------------------
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    @property
+    def fov_x(self) -> float:
+        return 2.0 * math.atan(self.width / (2.0 * self.fx))
+
+    @property
+    def fov_y(self) -> float:
+        return 2.0 * math.atan(self.height / (2.0 * self.fy))
+
+    def scaled(self, s: float) -> "Camera":
+        """Same pose, image resized by ``s`` (intrinsics scale exactly with +0.5 centres)."""
+        w, h = max(1, round(self.width * s)), max(1, round(self.height * s))
+        sx, sy = w / self.width, h / self.height
+        return Camera(w, h, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
+                      self.c2w, self.name)
+
+    def with_pose(self, c2w: np.ndarray, name: str | None = None) -> "Camera":
+        return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, c2w,
+                      self.name if name is None else name)
+
+    # --- projection -------------------------------------------------------
+    def world_to_camera(self, points: np.ndarray) -> np.ndarray:
+        """``[N,3]`` camera-space coordinates of world points."""
+        w2c = self.w2c
+        return np.asarray(points, dtype=np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates ``[N,2]`` (continuous, +0.5 centres) and planar depth ``[N]``."""
+        pc = self.world_to_camera(points)
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = np.stack([self.fx * pc[:, 0] / z + self.cx, self.fy * pc[:, 1] / z + self.cy], -1)
+        return uv, z
+
+    def ray_directions(self, uv: np.ndarray) -> np.ndarray:
+        """Unit world-space ray directions ``[N,3]`` through continuous pixel points ``uv``."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        d = np.stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy,
+                      np.ones(len(uv))], -1)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return d @ self.c2w[:3, :3].T
+
+    def unproject(self, uv: np.ndarray, planar_depth: np.ndarray) -> np.ndarray:
+        """World points ``[N,3]`` at planar depth ``z`` behind continuous pixel points."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(planar_depth, dtype=np.float64).reshape(-1)
+        pc = np.stack([(uv[:, 0] - self.cx) / self.fx * z, (uv[:, 1] - self.cy) / self.fy * z, z], -1)
+        return pc @ self.c2w[:3, :3].T + self.c2w[:3, 3]
+
+    # --- construction -----------------------------------------------------
+    @classmethod
+    def look_at(cls, eye: np.ndarray, target: np.ndarray, up: np.ndarray, *, width: int,
+                height: int, fx: float, fy: float | None = None, cx: float | None = None,
+                cy: float | None = None, name: str = "") -> "Camera":
+        """A camera at ``eye`` looking at ``target`` with image-up close to ``up``."""
+        eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+        fwd = target - eye
+        n = np.linalg.norm(fwd)
+        if n == 0:
+            raise ValueError("look_at: eye and target coincide")
+        fwd /= n
+        right = np.cross(fwd, up)
+        if np.linalg.norm(right) < 1e-8:  # up parallel to the view: pick any perpendicular
+            helper = np.array([1.0, 0, 0]) if abs(fwd[0]) < 0.9 else np.array([0, 1.0, 0])
+            right = np.cross(fwd, helper)
+        right /= np.linalg.norm(right)
+        down = np.cross(fwd, right)
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, fwd, eye
+        return cls(width, height, fx, fy if fy is not None else fx,
+                   width / 2.0 if cx is None else cx, height / 2.0 if cy is None else cy, c2w, name)
+
+    # --- (de)serialisation in the NOTES prompts-file camera schema ----------
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"width": self.width, "height": self.height, "fx": self.fx,
+                             "fy": self.fy, "cx": self.cx, "cy": self.cy,
+                             "c2w": self.c2w.tolist()}
+        if self.name:
+            d["name"] = self.name
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Camera":
+        """Inverse of :meth:`to_dict`; raises ``ValueError``/``KeyError`` on a bad entry."""
+        known = {"width", "height", "fx", "fy", "cx", "cy", "c2w", "name"}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown camera keys {sorted(unknown)}")
+        missing = known - {"name"} - set(d)
+        if missing:
+            raise ValueError(f"camera is missing {sorted(missing)}")
+        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
+                   float(d["cx"]), float(d["cy"]), np.asarray(d["c2w"], dtype=np.float64),
+                   str(d.get("name", "")))

@@ -1,0 +1,1 @@
+"""Scene, camera and export I/O. See ``README.md`` in this folder."""

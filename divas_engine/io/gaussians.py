@@ -1,0 +1,54 @@
+"""Turn raw (stored) Gaussian parameters into the engine's activated surfels.
+
+Shared by every splat format (PLY, compressed PLY, .splat, .spz): each decoder
+produces stored-space or activated arrays and calls :func:`surfels_from_arrays`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
+
+__all__ = ["sigmoid", "flatten_to_surfels", "surfels_from_arrays"]
+
+
+def sigmoid(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float32)
+    return (1.0 / (1.0 + np.exp(-np.clip(x, -88.0, 88.0)))).astype(np.float32)
+
+
+def flatten_to_surfels(quats: np.ndarray, scales3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """3DGS → 2DGS (NOTES "Conventions"): keep the two largest scale axes.
+
+    Args:
+        quats: ``[N,4]`` unit quaternions (w, x, y, z) of the 3D Gaussians.
+        scales3: ``[N,3]`` activated standard deviations.
+
+    Returns:
+        ``(quats2, scales2)``: quaternions whose rotation columns 0/1 are the two
+        largest axes (largest first) and column 2 their cross product (the
+        dropped, smallest axis up to sign), and ``[N,2]`` the matching scales.
+    """
+    r = quat_to_rotmat(quats.astype(np.float32))
+    order = np.argsort(-scales3, axis=1, kind="stable")
+    a, b = order[:, 0], order[:, 1]
+    idx = np.arange(len(quats))
+    tu = r[idx, :, a]
+    tv = r[idx, :, b]
+    n = np.cross(tu, tv)
+    r2 = np.stack([tu, tv, n], axis=2)
+    q2 = rotmat_to_quat(r2).astype(np.float32)
+    s2 = np.stack([scales3[idx, a], scales3[idx, b]], axis=1).astype(np.float32)
+    return q2, s2
+
+
+def surfels_from_arrays(quats_raw: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalise quaternions and flatten 3-axis scales; 2-axis scales pass through.
+
+    ``scales`` must already be activated (``exp`` of the stored log-scales).
+    """
+    q = normalize_quats(quats_raw)
+    if scales.shape[1] == 3:
+        return flatten_to_surfels(q, scales)
+    return q, np.ascontiguousarray(scales, dtype=np.float32)

@@ -1,0 +1,80 @@
+"""``load_scene``: one entry point that recognises every supported scene file.
+
+Formats: 2DGS/3DGS PLY, PlayCanvas/SuperSplat compressed PLY, antimatter15
+``.splat``, Niantic ``.spz``, NeRF density grid ``.npz``. Detection looks at the
+file's magic bytes first and its suffix second, so a misnamed file still loads.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+from ..errors import DivasInputError
+from ..scene import Scene
+
+__all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
+
+SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "npz")
+
+
+def detect_format(path: str | PathLike) -> str:
+    """Return one of :data:`SCENE_FORMATS` for ``path`` or raise :class:`DivasInputError`."""
+    path = Path(path)
+    if not path.exists():
+        raise DivasInputError(path, "file does not exist")
+    if path.is_dir():
+        raise DivasInputError(path, "is a directory, expected a scene file")
+    with open(path, "rb") as f:
+        head = f.read(8)
+    if not head:
+        raise DivasInputError(path, "empty file")
+    suffix = path.suffix.lower()
+    if head.startswith(b"ply"):
+        from .ply import read_ply_header
+
+        layout = read_ply_header(path)
+        packed = layout.element("chunk") is not None and "packed_position" in layout.property_names
+        return "compressed_ply" if packed else "ply"
+    if head.startswith(b"PK"):
+        return "npz"
+    if head.startswith(b"\x1f\x8b") or head.startswith(b"NGSP") or suffix == ".spz":
+        return "spz"
+    if suffix == ".splat":
+        return "splat"
+    if suffix == ".ply":
+        raise DivasInputError(path, "not a PLY file (missing 'ply' magic line)")
+    raise DivasInputError(path, "unknown scene format: expected .ply, .splat, .spz or .npz")
+
+
+def load_scene(path: str | PathLike, *, fmt: str | None = None) -> Scene:
+    """Load a scene file into a :class:`SurfelScene` or :class:`DensityGrid`.
+
+    Args:
+        path: the scene file.
+        fmt: force a format from :data:`SCENE_FORMATS` instead of detecting it.
+    """
+    path = Path(path)
+    fmt = fmt or detect_format(path)
+    if fmt == "ply":
+        from .ply import read_gaussian_ply
+
+        return read_gaussian_ply(path)
+    if fmt == "compressed_ply":
+        from .compressed_ply import read_compressed_ply
+        from .ply import read_ply_header
+
+        return read_compressed_ply(path, read_ply_header(path))
+    if fmt == "splat":
+        from .splat import read_splat
+
+        return read_splat(path)
+    if fmt == "spz":
+        from .spz import read_spz
+
+        return read_spz(path)
+    if fmt == "npz":
+        from .density_grid import read_density_grid
+
+        return read_density_grid(path)
+    raise DivasInputError(path, f"unknown format {fmt!r}; expected one of {SCENE_FORMATS}")
