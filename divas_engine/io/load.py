@@ -31,11 +31,10 @@ def detect_format(path: str | PathLike) -> str:
         raise DivasInputError(path, "empty file")
     suffix = path.suffix.lower()
     if head.startswith(b"ply"):
+        from .compressed_ply import is_compressed_ply
         from .ply import read_ply_header
 
-        layout = read_ply_header(path)
-        packed = layout.element("chunk") is not None and "packed_position" in layout.property_names
-        return "compressed_ply" if packed else "ply"
+        return "compressed_ply" if is_compressed_ply(read_ply_header(path)) else "ply"
     if head.startswith(b"PK"):
         return "npz"
     if head.startswith(b"\x1f\x8b") or head.startswith(b"NGSP") or suffix == ".spz":

@@ -1,0 +1,112 @@
+"""antimatter15 ``.splat``: decoder and byte-exact subset writer.
+
+The file is a headerless array of 32-byte little-endian records, one per
+Gaussian (SH degree 0):
+
+=======  ======  =====================================================
+bytes    type    meaning
+=======  ======  =====================================================
+0..11    3×f32   position x, y, z
+12..23   3×f32   scale (linear standard deviations, already ``exp``'d)
+24..27   4×u8    r, g, b = ``(0.5 + SH_C0 * f_dc) * 255``; a = ``opacity * 255``
+28..31   4×u8    rotation w, x, y, z = ``q * 128 + 128`` (clipped to 0..255)
+=======  ======  =====================================================
+
+Decoding: ``f_dc = (c/255 - 0.5) / SH_C0``, ``opacity = a / 255``,
+``q = (b - 128) / 128`` then normalised. A rotation whose four bytes are all
+128 (a zero quaternion) is treated like a non-finite row and dropped, as the
+PLY loader does. Coordinates are those of the PLY it was converted from (no
+axis change).
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DivasInputError
+from ..scene import SH_C0, SourceInfo, SurfelScene
+from .gaussians import surfels_from_arrays
+
+__all__ = ["SPLAT_DTYPE", "read_splat", "write_splat_subset"]
+
+#: One ``.splat`` record.
+SPLAT_DTYPE = np.dtype([("pos", "<f4", (3,)), ("scale", "<f4", (3,)),
+                        ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
+assert SPLAT_DTYPE.itemsize == 32
+
+_BLOCK = 1 << 20
+
+
+def _row_count(path: Path) -> int:
+    try:
+        size = path.stat().st_size
+    except OSError as e:
+        raise DivasInputError(path, f"cannot read .splat file ({e})") from None
+    if size == 0:
+        raise DivasInputError(path, "empty scene: the .splat file has 0 bytes")
+    if size % SPLAT_DTYPE.itemsize:
+        raise DivasInputError(path, f".splat size {size} is not a multiple of 32 bytes "
+                                    "(truncated or not a .splat file)")
+    return size // SPLAT_DTYPE.itemsize
+
+
+def read_splat(path: str | PathLike) -> SurfelScene:
+    """Load a ``.splat`` file into a :class:`SurfelScene` (3DGS flattened to surfels)."""
+    path = Path(path)
+    total = _row_count(path)
+    means = np.empty((total, 3), np.float32)
+    quats = np.empty((total, 4), np.float32)
+    scales = np.empty((total, 2), np.float32)
+    opac = np.empty(total, np.float32)
+    sh = np.empty((total, 1, 3), np.float32)
+    finite = np.empty(total, bool)
+    with open(path, "rb") as f:
+        for start in range(0, total, _BLOCK):
+            rows = np.fromfile(f, dtype=SPLAT_DTYPE, count=min(_BLOCK, total - start))
+            n = len(rows)
+            if n == 0:
+                raise DivasInputError(path, "truncated .splat file")
+            sl = slice(start, start + n)
+            q = (rows["rot"].astype(np.float32) - 128.0) / 128.0
+            s = rows["scale"]
+            ok = (np.isfinite(rows["pos"]).all(1) & np.isfinite(s).all(1)
+                  & (np.abs(q).sum(1) > 0))
+            q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, np.float32(1.0)),
+                                         np.where(ok[:, None], s, np.float32(1.0)))
+            means[sl] = rows["pos"]
+            quats[sl], scales[sl] = q2, s2
+            rgba = rows["rgba"].astype(np.float32)
+            opac[sl] = rgba[:, 3] / 255.0
+            sh[sl, 0, :] = (rgba[:, :3] / 255.0 - 0.5) / SH_C0
+            finite[sl] = ok
+    kept = np.flatnonzero(finite)
+    n_bad = total - len(kept)
+    if len(kept) == 0:
+        raise DivasInputError(path, f"empty scene: all {total} rows hold NaN/Inf values "
+                                    "or zero rotations")
+    if n_bad:
+        means, quats, scales, opac, sh = (a[kept] for a in (means, quats, scales, opac, sh))
+    src = SourceInfo(path, "splat", total, kept.astype(np.int64), n_bad)
+    return SurfelScene(means, quats, scales, opac, sh, 0, "3dgs", src)
+
+
+def write_splat_subset(source: SourceInfo, file_rows: np.ndarray,
+                       out_path: str | PathLike) -> None:
+    """Copy the 32-byte records ``file_rows`` (in that order) of ``source`` to ``out_path``."""
+    path = Path(source.path)
+    total = _row_count(path)
+    rows = np.asarray(file_rows)
+    if rows.ndim != 1 or not (rows.dtype.kind in "iu" or rows.size == 0):
+        raise ValueError("file_rows must be a 1-D integer array")
+    rows = rows.astype(np.int64)
+    if rows.size == 0:
+        raise ValueError("nothing to write: file_rows is empty")
+    if rows.min() < 0 or rows.max() >= total:
+        raise ValueError(f"file_rows out of range for {path} ({total} rows)")
+    mm = np.memmap(path, dtype=SPLAT_DTYPE, mode="r", shape=(total,))
+    with open(out_path, "wb") as f:
+        for start in range(0, len(rows), _BLOCK):
+            np.asarray(mm[rows[start:start + _BLOCK]]).tofile(f)

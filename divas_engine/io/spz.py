@@ -1,0 +1,310 @@
+"""Niantic ``.spz``: decoder (versions 2, 3 and 4) and byte-exact subset writer.
+
+Containers
+----------
+* **Versions 2 and 3** (the classic format): the whole file is one gzip stream
+  whose payload is a 16-byte header ``magic u32 = 0x5053474e ('NGSP'), version
+  u32, numPoints u32, shDegree u8, fractionalBits u8, flags u8, reserved u8``
+  followed by the attribute columns. If flag ``0x2`` (extensions) is set,
+  extension records sit between the header and the columns; we skip them using
+  the known column sizes (the columns end the payload).
+* **Version 4**: the header is *not* compressed. It is 32 bytes: the same first
+  15 bytes, then ``numStreams u8`` (byte 15), ``tocByteOffset u32`` (bytes
+  16..19) and 12 reserved bytes. Bytes ``[32, tocByteOffset)`` hold plaintext
+  extension records (``u32 type, u32 byteLength, payload``). At
+  ``tocByteOffset`` a table of ``numStreams`` entries ``(compressedSize u64,
+  uncompressedSize u64)`` follows, then the streams back to back, each one
+  independent **zstd** frame holding one column (empty columns — SH at degree
+  0 — are omitted). Decompressing needs the ``zstandard`` package.
+
+Columns, in order (``N`` points, all bytes)
+-------------------------------------------
+* positions ``N×9``: x, y, z as 24-bit little-endian two's-complement fixed
+  point, value ``int24 / 2^fractionalBits``;
+* alphas ``N``: ``sigmoid(opacity) * 255`` (so ``opacity = a / 255``);
+* colours ``N×3``: ``f_dc * (0.15 * 255) + 127.5`` (so ``f_dc = (c/255 - 0.5) / 0.15``);
+* scales ``N×3``: ``(log_scale + 10) * 16`` (so ``scale = exp(s/16 - 10)``);
+* rotations: version 2 ``N×3`` bytes x, y, z = ``q * 127.5 + 127.5`` with ``w >= 0``
+  rebuilt as ``sqrt(1 - |xyz|^2)``; version 3+ ``N×4`` bytes, one little-endian
+  u32 "smallest three": bits 30..31 the index of the largest component in
+  (x, y, z, w) order, then the other three in ascending index order in bits
+  20..29, 10..19, 0..9, each a sign bit (bit 9) and a 9-bit magnitude ``m`` with
+  value ``±m / 511 * sqrt(1/2)``; the largest is ``sqrt(1 - sum of squares)``;
+* SH ``N×(K-1)×3``: coefficient-major, colour innermost, value ``(b - 128) / 128``.
+
+Coordinate frame
+----------------
+SPZ stores Right-Up-Back (RUB, the OpenGL / three.js frame); 3DGS PLY files
+are Right-Down-Front (RDF). Like the reference library's SPZ → PLY path
+(``UnpackOptions.to = RDF``), :func:`read_spz` converts to RDF: ``y`` and ``z``
+of positions are negated, the quaternion becomes ``(w, x, -y, -z)`` (a rotation
+by π about x), and the SH coefficients get the reference per-coefficient sign
+flips for ``y, z -> -y, -z``. The result is in the world frame a PLY export of the
+same scene has (checked against ``biker.compressed.ply`` in the tests).
+SH degree 4 files are cut to degree 3 (the engine's maximum).
+
+The subset writer copies the selected points' bytes of every column unchanged
+and rewrites only the point count (and, for version 4, the table of contents).
+"""
+
+from __future__ import annotations
+
+import gzip
+import struct
+import zlib
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DivasInputError
+from ..scene import SourceInfo, SurfelScene
+from .gaussians import surfels_from_arrays
+from .ply import CHUNK_ROWS
+
+__all__ = ["read_spz", "write_spz_subset", "SPZ_MAGIC", "RUB_TO_RDF_SH_SIGNS"]
+
+SPZ_MAGIC = 0x5053474E  # b"NGSP" little-endian
+_COLOR_SCALE = 0.15
+_FLAG_EXTENSIONS = 0x2
+_FLAG_ANTIALIASED = 0x1
+_SQRT1_2 = np.float64(np.sqrt(0.5))
+_COLUMNS = ("positions", "alphas", "colors", "scales", "rotations", "sh")
+#: Sign of SH coefficients 1..15 (bands 1-3, 3DGS order) under (x, y, z) -> (x, -y, -z).
+RUB_TO_RDF_SH_SIGNS = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1],
+                               dtype=np.float32)
+_OTHERS = np.array([[i for i in range(4) if i != big] for big in range(4)], dtype=np.int64)
+
+
+def _sh_dim(degree: int) -> int:
+    return (degree + 1) ** 2 - 1
+
+
+@dataclass
+class _SpzFile:
+    """A parsed SPZ container: header fields and raw per-point column bytes."""
+
+    container: str  # "gzip" (v2/v3) or "ngsp" (v4)
+    header: bytes  # 16 (gzip) or 32 (ngsp) header bytes as stored
+    extensions: bytes  # raw extension records (may be empty)
+    version: int
+    n: int
+    sh_degree: int
+    fractional_bits: int
+    flags: int
+    columns: dict  # name -> uint8 [n, width]
+
+
+def _widths(version: int, n_sh_dim: int) -> dict[str, int]:
+    return {"positions": 9, "alphas": 1, "colors": 3, "scales": 3,
+            "rotations": 4 if version >= 3 else 3, "sh": n_sh_dim * 3}
+
+
+def _zstd(path: Path):
+    try:
+        import zstandard
+    except ImportError:  # pragma: no cover - depends on the environment
+        raise DivasInputError(path, "SPZ version 4 files are zstd-compressed; reading or "
+                                    "writing them needs the 'zstandard' package "
+                                    "(pip install zstandard)") from None
+    return zstandard
+
+
+def _check_common(path: Path, n: int, sh_degree: int) -> None:
+    if n == 0:
+        raise DivasInputError(path, "empty scene: the SPZ header says 0 points")
+    if sh_degree > 4:
+        raise DivasInputError(path, f"SPZ SH degree {sh_degree} is not supported (0..4)")
+
+
+def _parse_gzip(path: Path, data: bytes) -> _SpzFile:
+    try:
+        payload = gzip.decompress(data)
+    except (OSError, EOFError, zlib.error) as e:
+        raise DivasInputError(path, f"corrupt gzip stream in SPZ file ({e})") from None
+    if len(payload) < 16:
+        raise DivasInputError(path, "truncated SPZ: the payload is shorter than its 16-byte header")
+    magic, version, n, deg, frac, flags = struct.unpack_from("<IIIBBB", payload, 0)
+    if magic != SPZ_MAGIC:
+        raise DivasInputError(path, f"not an SPZ file (magic 0x{magic:08x}, expected 'NGSP')")
+    if version not in (2, 3):
+        raise DivasInputError(path, f"unsupported SPZ version {version} in a gzip container "
+                                    "(supported: 2, 3; version 4 is not gzipped)")
+    _check_common(path, n, deg)
+    widths = _widths(version, _sh_dim(deg))
+    need = n * sum(widths.values())
+    if len(payload) - 16 < need:
+        raise DivasInputError(path, f"truncated SPZ: {n} points need {need} bytes of "
+                                    f"columns, the payload has {len(payload) - 16}")
+    start = 16
+    ext = b""
+    if flags & _FLAG_EXTENSIONS:  # records of unknown layout: the columns end the payload
+        start = len(payload) - need
+        ext = payload[16:start]
+    cols, off = {}, start
+    for name in _COLUMNS:
+        w = widths[name]
+        cols[name] = np.frombuffer(payload, np.uint8, n * w, off).reshape(n, w)
+        off += n * w
+    return _SpzFile("gzip", payload[:16], ext, version, n, deg, frac, flags, cols)
+
+
+def _parse_ngsp(path: Path, data: bytes) -> _SpzFile:
+    if len(data) < 32:
+        raise DivasInputError(path, "truncated SPZ: shorter than the 32-byte version-4 header")
+    magic, version, n, deg, frac, flags, n_streams, toc = struct.unpack_from("<IIIBBBBI", data, 0)
+    if version != 4:
+        raise DivasInputError(path, f"unsupported SPZ version {version} with a plain 'NGSP' "
+                                    "header (supported: 4; versions 2-3 are gzipped)")
+    _check_common(path, n, deg)
+    widths = _widths(version, _sh_dim(deg))
+    present = [c for c in _COLUMNS if widths[c] > 0]
+    if n_streams != len(present):
+        raise DivasInputError(path, f"SPZ v4 header lists {n_streams} streams; SH degree "
+                                    f"{deg} needs {len(present)}")
+    if toc < 32 or toc + 16 * n_streams > len(data):
+        raise DivasInputError(path, f"truncated or corrupt SPZ v4: table of contents at "
+                                    f"{toc} does not fit in {len(data)} bytes")
+    zstandard = _zstd(path)
+    dctx = zstandard.ZstdDecompressor()
+    cols, off = {}, toc + 16 * n_streams
+    for i, name in enumerate(present):
+        csize, usize = struct.unpack_from("<QQ", data, toc + 16 * i)
+        want = n * widths[name]
+        if usize != want:
+            raise DivasInputError(path, f"SPZ v4 {name} stream holds {usize} bytes; "
+                                        f"{n} points need {want}")
+        if off + csize > len(data):
+            raise DivasInputError(path, f"truncated SPZ v4: the {name} stream ends at byte "
+                                        f"{off + csize}, the file has {len(data)}")
+        try:
+            raw = dctx.decompress(data[off:off + csize], max_output_size=want)
+        except zstandard.ZstdError as e:
+            raise DivasInputError(path, f"corrupt zstd stream for SPZ {name} ({e})") from None
+        if len(raw) != want:
+            raise DivasInputError(path, f"SPZ v4 {name} stream decompressed to {len(raw)} "
+                                        f"bytes, expected {want}")
+        cols[name] = np.frombuffer(raw, np.uint8).reshape(n, widths[name])
+        off += csize
+    cols.setdefault("sh", np.zeros((n, 0), np.uint8))
+    return _SpzFile("ngsp", data[:32], data[32:toc], version, n, deg, frac, flags, cols)
+
+
+def _parse(path: Path) -> _SpzFile:
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise DivasInputError(path, f"cannot read SPZ file ({e})") from None
+    if data[:2] == b"\x1f\x8b":
+        return _parse_gzip(path, data)
+    if len(data) >= 4 and struct.unpack_from("<I", data, 0)[0] == SPZ_MAGIC:
+        return _parse_ngsp(path, data)
+    raise DivasInputError(path, "not an SPZ file: neither a gzip stream (versions 2-3) "
+                                "nor an 'NGSP' header (version 4)")
+
+
+def _decode_rotations(rot: np.ndarray, version: int) -> np.ndarray:
+    """``[n,4]`` float64 quaternions in SPZ's (x, y, z, w) order."""
+    n = len(rot)
+    if version < 3:
+        xyz = rot.astype(np.float64) / 127.5 - 1.0
+        w = np.sqrt(np.maximum(0.0, 1.0 - np.sum(xyz * xyz, axis=1)))
+        return np.concatenate([xyz, w[:, None]], axis=1)
+    word = np.ascontiguousarray(rot).view("<u4").reshape(n).astype(np.int64)
+    big = word >> 30
+    q = np.empty((n, 4), np.float64)
+    rows = np.arange(n)
+    others = _OTHERS[big]
+    ss = np.zeros(n, np.float64)
+    for j in range(3):  # others[:, 0] sits in bits 20..29, others[:, 2] in bits 0..9
+        bits = (word >> (10 * (2 - j))) & 0x3FF
+        v = _SQRT1_2 * (bits & 0x1FF) / 511.0
+        v = np.where(bits & 0x200, -v, v)
+        q[rows, others[:, j]] = v
+        ss += v * v
+    q[rows, big] = np.sqrt(np.maximum(0.0, 1.0 - ss))
+    return q
+
+
+def read_spz(path: str | PathLike) -> SurfelScene:
+    """Load an ``.spz`` file (v2, v3 or v4) into a :class:`SurfelScene`, in the PLY (RDF) frame.
+
+    ``scene.extras`` gets ``spz_version`` and ``antialiased`` (header flag 0x1:
+    the scene was trained with mip-splatting antialiasing).
+    """
+    path = Path(path)
+    f = _parse(path)
+    n, c = f.n, f.columns
+    deg = min(f.sh_degree, 3)
+    k = (deg + 1) ** 2
+    means = np.empty((n, 3), np.float32)
+    quats = np.empty((n, 4), np.float32)
+    scales = np.empty((n, 2), np.float32)
+    opac = np.empty(n, np.float32)
+    sh = np.empty((n, k, 3), np.float32)
+    for start in range(0, n, CHUNK_ROWS):
+        sl = slice(start, min(n, start + CHUNK_ROWS))
+        m = sl.stop - start
+        p = c["positions"][sl].reshape(m, 3, 3).astype(np.int32)
+        fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
+        fixed = (fixed ^ 0x800000) - 0x800000  # sign-extend 24 -> 32 bits
+        pos = (fixed.astype(np.float64) / float(1 << f.fractional_bits)).astype(np.float32)
+        q = _decode_rotations(c["rotations"][sl], f.version)[:, [3, 0, 1, 2]].astype(np.float32)
+        # RUB -> RDF is a rotation by pi about x: negate y and z of positions and of
+        # the quaternion's vector part.
+        pos[:, 1:] *= -1.0
+        q[:, 2:] *= -1.0
+        s3 = np.exp(c["scales"][sl].astype(np.float32) / 16.0 - 10.0)
+        means[sl] = pos
+        quats[sl], scales[sl] = surfels_from_arrays(q, s3)
+        opac[sl] = c["alphas"][sl, 0].astype(np.float32) / 255.0
+        sh[sl, 0, :] = (c["colors"][sl].astype(np.float32) / 255.0 - 0.5) / _COLOR_SCALE
+        if deg:
+            rest = c["sh"][sl].reshape(m, _sh_dim(f.sh_degree), 3)[:, :k - 1, :]
+            sh[sl, 1:, :] = ((rest.astype(np.float32) - 128.0) / 128.0
+                             * RUB_TO_RDF_SH_SIGNS[:k - 1, None])
+    ok = np.isfinite(means).all(1)  # every byte decodes finite; kept for the contract
+    kept = np.flatnonzero(ok)
+    n_bad = n - len(kept)
+    if len(kept) == 0:
+        raise DivasInputError(path, f"empty scene: all {n} rows hold NaN/Inf values")
+    arrays = (means, quats, scales, opac, sh)
+    if n_bad:
+        arrays = tuple(a[kept] for a in arrays)
+    src = SourceInfo(path, "spz", n, kept.astype(np.int64), n_bad)
+    extras = {"spz_version": f.version, "antialiased": bool(f.flags & _FLAG_ANTIALIASED)}
+    return SurfelScene(*arrays, deg, "3dgs", src, extras)
+
+
+def write_spz_subset(source: SourceInfo, file_rows: np.ndarray,
+                     out_path: str | PathLike) -> None:
+    """Write points ``file_rows`` (in that order) of ``source`` as an SPZ of the same version.
+
+    Every column's bytes for those points are copied unchanged; the header is
+    kept except for the point count, extension records are kept verbatim.
+    Versions 2-3 are re-gzipped, version 4 streams re-compressed with zstd.
+    """
+    path = Path(source.path)
+    f = _parse(path)
+    rows = np.asarray(file_rows)
+    if rows.ndim != 1 or not (rows.dtype.kind in "iu" or rows.size == 0):
+        raise ValueError("file_rows must be a 1-D integer array")
+    rows = rows.astype(np.int64)
+    if rows.size == 0:
+        raise ValueError("nothing to write: file_rows is empty")
+    if rows.min() < 0 or rows.max() >= f.n:
+        raise ValueError(f"file_rows out of range for {path} ({f.n} rows)")
+    m = len(rows)
+    header = f.header[:8] + struct.pack("<I", m) + f.header[12:]
+    cols = [np.ascontiguousarray(f.columns[name][rows]).tobytes() for name in _COLUMNS]
+    if f.container == "gzip":
+        out = gzip.compress(header + f.extensions + b"".join(cols), mtime=0)
+    else:
+        zstandard = _zstd(path)
+        cctx = zstandard.ZstdCompressor(level=9)
+        streams = [cctx.compress(b) for b in cols if b]
+        toc = b"".join(struct.pack("<QQ", len(z), len(b)) for z, b in
+                       zip(streams, [b for b in cols if b]))
+        out = header + f.extensions + toc + b"".join(streams)
+    Path(out_path).write_bytes(out)
