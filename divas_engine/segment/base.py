@@ -1,0 +1,226 @@
+"""The one 2D segmenter interface every mask source implements (paper Sec. 3.4).
+
+A segmenter is used like SAM's predictor: :meth:`Segmenter.set_image` once per
+view (the expensive part — an image embedding, a feature image — is cached per
+view), then :meth:`Segmenter.predict` for every prompt set on that view.
+
+Conventions shared by all implementations:
+
+* ``rgb``: ``[H,W,3]`` ``uint8`` or float in ``[0,1]`` (a 4th alpha channel is
+  dropped). ``depth``: ``[H,W]`` planar camera depth of the same view, or None;
+  ``≤ 0`` / non-finite = no surface (NOTES "Depth tuple").
+* ``points``: ``[P,2]`` continuous pixel coordinates ``(x, y)`` with pixel
+  centres at ``+0.5`` — pixel index ``(i, j)`` is the point ``(i + 0.5, j + 0.5)``
+  (NOTES "Conventions"). ``labels``: ``[P]`` int, ``1`` positive, ``0`` negative.
+* ``predict`` returns ``masks [3,H,W] float32`` *probabilities* (sigmoid of
+  logits, NOTES "Fusion constants") ordered small → large granularity like SAM's
+  multimask output, and ``scores [3] float32``. DivAS uses channel 1
+  (:func:`select_mask`, Sec. 3.4 "Mask-channel selection and view acceptance").
+
+The embedding cache is keyed by the explicit ``view_id`` when given (the caller
+promises a view id is never reused for a different image) and otherwise by a
+BLAKE2 hash of the image and depth bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from abc import ABC, abstractmethod
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any, Hashable
+
+import numpy as np
+
+__all__ = ["Segmenter", "SegResult", "MaskSelection", "select_mask", "as_rgb_float",
+           "as_depth", "as_prompts", "pixel_index"]
+
+
+@dataclass(frozen=True, eq=False)
+class SegResult:
+    """One ``predict`` result: ``masks [3,H,W]`` float32 probabilities, ``scores [3]``."""
+
+    masks: np.ndarray
+    scores: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class MaskSelection:
+    """Outcome of :func:`select_mask`.
+
+    Attributes:
+        mask: ``[H,W]`` float32 probabilities of the chosen channel, None when rejected.
+        score: the chosen channel's score (nan when there is none).
+        reason: None when accepted, else why the view is rejected.
+    """
+
+    mask: np.ndarray | None
+    score: float
+    reason: str | None
+
+    @property
+    def accepted(self) -> bool:
+        return self.reason is None
+
+
+def select_mask(masks: np.ndarray, scores: np.ndarray, labels: np.ndarray,
+                min_score: float = 0.5, channel: int = 1) -> MaskSelection:
+    """Keep SAM's mid-granularity channel or reject the view (Sec. 3.4).
+
+    A view is rejected when its prompts carry no positive label, or when the
+    score of ``channel`` (1, the mid granularity) is below ``min_score`` (0.5).
+    """
+    labels = np.asarray(labels).reshape(-1)
+    scores = np.asarray(scores, dtype=np.float32).reshape(-1)
+    masks = np.asarray(masks)
+    if masks.ndim != 3 or masks.shape[0] <= channel or scores.shape[0] != masks.shape[0]:
+        raise ValueError(f"select_mask: expected masks [C,H,W] and scores [C] with C > {channel}, "
+                         f"got {masks.shape} and {scores.shape}")
+    score = float(scores[channel])
+    if not np.any(labels == 1):
+        return MaskSelection(None, score, "no positive prompt")
+    if not score >= min_score:  # also rejects nan
+        return MaskSelection(None, score, f"channel-{channel} score {score:.3f} < {min_score}")
+    return MaskSelection(np.asarray(masks[channel], dtype=np.float32), score, None)
+
+
+def as_rgb_float(rgb: np.ndarray) -> np.ndarray:
+    """``[H,W,3]`` float32 in ``[0,1]`` from uint8 or float input (alpha dropped)."""
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 1 or a.shape[1] < 1:
+        raise ValueError(f"rgb must be [H,W,3], got shape {a.shape}")
+    a = a[..., :3]
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) * np.float32(1.0 / 255.0)
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ValueError(f"rgb must be uint8 or float in [0,1], got dtype {a.dtype}")
+    out = np.nan_to_num(a.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+    return np.clip(out, 0.0, 1.0)
+
+
+def as_depth(depth: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """``[H,W]`` float32 depth (non-finite → 0, i.e. invalid) or None."""
+    if depth is None:
+        return None
+    d = np.asarray(depth, dtype=np.float32)
+    if d.ndim == 3 and d.shape[2] == 1:
+        d = d[..., 0]
+    if d.shape != tuple(shape):
+        raise ValueError(f"depth must be [H,W]={tuple(shape)} like the image, got {d.shape}")
+    return np.where(np.isfinite(d), d, np.float32(0.0)).astype(np.float32, copy=False)
+
+
+def as_prompts(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Validate prompts: ``points [P,2]`` float64, ``labels [P]`` int64 in {0, 1}."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2) if np.size(points) else np.zeros((0, 2))
+    lab = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if p.shape[0] != lab.shape[0]:
+        raise ValueError(f"{p.shape[0]} prompt points but {lab.shape[0]} labels")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("prompt points contain NaN/Inf")
+    if np.any((lab != 0) & (lab != 1)):
+        raise ValueError(f"prompt labels must be 1 (positive) or 0 (negative), got {np.unique(lab)}")
+    return p, lab
+
+
+def pixel_index(points: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Row/column index of the pixel containing each continuous point (clamped to the image)."""
+    h, w = shape
+    cols = np.clip(np.floor(points[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.floor(points[:, 1]).astype(np.int64), 0, h - 1)
+    return rows, cols
+
+
+def _fingerprint(rgb: np.ndarray, depth: np.ndarray | None) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for a in (rgb, depth):
+        if a is None:
+            h.update(b"none")
+            continue
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+class Segmenter(ABC):
+    """Base class: per-view state cache plus input checking.
+
+    Subclasses implement :meth:`_encode` (image → per-view state, the cached
+    part) and :meth:`_predict` (state + prompts → masks, scores).
+
+    ``cache_size`` views are kept (least recently used dropped). One instance
+    is not meant to be used from two threads at once; :meth:`segment` holds an
+    internal lock around ``set_image`` + ``predict`` for the background worker.
+    """
+
+    name: str = "segmenter"
+
+    def __init__(self, cache_size: int = 8):
+        self.cache_size = int(cache_size)
+        self._cache: OrderedDict[Hashable, Any] = OrderedDict()
+        self._state: Any = None
+        self._shape: tuple[int, int] | None = None
+        self._lock = threading.RLock()
+
+    # -- public API ---------------------------------------------------------
+    def set_image(self, rgb: np.ndarray, depth: np.ndarray | None = None, *,
+                  view_id: Hashable | None = None) -> None:
+        """Prepare a view; cached per ``view_id`` (or image hash when None)."""
+        img = np.asarray(rgb)
+        key: Hashable = ("id", view_id) if view_id is not None else ("hash", _fingerprint(img, depth))
+        with self._lock:
+            if key in self._cache:
+                self._cache.move_to_end(key)
+                self._state, self._shape = self._cache[key]
+                return
+            rgbf = as_rgb_float(img)
+            d = as_depth(depth, rgbf.shape[:2])
+            state = self._encode(rgbf, d, view_id)
+            self._state, self._shape = state, rgbf.shape[:2]
+            if self.cache_size > 0:
+                self._cache[key] = (state, self._shape)
+                while len(self._cache) > self.cache_size:
+                    self._cache.popitem(last=False)
+
+    def predict(self, points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Masks ``[3,H,W]`` float32 probabilities and scores ``[3]`` for the current view."""
+        p, lab = as_prompts(points, labels)
+        with self._lock:
+            if self._state is None:
+                raise RuntimeError(f"{self.name}: call set_image() before predict()")
+            state, (h, w) = self._state, self._shape
+            masks, scores = self._predict(state, p, lab)
+        masks = np.asarray(masks, dtype=np.float32)
+        scores = np.asarray(scores, dtype=np.float32).reshape(-1)
+        if masks.shape != (3, h, w) or scores.shape != (3,):
+            raise RuntimeError(f"{self.name}: produced masks {masks.shape} / scores {scores.shape}, "
+                               f"expected (3, {h}, {w}) / (3,)")
+        return masks, scores
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None, points: np.ndarray,
+                labels: np.ndarray, *, view_id: Hashable | None = None) -> SegResult:
+        """``set_image`` + ``predict`` as one atomic call (thread-safe)."""
+        with self._lock:
+            self.set_image(rgb, depth, view_id=view_id)
+            masks, scores = self.predict(points, labels)
+        return SegResult(masks, scores)
+
+    def clear_cache(self) -> None:
+        with self._lock:
+            self._cache.clear()
+
+    @property
+    def cached_views(self) -> int:
+        return len(self._cache)
+
+    # -- implementation hooks ------------------------------------------------
+    @abstractmethod
+    def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id: Hashable | None) -> Any:
+        """Per-view state from ``rgb [H,W,3]`` float32 in [0,1] and checked depth."""
+
+    @abstractmethod
+    def _predict(self, state: Any, points: np.ndarray,
+                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``masks [3,H,W]`` probabilities and ``scores [3]`` from state and checked prompts."""

@@ -1,0 +1,198 @@
+"""SAM-like oracle for evaluation only — never a default (NOTES "Evaluation").
+
+It turns the ground-truth label coverage ``L`` of a view into SAM-like output:
+
+1. area-downsample ``L`` (and the depth) to longest side ``low_res = 256``
+   (SAM's low-res logit grid; smaller images stay at their size);
+2. seeded structured errors on the grid, ``B = L ≥ 0.5`` being the object:
+   *dropout* — each 8-connected part of ``B`` thinner than ``thin_px = 3``
+   (what a ``thin_px``-cross opening removes; parts under ``thin_min_area``
+   pixels are staircase noise and kept) is set to 0 with probability
+   ``dropout_prob = 0.3``; *boundary bleed* — with probability ``bleed_prob``
+   background within ``w ~ U[bleed_min_px, bleed_max_px = 4]`` grid pixels of
+   the (remaining) object whose depth is within ``bleed_depth_rel = 10 %`` of
+   the nearest object pixel's depth is set to 1 (no depth → no depth gate);
+   *false positive* — with probability ``fp_prob = 0.2`` one disk of radius
+   ``U[fp_radius_px]`` centred on a background pixel farther than ``r + 2``
+   from the object is set to 1;
+3. logits ``= logit_scale · (L − 0.5)`` with ``logit_scale = 8``;
+4. bilinear upsample to the view (half-pixel centres), sigmoid;
+5. the same mask in all 3 channels; scores ``0.9`` when some pixel is ≥ 0.5,
+   else ``0.2``.
+
+Dropout runs before bleed so a dropped part gets no bleed ring (NOTES list the
+errors in the order bleed, dropout, blob; their sets are disjoint otherwise).
+Error sizes are in low-res grid pixels, where the errors are applied. Prompts
+are ignored apart from their shape (the label image *is* the target); the
+caller's :func:`.base.select_mask` still rejects views without a positive prompt.
+
+Randomness: one generator per view from ``(seed, crc32(view key))``, with one
+child stream per error type, so a view's errors do not depend on call order or
+on which other error types are enabled. :attr:`OracleSegmenter.last_report`
+records the seed and every error drawn.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Hashable
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from .base import SegResult, Segmenter, _fingerprint
+from .sam_common import sigmoid
+
+__all__ = ["OracleConfig", "OracleSegmenter"]
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """Every knob of the SAM-like oracle (defaults: NOTES "Evaluation")."""
+
+    low_res: int = 256
+    logit_scale: float = 8.0
+    bleed_prob: float = 1.0
+    bleed_min_px: float = 0.0
+    bleed_max_px: float = 4.0
+    bleed_depth_rel: float = 0.10
+    thin_px: int = 3
+    thin_min_area: int = 2
+    dropout_prob: float = 0.3
+    fp_prob: float = 0.2
+    fp_radius_px: tuple[float, float] = (3.0, 8.0)
+    score_nonempty: float = 0.9
+    score_empty: float = 0.2
+    seed: int = 0
+
+
+def _area_resize(a: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    if a.shape == hw:
+        return a.astype(np.float32)
+    return cv2.resize(a.astype(np.float32), (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+
+
+class OracleSegmenter(Segmenter):
+    """Ground truth with SAM-like structured errors (module docstring).
+
+    Args:
+        gt_render: ``view_id -> [H,W]`` label coverage in [0,1]; used when
+            ``set_image`` gets no ``gt``.
+        config: :class:`OracleConfig`.
+    """
+
+    name = "oracle"
+
+    def __init__(self, gt_render: Callable[[Hashable], np.ndarray] | None = None,
+                 config: OracleConfig | None = None):
+        super().__init__(cache_size=0)
+        self.gt_render = gt_render
+        self.config = config or OracleConfig()
+        self.last_report: dict[str, Any] = {}
+        self._gt: np.ndarray | None = None
+
+    def set_image(self, rgb: np.ndarray, depth: np.ndarray | None = None, *,
+                  view_id: Hashable | None = None, gt: np.ndarray | None = None) -> None:
+        """Like :meth:`Segmenter.set_image`, plus the view's ground-truth coverage ``gt``."""
+        if gt is None:
+            if self.gt_render is None or view_id is None:
+                raise ValueError("oracle: pass gt=, or construct with gt_render and pass view_id")
+            gt = self.gt_render(view_id)
+        with self._lock:
+            self._gt = np.asarray(gt, dtype=np.float32)
+            super().set_image(rgb, depth, view_id=view_id)
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None, points: np.ndarray,
+                labels: np.ndarray, *, view_id: Hashable | None = None,
+                gt: np.ndarray | None = None) -> SegResult:
+        """``set_image`` (with optional ``gt``) + ``predict``, atomically."""
+        with self._lock:
+            self.set_image(rgb, depth, view_id=view_id, gt=gt)
+            masks, scores = self.predict(points, labels)
+        return SegResult(masks, scores)
+
+    def report(self) -> dict[str, Any]:
+        """Config (incl. seed) and the errors drawn for the last view."""
+        return {"config": asdict(self.config), **self.last_report}
+
+    # -- hooks --------------------------------------------------------------------
+    def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id: Hashable | None) -> Any:
+        cfg = self.config
+        gt = self._gt
+        h, w = rgb.shape[:2]
+        if gt is None or gt.shape != (h, w):
+            raise ValueError(f"oracle: gt must be [H,W]=({h}, {w}), got "
+                             f"{None if gt is None else gt.shape}")
+        key = repr(view_id) if view_id is not None else _fingerprint(gt, depth)
+        ss = np.random.SeedSequence([cfg.seed, zlib.crc32(key.encode())])
+        rng_drop, rng_bleed, rng_fp = (np.random.default_rng(s) for s in ss.spawn(3))
+        f = min(1.0, cfg.low_res / max(h, w))
+        hw = (max(1, int(round(h * f))), max(1, int(round(w * f))))
+        lo = np.clip(_area_resize(np.nan_to_num(gt), hw), 0.0, 1.0)
+        dlo = None
+        if depth is not None:
+            valid = (depth > 0).astype(np.float32)
+            den = _area_resize(valid, hw)
+            dlo = np.where(den >= 0.5, _area_resize(depth * valid, hw) / np.maximum(den, 1e-6), 0.0)
+        obj = lo >= 0.5
+        rep: dict[str, Any] = {"view_id": view_id, "seed": cfg.seed, "grid": hw}
+        rep["dropped_parts"], rep["thin_parts"] = self._dropout(lo, obj, rng_drop)
+        obj = lo >= 0.5
+        rep["bleed_px"], rep["bleed_pixels"] = self._bleed(lo, obj, dlo, rng_bleed)
+        rep["fp_blob"] = self._false_positive(lo, obj, rng_fp)
+        logits = np.float32(cfg.logit_scale) * (lo - np.float32(0.5))
+        if hw != (h, w):
+            logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
+        prob = sigmoid(logits)
+        self.last_report = rep
+        return prob
+
+    def _dropout(self, lo: np.ndarray, obj: np.ndarray, rng: np.random.Generator) -> tuple[int, int]:
+        cfg = self.config
+        k = cv2.getStructuringElement(cv2.MORPH_CROSS, (cfg.thin_px, cfg.thin_px))
+        thin = obj & ~cv2.morphologyEx(obj.astype(np.uint8), cv2.MORPH_OPEN, k).astype(bool)
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(thin.astype(np.uint8), connectivity=8)
+        parts = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= cfg.thin_min_area]
+        draws = rng.random(len(parts))
+        drop = [p for p, u in zip(parts, draws) if u < cfg.dropout_prob]
+        if drop:
+            lo[np.isin(lab, drop)] = 0.0
+        return len(drop), len(parts)
+
+    def _bleed(self, lo: np.ndarray, obj: np.ndarray, dlo: np.ndarray | None,
+               rng: np.random.Generator) -> tuple[float, int]:
+        cfg = self.config
+        u, width = rng.random(), rng.uniform(cfg.bleed_min_px, cfg.bleed_max_px)
+        if not (u < cfg.bleed_prob) or not obj.any() or obj.all():
+            return 0.0, 0
+        dist, (iy, ix) = ndimage.distance_transform_edt(~obj, return_indices=True)
+        region = ~obj & (dist <= width)
+        if dlo is not None:
+            d_obj = dlo[iy, ix]
+            region &= (dlo > 0) & (d_obj > 0) & (np.abs(dlo - d_obj) <= cfg.bleed_depth_rel * d_obj)
+        lo[region] = 1.0
+        return float(width), int(region.sum())
+
+    def _false_positive(self, lo: np.ndarray, obj: np.ndarray,
+                        rng: np.random.Generator) -> dict[str, float] | None:
+        cfg = self.config
+        u, r, pick = rng.random(), rng.uniform(*cfg.fp_radius_px), rng.random()
+        if not u < cfg.fp_prob:
+            return None
+        dist = ndimage.distance_transform_edt(~obj) if obj.any() else np.full(obj.shape, np.inf)
+        cand = np.flatnonzero(dist.reshape(-1) > r + 2)
+        if cand.size == 0:
+            return None
+        cy, cx = divmod(int(cand[min(int(pick * cand.size), cand.size - 1)]), obj.shape[1])
+        blob = np.zeros(obj.shape, np.uint8)
+        cv2.circle(blob, (cx, cy), int(round(r)), 1, thickness=-1)
+        lo[blob.astype(bool)] = 1.0
+        return {"x": cx + 0.5, "y": cy + 0.5, "radius": float(r)}
+
+    def _predict(self, prob: Any, points: np.ndarray,
+                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        score = cfg.score_nonempty if bool((prob >= 0.5).any()) else cfg.score_empty
+        return np.repeat(prob[None], 3, axis=0), np.full(3, score, np.float32)

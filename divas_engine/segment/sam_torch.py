@@ -1,0 +1,121 @@
+"""SAM through the ``segment-anything`` package (optional: needs ``torch`` + ``segment-anything``).
+
+Both packages are imported lazily, only when this segmenter is built; a clear
+error names what is missing. Preprocessing and prompt mapping are *ours*
+(:mod:`.sam_common`, shared with the ONNX back end), handed to the predictor's
+tensor-level API:
+
+* ``set_image``: longest-side resize (float, antialiased) →
+  ``predictor.set_torch_image(image [1,3,h,w] on 0..255, (H, W))``, which
+  normalises, pads and runs the encoder; the features are cached per view.
+* ``predict``: ``predictor.predict_torch(coords [1,P,2], labels [1,P],
+  multimask_output=True, return_logits=True)`` with coordinates already in the
+  resized frame, ``u · s − 0.5`` (SAM adds 0.5 and pads the no-box point itself);
+  logits → sigmoid.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+from typing import Any, Hashable
+
+import numpy as np
+
+from ..errors import DivasInputError
+from .base import Segmenter
+from .sam_common import resize_longest_side, sam_point_coords, sigmoid
+
+__all__ = ["SamTorchSegmenter", "SAM_MODEL_TYPES"]
+
+#: ``segment_anything.sam_model_registry`` keys.
+SAM_MODEL_TYPES = ("vit_h", "vit_l", "vit_b", "default")
+
+
+def _import_torch() -> Any:
+    try:
+        import torch
+    except ImportError as exc:
+        raise ImportError("SamTorchSegmenter needs the optional package 'torch' "
+                          "(pip install torch); use SamOnnxSegmenter or ClassicSegmenter "
+                          "without it") from exc
+    return torch
+
+
+class SamTorchSegmenter(Segmenter):
+    """SAM via segment-anything's ``SamPredictor`` (module docstring).
+
+    Args:
+        checkpoint: ``sam_vit_*.pth`` file.
+        model_type: ``vit_h``, ``vit_l`` or ``vit_b``.
+        device: torch device (default: CUDA when available, else CPU).
+        cache_size: views whose embeddings are kept.
+    """
+
+    name = "sam-torch"
+
+    def __init__(self, checkpoint: str | PathLike, model_type: str = "vit_h",
+                 device: str | None = None, cache_size: int = 8):
+        torch = _import_torch()
+        try:
+            from segment_anything import SamPredictor, sam_model_registry
+        except ImportError as exc:
+            raise ImportError("SamTorchSegmenter needs the optional package 'segment-anything' "
+                              "(pip install segment-anything torchvision)") from exc
+        path = Path(checkpoint)
+        if model_type not in sam_model_registry:
+            raise DivasInputError(path, f"unknown SAM model type {model_type!r}; expected one of "
+                                  f"{sorted(sam_model_registry)}")
+        if not path.is_file():
+            raise DivasInputError(path, "SAM checkpoint file not found")
+        try:
+            model = sam_model_registry[model_type](checkpoint=str(path))
+        except Exception as exc:  # bad pickle, wrong state dict for the type, ...
+            raise DivasInputError(path, f"cannot load a {model_type} SAM checkpoint: {exc}") from exc
+        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        model.to(device=dev).eval()
+        self._init_from_predictor(SamPredictor(model), cache_size)
+
+    @classmethod
+    def from_predictor(cls, predictor: Any, cache_size: int = 8) -> "SamTorchSegmenter":
+        """Wrap an existing ``SamPredictor``-like object (custom builds, tests)."""
+        _import_torch()
+        self = cls.__new__(cls)
+        self._init_from_predictor(predictor, cache_size)
+        return self
+
+    def _init_from_predictor(self, predictor: Any, cache_size: int) -> None:
+        Segmenter.__init__(self, cache_size)
+        self.predictor = predictor
+        self.image_size = int(predictor.model.image_encoder.img_size)
+
+    def _device(self) -> Any:
+        return next(iter(self.predictor.model.parameters())).device
+
+    def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id: Hashable | None) -> Any:
+        torch = _import_torch()
+        resized = resize_longest_side(rgb, self.image_size)
+        img = torch.from_numpy(np.ascontiguousarray(resized.transpose(2, 0, 1)))[None]
+        with torch.no_grad():
+            self.predictor.set_torch_image(img.to(self._device()), tuple(rgb.shape[:2]))
+        p = self.predictor
+        return {"features": p.features, "original_size": tuple(p.original_size),
+                "input_size": tuple(p.input_size)}
+
+    def _predict(self, state: Any, points: np.ndarray,
+                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        torch = _import_torch()
+        p = self.predictor
+        p.features = state["features"]  # restore the cached view (cheap when unchanged)
+        p.original_size, p.input_size = state["original_size"], state["input_size"]
+        p.is_image_set = True
+        h, w = state["original_size"]
+        dev = self._device()
+        coords = torch.as_tensor(sam_point_coords(points, (h, w), self.image_size)[None],
+                                 dtype=torch.float32, device=dev)
+        labs = torch.as_tensor(labels[None], dtype=torch.int64, device=dev)
+        with torch.no_grad():
+            masks, iou, _ = p.predict_torch(coords, labs, multimask_output=True, return_logits=True)
+        masks = masks[0].detach().float().cpu().numpy()
+        iou = iou[0].detach().float().cpu().numpy()
+        return sigmoid(masks), iou
