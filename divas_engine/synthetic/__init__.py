@@ -1,0 +1,212 @@
+"""Synthetic 2DGS (and NeRF-grid) scenes with exact ground truth.
+
+``generate_scene(name, out_dir, size=..., seed=...)`` samples surfels on analytic
+surfaces (``surfaces.py``) with the surfel model of ``builder.py``; the named
+scenes are in ``scenes.py``. Everything is deterministic in ``(name, size,
+seed)`` and vectorised (2M surfels in seconds).
+
+Files written to ``out_dir``:
+
+* ``scene.ply`` — 2DGS-trainer PLY (:func:`~divas_engine.io.ply.write_surfel_ply`);
+* ``cameras.json`` / ``test_cameras.json`` — training / held-out cameras (3DGS schema);
+* ``labels.npy`` — bool per surfel in PLY row order (True = target);
+* ``surface_ids.npy`` — int32 per surfel: index into ``scene.json["surfaces"]``, −1 floater;
+* ``scene.json`` — metadata: counts, surfaces (type, parameters, area, count),
+  target description, click points on the target (with the training cameras
+  that see each), scene centre/radius, the NOTES occupancy sizing (``h_v``…);
+* ``ribs`` only: ``grid.npz`` (``density [D,H,W]`` σ per world unit indexed
+  ``[iz,iy,ix]`` at cell centres ``aabb[0] + (i + ½)·voxel``, ``rgb [D,H,W,3]``,
+  ``aabb [2,3]``) and ``grid_labels.npy`` (bool ``[D,H,W]``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..scene import DensityGrid, SurfelScene
+from .builder import (BuiltScene, SceneSpec, build_surfels, choose_clicks, notes_grid_params)
+from .grid import voxelize
+from .scenes import SCENE_BUILDERS, bounding_radius
+from .surfaces import Surface
+
+__all__ = ["SCENE_NAMES", "SyntheticScene", "generate_scene", "notes_grid_params", "MIN_SIZE"]
+
+SCENE_NAMES: tuple[str, ...] = tuple(SCENE_BUILDERS)
+MIN_SIZE = 2_000
+
+
+@dataclass(eq=False)
+class SyntheticScene:
+    """A generated scene and its ground truth (arrays in PLY row order)."""
+
+    name: str
+    seed: int
+    size: int
+    scene: SurfelScene
+    labels: np.ndarray
+    surface_ids: np.ndarray
+    needles: np.ndarray
+    floaters: np.ndarray
+    surfaces: list[Surface]
+    cameras: list[Camera]
+    test_cameras: list[Camera]
+    metadata: dict
+    grid: DensityGrid | None = None
+    grid_labels: np.ndarray | None = None
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def center(self) -> np.ndarray:
+        return np.asarray(self.metadata["center"])
+
+    @property
+    def radius(self) -> float:
+        return float(self.metadata["radius"])
+
+    def write(self, out_dir: str | Path) -> list[Path]:
+        from ..io.cameras_json import write_cameras_json
+        from ..io.ply import write_surfel_ply
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = [out / "scene.ply", out / "cameras.json", out / "test_cameras.json",
+                 out / "labels.npy", out / "surface_ids.npy", out / "scene.json"]
+        write_surfel_ply(paths[0], self.scene)
+        write_cameras_json(paths[1], self.cameras)
+        write_cameras_json(paths[2], self.test_cameras)
+        np.save(paths[3], self.labels.astype(bool))
+        np.save(paths[4], self.surface_ids.astype(np.int32))
+        paths[5].write_text(json.dumps(_jsonable(self.metadata), indent=1))
+        if self.grid is not None:
+            paths += [out / "grid.npz", out / "grid_labels.npy"]
+            np.savez_compressed(paths[6], density=self.grid.density.astype(np.float32),
+                                rgb=self.grid.rgb.astype(np.float32),
+                                aabb=self.grid.aabb.astype(np.float64))
+            np.save(paths[7], self.grid_labels.astype(bool))
+        return paths
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    return o
+
+
+def generate_scene(name: str, out_dir: str | Path | None = None, *, size: int = 50_000,
+                   seed: int = 0, sh_degree: int = 1, grid_resolution: int = 128) -> SyntheticScene:
+    """Generate the named synthetic scene; write its files when ``out_dir`` is given.
+
+    Args:
+        name: one of :data:`SCENE_NAMES`.
+        size: total surfel count (surfaces + floaters), exact.
+        seed: everything random (sampling, textures, jitter, plant layout) follows it.
+        sh_degree: SH degree of the colours (0..3; higher bands are small noise).
+        grid_resolution: cells along the longest side of the ``ribs`` NeRF grid.
+    """
+    if name not in SCENE_BUILDERS:
+        raise ValueError(f"unknown synthetic scene {name!r}; choose one of {list(SCENE_NAMES)}")
+    if int(size) < MIN_SIZE:
+        raise ValueError(f"size {size} is too small (minimum {MIN_SIZE} surfels)")
+    if not 0 <= int(sh_degree) <= 3:
+        raise ValueError(f"sh_degree must be 0..3, got {sh_degree}")
+    if int(grid_resolution) < 8:
+        raise ValueError(f"grid_resolution must be >= 8, got {grid_resolution}")
+    size, seed = int(size), int(seed)
+    t0 = time.perf_counter()
+    spec: SceneSpec = SCENE_BUILDERS[name](seed, size)
+    t1 = time.perf_counter()
+    built = build_surfels(spec, size, seed, sh_degree)
+    t2 = time.perf_counter()
+    clicks = choose_clicks(seed, spec, built)
+    t3 = time.perf_counter()
+    meta = _metadata(spec, built, size, seed, sh_degree, clicks)
+    grid = grid_labels = None
+    if name == "ribs":
+        # the box spans everything but the floor in front of the stand (cropped: finer cells)
+        fg = [s for s in spec.surfaces if s.name != "floor"]
+        lo = np.min([s.bounds()[0] for s in fg], axis=0)
+        hi = np.max([s.bounds()[1] for s in fg], axis=0)
+        pad = 0.02 * float((hi - lo).max())
+        fl = built.floaters
+        grid, grid_labels = voxelize(
+            spec.surfaces, np.stack([lo - pad, hi + pad]), grid_resolution,
+            zlib.crc32(f"{name}:{seed}".encode()), floater_points=built.points64[fl],
+            floater_opacity=built.scene.opacities[fl], floater_rgb=built.scene.base_colors()[fl])
+        meta["grid"] = {"shape_dhw": list(grid.density.shape), "aabb": grid.aabb.tolist(),
+                        "voxel_size": grid.extras["voxel_size"],
+                        "sigma_max": grid.extras["sigma_max"],
+                        "shell_half_width": grid.extras["shell_half_width"],
+                        "label_voxels": int(grid_labels.sum()),
+                        "rib_radius_voxels": spec.extra["rib_radius"] / grid.extras["voxel_size"]}
+    t4 = time.perf_counter()
+    out = SyntheticScene(name, seed, size, built.scene, built.labels, built.surface_ids,
+                         built.needles, built.floaters, spec.surfaces, spec.cameras,
+                         spec.test_cameras, meta, grid, grid_labels,
+                         timings={"layout": t1 - t0, "surfels": t2 - t1, "clicks": t3 - t2,
+                                  "metadata+grid": t4 - t3})
+    if out_dir is not None:
+        t5 = time.perf_counter()
+        out.write(out_dir)
+        out.timings["write"] = time.perf_counter() - t5
+    return out
+
+
+def _metadata(spec: SceneSpec, built: BuiltScene, size: int, seed: int, sh_degree: int,
+              clicks: list[dict]) -> dict:
+    surfaces = spec.surfaces
+    tgt = [s for s in surfaces if s.target]
+    bg_near = [s for s in surfaces if s.share is None]  # the dome is not "the scene"
+    radius = spec.extra.get("radius") or bounding_radius(bg_near, spec.center)
+    t_center = np.mean(built.points64[built.labels], axis=0)
+    t_radius = bounding_radius(tgt, t_center)
+    occ = notes_grid_params(built.scene.means, built.scene.scales, spec.forward_facing)
+    surf_meta = []
+    for j, s in enumerate(surfaces):
+        d = s.describe()
+        d.update({"count": int(built.counts[j]), "density": s.density, "share": s.share,
+                  "spacing": float(built.spacing[j])})
+        surf_meta.append(d)
+    meta = {
+        "version": 1, "generator": "divas_engine.synthetic", "name": spec.name, "seed": seed,
+        "size": size, "sh_degree": sh_degree, "up": [0.0, 0.0, 1.0],
+        "forward_facing": spec.forward_facing,
+        "center": spec.center.tolist(), "radius": float(radius),
+        "target": {"description": spec.target_description,
+                   "surfaces": [s.name for s in tgt], "center": t_center.tolist(),
+                   "radius": float(t_radius)},
+        "counts": {"total": len(built.scene), "surface": int((~built.floaters).sum()),
+                   "floaters": int(built.floaters.sum()), "needles": int(built.needles.sum()),
+                   "target": int(built.labels.sum()),
+                   "background": int((~built.labels).sum()),
+                   "train_cameras": len(spec.cameras), "test_cameras": len(spec.test_cameras)},
+        "base_spacing": built.base_spacing,
+        "occupancy_notes": occ,
+        "clicks": clicks,
+        "surfaces": surf_meta,
+        "files": {"ply": "scene.ply", "cameras": "cameras.json",
+                  "test_cameras": "test_cameras.json", "labels": "labels.npy",
+                  "surface_ids": "surface_ids.npy"},
+    }
+    extra = dict(spec.extra)
+    if spec.name == "ribs":
+        extra["rib_radius_voxels"] = extra["rib_radius"] / occ["h_v"]
+        meta["files"].update({"grid": "grid.npz", "grid_labels": "grid_labels.npy"})
+    meta[spec.name] = extra
+    return meta
