@@ -1,0 +1,51 @@
+"""Renderer configuration (paper Sec. 3.1 "Preliminaries", NOTES "Depth tuple")."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["RenderConfig"]
+
+
+@dataclass
+class RenderConfig:
+    """Constants of both renderers. Defaults are the paper / NOTES values.
+
+    Attributes:
+        tau_sig: τ_sig — ``D_min`` is the depth of the first element with weight
+            ``w_k = α_k T_k ≥ τ_sig``.
+        tau_cw: τ_cw — ``D_max`` is the depth at which ``1 − T`` first reaches τ_cw
+            (paper Table "NeRF instantiation hyperparameters", 0.75).
+        background: RGB added with the final transmittance ``T``.
+        t_min: early termination once ``T < t_min`` (1e-4).
+        alpha_min: elements with ``α < alpha_min`` (1/255) are skipped (2DGS) / not
+            counted in ``N_samp`` (NeRF).
+        alpha_max: 2DGS opacity clamp ``α = min(alpha_max, opacity · G)`` (0.99).
+        lowpass_sigma: σ of the 2DGS screen-space low-pass filter, pixels (√2/2).
+        near: near plane, planar camera depth in world units.
+        tile: rasterizer tile edge, pixels (16).
+        max_duplicates: soft cap on (tile, surfel) pairs held at once; the image is
+            rendered in bands of tile rows above it (bounds memory on huge scenes).
+        blend: rasterizer blend kernel: ``"auto"`` (``tile`` on CPU, ``pixel`` on CUDA).
+        nerf_step_scale: NeRF step = ``nerf_step_scale ×`` the smallest voxel edge (½).
+        nerf_color: colour of a density grid without an RGB grid.
+        threads: CPU launch threads (None: all usable cores).
+        profile: synchronise after each stage and put stage seconds in ``RenderBuffers.stats``.
+    """
+
+    tau_sig: float = 0.05
+    tau_cw: float = 0.75
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    t_min: float = 1e-4
+    alpha_min: float = 1.0 / 255.0
+    alpha_max: float = 0.99
+    lowpass_sigma: float = math.sqrt(0.5)
+    near: float = 0.01
+    tile: int = 16
+    max_duplicates: int = 1 << 25
+    blend: str = "auto"
+    nerf_step_scale: float = 0.5
+    nerf_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    threads: int | None = None
+    profile: bool = False
