@@ -1,0 +1,105 @@
+"""ClassicSegmenter vs plain flood fill on the synthetic scenes' centroid views.
+
+For each synthetic scene: the metadata click points on the target are projected
+into their best training camera (one that sees the point unoccluded — rendered
+D_med within 3 % of the point's depth — nearest to it), which serves as the
+anchor; the 2DGS centroid view of that click is built (alg:centroid-gs) and
+rendered; both segmenters get the click's 3D point projected into the centroid
+view (its principal point) as the one positive prompt. 2D IoU of mask channel 1
+(p ≥ 0.5) against ground truth: ``render_values(cam, labels) ≥ 0.5``
+(NOTES "Evaluation").
+
+    .venv/bin/python benchmarks/bench_segmenters.py [--size 100000] [--seed 0] [--clicks 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from divas_engine.render.surfel_renderer import SurfelRenderer  # noqa: E402
+from divas_engine.segment import ClassicSegmenter, FloodFillSegmenter  # noqa: E402
+from divas_engine.synthetic import SCENE_NAMES, generate_scene  # noqa: E402
+from divas_engine.views import GsCentroidPlanner  # noqa: E402
+
+
+def best_anchor(s, r, click, max_candidates: int = 8):
+    cams = {c.name: c for c in s.cameras}
+    names = click["visible_in"]
+    pick = np.unique(np.linspace(0, len(names) - 1, min(max_candidates, len(names))).round().astype(int))
+    x = np.array([click["xyz"]])
+    best = None
+    for i in pick:
+        cam = cams[names[i]]
+        uv, z = cam.project(x)
+        u, v = uv[0]
+        if not (0 <= u < cam.width and 0 <= v < cam.height) or z[0] <= 0:
+            continue
+        buf = r.render(cam)
+        d = float(buf.D_med[int(v), int(u)])
+        if abs(d - z[0]) > 0.03 * z[0] or buf.alpha[int(v), int(u)] < 0.5:
+            continue
+        if best is None or z[0] < best[3]:
+            best = (cam, buf, (float(u), float(v)), float(z[0]))
+    return best
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    u = np.count_nonzero(a | b)
+    return float(np.count_nonzero(a & b) / u) if u else float("nan")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=100_000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--clicks", type=int, default=4)
+    ap.add_argument("--scenes", nargs="*", default=list(SCENE_NAMES))
+    a = ap.parse_args(argv)
+    rows = []
+    t0 = time.perf_counter()
+    for name in a.scenes:
+        s = generate_scene(name, None, size=a.size, seed=a.seed)
+        r = SurfelRenderer(s.scene, device="cpu")
+        planner = GsCentroidPlanner(s.scene, r)
+        labels = s.labels.astype(np.float32)
+        for k, click in enumerate(s.metadata["clicks"][:a.clicks]):
+            best = best_anchor(s, r, click)
+            if best is None:
+                rows.append((name, f"{k}:{click['part']}", None, None, "no unoccluded anchor", 0.0))
+                continue
+            anchor, buf, uv, _ = best
+            cv = planner.centroid_view(anchor, uv, buf, name=f"{name}_c{k}")
+            view = r.render(cv.camera)
+            gt = r.render_values(cv.camera, labels) >= 0.5
+            prompt = cv.camera.project(cv.target[None])[0]
+            res = []
+            for seg in (ClassicSegmenter(), FloodFillSegmenter()):
+                seg.set_image(view.rgb, view.D_med)
+                masks, _ = seg.predict(prompt, np.array([1]))
+                res.append(iou(masks[1] >= 0.5, gt))
+            fill = float(gt.mean())
+            rows.append((name, f"{k}:{click['part']} ({anchor.name})", res[0], res[1],
+                         cv.strategy, fill))
+    print(f"synthetic scenes, size {a.size}, seed {a.seed}; {time.perf_counter() - t0:.0f} s\n")
+    print("| scene | view (click:part (anchor)) | centroid strategy | GT fill | IoU classic | IoU flood fill |")
+    print("|---|---|---|---|---|---|")
+    for n, v, c, f, st, fill in rows:
+        fmt = lambda x: "—" if x is None else f"{x:.3f}"  # noqa: E731
+        print(f"| {n} | {v} | {st} | {fill:.2f} | {fmt(c)} | {fmt(f)} |")
+    for n in a.scenes + ["all"]:
+        sel = [r_ for r_ in rows if (n == "all" or r_[0] == n) and r_[2] is not None]
+        if sel:
+            print(f"| {n} | **mean** ({len(sel)} views) | | | {np.mean([x[2] for x in sel]):.3f} | "
+                  f"{np.mean([x[3] for x in sel]):.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,108 @@
+"""``divas anchors SCENE [--cameras C] [--all] [--up X,Y,Z] [--device D] --out DIR``.
+
+Writes ``DIR/anchors.json`` (the :class:`~divas_engine.views.AnchorPlan`: each
+anchor's camera in the ``Camera.to_dict`` schema, direction, score, unsupported,
+source) and one PNG render per offered anchor (``DIR/NN_<name>.png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DivasInputError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("anchors", help="pick the anchor views of a scene and render them")
+    p.add_argument("scene", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz grid")
+    p.add_argument("--cameras", type=Path, default=None,
+                   help="training cameras (default: cameras.json beside the scene, if any; "
+                        "none → camera-free anchors around the robust centre)")
+    p.add_argument("--all", action="store_true", dest="all_views",
+                   help="offer every Fibonacci view (unsupported ones included), ranked")
+    p.add_argument("--up", default=None, metavar="X,Y,Z",
+                   help="scene up direction (default: estimated from the cameras; +z camera-free)")
+    p.add_argument("--scale", type=float, default=1.0, help="render scale of the PNGs (default 1)")
+    p.add_argument("--no-render", action="store_true", help="write anchors.json only")
+    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"),
+                   help="Warp device for the renders (default auto)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.set_defaults(func=run)
+
+
+def _parse_up(text: str | None) -> np.ndarray | None:
+    if text is None:
+        return None
+    try:
+        v = np.array([float(t) for t in text.split(",")], dtype=np.float64)
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+        raise DivasInputError(None, f"--up must be three numbers X,Y,Z, not all zero; got {text!r}")
+    return v / np.linalg.norm(v)
+
+
+def make_renderer(scene, device):
+    """The renderer for ``scene`` (the render package's factory when it has one)."""
+    from .. import render as render_pkg
+    factory = getattr(render_pkg, "make_renderer", None)
+    if factory is not None:
+        return factory(scene, device=device)
+    from ..scene import SurfelScene
+    if isinstance(scene, SurfelScene):
+        from ..render.surfel_renderer import SurfelRenderer
+        return SurfelRenderer(scene, device=device)
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..io.cameras import load_cameras
+    from ..io.load import load_scene
+    from ..scene import SurfelScene
+    from ..views import plan_anchors, scene_frame
+
+    if args.scale <= 0:
+        raise DivasInputError(None, f"--scale must be positive, got {args.scale}")
+    up = _parse_up(args.up)
+    scene = load_scene(args.scene)
+    cams_path = args.cameras
+    if cams_path is None and (args.scene.parent / "cameras.json").is_file():
+        cams_path = args.scene.parent / "cameras.json"
+    cameras = load_cameras(cams_path) if cams_path is not None else []
+    frame = scene_frame(scene)
+    kind = "2dgs" if isinstance(scene, SurfelScene) else "nerf"
+    plan = plan_anchors(frame.center, frame.radius, cameras, kind=kind, all_views=args.all_views,
+                        up=up)
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    doc = plan.to_dict()
+    doc["scene"] = str(args.scene)
+    doc["cameras_file"] = None if cams_path is None else str(cams_path)
+    doc["r_fg"] = frame.radius
+    renderer = None if args.no_render else make_renderer(scene, args.device)
+    if renderer is None and not args.no_render:
+        print("divas anchors: no renderer for this scene type yet; writing anchors.json only",
+              file=sys.stderr)
+    for i, (a, entry) in enumerate(zip(plan.anchors, doc["anchors"])):
+        if renderer is None:
+            continue
+        import cv2
+
+        rgb = renderer.render(a.camera, scale=args.scale).rgb
+        img = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        name = f"{i:02d}_{a.camera.name or a.source}.png"
+        cv2.imwrite(str(out / name), img[..., ::-1])
+        entry["image"] = name
+    (out / "anchors.json").write_text(json.dumps(doc, indent=1))
+    print(f"{len(plan.anchors)} anchors ({'camera-free' if plan.camera_free else len(cameras)} "
+          f"{'' if plan.camera_free else 'training cameras, '}"
+          f"{'forward-facing' if plan.forward_facing else '360°'}) → {out / 'anchors.json'}")
+    return 0
+
+
+__all__ = ["add_parser", "run", "make_renderer"]

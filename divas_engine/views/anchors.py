@@ -1,0 +1,256 @@
+"""Anchor views (paper Sec. 3.2, App. C.1–C.2; NOTES "Anchors").
+
+Candidates: N Fibonacci directions (eq:fib) in the up-aligned frame around
+``c_scene``, ranked by alg:view_ranking. Radius per representation:
+
+* NeRF: one global radius, the median training-camera distance to ``c_scene``.
+* 2DGS (eq:gs-radius): r_i = min(r_knn, r_cap) with r_knn the mean distance of the
+  ``knn_cameras`` training cameras angularly nearest to d_i and r_cap the P90 of the
+  distances of the cameras inside a 45° cone around d_i. No camera in the cone →
+  ``unsupported`` (placed at r_knn, excluded from the default top-K, listed with
+  ``all_views``).
+
+Capture types (decided from the cameras, :mod:`.up_direction`):
+
+* 360°: the default anchors are the top-K supported Fibonacci candidates.
+* forward-facing: the paper picks anchors manually from the training views; the
+  default list is K training cameras spread over the rig (farthest-point order from
+  the camera nearest the rig's mean centre), any other training camera can be added
+  with :func:`training_anchor`; ``all_views`` appends the ranked Fibonacci pool.
+* no training cameras (camera-free, e.g. the shared real scenes): Fibonacci
+  candidates at ``fallback_radius_factor · r_fg`` with the fallback intrinsics
+  (640×480, f = 600) and ``fallback_up`` (+z by default — the synthetic scenes' and
+  Blender's convention; real COLMAP captures are often −y: pass the scene's up). The
+  "front" axis is then the world axis least aligned with up. Nothing is unsupported.
+
+Anchor cameras use the intrinsics of the median-fx training camera, sit at
+``c_scene + r_i d_i``, look at ``c_scene`` and keep image-up = scene up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..camera import Camera
+from ..scene import DensityGrid, Scene, SurfelScene
+from ..scene_stats import RobustFrame, robust_frame
+from .config import ViewConfig
+from .fibonacci import fibonacci_sphere, up_frame
+from .ranking import Ranking, rank_directions
+from .up_direction import UpEstimate, estimate_up
+
+__all__ = ["Anchor", "AnchorPlan", "plan_anchors", "training_anchor", "gs_anchor_radii",
+           "representative_camera", "scene_frame"]
+
+
+@dataclass(frozen=True, eq=False)
+class Anchor:
+    """One anchor view.
+
+    Attributes:
+        camera: the anchor camera (OpenCV convention).
+        direction: unit world direction from ``c_scene`` to the camera centre.
+        score: ranking score I_i (NaN for training anchors).
+        unsupported: 2DGS direction with no training camera within the cap cone.
+        source: ``"fibonacci"`` or ``"training"``.
+        index: Fibonacci sample index, or training-camera index.
+        radius: distance from ``c_scene`` to the camera.
+    """
+
+    camera: Camera
+    direction: np.ndarray
+    score: float
+    unsupported: bool
+    source: str
+    index: int
+    radius: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"camera": self.camera.to_dict(), "direction": self.direction.tolist(),
+                "score": None if math.isnan(self.score) else float(self.score),
+                "unsupported": bool(self.unsupported), "source": self.source,
+                "index": int(self.index), "radius": float(self.radius)}
+
+
+@dataclass(eq=False)
+class AnchorPlan:
+    """Anchors offered to the user plus everything they were derived from.
+
+    Attributes:
+        anchors: the offered anchors, in display order.
+        candidates: all N Fibonacci anchors in sample order.
+        ranking: scores of the candidates (:class:`~.ranking.Ranking`).
+        center: ``c_scene``; up: scene up; frame: ``[3,3]`` up-aligned axes (columns).
+        forward_facing, camera_free: capture type.
+        up_estimate: the :class:`UpEstimate` (None when camera-free).
+    """
+
+    anchors: list[Anchor]
+    candidates: list[Anchor]
+    ranking: Ranking
+    center: np.ndarray
+    up: np.ndarray
+    frame: np.ndarray
+    forward_facing: bool
+    camera_free: bool
+    kind: str
+    up_estimate: UpEstimate | None = None
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"version": 1, "kind": self.kind, "center": self.center.tolist(),
+                "up": self.up.tolist(), "forward_facing": self.forward_facing,
+                "camera_free": self.camera_free,
+                "anchors": [a.to_dict() for a in self.anchors],
+                "candidates": [a.to_dict() for a in self.candidates]}
+
+
+def scene_frame(scene: Scene) -> RobustFrame:
+    """``c_scene`` and ``r_fg`` of a scene (density-weighted for NeRF grids)."""
+    if isinstance(scene, SurfelScene):
+        return robust_frame(scene.means)
+    if isinstance(scene, DensityGrid):
+        occ = scene.density > 0
+        idx = np.argwhere(occ)[:, ::-1]
+        centres = scene.aabb[0] + (idx + 0.5) * scene.voxel_size
+        return robust_frame(centres, scene.density[occ])
+    raise TypeError(f"scene_frame: unsupported scene type {type(scene).__name__}")
+
+
+def representative_camera(cameras: list[Camera]) -> Camera:
+    """The training camera with the median focal length (its intrinsics are reused)."""
+    order = sorted(range(len(cameras)), key=lambda i: (cameras[i].fx, i))
+    return cameras[order[len(order) // 2]]
+
+
+def gs_anchor_radii(dirs: np.ndarray, center: np.ndarray, cam_centres: np.ndarray,
+                    config: ViewConfig | None = None):
+    """eq:gs-radius per world direction.
+
+    Returns ``(r, r_knn, r_cap, unsupported)``, each ``[N]``; ``r_cap`` is +inf and
+    ``r = r_knn`` where a direction is unsupported.
+    """
+    cfg = config or ViewConfig()
+    rel = np.asarray(cam_centres, dtype=np.float64) - np.asarray(center, dtype=np.float64)
+    dist = np.linalg.norm(rel, axis=1)
+    u = rel / np.maximum(dist, 1e-12)[:, None]
+    d = np.asarray(dirs, dtype=np.float64)
+    ang = np.degrees(np.arccos(np.clip(d @ u.T, -1.0, 1.0)))  # [N, M]
+    k = min(cfg.knn_cameras, len(dist))
+    nearest = np.argsort(ang, axis=1, kind="stable")[:, :k]
+    r_knn = dist[nearest].mean(1)
+    r_cap = np.full(len(d), np.inf)
+    unsupported = np.zeros(len(d), dtype=bool)
+    for i in range(len(d)):
+        inside = ang[i] <= cfg.cap_cone_deg
+        if inside.any():
+            r_cap[i] = np.percentile(dist[inside], cfg.cap_percentile)
+        else:
+            unsupported[i] = True
+    return np.minimum(r_knn, r_cap), r_knn, r_cap, unsupported
+
+
+def _look(center, direction, radius, up, intr: Camera, name: str) -> Camera:
+    return Camera.look_at(center + radius * direction, center, up, width=intr.width,
+                          height=intr.height, fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy,
+                          name=name)
+
+
+def training_anchor(cameras: list[Camera], key: int | str, center: np.ndarray) -> Anchor:
+    """An anchor that is the training camera ``key`` (index or name) itself."""
+    if isinstance(key, str):
+        names = [c.name for c in cameras]
+        if key not in names:
+            raise KeyError(f"no training camera named {key!r}")
+        idx = names.index(key)
+    else:
+        idx = int(key)
+        if not 0 <= idx < len(cameras):
+            raise KeyError(f"training camera index {idx} out of range 0..{len(cameras) - 1}")
+    cam = cameras[idx]
+    rel = cam.center - np.asarray(center, dtype=np.float64)
+    r = float(np.linalg.norm(rel))
+    return Anchor(cam, rel / max(r, 1e-12), float("nan"), False, "training", idx, r)
+
+
+def _spread_training(cameras: list[Camera], k: int) -> list[int]:
+    c = np.stack([cam.center for cam in cameras])
+    first = int(np.argmin(np.linalg.norm(c - c.mean(0), axis=1)))
+    chosen = [first]
+    dmin = np.linalg.norm(c - c[first], axis=1)
+    while len(chosen) < min(k, len(cameras)):
+        nxt = int(np.argmax(dmin))
+        if dmin[nxt] <= 0:
+            break
+        chosen.append(nxt)
+        dmin = np.minimum(dmin, np.linalg.norm(c - c[nxt], axis=1))
+    return chosen
+
+
+def plan_anchors(center: np.ndarray, r_fg: float, cameras: list[Camera] | None, *,
+                 kind: str = "2dgs", config: ViewConfig | None = None,
+                 all_views: bool = False, up: np.ndarray | None = None) -> AnchorPlan:
+    """Anchor views of a scene (module docstring).
+
+    Args:
+        center, r_fg: ``c_scene`` and ``r_fg`` (:func:`scene_frame`).
+        cameras: training cameras, or None/[] for the camera-free fallback.
+        kind: ``"2dgs"`` (adaptive radius) or ``"nerf"`` (global radius).
+        all_views: offer every Fibonacci candidate (ranked, unsupported included).
+        up: override the scene up (default: estimated; ``fallback_up`` camera-free).
+    """
+    cfg = config or ViewConfig()
+    if kind not in ("2dgs", "nerf"):
+        raise ValueError(f"plan_anchors: kind must be '2dgs' or 'nerf', got {kind!r}")
+    center = np.asarray(center, dtype=np.float64)
+    cameras = list(cameras or [])
+    camera_free = not cameras
+    est = None
+    if camera_free:
+        up_v = np.asarray(cfg.fallback_up if up is None else up, dtype=np.float64)
+        forward_facing = False
+        front = None
+        intr = Camera(cfg.fallback_width, cfg.fallback_height, cfg.fallback_fx, cfg.fallback_fx,
+                      cfg.fallback_width / 2.0, cfg.fallback_height / 2.0)
+    else:
+        est = estimate_up(cameras, cfg)
+        up_v = est.up if up is None else np.asarray(up, dtype=np.float64)
+        forward_facing = est.forward_facing
+        front = np.mean([c.center for c in cameras], axis=0) - center
+        intr = representative_camera(cameras)
+    up_v = up_v / np.linalg.norm(up_v)
+    frame = up_frame(up_v, front)
+    local = fibonacci_sphere(cfg.n_fibonacci)
+    dirs = local @ frame.T
+    ranking = rank_directions(local, cfg)
+    n = len(dirs)
+    unsupported = np.zeros(n, dtype=bool)
+    info: dict = {}
+    if camera_free:
+        radii = np.full(n, cfg.fallback_radius_factor * float(r_fg))
+    else:
+        cc = np.stack([c.center for c in cameras])
+        if kind == "nerf":
+            radii = np.full(n, float(np.median(np.linalg.norm(cc - center, axis=1))))
+        else:
+            radii, r_knn, r_cap, unsupported = gs_anchor_radii(dirs, center, cc, cfg)
+            info.update(r_knn=r_knn.tolist(), r_cap=[None if not np.isfinite(x) else float(x)
+                                                     for x in r_cap])
+    candidates = [Anchor(_look(center, dirs[i], radii[i], up_v, intr, f"fib_{i:02d}"), dirs[i],
+                         float(ranking.score[i]), bool(unsupported[i]), "fibonacci", i,
+                         float(radii[i])) for i in range(n)]
+    ranked = [candidates[i] for i in ranking.order]
+    if forward_facing and not camera_free:
+        anchors = [training_anchor(cameras, i, center) for i in _spread_training(cameras, cfg.top_k)]
+        if all_views:
+            anchors += ranked
+    elif all_views:
+        anchors = ranked
+    else:
+        anchors = [a for a in ranked if not a.unsupported][:cfg.top_k]
+    return AnchorPlan(anchors, candidates, ranking, center, up_v, frame, forward_facing,
+                      camera_free, kind, est, info)

@@ -1,0 +1,161 @@
+"""2DGS centroid view (paper App. C.3, alg:centroid-gs).
+
+Strategy 1 (physical neighbourhood): z = D_med at the click, x_w its
+back-projection, R_phys = p_f z tan(FOV_x/2) (eq:Rphys); N = opaque surfels
+(α > α_min) within R_phys of x_w (eq:neigh), found with a k-d tree over the opaque
+centres built once per planner (= per scene). |N| < 5 → r_init = z p_f and no
+box; else R_lat = P90 of the offsets perpendicular to the view direction
+(eq:Rlat), r_init = R_lat / (f_fill tan(FOV_x/2)) (eq:Rinit) and the anchor box is
+the projected bounding box of N.
+
+Strategy 2 (occlusion-aware refinement): K_r radii linspace(r_init, 0.3 r_init);
+each probe renders D_med at low resolution (σ = ``probe_scale``, ≥ 64 px a side);
+the central patch is the centred f_fill-sized rectangle; τ_occ = 0.85 z_near with
+z_near the nearest positive camera z of N in the probe camera (eq:tauocc), 0.7 r_k
+when none; O(r_k) = fraction of valid (> 0) patch depths below τ_occ (eq:occfrac).
+The first (largest) r_k with O < τ_O = 0.15 is taken; none → the smallest radius
+(the paper's fallback). A probe with no valid patch depth is skipped.
+
+The view direction v̂ is the anchor ray through the click (anchor centre → x_w);
+BuildPose puts the camera at x_w − r v̂ with the anchor's intrinsics and up.
+
+Deviation: the paper's validity test ``D_med > 0.01`` is in absolute units; the
+renderer marks invalid depth with 0, so ``> 0`` is used (unit-free, NOTES "Units").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..camera import Camera
+from ..render.buffers import RenderBuffers
+from ..scene import SurfelScene
+from .centroid_common import CentroidView, ProbeRecord, build_pose, click_point
+from .config import ViewConfig
+
+__all__ = ["GsCentroidPlanner", "central_patch", "occluded_fraction"]
+
+
+def central_patch(h: int, w: int, f_fill: float) -> tuple[slice, slice]:
+    """Rows/columns of the centred patch covering ``f_fill`` of each image side."""
+    ph, pw = max(1, round(h * f_fill)), max(1, round(w * f_fill))
+    r0, c0 = (h - ph) // 2, (w - pw) // 2
+    return slice(r0, r0 + ph), slice(c0, c0 + pw)
+
+
+def occluded_fraction(d_med: np.ndarray, tau_occ: float, f_fill: float) -> tuple[float, int]:
+    """eq:occfrac over the central patch: (O, number of valid patch pixels)."""
+    rs, cs = central_patch(*d_med.shape, f_fill)
+    d = d_med[rs, cs]
+    d = d[np.isfinite(d) & (d > 0.0)]
+    if d.size == 0:
+        return float("nan"), 0
+    return float(np.count_nonzero(d < tau_occ) / d.size), int(d.size)
+
+
+class GsCentroidPlanner:
+    """Centroid views of one 2DGS scene.
+
+    Args:
+        scene: the surfel scene (its opacities and centres feed eq:neigh).
+        renderer: a 2DGS renderer of the same scene (``render(camera, scale)``).
+        config: :class:`ViewConfig`.
+
+    The k-d tree over the opaque surfel centres is built on first use and kept.
+    """
+
+    def __init__(self, scene: SurfelScene, renderer, config: ViewConfig | None = None):
+        self.scene = scene
+        self.renderer = renderer
+        self.config = config or ViewConfig()
+        self._tree: cKDTree | None = None
+        self._opaque: np.ndarray | None = None
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._opaque = np.flatnonzero(self.scene.opacities > self.config.alpha_min)
+            self._tree = cKDTree(np.asarray(self.scene.means[self._opaque], dtype=np.float64))
+        return self._tree
+
+    def neighbourhood(self, x_w: np.ndarray, radius: float) -> np.ndarray:
+        """Surfel indices of eq:neigh (opaque centres within ``radius`` of ``x_w``)."""
+        tree = self.tree
+        idx = np.asarray(tree.query_ball_point(np.asarray(x_w, dtype=np.float64), radius),
+                         dtype=np.int64)
+        if idx.size:
+            d = np.linalg.norm(tree.data[idx] - x_w, axis=1)
+            idx = idx[d < radius]  # strict, as eq:neigh
+        return np.sort(self._opaque[idx])
+
+    def probe_scale(self, cam: Camera) -> float:
+        cfg = self.config
+        return max(cfg.probe_scale, cfg.probe_min_size / cam.width, cfg.probe_min_size / cam.height)
+
+    def centroid_view(self, anchor: Camera, click, buffers: RenderBuffers | None = None, *,
+                      name: str = "") -> CentroidView:
+        """alg:centroid-gs for one click (continuous pixel point) on ``anchor``.
+
+        ``buffers``: the anchor's full-resolution render (rendered here when None).
+
+        Raises:
+            DivasInputError: no surface under the click.
+        """
+        cfg = self.config
+        if buffers is None:
+            buffers = self.renderer.render(anchor)
+        z, x_w = click_point(anchor, click, buffers.D_med, buffers.alpha, cfg.min_alpha_click)
+        v = x_w - anchor.center
+        v /= np.linalg.norm(v)
+        tan_half = math.tan(anchor.fov_x / 2.0)
+        # Strategy 1
+        r_phys = cfg.p_f * z * tan_half
+        nb = self.neighbourhood(x_w, r_phys)
+        mu = np.asarray(self.scene.means[nb], dtype=np.float64)
+        box = None
+        if len(nb) < cfg.min_neighbours:
+            r_init, s1 = z * cfg.p_f, "sparse"
+        else:
+            r = mu - x_w
+            r_perp = r - np.outer(r @ v, v)
+            r_lat = float(np.percentile(np.linalg.norm(r_perp, axis=1), cfg.lat_percentile))
+            r_init, s1 = r_lat / (cfg.f_fill * tan_half), "dense"
+            uv, zz = anchor.project(mu)
+            uv = uv[zz > 0]
+            if len(uv):
+                x0, y0 = np.clip(uv.min(0), 0, [anchor.width, anchor.height])
+                x1, y1 = np.clip(uv.max(0), 0, [anchor.width, anchor.height])
+                box = (float(x0), float(y0), float(x1), float(y1))
+        # Strategy 2
+        radii = np.linspace(r_init, cfg.probe_min_frac * r_init, cfg.n_probes)
+        s = self.probe_scale(anchor)
+        probes: list[ProbeRecord] = []
+        r_star, accepted = float(radii[-1]), False
+        for r_k in radii:
+            cam = build_pose(anchor, x_w, v, float(r_k))
+            d_med = self.renderer.render(cam, scale=s).D_med
+            o, valid = occluded_fraction(d_med, 0.0, cfg.f_fill)  # validity only
+            if valid == 0:
+                probes.append(ProbeRecord(float(r_k), float("nan"), float("nan"), 0,
+                                          float("nan"), False))
+                continue
+            zc = cam.world_to_camera(mu)[:, 2] if len(mu) else np.empty(0)
+            zc = zc[zc > 0]
+            if zc.size:
+                z_near = float(zc.min())
+                tau = cfg.tau_occ_factor * z_near
+            else:
+                z_near, tau = float("nan"), cfg.tau_occ_fallback * float(r_k)
+            o, valid = occluded_fraction(d_med, tau, cfg.f_fill)
+            ok = o < cfg.tau_o
+            probes.append(ProbeRecord(float(r_k), tau, o, valid, z_near, bool(ok)))
+            if ok:
+                r_star, accepted = float(r_k), True
+                break
+        cam = build_pose(anchor, x_w, v, r_star, name)
+        return CentroidView(cam, r_star, x_w, (float(click[0]), float(click[1])), z, box,
+                            f"{s1}+{'probe' if accepted else 'fallback'}", float(r_init),
+                            int(len(nb)), probes)

@@ -1,0 +1,90 @@
+"""Constants of anchor selection and centroid views (paper Sec. 3.2, 3.3, App. C).
+
+Every number the view code uses lives here, with its paper symbol.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["ViewConfig"]
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    """Anchor-view and centroid-view defaults (paper values unless noted).
+
+    Anchor views (Sec. 3.2, App. C.1–C.2):
+        n_fibonacci: N, size of the Fibonacci candidate pool (eq:fib), 12.
+        top_k: K, anchors surfaced by the ranking (alg:view_ranking), 5.
+        w_diversity, w_cardinal, w_pitch: w_d, w_c, w_p of I = w_d D + w_c C + w_p P
+            (0.4, 0.3, 0.3).
+        cardinal_eps: ε of C_i = max_a 1 / (‖d_i − a‖ + ε) (not given by the paper; a
+            division guard).
+        knn_cameras: training cameras angularly nearest to a direction whose mean
+            distance is r_knn (eq:gs-radius; NOTES "Anchors"), 5.
+        cap_cone_deg: half-angle of the cone whose cameras give r_cap, degrees (45).
+        cap_percentile: r_cap = P_cap of the camera distances in that cone (90).
+        forward_facing_resultant: a capture is forward-facing when the mean resultant
+            length of the cameras' unit optical axes is ≥ this (≈ 25° spread), else 360°.
+        plane_max_tilt_deg: the best-fit-plane normal refines the mean camera up (360°
+            captures) only when it lies within this angle of the mean up …
+        plane_flatness: … and the plane is well defined: smallest / middle singular
+            value of the centred camera centres ≤ this.
+        fallback_radius_factor: camera-free scenes: anchors at this × r_fg from c_scene (2.5).
+        fallback_width, fallback_height, fallback_fx: camera-free intrinsics (640×480, 600).
+        fallback_up: camera-free scene up (+z; override per scene, e.g. (0,-1,0) for
+            COLMAP-style captures).
+
+    Centroid views (Sec. 3.3, App. C.3):
+        zoom_forward_facing, zoom_360: λ of alg:centroid_view (NeRF), 0.67 / 0.47.
+        min_alpha_click: accumulated opacity at the click below this → no surface (0.5).
+        p_f: patch fraction of eq:Rphys, 0.25.
+        f_fill: target fill fraction of eq:Rinit and central-patch size of eq:occfrac, 0.5.
+        alpha_min: α_min of eq:neigh, 0.1.
+        min_neighbours: |N| below this → sparse fallback r_init = z p_f, 5.
+        lat_percentile: R_lat = P_lat of the perpendicular offsets (eq:Rlat), 90.
+        n_probes: K_r probe radii in linspace(r_init, probe_min_frac r_init), 5.
+        probe_min_frac: 0.3.
+        tau_occ_factor: τ_occ = 0.85 z_near (eq:tauocc).
+        tau_occ_fallback: τ_occ = 0.7 r_k when no neighbour projects in front.
+        tau_o: τ_O, accept a probe when the occluded fraction O(r_k) < 0.15 (eq:occfrac).
+        probe_scale: σ, probe renders at σ × the anchor resolution (not given by the
+            paper; 0.25) …
+        probe_min_size: … but at least this many pixels on each side (64).
+    """
+
+    # anchors
+    n_fibonacci: int = 12
+    top_k: int = 5
+    w_diversity: float = 0.4
+    w_cardinal: float = 0.3
+    w_pitch: float = 0.3
+    cardinal_eps: float = 1e-6
+    knn_cameras: int = 5
+    cap_cone_deg: float = 45.0
+    cap_percentile: float = 90.0
+    forward_facing_resultant: float = 0.9
+    plane_max_tilt_deg: float = 30.0
+    plane_flatness: float = 0.5
+    fallback_radius_factor: float = 2.5
+    fallback_width: int = 640
+    fallback_height: int = 480
+    fallback_fx: float = 600.0
+    fallback_up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    # centroid views
+    zoom_forward_facing: float = 0.67
+    zoom_360: float = 0.47
+    min_alpha_click: float = 0.5
+    p_f: float = 0.25
+    f_fill: float = 0.5
+    alpha_min: float = 0.1
+    min_neighbours: int = 5
+    lat_percentile: float = 90.0
+    n_probes: int = 5
+    probe_min_frac: float = 0.3
+    tau_occ_factor: float = 0.85
+    tau_occ_fallback: float = 0.7
+    tau_o: float = 0.15
+    probe_scale: float = 0.25
+    probe_min_size: int = 64
