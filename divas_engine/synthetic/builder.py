@@ -275,21 +275,19 @@ def build_surfels(spec: SceneSpec, size: int, seed: int, sh_degree: int = 1) -> 
 
 
 def notes_grid_params(means: np.ndarray, scales: np.ndarray, forward_facing: bool) -> dict:
-    """Occupancy-grid sizing of NOTES "Occupancy" (2DGS, Sec. 3.5) for a surfel set."""
-    means = np.asarray(means, np.float64)
-    c = np.median(means, axis=0)
-    r_fg = float(np.percentile(np.linalg.norm(means - c, axis=1), 99))
-    b = 1.05 * r_fg
-    s_bar = float(np.median(np.max(scales, axis=1)))
-    h_v = max(3.0 * s_bar, r_fg / 256.0)
-    g_max = 512 if forward_facing else 1024
-    g = 1 << max(0, math.ceil(math.log2(2 * b / h_v)))
-    capped = g > g_max
-    if capped:
-        g = g_max
-        h_v = 2 * b / g
-    return {"c_scene": c.tolist(), "r_fg": r_fg, "b": b, "s_bar": s_bar, "h_v": h_v, "g": g,
-            "g_max": g_max, "capped": capped}
+    """Occupancy-grid sizing of NOTES "Occupancy" (2DGS, Sec. 3.5) for a surfel set.
+
+    Delegates to the engine's own grid rule so the metadata can never disagree with
+    the grid that fusion builds.
+    """
+    from ..fusion.config import GridConfig
+    from ..fusion.occupancy import grid_geometry
+
+    cfg = GridConfig.forward_facing() if forward_facing else GridConfig()
+    geo = grid_geometry(means, scales, cfg)
+    return {"c_scene": geo.center.tolist(), "r_fg": geo.r_fg, "b": geo.half_extent,
+            "s_bar": geo.s_bar, "h_v": geo.voxel_size, "g": geo.resolution,
+            "g_max": cfg.g_max, "capped": geo.capped}
 
 
 def visibility(points: np.ndarray, normals: np.ndarray, cams: list[Camera],
