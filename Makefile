@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEMO   ?= demo_out
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench clean extension
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -23,5 +23,10 @@ bench: $(PY)
 	$(PY) -m pip install -q -e .
 	$(PY) benchmarks/bench_load.py
 
+# Blender extension zips for linux-x64, windows-x64, macos-arm64 × cp311/cp313 (downloads wheels)
+extension: $(PY)
+	$(PY) -m pip install -q -e ".[test]"
+	$(PY) blender_scripts/build_extension.py --out dist
+
 clean:
-	rm -rf $(DEMO) build *.egg-info
+	rm -rf $(DEMO) build dist *.egg-info

@@ -1,0 +1,23 @@
+"""One operator per module; :data:`CLASSES` is registered in order, unregistered in reverse."""
+
+from __future__ import annotations
+
+from . import (activate_camera, export_selection, extract_selection, import_cameras,
+               import_density_grid, import_splats)
+
+CLASSES = (
+    import_splats.DIVAS_OT_import_splats,
+    import_density_grid.DIVAS_OT_import_density_grid,
+    import_cameras.DIVAS_OT_import_cameras,
+    export_selection.DIVAS_OT_export_selection,
+    extract_selection.DIVAS_OT_extract_selection,
+    activate_camera.DIVAS_OT_activate_camera,
+)
+
+#: (menu type name, draw function) pairs appended on register.
+MENU_ENTRIES = (
+    ("TOPBAR_MT_file_import", import_splats.menu_func),
+    ("TOPBAR_MT_file_import", import_density_grid.menu_func),
+    ("TOPBAR_MT_file_import", import_cameras.menu_func),
+    ("TOPBAR_MT_file_export", export_selection.menu_func),
+)

@@ -1,0 +1,102 @@
+"""Extract and export the points a ``divas_selected`` attribute marks.
+
+* :func:`export_selection` reloads the object's source file through the engine and
+  writes the selected rows with :func:`divas_engine.export.export_selection`, so the
+  output is byte-identical to the engine's export (standard PLY rows copied verbatim,
+  other formats in their own encoding, grids as a masked ``.npz``).
+* :func:`extract_selection` builds a new point-cloud object holding exactly the
+  selected points with every attribute (``divas_selected`` itself is left behind: the
+  selection belongs to the source object), the same source link, transform and
+  display. Works for extracted objects too (``divas_index`` keeps file rows).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from divas_engine.errors import DivasInputError
+from divas_engine.export import ExportResult
+from divas_engine.export import export_selection as engine_export
+from divas_engine.point_attributes import SELECTED
+
+from . import bridge, display, source
+
+__all__ = ["ExportSettings", "export_selection", "extract_selection", "selected_count",
+           "has_selection"]
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """``filepath``: output file (the source format's suffix is added when missing);
+    ``write_labels``: also write ``<stem>_labels.npy`` (bool per input-file row)."""
+
+    filepath: Path
+    write_labels: bool = False
+
+
+def has_selection(obj) -> bool:
+    """``obj`` is a point cloud with a ``divas_selected`` attribute (cheap: for polls)."""
+    return obj is not None and obj.type == "POINTCLOUD" and obj.data.attributes.get(SELECTED) is not None
+
+
+def selected_count(obj) -> int | None:
+    """Selected points of ``obj``, or None without a ``divas_selected`` attribute."""
+    if obj is None or obj.type != "POINTCLOUD" or obj.data.attributes.get(SELECTED) is None:
+        return None
+    return int(np.count_nonzero(bridge.read_attribute(obj.data, SELECTED)))
+
+
+def _require_source(obj) -> source.SourceRef:
+    ref = source.source_of(obj)
+    if ref is None:
+        name = getattr(obj, "name", None)
+        raise DivasInputError(None, f"{name!r} is not a DivAS-imported point cloud")
+    return ref
+
+
+def export_selection(obj, settings: ExportSettings) -> ExportResult:
+    ref = _require_source(obj)
+    scene = source.load_source_scene(ref)
+    mask = source.selection_of(obj, scene)
+    out = Path(settings.filepath)
+    if not out.suffix:
+        out = out.with_suffix(source.FORMAT_SUFFIX.get(ref.format, ".ply"))
+    if not mask.any():
+        raise DivasInputError(out, "nothing to export: no point is selected")
+    labels = out.with_name(out.name.split(".")[0] + "_labels.npy") if settings.write_labels else None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return engine_export(scene, mask, out, labels_path=labels)
+
+
+def extract_selection(context, obj) -> bpy.types.Object:
+    """A new object with the selected points of ``obj`` and all their attributes."""
+    geom = obj.data
+    if geom.attributes.get(SELECTED) is None:
+        raise DivasInputError(None, f"{obj.name!r} has no selection (no {SELECTED!r} attribute)")
+    sel = bridge.read_attribute(geom, SELECTED)
+    if not sel.any():
+        raise DivasInputError(None, f"nothing to extract: no point of {obj.name!r} is selected")
+    attrs = bridge.read_attributes(geom, [n for n in bridge.attribute_names(geom) if n != SELECTED])
+    collection = obj.users_collection[0] if obj.users_collection else context.scene.collection
+    new = bridge.new_point_cloud_object(f"{obj.name} selection", attrs.pop("position")[1][sel],
+                                        collection)
+    for name, (data_type, values) in attrs.items():
+        bridge.write_attribute(new.data, name, values[sel], data_type=data_type)
+    for key in (source.PATH_PROP, source.FORMAT_PROP, source.KIND_PROP, "divas_grid_shape",
+                "divas_grid_aabb"):
+        if key in obj:
+            new[key] = obj[key]
+    new.matrix_world = obj.matrix_world.copy()
+    old_mod = obj.modifiers.get(display.MODIFIER)
+    if old_mod is not None:
+        mod = display.add_display_modifier(new)
+        for key in old_mod.keys():  # modifier inputs, e.g. the radius scale
+            mod[key] = old_mod[key]
+    obj.select_set(False)
+    new.select_set(True)
+    context.view_layer.objects.active = new
+    return new

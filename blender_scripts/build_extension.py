@@ -1,0 +1,213 @@
+"""Build the DivAS Blender extension: pinned wheels per platform and Python, one zip each.
+
+    python blender_scripts/build_extension.py                       # all platforms, cp311 + cp313
+    python blender_scripts/build_extension.py --platforms linux-x64 --python 311   # the CI variant
+
+Steps:
+
+1. ``pip download --only-binary=:all: --no-deps --platform … --python-version …`` of each
+   pinned dependency (:data:`PINNED`) for every requested platform × Python into a wheel
+   cache (``build/extension/wheels``; reused, so a rebuild downloads nothing), and
+   ``pip wheel --no-deps .`` of the engine itself (pure Python, ``py3-none-any``).
+2. A staging copy of ``blender_addon/`` with those wheels in ``wheels/`` and a manifest
+   whose ``wheels`` and ``platforms`` list exactly them (the source manifest lists no
+   wheels, so the source tree stays clean and installable for development).
+3. ``blender_ext.py build --split-platforms`` — Blender's own packager, from a
+   ``blender`` binary (``blender --command extension build``) or, without one, from the
+   ``bpy`` module's copy of the same script — writes ``divas-<version>-<platform>.zip``
+   into ``--out``. With neither available the zip is written here in the same layout
+   (manifest at the archive root, wheels under ``wheels/``), one per platform.
+
+Blender 4.2–5.0 runs Python 3.11 and 5.1+ Python 3.13, so both are bundled. NumPy is not:
+Blender ships its own, and a second copy would shadow it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import re
+import shutil
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+ADDON = REPO / "blender_addon"
+BUILD = REPO / "build" / "extension"
+
+#: The engine's run-time dependencies at the versions the test suite runs against.
+PINNED = {
+    "warp-lang": "1.19.0",
+    "onnxruntime": "1.31.1",
+    "opencv-python-headless": "4.11.0.86",
+    "scipy": "1.17.1",
+    "plyfile": "1.1.3",
+    "zstandard": "0.25.0",
+    "tqdm": "4.70.1",
+    "psutil": "7.2.2",
+}
+
+#: Blender platform → pip platform tags (newest first; Blender 4.2 needs glibc 2.28 / macOS 11.2).
+PLATFORMS = {
+    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64",
+                  "manylinux2014_x86_64", "manylinux1_x86_64", "linux_x86_64"],
+    "windows-x64": ["win_amd64"],
+    "macos-arm64": ["macosx_14_0_arm64", "macosx_13_0_arm64", "macosx_12_0_arm64",
+                    "macosx_11_0_arm64", "macosx_13_0_universal2", "macosx_11_0_universal2",
+                    "macosx_10_9_universal2"],
+}
+PYTHONS = ("311", "313")
+
+
+def _run(cmd: list[str], **kw) -> None:
+    print("+", " ".join(str(c) for c in cmd), flush=True)
+    subprocess.run(cmd, check=True, **kw)
+
+
+def _norm(name: str) -> str:
+    return re.sub(r"[-_.]+", "_", name).lower()
+
+
+def download_wheels(platform: str, python: str, cache: Path) -> list[Path]:
+    """The pinned wheels for one platform × Python (downloaded once into ``cache``)."""
+    dest = cache / f"{platform}-cp{python}"
+    dest.mkdir(parents=True, exist_ok=True)
+    out = []
+    for name, version in PINNED.items():
+        prefix = f"{_norm(name)}-{version}-"
+        have = sorted(p for p in dest.glob("*.whl") if p.name.lower().startswith(prefix))
+        if not have:
+            cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps",
+                   "--only-binary=:all:", "--python-version", python, "--implementation", "cp",
+                   "--dest", str(dest), f"{name}=={version}"]
+            for tag in PLATFORMS[platform]:
+                cmd += ["--platform", tag]
+            _run(cmd)
+            have = sorted(p for p in dest.glob("*.whl") if p.name.lower().startswith(prefix))
+        if len(have) != 1:
+            raise SystemExit(f"expected one {name} {version} wheel for {platform} cp{python}, got {have}")
+        out.append(have[0])
+    return out
+
+
+def engine_wheel(dest: Path) -> Path:
+    """``divas-<version>-py3-none-any.whl`` from the repository (no dependencies)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for old in dest.glob("divas-*.whl"):
+        old.unlink()
+    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation",
+          "--wheel-dir", str(dest), str(REPO)])
+    (whl,) = dest.glob("divas-*.whl")
+    return whl
+
+
+def _toml_list(values: list[str]) -> str:
+    return "[\n" + "".join(f'  "{v}",\n' for v in values) + "]"
+
+
+def write_manifest(src: Path, dst: Path, wheels: list[str], platforms: list[str]) -> None:
+    """Copy the manifest with ``wheels`` and ``platforms`` set (top-level keys, before tables)."""
+    text = src.read_text()
+    text = re.sub(r"(?m)^(wheels|platforms)\s*=\s*\[[^\]]*\]\s*\n", "", text)
+    head, sep, rest = text.partition("\n[")
+    block = f"\nplatforms = {_toml_list(platforms)}\nwheels = {_toml_list(wheels)}\n"
+    dst.write_text(head.rstrip("\n") + "\n" + block + (sep + rest if sep else ""))
+
+
+def _packager() -> list[str] | None:
+    """Command prefix for Blender's extension packager, or None if none is available."""
+    blender = shutil.which("blender")
+    if blender:
+        return [blender, "--background", "--factory-startup", "--command", "extension"]
+    spec = importlib.util.find_spec("bpy")
+    if spec is not None and spec.submodule_search_locations:
+        for root in spec.submodule_search_locations:
+            for script in Path(root).glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py"):
+                return [sys.executable, str(script)]
+    return None
+
+
+def _zip_ourselves(stage: Path, out: Path, version: str, platforms: list[str]) -> list[Path]:
+    """Fallback: one zip per platform, manifest at the root, only that platform's wheels."""
+    zips = []
+    for plat in platforms:
+        path = out / f"divas-{version}-{plat.replace('-', '_')}.zip"
+        tags = PLATFORMS[plat]
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+            for f in sorted(stage.rglob("*")):
+                rel = f.relative_to(stage).as_posix()
+                if f.is_dir() or "__pycache__" in rel:
+                    continue
+                if rel.startswith("wheels/") and "none-any" not in rel and not any(t in rel for t in tags):
+                    continue
+                if rel == "blender_manifest.toml":
+                    text = f.read_text()
+                    keep = [w for w in re.findall(r'"(\./wheels/[^"]+)"', text)
+                            if "none-any" in w or any(t in w for t in tags)]
+                    tmp = stage.parent / "manifest.tmp"
+                    tmp.write_text(text)
+                    write_manifest(tmp, tmp, keep, [plat])
+                    z.write(tmp, rel)
+                    continue
+                z.write(f, rel)
+        zips.append(path)
+    return zips
+
+
+def build(platforms: list[str], pythons: list[str], out: Path, cache: Path) -> list[Path]:
+    t0 = time.perf_counter()
+    stage = BUILD / "stage" / "divas"
+    if stage.exists():
+        shutil.rmtree(stage)
+    shutil.copytree(ADDON, stage, ignore=shutil.ignore_patterns("__pycache__", "wheels", "*.zip"))
+    (stage / "wheels").mkdir()
+    wheels = [engine_wheel(BUILD / "engine")]
+    for plat in platforms:
+        for py in pythons:
+            wheels += download_wheels(plat, py, cache)
+    names = []
+    for w in wheels:
+        if w.name not in names:
+            shutil.copy2(w, stage / "wheels" / w.name)
+            names.append(w.name)
+    write_manifest(ADDON / "blender_manifest.toml", stage / "blender_manifest.toml",
+                   [f"./wheels/{n}" for n in names], platforms)
+    version = re.search(r'(?m)^version\s*=\s*"([^"]+)"', (stage / "blender_manifest.toml").read_text())[1]
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob(f"divas-{version}*.zip"):
+        old.unlink()
+    packager = _packager()
+    if packager is None:
+        zips = _zip_ourselves(stage, out, version, platforms)
+    else:
+        _run(packager + ["build", "--source-dir", str(stage), "--output-dir", str(out),
+                         "--split-platforms"])
+        zips = sorted(out.glob(f"divas-{version}*.zip"))
+    print(f"built {len(zips)} package(s) in {time.perf_counter() - t0:.1f} s:")
+    for z in zips:
+        print(f"  {z}  ({z.stat().st_size / 1e6:.1f} MB)")
+    return zips
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--platforms", nargs="+", choices=sorted(PLATFORMS), default=list(PLATFORMS))
+    ap.add_argument("--python", nargs="+", choices=PYTHONS, default=list(PYTHONS), dest="pythons")
+    ap.add_argument("--out", type=Path, default=REPO / "dist", help="where the zips go (default: dist/)")
+    ap.add_argument("--wheel-cache", type=Path, default=BUILD / "wheels",
+                    help="downloaded wheels, reused between builds")
+    args = ap.parse_args(argv)
+    try:
+        zips = build(args.platforms, args.pythons, args.out, args.wheel_cache)
+    except subprocess.CalledProcessError as e:
+        print(f"build_extension: command failed ({e.returncode}): {' '.join(map(str, e.cmd))}",
+              file=sys.stderr)
+        return 1
+    return 0 if zips else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""Viewport click → camera pixel, in pure NumPy (no ``bpy``).
+
+When a 3D viewport looks through a camera, Blender draws the camera frame (the
+rendered image's border) as a quadrilateral in *region* coordinates: origin at the
+region's bottom-left corner, x right, y up, one unit per screen pixel, region pixel
+``(i, j)`` covering ``[i, i+1) × [j, j+1)``. ``Camera.view_frame(scene=…)`` gives the
+frame's four corners in camera space, in the order top-right, bottom-right,
+bottom-left, top-left; ``bpy_extras.view3d_utils.location_3d_to_region_2d`` maps them
+(after ``matrix_world``) into the region.
+
+The camera image (engine convention, :mod:`divas_engine.camera`) has its origin at the
+top-left, y down, pixel ``(i, j)`` centred at ``(i + 0.5, j + 0.5)``. The frame's
+corners are the image corners ``(W, 0)``, ``(W, H)``, ``(0, H)``, ``(0, 0)`` in that same
+order. The image of a planar rectangle under a perspective view is a projective
+transform of it, so the map region → image is the homography fixed by those four
+correspondences; when looking through the camera the frame is an axis-aligned
+rectangle and the homography reduces to the affine ``u = (x − left) / (right − left) · W``,
+``v = (top − y) / (top − bottom) · H``. Letterboxing (the frame smaller than the region)
+and non-square pixel aspect (the frame's aspect is ``W·aspx : H·aspy``, not ``W : H``)
+need no special case: both only change where the corners are.
+
+Mouse events give integer region pixels (``event.mouse_region_x/y``); the click is
+taken at that pixel's centre, ``+0.5`` on both axes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["frame_image_corners", "frame_homography", "region_to_camera_pixel",
+           "camera_pixel_to_region"]
+
+
+def frame_image_corners(width: int, height: int) -> np.ndarray:
+    """``[4,2]`` image corners matching ``view_frame`` order (TR, BR, BL, TL), engine pixels."""
+    w, h = float(width), float(height)
+    return np.array([[w, 0.0], [w, h], [0.0, h], [0.0, 0.0]])
+
+
+def _homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """``[3,3]`` H with ``dst ~ H · src`` for four point pairs (direct linear transform)."""
+    a = np.zeros((8, 8))
+    b = np.zeros(8)
+    for k, ((x, y), (u, v)) in enumerate(zip(src, dst)):
+        a[2 * k] = [x, y, 1, 0, 0, 0, -u * x, -u * y]
+        a[2 * k + 1] = [0, 0, 0, x, y, 1, -v * x, -v * y]
+        b[2 * k], b[2 * k + 1] = u, v
+    try:
+        h = np.linalg.solve(a, b)
+    except np.linalg.LinAlgError:
+        raise ValueError("camera frame corners are degenerate (collinear or coincident)") from None
+    return np.append(h, 1.0).reshape(3, 3)
+
+
+def _check_frame(frame_corners) -> np.ndarray:
+    c = np.asarray(frame_corners, dtype=np.float64)
+    if c.shape != (4, 2) or not np.all(np.isfinite(c)):
+        raise ValueError(f"frame_corners must be 4 finite (x, y) region points, got {c.shape}")
+    return c
+
+
+def frame_homography(frame_corners, image_size: tuple[int, int]) -> np.ndarray:
+    """``[3,3]`` map from region coordinates to continuous camera pixels.
+
+    Args:
+        frame_corners: ``[4,2]`` camera frame corners in region coordinates, in
+            ``view_frame`` order (top-right, bottom-right, bottom-left, top-left).
+        image_size: camera image ``(width, height)`` in pixels.
+    """
+    w, h = image_size
+    if int(w) <= 0 or int(h) <= 0:
+        raise ValueError(f"empty camera image {w}x{h}")
+    return _homography(_check_frame(frame_corners), frame_image_corners(w, h))
+
+
+def region_to_camera_pixel(region_size: tuple[int, int], frame_corners,
+                           mouse_region: tuple[float, float],
+                           image_size: tuple[int, int]) -> tuple[float, float] | None:
+    """Continuous camera pixel ``(u, v)`` (+0.5 centres, y down) under a viewport click.
+
+    Args:
+        region_size: ``(region.width, region.height)``; a click outside it gives None.
+        frame_corners: ``[4,2]`` camera frame in region coordinates (``view_frame`` order:
+            top-right, bottom-right, bottom-left, top-left).
+        mouse_region: ``(event.mouse_region_x, event.mouse_region_y)``, integer region
+            pixel; the click is taken at its centre (+0.5).
+        image_size: camera image ``(width, height)``.
+
+    Returns:
+        ``(u, v)`` with ``0 ≤ u < W``, ``0 ≤ v < H``, or None when the click is outside
+        the region or outside the camera frame (e.g. in the letterbox / passepartout).
+    """
+    rw, rh = region_size
+    mx, my = float(mouse_region[0]), float(mouse_region[1])
+    if not (0 <= mx < rw and 0 <= my < rh):
+        return None
+    hmat = frame_homography(frame_corners, image_size)
+    p = hmat @ np.array([mx + 0.5, my + 0.5, 1.0])
+    if p[2] <= 0:  # behind the frame's plane (cannot happen through the camera)
+        return None
+    u, v = p[0] / p[2], p[1] / p[2]
+    w, h = image_size
+    if not (0.0 <= u < w and 0.0 <= v < h):
+        return None
+    return float(u), float(v)
+
+
+def camera_pixel_to_region(uv, frame_corners, image_size: tuple[int, int]) -> np.ndarray:
+    """``[N,2]`` region coordinates of continuous camera pixels (inverse map, for overlays)."""
+    hinv = np.linalg.inv(frame_homography(frame_corners, image_size))
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    p = np.concatenate([uv, np.ones((len(uv), 1))], 1) @ hinv.T
+    return p[:, :2] / p[:, 2:3]
