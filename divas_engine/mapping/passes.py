@@ -1,0 +1,397 @@
+"""2DGS voxel-to-surfel mapping: the three-pass monotone chain f¹ ⪰ f² ⪰ f (paper
+Sec. 3.6 "Voxel-to-Surfel Mapping and Aggregation", eq:pass1 … eq:final-F; App. B;
+alg:vox2surfel; kernels in ``kernels/coverage.py``).
+
+Usage::
+
+    mapper = SurfelMapper(scene, grid)          # uploads surfels once, τ_a once
+    res = mapper.map(fusion.result(), views, slots)   # after each accepted view
+    res.selected                                # [N] bool, the foreground indicator f
+
+``slots[k]`` is the view-coverage bitmask bit of ``views[k]``: for
+:class:`~divas_engine.fusion.GsFusion` it is the id returned by ``add_view`` (the view
+id *is* its slot, ``fusion/state.py``).
+
+Decisions on points the paper leaves open:
+
+1. Pass 1 resolves each surfel's voxel once per scene with the grid's own
+   ``surfel_voxel_codes`` (the build's NaN/AABB filter and Morton encoding) and hash
+   lookup; the "segmentation bitfield" is ``FusionResult.segmented`` by active index
+   (the grid stores a hash, not a g³ bitfield, ``fusion/occupancy.py``). A surfel
+   filtered by the AABB/NaN test or in an inactive voxel has ``f¹ = 0``.
+2. τ_a is NumPy's linear-interpolation P99 of ``a_i`` (float64) over all N surfels
+   (eq:needle: ``{a_i}_{i=1}^{M}``, not just Pass-1 survivors); a non-finite aspect is
+   left out of the percentile and counts as a needle.
+3. The Pass-3 gate uses the P-masked bitmask ``FusionResult.vmask``; since Pass 1
+   keeps only segmented voxels it equals the raw bitmask on every candidate.
+4. 1σ box: ``e_x = max |π_x(μ ± σ_b t_k) − c_x|`` over the four projected tangent tips
+   (the paper's ``max(|α_x^{(0)}|, |α_x^{(1)}|)``; taking both tips of each axis makes
+   it well defined under perspective), centred on the projected centre ``c``; the
+   visited pixels are those whose centre ``(x + ½, y + ½)`` lies in the box (clipped
+   to the image).
+5. Per-pixel acceptance: the pixel ray meets the surfel plane at ``u² + v² ≤ 9``
+   (tangent units), the rasterizer's ray–splat intersection without its low-pass
+   term (coverage is geometric; a sub-pixel surfel whose box holds no pixel centre
+   gets κ_s = 0 in that view).
+6. A surfel is scored in a view only when its whole 3σ disc lies beyond the near
+   plane (the rasterizer's rule); otherwise κ_s = 0 there.
+7. Masks are binarised once per view, ``M̃ ≥ τ_M`` compared in float32.
+8. κ_i = 0 for surfels never scored; κ is computed in float32 as
+   ``mask_fp / max(total_fp, 1)`` and compared with float32(τ_κ).
+9. Pass 3 is a surfel-parallel gather (see ``kernels/coverage.py``), not the paper's
+   tile-sorted one: the integer counts are layout-independent.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import warp as wp
+
+from kernels import coverage as kcov
+from kernels import occupancy as kocc
+from kernels._launch import cpu_threads, resolve_device
+
+from ..fusion.occupancy import OccupancyGrid, surfel_voxel_codes
+from ..fusion.state import FusionResult
+from ..fusion.views import FusionView
+from ..scene import SurfelScene
+from .config import MappingConfig
+
+__all__ = ["MappingResult", "SurfelMapper", "map_to_surfels", "needle_threshold",
+           "surfel_aspects"]
+
+
+def surfel_aspects(scales: np.ndarray, eps: float) -> np.ndarray:
+    """eq:aspect: ``a_i = max(s₁, s₂) / (min(s₁, s₂) + ε)``, float64 ``[N]``."""
+    s = np.asarray(scales, dtype=np.float64)
+    if s.ndim != 2 or s.shape[1] != 2:
+        raise ValueError(f"surfel_aspects: scales must be [N,2], got {s.shape}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return s.max(axis=1) / (s.min(axis=1) + eps)
+
+
+def needle_threshold(aspects: np.ndarray, percentile: float) -> tuple[float, np.ndarray]:
+    """eq:needle / eq:pass-needle: ``τ_a`` and the ``[N] bool`` keep flags ``a_i ≤ τ_a``."""
+    fin = np.isfinite(aspects)
+    if not fin.any():
+        return float("inf"), np.zeros(len(aspects), dtype=bool)
+    tau = float(np.percentile(aspects[fin], percentile))
+    with np.errstate(invalid="ignore"):
+        return tau, fin & (aspects <= tau)
+
+
+@dataclass(eq=False)
+class MappingResult:
+    """Output of one mapping run (host arrays).
+
+    Attributes:
+        selected: ``[N] bool`` final indicator f = f³ (eq:final-F).
+        pass1, pass2: ``[N] bool`` f¹ (eq:pass1), f² (eq:pass-needle).
+        kappa: ``[N] float32`` max-over-views coverage κ (eq:kappa); 0 where not scored.
+        tau_a: the needle threshold τ_a (eq:needle).
+        n_pass1, n_pass2, n_selected: surfels kept by each pass.
+        n_needles: surfels of the whole scene with ``a_i > τ_a``.
+        scored_per_view: ``|a_s|`` per view — Pass-2 survivors whose voxel has the view's
+            bit (alg:vox2surfel (i)); ``n_scored`` their sum.
+        seconds: wall times of ``pass1``, ``pass2`` (+ candidate compaction), ``views``
+            (binarise/upload new views' masks, bitmask upload), ``pass3`` (gather, final
+            threshold), ``readback`` and ``total``.
+    """
+
+    selected: np.ndarray
+    pass1: np.ndarray
+    pass2: np.ndarray
+    kappa: np.ndarray
+    tau_a: float
+    n_pass1: int
+    n_pass2: int
+    n_selected: int
+    n_needles: int
+    scored_per_view: list[int]
+    n_scored: int
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def counts(self) -> dict[str, int]:
+        return {"pass1": self.n_pass1, "pass2": self.n_pass2, "selected": self.n_selected,
+                "needles": self.n_needles, "scored": self.n_scored}
+
+
+class _ViewCache:
+    """Per-view binarised masks (``M̃ ≥ τ_M``, uint8) and their summed-area tables
+    (int32, ``(H+1)×(W+1)``), resident in two append-only device buffers.
+
+    A view is binarised and uploaded once, when it first appears; later calls only
+    rebuild the tiny per-view struct array. Space of dropped views is reclaimed by a
+    rebuild when it exceeds the live space.
+    """
+
+    min_reclaim = 1 << 20  # bytes of dropped masks tolerated before a rebuild
+
+    def __init__(self, device) -> None:
+        self.device = device
+        self.res: dict[int, tuple[FusionView, float, int, int, int, int]] = {}
+        self.mbuf = wp.zeros(0, dtype=wp.uint8, device=device)
+        self.sbuf = wp.zeros(0, dtype=wp.int32, device=device)
+        self.mused = self.sused = 0
+        self.key: tuple | None = None
+        self.views_dev: wp.array | None = None
+
+    @staticmethod
+    def binarise(v: FusionView, tau_m: float) -> tuple[np.ndarray, np.ndarray]:
+        m = np.asarray(v.mask)
+        b = (m.astype(np.float32, copy=False) >= np.float32(tau_m)).astype(np.uint8)
+        sat = np.zeros((b.shape[0] + 1, b.shape[1] + 1), dtype=np.int32)
+        np.cumsum(np.cumsum(b, axis=0, dtype=np.int32), axis=1, dtype=np.int32,
+                  out=sat[1:, 1:])
+        return b.ravel(), sat.ravel()
+
+    def _append(self, buf: wp.array, used: int, host: np.ndarray, dtype) -> tuple[wp.array, int]:
+        need = used + host.size
+        if need > buf.shape[0]:
+            grown = wp.empty(max(need, 2 * buf.shape[0]), dtype=dtype, device=self.device)
+            if used:
+                wp.copy(grown, buf, count=used)
+            buf = grown
+        if host.size:
+            wp.copy(buf, wp.array(host, dtype=dtype, device=self.device), dest_offset=used,
+                    count=host.size)
+        return buf, need
+
+    def buffers(self, views: Sequence[FusionView], slots: Sequence[int], cfg: MappingConfig
+                ) -> tuple[wp.array, wp.array, wp.array]:
+        tau = float(cfg.mask_threshold)
+        key = (tuple(id(v) for v in views), tuple(int(s) for s in slots), tau, float(cfg.near))
+        if key == self.key and self.views_dev is not None:
+            return self.views_dev, self.mbuf, self.sbuf
+        live = {id(v): v for v in views}
+        for k in [k for k, e in self.res.items() if k not in live or e[0] is not live[k]
+                  or e[1] != tau]:
+            del self.res[k]
+        live_m = sum(e[4] for e in self.res.values())
+        if self.mused - live_m > max(live_m, self.min_reclaim):  # reclaim dropped views' space
+            self.res.clear()
+            self.mused = self.sused = 0
+        for v in views:
+            if id(v) not in self.res:
+                b, sat = self.binarise(v, tau)
+                moff, soff = self.mused, self.sused
+                self.mbuf, self.mused = self._append(self.mbuf, self.mused, b, wp.uint8)
+                self.sbuf, self.sused = self._append(self.sbuf, self.sused, sat, wp.int32)
+                self.res[id(v)] = (v, tau, moff, soff, b.size, sat.size)
+        structs = []
+        for v, s in zip(views, slots):
+            _, _, moff, soff, _, _ = self.res[id(v)]
+            c = v.camera
+            structs.append(kcov.make_coverage_view(c.w2c, c.fx, c.fy, c.cx, c.cy, c.width,
+                                                   c.height, cfg.near, int(s), moff, soff))
+        self.views_dev = wp.array(structs, dtype=kcov.CoverageView, device=self.device)
+        self.key = key
+        return self.views_dev, self.mbuf, self.sbuf
+
+
+class SurfelMapper:
+    """Voxel-to-surfel mapping of one scene on one grid, cheap to re-run per update.
+
+    The constructor uploads the surfel centres and scaled tangents, resolves every
+    surfel's voxel (Pass-1 Morton code → active index) and computes the per-scene
+    needle threshold; :meth:`map` then costs three light per-surfel kernels plus the
+    Pass-3 gather over the candidates.
+
+    Args:
+        scene: the surfels.
+        grid: the occupancy grid the fusion ran on (same device).
+        config: default :class:`MappingConfig` for :meth:`map`.
+        device: Warp device (default: the grid's).
+    """
+
+    def __init__(self, scene: SurfelScene, grid: OccupancyGrid,
+                 config: MappingConfig = MappingConfig(), device=None) -> None:
+        self.device = grid.device if device is None else resolve_device(device)
+        if self.device != grid.device:
+            raise ValueError(f"SurfelMapper: grid lives on {grid.device}, asked for {self.device}")
+        self.grid = grid
+        self.config = config
+        self.n = n = len(scene)
+        d = self.device
+        rot = scene.rotations().astype(np.float64)
+        sc = np.asarray(scene.scales, dtype=np.float64)
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+        self._means = wp.array(f32(scene.means), dtype=wp.vec3, device=d)
+        self._tu = wp.array(f32(rot[:, :, 0] * sc[:, :1]), dtype=wp.vec3, device=d)
+        self._tv = wp.array(f32(rot[:, :, 1] * sc[:, 1:2]), dtype=wp.vec3, device=d)
+        codes = surfel_voxel_codes(self._means, grid.geometry, device=d)
+        self._act = kocc.hash_query(grid.hash_keys, grid.hash_vals, grid.hash_shift, codes,
+                                    device=d)
+        self._act_host = self._act.numpy().copy()
+        self._scales = scene.scales  # a reference (other ε only)
+        self._aspects = surfel_aspects(scene.scales, config.aspect_eps)
+        self._needle: dict[tuple[float, float], tuple[float, np.ndarray, wp.array]] = {}
+        self._needle_entry(config)
+        self._views = _ViewCache(d)
+        self._f1 = wp.zeros(n, dtype=wp.uint8, device=d)
+        self._f2 = wp.zeros(n, dtype=wp.uint8, device=d)
+        self._sel = wp.zeros(n, dtype=wp.uint8, device=d)
+        self._flag = wp.zeros(n, dtype=int, device=d)
+        self._kappa = wp.zeros(n, dtype=float, device=d)
+        self._scored = wp.zeros(n, dtype=wp.int32, device=d)
+        self._ones = wp.full(n, 1, dtype=wp.uint8, device=d)
+
+    # --- per-scene state ----------------------------------------------------------
+    def _needle_entry(self, cfg: MappingConfig) -> tuple[float, np.ndarray, wp.array]:
+        key = (float(cfg.needle_percentile), float(cfg.aspect_eps))
+        e = self._needle.get(key)
+        if e is None:
+            a = self._aspects if cfg.aspect_eps == self.config.aspect_eps else \
+                surfel_aspects(self._scales, cfg.aspect_eps)
+            tau, keep = needle_threshold(a, cfg.needle_percentile)
+            e = (tau, keep, wp.array(keep.astype(np.uint8), dtype=wp.uint8, device=self.device))
+            self._needle[key] = e
+        return e
+
+    @property
+    def active_index(self) -> np.ndarray:
+        """``[N] int32`` active index of each surfel's voxel (−1: filtered/inactive)."""
+        return self._act_host
+
+    @property
+    def selected_device(self) -> wp.array:
+        """``[N] uint8`` f of the last :meth:`map` on the device (overwritten by the next)."""
+        return self._sel
+
+    @property
+    def aspects(self) -> np.ndarray:
+        return self._aspects
+
+    # --- validation ---------------------------------------------------------------
+    def _check(self, fused: FusionResult, views: Sequence[FusionView], slots: Sequence[int]
+               ) -> np.ndarray:
+        if fused.vmask is None:
+            raise ValueError("map_to_surfels: the fusion result has no view bitmask "
+                             "(a NeRF result?); the mapping needs the 2DGS GsFusion result")
+        a = len(self.grid)
+        if len(fused.segmented) != a or fused.vmask.shape[0] != a:
+            raise ValueError(f"map_to_surfels: fusion result has {len(fused.segmented)} voxels, "
+                             f"the grid {a}")
+        if len(views) != len(slots):
+            raise ValueError(f"map_to_surfels: {len(views)} views but {len(slots)} slots")
+        bits = 32 * (fused.vmask.shape[1] if fused.vmask.ndim == 2 else 0)
+        sl = [int(s) for s in slots]
+        for s in sl:
+            if not 0 <= s < bits:
+                raise ValueError(f"map_to_surfels: slot {s} outside the bitmask [0, {bits})")
+        if len(set(sl)) != len(sl):
+            raise ValueError(f"map_to_surfels: duplicate slots {sl}")
+        return np.ascontiguousarray(fused.vmask, dtype=np.uint32).reshape(a, -1)
+
+    # --- the mapping --------------------------------------------------------------
+    def map(self, fused: FusionResult, views: Sequence[FusionView], slots: Sequence[int],
+            config: MappingConfig | None = None) -> MappingResult:
+        """Run Passes 1–3 for the fused state ``fused`` and its live ``views``/``slots``."""
+        cfg = config or self.config
+        d = self.device
+        vm = self._check(fused, views, slots)
+        sec: dict[str, float] = {}
+        t_all = t = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal t
+            wp.synchronize_device(d)
+            now = time.perf_counter()
+            sec[name] = now - t
+            t = now
+
+        thr = cpu_threads(cfg.threads)
+        seg = wp.array(np.asarray(fused.segmented, dtype=np.uint8), dtype=wp.uint8, device=d)
+        kcov.run_pass1(self._act, seg, self._f1, d, thr)
+        lap("pass1")
+        tau_a, keep_h, keep = self._needle_entry(cfg)
+        if not cfg.needle_filter:
+            keep = self._ones
+        kcov.run_pass2(self._f1, keep, self._f2, self._flag, d, thr)
+        cand = kcov.compact(self._flag, d)
+        self._kappa.zero_()
+        self._scored.zero_()
+        lap("pass2")
+        run3 = cfg.coverage_filter and len(views) > 0 and cand.shape[0] > 0
+        if run3:
+            vdev, mdev, sdev = self._views.buffers(views, slots, cfg)
+            vmask = wp.array(vm, dtype=wp.uint32, device=d)
+        lap("views")
+        if run3:
+            kcov.run_coverage(cand, self._act, vmask, self._means, self._tu, self._tv, vdev, mdev,
+                              sdev, cfg.box_sigma, cfg.accept_sigma, cfg.early_out,
+                              self._kappa, self._scored, device=d, threads=thr)
+        kcov.run_select(self._f2, self._kappa, cfg.surfel_coverage, cfg.coverage_filter,
+                        self._sel, d, thr)
+        lap("pass3")
+        f1 = self._f1.numpy().astype(bool)
+        f2 = self._f2.numpy().astype(bool)
+        sel = self._sel.numpy().astype(bool)
+        kappa = self._kappa.numpy().copy()
+        per_view = self._scored_per_view(f2, vm, slots) if cfg.coverage_filter else \
+            [0] * len(views)
+        lap("readback")
+        sec["total"] = time.perf_counter() - t_all
+        return MappingResult(selected=sel, pass1=f1, pass2=f2, kappa=kappa, tau_a=tau_a,
+                             n_pass1=int(f1.sum()), n_pass2=int(f2.sum()),
+                             n_selected=int(sel.sum()), n_needles=int((~keep_h).sum()),
+                             scored_per_view=per_view, n_scored=int(sum(per_view)), seconds=sec)
+
+    def _scored_per_view(self, f2: np.ndarray, vm: np.ndarray, slots: Sequence[int]) -> list[int]:
+        """|a_s| per view: candidates per voxel, then each view's bit (host,
+        O(N + V·S) with V the voxels holding candidates)."""
+        idx = self._act_host[f2]
+        if idx.size == 0 or vm.size == 0:
+            return [0] * len(slots)
+        per_vox = np.bincount(idx, minlength=vm.shape[0])
+        nz = np.flatnonzero(per_vox)  # voxels holding candidates (≪ A)
+        cnt, rows = per_vox[nz], vm[nz]
+        out = []
+        for s in slots:
+            s = int(s)
+            has = ((rows[:, s // 32] >> np.uint32(s % 32)) & np.uint32(1)).astype(bool)
+            out.append(int(cnt[has].sum()))
+        return out
+
+    def view_counts(self, fused: FusionResult, view: FusionView, slot: int,
+                    config: MappingConfig | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw ``(total_fp, mask_fp, scored)`` ``[N]`` of one view (eq:cov-atomics), full
+        sweeps without early-outs; zero for surfels not in ``a_s``."""
+        cfg = config or self.config
+        d = self.device
+        vm = self._check(fused, [view], [slot])
+        n = self.n
+        seg = wp.array(np.asarray(fused.segmented, dtype=np.uint8), dtype=wp.uint8, device=d)
+        _, _, keep = self._needle_entry(cfg)
+        if not cfg.needle_filter:
+            keep = self._ones
+        tot = wp.zeros(n, dtype=wp.int32, device=d)
+        pos = wp.zeros(n, dtype=wp.int32, device=d)
+        kap = wp.zeros(n, dtype=float, device=d)
+        scored = wp.zeros(n, dtype=wp.int32, device=d)
+        if n:
+            f1 = wp.zeros(n, dtype=wp.uint8, device=d)
+            f2 = wp.zeros(n, dtype=wp.uint8, device=d)
+            flag = wp.zeros(n, dtype=int, device=d)
+            kcov.run_pass1(self._act, seg, f1, d)
+            kcov.run_pass2(f1, keep, f2, flag, d)
+            cand = kcov.compact(flag, d)
+            vdev, mdev, sdev = _ViewCache(d).buffers([view], [slot], cfg)
+            if cand.shape[0]:
+                kcov.run_coverage(cand, self._act, wp.array(vm, dtype=wp.uint32, device=d),
+                                  self._means, self._tu, self._tv, vdev, mdev, sdev,
+                                  cfg.box_sigma, cfg.accept_sigma, False, kap, scored, tot, pos,
+                                  device=d, threads=cpu_threads(cfg.threads))
+        return tot.numpy(), pos.numpy(), scored.numpy().astype(bool)
+
+
+def map_to_surfels(scene: SurfelScene, grid: OccupancyGrid, fused: FusionResult,
+                   views: Sequence[FusionView], slots: Sequence[int],
+                   config: MappingConfig = MappingConfig(), device=None) -> MappingResult:
+    """One-shot mapping (builds a :class:`SurfelMapper`; keep one to re-run per update)."""
+    return SurfelMapper(scene, grid, config, device).map(fused, views, slots, config)
