@@ -12,6 +12,7 @@ from .fusion_common import depth_gradient_factor
 from .fusion_accum import apply_records, compact_contributions, readout
 from .fusion_gs import gs_fuse_view
 from .fusion_nerf import nerf_fuse_view
+from .coverage import make_coverage_view, run_coverage, run_pass1, run_pass2, run_select, compact
 
 __all__: list[str] = ["cpu_threads", "resolve_device", "RasterOutput", "RasterSettings",
                       "SurfelBuffers", "rasterize_surfels", "upload_surfels", "GridBuffers",
@@ -19,4 +20,7 @@ __all__: list[str] = ["cpu_threads", "resolve_device", "RasterOutput", "RasterSe
                       # occupancy and fusion (divas_engine.fusion)
                       "surfel_codes", "build_active", "hash_build", "hash_query", "make_grid_geom",
                       "integral_images", "depth_gradient_factor", "compact_contributions",
-                      "apply_records", "readout", "gs_fuse_view", "nerf_fuse_view"]
+                      "apply_records", "readout", "gs_fuse_view", "nerf_fuse_view",
+                      # voxel-to-surfel mapping (divas_engine.mapping)
+                      "make_coverage_view", "run_pass1", "run_pass2", "compact", "run_coverage",
+                      "run_select"]

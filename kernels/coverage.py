@@ -43,7 +43,7 @@ import numpy as np
 import warp as wp
 
 from ._launch import launch_split
-from .splat import RasterCamera, Splat, make_raster_camera
+from .splat import RasterCamera, Splat, make_raster_camera, plane_hit
 
 wp.set_module_options({"enable_backward": False})
 
@@ -121,15 +121,7 @@ def splat_rho3(sp: Splat, px: float, py: float, fx: float, fy: float) -> float:
     """``u² + v²`` of the pixel ray through ``(px, py)`` on the surfel plane, in units of
     the tangent scales (the ``ρ_3`` of ``kernels.splat.splat_alpha``, same operations;
     no low-pass term). Edge-on (``p_z = 0``) → 1e30."""
-    ex = (px - sp.center[0]) / fx
-    ey = (py - sp.center[1]) / fy
-    pz = sp.pz0 + sp.qn[0] * ex + sp.qn[1] * ey
-    rho3 = float(1.0e30)
-    if pz != 0.0:
-        u = (sp.q0[0] * ex + sp.q0[1] * ey) / pz
-        v = (sp.q1[0] * ex + sp.q1[1] * ey) / pz
-        rho3 = u * u + v * v
-    return rho3
+    return plane_hit(sp, (px - sp.center[0]) / fx, (py - sp.center[1]) / fy)[0]
 
 
 @wp.func

@@ -96,6 +96,21 @@ def conic_range(n: wp.vec3, d: wp.vec3, k2: float):
 
 
 @wp.func
+def plane_hit(sp: Splat, ex: float, ey: float) -> wp.vec2:
+    """Exact ray–splat intersection (NOTES "Depth tuple") for the pixel ray with normalised
+    offset ``(ex, ey)`` from the projected centre: ``(u² + v², p_z)`` with (u, v) the
+    tangent-plane coordinates in units of the scales and ``p_z`` the homogeneous depth
+    term (hit depth = ``det / p_z``). Edge-on (``p_z = 0``) gives ``u² + v² = BIG``."""
+    pz = sp.pz0 + sp.qn[0] * ex + sp.qn[1] * ey
+    rho3 = BIG
+    if pz != 0.0:
+        u = (sp.q0[0] * ex + sp.q0[1] * ey) / pz
+        v = (sp.q1[0] * ex + sp.q1[1] * ey) / pz
+        rho3 = u * u + v * v
+    return wp.vec2(rho3, pz)
+
+
+@wp.func
 def splat_alpha(sp: Splat, px: float, py: float, fx: float, fy: float, inv_var: float,
                 alpha_max: float, near: float):
     """Opacity and planar depth of splat ``sp`` at pixel centre ``(px, py)`` (focal
@@ -103,14 +118,9 @@ def splat_alpha(sp: Splat, px: float, py: float, fx: float, fy: float, inv_var: 
     cutoff or the hit lies before the near plane."""
     dx = (px - sp.center[0]) - sp.center_lo[0]
     dy = (py - sp.center[1]) - sp.center_lo[1]
-    ex = dx / fx
-    ey = dy / fy
-    pz = sp.pz0 + sp.qn[0] * ex + sp.qn[1] * ey
-    rho3 = BIG
-    if pz != 0.0:
-        u = (sp.q0[0] * ex + sp.q0[1] * ey) / pz
-        v = (sp.q1[0] * ex + sp.q1[1] * ey) / pz
-        rho3 = u * u + v * v
+    hit = plane_hit(sp, dx / fx, dy / fy)
+    rho3 = hit[0]
+    pz = hit[1]
     rho2 = (dx * dx + dy * dy) * inv_var
     rho = wp.min(rho3, rho2)
     alpha = float(0.0)
