@@ -43,7 +43,7 @@ import numpy as np
 import warp as wp
 
 from ._launch import launch_split
-from .splat import RasterCamera, Splat, make_raster_camera, plane_hit
+from .splat import RasterCamera, Splat, make_raster_camera, plane_hit, splat_plane_rows
 
 wp.set_module_options({"enable_backward": False})
 
@@ -95,14 +95,7 @@ def project_surfel(mu: wp.vec3, tu: wp.vec3, tv: wp.vec3, cam: RasterCamera) -> 
     mx = wp.vec3(a[0], b[0], pc[0])
     my = wp.vec3(a[1], b[1], pc[1])
     mz = wp.vec3(a[2], b[2], pc[2])
-    c1 = wp.cross(my, mz)
-    c2 = wp.cross(mz, mx)
-    c3 = wp.cross(mx, my)
-    sp = Splat()
-    sp.q0 = wp.vec3(c1[0], c2[0], c3[0])
-    sp.q1 = wp.vec3(c1[1], c2[1], c3[1])
-    sp.qn = wp.vec3(c1[2], c2[2], c3[2])
-    sp.det = wp.dot(mz, c3)
+    sp = splat_plane_rows(mx, my, mz)
     sp.pz0 = wp.dot(sp.qn, pc) / pc[2]
     sp.center = wp.vec2(cam.fx * pc[0] / pc[2] + cam.cx, cam.fy * pc[1] / pc[2] + cam.cy)
     sp.depth = pc[2]

@@ -48,7 +48,7 @@ import warp as wp
 from ._launch import cpu_threads, launch_split
 from .composite import ANCHOR_MED, BlendParams, PixelOut, PixState
 from .sh import eval_sh
-from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera
+from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, splat_plane_rows
 
 # forward only: no adjoint code (halves compile time)
 wp.set_module_options({"enable_backward": False})
@@ -175,14 +175,7 @@ def preprocess_kernel(means: wp.array(dtype=wp.vec3), tu: wp.array(dtype=wp.vec3
     mx = wp.vec3(a[0], b[0], pc[0])
     my = wp.vec3(a[1], b[1], pc[1])
     mz = wp.vec3(a[2], b[2], pc[2])
-    c1 = wp.cross(my, mz)
-    c2 = wp.cross(mz, mx)
-    c3 = wp.cross(mx, my)
-    sp = Splat()
-    sp.q0 = wp.vec3(c1[0], c2[0], c3[0])
-    sp.q1 = wp.vec3(c1[1], c2[1], c3[1])
-    sp.qn = wp.vec3(c1[2], c2[2], c3[2])
-    sp.det = wp.dot(mz, c3)
+    sp = splat_plane_rows(mx, my, mz)
     sp.pz0 = 1.0
     sp.r2 = 0.0
     sp.depth = pc[2]

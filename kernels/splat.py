@@ -96,6 +96,22 @@ def conic_range(n: wp.vec3, d: wp.vec3, k2: float):
 
 
 @wp.func
+def splat_plane_rows(mx: wp.vec3, my: wp.vec3, mz: wp.vec3) -> Splat:
+    """A splat whose ray–plane rows are set from the camera-space columns
+    ``m* = (t_u*, t_v*, μ*)`` (x, y, z rows of [R t_u | R t_v | R μ + t]): ``q0, q1, qn``
+    are the adjugate rows and ``det`` the triple product; all other fields are defaults."""
+    c1 = wp.cross(my, mz)
+    c2 = wp.cross(mz, mx)
+    c3 = wp.cross(mx, my)
+    sp = Splat()
+    sp.q0 = wp.vec3(c1[0], c2[0], c3[0])
+    sp.q1 = wp.vec3(c1[1], c2[1], c3[1])
+    sp.qn = wp.vec3(c1[2], c2[2], c3[2])
+    sp.det = wp.dot(mz, c3)
+    return sp
+
+
+@wp.func
 def plane_hit(sp: Splat, ex: float, ey: float) -> wp.vec2:
     """Exact ray–splat intersection (NOTES "Depth tuple") for the pixel ray with normalised
     offset ``(ex, ey)`` from the projected centre: ``(u² + v², p_z)`` with (u, v) the
