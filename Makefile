@@ -12,8 +12,7 @@ $(PY):
 
 demo: $(PY)
 	$(PY) -m pip install -q -e .
-	$(VENV)/bin/divas generate ribs --out $(DEMO)/ribs --size 50000 --seed 0
-	$(VENV)/bin/divas info $(DEMO)/ribs/scene.ply
+	$(VENV)/bin/divas demo --out $(DEMO)
 
 test: $(PY)
 	$(PY) -m pip install -q -e ".[test]"

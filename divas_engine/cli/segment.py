@@ -1,0 +1,330 @@
+"""``divas segment SCENE --prompts P.json --out OUT``: headless segmentation from a prompts file.
+
+Runs the whole DivAS loop (:class:`~divas_engine.session.Session`) on the anchors and
+clicks of a prompts file (NOTES "Headless prompts file"): every positive click spawns a
+centroid view, its default prompt plus ``centroid_prompts`` go to the segmenter, every
+view is accepted in order (NeRF: asynchronous SAM with group synchronisation, Sec. 3.4),
+then the selection is written in the input's format (a PLY subset / a masked ``.npz``
+grid), optionally with per-input-row labels (``--labels-out``) and a JSON report.
+
+Report (``--report``) keys:
+
+* ``version`` (1), ``command``, ``scene``, ``cameras``, ``prompts``, ``kind`` ("2dgs"/"nerf"),
+  ``segmenter``, ``seed``, ``device``, ``render_scale``, ``preset`` (NeRF);
+* ``timings``: ``T_pipe_s`` (load → outputs written), ``load_s``, ``open_s``, ``export_s``
+  and per stage (``render``, ``centroid``, ``segmenter``, ``segmenter_wait``, ``kernel``,
+  ``mapping``, ``overlay``) ``{calls, total_s, mean_s, max_s, per_call_s}``;
+* ``updates``: one record per accepted view (seconds by stage);
+* ``counts``: primitives, anchors, centroid_views, accepted, rejected, selected,
+  active_voxels, segmented_voxels …;
+* ``views``: id, anchor, click, status (``fused``/``rejected``), reason, score, strategy;
+* ``memory``: ``peak_rss_bytes`` (and ``rss_bytes``);
+* ``config``: the full session config; ``outputs``: files written;
+* ``evaluation`` (with ``--gt-labels``): 3D precision / recall / IoU of the selection;
+  ``oracle`` (oracle segmenter): its config and seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import DivasInputError
+
+SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("segment", help="segment a scene headless from a prompts file",
+                       description="Run the DivAS loop on the anchors/clicks of a prompts file "
+                                   "(NOTES 'Headless prompts file') and write the selection.")
+    p.add_argument("scene", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz "
+                                            "or .npz density grid")
+    p.add_argument("--cameras", type=Path, default=None,
+                   help="training cameras (default: cameras.json beside the scene, if any)")
+    p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="output: the selected primitives (PLY subset / same format), or the "
+                        "masked grid .npz for NeRF scenes")
+    p.add_argument("--labels-out", type=Path, default=None,
+                   help="bool .npy per input row (NeRF: [D,H,W] bool)")
+    p.add_argument("--segmenter", choices=SEGMENTERS, default="classic",
+                   help="2D mask source (default classic; oracle is for evaluation only)")
+    p.add_argument("--sam-encoder", type=Path, default=None, help="SAM ONNX image encoder")
+    p.add_argument("--sam-decoder", type=Path, default=None, help="SAM ONNX prompt decoder")
+    p.add_argument("--sam-checkpoint", type=Path, default=None, help="SAM PyTorch checkpoint")
+    p.add_argument("--sam-model-type", default="vit_h", help="SAM model type (default vit_h)")
+    p.add_argument("--gt-labels", type=Path, default=None,
+                   help="ground truth .npy (bool per surfel / input row; NeRF [D,H,W] bool): "
+                        "the oracle's target, and a 3D score in the report")
+    p.add_argument("--preset", choices=("llff", "mip360"), default=None,
+                   help="NeRF fusion preset (default: llff for forward-facing captures)")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="render scale of every view (default 1)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                   help="Warp device (default auto)")
+    p.add_argument("--report", type=Path, default=None, help="write a JSON report here")
+    p.add_argument("--session", type=Path, default=None,
+                   help="save the session here (JSON + .npz; autosaved after every accept)")
+    p.add_argument("--mask-channel", type=int, default=1, choices=(0, 1, 2),
+                   help="segmenter channel kept (default 1, the paper's mid granularity)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the segmenter (default 0)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def _progress(iterable=None, *, total=None, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(iterable, total=total, desc=desc, file=sys.stderr, disable=not enabled,
+                leave=False, dynamic_ncols=True)
+
+
+def build_segmenter(name: str, *, seed: int = 0, sam_encoder: Path | None = None,
+                    sam_decoder: Path | None = None, sam_checkpoint: Path | None = None,
+                    sam_model_type: str = "vit_h", gt_available: bool = False,
+                    device: str = "auto"):
+    """The segmenter named on the command line (errors as :class:`DivasInputError`)."""
+    from ..segment import ClassicConfig, ClassicSegmenter, OracleConfig, OracleSegmenter
+
+    if name == "classic":
+        return ClassicSegmenter(ClassicConfig(seed=seed))
+    if name == "oracle":
+        if not gt_available:
+            raise DivasInputError(None, "--segmenter oracle needs --gt-labels")
+        return OracleSegmenter(config=OracleConfig(seed=seed))
+    if name == "sam-onnx":
+        if sam_encoder is None or sam_decoder is None:
+            raise DivasInputError(None, "--segmenter sam-onnx needs --sam-encoder and "
+                                        "--sam-decoder")
+        from ..segment import SamOnnxSegmenter
+
+        return SamOnnxSegmenter(sam_encoder, sam_decoder)
+    if name == "sam-torch":
+        if sam_checkpoint is None:
+            raise DivasInputError(None, "--segmenter sam-torch needs --sam-checkpoint")
+        from ..segment import SamTorchSegmenter
+
+        try:
+            return SamTorchSegmenter(sam_checkpoint, sam_model_type,
+                                     device=None if device == "auto" else device)
+        except ImportError as e:
+            raise DivasInputError(None, str(e)) from None
+    raise DivasInputError(None, f"unknown segmenter {name!r}")
+
+
+def load_gt(path: Path, scene) -> np.ndarray:
+    """Ground truth in scene order: per surfel (given per input row or per surfel) / grid."""
+    from ..scene import SurfelScene
+
+    try:
+        g = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise DivasInputError(path, f"cannot read ground-truth labels ({e})") from None
+    if g.dtype != bool and not (np.issubdtype(g.dtype, np.integer) and np.isin(g, (0, 1)).all()):
+        raise DivasInputError(path, f"ground-truth labels must be bool (or 0/1), got {g.dtype}")
+    g = g.astype(bool)
+    if isinstance(scene, SurfelScene):
+        src = scene.source
+        if g.shape == (len(scene),):
+            return g
+        if src is not None and g.shape == (src.num_rows,):
+            return g[src.kept_rows]
+        raise DivasInputError(path, f"ground-truth labels have shape {g.shape}; the scene has "
+                                    f"{len(scene)} surfels"
+                                    + (f" ({src.num_rows} input rows)" if src else ""))
+    if g.shape != scene.density.shape:
+        raise DivasInputError(path, f"ground-truth grid has shape {g.shape}, the density grid "
+                                    f"{scene.density.shape}")
+    return g
+
+
+def _device(name: str):
+    from kernels import resolve_device
+
+    try:
+        return resolve_device(name)
+    except RuntimeError as e:
+        raise DivasInputError(None, str(e)) from None
+
+
+def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: Path | None = None,
+                  out: Path | None = None, labels_out: Path | None = None,
+                  segmenter: str = "classic", sam_encoder: Path | None = None,
+                  sam_decoder: Path | None = None, sam_checkpoint: Path | None = None,
+                  sam_model_type: str = "vit_h", gt_labels: Path | None = None,
+                  preset: str | None = None, scale: float = 1.0, device: str = "auto",
+                  session_path: Path | None = None, seed: int = 0, progress: bool = True,
+                  keep_session: bool = False, mask_channel: int = 1) -> tuple[dict[str, Any], Any]:
+    """The whole ``divas segment`` pipeline; returns ``(report, session)``.
+
+    ``prompts_path`` may also be a parsed :class:`~divas_engine.session.Prompts`. The
+    session is closed unless ``keep_session``.
+    """
+    from ..io.cameras import load_cameras
+    from ..io.load import load_scene
+    from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
+    from ..session.evaluate import surfel_scores
+    from ..session.prompts import resolve_anchors
+
+    t_start = time.perf_counter()
+    if not (scale > 0 and np.isfinite(scale)):
+        raise DivasInputError(None, f"--scale must be positive, got {scale}")
+    prompts = prompts_path if isinstance(prompts_path, Prompts) else load_prompts(prompts_path)
+    dev = _device(device)
+    scene = load_scene(scene_path)
+    if cameras_path is None and (Path(scene_path).parent / "cameras.json").is_file():
+        cameras_path = Path(scene_path).parent / "cameras.json"
+    cameras = load_cameras(cameras_path) if cameras_path is not None else []
+    gt = load_gt(gt_labels, scene) if gt_labels is not None else None
+    seg = build_segmenter(segmenter, seed=seed, sam_encoder=sam_encoder, sam_decoder=sam_decoder,
+                          sam_checkpoint=sam_checkpoint, sam_model_type=sam_model_type,
+                          gt_available=gt is not None, device=device)
+    if mask_channel not in (0, 1, 2):
+        raise DivasInputError(None, f"--mask-channel must be 0, 1 or 2, got {mask_channel}")
+    config = SessionConfig(render_scale=float(scale), nerf_preset=preset, seed=int(seed),
+                           mask_channel=int(mask_channel),
+                           autosave=None if session_path is None else str(session_path))
+    resolved = resolve_anchors(prompts, cameras,
+                               lambda: [a.camera for a in anchor_plan(scene, cameras, config)
+                                        .candidates])
+    t_load = time.perf_counter() - t_start
+    t = time.perf_counter()
+    session = Session.open(scene, cameras, config, seg, dev,
+                           anchors=[(r.camera, r.source, r.index) for r in resolved],
+                           gt_values=gt, render_anchors=False)
+    try:
+        for a in _progress(session.anchors, desc="anchors", enabled=progress):
+            _ = a.buffers
+        t_open = time.perf_counter() - t
+        # spawn every centroid view first (bad clicks fail before the expensive part)
+        spawned = []
+        n_clicks = sum(len(r.prompt.clicks) for r in resolved)
+        bar = _progress(total=n_clicks, desc="centroid views", enabled=progress)
+        for i, r in enumerate(resolved):
+            a = session.anchors[i]
+            sx, sy = a.camera.width / a.full_camera.width, a.camera.height / a.full_camera.height
+            for k, c in enumerate(r.prompt.clicks):
+                try:
+                    v = session.click(i, (c.xy[0] * sx, c.xy[1] * sy), positive=c.positive)
+                except DivasInputError as e:
+                    raise DivasInputError(prompts.source, f"anchors[{i}].clicks[{k}]: "
+                                                          f"{e.problem}") from None
+                if c.positive:
+                    extra = prompts.extra_points(i, k)
+                    pts = np.array([[p.xy[0] * sx, p.xy[1] * sy] for p in extra]).reshape(-1, 2)
+                    labs = np.array([1 if p.positive else 0 for p in extra], np.int64)
+                    spawned.append((v, pts, labs))
+                bar.update(1)
+        bar.close()
+        for v, pts, labs in _progress(spawned, desc="fusion", enabled=progress):
+            session.accept(v, pts, labs)
+        session.sync()
+        # outputs
+        t = time.perf_counter()
+        outputs: dict[str, Any] = {}
+        error = None
+        sel = session.selection
+        if out is not None:
+            if not sel.any():
+                reasons = "; ".join(f"{v.id}: {v.reason}" for v, _, _ in spawned
+                                    if v.status == "rejected")
+                error = ("the selection is empty; nothing to write"
+                         + (f" (rejected views: {reasons})" if reasons else ""))
+            else:
+                Path(out).parent.mkdir(parents=True, exist_ok=True)
+                res = session.export(out, labels_path=labels_out)
+                outputs.update({"out": str(res.path), "format": res.format, "count": res.count})
+                if res.labels_path is not None:
+                    outputs["labels_out"] = str(res.labels_path)
+        if session_path is not None:
+            session.save(session_path)
+            outputs["session"] = str(session_path)
+        t_export = time.perf_counter() - t
+        rep = session.report()
+        timings = rep.pop("timings")
+        timings.update({"T_pipe_s": time.perf_counter() - t_start, "load_s": t_load,
+                        "open_s": t_open, "export_s": t_export})
+        report: dict[str, Any] = {
+            "version": 1, "command": "segment", "scene": str(scene_path),
+            "cameras": None if cameras_path is None else str(cameras_path),
+            "prompts": prompts.source, "kind": rep["kind"], "segmenter": segmenter,
+            "seed": int(seed), "device": rep["device"], "render_scale": float(scale),
+            "timings": timings, **{k: v for k, v in rep.items()
+                                   if k not in ("kind", "seed", "device", "segmenter")},
+            "outputs": outputs}
+        if session.kind == "nerf":
+            report["preset"] = session.preset
+        if gt is not None:
+            report["evaluation"] = {"surfels" if session.kind == "2dgs" else "voxels":
+                                    surfel_scores(sel, gt)}
+        if segmenter == "oracle":
+            from dataclasses import asdict
+
+            report["oracle"] = {"config": asdict(seg.config), "seed": seg.config.seed}
+        if error is not None:
+            report["error"] = error
+            exc = DivasInputError(None, error)
+            exc.report = report  # type: ignore[attr-defined]
+            raise exc
+        return report, session
+    finally:
+        if not keep_session:
+            session.close()
+
+
+def write_report(path: Path, report: dict[str, Any]) -> None:
+    from ..session.store import atomic_write_bytes
+
+    atomic_write_bytes(Path(path), json.dumps(report, indent=1, default=_json_default).encode())
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    if isinstance(o, tuple):
+        return list(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        report, _ = segment_scene(
+            args.scene, args.prompts, cameras_path=args.cameras, out=args.out,
+            labels_out=args.labels_out, segmenter=args.segmenter, sam_encoder=args.sam_encoder,
+            sam_decoder=args.sam_decoder, sam_checkpoint=args.sam_checkpoint,
+            sam_model_type=args.sam_model_type, gt_labels=args.gt_labels, preset=args.preset,
+            scale=args.scale, device=args.device, session_path=args.session, seed=args.seed,
+            progress=not args.no_progress, mask_channel=args.mask_channel)
+    except DivasInputError as e:
+        if args.report is not None and getattr(e, "report", None) is not None:
+            write_report(args.report, e.report)  # the report says which views were rejected
+        raise
+    if args.report is not None:
+        write_report(args.report, report)
+    c = report["counts"]
+    print(f"{c['accepted']} of {c['centroid_views']} centroid views fused "
+          f"({c['rejected']} rejected); {c['selected']} "
+          f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
+          f"({report['timings']['T_pipe_s']:.1f} s)")
+    for v in report["views"]:
+        if v["status"] == "rejected":
+            print(f"  rejected {v['id']}: {v['reason']}")
+    if "evaluation" in report:
+        e = next(iter(report["evaluation"].values()))
+        print(f"  vs ground truth: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
+              f"IoU {e['iou']:.3f}")
+    return 0
+
+
+__all__ = ["add_parser", "run", "segment_scene", "build_segmenter", "load_gt", "write_report"]

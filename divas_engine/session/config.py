@@ -1,0 +1,157 @@
+"""Session configuration (paper Sec. 3.4 scheduling, Sec. 3.7 propagation) and the
+JSON (de)serialisation of config dataclasses.
+
+Every sub-config is a dataclass of the package that owns it (fusion, views, depth
+weighting); :class:`SessionConfig` only adds the constants of the interaction loop.
+The whole tree round-trips through plain JSON (:func:`config_to_dict` /
+:func:`config_from_dict`), which is what a saved session stores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..fusion.config import GridConfig, GsFusionConfig, NERF_PRESETS
+from ..mapping.config import MappingConfig
+from ..render.config import RenderConfig
+from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
+from ..segment.worker import SYNC_PENDING
+from ..views.config import ViewConfig
+
+__all__ = ["SessionConfig", "config_to_dict", "config_from_dict"]
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """Constants of one interactive DivAS session.
+
+    Attributes:
+        render_scale: every view (anchors, centroid views, overlays) is rendered at
+            this fraction of its camera's resolution; Session pixel coordinates are in
+            the rendered images (the prompts file is in full-camera pixels and is
+            converted by its reader).
+        grid: 2DGS occupancy config; None → :class:`GridConfig` with ``g_max`` 512 for a
+            forward-facing capture (NOTES "Occupancy"), 1024 otherwise.
+        gs_fusion: 2DGS fusion constants.
+        nerf_preset: ``"llff"`` / ``"mip360"``; None → llff when forward-facing.
+        mapping: voxel-to-surfel mapping constants (2DGS).
+        view: anchor / centroid-view constants.
+        render: renderer constants.
+        bandpass: eq:gs-bandpass constants (2DGS); nerf_weight: eq:nerf-depthweight (NeRF).
+        min_score: a view is rejected below this channel-1 score (Sec. 3.4, 0.5).
+        mask_channel: SAM channel kept (1, the mid granularity).
+        min_mask_pixels: a depth-weighted mask with fewer pixels ≥ 0.5 is rejected as
+            empty (an empty mask would fuse as pure negative evidence; not in the paper).
+        sync_pending: NeRF asynchronous SAM: synchronise once this many masks are
+            pending (Sec. 3.4 condition (ii), 3).
+        nerf_async: NeRF uses the background SAM worker (Sec. 3.4); False runs it
+            synchronously like 2DGS (debugging).
+        nerf_zoom: λ of the NeRF centroid view (None: 0.67 forward-facing / 0.47 360°).
+        all_views: offer every Fibonacci anchor (unsupported included).
+        overwrite_labels: a later object may take surfels already labelled by an earlier one.
+        negative_occlusion_tol: an anchor negative click is projected into a centroid view
+            only where it is not hidden: its depth ≤ (1 + tol) · the view's D_ref.
+        overlay_color, overlay_alpha: overlay of the selection on a view.
+        overlay_threshold: coverage threshold of the binary overlay mask (NOTES
+            "Evaluation": 0.1).
+        autosave: path of the session JSON written after every accept (None: off).
+        seed: recorded in saved sessions and reports.
+    """
+
+    render_scale: float = 1.0
+    grid: GridConfig | None = None
+    gs_fusion: GsFusionConfig = field(default_factory=GsFusionConfig)
+    nerf_preset: str | None = None
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    bandpass: GsBandpassConfig = field(default_factory=GsBandpassConfig)
+    nerf_weight: NerfDepthWeightConfig = field(default_factory=NerfDepthWeightConfig)
+    min_score: float = 0.5
+    mask_channel: int = 1
+    min_mask_pixels: int = 1
+    sync_pending: int = SYNC_PENDING
+    nerf_async: bool = True
+    nerf_zoom: float | None = None
+    all_views: bool = False
+    overwrite_labels: bool = False
+    negative_occlusion_tol: float = 0.05
+    overlay_color: tuple[float, float, float] = (1.0, 0.25, 0.1)
+    overlay_alpha: float = 0.6
+    overlay_threshold: float = 0.1
+    autosave: str | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.render_scale) and self.render_scale > 0):
+            raise ValueError(f"SessionConfig.render_scale must be positive, "
+                             f"got {self.render_scale}")
+        if self.nerf_preset is not None and self.nerf_preset not in NERF_PRESETS:
+            raise ValueError(f"SessionConfig.nerf_preset must be one of {sorted(NERF_PRESETS)} "
+                             f"or None, got {self.nerf_preset!r}")
+        if self.sync_pending < 1:
+            raise ValueError("SessionConfig.sync_pending must be ≥ 1")
+        if self.autosave is not None:
+            object.__setattr__(self, "autosave", str(Path(self.autosave)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return config_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "SessionConfig":
+        return config_from_dict(cls, d)
+
+
+def config_to_dict(obj: Any) -> Any:
+    """JSON-ready tree of a (nested) config dataclass (tuples become lists)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: config_to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [config_to_dict(v) for v in obj]
+    if isinstance(obj, dict):
+        return {str(k): config_to_dict(v) for k, v in obj.items()}
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return {"float": repr(obj)}  # inf / nan survive JSON
+    return obj
+
+
+def _decode(tp: Any, value: Any, where: str) -> Any:
+    if isinstance(value, dict) and set(value) == {"float"}:
+        return float(value["float"])
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        if value is None:
+            return None
+        for a in args:
+            if a is type(None):
+                continue
+            if dataclasses.is_dataclass(a) and isinstance(value, dict):
+                return config_from_dict(a, value, where)
+        return _decode(next(a for a in args if a is not type(None)), value, where)
+    if dataclasses.is_dataclass(tp) and isinstance(value, dict):
+        return config_from_dict(tp, value, where)
+    if origin is tuple or tp is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{where}: expected a list, got {type(value).__name__}")
+        return tuple(_decode(args[0] if args else Any, v, where) for v in value)
+    return value
+
+
+def config_from_dict(cls: type, d: dict[str, Any], where: str | None = None) -> Any:
+    """Inverse of :func:`config_to_dict` for dataclass ``cls``; unknown keys are an error."""
+    where = where or cls.__name__
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object, got {type(d).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(d) - names
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
+    kw = {k: _decode(hints[k], v, f"{where}.{k}") for k, v in d.items()}
+    return cls(**kw)
