@@ -16,7 +16,7 @@ from ..errors import DivasInputError
 __all__ = ["main", "build_parser"]
 
 #: Sub-command modules, in ``--help`` order.
-_COMMANDS = ("info", "generate", "render", "anchors", "segment", "demo")
+_COMMANDS = ("info", "generate", "render", "anchors", "segment", "demo", "eval")
 
 
 def build_parser() -> argparse.ArgumentParser:

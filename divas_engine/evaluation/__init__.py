@@ -1,0 +1,21 @@
+"""Evaluation of DivAS against ground truth (NOTES "Evaluation", paper App. D protocol).
+
+* :mod:`.metrics` — rendered-mask IoU / pixel accuracy per test view and per scene,
+  per-primitive precision / recall (:class:`ViewEvaluator`).
+* :mod:`.baselines` — peer baselines fed the same accepted view masks: centre-projection
+  voting and FlashSplat-style contribution-weighted voting.
+* :mod:`.pipeline` — scripted :class:`~divas_engine.session.Session` runs on the
+  synthetic scenes (and the ablation variants).
+* :mod:`.suite` — the ``divas eval`` table.
+"""
+
+from .baselines import (BaselineResult, CentreVoteConfig, ContributionVoteConfig,
+                        ContributionVoter, MaskView, centre_vote, contribution_vote)
+from .metrics import (EvalConfig, SceneScores, ViewEvaluator, ViewScore, evaluate_selection,
+                      ground_truth_masks, mask_scores, predicted_masks, segmented_grid,
+                      surfel_scores)
+
+__all__ = ["EvalConfig", "SceneScores", "ViewEvaluator", "ViewScore", "evaluate_selection",
+           "ground_truth_masks", "mask_scores", "predicted_masks", "segmented_grid",
+           "surfel_scores", "BaselineResult", "CentreVoteConfig", "ContributionVoteConfig",
+           "ContributionVoter", "MaskView", "centre_vote", "contribution_vote"]

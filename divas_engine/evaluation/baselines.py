@@ -1,0 +1,225 @@
+"""Peer baselines for the evaluation: lift the *same* accepted 2D view masks that DivAS
+fused to a per-surfel selection without DivAS's voxel fusion and mapping.
+
+Both take a list of :class:`MaskView` (camera, mask ``[H,W]`` probabilities, optional
+``D_med``). A pixel is mask-positive when ``m ≥ mask_threshold`` (0.5, NOTES "thick
+entry").
+
+(a) :func:`centre_vote` — centre-projection majority voting. A surfel is *seen* by a
+    view when its centre projects inside the image (pixel ``⌊u⌋, ⌊v⌋``), lies in front
+    of the camera (planar depth ``z > near``) and is not hidden: ``D_med = 0`` at that
+    pixel (accumulated opacity never reached ½: nothing opaque in front) or
+
+        z ≤ D_med · (1 + depth_rel_tol) + scale_tol · max(s₁, s₂)
+
+    (defaults 1 % of depth + 2 × the surfel's larger scale: the surfel's own extent
+    along the ray plus rounding of the median depth). The test is one-sided — a surfel
+    in front of the median surface is visible, only one behind it is occluded. A seen
+    surfel votes *positive* in a view when the mask is positive at its centre pixel. It
+    is foreground iff positive votes are a strict majority of the views that see it
+    (ties and never-seen surfels → background).
+
+(b) :func:`contribution_vote` — contribution-weighted voting in the style of
+    FlashSplat (Shen et al., ECCV 2024): the rendering of a mask is linear in the
+    per-surfel labels, so with ``A₁ = Σ α T`` over mask-positive pixels and ``A₀`` over
+    mask-negative pixels (all views; :func:`kernels.contrib.accumulate_contributions`,
+    the rasterizer's own weights) a surfel is foreground iff
+
+        A₁ > A₀ + γ · (A₀ + A₁)
+
+    i.e. its positive share exceeds ``(1 + γ) / 2``; γ is an optional background bias
+    (default 0: ``A₁ > A₀``). Surfels that contribute to no pixel are background.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from kernels import RasterSettings, resolve_device, upload_surfels
+from kernels.contrib import accumulate_contributions
+
+from ..camera import Camera
+from ..render import RenderConfig, make_renderer
+from ..scene import SurfelScene
+
+__all__ = ["MaskView", "BaselineResult", "CentreVoteConfig", "centre_vote",
+           "ContributionVoteConfig", "ContributionVoter", "contribution_vote", "as_mask_views"]
+
+
+@dataclass(eq=False)
+class MaskView:
+    """One accepted view: its camera, mask ``[H,W]`` (probabilities) and optionally its
+    rendered ``D_med`` ``[H,W]`` (rendered on demand by :func:`centre_vote`)."""
+
+    camera: Camera
+    mask: np.ndarray
+    d_med: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.mask)
+        if m.shape != (self.camera.height, self.camera.width):
+            raise ValueError(f"MaskView: mask {m.shape} does not match the "
+                             f"{self.camera.width}x{self.camera.height} camera")
+        if self.d_med is not None and np.shape(self.d_med) != m.shape:
+            raise ValueError(f"MaskView: D_med {np.shape(self.d_med)} vs mask {m.shape}")
+
+
+def as_mask_views(views) -> list[MaskView]:
+    """Normalise ``MaskView`` / ``(camera, mask)`` / ``(camera, mask, d_med)`` items."""
+    out = []
+    for v in views:
+        out.append(v if isinstance(v, MaskView) else MaskView(*v))
+    return out
+
+
+@dataclass(eq=False)
+class BaselineResult:
+    """A baseline's selection and its per-surfel evidence.
+
+    Attributes:
+        selected: ``[N]`` bool.
+        positive, negative: (a) views voting positive / seen-but-negative (int);
+            (b) A₁ / A₀ (float64).
+        seconds: wall time.
+    """
+
+    selected: np.ndarray
+    positive: np.ndarray
+    negative: np.ndarray
+    seconds: float = 0.0
+    info: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- (a)
+@dataclass(frozen=True)
+class CentreVoteConfig:
+    """Constants of :func:`centre_vote` (module docstring).
+
+    Attributes:
+        mask_threshold: mask-positive pixel ``m ≥`` this (0.5).
+        depth_rel_tol: relative depth tolerance of the visibility test (0.01).
+        scale_tol: absolute tolerance in multiples of the surfel's larger scale (2).
+        near: in front of the camera: planar depth ``>`` this (the renderer's near, 0.01).
+    """
+
+    mask_threshold: float = 0.5
+    depth_rel_tol: float = 0.01
+    scale_tol: float = 2.0
+    near: float = 0.01
+
+
+def centre_vote(scene: SurfelScene, views: Sequence, *, config: CentreVoteConfig = CentreVoteConfig(),
+                renderer=None, device=None) -> BaselineResult:
+    """Baseline (a): centre-projection majority voting (module docstring)."""
+    t0 = time.perf_counter()
+    mv = as_mask_views(views)
+    n = len(scene)
+    means = scene.means.astype(np.float64)
+    smax = np.asarray(scene.scales, np.float64).max(axis=1)
+    pos = np.zeros(n, np.int32)
+    neg = np.zeros(n, np.int32)
+    r = renderer
+    for v in mv:
+        cam = v.camera
+        d_med = v.d_med
+        if d_med is None:
+            if r is None:
+                r = make_renderer(scene, device=device)
+            d_med = r.render(cam).D_med
+        uv, z = cam.project(means)
+        with np.errstate(invalid="ignore"):
+            inside = (z > config.near) & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & \
+                (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        idx = np.flatnonzero(inside)
+        x = np.floor(uv[idx, 0]).astype(np.int64)
+        y = np.floor(uv[idx, 1]).astype(np.int64)
+        x = np.minimum(x, cam.width - 1)  # guard float rounding at the border
+        y = np.minimum(y, cam.height - 1)
+        d = np.asarray(d_med, np.float64)[y, x]
+        tol = d * config.depth_rel_tol + config.scale_tol * smax[idx]
+        seen = (d <= 0) | (z[idx] <= d + tol)
+        m = np.asarray(v.mask)[y, x] >= np.float32(config.mask_threshold)
+        ids = idx[seen]
+        pos[ids[m[seen]]] += 1
+        neg[ids[~m[seen]]] += 1
+    sel = pos > neg
+    return BaselineResult(sel, pos, neg, time.perf_counter() - t0,
+                          {"views": len(mv), "seen": int(np.count_nonzero(pos + neg))})
+
+
+# ----------------------------------------------------------------------------- (b)
+@dataclass(frozen=True)
+class ContributionVoteConfig:
+    """Constants of :func:`contribution_vote` (module docstring).
+
+    Attributes:
+        mask_threshold: mask-positive pixel ``m ≥`` this (0.5).
+        gamma: background bias γ ∈ (−1, 1): foreground iff ``A₁ > A₀ + γ(A₀ + A₁)`` (0).
+    """
+
+    mask_threshold: float = 0.5
+    gamma: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not -1.0 < self.gamma < 1.0:
+            raise ValueError(f"ContributionVoteConfig.gamma must be in (-1, 1), got {self.gamma}")
+
+
+def _raster_settings(c: RenderConfig) -> RasterSettings:
+    return RasterSettings(tau_sig=c.tau_sig, tau_cw=c.tau_cw, t_min=c.t_min,
+                          alpha_min=c.alpha_min, alpha_max=c.alpha_max,
+                          lowpass_sigma=c.lowpass_sigma, near=c.near, tile=c.tile,
+                          max_duplicates=c.max_duplicates, blend=c.blend, threads=c.threads)
+
+
+class ContributionVoter:
+    """Baseline (b) for one scene: the surfels are uploaded once; :meth:`vote` per view set.
+
+    Args:
+        render_config: the renderer constants (α_min, α_max, T_min, near, low-pass σ,
+            tile, blend form) — the weights are the renderer's.
+    """
+
+    def __init__(self, scene: SurfelScene, device=None, render_config: RenderConfig | None = None):
+        self.device = resolve_device(device)
+        self.render_config = render_config or RenderConfig()
+        self.n = len(scene)
+        self._buf = upload_surfels(scene.means, scene.rotations(), scene.scales, scene.opacities,
+                                   scene.sh, scene.sh_degree, self.device,
+                                   self.render_config.alpha_min)
+
+    def contributions(self, view: MaskView, mask_threshold: float = 0.5
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """``(A₁, A₀)`` ``[N]`` float32 of one view."""
+        cam = view.camera
+        positive = np.asarray(view.mask) >= np.float32(mask_threshold)
+        out = accumulate_contributions(self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy,
+                                       cam.width, cam.height, positive,
+                                       _raster_settings(self.render_config))
+        return out.a1.numpy(), out.a0.numpy()
+
+    def vote(self, views: Sequence, config: ContributionVoteConfig = ContributionVoteConfig()
+             ) -> BaselineResult:
+        t0 = time.perf_counter()
+        mv = as_mask_views(views)
+        a1 = np.zeros(self.n, np.float64)
+        a0 = np.zeros(self.n, np.float64)
+        for v in mv:
+            p, q = self.contributions(v, config.mask_threshold)
+            a1 += p
+            a0 += q
+        sel = a1 > a0 + config.gamma * (a0 + a1)
+        return BaselineResult(sel, a1, a0, time.perf_counter() - t0,
+                              {"views": len(mv), "gamma": config.gamma,
+                               "contributing": int(np.count_nonzero(a0 + a1 > 0))})
+
+
+def contribution_vote(scene: SurfelScene, views: Sequence, *,
+                      config: ContributionVoteConfig = ContributionVoteConfig(), device=None,
+                      render_config: RenderConfig | None = None) -> BaselineResult:
+    """Baseline (b): contribution-weighted voting (module docstring), one-shot form."""
+    return ContributionVoter(scene, device, render_config).vote(views, config)

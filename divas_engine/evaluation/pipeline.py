@@ -1,0 +1,232 @@
+"""Scripted DivAS sessions for the evaluation: the real interactive
+:class:`~divas_engine.session.Session` driven by the synthetic scenes' metadata.
+
+Protocol per scene (one object):
+
+* anchors and clicks — :func:`divas_engine.cli.demo.demo_prompts` (the ``divas demo``
+  protocol): each metadata click point goes on a training camera that sees it, spread
+  over the rig; clicks on the same camera share an anchor;
+* every click spawns its centroid view (Sec. 3.3) whose default prompt is the click's
+  3D point projected into it; every view is accepted (SAM → channel 1 → depth
+  weighting → fusion → mapping), exactly as ``divas segment`` does;
+* the segmenter is fresh per session (the oracle's ground truth is the session's own
+  render of the labels at each view).
+
+Ablations are the same session with one config change (:data:`VARIANTS`):
+
+* ``no_thin`` — ``gs_fusion.rho_thin = inf`` (no voxel passes the thin path's density
+  floor);
+* ``no_depth_weight`` — the depth weighting of the masks is the identity: the band-pass
+  (2DGS) / normalised-depth (NeRF) weight with ``denom_floor = inf`` is 1 on every valid
+  pixel, and ``invalid_weight = 1`` keeps pixels without a surface unweighted too, so
+  ``M̃ = M``.
+
+Pass 1 only / Pass 1+2 are read from the full session's last mapping
+(``MappingResult.pass1`` / ``.pass2``): the chain is monotone and computed in one run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..camera import Camera
+from ..fusion.config import GsFusionConfig
+from ..scene import Scene
+from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
+from ..session import Session, SessionConfig
+from .baselines import MaskView
+
+__all__ = ["VARIANTS", "variant_config", "scripted_anchors", "SessionOutcome", "run_session",
+           "make_segmenter", "CachingRenderer"]
+
+#: Session variants: name → description.
+VARIANTS: dict[str, str] = {
+    "full": "DivAS, paper defaults",
+    "no_thin": "without the thin path (rho_thin = inf)",
+    "no_depth_weight": "without depth weighting of the masks (M~ = M)",
+}
+
+
+def variant_config(name: str, base: SessionConfig | None = None) -> SessionConfig:
+    """The :class:`SessionConfig` of a variant of :data:`VARIANTS`."""
+    cfg = base or SessionConfig()
+    if name == "full":
+        return cfg
+    if name == "no_thin":
+        return replace(cfg, gs_fusion=replace(cfg.gs_fusion or GsFusionConfig(),
+                                              rho_thin=math.inf))
+    if name == "no_depth_weight":
+        return replace(cfg, bandpass=replace(cfg.bandpass or GsBandpassConfig(),
+                                             denom_floor=math.inf, invalid_weight=1.0),
+                       nerf_weight=replace(cfg.nerf_weight or NerfDepthWeightConfig(),
+                                           denom_floor=math.inf, invalid_weight=1.0))
+    raise ValueError(f"unknown variant {name!r}; choose one of {list(VARIANTS)}")
+
+
+def scripted_anchors(metadata: dict, cameras: Sequence[Camera]
+                     ) -> list[tuple[Camera, str, int, list[tuple[float, float]]]]:
+    """``(camera, "training", index, clicks)`` per anchor, from the scene metadata
+    (the ``divas demo`` protocol, :func:`~divas_engine.cli.demo.demo_prompts`)."""
+    from ..cli.demo import demo_prompts
+    from ..session.prompts import resolve_anchors
+
+    prompts = demo_prompts(metadata, list(cameras))
+    out = []
+    for r in resolve_anchors(prompts, list(cameras)):
+        out.append((r.camera, r.source, r.index, [tuple(c.xy) for c in r.prompt.clicks]))
+    return out
+
+
+class CachingRenderer:
+    """A renderer wrapper that memoises :meth:`render` and :meth:`render_values`.
+
+    The renderers are deterministic, so the variant sessions of one scene (which render
+    the same anchors and centroid views, and the oracle's same label coverage) can share
+    results: outputs are identical to the wrapped renderer's. Keys are the camera's exact
+    parameters and scale (plus a BLAKE2 digest of the values). Cached arrays are made
+    read-only; the least recently used entries are dropped beyond ``max_bytes``.
+    """
+
+    def __init__(self, inner, max_bytes: int = 2 << 30) -> None:
+        self.inner = inner
+        self.max_bytes = int(max_bytes)
+        self._cache: OrderedDict[tuple, tuple[Any, int]] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+        self.hits = self.misses = 0
+
+    def __getattr__(self, name: str) -> Any:  # kind, device, num_primitives, …
+        return getattr(self.inner, name)
+
+    @staticmethod
+    def _cam_key(camera: Camera, scale: float) -> tuple:
+        return (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+                camera.c2w.tobytes(), camera.name, float(scale))
+
+    def _get(self, key: tuple, make):
+        with self._lock:
+            hit = self._cache.get(key)
+            if hit is not None:
+                self._cache.move_to_end(key)
+                self.hits += 1
+                return hit[0]
+        val = make()
+        arrays = [val] if isinstance(val, np.ndarray) else \
+            [a for a in vars(val).values() if isinstance(a, np.ndarray)]
+        for a in arrays:
+            a.flags.writeable = False
+        nbytes = sum(a.nbytes for a in arrays)
+        with self._lock:
+            self.misses += 1
+            if key not in self._cache:
+                self._cache[key] = (val, nbytes)
+                self._bytes += nbytes
+            while self._bytes > self.max_bytes and len(self._cache) > 1:
+                _, (_, nb) = self._cache.popitem(last=False)
+                self._bytes -= nb
+        return val
+
+    def render(self, camera: Camera, scale: float = 1.0):
+        return self._get(("rgb",) + self._cam_key(camera, scale),
+                         lambda: self.inner.render(camera, scale))
+
+    def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        v = np.ascontiguousarray(values)
+        digest = hashlib.blake2b(v.view(np.uint8).reshape(-1), digest_size=16).hexdigest()
+        return self._get(("values", v.dtype.str, v.shape, digest) + self._cam_key(camera, scale),
+                         lambda: self.inner.render_values(camera, values, scale))
+
+
+def make_segmenter(name: str, seed: int = 0):
+    """A fresh segmenter: ``"oracle"`` (SAM-like oracle, NOTES) or ``"classic"``."""
+    from ..segment import ClassicConfig, ClassicSegmenter, OracleConfig, OracleSegmenter
+
+    if name == "oracle":
+        return OracleSegmenter(config=OracleConfig(seed=seed))
+    if name == "classic":
+        return ClassicSegmenter(ClassicConfig(seed=seed))
+    raise ValueError(f"unknown segmenter {name!r} (oracle, classic)")
+
+
+@dataclass(eq=False)
+class SessionOutcome:
+    """What one scripted session produced.
+
+    Attributes:
+        selection: the final selection (``[N]`` surfels / ``[D,H,W]`` voxels).
+        pass1, pass2: 2DGS mapping chain f¹, f² of the final state (None for NeRF).
+        views: the fused views as :class:`MaskView` with the *raw* accepted masks (the
+            segmenter's chosen channel before depth weighting) and their ``D_med``.
+        weighted_views: the same with the depth-weighted masks that were fused.
+        counts, statuses: session counts and ``(view id, status, reason)``.
+        seconds: wall time of the session (open → last accept).
+        timings: the session's stage timings.
+    """
+
+    selection: np.ndarray
+    pass1: np.ndarray | None
+    pass2: np.ndarray | None
+    views: list[MaskView]
+    weighted_views: list[MaskView]
+    counts: dict
+    statuses: list[tuple[str, str, str | None]]
+    seconds: float
+    timings: dict = field(default_factory=dict)
+
+
+def run_session(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray,
+                anchors: Sequence[tuple[Camera, str, int, Sequence[tuple[float, float]]]], *,
+                segmenter: Any, config: SessionConfig | None = None, device=None,
+                renderer=None) -> SessionOutcome:
+    """Open a session on ``scene``, click every anchor click, accept every view.
+
+    Args:
+        labels: ground truth (the oracle's target; unused by other segmenters).
+        anchors: from :func:`scripted_anchors` (full-resolution pixels).
+        renderer: a renderer of ``scene`` to share between sessions.
+    """
+    t0 = time.perf_counter()
+    cfg = config or SessionConfig()
+    s = Session.open(scene, list(cameras), cfg, segmenter, device,
+                     anchors=[(c, src, i) for c, src, i, _ in anchors],
+                     gt_values=np.asarray(labels, np.float32), render_anchors=False,
+                     renderer=renderer)
+    try:
+        spawned = []
+        for i, (_, _, _, clicks) in enumerate(anchors):
+            a = s.anchors[i]
+            sx, sy = a.camera.width / a.full_camera.width, a.camera.height / a.full_camera.height
+            for xy in clicks:
+                spawned.append(s.click(i, (xy[0] * sx, xy[1] * sy)))
+        for v in spawned:
+            s.accept(v)
+        s.sync()
+        views, weighted, statuses = [], [], []
+        for v in spawned:
+            statuses.append((v.id, v.status, v.reason))
+            if v.status != "fused":
+                continue
+            b = v.buffers
+            raw = v.preview.selection.mask
+            views.append(MaskView(v.camera, raw, b.D_med))
+            weighted.append(MaskView(v.camera, v.mask, b.D_med))
+        sel = s.selection.copy()
+        p1 = p2 = None
+        if s.kind == "2dgs":
+            m = s.last_mapping if views else None  # no fused view: empty chain
+            p1 = np.zeros_like(sel) if m is None else m.pass1.copy()
+            p2 = np.zeros_like(sel) if m is None else m.pass2.copy()
+        return SessionOutcome(
+            selection=sel, pass1=p1, pass2=p2, views=views, weighted_views=weighted,
+            counts=s.counts(), statuses=statuses, seconds=time.perf_counter() - t0,
+            timings=s.timings.summary())
+    finally:
+        s.close()

@@ -1,0 +1,267 @@
+"""The evaluation table on the synthetic suite (``divas eval``).
+
+Per scene (generated in memory, :func:`~divas_engine.synthetic.generate_scene`) and per
+segmenter (SAM-like oracle, classic): the scripted sessions of
+:mod:`.pipeline` — DivAS full, without the thin path, without depth weighting — then
+Pass 1 only / Pass 1+2 from the full session's mapping chain, and the peer baselines
+(:mod:`.baselines`) fed the full session's accepted view masks (the raw masks the
+segmenter returned, before DivAS's depth weighting: what the user accepted;
+``baseline_masks="weighted"`` feeds the depth-weighted ones instead). Every selection is
+scored at the scene's held-out test cameras (:class:`.metrics.ViewEvaluator`: mean IoU
+and pixel accuracy over the views) and per primitive (precision / recall).
+
+The NeRF path runs on the ribs density grid (``ribs`` only): DivAS full (and without
+depth weighting), scored with the segmented-density renders, per-voxel precision/recall
+against the label grid.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..session import SessionConfig
+from .baselines import CentreVoteConfig, ContributionVoteConfig, ContributionVoter, centre_vote
+from .metrics import EvalConfig, ViewEvaluator
+from .pipeline import (CachingRenderer, make_segmenter, run_session, scripted_anchors,
+                       variant_config)
+
+__all__ = ["METHODS", "NERF_METHODS", "SuiteConfig", "evaluate_scene", "evaluate_suite",
+           "markdown_table", "check_targets"]
+
+#: Table rows per (scene, segmenter) on surfels, in order: key → label.
+METHODS: dict[str, str] = {
+    "full": "DivAS full",
+    "no_thin": "w/o thin path",
+    "no_depth_weight": "w/o depth weighting",
+    "pass1": "Pass 1 only",
+    "pass12": "Pass 1+2",
+    "centre_vote": "(a) centre-projection vote",
+    "contrib_vote": "(b) contribution vote (FlashSplat-style)",
+}
+#: Rows of the NeRF path.
+NERF_METHODS: dict[str, str] = {
+    "nerf_full": "DivAS NeRF full",
+    "nerf_no_depth_weight": "DivAS NeRF w/o depth weighting",
+}
+
+
+@dataclass(frozen=True)
+class SuiteConfig:
+    """What ``divas eval`` runs.
+
+    Attributes:
+        scenes: synthetic scene names.
+        segmenters: ``"oracle"`` and/or ``"classic"``.
+        size: surfels per scene; seed: scene, oracle and classic seed.
+        nerf: run the NeRF path on the ribs grid.
+        grid_resolution: cells along the longest side of the ribs grid.
+        baseline_masks: ``"raw"`` (segmenter output) or ``"weighted"`` (what DivAS fused).
+        eval: thresholds / test-camera scale.
+        session: the base session config (variants change one field of it).
+        centre_vote, contrib_vote: baseline constants.
+    """
+
+    scenes: tuple[str, ...] = ("ribs", "plant", "occluded")
+    segmenters: tuple[str, ...] = ("oracle", "classic")
+    size: int = 20_000
+    seed: int = 0
+    nerf: bool = True
+    grid_resolution: int = 128
+    baseline_masks: str = "raw"
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    session: SessionConfig = field(default_factory=SessionConfig)
+    centre_vote: CentreVoteConfig = field(default_factory=CentreVoteConfig)
+    contrib_vote: ContributionVoteConfig = field(default_factory=ContributionVoteConfig)
+
+    def __post_init__(self) -> None:
+        if self.baseline_masks not in ("raw", "weighted"):
+            raise ValueError(f"baseline_masks must be 'raw' or 'weighted', "
+                             f"got {self.baseline_masks!r}")
+
+
+def _row(scene: str, kind: str, seg: str, method: str, label: str, sc, extra: dict) -> dict:
+    p = sc.primitives or {}
+    return {"scene": scene, "kind": kind, "segmenter": seg, "method": method, "label": label,
+            "iou": sc.iou, "accuracy": sc.accuracy, "pooled_iou": sc.pooled_iou,
+            "precision_2d": sc.precision, "recall_2d": sc.recall,
+            "precision_3d": p.get("precision"), "recall_3d": p.get("recall"),
+            "iou_3d": p.get("iou"), "selected": p.get("selected"),
+            "per_view_iou": [v.iou for v in sc.views], **extra}
+
+
+def evaluate_scene(name: str, config: SuiteConfig = SuiteConfig(), *, device=None,
+                   log: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """All rows of one synthetic scene (surfel methods × segmenters, + NeRF for ribs)."""
+    from ..render import make_renderer
+    from ..synthetic import generate_scene
+
+    say = log or (lambda _m: None)
+    t0 = time.perf_counter()
+    sc = generate_scene(name, size=config.size, seed=config.seed,
+                        grid_resolution=config.grid_resolution)
+    anchors = scripted_anchors(sc.metadata, sc.cameras)
+    renderer = make_renderer(sc.scene, device=device, config=config.session.render)
+    cached = CachingRenderer(renderer)  # the variant sessions share anchor/view renders
+    say(f"{name}: {len(sc.scene)} surfels, {len(anchors)} anchors, "
+        f"{sum(len(a[3]) for a in anchors)} clicks, {len(sc.test_cameras)} test cameras "
+        f"({time.perf_counter() - t0:.1f} s)")
+    selections: dict[str, np.ndarray] = {}
+    extras: dict[str, dict] = {}
+    voter = ContributionVoter(sc.scene, device, config.session.render)
+    for seg in config.segmenters:
+        full = None
+        for var in ("full", "no_thin", "no_depth_weight"):
+            out = run_session(sc.scene, sc.cameras, sc.labels, anchors,
+                              segmenter=make_segmenter(seg, config.seed),
+                              config=variant_config(var, config.session), device=device,
+                              renderer=cached)
+            fused = sum(1 for _, st, _ in out.statuses if st == "fused")
+            selections[f"{seg}/{var}"] = out.selection
+            extras[f"{seg}/{var}"] = {"views_fused": fused, "views": len(out.statuses),
+                                      "seconds": out.seconds}
+            say(f"  {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
+                f"{int(out.selection.sum())} selected ({out.seconds:.1f} s)")
+            if var == "full":
+                full = out
+        assert full is not None
+        ex = {"views_fused": extras[f"{seg}/full"]["views_fused"],
+              "views": extras[f"{seg}/full"]["views"]}
+        selections[f"{seg}/pass1"], extras[f"{seg}/pass1"] = full.pass1, dict(ex)
+        selections[f"{seg}/pass12"], extras[f"{seg}/pass12"] = full.pass2, dict(ex)
+        mviews = full.views if config.baseline_masks == "raw" else full.weighted_views
+        a = centre_vote(sc.scene, mviews, config=config.centre_vote, renderer=renderer)
+        b = voter.vote(mviews, config.contrib_vote)
+        selections[f"{seg}/centre_vote"] = a.selected
+        extras[f"{seg}/centre_vote"] = {**ex, "seconds": a.seconds}
+        selections[f"{seg}/contrib_vote"] = b.selected
+        extras[f"{seg}/contrib_vote"] = {**ex, "seconds": b.seconds}
+        say(f"  {seg:7s} baselines: centre vote {int(a.selected.sum())}, contribution vote "
+            f"{int(b.selected.sum())} selected ({a.seconds + b.seconds:.1f} s)")
+    t = time.perf_counter()
+    ev = ViewEvaluator(sc.scene, sc.test_cameras, sc.labels, config=config.eval,
+                       renderer=renderer, device=device)
+    scores = ev.score(selections)
+    say(f"  scored {len(selections)} selections at {len(sc.test_cameras)} test cameras "
+        f"({time.perf_counter() - t:.1f} s)")
+    rows = []
+    for seg in config.segmenters:
+        for m, label in METHODS.items():
+            k = f"{seg}/{m}"
+            rows.append(_row(name, "2dgs", seg, m, label, scores[k], extras[k]))
+    if config.nerf and sc.grid is not None:
+        rows += _nerf_rows(name, sc, anchors, config, device, say)
+    return rows
+
+
+def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict]:
+    from ..render import make_renderer
+
+    grid, labels = sc.grid, sc.grid_labels
+    renderer = CachingRenderer(make_renderer(grid, device=device, config=config.session.render))
+    sels, extras = {}, {}
+    for seg in config.segmenters:
+        for var, key in (("full", "nerf_full"), ("no_depth_weight", "nerf_no_depth_weight")):
+            out = run_session(grid, sc.cameras, labels, anchors,
+                              segmenter=make_segmenter(seg, config.seed),
+                              config=variant_config(var, config.session), device=device,
+                              renderer=renderer)
+            fused = sum(1 for _, st, _ in out.statuses if st == "fused")
+            sels[f"{seg}/{key}"] = out.selection
+            extras[f"{seg}/{key}"] = {"views_fused": fused, "views": len(out.statuses),
+                                      "seconds": out.seconds}
+            say(f"  nerf {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
+                f"{int(out.selection.sum())} voxels ({out.seconds:.1f} s)")
+    t = time.perf_counter()
+    ev = ViewEvaluator(grid, sc.test_cameras, labels, config=config.eval, device=device)
+    scores = ev.score(sels)
+    say(f"  nerf scored {len(sels)} selections ({time.perf_counter() - t:.1f} s)")
+    return [_row(name, "nerf", seg, m, label, scores[f"{seg}/{m}"], extras[f"{seg}/{m}"])
+            for seg in config.segmenters for m, label in NERF_METHODS.items()]
+
+
+def evaluate_suite(config: SuiteConfig = SuiteConfig(), *, device=None,
+                   log: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Rows of every scene of ``config`` plus per-method means over the scenes."""
+    t0 = time.perf_counter()
+    rows: list[dict] = []
+    for name in config.scenes:
+        rows += evaluate_scene(name, config, device=device, log=log)
+    return {"version": 1, "config": {"scenes": list(config.scenes),
+                                     "segmenters": list(config.segmenters),
+                                     "size": config.size, "seed": config.seed,
+                                     "baseline_masks": config.baseline_masks,
+                                     "eval": config.eval.__dict__.copy(),
+                                     "oracle_seed": config.seed},
+            "rows": rows, "means": suite_means(rows), "targets": check_targets(rows),
+            "seconds": time.perf_counter() - t0}
+
+
+def suite_means(rows: Sequence[dict]) -> list[dict]:
+    """Mean IoU / accuracy / 3D precision / recall per (kind, segmenter, method) over scenes."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["kind"], r["segmenter"], r["method"]), []).append(r)
+    out = []
+    for (kind, seg, m), rs in groups.items():
+        avg = lambda k: float(np.mean([r[k] for r in rs]))  # noqa: E731
+        out.append({"kind": kind, "segmenter": seg, "method": m, "label": rs[0]["label"],
+                    "scenes": len(rs), "iou": avg("iou"), "accuracy": avg("accuracy"),
+                    "precision_3d": avg("precision_3d"), "recall_3d": avg("recall_3d")})
+    return out
+
+
+def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
+    """The issue's targets, evaluated (oracle rows): DivAS full mean IoU ≥ 0.90 over the
+    surfel suite; DivAS full ≥ both baselines on every scene; removing the thin path
+    lowers the ribs IoU."""
+    o = [r for r in rows if r["segmenter"] == "oracle" and r["kind"] == "2dgs"]
+    by = {(r["scene"], r["method"]): r["iou"] for r in o}
+    scenes = sorted({r["scene"] for r in o})
+    if not scenes:
+        return {}
+    full = [by[(s, "full")] for s in scenes]
+    beats = {s: bool(by[(s, "full")] >= by[(s, "centre_vote")] and
+                     by[(s, "full")] >= by[(s, "contrib_vote")]) for s in scenes}
+    out: dict[str, Any] = {"mean_full_iou": float(np.mean(full)),
+                           "mean_full_iou_ge_0.90": bool(np.mean(full) >= 0.90),
+                           "full_beats_baselines": beats}
+    if "ribs" in scenes:
+        out["ribs_thin_path_helps"] = bool(by[("ribs", "no_thin")] < by[("ribs", "full")])
+    return out
+
+
+def _f(x) -> str:
+    return "–" if x is None else f"{x:.3f}"
+
+
+def markdown_table(result: dict[str, Any]) -> str:
+    """The rows as a Markdown table, then the suite means and the targets."""
+    lines = ["| scene | segmenter | method | IoU | acc | P₃D | R₃D | views |",
+             "|---|---|---|---:|---:|---:|---:|---:|"]
+    for r in result["rows"]:
+        sc = r["scene"] + (" (NeRF grid)" if r["kind"] == "nerf" else "")
+        lines.append(f"| {sc} | {r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
+                     f"{_f(r['accuracy'])} | {_f(r['precision_3d'])} | {_f(r['recall_3d'])} | "
+                     f"{r.get('views_fused', '–')}/{r.get('views', '–')} |")
+    means = result.get("means") or []
+    if means:
+        lines += ["", "Mean over scenes:", "",
+                  "| kind | segmenter | method | scenes | IoU | acc | P₃D | R₃D |",
+                  "|---|---|---|---:|---:|---:|---:|---:|"]
+        for m in means:
+            lines.append(f"| {m['kind']} | {m['segmenter']} | {m['label']} | {m['scenes']} | "
+                         f"{_f(m['iou'])} | {_f(m['accuracy'])} | {_f(m['precision_3d'])} | "
+                         f"{_f(m['recall_3d'])} |")
+    t = result.get("targets") or {}
+    if t:
+        lines += ["", "Targets (oracle): mean DivAS-full IoU "
+                  f"{t['mean_full_iou']:.3f} (≥ 0.90: {'yes' if t['mean_full_iou_ge_0.90'] else 'NO'}); "
+                  "≥ both baselines: " + ", ".join(f"{s} {'yes' if ok else 'NO'}"
+                                                  for s, ok in t["full_beats_baselines"].items())
+                  + ("" if "ribs_thin_path_helps" not in t else
+                     f"; thin path raises ribs IoU: {'yes' if t['ribs_thin_path_helps'] else 'NO'}")]
+    return "\n".join(lines)

@@ -1,0 +1,326 @@
+"""Evaluation: metrics on hand cases, the contribution kernel against a NumPy
+reference, both baselines on hand cases, the pipeline helpers, and a small end-to-end
+run of the table on the occluded scene."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from divas_engine.camera import Camera
+from divas_engine.evaluation import (CentreVoteConfig, ContributionVoteConfig, EvalConfig,
+                                     MaskView, ViewEvaluator, centre_vote, contribution_vote,
+                                     evaluate_selection, mask_scores, surfel_scores)
+from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
+from divas_engine.render import RenderConfig, make_renderer
+from divas_engine.scene import DensityGrid, SurfelScene
+from kernels import RasterSettings, resolve_device, upload_surfels
+from kernels.contrib import accumulate_contributions
+
+from .reference_render import random_surfel_scene, surfel_hits
+
+CPU = "cpu"
+
+
+def _cam(w=64, h=48, f=60.0, c2w=None, name="") -> Camera:
+    return Camera(w, h, f, f, w / 2, h / 2, np.eye(4) if c2w is None else c2w, name)
+
+
+def _plane(cx, cy, z, half, spacing, scale, opacity=1.0) -> dict:
+    """A square of camera-facing surfels (normal −z) centred at (cx, cy, z)."""
+    g = np.arange(-half + spacing / 2, half, spacing)
+    xs, ys = np.meshgrid(g + cx, g + cy)
+    n = xs.size
+    return {"means": np.stack([xs.ravel(), ys.ravel(), np.full(n, z)], 1),
+            "scales": np.full((n, 2), scale), "opacities": np.full(n, opacity)}
+
+
+def _scene(*planes) -> SurfelScene:
+    means = np.concatenate([p["means"] for p in planes]).astype(np.float32)
+    n = len(means)
+    quats = np.tile([1.0, 0, 0, 0], (n, 1)).astype(np.float32)  # identity: normal = +z
+    sh = np.full((n, 1, 3), 0.5, np.float32)
+    return SurfelScene(means, quats, np.concatenate([p["scales"] for p in planes]).astype(np.float32),
+                       np.concatenate([p["opacities"] for p in planes]).astype(np.float32), sh, 0)
+
+
+# ----------------------------------------------------------------------------- metrics
+def test_mask_scores_hand_case():
+    pred = np.zeros((4, 5), bool)
+    gt = np.zeros((4, 5), bool)
+    pred[0, :3] = True          # 3 pixels
+    gt[0, 1:5] = True           # 4 pixels, overlap 2
+    s = mask_scores(pred, gt, "v")
+    assert (s.intersection, s.union) == (2, 5)
+    assert s.iou == pytest.approx(2 / 5)
+    assert s.accuracy == pytest.approx((20 - 3) / 20)   # 1 FP + 2 FN wrong
+    assert s.precision == pytest.approx(2 / 3) and s.recall == pytest.approx(2 / 4)
+    empty = mask_scores(np.zeros((2, 2), bool), np.zeros((2, 2), bool))
+    assert empty.iou == 1.0 and empty.accuracy == 1.0 and empty.precision == 1.0
+    with pytest.raises(ValueError):
+        mask_scores(np.zeros((2, 2)), np.zeros((2, 3)))
+
+
+def test_surfel_scores_hand_case():
+    sel = np.array([1, 1, 1, 0, 0, 0], bool)
+    gt = np.array([0, 1, 1, 1, 1, 0], bool)
+    s = surfel_scores(sel, gt)
+    assert s["precision"] == pytest.approx(2 / 3) and s["recall"] == pytest.approx(2 / 4)
+    assert s["iou"] == pytest.approx(2 / 5) and s["f1"] == pytest.approx(2 * (2 / 3) * 0.5 / (2 / 3 + 0.5))
+    assert surfel_scores(np.zeros(3, bool), np.zeros(3, bool))["precision"] == 1.0
+
+
+@pytest.fixture(scope="module")
+def two_planes():
+    """Two 1×1 opaque squares at depth 4, side by side (gap 0.5), seen head-on by a
+    60 px-focal camera: each covers 15×15 px (4 units → 60 px: 1 unit = 15 px)."""
+    a = _plane(-0.75, 0.0, 4.0, 0.5, 0.02, 0.015)
+    b = _plane(0.75, 0.0, 4.0, 0.5, 0.02, 0.015)
+    scene = _scene(a, b)
+    na = len(a["means"])
+    labels = np.zeros(len(scene), bool)
+    labels[:na] = True
+    return scene, labels, _cam()
+
+
+def test_two_planes_iou_by_hand(two_planes):
+    scene, labels, cam = two_planes
+    r = make_renderer(scene, device=CPU)
+    same = EvalConfig(pred_threshold=0.5, gt_threshold=0.5)
+    # selecting both planes when only A is the object. Each square is 1 unit = 15 px at
+    # depth 4, plus a rim of at most 1.5 px (surfel σ = 0.2 px beyond the edge and the
+    # 0.7 px low-pass): |A| = |B| ∈ [15², 18²]. By hand: IoU = |A| / (|A| + |B|) = 1/2,
+    # accuracy = 1 − |B| / (64·48), precision 1/2, recall 1.
+    both = evaluate_selection(scene, [cam], np.ones(len(scene), bool), labels, config=same,
+                              renderer=r)
+    v = both.views[0]
+    assert 15 ** 2 <= v.gt_pixels <= 18 ** 2 and v.pred_pixels == 2 * v.gt_pixels
+    assert both.iou == pytest.approx(0.5, abs=1e-9)
+    assert both.accuracy == pytest.approx(1 - v.gt_pixels / (64 * 48))
+    assert both.precision == pytest.approx(0.5) and both.recall == 1.0
+    assert both.primitives["precision"] == pytest.approx(0.5) and both.primitives["recall"] == 1.0
+    # the exact selection scores 1 with equal thresholds …
+    exact = evaluate_selection(scene, [cam], labels, labels, config=same, renderer=r)
+    assert exact.iou == 1.0 and exact.accuracy == 1.0
+    # … and with the NOTES thresholds (0.1 vs 0.5) the prediction only grows at the rim
+    notes = evaluate_selection(scene, [cam], labels, labels, renderer=r)
+    assert notes.recall == 1.0 and notes.iou > 0.85
+    assert notes.views[0].pred_pixels >= notes.views[0].gt_pixels
+
+
+def test_evaluator_scores_many_selections_in_one_pass(two_planes):
+    scene, labels, cam = two_planes
+    ev = ViewEvaluator(scene, [cam, cam.scaled(0.5)], labels, renderer=make_renderer(scene, CPU))
+    out = ev.score({"a": labels, "none": np.zeros(len(scene), bool), "b": ~labels})
+    assert out["a"].recall == 1.0
+    assert out["none"].iou == 0.0 and out["none"].precision == 0.0
+    assert out["b"].iou == 0.0
+    for v in out["b"].views:  # disjoint prediction and truth: every predicted or true pixel is wrong
+        assert v.accuracy == pytest.approx(1 - (v.pred_pixels + v.gt_pixels) / v.pixels)
+    one = ev.score({"b": ~labels})["b"]
+    assert [v.pred_pixels for v in one.views] == [v.pred_pixels for v in out["b"].views]
+
+
+def test_nerf_masks_segmented_density():
+    d = np.zeros((16, 16, 32), np.float32)           # [D,H,W] = z, y, x
+    d[6:10, 6:10, 4:12] = 200.0                       # cube A (left)
+    d[6:10, 6:10, 20:28] = 200.0                      # cube B (right)
+    grid = DensityGrid(d, np.array([[-2.0, -1.0, 3.0], [2.0, 1.0, 5.0]]))
+    labels = np.zeros(d.shape, bool)
+    labels[:, :, :16] = True                          # A's half of the grid
+    cam = _cam(64, 48, 40.0)
+    exact = evaluate_selection(grid, [cam], labels, labels)
+    assert exact.iou == 1.0 and exact.views[0].gt_pixels > 50
+    both = evaluate_selection(grid, [cam], np.ones(d.shape, bool), labels)
+    # same-size cubes placed symmetrically about the optical axis: IoU = 1/2
+    assert both.iou == pytest.approx(0.5, abs=0.02)
+    assert both.primitives["precision"] == pytest.approx(0.5)
+
+
+# ----------------------------------------------------------------------------- contribution kernel
+def _reference_contrib(scene, cam, pos, cfg: RenderConfig):
+    """A₁/A₀ in float64 by brute force (every pixel × every surfel, NOTES compositing)."""
+    n = len(scene)
+    zc = scene.means.astype(np.float64) @ cam.w2c[2, :3] + cam.w2c[2, 3]
+    order = np.lexsort((np.arange(n), zc))
+    ys, xs = np.mgrid[0:cam.height, 0:cam.width]
+    xs, ys, p = xs.ravel(), ys.ravel(), pos.ravel()
+    a1, a0 = np.zeros(n), np.zeros(n)
+    for lo in range(0, len(xs), 256):
+        a, _, _ = surfel_hits(scene, cam, xs[lo:lo + 256], ys[lo:lo + 256], cfg, order)
+        t_after = np.cumprod(1 - a, axis=1)
+        stop = t_after < cfg.t_min
+        a = np.where(((np.cumsum(stop, 1) - stop) == 0) & (a > 0), a, 0.0)
+        t_before = np.concatenate([np.ones((len(a), 1)), np.cumprod(1 - a, 1)[:, :-1]], 1)
+        w = a * t_before
+        pp = p[lo:lo + 256]
+        a1[order] += w[pp].sum(0)
+        a0[order] += w[~pp].sum(0)
+    return a1, a0
+
+
+@pytest.mark.parametrize("blend,threads", [("tile", 1), ("tile", 2), ("pixel", 2)])
+def test_contrib_kernel_matches_reference(blend, threads):
+    scene = random_surfel_scene(300, seed=1, sh_degree=0)
+    cam = _cam()
+    pos = np.random.default_rng(0).random((48, 64)) < 0.4
+    dev = resolve_device(CPU)
+    buf = upload_surfels(scene.means, scene.rotations(), scene.scales, scene.opacities, scene.sh,
+                         scene.sh_degree, dev)
+    out = accumulate_contributions(buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, 64, 48, pos,
+                                   RasterSettings(blend=blend, threads=threads, tile=8))
+    r1, r0 = _reference_contrib(scene, cam, pos, RenderConfig())
+    assert (r1 + r0 > 0).sum() > 100
+    for got, ref in ((out.a1.numpy(), r1), (out.a0.numpy(), r0)):
+        np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-6)
+    # Σ_i (A₁ + A₀) = Σ_p accumulated opacity (the weights of every pixel sum to 1 − T)
+    alpha = make_renderer(scene, CPU).render(cam).alpha
+    assert float(out.a1.numpy().sum() + out.a0.numpy().sum()) == pytest.approx(
+        float(alpha.sum()), rel=1e-4)
+
+
+def test_contrib_front_surfel_hides_back_one():
+    front = {"means": np.array([[0.0, 0.0, 2.0]]), "scales": np.array([[3.0, 3.0]]),
+             "opacities": np.array([1.0])}                  # one big opaque surfel
+    back = {"means": np.array([[0.0, 0.0, 3.0]]), "scales": np.array([[0.1, 0.1]]),
+            "opacities": np.array([1.0])}
+    alone = _scene(back)
+    scene = _scene(front, back)
+    cam = _cam()
+    pos = np.ones((48, 64), bool)
+    res = contribution_vote(scene, [MaskView(cam, pos.astype(np.float32))], device=CPU)
+    res_alone = contribution_vote(alone, [MaskView(cam, pos.astype(np.float32))], device=CPU)
+    assert res.negative.sum() == 0.0                     # every pixel is mask-positive
+    assert res.positive[0] > 100 and res_alone.positive[0] > 5
+    assert res.positive[1] < 0.0105 * res_alone.positive[0]  # T ≈ 0.01 behind α ≈ 0.99
+
+
+# ----------------------------------------------------------------------------- baselines
+def test_centre_vote_hand_case():
+    # three small surfels on the axis side by side, one hidden behind a big opaque one
+    s0 = {"means": np.array([[-0.5, 0.0, 4.0]]), "scales": np.array([[0.05, 0.05]]),
+          "opacities": np.array([1.0])}
+    s1 = {"means": np.array([[0.5, 0.0, 4.0]]), "scales": np.array([[0.05, 0.05]]),
+          "opacities": np.array([1.0])}
+    wall = {"means": np.array([[0.0, 0.8, 3.0]]), "scales": np.array([[0.3, 0.3]]),
+            "opacities": np.array([1.0])}
+    hidden = {"means": np.array([[0.0, 0.8, 5.0]]), "scales": np.array([[0.05, 0.05]]),
+              "opacities": np.array([1.0])}
+    scene = _scene(s0, s1, wall, hidden)
+    cam = _cam()
+    uv, _ = cam.project(scene.means)
+    masks = []
+    # view 1: s0 and the hidden one's pixel positive; view 2: s0, s1; view 3: s1 only
+    for pos_ids in ([0, 3], [0, 1], [1]):
+        m = np.zeros((48, 64), np.float32)
+        for i in pos_ids:
+            m[int(uv[i, 1]), int(uv[i, 0])] = 0.9
+        masks.append(MaskView(cam, m))
+    res = centre_vote(scene, masks, renderer=make_renderer(scene, CPU))
+    # s0: 2 of 3 positive → fg; s1: 2 of 3 → fg; wall: 0 of 3 → bg; hidden: never seen → bg
+    assert res.positive.tolist() == [2, 2, 0, 0]
+    assert res.negative.tolist() == [1, 1, 3, 0]
+    assert res.selected.tolist() == [True, True, False, False]
+    # a view that does not see a surfel (out of frame) does not vote
+    far = _cam(c2w=np.array([[1, 0, 0, 50.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
+    res2 = centre_vote(scene, masks + [(far, np.zeros((48, 64), np.float32))],
+                       renderer=make_renderer(scene, CPU))
+    assert res2.negative.tolist() == [1, 1, 3, 0]
+    # tie → background
+    tie = centre_vote(scene, masks[:1] + [MaskView(cam, np.zeros((48, 64), np.float32))],
+                      renderer=make_renderer(scene, CPU))
+    assert not tie.selected[0]
+
+
+def test_contribution_vote_rule_and_bias(two_planes):
+    scene, labels, cam = two_planes
+    gt = make_renderer(scene, CPU).render_values(cam, labels.astype(np.float32))
+    m = (gt >= 0.5).astype(np.float32)
+    res = contribution_vote(scene, [(cam, m)], device=CPU)
+    assert np.array_equal(res.selected, res.positive > res.negative)
+    vis = res.positive + res.negative > 0
+    assert surfel_scores(res.selected[vis], labels[vis])["iou"] > 0.97
+    strict = contribution_vote(scene, [(cam, m)], device=CPU,
+                               config=ContributionVoteConfig(gamma=0.9))
+    assert strict.selected.sum() < res.selected.sum()
+    with pytest.raises(ValueError):
+        ContributionVoteConfig(gamma=1.0)
+
+
+# ----------------------------------------------------------------------------- pipeline helpers
+def test_variant_configs():
+    from divas_engine.segment.depth_weighting import apply_gs_bandpass, apply_nerf_depth_weight
+
+    nt = variant_config("no_thin")
+    assert math.isinf(nt.gs_fusion.rho_thin)
+    nd = variant_config("no_depth_weight")
+    rng = np.random.default_rng(0)
+    mask = rng.random((20, 30)).astype(np.float32)
+    depth = rng.uniform(1, 10, (20, 30))
+    depth[:3] = 0.0                                     # no surface there
+    w, band = apply_gs_bandpass(mask, depth, np.array([[5.0, 5.0]]), np.array([1]),
+                                config=nd.bandpass)
+    assert band is not None and np.array_equal(w, mask)
+    assert np.array_equal(apply_nerf_depth_weight(mask, depth, config=nd.nerf_weight), mask)
+    assert variant_config("full") == variant_config("full")
+    with pytest.raises(ValueError):
+        variant_config("nope")
+
+
+def test_caching_renderer_is_transparent():
+    scene = random_surfel_scene(200, seed=3, sh_degree=0)
+    inner = make_renderer(scene, CPU)
+    c = CachingRenderer(inner)
+    cam = _cam()
+    a, b = c.render(cam), c.render(cam)
+    assert a is b and c.hits == 1
+    ref = inner.render(cam)
+    assert np.array_equal(a.D_med, ref.D_med) and np.array_equal(a.rgb, ref.rgb)
+    v = np.arange(len(scene), dtype=np.float32) % 2
+    assert np.array_equal(c.render_values(cam, v), inner.render_values(cam, v))
+    assert c.render_values(cam, 1 - v) is not c.render_values(cam, v)
+    with pytest.raises(ValueError):
+        a.rgb[0, 0, 0] = 1.0                          # cached arrays are read-only
+    assert c.num_primitives == len(scene)
+
+
+# ----------------------------------------------------------------------------- end to end
+def test_eval_table_end_to_end_occluded():
+    from divas_engine.evaluation.suite import METHODS, SuiteConfig, evaluate_scene, markdown_table
+    from divas_engine.session import SessionConfig
+
+    cfg = SuiteConfig(scenes=("occluded",), segmenters=("oracle",), size=20_000, nerf=False,
+                      session=SessionConfig(render_scale=0.5), eval=EvalConfig(scale=0.5))
+    rows = evaluate_scene("occluded", cfg, device=CPU)
+    assert [r["method"] for r in rows] == list(METHODS)
+    for r in rows:
+        for k in ("iou", "accuracy", "precision_3d", "recall_3d"):
+            assert 0.0 <= r[k] <= 1.0, (r["method"], k, r[k])
+        assert r["views_fused"] == r["views"] > 0
+    by = {r["method"]: r for r in rows}
+    assert by["full"]["iou"] > 0.8                      # the oracle on the occluded vase
+    assert by["full"]["precision_3d"] > 0.9
+    assert by["no_thin"]["recall_3d"] < by["full"]["recall_3d"]
+    # the mapping chain is monotone: f ⊆ f² ⊆ f¹
+    assert by["full"]["selected"] <= by["pass12"]["selected"] <= by["pass1"]["selected"]
+    text = markdown_table({"rows": rows})
+    assert text.count("\n") == len(rows) + 1 and "DivAS full" in text
+
+
+def test_eval_cli_arguments():
+    import argparse
+
+    from divas_engine.cli import evaluate
+    from divas_engine.errors import DivasInputError
+
+    p = argparse.ArgumentParser()
+    evaluate.add_parser(p.add_subparsers())
+    a = p.parse_args(["eval", "--scenes", "ribs,occluded,ribs", "--segmenters", "oracle"])
+    assert a.scenes == ("ribs", "occluded") and a.segmenters == ("oracle",)
+    assert a.size == evaluate.DEFAULT_SIZE and not a.no_nerf
+    with pytest.raises(SystemExit):
+        p.parse_args(["eval", "--scenes", "ribs,nope"])
+    with pytest.raises(DivasInputError):
+        evaluate.run(p.parse_args(["eval", "--size", "10"]))
