@@ -1,30 +1,38 @@
 """DivAS for Blender: interactive, training-free segmentation of Gaussian splats and NeRF grids.
 
 A thin ``bpy`` layer over the pure-Python ``divas_engine`` (bundled as a wheel):
-import operators, training/anchor cameras, extract and export. Arrays cross into
-Blender only in :mod:`.bridge`. Internal imports are relative, so the package works
-under any extension repository name (``bl_ext.<repo>.divas``).
+import operators, training/anchor cameras, the live session (start, click-to-segment
+modal, accept/undo/reset/finish, autosave and resume), extract and export. Arrays
+cross into Blender only in :mod:`.bridge`. Internal imports are relative, so the
+package works under any extension repository name (``bl_ext.<repo>.divas``).
 """
 
 from __future__ import annotations
 
 import bpy
 
-from . import operators, preferences, source, ui
+from . import operators, preferences, properties, session_registry, source, ui
 
 CLASSES = (preferences.DIVAS_AddonPreferences, *operators.CLASSES, *ui.CLASSES)
 
 
 def register() -> None:
+    properties.register()  # scene.divas first: the panel and operators read it
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     for menu, func in operators.MENU_ENTRIES:
         getattr(bpy.types, menu).append(func)
+    if session_registry.on_load_pre not in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.append(session_registry.on_load_pre)
 
 
 def unregister() -> None:
+    if session_registry.on_load_pre in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(session_registry.on_load_pre)
+    session_registry.clear()
     for menu, func in reversed(operators.MENU_ENTRIES):
         getattr(bpy.types, menu).remove(func)
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
+    properties.unregister()
     source.clear_cache()

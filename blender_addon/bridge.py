@@ -22,7 +22,7 @@ import bpy
 import numpy as np
 
 __all__ = ["new_point_cloud_object", "write_attribute", "write_attributes", "read_attribute",
-           "read_attributes", "attribute_names", "point_count", "remove_attribute"]
+           "read_attributes", "attribute_names", "point_count", "remove_attribute", "write_image"]
 
 #: Blender data type → (foreach property, NumPy dtype, components per element).
 _TYPES = {
@@ -148,3 +148,22 @@ def new_point_cloud_object(name: str, positions: np.ndarray, collection) -> bpy.
         remove_attribute(cloud, internal)
     write_attribute(cloud, "position", positions)
     return obj
+
+
+def write_image(name: str, rgba: np.ndarray) -> bpy.types.Image:
+    """The 8-bit sRGB image ``name`` holding ``rgba`` (``[H,W,4]`` float in [0,1], top row
+    first), created or resized as needed; one bulk ``pixels.foreach_set`` (Blender stores
+    rows bottom-up, so the rows are flipped here)."""
+    rgba = np.asarray(rgba, dtype=np.float32)
+    if rgba.ndim != 3 or rgba.shape[2] != 4:
+        raise ValueError(f"image {name!r}: expected [H,W,4] RGBA, got {rgba.shape}")
+    h, w = rgba.shape[:2]
+    img = bpy.data.images.get(name)
+    if img is not None and (tuple(img.size) != (w, h) or img.is_float):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=False)
+    img.pixels.foreach_set(np.ascontiguousarray(np.clip(rgba[::-1], 0.0, 1.0)).reshape(-1))
+    img.update()
+    return img

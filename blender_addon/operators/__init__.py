@@ -1,9 +1,10 @@
-"""One operator per module; :data:`CLASSES` is registered in order, unregistered in reverse."""
+"""One operator per module (the session's EXEC steps share :mod:`.session_ops`);
+:data:`CLASSES` is registered in order, unregistered in reverse."""
 
 from __future__ import annotations
 
 from . import (activate_camera, export_selection, extract_selection, import_cameras,
-               import_density_grid, import_splats)
+               import_density_grid, import_splats, segment_modal, session_ops, start_session)
 
 CLASSES = (
     import_splats.DIVAS_OT_import_splats,
@@ -12,6 +13,9 @@ CLASSES = (
     export_selection.DIVAS_OT_export_selection,
     extract_selection.DIVAS_OT_extract_selection,
     activate_camera.DIVAS_OT_activate_camera,
+    start_session.DIVAS_OT_start_session,
+    segment_modal.DIVAS_OT_segment_modal,
+    *session_ops.CLASSES,
 )
 
 #: (menu type name, draw function) pairs appended on register.

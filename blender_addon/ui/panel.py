@@ -1,13 +1,95 @@
-"""The N-panel tab "DivAS": import, settings, the active object's selection, extract/export."""
+"""The N-panel tab "DivAS": import, session settings, the live session (counts, the last
+update's timings, its buttons), the active object's selection, extract/export."""
 
 from __future__ import annotations
 
 import bpy
 
-from .. import source
+from .. import session_registry, source
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import get_preferences
+from ..properties import scene_settings
 from ..selection import selected_count
+
+#: (timing key, label) shown for the last update, in pipeline order.
+TIMING_LABELS = (("centroid_s", "Centroid"), ("render_s", "Render"), ("preview_s", "Preview"),
+                 ("segmenter_s", "Segmenter"), ("segmenter_wait_s", "Segmenter wait"),
+                 ("kernel_s", "Fusion"), ("mapping_s", "Mapping"), ("overlay_s", "Overlay"),
+                 ("update_s", "Total"))
+
+
+def backbone_of(ref: source.SourceRef) -> str:
+    return "NeRF (density grid)" if ref.kind == "grid" else "2DGS / 3DGS (splats)"
+
+
+def _draw_import(layout) -> None:
+    col = layout.column(align=True)
+    col.label(text="Import")
+    col.operator("divas.import_splats", text="Gaussian Splats", icon="POINTCLOUD_DATA")
+    col.operator("divas.import_density_grid", text="NeRF Density Grid", icon="VOLUME_DATA")
+    col.operator("divas.import_cameras", text="Training Cameras", icon="CAMERA_DATA")
+
+
+def _draw_settings(layout, context, ref) -> None:
+    box = layout.box()
+    box.label(text="Settings")
+    box.use_property_split = True
+    prefs = get_preferences(context)
+    if prefs is None:
+        box.label(text="Preferences unavailable (add-on not enabled)", icon="INFO")
+    else:
+        box.prop(prefs, "device")
+        box.prop(prefs, "segmenter")
+        if prefs.segmenter == "sam_onnx" and not (prefs.sam_encoder_path and prefs.sam_decoder_path):
+            box.label(text="Set the SAM .onnx files in Preferences", icon="ERROR")
+        if prefs.segmenter == "sam_torch" and not prefs.sam_checkpoint_path:
+            box.label(text="Set the SAM checkpoint in Preferences", icon="ERROR")
+    props = scene_settings(context.scene)
+    if props is None:
+        return
+    if ref is not None:
+        box.label(text=f"Backbone: {backbone_of(ref)}")
+    box.prop(props, "preset")
+    box.prop(props, "render_scale")
+    col = box.column(align=True)
+    col.active = ref is None or ref.kind != "grid"  # NeRF: the preset's constants
+    col.prop(props, "see_through_gap")
+    col.prop(props, "surfel_coverage")
+    col.prop(props, "gamma")
+    if ref is not None and ref.kind == "grid":
+        box.label(text="NeRF uses the preset's fusion constants", icon="INFO")
+    box.prop(props, "mask_channel")
+    box.prop(props, "seed")
+    box.prop(props, "autosave")
+
+
+def _draw_session(layout, live) -> None:
+    box = layout.box()
+    box.label(text="Session", icon="RESTRICT_SELECT_OFF")
+    c = live.counts()
+    col = box.column(align=True)
+    col.label(text=f"{c['anchors']} anchors · {c['centroid_views']} views "
+                   f"({c['accepted']} fused, {c['rejected']} rejected, {c['pending']} pending)")
+    col.label(text=f"{c['selected']:,} selected · {c['labelled']:,} labelled · "
+                   f"object {len(live.session.objects)}")
+    col.label(text=f"{c['active_voxels']:,} active voxels · {c['segmented_voxels']:,} segmented")
+    last = live.last_update
+    if last:
+        sub = box.column(align=True)
+        sub.label(text=f"Last: {last.get('what', '')}")
+        for key, label in TIMING_LABELS:
+            if key in last:
+                sub.label(text=f"    {label}: {1000.0 * float(last[key]):.0f} ms")
+    col = box.column(align=True)
+    col.operator("divas.segment_modal", icon="RESTRICT_SELECT_OFF")
+    row = col.row(align=True)
+    row.operator("divas.session_accept", text="Accept", icon="CHECKMARK")
+    row.operator("divas.session_undo", text="Undo", icon="LOOP_BACK")
+    row = col.row(align=True)
+    row.operator("divas.session_reset", text="Reset", icon="X")
+    row.operator("divas.session_finish_object", text="Finish Object", icon="FORWARD")
+    if live.kind == "nerf" and c["pending"]:
+        col.operator("divas.session_sync", icon="FILE_REFRESH")
 
 
 class DIVAS_PT_main(bpy.types.Panel):
@@ -19,23 +101,12 @@ class DIVAS_PT_main(bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        col = layout.column(align=True)
-        col.label(text="Import")
-        col.operator("divas.import_splats", text="Gaussian Splats", icon="POINTCLOUD_DATA")
-        col.operator("divas.import_density_grid", text="NeRF Density Grid", icon="VOLUME_DATA")
-        col.operator("divas.import_cameras", text="Training Cameras", icon="CAMERA_DATA")
-
-        prefs = get_preferences(context)
-        box = layout.box()
-        box.label(text="Settings")
-        if prefs is None:
-            box.label(text="Preferences unavailable (add-on not enabled)", icon="INFO")
-        else:
-            box.use_property_split = True
-            box.prop(prefs, "device")
-            box.prop(prefs, "segmenter")
-
+        _draw_import(layout)
         obj = context.active_object
+        ref = source.source_of(obj)
+        owner, live = session_registry.find(context)
+        _draw_settings(layout, context, ref if ref is not None else source.source_of(owner))
+
         if obj is not None and obj.type == "CAMERA":
             row = layout.row()
             row.operator("divas.activate_camera", icon="VIEW_CAMERA")
@@ -43,7 +114,15 @@ class DIVAS_PT_main(bpy.types.Panel):
                 w, h = obj[RESOLUTION_PROP]
                 row.label(text=f"{w} x {h}")
 
-        ref = source.source_of(obj)
+        if ref is not None:
+            row = layout.row(align=True)
+            row.scale_y = 1.3
+            row.operator("divas.start_session", text="Restart DivAS" if live is not None
+                         and owner == obj else "Start DivAS", icon="PLAY")
+            row.operator("divas.resume_session", text="", icon="RECOVER_LAST")
+        if live is not None:
+            _draw_session(layout, live)
+
         if ref is None:
             return
         box = layout.box()

@@ -1,0 +1,144 @@
+"""The live DivAS sessions, one per imported object, kept outside Blender's data.
+
+Blender properties cannot hold Python objects, so each running
+:class:`~divas_engine.session.Session` lives in a module-level table keyed by the
+object's ``session_uid`` (stable for the Blender session, across renames and undo),
+with the object's name as a fallback. The table is emptied (sessions closed) when a
+file is loaded (:func:`on_load_pre`) and when the add-on is unregistered; a session can
+be brought back from its autosave with the "Resume DivAS Session" operator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import bpy
+from bpy.app.handlers import persistent
+
+from divas_engine.session import Session
+
+from .modal_logic import OWNER_PROP
+
+__all__ = ["LiveSession", "put", "get", "drop", "clear", "find", "owner_object", "all_sessions",
+           "on_load_pre"]
+
+
+@dataclass(eq=False)
+class LiveSession:
+    """A running session and what the add-on made for it.
+
+    Attributes:
+        session: the engine session.
+        object_name: the point-cloud object it segments.
+        anchor_cameras: camera object name per anchor index.
+        view_cameras: camera object name per centroid view id.
+        extra_prompts: prompt points added on each centroid view, ``(x, y, label)`` in
+            rendered-image pixels (the view's default prompt is added by the engine).
+        autosave: where the engine saves the session after every accept (None: off).
+        segmenter: the segmenter's name; open_s: seconds to start (load → anchors).
+        last_update: the last update's timings (seconds by stage) and what it was.
+    """
+
+    session: Session
+    object_name: str
+    anchor_cameras: list[str] = field(default_factory=list)
+    view_cameras: dict[str, str] = field(default_factory=dict)
+    extra_prompts: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
+    autosave: Path | None = None
+    segmenter: str = "classic"
+    open_s: float = 0.0
+    last_update: dict[str, Any] = field(default_factory=dict)
+    _counts: dict[str, Any] | None = None
+
+    @property
+    def kind(self) -> str:
+        return self.session.kind
+
+    def record(self, update: dict[str, Any]) -> None:
+        """Remember the last update (what, seconds by stage) and refresh the counts."""
+        self.last_update = dict(update)
+        self._counts = self.session.counts()
+
+    def counts(self) -> dict[str, Any]:
+        """The session's counts as of the last update (cheap: the panel redraws often)."""
+        if self._counts is None:
+            self._counts = self.session.counts()
+        return self._counts
+
+
+_sessions: dict[int, LiveSession] = {}
+
+
+def _key(obj) -> int:
+    uid = getattr(obj, "session_uid", None)  # every supported Blender has it; be safe
+    return int(uid) if uid is not None else int(obj.as_pointer())
+
+
+def put(obj, live: LiveSession) -> None:
+    """Register ``live`` for ``obj`` (closing a previous session of that object)."""
+    drop(obj)
+    _sessions[_key(obj)] = live
+
+
+def get(obj) -> LiveSession | None:
+    if obj is None:
+        return None
+    live = _sessions.get(_key(obj))
+    if live is not None:
+        live.object_name = obj.name
+        return live
+    return next((s for s in _sessions.values() if s.object_name == obj.name), None)
+
+
+def drop(obj) -> None:
+    """Close and forget the session of ``obj`` (if any)."""
+    live = get(obj)
+    if live is None:
+        return
+    for k, v in list(_sessions.items()):
+        if v is live:
+            del _sessions[k]
+    live.session.close()
+
+
+def clear() -> None:
+    """Close and forget every session."""
+    for live in list(_sessions.values()):
+        live.session.close()
+    _sessions.clear()
+
+
+def all_sessions() -> list[LiveSession]:
+    return list(_sessions.values())
+
+
+def owner_object(context):
+    """The object whose session the context is about: the active object when it has a
+    session, else the owner of the scene camera (a DivAS view), else the only session's."""
+    obj = context.active_object
+    if get(obj) is not None:
+        return obj
+    cam = context.scene.camera if context.scene is not None else None
+    if cam is not None and cam.get(OWNER_PROP):
+        owner = bpy.data.objects.get(cam[OWNER_PROP])
+        if get(owner) is not None:
+            return owner
+    if len(_sessions) == 1:
+        owner = bpy.data.objects.get(next(iter(_sessions.values())).object_name)
+        if owner is not None:
+            return owner
+    return None
+
+
+def find(context) -> tuple[Any, LiveSession] | tuple[None, None]:
+    """``(object, live session)`` for the context (see :func:`owner_object`)."""
+    obj = owner_object(context)
+    return (obj, get(obj)) if obj is not None else (None, None)
+
+
+@persistent
+def on_load_pre(*_args) -> None:
+    """A file is being loaded: the objects the sessions point at are going away."""
+    clear()

@@ -1,0 +1,241 @@
+"""Headless DivAS segmentation in Blender, through the add-on's operators.
+
+    blender -b --python blender_scripts/segment.py -- --scene S.ply --prompts P.json --out O.ply
+    python blender_scripts/segment.py -- --scene S.ply --prompts P.json --out O.ply   # bpy module
+
+The mirror of ``divas segment`` (same arguments, same outputs, the same labels), but
+every step is an operator: ``divas.import_splats`` / ``divas.import_density_grid``,
+``divas.start_session`` (anchors from the prompts file), one ``divas.session_click`` per
+click and one ``divas.session_accept`` per positive click (spawned first, accepted in
+order, like ``divas segment``), ``divas.session_sync`` and ``divas.export_selection``.
+Click coordinates go to the operators as decimal text, so they reach the engine in
+double precision.
+
+Arguments follow ``--`` (all of ``sys.argv`` without it). Exit status: 0 on success, 1
+with a one-line ``error:`` message on a failure, 2 on bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SEGMENTERS = {"classic": "classic", "sam-onnx": "sam_onnx", "sam-torch": "sam_torch",
+              "oracle": "oracle"}
+
+
+class ScriptError(Exception):
+    """A failure reported as one line (exit status 1)."""
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="blender -b --python blender_scripts/segment.py --",
+                                description="Segment a scene headless through the DivAS "
+                                            "add-on's operators (mirrors `divas segment`).")
+    p.add_argument("--scene", type=Path, required=True,
+                   help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz density grid")
+    p.add_argument("--cameras", type=Path, default=None,
+                   help="training cameras (default: cameras.json beside the scene, if any)")
+    p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
+    p.add_argument("--out", type=Path, required=True, help="output: the selected primitives")
+    p.add_argument("--labels-out", type=Path, default=None, help="bool .npy per input row")
+    p.add_argument("--segmenter", choices=tuple(SEGMENTERS), default="classic")
+    p.add_argument("--sam-encoder", type=Path, default=None)
+    p.add_argument("--sam-decoder", type=Path, default=None)
+    p.add_argument("--sam-checkpoint", type=Path, default=None)
+    p.add_argument("--sam-model-type", default="vit_h")
+    p.add_argument("--gt-labels", type=Path, default=None,
+                   help="ground truth .npy: the oracle's target and a 3D score in the report")
+    p.add_argument("--preset", choices=("llff", "mip360"), default=None,
+                   help="NeRF fusion preset (default: from the training cameras)")
+    p.add_argument("--scale", type=float, default=1.0, help="render scale (default 1)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--report", type=Path, default=None, help="write a JSON report here")
+    p.add_argument("--session", type=Path, default=None,
+                   help="save the session here (autosaved after every accept)")
+    p.add_argument("--mask-channel", type=int, default=1, choices=(0, 1, 2))
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--min-opacity", type=float, default=0.0,
+                   help="NeRF grids: voxels imported as points (0, every voxel, keeps the "
+                        "export identical to `divas segment`)")
+    return p.parse_args(argv)
+
+
+def script_argv(argv: list[str]) -> list[str]:
+    """The arguments after ``--`` (Blender passes its own before it)."""
+    return argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
+
+
+def enable_addon():
+    """The add-on's package: the one already enabled (an installed extension), else
+    ``blender_addon`` from this repository."""
+    import bpy
+
+    if not hasattr(bpy.types, "DIVAS_OT_start_session"):
+        if str(REPO) not in sys.path:
+            sys.path.insert(0, str(REPO))
+        import addon_utils
+
+        if addon_utils.enable("blender_addon", default_set=True) is None:
+            raise ScriptError("could not enable the DivAS add-on (blender_addon)")
+    module = bpy.types.DIVAS_OT_start_session.__module__
+    return importlib.import_module(module.rsplit(".operators", 1)[0])
+
+
+def _op(call, what: str, **kw) -> None:
+    """Run an operator; its reported error (Blender raises it as RuntimeError) → ScriptError."""
+    try:
+        result = call(**kw)
+    except RuntimeError as e:
+        msg = str(e).strip()
+        msg = msg.split("Error: ", 1)[-1].strip() if "Error: " in msg else msg
+        raise ScriptError(f"{what}: {msg}") from None
+    if "FINISHED" not in result:
+        raise ScriptError(f"{what}: cancelled")
+
+
+def _xy(xy) -> str:
+    return f"{xy[0]!r} {xy[1]!r}"
+
+
+def run(args: argparse.Namespace) -> dict:
+    t_start = time.perf_counter()
+    import bpy
+
+    addon = enable_addon()
+    if str(REPO) not in sys.path:
+        sys.path.insert(0, str(REPO))
+    from divas_engine.cli.segment import load_gt, write_report
+    from divas_engine.session import load_prompts
+    from divas_engine.session.evaluate import surfel_scores
+
+    registry = importlib.import_module(f"{addon.__name__}.session_registry")
+    properties = importlib.import_module(f"{addon.__name__}.properties")
+    view_prop = importlib.import_module(f"{addon.__name__}.modal_logic").VIEW_PROP
+    scale_prop = properties.DIVAS_PG_session_settings.bl_rna.properties["render_scale"]
+    if not scale_prop.hard_min <= args.scale <= scale_prop.hard_max:
+        raise ScriptError(f"--scale must be in [{scale_prop.hard_min:g}, "
+                          f"{scale_prop.hard_max:g}], got {args.scale}")
+    if args.segmenter == "sam-onnx" and (args.sam_encoder is None or args.sam_decoder is None):
+        raise ScriptError("--segmenter sam-onnx needs --sam-encoder and --sam-decoder")
+    if args.segmenter == "sam-torch" and args.sam_checkpoint is None:
+        raise ScriptError("--segmenter sam-torch needs --sam-checkpoint")
+    if args.seed < 0:
+        raise ScriptError(f"--seed must be ≥ 0, got {args.seed}")
+    prompts = load_prompts(args.prompts)
+    ops = bpy.ops.divas
+    is_grid = args.scene.suffix.lower() == ".npz"
+    t = time.perf_counter()
+    if is_grid:
+        _op(ops.import_density_grid, "import", filepath=str(args.scene), display=False,
+            min_opacity=args.min_opacity)
+    else:
+        _op(ops.import_splats, "import", filepath=str(args.scene), display=False)
+    t_import = time.perf_counter() - t
+    obj = bpy.context.active_object
+    props = bpy.context.scene.divas
+    props.render_scale, props.seed, props.mask_channel = args.scale, args.seed, args.mask_channel
+    props.preset = properties.preset_from_cli(args.preset if is_grid else None)
+    props.autosave = args.session is not None
+    prefs = addon.preferences.get_preferences(bpy.context)
+    if args.segmenter.startswith("sam") and prefs is not None:
+        prefs.sam_encoder_path = str(args.sam_encoder or "")
+        prefs.sam_decoder_path = str(args.sam_decoder or "")
+        prefs.sam_checkpoint_path = str(args.sam_checkpoint or "")
+        prefs.sam_model_type = args.sam_model_type
+    t = time.perf_counter()
+    _op(ops.start_session, "start", segmenter=SEGMENTERS[args.segmenter], device=args.device,
+        cameras=str(args.cameras or ""), prompts=str(args.prompts),
+        gt_labels=str(args.gt_labels or ""), autosave=str(args.session or ""))
+    t_start_session = time.perf_counter() - t
+    live = registry.get(obj)
+    # every click first (bad clicks fail before the expensive part), then accept in order
+    spawned = []
+    for i, a in enumerate(prompts.anchors):
+        for k, c in enumerate(a.clicks):
+            _op(ops.session_click, f"anchors[{i}].clicks[{k}]", anchor=i, xy=_xy(c.xy),
+                positive=c.positive, full_resolution=True, preview=False)
+            if c.positive:
+                vid = bpy.context.scene.camera.get(view_prop)  # the view just spawned
+                pts = [[p.xy[0], p.xy[1], p.positive] for p in prompts.extra_points(i, k)]
+                spawned.append((vid, pts))
+    for vid, pts in spawned:
+        _op(ops.session_accept, f"accept {vid}", view=vid, points=json.dumps(pts),
+            full_resolution=True)
+    _op(ops.session_sync, "sync")
+    session = live.session
+    t = time.perf_counter()
+    outputs: dict = {}
+    error = None
+    if not session.selection.any():
+        reasons = "; ".join(f"{v.id}: {v.reason}" for v in session.views if v.status == "rejected")
+        error = "the selection is empty; nothing to write" + \
+            (f" (rejected views: {reasons})" if reasons else "")
+    else:
+        _op(ops.export_selection, "export", filepath=str(args.out),
+            write_labels=args.labels_out is not None)
+        out = args.out if args.out.suffix else args.out.with_suffix(
+            addon.source.FORMAT_SUFFIX.get(obj.get(addon.source.FORMAT_PROP, ""), ".ply"))
+        outputs.update({"out": str(out), "count": int(session.selection.sum())})
+        if args.labels_out is not None:
+            made = out.with_name(out.name.split(".")[0] + "_labels.npy")
+            args.labels_out.parent.mkdir(parents=True, exist_ok=True)
+            if made.resolve() != args.labels_out.resolve():
+                shutil.move(str(made), str(args.labels_out))
+            outputs["labels_out"] = str(args.labels_out)
+    if args.session is not None:
+        session.save(args.session)
+        outputs["session"] = str(args.session)
+    t_export = time.perf_counter() - t
+    rep = session.report()
+    timings = rep.pop("timings")
+    timings.update({"T_pipe_s": time.perf_counter() - t_start, "import_s": t_import,
+                    "start_s": t_start_session, "export_s": t_export})
+    report = {"version": 1, "command": "blender segment", "blender": bpy.app.version_string,
+              "scene": str(args.scene), "cameras": None if args.cameras is None
+              else str(args.cameras), "prompts": str(args.prompts), "kind": rep["kind"],
+              "segmenter": args.segmenter, "seed": args.seed, "device": rep["device"],
+              "render_scale": args.scale, "timings": timings,
+              **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
+              "outputs": outputs}
+    if session.kind == "nerf":
+        report["preset"] = session.preset
+    if args.gt_labels is not None:
+        gt = load_gt(args.gt_labels, session.scene)
+        report["evaluation"] = {"surfels" if session.kind == "2dgs" else "voxels":
+                                surfel_scores(session.selection, gt)}
+    if args.report is not None:
+        write_report(args.report, report)
+    if error is not None:
+        raise ScriptError(error)
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(script_argv(sys.argv if argv is None else argv))
+    try:
+        report = run(args)
+    except ScriptError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    except Exception as e:  # noqa: BLE001 - engine input errors and the like: one line
+        from_engine = type(e).__module__.startswith("divas_engine")
+        print(f"error: {e}" if from_engine else f"error: {type(e).__name__}: {e}",
+              file=sys.stderr)
+        return 1
+    c = report["counts"]
+    print(f"{c['accepted']} of {c['centroid_views']} centroid views fused "
+          f"({c['rejected']} rejected); {c['selected']} "
+          f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
+          f"({report['timings']['T_pipe_s']:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

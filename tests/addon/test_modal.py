@@ -1,0 +1,260 @@
+"""Issue 7 items 4 and 9: the click-to-segment modal. The event → step logic is pure
+(:mod:`blender_addon.modal_logic`) and tested as a table; the operator's ``modal()`` is
+driven with stand-in events, a stand-in region and a stubbed click → pixel mapping
+(headless Blender has no 3D view) against a real session on a small synthetic scene."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_addon import bridge, session_registry
+from blender_addon.modal_logic import (HEADER_TEXT, Key, KeyKind, StepKind, Target, decide, plan,
+                                       target_from_props)
+from blender_addon.operators.segment_modal import DIVAS_OT_segment_modal, ModalController
+from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
+
+SCALE = 0.5
+
+
+# ----------------------------------------------------------------------------- pure logic
+@pytest.mark.parametrize("event, expect", [
+    (("LEFTMOUSE", "PRESS", False, True), Key(KeyKind.CLICK, True)),
+    (("LEFTMOUSE", "PRESS", True, True), Key(KeyKind.CLICK, False)),
+    (("RIGHTMOUSE", "PRESS", False, True), Key(KeyKind.CLICK, False)),
+    (("LEFTMOUSE", "RELEASE", False, True), Key(KeyKind.IGNORE)),
+    (("LEFTMOUSE", "DOUBLE_CLICK", False, True), Key(KeyKind.CLICK, True)),
+    (("LEFTMOUSE", "CLICK_DRAG", False, True), Key(KeyKind.IGNORE)),
+    (("LEFTMOUSE", "PRESS", False, False), Key(KeyKind.PASS)),   # over the sidebar / header
+    (("RET", "PRESS", False, True), Key(KeyKind.ACCEPT)),
+    (("NUMPAD_ENTER", "PRESS", False, False), Key(KeyKind.ACCEPT)),
+    (("RET", "RELEASE", False, True), Key(KeyKind.IGNORE)),
+    (("BACK_SPACE", "PRESS", False, True), Key(KeyKind.UNDO)),
+    (("ESC", "PRESS", False, True), Key(KeyKind.EXIT)),
+    (("MIDDLEMOUSE", "PRESS", False, True), Key(KeyKind.PASS)),
+    (("WHEELUPMOUSE", "PRESS", False, True), Key(KeyKind.PASS)),
+    (("MOUSEMOVE", "NOTHING", False, True), Key(KeyKind.PASS)),
+    (("A", "PRESS", False, True), Key(KeyKind.PASS)),
+    (("A", "RELEASE", False, True), Key(KeyKind.PASS)),
+])
+def test_decide(event, expect):
+    t, v, shift, inside = event
+    assert decide(t, v, shift=shift, in_region=inside) == expect
+
+
+ANCHOR, OPEN, FUSED = Target(2), Target(2, "o0:a2:c0", "open"), Target(2, "o0:a2:c0", "fused")
+NONE = Target()
+POS, NEG = Key(KeyKind.CLICK, True), Key(KeyKind.CLICK, False)
+
+
+@pytest.mark.parametrize("key, target, xy, kind", [
+    (POS, ANCHOR, (3.0, 4.0), StepKind.SPAWN),
+    (NEG, ANCHOR, (3.0, 4.0), StepKind.ANCHOR_NEGATIVE),
+    (POS, OPEN, (3.0, 4.0), StepKind.PROMPT),
+    (NEG, OPEN, (3.0, 4.0), StepKind.PROMPT),
+    (POS, Target(2, "v", "rejected"), (3.0, 4.0), StepKind.PROMPT),  # re-prompt a rejected view
+    (POS, FUSED, (3.0, 4.0), StepKind.MESSAGE),
+    (POS, ANCHOR, None, StepKind.MESSAGE),      # outside the camera frame
+    (POS, NONE, (3.0, 4.0), StepKind.MESSAGE),  # not a DivAS camera
+    (Key(KeyKind.ACCEPT), OPEN, None, StepKind.ACCEPT),
+    (Key(KeyKind.ACCEPT), FUSED, None, StepKind.MESSAGE),
+    (Key(KeyKind.ACCEPT), ANCHOR, None, StepKind.MESSAGE),
+    (Key(KeyKind.ACCEPT), NONE, None, StepKind.MESSAGE),
+    (Key(KeyKind.UNDO), NONE, None, StepKind.UNDO),
+    (Key(KeyKind.EXIT), OPEN, None, StepKind.EXIT),
+    (Key(KeyKind.PASS), OPEN, None, StepKind.PASS),
+    (Key(KeyKind.IGNORE), OPEN, None, StepKind.NOTHING),
+])
+def test_plan(key, target, xy, kind):
+    step = plan(key, target, xy)
+    assert step.kind is kind
+    if kind in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE, StepKind.PROMPT):
+        assert step.xy == xy and step.positive == key.positive and step.anchor == 2
+    if kind is StepKind.MESSAGE:
+        assert step.message
+
+
+def test_target_from_props():
+    assert target_from_props({}) == NONE
+    assert target_from_props({"divas_anchor": 3}) == Target(3)
+    assert target_from_props({"divas_anchor": 3, "divas_view": "v"}, lambda v: "fused") == \
+        Target(3, "v", "fused")
+    assert target_from_props({"divas_anchor": 3, "divas_view": "gone"}, lambda v: None) == NONE
+
+
+# ----------------------------------------------------------------------------- the modal
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    from divas_engine.synthetic import generate_scene
+
+    out = tmp_path_factory.mktemp("ribs_modal")
+    sc = generate_scene("ribs", out, size=15_000, seed=0, grid_resolution=32)
+    return out, sc
+
+
+def _event(type_, value="PRESS", shift=False, x=100, y=100):
+    return SimpleNamespace(type=type_, value=value, shift=shift, mouse_x=x, mouse_y=y)
+
+
+class _Harness:
+    """The operator's ``modal()`` with a stand-in ``self``: a controller over a stand-in
+    region whose click → pixel mapping returns the next queued pixel."""
+
+    def __init__(self, obj):
+        self.reports: list[tuple[set, str]] = []
+        self.pixels: list = []
+        self.headers: list = []
+        region = SimpleNamespace(type="WINDOW", x=10, y=20, width=800, height=600)
+        # the sidebar drawn over the main region's right edge (Region Overlap)
+        sidebar = SimpleNamespace(type="UI", x=610, y=20, width=200, height=600)
+        area = SimpleNamespace(regions=[region, sidebar], header_text_set=self.headers.append,
+                               tag_redraw=lambda: None)
+        self.ctl = ModalController(obj.name, lambda kind, msg: self.reports.append((kind, msg)),
+                                   region=region, rv3d=object(), area=area,
+                                   pixel_fn=self._pixel)
+        self.op = SimpleNamespace(_ctl=self.ctl)
+
+    def _pixel(self, region, rv3d, scene, cam, mouse):
+        assert mouse == (90, 80)  # window (100, 100) in the region at (10, 20)
+        return self.pixels.pop(0)
+        self.op = SimpleNamespace(_ctl=self.ctl)
+
+    def send(self, event, pixel=None):
+        if pixel is not None or event.type in ("LEFTMOUSE", "RIGHTMOUSE"):
+            self.pixels.append(pixel)
+        return DIVAS_OT_segment_modal.modal(self.op, bpy.context, event)
+
+
+def _start(scene_dir):
+    out, _ = scene_dir
+    bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"))
+    obj = bpy.context.active_object
+    bpy.context.scene.divas.render_scale = SCALE
+    bpy.context.scene.divas.autosave = False
+    assert bpy.ops.divas.start_session(segmenter="oracle", device="cpu",
+                                       gt_labels=str(out / "labels.npy")) == {"FINISHED"}
+    return obj, session_registry.get(obj)
+
+
+def _visible_click(cam, sc):
+    for c in sc.metadata["clicks"]:
+        uv, z = cam.project(np.array([c["xyz"]]))
+        if z[0] > 0 and 0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height:
+            return float(uv[0, 0]), float(uv[0, 1])
+    pytest.skip("no click point visible")
+
+
+def _bg_pixels(cam) -> np.ndarray:
+    img = cam.data.background_images[0].image
+    px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+    img.pixels.foreach_get(px)
+    return px
+
+
+def test_modal_click_prompt_accept_undo_exit(scene_dir):
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    s = live.session
+    h = _Harness(obj)
+    scene = bpy.context.scene
+    anchor_cam = scene.camera
+    assert anchor_cam.name == live.anchor_cameras[0]
+    # navigation and clicks outside the main region belong to Blender
+    assert h.send(_event("MIDDLEMOUSE")) == {"PASS_THROUGH"}
+    assert h.send(_event("LEFTMOUSE", x=5, y=5)) == {"PASS_THROUGH"}
+    assert h.send(_event("LEFTMOUSE", x=700, y=300)) == {"PASS_THROUGH"}  # over the sidebar
+    h.pixels.clear()
+    # Enter on an anchor: nothing to accept yet
+    assert h.send(_event("RET")) == {"RUNNING_MODAL"}
+    assert h.reports[-1][0] == {"WARNING"} and "Click the object" in h.reports[-1][1]
+    # a click outside the camera frame
+    assert h.send(_event("LEFTMOUSE"), pixel=None) == {"RUNNING_MODAL"}
+    assert "inside the camera frame" in h.reports[-1][1] and s.views == []
+    # LMB on the anchor → the centroid view's camera becomes the scene camera
+    xy = _visible_click(s.anchors[0].camera, sc)
+    assert h.send(_event("LEFTMOUSE"), pixel=xy) == {"RUNNING_MODAL"}
+    assert len(s.views) == 1
+    v = s.views[0]
+    vcam = scene.camera
+    assert vcam.name == live.view_cameras[v.id] and vcam["divas_view"] == v.id
+    assert v.preview is not None and v.preview.labels.tolist() == [1]
+    before = _bg_pixels(vcam)
+    # Shift+LMB on the centroid view → a negative prompt, the preview refreshed
+    corner = (2.5, 2.5)
+    assert h.send(_event("LEFTMOUSE", shift=True), pixel=corner) == {"RUNNING_MODAL"}
+    assert live.extra_prompts[v.id] == [(2.5, 2.5, 0)]
+    assert v.preview.labels.tolist() == [1, 0] and v.preview.points[-1].tolist() == [2.5, 2.5]
+    assert not np.array_equal(_bg_pixels(vcam), before)  # the red point is drawn
+    # RMB is negative too
+    assert h.send(_event("RIGHTMOUSE"), pixel=(4.5, 2.5)) == {"RUNNING_MODAL"}
+    assert v.preview.labels.tolist() == [1, 0, 0]
+    # Enter → fused; divas_selected is the session selection on the points
+    assert h.send(_event("RET")) == {"RUNNING_MODAL"}
+    assert v.status == "fused" and s.selection.sum() > 100
+    mapped = scene_selection(s.scene, bridge.read_attribute(obj.data, INDEX),
+                             bridge.read_attribute(obj.data, SELECTED))
+    np.testing.assert_array_equal(mapped, s.selection)
+    assert v.labels.tolist() == [1, 0, 0]  # the previewed prompt set was the one fused
+    assert scene.camera == anchor_cam  # no other open view: back on the anchor
+    # a click on the fused view's camera is refused with a message
+    scene.camera = vcam
+    assert h.send(_event("LEFTMOUSE"), pixel=(5.5, 5.5)) == {"RUNNING_MODAL"}
+    assert "already accepted" in h.reports[-1][1]
+    # Backspace undoes the view: selection empty, the view open and shown again
+    assert h.send(_event("BACK_SPACE")) == {"RUNNING_MODAL"}
+    assert v.status == "open" and not s.selection.any()
+    assert not bridge.read_attribute(obj.data, SELECTED).any()
+    assert scene.camera == vcam
+    assert h.send(_event("BACK_SPACE")) == {"RUNNING_MODAL"}
+    assert h.reports[-1] == ({"WARNING"}, "Nothing to undo")
+    # key releases are swallowed; Esc leaves
+    assert h.send(_event("RET", value="RELEASE")) == {"RUNNING_MODAL"}
+    assert h.headers[-1].startswith(HEADER_TEXT) and "1 views fused" not in h.headers[-1]
+    assert h.send(_event("ESC")) == {"FINISHED"}
+    assert h.headers[-1] is None  # the header is Blender's again
+
+
+def test_modal_two_views_propagate(scene_dir):
+    """Two views spawned before accepting: Enter on the first shows the selection on the
+    second (the next open view), which becomes the scene camera."""
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    s = live.session
+    h = _Harness(obj)
+    scene = bpy.context.scene
+    for i in (0, 1):
+        scene.camera = bpy.data.objects[live.anchor_cameras[i]]
+        h.send(_event("LEFTMOUSE"), pixel=_visible_click(s.anchors[i].camera, sc))
+    v0, v1 = s.views
+    scene.camera = bpy.data.objects[live.view_cameras[v0.id]]
+    plain = _bg_pixels(bpy.data.objects[live.view_cameras[v1.id]])
+    assert h.send(_event("NUMPAD_ENTER")) == {"RUNNING_MODAL"}
+    assert v0.status == "fused" and v1.status == "open"
+    assert scene.camera.name == live.view_cameras[v1.id]
+    assert not np.array_equal(_bg_pixels(scene.camera), plain)  # the 3D selection overlay
+    assert h.send(_event("RET")) == {"RUNNING_MODAL"}
+    assert v1.status == "fused"
+
+
+def test_modal_errors_keep_running(scene_dir):
+    obj, live = _start(scene_dir)
+    h = _Harness(obj)
+    # an engine error (here a pixel off the image) → one error line, the modal goes on
+    assert h.send(_event("LEFTMOUSE"), pixel=(-3.0, 2.0)) == {"RUNNING_MODAL"}
+    assert live.session.views == []
+    kind, msg = h.reports[-1]
+    assert kind == {"ERROR"} and "anchor 0" in msg and "outside" in msg
+    assert "Traceback" not in msg and "\n" not in msg
+    assert h.send(_event("ESC")) == {"FINISHED"}
+
+
+def test_modal_needs_a_3d_view_and_a_session(scene_dir):
+    assert not bpy.ops.divas.segment_modal.poll()  # headless: no 3D viewport
+    obj, live = _start(scene_dir)
+    h = _Harness(obj)
+    session_registry.drop(obj)
+    assert h.send(_event("RET")) == {"CANCELLED"}
+    assert "ended" in h.reports[-1][1]

@@ -1,0 +1,317 @@
+"""Issue 7 items 3, 5, 7, 9: Start DivAS (anchor cameras with exact projections and their
+renders as background images), the EXEC session operators against the engine Session
+(click, accept → ``divas_selected``, undo, finish object → ``divas_label``, reset),
+autosave + resume, export/extract after a session, errors as one-line reports, the
+panel and the scene settings."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+import pytest
+from bpy_extras.object_utils import world_to_camera_view
+from mathutils import Vector
+
+from blender_addon import bridge, session_registry
+from blender_addon.camera_objects import apply_render_settings
+from blender_addon.modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP
+from blender_addon.overlays import image_name
+from blender_addon.properties import session_config
+from blender_addon.session_actions import (LABEL_ATTRIBUTE, VIEWS_COLLECTION, autosave_path,
+                                           point_values)
+from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
+from divas_engine.session import SessionConfig
+
+SCALE = 0.5
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    """A small synthetic 2DGS scene (15k surfels), its cameras, labels and click points."""
+    from divas_engine.synthetic import generate_scene
+
+    out = tmp_path_factory.mktemp("ribs_ops")
+    sc = generate_scene("ribs", out, size=15_000, seed=0, grid_resolution=32)
+    return out, sc
+
+
+def _start(scene_dir, tmp_path=None, **kw):
+    out, _ = scene_dir
+    assert bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"), display=True) == {"FINISHED"}
+    obj = bpy.context.active_object
+    bpy.context.scene.divas.render_scale = SCALE
+    kw.setdefault("device", "cpu")
+    if tmp_path is not None:
+        kw.setdefault("autosave", str(tmp_path / "session.json"))
+    else:
+        bpy.context.scene.divas.autosave = False
+    assert bpy.ops.divas.start_session(**kw) == {"FINISHED"}
+    return obj, session_registry.get(obj)
+
+
+def _oracle(scene_dir, tmp_path=None):
+    out, _ = scene_dir
+    return _start(scene_dir, tmp_path, segmenter="oracle", gt_labels=str(out / "labels.npy"))
+
+
+def _click_xy(live, i, sc, k=0):
+    """Pixel of metadata click ``k`` in anchor ``i`` (the first click visible there)."""
+    cam = live.session.anchors[i].camera
+    for c in sc.metadata["clicks"][k:] + sc.metadata["clicks"][:k]:
+        uv, z = cam.project(np.array([c["xyz"]]))
+        if z[0] > 0 and 0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height:
+            return float(uv[0, 0]), float(uv[0, 1])
+    pytest.skip("no click point visible in this anchor")
+
+
+def _image_rgb(img) -> np.ndarray:
+    w, h = img.size
+    px = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    return px.reshape(h, w, 4)[::-1, :, :3]
+
+
+def _projection_error(scene, cam_obj, engine_cam, rng) -> float:
+    apply_render_settings(scene, cam_obj)
+    bpy.context.view_layer.update()
+    uv = rng.uniform([0, 0], [engine_cam.width, engine_cam.height], (40, 2))
+    pts = engine_cam.unproject(uv, rng.uniform(0.5, 5.0, 40))
+    w, h = scene.render.resolution_x, scene.render.resolution_y
+    got = np.array([world_to_camera_view(scene, cam_obj, Vector(p))[:2] for p in pts])
+    got = np.stack([got[:, 0] * w, (1.0 - got[:, 1]) * h], axis=1)
+    expect, _ = engine_cam.project(pts)
+    return float(np.abs(got - expect).max())
+
+
+def _selection_matches(obj, live) -> None:
+    geom = obj.data
+    mapped = scene_selection(live.session.scene, bridge.read_attribute(geom, INDEX),
+                             bridge.read_attribute(geom, SELECTED))
+    np.testing.assert_array_equal(mapped, live.session.selection)
+
+
+def test_start_session_cameras_images_projection(scene_dir):
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    s = live.session
+    assert live is not None and s.kind == "2dgs" and len(s.scene) == len(sc.scene)
+    assert s.config.render_scale == SCALE and s.config.autosave is None
+    coll = bpy.data.collections[VIEWS_COLLECTION]
+    assert coll.name in bpy.context.scene.collection.children
+    cams = [bpy.data.objects[n] for n in live.anchor_cameras]
+    assert len(cams) == len(s.anchors) >= 3 and all(c.name in coll.objects for c in cams)
+    # the first anchor is the scene camera, with its own render size
+    assert bpy.context.scene.camera == cams[0]
+    r = bpy.context.scene.render
+    assert (r.resolution_x, r.resolution_y) == (s.anchors[0].camera.width, s.anchors[0].camera.height)
+    rng = np.random.default_rng(0)
+    for i, (cam, a) in enumerate(zip(cams, s.anchors)):
+        assert cam[OWNER_PROP] == obj.name and cam[ANCHOR_PROP] == i and cam.parent == obj
+        assert tuple(cam["divas_resolution"]) == (a.camera.width, a.camera.height)
+        assert cam.data.show_background_images and len(cam.data.background_images) == 1
+        bg = cam.data.background_images[0]
+        assert bg.image.name == image_name(cam) and tuple(bg.image.size) == (a.camera.width,
+                                                                            a.camera.height)
+        assert bg.frame_method == "STRETCH"
+        np.testing.assert_allclose(_image_rgb(bg.image), np.clip(a.rgb, 0, 1), atol=1.0 / 254)
+        assert _projection_error(bpy.context.scene, cam, a.camera, rng) < 0.5
+    # a centroid view's camera is exact too
+    assert bpy.ops.divas.session_click(anchor=1, xy="%r %r" % _click_xy(live, 1, sc)) == {"FINISHED"}
+    v = s.views[-1]
+    vcam = bpy.context.scene.camera
+    assert vcam[VIEW_PROP] == v.id and vcam.name in coll.objects and vcam.parent == obj
+    assert tuple(vcam.data.background_images[0].image.size) == (v.camera.width, v.camera.height)
+    assert _projection_error(bpy.context.scene, vcam, v.camera, rng) < 0.5
+    assert v.preview is not None  # the default prompt was previewed
+    assert live.last_update["what"] == f"view {v.id}" and live.last_update["update_s"] > 0
+
+
+def test_scene_settings_defaults_are_the_engine_defaults():
+    props = bpy.context.scene.divas
+    assert session_config(props) == SessionConfig(render_scale=0.5)
+    props.see_through_gap, props.surfel_coverage, props.gamma = 2.0, 0.3, 1.7
+    props.preset, props.render_scale = "FORWARD", 0.3
+    cfg = session_config(props, autosave="/tmp/x.json")
+    assert (cfg.gs_fusion.gamma_st, cfg.mapping.surfel_coverage, cfg.gs_fusion.gamma) == (2.0, 0.3, 1.7)
+    assert cfg.render_scale == 0.3 and cfg.grid.g_max == 512 and cfg.nerf_preset == "llff"
+    assert cfg.autosave == "/tmp/x.json"
+
+
+def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
+    out, sc = scene_dir
+    obj, live = _oracle(scene_dir, tmp_path)
+    s = live.session
+    auto = tmp_path / "session.json"
+    assert bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc)) == {"FINISHED"}
+    v0 = s.views[0]
+    assert bpy.context.scene.camera.name == live.view_cameras[v0.id]
+    assert not auto.exists()
+    # accept the scene camera's view
+    assert bpy.ops.divas.session_accept() == {"FINISHED"}
+    assert v0.status == "fused" and s.selection.sum() > 100
+    _selection_matches(obj, live)
+    labels = bridge.read_attribute(obj.data, LABEL_ATTRIBUTE)
+    np.testing.assert_array_equal(labels, bridge.read_attribute(obj.data, SELECTED).astype(np.int32))
+    assert auto.is_file()  # autosaved after the accept
+    assert {"kernel_s", "mapping_s", "update_s"} <= set(live.last_update)
+    # back on the anchor (no other open view), showing the selection
+    assert bpy.context.scene.camera.name == live.anchor_cameras[0]
+    sel0 = s.selection.copy()
+    # a second view, with an extra negative point given as JSON
+    assert bpy.ops.divas.session_click(anchor=1, xy="%r %r" % _click_xy(live, 1, sc, 1),
+                                       preview=False) == {"FINISHED"}
+    v1 = s.views[1]
+    assert v1.preview is None
+    assert bpy.ops.divas.session_accept(view=v1.id, points="[[1.5, 1.5, false]]") == {"FINISHED"}
+    assert v1.labels.tolist()[-1] == 0 and v1.points[-1].tolist() == [1.5, 1.5]
+    _selection_matches(obj, live)
+    # undo: exact
+    assert bpy.ops.divas.session_undo() == {"FINISHED"}
+    assert v1.status == "open" and np.array_equal(s.selection, sel0)
+    _selection_matches(obj, live)
+    assert bpy.context.scene.camera.name == live.view_cameras[v1.id]
+    # finish object: label 1 on the points, selection cleared, the open view's camera gone
+    assert bpy.ops.divas.session_finish_object(name="skull") == {"FINISHED"}
+    labels = bridge.read_attribute(obj.data, LABEL_ATTRIBUTE)
+    np.testing.assert_array_equal(labels == 1, point_values(s.scene, bridge.read_attribute(
+        obj.data, INDEX), sel0))
+    assert not bridge.read_attribute(obj.data, SELECTED).any()
+    assert v1.id not in live.view_cameras and bpy.data.objects.get(f"{obj.name} View {v1.id}") is None
+    # reset everything
+    assert bpy.ops.divas.session_reset(all_objects=True) == {"FINISHED"}
+    assert not bridge.read_attribute(obj.data, LABEL_ATTRIBUTE).any()
+    assert live.view_cameras == {} and s.undo() is None
+    assert bpy.ops.divas.session_undo() == {"CANCELLED"}  # a warning: "Nothing to undo"
+
+
+def test_autosave_path_follows_the_blend(tmp_path):
+    obj = bpy.data.objects["Cube"]
+    assert autosave_path(obj).name == "Cube_divas_session.json"
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "shot.blend"))
+    assert autosave_path(obj) == tmp_path / "shot_divas_session.json"
+
+
+def test_resume_session(scene_dir, tmp_path):
+    out, sc = scene_dir
+    obj, live = _oracle(scene_dir, tmp_path)
+    bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc))
+    bpy.ops.divas.session_accept()
+    bpy.ops.divas.session_click(anchor=2, xy="%r %r" % _click_xy(live, 2, sc, 2))
+    sel = live.session.selection.copy()
+    n_anchors = len(live.session.anchors)
+    # a new file: the session is closed and forgotten
+    bpy.ops.wm.read_homefile(app_template="")
+    assert session_registry.all_sessions() == []
+    bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"))
+    obj = bpy.context.active_object
+    assert bpy.ops.divas.resume_session(filepath=str(tmp_path / "session.json"),
+                                        segmenter="oracle", device="cpu",
+                                        gt_labels=str(out / "labels.npy")) == {"FINISHED"}
+    live = session_registry.get(obj)
+    assert live.session.replay_matches and np.array_equal(live.session.selection, sel)
+    assert len(live.anchor_cameras) == n_anchors
+    assert set(live.view_cameras) == {v.id for v in live.session.views}
+    _selection_matches(obj, live)
+    # it keeps autosaving to the same file
+    assert live.session.config.autosave == str(tmp_path / "session.json")
+
+
+def test_export_and_extract_after_session(scene_dir, tmp_path):
+    out, sc = scene_dir
+    obj, live = _oracle(scene_dir)
+    for i in range(2):
+        bpy.ops.divas.session_click(anchor=i, xy="%r %r" % _click_xy(live, i, sc, i))
+        bpy.ops.divas.session_accept()
+    ours, ref = tmp_path / "ours.ply", tmp_path / "engine.ply"
+    assert bpy.ops.divas.export_selection(filepath=str(ours), write_labels=True) == {"FINISHED"}
+    res = live.session.export(ref, labels_path=tmp_path / "engine_labels.npy")
+    assert res.count == live.session.selection.sum() > 0
+    assert ours.read_bytes() == ref.read_bytes()
+    np.testing.assert_array_equal(np.load(tmp_path / "ours_labels.npy"),
+                                  np.load(tmp_path / "engine_labels.npy"))
+    assert bpy.ops.divas.extract_selection() == {"FINISHED"}
+    new = bpy.context.active_object
+    assert new != obj and len(new.data.points) == res.count
+
+
+def test_errors_are_one_line_reports(scene_dir, tmp_path):
+    out, sc = scene_dir
+    assert not bpy.ops.divas.start_session.poll()  # the cube is not an imported scene
+    bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"))
+    bpy.context.scene.divas.autosave = False
+    with pytest.raises(RuntimeError, match="oracle segmenter needs") as e:
+        bpy.ops.divas.start_session(segmenter="oracle", device="cpu")
+    assert "Traceback" not in str(e.value)
+    with pytest.raises(RuntimeError, match="prompts file not found"):
+        bpy.ops.divas.start_session(device="cpu", prompts=str(tmp_path / "nope.json"))
+    assert session_registry.get(bpy.context.active_object) is None
+    assert not bpy.ops.divas.session_click.poll()
+    obj, live = _start(scene_dir)
+    with pytest.raises(RuntimeError, match="outside"):
+        bpy.ops.divas.session_click(anchor=0, x=-5.0, y=3.0)
+    with pytest.raises(RuntimeError, match="anchor 99 does not exist"):
+        bpy.ops.divas.session_click(anchor=99, x=5.0, y=3.0)
+    with pytest.raises(RuntimeError, match="no open view"):
+        bpy.ops.divas.session_accept()
+    with pytest.raises(RuntimeError, match="points must be JSON"):
+        bpy.ops.divas.session_accept(points="[oops")
+    with pytest.raises(RuntimeError, match="no saved DivAS session"):
+        bpy.ops.divas.resume_session(filepath=str(tmp_path / "missing.json"), device="cpu")
+
+
+class _Layout:
+    """Records what a panel draws (headless Blender has no UI to draw into)."""
+
+    def __init__(self, log):
+        self.log = log
+        self.use_property_split = False
+        self.active = True
+        self.scale_y = 1.0
+
+    def _child(self, *a, **k):
+        return _Layout(self.log)
+
+    box = column = row = _child
+
+    def label(self, text="", icon="NONE"):
+        self.log.append(("label", text))
+
+    def operator(self, idname, text="", icon="NONE"):
+        self.log.append(("operator", idname))
+
+    def prop(self, data, name, **k):
+        getattr(data, name)
+        self.log.append(("prop", name))
+
+
+def test_panel_draws_session(scene_dir):
+    out, sc = scene_dir
+    panel_cls = bpy.types.DIVAS_PT_main
+    obj, live = _start(scene_dir)
+    bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc))
+    log = []
+    panel_cls.draw(type("P", (), {"layout": _Layout(log)})(), bpy.context)
+    ops = {v for k, v in log if k == "operator"}
+    assert {"divas.start_session", "divas.segment_modal", "divas.session_accept",
+            "divas.session_undo", "divas.session_reset", "divas.session_finish_object",
+            "divas.extract_selection", "divas.export_selection", "divas.resume_session"} <= ops
+    props = {v for k, v in log if k == "prop"}
+    assert {"device", "segmenter", "preset", "see_through_gap", "surfel_coverage",
+            "gamma"} <= props
+    labels = " ".join(v for k, v in log if k == "label")
+    assert "2DGS" in labels and "anchors" in labels and "Total:" in labels
+
+
+def test_restart_replaces_the_session_and_its_cameras(scene_dir):
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc))
+    coll = bpy.data.collections[VIEWS_COLLECTION]
+    assert len(coll.objects) == len(live.session.anchors) + 1
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.divas.start_session(device="cpu") == {"FINISHED"}
+    new = session_registry.get(obj)
+    assert new is not live and live.session._closed  # noqa: SLF001
+    assert session_registry.all_sessions() == [new]
+    assert sorted(o.name for o in coll.objects) == sorted(new.anchor_cameras)
+    assert not any(i.name.startswith(f"DivAS {obj.name} View") for i in bpy.data.images)
