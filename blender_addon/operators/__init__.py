@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from . import (activate_camera, export_selection, extract_selection, import_cameras,
+from . import (activate_camera, export_objects, export_selection, extract_selection, import_cameras,
                import_density_grid, import_splats, segment_modal, session_ops, start_session)
 
 CLASSES = (
@@ -16,6 +16,7 @@ CLASSES = (
     start_session.DIVAS_OT_start_session,
     segment_modal.DIVAS_OT_segment_modal,
     *session_ops.CLASSES,
+    export_objects.DIVAS_OT_export_objects,
 )
 
 #: (menu type name, draw function) pairs appended on register.

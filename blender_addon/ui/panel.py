@@ -88,6 +88,7 @@ def _draw_session(layout, live) -> None:
     row = col.row(align=True)
     row.operator("divas.session_reset", text="Reset", icon="X")
     row.operator("divas.session_finish_object", text="Finish Object", icon="FORWARD")
+    layout.operator("divas.export_objects", icon="EXPORT")
     if live.kind == "nerf" and c["pending"]:
         col.operator("divas.session_sync", icon="FILE_REFRESH")
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import bpy
 import numpy as np
+import plyfile
 import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
@@ -177,6 +178,14 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
         obj.data, INDEX), sel0))
     assert not bridge.read_attribute(obj.data, SELECTED).any()
     assert v1.id not in live.view_cameras and bpy.data.objects.get(f"{obj.name} View {v1.id}") is None
+    # multi-object export: one PLY per finished object + the labelled PLY
+    exp = tmp_path / "objects"
+    assert bpy.ops.divas.export_objects(directory=str(exp)) == {"FINISHED"}
+    obj_files = sorted(exp.glob("01_*.ply"))
+    assert len(obj_files) == 1 and (exp / "labelled.ply").is_file()
+    lab = plyfile.PlyData.read(str(exp / "labelled.ply"))["vertex"].data["divas_label"]
+    np.testing.assert_array_equal(lab, s.label_set())
+    assert len(plyfile.PlyData.read(str(obj_files[0]))["vertex"].data) == int(sel0.sum())
     # reset everything
     assert bpy.ops.divas.session_reset(all_objects=True) == {"FINISHED"}
     assert not bridge.read_attribute(obj.data, LABEL_ATTRIBUTE).any()
