@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import DensityGrid, Scene, SurfelScene
+from .scene import Scene, SurfelScene
 
 __all__ = ["RobustFrame", "robust_frame", "scene_summary"]
 

@@ -13,12 +13,12 @@ Detection (:func:`detect_camera_format`):
 
 from __future__ import annotations
 
-import json
 from os import PathLike
 from pathlib import Path
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from .json_file import read_json
 from .cameras_json import read_cameras_json, write_cameras_json
 from .colmap import find_colmap_model, read_colmap, write_colmap
 from .transforms_json import read_transforms_json, write_transforms_json
@@ -30,12 +30,7 @@ CAMERA_FORMATS = ("cameras_json", "transforms_json", "colmap", "colmap_text")
 
 
 def _json_kind(path: Path) -> str:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError) as e:
-        raise DivasInputError(path, f"cannot read camera file ({e})") from None
-    except json.JSONDecodeError as e:
-        raise DivasInputError(path, f"not valid JSON ({e})") from None
+    data = read_json(path, "camera file")
     if isinstance(data, list):
         return "cameras_json"
     if isinstance(data, dict) and "frames" in data:

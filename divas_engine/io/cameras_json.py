@@ -17,18 +17,14 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from .json_file import read_json
 
 __all__ = ["read_cameras_json", "write_cameras_json"]
 
 
 def read_cameras_json(path: str | PathLike) -> list[Camera]:
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError) as e:
-        raise DivasInputError(path, f"cannot read camera file ({e})") from None
-    except json.JSONDecodeError as e:
-        raise DivasInputError(path, f"not valid JSON ({e})") from None
+    data = read_json(path, "camera file")
     if not isinstance(data, list) or not data:
         raise DivasInputError(path, "expected a non-empty JSON list of cameras (3DGS cameras.json)")
     cams = []

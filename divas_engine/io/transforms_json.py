@@ -33,6 +33,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from .json_file import read_json
 
 __all__ = ["OPENGL_TO_OPENCV", "image_size", "read_transforms_json", "write_transforms_json"]
 
@@ -169,12 +170,7 @@ def _frame_camera(path: Path, top: dict, fr: Any, i: int) -> tuple[Camera, bool]
 def read_transforms_json(path: str | PathLike) -> list[Camera]:
     """Engine cameras (OpenCV, +0.5 centres) of every frame, in file order."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError) as e:
-        raise DivasInputError(path, f"cannot read camera file ({e})") from None
-    except json.JSONDecodeError as e:
-        raise DivasInputError(path, f"not valid JSON ({e})") from None
+    data = read_json(path, "camera file")
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
         raise DivasInputError(path, "expected a JSON object with a non-empty 'frames' list "
                                     "(transforms.json)")

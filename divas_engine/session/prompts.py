@@ -38,6 +38,7 @@ from typing import Any, Callable
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from ..io.json_file import read_json
 
 __all__ = ["PROMPTS_VERSION", "Click", "AnchorPrompt", "Prompts", "ResolvedAnchor",
            "parse_prompts", "load_prompts", "resolve_anchors", "find_training_camera"]
@@ -207,15 +208,7 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
 def load_prompts(path: str | PathLike) -> Prompts:
     """Read and parse a prompts file."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DivasInputError(path, "prompts file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DivasInputError(path, f"cannot read prompts file ({e})") from None
-    except json.JSONDecodeError as e:
-        raise DivasInputError(path, f"not valid JSON ({e})") from None
-    return parse_prompts(doc, path)
+    return parse_prompts(read_json(path, "prompts file"), path)
 
 
 def find_training_camera(cameras: list[Camera], name: str) -> int | None:

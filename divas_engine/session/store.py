@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DivasInputError
+from ..io.json_file import read_json
 
 __all__ = ["SESSION_FORMAT", "SESSION_VERSION", "arrays_path", "save_state", "load_state",
            "atomic_write_bytes"]
@@ -66,12 +67,7 @@ def save_state(path: str | PathLike, doc: dict[str, Any], arrays: dict[str, np.n
 def load_state(path: str | PathLike) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Read a saved session: ``(document, arrays)``."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DivasInputError(path, "session file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise DivasInputError(path, f"not a readable session file ({e})") from None
+    doc = read_json(path, "session file")
     if not isinstance(doc, dict) or doc.get("format") != SESSION_FORMAT:
         raise DivasInputError(path, f"not a DivAS session file (format != {SESSION_FORMAT!r})")
     if doc.get("version") != SESSION_VERSION:
