@@ -27,7 +27,7 @@ from ..geometry import normalize_quats
 from ..scene import SourceInfo, SurfelScene, sh_coeff_count
 from .gaussians import sigmoid, surfels_from_arrays
 
-__all__ = ["PlyLayout", "read_ply_header", "read_gaussian_ply", "write_surfel_ply",
+__all__ = ["PlyLayout", "read_ply_header", "read_gaussian_ply", "write_surfel_ply", "surfel_rows",
            "write_ply_rows", "CHUNK_ROWS"]
 
 #: Rows converted per chunk: bounds the transient memory of a load.
@@ -214,11 +214,22 @@ def write_surfel_ply(path: str | PathLike, scene: SurfelScene) -> None:
     Inverse of :func:`read_gaussian_ply` for 2DGS scenes: log scales, logit
     opacity, channel-major ``f_rest``, normals zero (as the trainers write them).
     """
+    write_ply_rows(path, {"vertex": surfel_rows(scene)})
+
+
+def surfel_rows(scene: SurfelScene, *, flat_axis: float | None = None) -> np.ndarray:
+    """Structured Gaussian-PLY rows (stored-space values) of ``scene``.
+
+    Without ``flat_axis``: the 2DGS trainer layout (``scale_0, scale_1``). With it: the
+    3DGS layout, the surfel's dropped normal axis written as ``scale_2 = log(flat_axis ·
+    min(s_1, s_2))`` (the thickness is lost when 3DGS is flattened on load).
+    """
     n = len(scene)
     k = sh_coeff_count(scene.sh_degree)
     fields = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
     fields += [f"f_rest_{i}" for i in range(3 * (k - 1))]
-    fields += ["opacity", "scale_0", "scale_1", "rot_0", "rot_1", "rot_2", "rot_3"]
+    fields += ["opacity", "scale_0", "scale_1"] + (["scale_2"] if flat_axis else [])
+    fields += ["rot_0", "rot_1", "rot_2", "rot_3"]
     rows = np.zeros(n, dtype=[(f, "<f4") for f in fields])
     for i, a in enumerate("xyz"):
         rows[a] = scene.means[:, i]
@@ -228,12 +239,14 @@ def write_surfel_ply(path: str | PathLike, scene: SurfelScene) -> None:
             rows[f"f_rest_{ch * (k - 1) + j}"] = scene.sh[:, j + 1, ch]
     o = np.clip(scene.opacities.astype(np.float64), 1e-7, 1 - 1e-7)
     rows["opacity"] = np.log(o / (1 - o))
-    rows["scale_0"] = np.log(scene.scales[:, 0])
-    rows["scale_1"] = np.log(scene.scales[:, 1])
+    s = np.maximum(scene.scales.astype(np.float64), 1e-30)
+    rows["scale_0"], rows["scale_1"] = np.log(s[:, 0]), np.log(s[:, 1])
+    if flat_axis:
+        rows["scale_2"] = np.log(flat_axis * s.min(1))
     q = normalize_quats(scene.quats)
     for i in range(4):
         rows[f"rot_{i}"] = q[:, i]
-    write_ply_rows(path, {"vertex": rows})
+    return rows
 
 
 def write_ply_rows(path: str | PathLike, elements: dict[str, np.ndarray],
