@@ -37,8 +37,8 @@ import warp as wp
 
 from ._launch import cpu_threads, launch_split
 from .composite import FLAG_DONE, BlendParams, PixState, blend_step, state_init
-from .rasterize import (RasterSettings, SurfelBuffers, blend_params, count_kernel,
-                        duplicate_kernel, preprocess_kernel, ranges_kernel)
+from .rasterize import (RasterSettings, SurfelBuffers, blend_params, preprocess_kernel,
+                        tile_bands)
 from .splat import RasterCamera, Splat, make_raster_camera, row_span, splat_alpha
 
 wp.set_module_options({"enable_backward": False})
@@ -209,35 +209,13 @@ def accumulate_contributions(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy:
                       buf.sh_degree, 0, cam, inv_var, splats, keys, order,
                       wp.empty((1, 3), dtype=float)], dev, threads)
         wp.utils.radix_sort_pairs(keys, order, n)
-        counts = wp.empty(n, dtype=wp.int32)
-        incl = wp.empty(n, dtype=wp.int32)
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
         tiles_x, tiles_y = -(-W // T), -(-H // T)
-        bands = [(0, tiles_y)]
-        while bands:  # the rasterizer's band loop (kernels.rasterize.rasterize_surfels)
-            lo, hi = bands.pop(0)
-            launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
-            wp.utils.array_scan(counts, incl, inclusive=True)
-            total = int(incl[n - 1:n].numpy()[0])
-            if total > s.max_duplicates and hi - lo > 1:
-                mid = (lo + hi) // 2
-                bands[:0] = [(lo, mid), (mid, hi)]
-                continue
-            stats["pairs"] += total
-            stats["bands"] += 1
+        for lo, nt, dvals, rstart, rend, total in tile_bands(
+                splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads):
             if total == 0:
                 continue
-            nt = (hi - lo) * tiles_x
-            rstart = wp.zeros(nt, dtype=wp.int32)
-            rend = wp.zeros(nt, dtype=wp.int32)
-            dkeys = wp.empty(2 * total, dtype=wp.int32)
-            dvals = wp.empty(2 * total, dtype=wp.int32)
-            launch_split(duplicate_kernel, n,
-                         [splats, order, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
-                         dev, threads)
-            wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
-            launch_split(ranges_kernel, total, [dkeys, total, rstart, rend], dev, threads)
             common = [splats, dvals, rstart, rend, cam, inv_var, float(s.alpha_max), bp, T,
                       tiles_x, lo, pos_dev]
             # interleave: CPU sub-launch j gets base = j, i.e. its own accumulator row

@@ -53,7 +53,7 @@ from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, sp
 # forward only: no adjoint code (halves compile time)
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["RasterSettings", "RasterOutput", "SurfelBuffers", "upload_surfels", "rasterize_surfels",
+__all__ = ["RasterSettings", "RasterOutput", "SurfelBuffers", "upload_surfels", "rasterize_surfels", "tile_bands",
            "make_raster_camera"]
 
 
@@ -392,44 +392,60 @@ def rasterize_surfels(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy: float,
         tm.lap("preprocess")
         wp.utils.radix_sort_pairs(keys, order, n)
         tm.lap("depth_sort")
-        counts = wp.empty(n, dtype=wp.int32)
-        incl = wp.empty(n, dtype=wp.int32)
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
-        bands = [(0, tiles_y)]
-        while bands:
-            lo, hi = bands.pop(0)
-            launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
-            wp.utils.array_scan(counts, incl, inclusive=True)
-            total = int(incl[n - 1:n].numpy()[0])
-            tm.lap("count")
-            if total > s.max_duplicates and hi - lo > 1:
-                mid = (lo + hi) // 2
-                bands[:0] = [(lo, mid), (mid, hi)]
-                continue
-            stats["pairs"] += total
-            stats["bands"] += 1
-            nt = (hi - lo) * tiles_x
-            rstart = wp.zeros(nt, dtype=wp.int32)
-            rend = wp.zeros(nt, dtype=wp.int32)
-            if total > 0:
-                dkeys = wp.empty(2 * total, dtype=wp.int32)
-                dvals = wp.empty(2 * total, dtype=wp.int32)
-                launch_split(duplicate_kernel, n,
-                             [splats, order, T, lo, hi, tiles_x, incl, counts,
-                              dkeys, dvals], dev, threads)
-                tm.lap("duplicate")
-                wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
-                tm.lap("tile_sort")
-                launch_split(ranges_kernel, total, [dkeys, total, rstart, rend], dev, threads)
-            else:
-                dvals = wp.empty(1, dtype=wp.int32)
+        for lo, nt, dvals, rstart, rend, _ in tile_bands(splats, order, n, T, tiles_x, tiles_y,
+                                                         s.max_duplicates, stats, dev, threads,
+                                                         tm):
             _blend(mode, splats, dvals, rstart, rend, feat, cam, inv_var, s, bp, T, tiles_x, lo,
                    nt, states, out, dev, threads)
             tm.lap("blend")
         if s.profile:  # a device → host copy of the sort keys: only when profiling
             stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
     return RasterOutput(out, W, H, stats)
+
+
+def tile_bands(splats: wp.array, order: wp.array, n: int, T: int, tiles_x: int, tiles_y: int,
+               max_duplicates: int, stats: dict, dev, threads: int, tm: "_Timer | None" = None):
+    """Bin depth-sorted splats into tiles, one band of tile rows at a time.
+
+    Per band: count the tiles each splat touches, scan, split the band in two while it
+    holds more than ``max_duplicates`` (splat, tile) pairs (bounded memory), duplicate
+    keys, sort them by tile (stable, so depth order survives) and find each tile's range.
+    Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
+    used by the contribution pass (``kernels.contrib``) so both see the same binning.
+    """
+    lap = tm.lap if tm is not None else (lambda _stage: None)
+    counts = wp.empty(n, dtype=wp.int32)
+    incl = wp.empty(n, dtype=wp.int32)
+    bands = [(0, tiles_y)]
+    while bands:
+        lo, hi = bands.pop(0)
+        launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
+        wp.utils.array_scan(counts, incl, inclusive=True)
+        total = int(incl[n - 1:n].numpy()[0])
+        lap("count")
+        if total > max_duplicates and hi - lo > 1:
+            mid = (lo + hi) // 2
+            bands[:0] = [(lo, mid), (mid, hi)]
+            continue
+        stats["pairs"] += total
+        stats["bands"] += 1
+        nt = (hi - lo) * tiles_x
+        rstart = wp.zeros(nt, dtype=wp.int32)
+        rend = wp.zeros(nt, dtype=wp.int32)
+        if total > 0:
+            dkeys = wp.empty(2 * total, dtype=wp.int32)
+            dvals = wp.empty(2 * total, dtype=wp.int32)
+            launch_split(duplicate_kernel, n, [splats, order, T, lo, hi, tiles_x, incl, counts,
+                                               dkeys, dvals], dev, threads)
+            lap("duplicate")
+            wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
+            lap("tile_sort")
+            launch_split(ranges_kernel, total, [dkeys, total, rstart, rend], dev, threads)
+        else:
+            dvals = wp.empty(1, dtype=wp.int32)
+        yield lo, nt, dvals, rstart, rend, total
 
 
 def _blend(mode, splats, vals, rstart, rend, feat, cam, inv_var, s, bp, T, tiles_x, band_lo, nt,
