@@ -288,6 +288,7 @@ def test_caching_renderer_is_transparent():
 
 # ----------------------------------------------------------------------------- end to end
 def test_eval_table_end_to_end_occluded():
+    """The default (simulated user) protocol."""
     from divas_engine.evaluation.suite import METHODS, SuiteConfig, evaluate_scene, markdown_table
     from divas_engine.session import SessionConfig
 
@@ -320,7 +321,176 @@ def test_eval_cli_arguments():
     a = p.parse_args(["eval", "--scenes", "ribs,occluded,ribs", "--segmenters", "oracle"])
     assert a.scenes == ("ribs", "occluded") and a.segmenters == ("oracle",)
     assert a.size == evaluate.DEFAULT_SIZE and not a.no_nerf
+    assert a.protocol == "user"
+    assert p.parse_args(["eval", "--protocol", "clicks"]).protocol == "clicks"
+    with pytest.raises(SystemExit):
+        p.parse_args(["eval", "--protocol", "nope"])
+    with pytest.raises(DivasInputError):
+        evaluate.run(p.parse_args(["eval", "--max-views", "0"]))
     with pytest.raises(SystemExit):
         p.parse_args(["eval", "--scenes", "ribs,nope"])
     with pytest.raises(DivasInputError):
         evaluate.run(p.parse_args(["eval", "--size", "10"]))
+
+
+# ----------------------------------------------------------------------------- simulated user
+def test_uncovered_regions_and_centre_by_hand():
+    from divas_engine.evaluation.scripted_user import region_centre, uncovered_regions
+
+    tgt = np.zeros((20, 30), bool)
+    tgt[2:12, 2:12] = True          # 100 px square
+    tgt[15:18, 20:29] = True        # 27 px strip
+    cov = np.zeros_like(tgt)
+    cov[2:12, 2:7] = True           # left half of the square covered → 50 px left
+    regs = uncovered_regions(tgt, cov, min_area=10)
+    assert [int(r.sum()) for r in regs] == [50, 27]
+    assert not (regs[0] & cov).any() and (regs[0] <= tgt).all()
+    assert uncovered_regions(tgt, cov, min_area=30)[0].sum() == 50
+    assert uncovered_regions(tgt, tgt, min_area=1) == []
+    # earlier clicks count as border: the next click moves away from them
+    x2, y2 = region_centre(regs[0], avoid=[(9, 4)])
+    assert regs[0][int(y2), int(x2)] and (int(x2), int(y2)) != (9, 4) and int(y2) >= 6
+    x, y = region_centre(regs[0])                     # columns 7..11, rows 2..11
+    assert regs[0][int(y), int(x)] and int(x) == 9 and 4 <= int(y) <= 9  # 3 px from every side
+    with pytest.raises(ValueError):
+        region_centre(np.zeros((3, 3), bool))
+
+
+class _Recorder:
+    """Renderer wrapper recording every camera it renders."""
+
+    def __init__(self, inner):
+        self.inner, self.cameras = inner, []
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def render(self, camera, scale=1.0):
+        self.cameras.append(camera)
+        return self.inner.render(camera, scale)
+
+    def render_values(self, camera, values, scale=1.0):
+        self.cameras.append(camera)
+        return self.inner.render_values(camera, values, scale)
+
+
+@pytest.fixture(scope="module")
+def user_scene():
+    from divas_engine.synthetic import generate_scene
+
+    return generate_scene("occluded", size=4000, seed=0)
+
+
+def _user_session(sc, budget):
+    from divas_engine.evaluation.pipeline import make_segmenter
+    from divas_engine.evaluation.scripted_user import ScriptedUser
+    from divas_engine.session import Session, SessionConfig, anchor_plan
+
+    rec = _Recorder(make_renderer(sc.scene, device=CPU))
+    cfg = SessionConfig(render_scale=0.25)
+    user = ScriptedUser(sc.labels, budget)
+    s = Session.open(sc.scene, sc.cameras, cfg, make_segmenter("oracle"), CPU,
+                     anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
+                     gt_values=sc.labels.astype(np.float32), render_anchors=False,
+                     renderer=rec)
+    checked = []
+    click = s.click
+
+    def checked_click(ai, xy, positive=True):
+        # what the user saw at that moment, recomputed independently of the user
+        cam = s.anchors[ai].camera
+        tgt = rec.inner.render_values(cam, sc.labels.astype(np.float32)) >= 0.5
+        cov = rec.inner.render_values(cam, s.selection.astype(np.float32)) >= \
+            s.config.overlay_threshold
+        x, y = int(xy[0]), int(xy[1])
+        checked.append((ai, bool(tgt[y, x]), bool(cov[y, x])))
+        return click(ai, xy, positive)
+
+    s.click = checked_click
+    return s, user, rec, checked
+
+
+def test_scripted_user_follows_the_protocol(user_scene):
+    from divas_engine.evaluation.scripted_user import UserBudget
+
+    sc = user_scene
+    budget = UserBudget()
+    s, user, rec, checked = _user_session(sc, budget)
+    try:
+        log = user.run(s)
+        # it clicked, and only on target pixels the overlay did not cover yet
+        assert checked and len(checked) == len(log.clicks)
+        assert all(t and not c for _, t, c in checked), checked
+        assert len(s.views) == sum(c.view_id is not None for c in log.clicks) <= budget.max_views
+        # per-anchor budget; every anchor complete, out of clicks, or past the view budget
+        per = np.bincount([c.anchor for c in log.clicks], minlength=len(s.anchors))
+        assert per.max() <= budget.clicks_per_anchor
+        assert len(log.anchor_status) == len(s.anchors)
+        for a, st in enumerate(log.anchor_status):
+            assert st in ("complete", "clicks", "budget", "not visited")
+            assert st != "clicks" or per[a] == budget.clicks_per_anchor
+            assert st != "not visited" or per[a] == 0
+        assert (log.stop == "budget") == (len(s.views) == budget.max_views)
+        assert (log.stop == "complete") == all(log.complete)
+        assert any(v.status == "fused" for v in s.views) and s.selection.any()
+        # anchors from the session's own plan; the user never looked at a test camera
+        names = [a.full_camera.name for a in s.anchors]
+        assert names[:len(s.plan.anchors)] == [a.camera.name for a in s.plan.anchors]
+        assert set(names) <= {a.camera.name for a in s.plan.anchors + s.plan.candidates}
+        test_poses = [t.c2w for t in sc.test_cameras]
+        assert rec.cameras and not any(np.allclose(c.c2w, t) for c in rec.cameras
+                                       for t in test_poses)
+        assert not set(log.looked_at) & {t.name for t in sc.test_cameras}
+    finally:
+        s.close()
+
+
+def test_scripted_user_stops_at_the_view_budget(user_scene):
+    from divas_engine.evaluation.scripted_user import UserBudget
+
+    s, user, _, checked = _user_session(user_scene, UserBudget(max_views=2))
+    try:
+        log = user.run(s)
+        assert len(s.views) == 2 and log.stop == "budget"
+        assert all(t and not c for _, t, c in checked) and len(checked) == 2
+        assert "budget" in log.anchor_status
+        after = log.anchor_status[log.anchor_status.index("budget") + 1:]
+        assert set(after) <= {"not visited"}
+    finally:
+        s.close()
+
+
+def test_run_session_user_protocol_feeds_the_accepted_masks(user_scene):
+    from divas_engine.evaluation.pipeline import make_segmenter, run_session
+    from divas_engine.evaluation.scripted_user import ScriptedUser
+    from divas_engine.session import SessionConfig
+
+    sc = user_scene
+    with pytest.raises(ValueError):
+        run_session(sc.scene, sc.cameras, sc.labels, segmenter=make_segmenter("oracle"))
+    out = run_session(sc.scene, sc.cameras, sc.labels, segmenter=make_segmenter("oracle"),
+                      config=SessionConfig(render_scale=0.25), device=CPU,
+                      user=ScriptedUser(sc.labels))
+    fused = [vid for vid, st, _ in out.statuses if st == "fused"]
+    assert out.user_log is not None and len(out.statuses) == len(out.user_log.clicks)
+    assert len(out.views) == len(fused) > 0 and out.selection.any()
+    assert all(v.mask.shape == (v.camera.height, v.camera.width) for v in out.views)
+
+
+def test_clicks_protocol_still_selectable(user_scene):
+    from divas_engine.evaluation.pipeline import make_segmenter, run_session, scripted_anchors
+    from divas_engine.evaluation.suite import SuiteConfig, markdown_table
+    from divas_engine.session import SessionConfig
+
+    sc = user_scene
+    anchors = scripted_anchors(sc.metadata, sc.cameras)
+    out = run_session(sc.scene, sc.cameras, sc.labels, anchors,
+                      segmenter=make_segmenter("oracle"),
+                      config=SessionConfig(render_scale=0.25), device=CPU)
+    assert out.user_log is None
+    assert len(out.statuses) == sum(len(a[3]) for a in anchors)
+    assert [n for n, _, _ in out.anchors] == [a[0].name for a in anchors]
+    with pytest.raises(ValueError):
+        SuiteConfig(protocol="nope")
+    text = markdown_table({"rows": [], "config": {"protocol": "clicks"}})
+    assert "View protocol: clicks" in text

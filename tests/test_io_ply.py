@@ -288,3 +288,12 @@ def test_info_cli_json_and_clean_errors(tmp_path, shared_data):
     r = _divas("info", bad)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert str(bad) in r.stderr and "truncated" in r.stderr
+
+
+def test_every_documented_subcommand_is_registered():
+    """`divas --help` lists every sub-command the README documents (none silently dropped)."""
+    r = _divas("--help")
+    assert r.returncode == 0
+    for cmd in ("info", "generate", "render", "anchors", "segment", "demo", "eval"):
+        assert cmd in r.stdout, cmd
+    assert _divas("eval", "--help").returncode == 0

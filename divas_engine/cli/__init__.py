@@ -17,6 +17,8 @@ __all__ = ["main", "build_parser"]
 
 #: Sub-command modules, in ``--help`` order.
 _COMMANDS = ("info", "generate", "render", "anchors", "segment", "demo", "eval")
+#: Sub-commands whose module has another name (``eval`` would shadow the builtin).
+_MODULES = {"eval": "evaluate"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,13 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "segmentation of Gaussian-splat and NeRF-grid scenes.")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in _COMMANDS:
-        try:
-            mod = importlib.import_module(f".{name}", __name__)
-        except ModuleNotFoundError as e:
-            if e.name == f"{__name__}.{name}":
-                continue  # sub-command not built yet in this checkout
-            raise
-        mod.add_parser(sub)
+        importlib.import_module(f".{_MODULES.get(name, name)}", __name__).add_parser(sub)
     return p
 
 

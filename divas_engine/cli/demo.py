@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     import cv2
 
     from ..io.cameras import load_cameras
-    from ..session.evaluate import render_iou
+    from ..evaluation.metrics import EvalConfig, evaluate_selection
+    from ..session.evaluate import MaskScores
     from ..synthetic import MIN_SIZE, generate_scene
     from .segment import segment_scene, write_report
 
@@ -111,8 +112,9 @@ def run(args: argparse.Namespace) -> int:
         test_cams = load_cameras(out / "scene" / "test_cameras.json")
         gt = np.load(out / "scene" / "labels.npy")[session.scene.source.kept_rows]
         t = time.perf_counter()
-        scores = render_iou(session.scene, test_cams, session.selection, gt,
-                            scale=args.scale, renderer=session.renderer)
+        scores = MaskScores.from_scene_scores(evaluate_selection(
+            session.scene, test_cams, session.selection, gt,
+            config=EvalConfig(scale=args.scale), renderer=session.renderer))
         for cam in test_cams:
             ov = session.overlay(cam)
             img = (np.clip(ov.image, 0, 1) * 255 + 0.5).astype(np.uint8)

@@ -1,10 +1,14 @@
 """``divas eval [--scenes ribs,plant,occluded] [--size N] [--segmenters oracle,classic]
-[--json] [--out FILE]``: the evaluation table on the synthetic suite.
+[--protocol user|clicks] [--json] [--out FILE]``: the evaluation table on the synthetic
+suite.
 
-Per scene: scripted DivAS sessions (clicks from the scene metadata on the training
-cameras that see them; every centroid view accepted) with the SAM-like oracle and the
-classic segmenter — DivAS full, without the thin path, without depth weighting, Pass 1
-only, Pass 1+2 — and two peer baselines fed the same accepted view masks
+Per scene: scripted DivAS sessions — by default a simulated user that looks at each of
+the session's anchors with the overlay of the running selection and clicks the largest
+uncovered region of its target until coverage is complete (paper Sec. 3.3/3.7; at most
+3 clicks per anchor, 20 views); ``--protocol clicks``: the metadata clicks on the
+training cameras that see them, every centroid view accepted. Each with the SAM-like
+oracle and the classic segmenter: DivAS full, without the thin path, without depth
+weighting, Pass 1 only, Pass 1+2; and two peer baselines fed the same accepted view masks
 (centre-projection voting, FlashSplat-style contribution voting); the NeRF path on the
 ribs density grid. Scores at the held-out test cameras (NOTES "Evaluation": mean IoU
 and pixel accuracy) and per primitive (precision / recall). See
@@ -57,6 +61,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--baseline-masks", choices=("raw", "weighted"), default="raw",
                    help="masks fed to the baselines: the segmenter's (raw, default) or "
                         "DivAS's depth-weighted ones")
+    p.add_argument("--protocol", choices=("user", "clicks"), default="user",
+                   help="view protocol: the simulated user clicking uncovered target regions "
+                        "under the overlay on the session's anchors (user, default, the "
+                        "paper's Sec. 3.3/3.7) or the metadata clicks on training cameras "
+                        "(clicks, the divas demo protocol)")
+    p.add_argument("--clicks-per-anchor", type=int, default=None,
+                   help="simulated user: clicks per anchor (default 3)")
+    p.add_argument("--max-views", type=int, default=None,
+                   help="simulated user: centroid views per session (default 20)")
     p.add_argument("--eval-scale", type=float, default=1.0,
                    help="render the test cameras at this fraction of their size (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
@@ -84,7 +97,18 @@ def run(args: argparse.Namespace) -> int:
         dev = resolve_device(args.device)
     except RuntimeError as e:
         raise DivasInputError(None, str(e)) from None
-    cfg = SuiteConfig(scenes=tuple(args.scenes), segmenters=tuple(args.segmenters),
+    from ..evaluation.scripted_user import UserBudget
+
+    ub = UserBudget()
+    try:
+        ub = UserBudget(
+            clicks_per_anchor=ub.clicks_per_anchor if args.clicks_per_anchor is None
+            else int(args.clicks_per_anchor),
+            max_views=ub.max_views if args.max_views is None else int(args.max_views))
+    except ValueError as e:
+        raise DivasInputError(None, str(e)) from None
+    cfg = SuiteConfig(protocol=args.protocol, user=ub, scenes=tuple(args.scenes),
+                      segmenters=tuple(args.segmenters),
                       size=int(args.size), seed=int(args.seed), nerf=not args.no_nerf,
                       grid_resolution=int(args.grid_resolution),
                       baseline_masks=args.baseline_masks,
@@ -102,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
         print(text)
     else:
         print(markdown_table(result))
-        print(f"\n{len(result['rows'])} rows, size {cfg.size}, seed {cfg.seed}, device {dev}, "
+        print(f"\n{len(result['rows'])} rows, protocol {cfg.protocol}, size {cfg.size}, "
+              f"seed {cfg.seed}, device {dev}, "
               f"{result['wall_s']:.0f} s")
     return 0
 

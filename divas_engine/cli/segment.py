@@ -170,7 +170,7 @@ def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: P
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
     from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
-    from ..session.evaluate import surfel_scores
+    from ..evaluation.metrics import surfel_scores
     from ..session.prompts import resolve_anchors
 
     t_start = time.perf_counter()

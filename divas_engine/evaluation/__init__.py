@@ -4,6 +4,8 @@
   per-primitive precision / recall (:class:`ViewEvaluator`).
 * :mod:`.baselines` — peer baselines fed the same accepted view masks: centre-projection
   voting and FlashSplat-style contribution-weighted voting.
+* :mod:`.scripted_user` — the simulated user of the paper's interactive protocol
+  (Sec. 3.3/3.7): clicks uncovered target regions under the overlay, anchor by anchor.
 * :mod:`.pipeline` — scripted :class:`~divas_engine.session.Session` runs on the
   synthetic scenes (and the ablation variants).
 * :mod:`.suite` — the ``divas eval`` table.
@@ -14,8 +16,10 @@ from .baselines import (BaselineResult, CentreVoteConfig, ContributionVoteConfig
 from .metrics import (EvalConfig, SceneScores, ViewEvaluator, ViewScore, evaluate_selection,
                       ground_truth_masks, mask_scores, predicted_masks, segmented_grid,
                       surfel_scores)
+from .scripted_user import ScriptedUser, UserBudget, UserLog
 
 __all__ = ["EvalConfig", "SceneScores", "ViewEvaluator", "ViewScore", "evaluate_selection",
            "ground_truth_masks", "mask_scores", "predicted_masks", "segmented_grid",
            "surfel_scores", "BaselineResult", "CentreVoteConfig", "ContributionVoteConfig",
-           "ContributionVoter", "MaskView", "centre_vote", "contribution_vote"]
+           "ContributionVoter", "MaskView", "centre_vote", "contribution_vote",
+           "ScriptedUser", "UserBudget", "UserLog"]

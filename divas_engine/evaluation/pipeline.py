@@ -1,16 +1,22 @@
 """Scripted DivAS sessions for the evaluation: the real interactive
 :class:`~divas_engine.session.Session` driven by the synthetic scenes' metadata.
 
-Protocol per scene (one object):
+Two protocols per scene (one object):
 
-* anchors and clicks — :func:`divas_engine.cli.demo.demo_prompts` (the ``divas demo``
-  protocol): each metadata click point goes on a training camera that sees it, spread
-  over the rig; clicks on the same camera share an anchor;
-* every click spawns its centroid view (Sec. 3.3) whose default prompt is the click's
-  3D point projected into it; every view is accepted (SAM → channel 1 → depth
-  weighting → fusion → mapping), exactly as ``divas segment`` does;
-* the segmenter is fresh per session (the oracle's ground truth is the session's own
-  render of the labels at each view).
+* ``"user"`` (default) — the paper's interactive protocol (Sec. 3.3 / 3.7): the session
+  opens on its own anchor plan (Sec. 3.2) and a simulated user
+  (:class:`~.scripted_user.ScriptedUser`) looks at each anchor with the overlay of the
+  running selection and clicks the largest uncovered region of its target, accepting
+  each centroid view before looking again, within a :class:`~.scripted_user.UserBudget`;
+* ``"clicks"`` — the metadata clicks of :func:`divas_engine.cli.demo.demo_prompts` (the
+  ``divas demo`` protocol): each metadata click point goes on training cameras that see
+  it, spread over the rig; clicks on the same camera share an anchor; every click spawns
+  its centroid view (Sec. 3.3) whose default prompt is the click's 3D point projected
+  into it; every view is accepted (SAM → channel 1 → depth weighting → fusion →
+  mapping), exactly as ``divas segment`` does.
+
+The segmenter is fresh per session (the oracle's ground truth is the session's own
+render of the labels at each view).
 
 Ablations are the same session with one config change (:data:`VARIANTS`):
 
@@ -43,6 +49,7 @@ from ..scene import Scene
 from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
 from ..session import Session, SessionConfig
 from .baselines import MaskView
+from .scripted_user import ScriptedUser, UserLog
 
 __all__ = ["VARIANTS", "variant_config", "scripted_anchors", "SessionOutcome", "run_session",
            "make_segmenter", "CachingRenderer"]
@@ -169,6 +176,8 @@ class SessionOutcome:
         counts, statuses: session counts and ``(view id, status, reason)``.
         seconds: wall time of the session (open → last accept).
         timings: the session's stage timings.
+        user_log: what the simulated user did (protocol ``"user"``), else None.
+        anchors: ``(camera name, source, index)`` of the session's anchors.
     """
 
     selection: np.ndarray
@@ -180,34 +189,58 @@ class SessionOutcome:
     statuses: list[tuple[str, str, str | None]]
     seconds: float
     timings: dict = field(default_factory=dict)
+    user_log: "UserLog | None" = None
+    anchors: list = field(default_factory=list)
 
 
 def run_session(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray,
-                anchors: Sequence[tuple[Camera, str, int, Sequence[tuple[float, float]]]], *,
-                segmenter: Any, config: SessionConfig | None = None, device=None,
-                renderer=None) -> SessionOutcome:
-    """Open a session on ``scene``, click every anchor click, accept every view.
+                anchors: Sequence[tuple[Camera, str, int, Sequence[tuple[float, float]]]]
+                | None = None, *, segmenter: Any, config: SessionConfig | None = None,
+                device=None, renderer=None, user: "ScriptedUser | None" = None
+                ) -> SessionOutcome:
+    """Open a session on ``scene`` and drive it with one of the two protocols.
+
+    * ``user`` given (protocol ``"user"``): the session opens on its own anchor plan
+      (Sec. 3.2; :meth:`~.scripted_user.ScriptedUser.anchors`) and the
+      :class:`~.scripted_user.ScriptedUser` clicks uncovered target
+      regions under the overlay, accepting each view as it goes (``anchors`` must be
+      None);
+    * else (protocol ``"clicks"``): click every click of ``anchors``, then accept every
+      view.
 
     Args:
         labels: ground truth (the oracle's target; unused by other segmenters).
         anchors: from :func:`scripted_anchors` (full-resolution pixels).
         renderer: a renderer of ``scene`` to share between sessions.
     """
+    if (user is None) == (anchors is None):
+        raise ValueError("run_session: pass either anchors (clicks protocol) or user")
     t0 = time.perf_counter()
     cfg = config or SessionConfig()
-    s = Session.open(scene, list(cameras), cfg, segmenter, device,
-                     anchors=[(c, src, i) for c, src, i, _ in anchors],
+    if user is not None:
+        from ..session import anchor_plan
+
+        items = user.anchors(anchor_plan(scene, list(cameras), cfg))
+    else:
+        items = [(c, src, i) for c, src, i, _ in anchors]
+    s = Session.open(scene, list(cameras), cfg, segmenter, device, anchors=items,
                      gt_values=np.asarray(labels, np.float32), render_anchors=False,
                      renderer=renderer)
     try:
-        spawned = []
-        for i, (_, _, _, clicks) in enumerate(anchors):
-            a = s.anchors[i]
-            sx, sy = a.camera.width / a.full_camera.width, a.camera.height / a.full_camera.height
-            for xy in clicks:
-                spawned.append(s.click(i, (xy[0] * sx, xy[1] * sy)))
-        for v in spawned:
-            s.accept(v)
+        user_log = None
+        if user is not None:
+            user_log = user.run(s)
+            spawned = list(s.views)
+        else:
+            spawned = []
+            for i, (_, _, _, clicks) in enumerate(anchors):
+                a = s.anchors[i]
+                sx = a.camera.width / a.full_camera.width
+                sy = a.camera.height / a.full_camera.height
+                for xy in clicks:
+                    spawned.append(s.click(i, (xy[0] * sx, xy[1] * sy)))
+            for v in spawned:
+                s.accept(v)
         s.sync()
         views, weighted, statuses = [], [], []
         for v in spawned:
@@ -227,6 +260,7 @@ def run_session(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray,
         return SessionOutcome(
             selection=sel, pass1=p1, pass2=p2, views=views, weighted_views=weighted,
             counts=s.counts(), statuses=statuses, seconds=time.perf_counter() - t0,
-            timings=s.timings.summary())
+            timings=s.timings.summary(), user_log=user_log,
+            anchors=[(a.full_camera.name, a.source, a.source_index) for a in s.anchors])
     finally:
         s.close()

@@ -2,7 +2,9 @@
 
 Per scene (generated in memory, :func:`~divas_engine.synthetic.generate_scene`) and per
 segmenter (SAM-like oracle, classic): the scripted sessions of
-:mod:`.pipeline` — DivAS full, without the thin path, without depth weighting — then
+:mod:`.pipeline` (view protocol ``"user"``: the simulated user of :mod:`.scripted_user`
+on the session's anchor plan, default; ``"clicks"``: the metadata clicks) — DivAS full,
+without the thin path, without depth weighting — then
 Pass 1 only / Pass 1+2 from the full session's mapping chain, and the peer baselines
 (:mod:`.baselines`) fed the full session's accepted view masks (the raw masks the
 segmenter returned, before DivAS's depth weighting: what the user accepted;
@@ -28,8 +30,10 @@ from .baselines import CentreVoteConfig, ContributionVoteConfig, ContributionVot
 from .metrics import EvalConfig, ViewEvaluator
 from .pipeline import (CachingRenderer, make_segmenter, run_session, scripted_anchors,
                        variant_config)
+from .scripted_user import ScriptedUser, UserBudget
 
-__all__ = ["METHODS", "NERF_METHODS", "SuiteConfig", "evaluate_scene", "evaluate_suite",
+__all__ = ["METHODS", "NERF_METHODS", "PROTOCOLS", "SuiteConfig", "evaluate_scene",
+           "evaluate_suite",
            "markdown_table", "check_targets"]
 
 #: Table rows per (scene, segmenter) on surfels, in order: key → label.
@@ -42,6 +46,11 @@ METHODS: dict[str, str] = {
     "centre_vote": "(a) centre-projection vote",
     "contrib_vote": "(b) contribution vote (FlashSplat-style)",
 }
+#: View protocols: ``"user"`` — the simulated user on the session's anchor plan
+#: (:mod:`.scripted_user`, the paper's); ``"clicks"`` — the metadata clicks on training
+#: cameras (the ``divas demo`` protocol).
+PROTOCOLS: tuple[str, ...] = ("user", "clicks")
+
 #: Rows of the NeRF path.
 NERF_METHODS: dict[str, str] = {
     "nerf_full": "DivAS NeRF full",
@@ -60,6 +69,11 @@ class SuiteConfig:
         nerf: run the NeRF path on the ribs grid.
         grid_resolution: cells along the longest side of the ribs grid.
         baseline_masks: ``"raw"`` (segmenter output) or ``"weighted"`` (what DivAS fused).
+        protocol: :data:`PROTOCOLS` (``"user"``). With ``"user"`` every variant session
+            is driven by the same simulated user policy reacting to that variant's own
+            overlay (so ablations may click differently); the baselines get the full
+            session's accepted masks.
+        user: the simulated user's budgets.
         eval: thresholds / test-camera scale.
         session: the base session config (variants change one field of it).
         centre_vote, contrib_vote: baseline constants.
@@ -72,6 +86,8 @@ class SuiteConfig:
     nerf: bool = True
     grid_resolution: int = 128
     baseline_masks: str = "raw"
+    protocol: str = "user"
+    user: UserBudget = field(default_factory=UserBudget)
     eval: EvalConfig = field(default_factory=EvalConfig)
     session: SessionConfig = field(default_factory=SessionConfig)
     centre_vote: CentreVoteConfig = field(default_factory=CentreVoteConfig)
@@ -81,6 +97,8 @@ class SuiteConfig:
         if self.baseline_masks not in ("raw", "weighted"):
             raise ValueError(f"baseline_masks must be 'raw' or 'weighted', "
                              f"got {self.baseline_masks!r}")
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
 
 
 def _row(scene: str, kind: str, seg: str, method: str, label: str, sc, extra: dict) -> dict:
@@ -103,12 +121,14 @@ def evaluate_scene(name: str, config: SuiteConfig = SuiteConfig(), *, device=Non
     t0 = time.perf_counter()
     sc = generate_scene(name, size=config.size, seed=config.seed,
                         grid_resolution=config.grid_resolution)
-    anchors = scripted_anchors(sc.metadata, sc.cameras)
+    anchors = scripted_anchors(sc.metadata, sc.cameras) if config.protocol == "clicks" \
+        else None
     renderer = make_renderer(sc.scene, device=device, config=config.session.render)
     cached = CachingRenderer(renderer)  # the variant sessions share anchor/view renders
-    say(f"{name}: {len(sc.scene)} surfels, {len(anchors)} anchors, "
-        f"{sum(len(a[3]) for a in anchors)} clicks, {len(sc.test_cameras)} test cameras "
-        f"({time.perf_counter() - t0:.1f} s)")
+    say(f"{name}: {len(sc.scene)} surfels, protocol {config.protocol}"
+        + ("" if anchors is None else f", {len(anchors)} anchors, "
+           f"{sum(len(a[3]) for a in anchors)} clicks")
+        + f", {len(sc.test_cameras)} test cameras ({time.perf_counter() - t0:.1f} s)")
     selections: dict[str, np.ndarray] = {}
     extras: dict[str, dict] = {}
     voter = ContributionVoter(sc.scene, device, config.session.render)
@@ -118,13 +138,14 @@ def evaluate_scene(name: str, config: SuiteConfig = SuiteConfig(), *, device=Non
             out = run_session(sc.scene, sc.cameras, sc.labels, anchors,
                               segmenter=make_segmenter(seg, config.seed),
                               config=variant_config(var, config.session), device=device,
-                              renderer=cached)
+                              renderer=cached, user=_user(config, sc.labels))
             fused = sum(1 for _, st, _ in out.statuses if st == "fused")
             selections[f"{seg}/{var}"] = out.selection
             extras[f"{seg}/{var}"] = {"views_fused": fused, "views": len(out.statuses),
-                                      "seconds": out.seconds}
+                                      "seconds": out.seconds, **_user_extra(out)}
             say(f"  {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
-                f"{int(out.selection.sum())} selected ({out.seconds:.1f} s)")
+                f"{int(out.selection.sum())} selected ({out.seconds:.1f} s)"
+                + _user_note(out))
             if var == "full":
                 full = out
         assert full is not None
@@ -157,6 +178,32 @@ def evaluate_scene(name: str, config: SuiteConfig = SuiteConfig(), *, device=Non
     return rows
 
 
+def _user(config: SuiteConfig, labels: np.ndarray) -> ScriptedUser | None:
+    return ScriptedUser(labels, config.user) if config.protocol == "user" else None
+
+
+def _user_extra(out) -> dict:
+    if out.user_log is None:
+        return {}
+    d = out.user_log.as_dict()
+    return {"user": {"stop": d["stop"], "anchor_status": d["anchor_status"],
+                     "uncovered_after": d["uncovered_after"], "negatives": d["negatives"],
+                     "negatives_kept": d["negatives_kept"],
+                     "clicks": [(c["anchor"], round(c["xy"][0], 1), round(c["xy"][1], 1),
+                                 c["region_px"], c["status"]) for c in d["clicks"]],
+                     "anchors": out.anchors}}
+
+
+def _user_note(out) -> str:
+    if out.user_log is None:
+        return ""
+    lg = out.user_log
+    st = lg.anchor_status
+    return (f"; user: {len(lg.clicks)} clicks, stop {lg.stop}, anchors complete "
+            f"{st.count('complete')}/{len(st) - st.count('not visited')} visited "
+            f"of {len(st)}")
+
+
 def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict]:
     from ..render import make_renderer
 
@@ -168,13 +215,13 @@ def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict
             out = run_session(grid, sc.cameras, labels, anchors,
                               segmenter=make_segmenter(seg, config.seed),
                               config=variant_config(var, config.session), device=device,
-                              renderer=renderer)
+                              renderer=renderer, user=_user(config, labels))
             fused = sum(1 for _, st, _ in out.statuses if st == "fused")
             sels[f"{seg}/{key}"] = out.selection
             extras[f"{seg}/{key}"] = {"views_fused": fused, "views": len(out.statuses),
-                                      "seconds": out.seconds}
+                                      "seconds": out.seconds, **_user_extra(out)}
             say(f"  nerf {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
-                f"{int(out.selection.sum())} voxels ({out.seconds:.1f} s)")
+                f"{int(out.selection.sum())} voxels ({out.seconds:.1f} s)" + _user_note(out))
     t = time.perf_counter()
     ev = ViewEvaluator(grid, sc.test_cameras, labels, config=config.eval, device=device)
     scores = ev.score(sels)
@@ -194,6 +241,9 @@ def evaluate_suite(config: SuiteConfig = SuiteConfig(), *, device=None,
                                      "segmenters": list(config.segmenters),
                                      "size": config.size, "seed": config.seed,
                                      "baseline_masks": config.baseline_masks,
+                                     "protocol": config.protocol,
+                                     "user": config.user.__dict__.copy()
+                                     if config.protocol == "user" else None,
                                      "eval": config.eval.__dict__.copy(),
                                      "oracle_seed": config.seed},
             "rows": rows, "means": suite_means(rows), "targets": check_targets(rows),
@@ -256,6 +306,17 @@ def markdown_table(result: dict[str, Any]) -> str:
             lines.append(f"| {m['kind']} | {m['segmenter']} | {m['label']} | {m['scenes']} | "
                          f"{_f(m['iou'])} | {_f(m['accuracy'])} | {_f(m['precision_3d'])} | "
                          f"{_f(m['recall_3d'])} |")
+    cfg = result.get("config") or {}
+    if cfg.get("protocol"):
+        u = cfg.get("user") or {}
+        lines += ["", f"View protocol: {cfg['protocol']}" + (
+            "" if cfg["protocol"] != "user" else
+            f" (simulated user on the session's anchor plan: ≤ {u.get('clicks_per_anchor')} "
+            f"clicks per anchor, ≤ {u.get('max_views')} views, regions ≥ "
+            f"{100 * u.get('min_region_frac', 0):.1f} % of the view, negative clicks "
+            f"{'on' if u.get('negative_clicks') else 'off'}, "
+            + ("then the other supported Fibonacci anchors)" if u.get("more_anchors")
+               else "offered anchors only)"))]
     t = result.get("targets") or {}
     if t:
         lines += ["", "Targets (oracle): mean DivAS-full IoU "

@@ -1,0 +1,304 @@
+"""A simulated user that follows the paper's interactive protocol (evaluation only).
+
+Paper Sec. 3.3 ("Iterative centroid processing") and Sec. 3.7 ("Iterative Mask
+Propagation"): after each fused view the running 3D selection is overlaid on the next
+view, and the user prompts only the regions it does not cover yet, until coverage is
+complete. The anchors are the session's own anchor plan (Sec. 3.2: Fibonacci anchors for
+360° scenes, spread training cameras for forward-facing ones) — never the test cameras.
+
+What the simulated user sees is what a user sees, nothing more:
+
+* the anchor renders and the overlay of the current selection on them
+  (:meth:`Session.overlay`: rendered indicator ``≥ overlay_threshold``);
+* the centroid view and the segmenter's mask preview on it;
+* its *intent*: the ground-truth target rendered at the view it is looking at
+  (``≥ target_threshold``) — the stand-in for the user knowing what they want.
+
+Per anchor of the plan, in plan order, at most ``clicks_per_anchor`` times:
+
+1. visible target ``T`` (GT render ≥ 0.5) and overlay ``O`` at the anchor;
+2. the connected regions (8-connectivity) of ``T ∧ ¬O`` with at least
+   ``min_region_frac`` of the image's pixels, largest first;
+3. none left: the anchor is complete, go to the next one; else click the pixel of the
+   largest region farthest from its border (Euclidean distance transform) — and from
+   this anchor's earlier clicks, so a region an earlier view failed to cover (or a
+   rejected view) is re-clicked elsewhere, spawning a different centroid view (Sec. 3.3);
+4. optional negative prompt (``negative_clicks``): if the mask preview on the centroid
+   view selects pixels outside the target there (a false-positive region of at least the
+   minimum area), add one negative point at that region's centre and keep the re-prompted
+   mask when it agrees better with the target (IoU), else the default prompt's;
+5. accept the view (SAM → depth weighting → fusion → mapping; NeRF: synced at once).
+
+The anchors are the plan's offered ones (top-K), then — ``more_anchors`` — its other
+supported Fibonacci candidates in ranking order (what the user sees on asking for all
+Fibonacci views), visited while the view budget lasts.
+
+The session stops at ``max_views`` centroid views in total (App. "Bounded view
+processing": 5–10 views for LLFF-like scenes, 8–20 for Mip-360 ones; the default 20 is
+the upper end) or when every anchor is complete.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from ..errors import DivasInputError
+
+__all__ = ["UserBudget", "UserClick", "UserLog", "ScriptedUser", "uncovered_regions",
+           "region_centre"]
+
+
+@dataclass(frozen=True)
+class UserBudget:
+    """Budgets and thresholds of the simulated user.
+
+    Attributes:
+        clicks_per_anchor: positive clicks (centroid views) per anchor, 3.
+        max_views: centroid views per session in total, 20 (the paper's upper range for
+            360° scenes, App. "Bounded view processing").
+        min_region_frac: smallest uncovered (or false-positive) region worth a click, as
+            a fraction of the view's pixels, 0.002 (0.2 %: 614 px at 640×480).
+        target_threshold: the user's target at a view = GT render ``≥`` this, 0.5 (the
+            evaluation's ground-truth threshold).
+        negative_clicks: add one negative point on a centroid view whose mask preview
+            has a false-positive region (kept only when it improves the mask), True.
+        more_anchors: after the plan's offered anchors, go on with its other supported
+            Fibonacci candidates in ranking order (Sec. 3.2's "all Fibonacci views"),
+            while the view budget lasts, True.
+    """
+
+    clicks_per_anchor: int = 3
+    max_views: int = 20
+    min_region_frac: float = 0.002
+    target_threshold: float = 0.5
+    negative_clicks: bool = True
+    more_anchors: bool = True
+
+    def __post_init__(self) -> None:
+        if self.clicks_per_anchor < 1 or self.max_views < 1:
+            raise ValueError("UserBudget: clicks_per_anchor and max_views must be ≥ 1")
+        if not 0.0 <= self.min_region_frac < 1.0:
+            raise ValueError(f"UserBudget.min_region_frac must be in [0, 1), "
+                             f"got {self.min_region_frac}")
+
+
+@dataclass
+class UserClick:
+    """One positive click of the simulated user.
+
+    Attributes:
+        anchor: anchor index; xy: the click (pixels of the anchor render).
+        region_px: area of the uncovered region clicked; uncovered_px: all uncovered
+            target pixels at the anchor then; target_px: visible target pixels.
+        view_id: the centroid view spawned (None when the click hit no surface).
+        status: the view's status after accepting it (``fused`` / ``rejected``), or
+            ``no surface``.
+        negatives: negative points added on the centroid view (its pixels).
+        negative_kept: whether the re-prompted mask was kept.
+    """
+
+    anchor: int
+    xy: tuple[float, float]
+    region_px: int
+    uncovered_px: int
+    target_px: int
+    view_id: str | None = None
+    status: str = ""
+    negatives: list[tuple[float, float]] = field(default_factory=list)
+    negative_kept: bool = False
+
+
+@dataclass
+class UserLog:
+    """What the simulated user did in one session.
+
+    Attributes:
+        clicks: the positive clicks in order.
+        anchor_status: per anchor, ``"complete"`` (no uncovered region of the minimum
+            area left), ``"clicks"`` (its click budget spent first), ``"budget"`` (the
+            session's view budget ran out there) or ``"not visited"`` (after that).
+        uncovered_after: per anchor, uncovered target pixels at the last look (−1: not
+            visited).
+        looked_at: names of every camera the user looked at (anchors, centroid views).
+        stop: ``"complete"`` (every anchor complete), ``"budget"`` (view budget spent)
+            or ``"clicks"`` (some anchor's click budget spent, the rest complete).
+    """
+
+    clicks: list[UserClick] = field(default_factory=list)
+    anchor_status: list[str] = field(default_factory=list)
+    uncovered_after: list[int] = field(default_factory=list)
+    looked_at: list[str] = field(default_factory=list)
+    stop: str = ""
+
+    @property
+    def complete(self) -> list[bool]:
+        """Per anchor: no uncovered region of the minimum area was left there."""
+        return [s == "complete" for s in self.anchor_status]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"clicks": [asdict(c) for c in self.clicks],
+                "anchor_status": self.anchor_status, "complete": self.complete,
+                "uncovered_after": self.uncovered_after, "stop": self.stop,
+                "views": len(self.clicks),
+                "negatives": sum(len(c.negatives) for c in self.clicks),
+                "negatives_kept": sum(c.negative_kept for c in self.clicks)}
+
+
+def uncovered_regions(target: np.ndarray, covered: np.ndarray, min_area: int
+                      ) -> list[np.ndarray]:
+    """Connected regions (8-connectivity) of ``target ∧ ¬covered`` with at least
+    ``min_area`` pixels, as bool masks, largest first (ties: lower label first)."""
+    miss = np.asarray(target, bool) & ~np.asarray(covered, bool)
+    if not miss.any():
+        return []
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(miss.astype(np.uint8), connectivity=8)
+    keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= max(1, int(min_area))]
+    keep.sort(key=lambda i: (-int(stats[i, cv2.CC_STAT_AREA]), i))
+    return [lab == i for i in keep]
+
+
+def region_centre(region: np.ndarray, avoid=()) -> tuple[float, float]:
+    """The pixel of ``region`` farthest from its border (Euclidean distance transform;
+    ties: first in row-major order), as the pixel-centre ``(x + 0.5, y + 0.5)``.
+
+    ``avoid``: integer pixels ``(x, y)`` (earlier clicks) treated as border too, so the
+    pixel is also far from them (ignored when they would leave nothing)."""
+    r = np.asarray(region, bool)
+    if not r.any():
+        raise ValueError("region_centre: empty region")
+    if len(avoid):
+        r2 = r.copy()
+        for x, y in avoid:
+            if 0 <= y < r.shape[0] and 0 <= x < r.shape[1]:
+                r2[y, x] = False
+        if r2.any():
+            r = r2
+    d = ndimage.distance_transform_edt(np.pad(r, 1))[1:-1, 1:-1]
+    y, x = divmod(int(np.argmax(d)), r.shape[1])
+    return float(x) + 0.5, float(y) + 0.5
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    u = int(np.count_nonzero(a | b))
+    return int(np.count_nonzero(a & b)) / u if u else 1.0
+
+
+class ScriptedUser:
+    """The simulated user (module docstring).
+
+    Args:
+        gt_values: the user's intent — ground truth per surfel ``[N]`` or per voxel
+            ``[D,H,W]``; only ever rendered at the views the user looks at.
+        budget: :class:`UserBudget`.
+    """
+
+    def __init__(self, gt_values: np.ndarray, budget: UserBudget | None = None) -> None:
+        self.gt_values = np.asarray(gt_values, np.float32)
+        self.budget = budget or UserBudget()
+
+    # -------------------------------------------------------------- what the user sees
+    def target(self, session, camera, log: UserLog | None = None) -> np.ndarray:
+        """The user's target at ``camera`` (a working-resolution camera)."""
+        if log is not None:
+            log.looked_at.append(camera.name)
+        vals = session.renderer.render_values(camera, self.gt_values)
+        return vals >= np.float32(self.budget.target_threshold)
+
+    @staticmethod
+    def overlay_mask(session, camera) -> np.ndarray:
+        """The binary overlay of the current selection at ``camera`` (working resolution)."""
+        if not session.selection.any():
+            return np.zeros((camera.height, camera.width), bool)
+        return session.overlay(camera, full_camera=False).mask
+
+    # -------------------------------------------------------------- the protocol
+    def anchors(self, plan) -> list:
+        """The anchors the user visits, in order: the plan's offered anchors, then (with
+        ``more_anchors``) the plan's other *supported* Fibonacci candidates in ranking
+        order — the "show all Fibonacci views" list of Sec. 3.2, unsupported directions
+        left out. Never a test camera: only the plan's own anchors and candidates."""
+        out = list(plan.anchors)
+        if self.budget.more_anchors:
+            seen = {(a.source, int(a.index)) for a in out}
+            for i in plan.ranking.order:
+                c = plan.candidates[int(i)]
+                if not c.unsupported and (c.source, int(c.index)) not in seen:
+                    out.append(c)
+                    seen.add((c.source, int(c.index)))
+        return out
+
+    def run(self, session) -> UserLog:
+        """Drive ``session`` (freshly opened, current object empty) over its anchors."""
+        b = self.budget
+        log = UserLog()
+        n_views = 0
+        for ai, anchor in enumerate(session.anchors):
+            if n_views >= b.max_views:
+                log.anchor_status.append("not visited")
+                log.uncovered_after.append(-1)
+                continue
+            cam = anchor.camera
+            min_area = max(1, int(round(b.min_region_frac * cam.width * cam.height)))
+            tried: list[tuple[int, int]] = []
+            status, uncovered = "clicks", 0
+            while True:
+                tgt = self.target(session, cam, log)
+                cov = self.overlay_mask(session, cam)
+                uncovered = int(np.count_nonzero(tgt & ~cov))
+                regions = uncovered_regions(tgt, cov, min_area)
+                if not regions:
+                    status = "complete"
+                    break
+                if n_views >= b.max_views:
+                    status = "budget"
+                    break
+                if len(tried) >= b.clicks_per_anchor:
+                    break
+                # a region an earlier click of this anchor did not cover is clicked again
+                # away from that click (its centroid view would be the same one)
+                xy = region_centre(regions[0], avoid=tried)
+                tried.append((int(xy[0]), int(xy[1])))
+                click = UserClick(ai, xy, int(regions[0].sum()), uncovered,
+                                  int(np.count_nonzero(tgt)))
+                log.clicks.append(click)
+                try:
+                    view = session.click(ai, xy)
+                except DivasInputError:
+                    click.status = "no surface"
+                    continue
+                n_views += 1
+                click.view_id = view.id
+                self._accept(session, view, click, log)
+            log.anchor_status.append(status)
+            log.uncovered_after.append(uncovered)
+        st = log.anchor_status
+        log.stop = ("budget" if "budget" in st or "not visited" in st else
+                    "complete" if all(x == "complete" for x in st) else "clicks")
+        return log
+
+    def _accept(self, session, view, click: UserClick, log: UserLog) -> None:
+        b = self.budget
+        prev = session.prompt(view)
+        if b.negative_clicks and prev.selection.accepted:
+            tgt = self.target(session, view.camera, log)
+            mask = np.asarray(prev.selection.mask) >= 0.5
+            cam = view.camera
+            fp = uncovered_regions(mask, tgt, max(1, int(round(b.min_region_frac
+                                                               * cam.width * cam.height))))
+            if fp:
+                nxy = region_centre(fp[0])
+                click.negatives.append(nxy)
+                p2 = session.prompt(view, [nxy], [0])
+                ok2 = p2.selection.accepted
+                if ok2 and _iou(np.asarray(p2.selection.mask) >= 0.5, tgt) > _iou(mask, tgt):
+                    click.negative_kept = True
+                else:
+                    session.prompt(view)             # back to the default prompt
+        session.accept(view)
+        session.sync()
+        click.status = view.status
