@@ -28,8 +28,8 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from divas_engine import DivasInputError
-from divas_engine.segment import (ClassicSegmenter, FloodFillSegmenter, OracleConfig,
-                                  OracleSegmenter, SamOnnxSegmenter, SamTorchSegmenter,
+from divas_engine.segment import (ClassicConfig, ClassicSegmenter, FloodFillSegmenter,
+                                  OracleConfig, OracleSegmenter, SamOnnxSegmenter, SamTorchSegmenter,
                                   select_mask)
 from divas_engine.segment.sam_common import (SAM_PIXEL_MEAN, SAM_PIXEL_STD, decoder_prompts,
                                              preprocess_shape, resize_antialiased, sigmoid)
@@ -511,6 +511,7 @@ def test_classic_negative_click_removes_region():
 
 
 def test_classic_granularities_ordered_and_no_positive():
+    """Depth-band granularities (``edge_regions=False``, the pre-depth-edge path)."""
     h, w = 240, 320
     rgb = _texture(h, w, 2)
     box = np.zeros((h, w), bool)
@@ -518,7 +519,7 @@ def test_classic_granularities_ordered_and_no_positive():
     plat = np.zeros((h, w), bool)
     plat[60:190, 70:260] = True  # box sits on a platform 10 % farther, wall far behind
     depth = np.where(box, 2.0, np.where(plat, 2.2, 3.5)).astype(np.float32)
-    seg = ClassicSegmenter()
+    seg = ClassicSegmenter(ClassicConfig(edge_regions=False))
     seg.set_image(rgb, depth)
     m, s = seg.predict(np.array([[165.0, 120.0]]), np.array([1]))
     areas = (m >= 0.5).sum(axis=(1, 2))
@@ -528,6 +529,109 @@ def test_classic_granularities_ordered_and_no_positive():
     m, s = seg.predict(np.array([[165.0, 120.0]]), np.array([0]))
     assert not m.any() and not s.any()
     assert not select_mask(m, s, np.array([0])).accepted
+
+
+def test_classic_edge_granularities_follow_jump_size():
+    """Depth-edge path: a 6 % step is an edge for the small/medium jump tolerances
+    (2 %, 4 %) but not for the large one (8 %): box, box, box + platform."""
+    h, w = 240, 320
+    rgb = _texture(h, w, 2)
+    box = np.zeros((h, w), bool)
+    box[100:140, 140:190] = True
+    plat = np.zeros((h, w), bool)
+    plat[60:190, 70:260] = True
+    depth = np.where(box, 2.0, np.where(plat, 2.12, 3.5)).astype(np.float32)
+    seg = ClassicSegmenter()
+    seg.set_image(rgb, depth)
+    m, s = seg.predict(np.array([[165.0, 120.0]]), np.array([1]))
+    assert _iou(m[0] >= 0.5, box) > 0.95 and _iou(m[1] >= 0.5, box) > 0.95
+    assert _iou(m[2] >= 0.5, plat) > 0.95 and np.all(s >= 0.5)
+
+
+def _edge_case(kind, h=240, w=320):
+    """Hand-made depth images for the depth-edge region path (same texture everywhere
+    unless a colour difference is the point)."""
+    rgb = _texture(h, w, seed=7, amp=20.0)
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    gt = np.zeros((h, w), bool)
+    if kind == "touching":  # two boxes side by side in the image, 2.0 vs 2.3, wall at 4
+        a = np.zeros((h, w), bool)
+        a[60:180, 60:160] = True
+        b = np.zeros((h, w), bool)
+        b[60:180, 160:260] = True
+        depth = np.where(a, 2.0, np.where(b, 2.3, 4.0))
+        gt, click, other = a, (110.0, 120.0), b
+    elif kind == "bar":  # a 6-px bar 10 % in front of a wall spanning the view
+        gt[:, 157:163] = True
+        depth = np.where(gt, 2.7, 3.0)
+        click, other = (160.0, 120.0), ~gt
+    elif kind == "support":  # red box resting on a grey slab: contact, no depth jump
+        gt[40:140, 120:200] = True
+        slab = np.zeros((h, w), bool)
+        slab[140:200, 40:280] = True
+        depth = np.where(gt | slab, 2.0, 3.0)
+        rgb[gt] = np.clip(rgb[gt] + np.array([0.35, -0.25, -0.2], np.float32), 0, 1)
+        click, other = (160.0, 90.0), slab
+    else:  # "slanted": a steep plane (depth 1.5 → 3.0 across the view) with a box in front
+        gt[80:160, 120:200] = True
+        plane = 1.0 / (1 / 1.5 + (1 / 3.0 - 1 / 1.5) * xx / w)  # disparity affine in x
+        depth = np.where(gt, 1.2, plane)
+        click, other = (40.0, 120.0), gt  # click the plane, not the box
+        gt = ~gt
+    return rgb, depth.astype(np.float32), gt, np.array([click]), other
+
+
+def test_classic_edges_split_touching_objects():
+    rgb, depth, gt, click, other = _edge_case("touching")
+    seg = ClassicSegmenter()
+    seg.set_image(rgb, depth)
+    m, s = seg.predict(click, np.array([1]))
+    assert _iou(m[1] >= 0.5, gt) > 0.95 and s[1] >= 0.5
+    assert (m[1][other] >= 0.5).mean() < 0.02
+
+
+def test_classic_edges_keep_thin_bar_in_front_of_wall():
+    rgb, depth, gt, click, _ = _edge_case("bar")
+    seg = ClassicSegmenter()
+    seg.set_image(rgb, depth)
+    m, s = seg.predict(click, np.array([1]))
+    assert _iou(m[1] >= 0.5, gt) > 0.8 and s[1] >= 0.5
+
+
+def test_classic_edges_object_on_support_stays_inside_the_jumps():
+    """No depth jump between box and slab: the edge region holds both and must not
+    leak past the depth jumps around them into the wall."""
+    rgb, depth, gt, click, slab = _edge_case("support")
+    seg = ClassicSegmenter()
+    seg.set_image(rgb, depth)
+    m, s = seg.predict(click, np.array([1]))
+    mask = m[1] >= 0.5
+    assert mask[gt].mean() > 0.95 and not mask[~(gt | slab)].any()
+
+
+def test_classic_edges_do_not_cut_a_slanted_plane():
+    rgb, depth, gt, click, box = _edge_case("slanted")
+    seg = ClassicSegmenter()
+    seg.set_image(rgb, depth)
+    m, s = seg.predict(click, np.array([1]))
+    mask = m[2] >= 0.5  # the large channel: the whole plane, not a depth band of it
+    assert _iou(mask, gt) > 0.9
+    assert (mask[box]).mean() < 0.02
+
+
+def test_depth_edges_plane_invariant_and_jump():
+    """A steep slanted plane has no disparity jump and no crease; a 10 % step is a jump."""
+    from divas_engine.segment import depth_edges as de
+    h, w = 60, 80
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    q = (1 / 1.5 + (1 / 3.0 - 1 / 1.5) * xx / w + 0.05 * yy / h).astype(np.float32)
+    jh, jv = de.pair_jumps(q)
+    ch, cv = de.pair_creases(q, float(w), 1)
+    inner = (slice(4, -4), slice(4, -4))  # creases: the blur/Sobel rim aside
+    assert max(jh.max(), jv.max()) < 1e-3 and max(ch[inner].max(), cv[inner].max()) < 1e-2
+    step = np.where(xx < 40, 1 / 2.0, 1 / 2.2).astype(np.float32)
+    jh, _ = de.pair_jumps(step)
+    assert jh[:, 39].min() > 0.08 and np.delete(jh, 39, axis=1).max() < 1e-6
 
 
 def test_classic_speed_at_640x480_reported():

@@ -37,6 +37,27 @@ Algorithm (per prompt set; the per-view colour features are cached):
    that did not grow is no commitment); 0 for an empty mask or one covering
    more than ``max_area_frac`` of the view.
 
+Depth-edge regions (``edge_regions``, default on when depth is given; module
+:mod:`.depth_edges`): a genuine 3D object boundary is a disparity *jump* or a
+normal *crease*, both measured plane-invariantly (a slanted plane has neither).
+Step 3 then changes for granularity ``k``: the probable foreground is the
+4-connected region of the click that crosses no depth edge (strength ≥ 1 for
+``jump_tol[k]`` / ``crease_tol[k]``), re-grown over its rim, intersected with the
+click's component of ``|δ| ≤ edge_hard_factor · τ_k`` (a support touching the object
+with no jump is cut where its depth leaves the band) and minus the negative-colour
+pixels; everything else is probable background, sure background beyond
+``edge_hard_factor · τ_k`` outside the region; clicks as before. So thin, curved,
+depth-spread objects (rib cages, leaves) keep all their parts, while GrabCut's
+colour model can still split an object from a support it rests on. The channel
+score is multiplied by ``closure ** closure_power``, ``closure`` = the fraction of
+the region's outer rim that is a depth edge (a region that leaked over a contact
+into its support is less of a commitment). A channel (of ``edge_fallback``, by
+default channel 1) whose edge-region cut scores below ``edge_min_score`` is recomputed with the plain depth-band labels of step 3
+(``hard_factor``) and keeps that cut and its score, so views the band path accepted
+are not lost. Known limit: an object resting on a support at the same depth (no
+jump, weak crease) stays joined to it — the depth channel ties them, colour alone
+does not split them (same as the band path).
+
 Cost: about 0.1–0.3 s per prompt set at 640×480 on 2 CPU cores (GrabCut's
 max-flow dominates; the per-view features take ~20 ms).
 
@@ -53,6 +74,7 @@ from typing import Any, Hashable
 import cv2
 import numpy as np
 
+from . import depth_edges as de
 from .base import Segmenter, pixel_index
 from .sam_common import sigmoid
 
@@ -82,6 +104,21 @@ class ClassicConfig:
         max_area_frac: masks covering more of the view score 0.
         min_area_frac: smaller masks (a click that did not grow) score ∝ their area.
         seed: OpenCV RNG seed (GrabCut's k-means), for reproducible masks.
+        edge_regions: use the depth-edge region as GrabCut's initial labelling (module
+            docstring; only when depth is given).
+        jump_tol: relative disparity jump per granularity that counts as a depth edge.
+        crease_tol: normal crease angle (radians) per granularity that counts as an edge.
+        focal_frac: focal length assumed for the pseudo-normals, fraction of the working width.
+        crease_gap: normals compared this many pixels on either side of a pixel pair.
+        crease_gate, crease_gate_px: creases are ignored within ``crease_gate_px`` of a
+            jump stronger than ``crease_gate · jump_tol`` (a jump's rim is no crease).
+        regrow_px: the edge-free core re-grows this far over its rim where depth continues.
+        hole_px: depth holes up to this area (working pixels) are filled before edges.
+        edge_hard_factor: band factor (× ``τ_k``) of the edge-region path.
+        closure_power: exponent of the closure factor in the score (0 disables it).
+        edge_min_score: below this, a channel in ``edge_fallback`` falls back to the
+            depth-band labels (default: only channel 1, the one DivAS fuses — the
+            fallback is a second GrabCut, so the other channels skip it for time).
     """
 
     work_long_side: int = 256
@@ -99,6 +136,19 @@ class ClassicConfig:
     max_area_frac: float = 0.95
     min_area_frac: float = 0.002
     seed: int = 0
+    edge_regions: bool = True
+    jump_tol: tuple[float, float, float] = (0.02, 0.04, 0.08)
+    crease_tol: tuple[float, float, float] = (0.5, 0.8, 1.2)
+    focal_frac: float = 1.0
+    crease_gap: int = 1
+    crease_gate: float = 0.5
+    crease_gate_px: int = 4
+    regrow_px: int = 2
+    hole_px: int = 30
+    edge_hard_factor: float = 3.0
+    closure_power: float = 1.0
+    edge_min_score: float = 0.5
+    edge_fallback: tuple[int, ...] = (1,)
 
 
 def _disk(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, r: int) -> np.ndarray:
@@ -108,9 +158,10 @@ def _disk(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, r: int) ->
     return out.astype(bool)
 
 
-def _components_with(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """Union of the 8-connected components of ``mask`` that contain a given pixel."""
-    n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+def _components_with(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                     connectivity: int = 8) -> np.ndarray:
+    """Union of the connected components of ``mask`` that contain a given pixel."""
+    n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=connectivity)
     ids = np.unique(lab[rows, cols])
     ids = ids[ids > 0]
     return np.isin(lab, ids) if ids.size else np.zeros_like(mask, bool)
@@ -148,7 +199,16 @@ class ClassicSegmenter(Segmenter):
             else:
                 num, den = ld, valid
             logd = np.where(den >= 0.5, num / np.maximum(den, 1e-6), np.inf).astype(np.float32)
-        return {"lab": lab, "colour2": colour2.astype(np.float32), "logd": logd, "depth": depth,
+        edges = None
+        if logd is not None and cfg.edge_regions:
+            logd = de.fill_small_holes(logd, cfg.hole_px)
+            with np.errstate(over="ignore"):
+                q = np.exp(-logd).astype(np.float32)  # disparity; no surface → 0
+            jh, jv = de.pair_jumps(np.where(np.isfinite(logd), q, np.nan).astype(np.float32))
+            ch, cv = de.pair_creases(q, cfg.focal_frac * ww, cfg.crease_gap)
+            edges = (de.pixel_strength(jh, jv), de.pixel_strength(ch, cv))
+        return {"edges": edges, "strength": {}, "lab": lab,
+                "colour2": colour2.astype(np.float32), "logd": logd, "depth": depth,
                 "full": (h, w), "work": (hh, ww)}
 
     # -- per prompt set ------------------------------------------------------------
@@ -204,24 +264,42 @@ class ClassicSegmenter(Segmenter):
         scores = np.zeros(3, np.float32)
         done: dict[bytes, np.ndarray] = {}
         for k in (1, 0, 2):  # medium first: a channel whose initial labels equal it reuses it
+            edge = st["edges"] is not None
             if delta is not None:
                 tol = cfg.depth_tol[k]
                 inband = np.abs(delta) <= tol
-                sure_bg = np.abs(delta) > cfg.hard_factor * tol
+                sure_bg = np.abs(delta) > (cfg.edge_hard_factor if edge else cfg.hard_factor) * tol
                 seeds = pos_disk & inband
                 seeds[pr, pc] = True
             else:
                 inband = coldist <= cfg.colour_tol[k]
                 sure_bg = np.zeros((hh, ww), bool)
                 seeds = pos_disk
-            init = self._init_labels(inband, sure_bg, seeds, neg_disk, nearer_neg, pr, pc)
+            closure = 1.0
+            if edge:
+                init, closure = self._edge_labels(st, k, sure_bg, seeds, neg_disk, nearer_neg,
+                                                  pr, pc, nr, nc)
+            else:
+                init = self._init_labels(inband, sure_bg, seeds, neg_disk, nearer_neg, pr, pc)
             key = init.tobytes()
             if key not in done:
                 done[key] = self._grabcut(feat8, init, pr, pc, nr, nc, cfg.iterations[k],
                                           cfg.cut_scale[k])
             binary = done[key]
+            score = self._score(binary, feat, pr, pc, nr, nc) * closure ** cfg.closure_power
+            if edge and k in cfg.edge_fallback and score < cfg.edge_min_score:  # plain band
+                hf = cfg.hard_factor * cfg.depth_tol[k]
+                init = self._init_labels(inband, np.abs(delta) > hf if delta is not None else
+                                         np.zeros((hh, ww), bool), seeds, neg_disk, nearer_neg,
+                                         pr, pc)
+                key = init.tobytes()
+                if key not in done:
+                    done[key] = self._grabcut(feat8, init, pr, pc, nr, nc, cfg.iterations[k],
+                                              cfg.cut_scale[k])
+                binary = done[key]
+                score = self._score(binary, feat, pr, pc, nr, nc)
             masks[k] = self._soften(binary, (h, w))
-            scores[k] = self._score(binary, feat, pr, pc, nr, nc)
+            scores[k] = score
         return masks, scores
 
     def _init_labels(self, inband: np.ndarray, sure_bg: np.ndarray, seeds: np.ndarray,
@@ -240,6 +318,47 @@ class ClassicSegmenter(Segmenter):
         gc[seeds] = cv2.GC_FGD
         gc[neg_disk] = cv2.GC_BGD
         return gc
+
+    def _edge_strength(self, st: Any, k: int) -> np.ndarray:
+        """Per-pixel depth-edge strength for granularity ``k`` (≥ 1: an edge), cached per view."""
+        cache = st["strength"]
+        if k not in cache:
+            cfg = self.config
+            jpix, cpix = st["edges"]
+            jt = cfg.jump_tol[k]
+            kernel = np.ones((2 * cfg.crease_gate_px + 1,) * 2, np.uint8)
+            near_jump = cv2.dilate((jpix > cfg.crease_gate * jt).astype(np.uint8),
+                                   kernel).astype(bool)
+            cache[k] = np.maximum(jpix / jt, np.where(near_jump, 0.0, cpix / cfg.crease_tol[k]))
+        return cache[k]
+
+    def _edge_labels(self, st: Any, k: int, sure_bg: np.ndarray, seeds: np.ndarray,
+                     neg_disk: np.ndarray, nearer_neg: np.ndarray, pr: np.ndarray, pc: np.ndarray,
+                     nr: np.ndarray, nc: np.ndarray) -> tuple[np.ndarray, float]:
+        """GrabCut's initial labels from the depth-edge region (module docstring) and the
+        region's closure (fraction of its outer rim on a depth edge)."""
+        cfg = self.config
+        strength = self._edge_strength(st, k)
+        hh, ww = strength.shape
+        free = strength < 1.0
+        core = _components_with(free, pr, pc, connectivity=4)
+        core[pr, pc] = True
+        region = de.regrow(core, st["logd"], ~free, cfg.jump_tol[k], cfg.regrow_px)
+        if len(nr) and region[nr, nc].any():  # a negative inside: drop its edge-free part
+            region &= ~_components_with(free & region, nr, nc, connectivity=4)
+        fg = (region & ~nearer_neg & _components_with(~sure_bg, pr, pc)) | seeds
+        rim = cv2.dilate(fg.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~fg
+        closure = float((strength[rim] >= 1.0).mean()) if rim.any() else 1.0
+        gc = np.full((hh, ww), cv2.GC_PR_BGD, np.uint8)
+        gc[sure_bg & ~region] = cv2.GC_BGD
+        gc[fg] = cv2.GC_PR_FGD
+        frame = np.zeros((hh, ww), bool)
+        frame[[0, -1], :] = True
+        frame[:, [0, -1]] = True
+        gc[frame & fg] = cv2.GC_PR_BGD
+        gc[seeds] = cv2.GC_FGD
+        gc[neg_disk] = cv2.GC_BGD
+        return gc, closure
 
     def _grabcut(self, feat8: np.ndarray, init: np.ndarray, pr: np.ndarray, pc: np.ndarray,
                  nr: np.ndarray, nc: np.ndarray, iters: int, scale: float) -> np.ndarray:
