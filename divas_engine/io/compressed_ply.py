@@ -52,7 +52,7 @@ import plyfile
 
 from ..errors import DivasInputError
 from ..scene import SH_C0, SourceInfo, SurfelScene, sh_coeff_count
-from .gaussians import surfels_from_arrays
+from .gaussians import scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS, PlyLayout, read_ply_header, write_ply_rows
 
 __all__ = ["is_compressed_ply", "read_compressed_ply", "write_compressed_ply_subset",
@@ -287,14 +287,8 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
             sh[sl, 1:, :] = rest.reshape(-1, 3, k - 1).transpose(0, 2, 1)
         finite[sl] = ok
 
-    kept = np.flatnonzero(finite)
-    n_bad = total - len(kept)
-    if len(kept) == 0:
-        raise DivasInputError(path, f"empty scene: all {total} rows hold NaN/Inf values")
-    if n_bad:
-        means, quats, scales, opac, sh = (a[kept] for a in (means, quats, scales, opac, sh))
-    src = SourceInfo(path, "compressed_ply", total, kept.astype(np.int64), n_bad)
-    return SurfelScene(means, quats, scales, opac, sh, deg, "3dgs", src)
+    return scene_from_rows(path, "compressed_ply", (means, quats, scales, opac, sh), finite, deg,
+                           "3dgs")
 
 
 def _check_rows(path, file_rows: np.ndarray, n: int) -> np.ndarray:

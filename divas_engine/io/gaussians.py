@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import DivasInputError
 from ..geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
+from ..scene import SourceInfo, SurfelScene
 
-__all__ = ["sigmoid", "flatten_to_surfels", "surfels_from_arrays"]
+__all__ = ["sigmoid", "flatten_to_surfels", "surfels_from_arrays", "scene_from_rows"]
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
@@ -52,3 +54,24 @@ def surfels_from_arrays(quats_raw: np.ndarray, scales: np.ndarray) -> tuple[np.n
     if scales.shape[1] == 3:
         return flatten_to_surfels(q, scales)
     return q, np.ascontiguousarray(scales, dtype=np.float32)
+
+
+def scene_from_rows(path, fmt: str, arrays: tuple[np.ndarray, ...], valid: np.ndarray,
+                    sh_degree: int, kind: str, extras: dict | None = None,
+                    invalid_what: str = "NaN/Inf values") -> SurfelScene:
+    """The scene of every decoder: drop the rows where ``valid`` is False, count them.
+
+    ``arrays`` = ``(means, quats, scales, opacities, sh)`` over all file rows, in file order.
+
+    Raises:
+        DivasInputError: no valid row is left.
+    """
+    total = len(valid)
+    kept = np.flatnonzero(valid)
+    n_bad = total - len(kept)
+    if len(kept) == 0:
+        raise DivasInputError(path, f"empty scene: all {total} rows hold {invalid_what}")
+    if n_bad:
+        arrays = tuple(a[kept] for a in arrays)
+    src = SourceInfo(path, fmt, total, kept.astype(np.int64), n_bad)
+    return SurfelScene(*arrays, sh_degree, kind, src, dict(extras or {}))

@@ -24,8 +24,8 @@ import plyfile
 
 from ..errors import DivasInputError
 from ..geometry import normalize_quats
-from ..scene import SourceInfo, SurfelScene, sh_coeff_count
-from .gaussians import sigmoid, surfels_from_arrays
+from ..scene import SurfelScene, sh_coeff_count
+from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
 
 __all__ = ["PlyLayout", "read_ply_header", "read_gaussian_ply", "write_surfel_ply", "surfel_rows",
            "write_ply_rows", "CHUNK_ROWS"]
@@ -198,14 +198,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
         q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, 1.0), np.where(ok[:, None], s_act, 1.0))
         means[sl], quats[sl], scales[sl], opac[sl], sh[sl], finite[sl] = m, q2, s2, sigmoid(o), c, ok
 
-    kept = np.flatnonzero(finite)
-    n_bad = total - len(kept)
-    if len(kept) == 0:
-        raise DivasInputError(path, f"empty scene: all {total} rows hold NaN/Inf values")
-    if n_bad:
-        means, quats, scales, opac, sh = (a[kept] for a in (means, quats, scales, opac, sh))
-    src = SourceInfo(path, "ply", total, kept.astype(np.int64), n_bad)
-    return SurfelScene(means, quats, scales, opac, sh, deg, kind, src)
+    return scene_from_rows(path, "ply", (means, quats, scales, opac, sh), finite, deg, kind)
 
 
 def write_surfel_ply(path: str | PathLike, scene: SurfelScene) -> None:

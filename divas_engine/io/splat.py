@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..scene import SH_C0, SourceInfo, SurfelScene
-from .gaussians import surfels_from_arrays
+from .gaussians import scene_from_rows, surfels_from_arrays
 
 __all__ = ["SPLAT_DTYPE", "read_splat", "write_splat_subset"]
 
@@ -82,15 +82,8 @@ def read_splat(path: str | PathLike) -> SurfelScene:
             opac[sl] = rgba[:, 3] / 255.0
             sh[sl, 0, :] = (rgba[:, :3] / 255.0 - 0.5) / SH_C0
             finite[sl] = ok
-    kept = np.flatnonzero(finite)
-    n_bad = total - len(kept)
-    if len(kept) == 0:
-        raise DivasInputError(path, f"empty scene: all {total} rows hold NaN/Inf values "
-                                    "or zero rotations")
-    if n_bad:
-        means, quats, scales, opac, sh = (a[kept] for a in (means, quats, scales, opac, sh))
-    src = SourceInfo(path, "splat", total, kept.astype(np.int64), n_bad)
-    return SurfelScene(means, quats, scales, opac, sh, 0, "3dgs", src)
+    return scene_from_rows(path, "splat", (means, quats, scales, opac, sh), finite, 0, "3dgs",
+                           invalid_what="NaN/Inf values or zero rotations")
 
 
 def write_splat_subset(source: SourceInfo, file_rows: np.ndarray,

@@ -60,7 +60,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..scene import SourceInfo, SurfelScene
-from .gaussians import surfels_from_arrays
+from .gaussians import scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS
 
 __all__ = ["read_spz", "write_spz_subset", "SPZ_MAGIC", "RUB_TO_RDF_SH_SIGNS"]
@@ -265,16 +265,8 @@ def read_spz(path: str | PathLike) -> SurfelScene:
             sh[sl, 1:, :] = ((rest.astype(np.float32) - 128.0) / 128.0
                              * RUB_TO_RDF_SH_SIGNS[:k - 1, None])
     ok = np.isfinite(means).all(1)  # every byte decodes finite; kept for the contract
-    kept = np.flatnonzero(ok)
-    n_bad = n - len(kept)
-    if len(kept) == 0:
-        raise DivasInputError(path, f"empty scene: all {n} rows hold NaN/Inf values")
-    arrays = (means, quats, scales, opac, sh)
-    if n_bad:
-        arrays = tuple(a[kept] for a in arrays)
-    src = SourceInfo(path, "spz", n, kept.astype(np.int64), n_bad)
     extras = {"spz_version": f.version, "antialiased": bool(f.flags & _FLAG_ANTIALIASED)}
-    return SurfelScene(*arrays, deg, "3dgs", src, extras)
+    return scene_from_rows(path, "spz", (means, quats, scales, opac, sh), ok, deg, "3dgs", extras)
 
 
 def write_spz_subset(source: SourceInfo, file_rows: np.ndarray,
