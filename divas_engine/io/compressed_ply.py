@@ -52,7 +52,7 @@ import plyfile
 
 from ..errors import DivasInputError
 from ..scene import SH_C0, SourceInfo, SurfelScene, sh_coeff_count
-from .gaussians import scene_from_rows, surfels_from_arrays
+from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS, PlyLayout, read_ply_header, write_ply_rows
 
 __all__ = ["is_compressed_ply", "read_compressed_ply", "write_compressed_ply_subset",
@@ -238,7 +238,7 @@ def decode_compressed_ply_rows(path: str | PathLike, rows: np.ndarray | None = N
     ``f_rest [n, 3(K-1)]`` (channel-major; zero columns without an ``sh`` element).
     """
     cl = _Layout(layout or read_ply_header(path))
-    rows = np.arange(cl.n) if rows is None else _check_rows(cl.path, rows, cl.n)
+    rows = np.arange(cl.n) if rows is None else check_file_rows(cl.path, rows, cl.n)
     ch = cl.read_chunks()
     out = _decode_fields(np.asarray(cl.vertex_memmap()[rows]), rows // SPLATS_PER_CHUNK, ch)
     shm = cl.sh_memmap()
@@ -291,16 +291,6 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
                            "3dgs")
 
 
-def _check_rows(path, file_rows: np.ndarray, n: int) -> np.ndarray:
-    rows = np.asarray(file_rows)
-    if rows.ndim != 1 or not (rows.dtype.kind in "iu" or rows.size == 0):
-        raise ValueError("file_rows must be a 1-D integer array")
-    rows = rows.astype(np.int64)
-    if rows.size and (rows.min() < 0 or rows.max() >= n):
-        raise ValueError(f"file_rows out of range for {path} ({n} rows)")
-    return rows
-
-
 def _chunk_bounds(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-256 min/max of ``v [n,3]``; the last chunk is padded with its last row."""
     n = len(v)
@@ -344,7 +334,7 @@ def write_compressed_ply_subset(source: SourceInfo, file_rows: np.ndarray,
     if not is_compressed_ply(layout):
         raise DivasInputError(path, "not a compressed PLY (no 'chunk' element / packed_position)")
     cl = _Layout(layout)
-    rows = _check_rows(path, file_rows, cl.n)
+    rows = check_file_rows(path, file_rows, cl.n)
     if rows.size == 0:
         raise ValueError("nothing to write: file_rows is empty")
     packed = np.asarray(cl.vertex_memmap()[rows])

@@ -12,7 +12,7 @@ from ..errors import DivasInputError
 from ..geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
 from ..scene import SourceInfo, SurfelScene
 
-__all__ = ["sigmoid", "flatten_to_surfels", "surfels_from_arrays", "scene_from_rows"]
+__all__ = ["sigmoid", "flatten_to_surfels", "surfels_from_arrays", "scene_from_rows", "check_file_rows"]
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
@@ -75,3 +75,18 @@ def scene_from_rows(path, fmt: str, arrays: tuple[np.ndarray, ...], valid: np.nd
         arrays = tuple(a[kept] for a in arrays)
     src = SourceInfo(path, fmt, total, kept.astype(np.int64), n_bad)
     return SurfelScene(*arrays, sh_degree, kind, src, dict(extras or {}))
+
+
+def check_file_rows(path, file_rows: np.ndarray, n: int) -> np.ndarray:
+    """``file_rows`` as an int64 array of indices into the ``n`` rows of ``path``.
+
+    Raises:
+        ValueError: not a 1-D integer array, or an index out of range.
+    """
+    rows = np.asarray(file_rows)
+    if rows.ndim != 1 or not (rows.dtype.kind in "iu" or rows.size == 0):
+        raise ValueError("file_rows must be a 1-D integer array")
+    rows = rows.astype(np.int64)
+    if rows.size and (rows.min() < 0 or rows.max() >= n):
+        raise ValueError(f"file_rows out of range for {path} ({n} rows)")
+    return rows

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..scene import SH_C0, SourceInfo, SurfelScene
-from .gaussians import scene_from_rows, surfels_from_arrays
+from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 
 __all__ = ["SPLAT_DTYPE", "read_splat", "write_splat_subset"]
 
@@ -91,14 +91,9 @@ def write_splat_subset(source: SourceInfo, file_rows: np.ndarray,
     """Copy the 32-byte records ``file_rows`` (in that order) of ``source`` to ``out_path``."""
     path = Path(source.path)
     total = _row_count(path)
-    rows = np.asarray(file_rows)
-    if rows.ndim != 1 or not (rows.dtype.kind in "iu" or rows.size == 0):
-        raise ValueError("file_rows must be a 1-D integer array")
-    rows = rows.astype(np.int64)
+    rows = check_file_rows(path, file_rows, total)
     if rows.size == 0:
         raise ValueError("nothing to write: file_rows is empty")
-    if rows.min() < 0 or rows.max() >= total:
-        raise ValueError(f"file_rows out of range for {path} ({total} rows)")
     mm = np.memmap(path, dtype=SPLAT_DTYPE, mode="r", shape=(total,))
     with open(out_path, "wb") as f:
         for start in range(0, len(rows), _BLOCK):

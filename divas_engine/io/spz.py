@@ -60,7 +60,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..scene import SourceInfo, SurfelScene
-from .gaussians import scene_from_rows, surfels_from_arrays
+from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS
 
 __all__ = ["read_spz", "write_spz_subset", "SPZ_MAGIC", "RUB_TO_RDF_SH_SIGNS"]
@@ -279,14 +279,9 @@ def write_spz_subset(source: SourceInfo, file_rows: np.ndarray,
     """
     path = Path(source.path)
     f = _parse(path)
-    rows = np.asarray(file_rows)
-    if rows.ndim != 1 or not (rows.dtype.kind in "iu" or rows.size == 0):
-        raise ValueError("file_rows must be a 1-D integer array")
-    rows = rows.astype(np.int64)
+    rows = check_file_rows(path, file_rows, f.n)
     if rows.size == 0:
         raise ValueError("nothing to write: file_rows is empty")
-    if rows.min() < 0 or rows.max() >= f.n:
-        raise ValueError(f"file_rows out of range for {path} ({f.n} rows)")
     m = len(rows)
     header = f.header[:8] + struct.pack("<I", m) + f.header[12:]
     cols = [np.ascontiguousarray(f.columns[name][rows]).tobytes() for name in _COLUMNS]
