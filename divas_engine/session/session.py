@@ -98,8 +98,24 @@ def _scene_fingerprint(scene: Scene) -> str:
 
 
 # ----------------------------------------------------------------------------- records
+class _RenderedOnDemand:
+    """``buffers``/``rgb`` of a view's ``camera``, rendered by its session on first use
+    (the dataclass provides ``camera``, ``_buffers`` and ``_session``)."""
+
+    @property
+    def buffers(self) -> RenderBuffers:
+        if self._buffers is None:
+            assert self._session is not None
+            self._buffers = self._session._render(self.camera)
+        return self._buffers
+
+    @property
+    def rgb(self) -> np.ndarray:
+        return self.buffers.rgb
+
+
 @dataclass(eq=False)
-class AnchorView:
+class AnchorView(_RenderedOnDemand):
     """An anchor offered to the user.
 
     Attributes:
@@ -115,18 +131,6 @@ class AnchorView:
     source_index: int
     _buffers: RenderBuffers | None = None
     _session: "Session | None" = None
-
-    @property
-    def buffers(self) -> RenderBuffers:
-        """The anchor render (rendered on first use)."""
-        if self._buffers is None:
-            assert self._session is not None
-            self._buffers = self._session._render(self.camera)
-        return self._buffers
-
-    @property
-    def rgb(self) -> np.ndarray:
-        return self.buffers.rgb
 
 
 @dataclass(eq=False)
@@ -180,7 +184,7 @@ class MaskPreview:
 
 
 @dataclass(eq=False)
-class SessionView:
+class SessionView(_RenderedOnDemand):
     """A centroid view of the session.
 
     Attributes:
@@ -220,17 +224,6 @@ class SessionView:
     def box(self) -> tuple[float, float, float, float] | None:
         """Strategy-1 box on the anchor view (2DGS), None otherwise."""
         return self.centroid.box
-
-    @property
-    def buffers(self) -> RenderBuffers:
-        if self._buffers is None:
-            assert self._session is not None
-            self._buffers = self._session._render(self.camera)
-        return self._buffers
-
-    @property
-    def rgb(self) -> np.ndarray:
-        return self.buffers.rgb
 
     def to_dict(self, mask_key: str | None) -> dict[str, Any]:
         c = self.centroid
