@@ -17,8 +17,11 @@ Choices where the paper is silent (also listed in ``divas_engine.fusion.gs_fusio
   every in-frame voxel (the behind gate needs them when m < 0.5 too);
 * a centre pixel without a surface (D_med < ε) cannot vote thick and does not
   fail the behind gate (there is no surface to be behind);
-* the thin per-pixel asymmetric gate uses the thick path's ``front`` predicate
-  ((layered ∨ see-through) ∧ trusted) with the pixel's own values;
+* the thin per-pixel asymmetric gate (eq:asym-gate) is one-sided on *layered*
+  pixels only — alg:gs-thin computes no see-through/trusted predicate and takes no
+  γ_ST or d_cam — so a far see-through background in the footprint is not depth
+  support and cannot dilute p_covered (eq:gs-coverage, "prevents … background …
+  from deflating the ratio");
 * a voxel with a corner at z ≤ ε (straddling the camera plane) skips the view.
 
 Precision: per-voxel geometry (centre, projection, footprint corners, pixel ray,
@@ -103,15 +106,14 @@ def gs_thin_score(v: ViewData, p: GsParams, xc: wp.vec3, xd: float, fp: wp.vec4i
                 continue
             ni = int(v.nsamp[py, px])
             tol = p.gamma * p.h / (1.0 + p.beta * wp.max(float(ni) - mean, 0.0))  # eq:tightening
-            fl = gs_flags(layered_exact(ni, sums), dd[0], dd[1], v.d_cam, p.gamma_st)
-            front = (fl[0] == 1 or fl[1] == 1) and fl[2] == 1
-            if gs_depth_ok(xd, dd[0], dd[1], front, tol):
+            layered = layered_exact(ni, sums)
+            if gs_depth_ok(xd, dd[0], dd[1], layered, tol):
                 n_depth += 1
                 m = v.mask[py, px]
                 if m > p.m_pos:
                     n_md += 1
                     m_max = wp.max(m_max, m)
-                    z = wp.where(fl[0] == 1, dd[0], dd[1])  # layered → front hit
+                    z = wp.where(layered, dd[0], dd[1])  # layered → front hit
                     q = unproject(v, px, py, z)
                     d2 = wp.min(d2, wp.length_sq(q - xc))  # eq:thin-d2min
     if n_depth < gs_n_min(int(sums[0]), p):

@@ -217,11 +217,9 @@ def _gs_thin(view, cfg, h, xc, xd, x0, y0, x1, y1, mean, n_img, s1, s2, mg, gidx
             n = n_img[qy, qx].astype(np.float64)
             tol = cfg.gamma * h / (1.0 + cfg.beta * np.maximum(n - mean[s], 0.0))
             layered = layered_exact(n_img[qy, qx], area_i[s], b1[s], b2[s])
-            seethru = dmed > cfg.gamma_st * view.d_cam
-            front = (layered | seethru) & (dmin <= dmed)
-            gap = np.where(front, xd[s] - dmin - tol, np.abs(xd[s] - dmed) - tol)
+            # alg:gs-thin: one-sided (eq:asym-gate) on layered pixels only
+            gap = np.where(layered, xd[s] - dmin - tol, np.abs(xd[s] - dmed) - tol)
             v_idx = gidx[s[valid]]
-            _note_sub(mg, v_idx, (dmed - cfg.gamma_st * view.d_cam)[valid], (dmed + view.d_cam)[valid])
             _note_sub(mg, v_idx, gap[valid], xd[s][valid])
             ok = valid & (gap <= 0)
             n_depth[s[ok]] += 1

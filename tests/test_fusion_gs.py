@@ -251,6 +251,27 @@ def test_thin_coverage_over_depth_support(early_out):
         assert gs_contrib(X0, H, _thin_view(cam, (0.0, 0.3), valid, mask=mask), cfg)[2] == kind
 
 
+@pytest.mark.parametrize("early_out", [True, False])
+def test_thin_gate_ignores_see_through_background(early_out):
+    """alg:gs-thin's per-pixel gate is one-sided only on *layered* pixels (the algorithm
+    has no γ_ST / d_cam input): a far see-through background behind a thin stem is not
+    depth support, so it cannot dilute p_covered (eq:gs-coverage)."""
+    cam = axis_camera()
+    cfg = replace(CFG, early_out=early_out)
+    h = 0.6  # footprint 17×17 = 289 px, n_min = ⌈0.1·289⌉ = 29
+    dmed = np.full((41, 41), 20.0, np.float32)   # background: 20 > γ_ST·d_cam = 6
+    mask = np.full((41, 41), 0.1, np.float32)
+    dmed[12:29, 18:21] = 4.0                      # a 3-px stem at the voxel's depth, 51 px
+    mask[12:29, 18:21] = 0.9
+    dmed[20, 20], mask[20, 20] = 20.0, 0.1        # the centre pixel misses it: thin path
+    v = const_view(cam, dmed, mask=mask)
+    num, den, kind = gs_contrib(X0, h, v, cfg)
+    assert kind == 2 and num == pytest.approx(0.9)   # n_depth = 50, p_covered = 1
+    # the reference agrees
+    r = ref.gs_view(X0[None], np.array([1.0]), h, v, cfg)
+    assert int(r[2][0]) == 2
+
+
 def test_thin_distance_gate():
     cam = axis_camera()
     cfg = replace(CFG, gamma=2.0)  # depth-consistent up to 2 h_v; the gate is 1.5 h_v

@@ -25,8 +25,10 @@ Decisions on points the paper leaves open (see also the kernel docstring):
 5. layered / see-through / trusted are computed for every in-frame voxel; a centre
    pixel without surface (D_med < ε) cannot vote thick and passes the behind gate.
 6. Missing D_min or D_max (< ε) at a pixel falls back to D_med.
-7. The thin per-pixel gate uses ``front = (layered ∨ see-through) ∧ trusted`` of
-   that pixel (as the thick path); unprojection uses D_min iff the pixel is layered.
+7. The thin per-pixel gate is one-sided (against D_min) iff that pixel is layered,
+   two-sided against D_med otherwise — alg:gs-thin has no see-through input, and a
+   one-sided gate on see-through background would let the background dilute
+   p_covered; unprojection uses D_min iff the pixel is layered.
 8. ⌈ρ_occ A_B⌉ is taken with a 1e-4 slack (0.1·30 → 3, not 4).
 9. π_dg (App. D, NOTES): relative central differences of ½(D_min+D_max),
    edge-replicated at the image border; a surface-less pixel has π_dg = 0 and reads
