@@ -314,12 +314,60 @@ def _engine_inputs(context, obj, settings: StartSettings):
     return scene, cameras, gt, seg, device
 
 
+def _make_anchor_camera(context, obj, live: LiveSession, i: int, *, with_selection: bool):
+    a = live.session.anchors[i]
+    cam = _new_camera(context, obj, a.camera, f"{obj.name} Anchor {i:02d}", live.session)
+    cam[ANCHOR_PROP] = i
+    live.anchor_cameras.append(cam.name)
+    overlays.set_background(cam, _anchor_image(live, i, with_selection=with_selection))
+    return cam
+
+
 def _make_anchor_cameras(context, obj, live: LiveSession) -> None:
-    for i, a in enumerate(live.session.anchors):
-        cam = _new_camera(context, obj, a.camera, f"{obj.name} Anchor {i:02d}", live.session)
-        cam[ANCHOR_PROP] = i
-        live.anchor_cameras.append(cam.name)
-        overlays.set_background(cam, _anchor_image(live, i, with_selection=False))
+    for i in range(len(live.session.anchors)):
+        _make_anchor_camera(context, obj, live, i, with_selection=False)
+
+
+def scene_camera_of(obj, cam_obj, scene) -> "Camera":
+    """The engine camera of Blender camera ``cam_obj`` in ``obj``'s scene frame (the
+    session's): ``obj.matrix_world⁻¹ @ cam.matrix_world`` — the anchor cameras are
+    parented to ``obj``, training cameras usually are not."""
+    from dataclasses import replace
+
+    from divas_engine.blender_convention import camera_from_blender
+
+    from .camera_objects import blender_params
+
+    ow = np.array(obj.matrix_world, np.float64)
+    g = ow[:3, :3].T @ ow[:3, :3]  # s²·I for a rotation with uniform scale s
+    if not np.allclose(g, np.eye(3) * np.trace(g) / 3.0, rtol=0, atol=1e-5 * np.trace(g)):
+        raise DivasInputError(None, f"{obj.name!r} has a non-uniform scale or shear: apply "
+                                    "its scale (Ctrl+A) before adding a camera as an anchor")
+    p = blender_params(scene, cam_obj)
+    return camera_from_blender(replace(p, matrix_world=np.linalg.inv(ow) @ p.matrix_world))
+
+
+def add_anchor(context, obj, live: LiveSession, cam_obj) -> int:
+    """Manual anchor selection: ``cam_obj`` (a training camera, or any camera the user
+    placed, e.g. aligned to the viewport with Ctrl+Alt+Numpad 0) becomes the session's
+    next anchor, with its own anchor camera; returns its index."""
+    if cam_obj is None or cam_obj.type != "CAMERA":
+        raise DivasInputError(None, "select a camera object to add as an anchor")
+    if cam_obj.name in live.anchor_cameras or cam_obj.name in live.view_cameras.values():
+        raise DivasInputError(None, f"{cam_obj.name!r} is already one of this session's "
+                                    "anchor or view cameras")
+    coll = bpy.data.collections.get("DivAS Cameras")
+    training = [o.name for o in coll.objects if o.type == "CAMERA"] if coll else []
+    source_name, index = (("training", training.index(cam_obj.name))
+                          if cam_obj.name in training else ("camera", -1))
+    t0 = time.perf_counter()
+    cam = scene_camera_of(obj, cam_obj, context.scene)
+    a = live.session.add_anchor(cam, source_name, index)
+    _make_anchor_camera(context, obj, live, a.index, with_selection=True)
+    _show_anchor(context, live, a.index)
+    live.record({"what": f"anchor {a.index} from {cam_obj.name}",
+                 "update_s": time.perf_counter() - t0})
+    return a.index
 
 
 def start(context, obj, settings: StartSettings) -> LiveSession:

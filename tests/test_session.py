@@ -105,6 +105,33 @@ def test_click_accept_undo_reset_save_replay(ribs, tmp_path):
     s.close()
 
 
+def test_manual_anchor_is_clicked_saved_and_replayed(ribs, tmp_path):
+    """Manual anchor selection: a training camera added after opening is an anchor like
+    the planned ones — clickable, autosaved with the session and replayed."""
+    sc, scene, anchors, clicks, _ = ribs
+    auto = tmp_path / "session.json"
+    s = _open(ribs, autosave=str(auto))
+    names = [c.name for c in sc.cameras]
+    cam = anchors[3]
+    a = s.add_anchor(cam, "training", names.index(cam.name))
+    assert a.index == 4 and len(s.anchors) == 5 and a.full_camera is cam
+    assert a.camera.width == round(cam.width * SCALE)
+    assert auto.exists()  # adding an anchor is user work: autosaved at once
+    v = s.click(4, _click_xy(s, 4, clicks[3]))
+    assert v.anchor == 4
+    s.accept(v)
+    sel = s.selection.copy()
+    assert sel.any()
+    s2 = Session.load(auto, scene, device="cpu")
+    assert len(s2.anchors) == 5 and s2.anchors[4].source == "training"
+    assert s2.anchors[4].source_index == names.index(cam.name)
+    assert s2.replay_matches and np.array_equal(s2.selection, sel)
+    with pytest.raises(TypeError, match="Camera"):
+        s.add_anchor("IMG_0001")
+    s.close()
+    s2.close()
+
+
 def test_multi_object_labels_and_labelled_ply(ribs, tmp_path):
     sc, scene, anchors, clicks, out = ribs
     s = _open(ribs)

@@ -16,8 +16,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from .. import session_registry, source
-from ..session_actions import (accept, autosave_path, click, finish_object, full_to_session_xy,
-                               report_exception, reset, resume, sync, undo)
+from ..session_actions import (accept, add_anchor, autosave_path, click, finish_object,
+                               full_to_session_xy, report_exception, reset, resume, sync, undo)
 from .start_session import DEVICE_ITEMS, SEGMENTER_ITEMS, start_settings
 
 
@@ -87,6 +87,35 @@ class DIVAS_OT_session_click(_SessionOperator, bpy.types.Operator):
             return report_exception(self, e)
         what = f"spawned view {res.id}" if self.positive else "negative prompt recorded"
         self.report({"INFO"}, f"Anchor {self.anchor}: {what}")
+        return {"FINISHED"}
+
+
+class DIVAS_OT_session_add_anchor(_SessionOperator, bpy.types.Operator):
+    """Add a camera as one more anchor (manual anchor selection): a training camera, or one
+    you aligned to the viewport, when the offered anchors do not show the whole target"""
+
+    bl_idname = "divas.session_add_anchor"
+    bl_label = "Add Camera as Anchor"
+    bl_options = {"REGISTER"}
+
+    camera: StringProperty(name="Camera", default="",
+                           description="Camera object (default: the active object when it is "
+                                       "a camera, else the scene camera)")
+
+    def execute(self, context):
+        obj, live = _live(context)
+        try:
+            if self.camera:
+                cam = bpy.data.objects.get(self.camera)
+                if cam is None:
+                    raise ValueError(f"no object named {self.camera!r}")
+            else:
+                act = context.active_object
+                cam = act if act is not None and act.type == "CAMERA" else context.scene.camera
+            i = add_anchor(context, obj, live, cam)
+        except Exception as e:  # noqa: BLE001
+            return report_exception(self, e)
+        self.report({"INFO"}, f"{cam.name} added as anchor {i}: click the target on it")
         return {"FINISHED"}
 
 
@@ -245,6 +274,6 @@ class DIVAS_OT_resume_session(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (DIVAS_OT_session_click, DIVAS_OT_session_accept, DIVAS_OT_session_sync,
-           DIVAS_OT_session_undo, DIVAS_OT_session_reset, DIVAS_OT_session_finish_object,
-           DIVAS_OT_resume_session)
+CLASSES = (DIVAS_OT_session_click, DIVAS_OT_session_add_anchor, DIVAS_OT_session_accept,
+           DIVAS_OT_session_sync, DIVAS_OT_session_undo, DIVAS_OT_session_reset,
+           DIVAS_OT_session_finish_object, DIVAS_OT_resume_session)

@@ -85,6 +85,7 @@ def _draw_session(layout, live) -> None:
     row = col.row(align=True)
     row.operator("divas.session_accept", text="Accept", icon="CHECKMARK")
     row.operator("divas.session_undo", text="Undo", icon="LOOP_BACK")
+    col.operator("divas.session_add_anchor", icon="OUTLINER_OB_CAMERA")
     row = col.row(align=True)
     row.operator("divas.session_reset", text="Reset", icon="X")
     row.operator("divas.session_finish_object", text="Finish Object", icon="FORWARD")

@@ -529,6 +529,30 @@ class Session:
         return out
 
     # ------------------------------------------------------------------ clicks and prompts
+    def add_anchor(self, camera: Camera, source: str = "camera", index: int = -1
+                   ) -> AnchorView:
+        """Offer one more anchor — manual anchor selection (paper Sec. 1 and the
+        limitations: when the Fibonacci views do not expose an off-centre or occluded
+        target, the user picks a training camera or the current viewport).
+
+        Args:
+            camera: full-resolution camera (OpenCV convention); rendered at the session's
+                ``render_scale`` on first use.
+            source: ``"training"``, ``"viewport"`` or ``"camera"`` (free-form label kept
+                in the saved session); index: e.g. the training-camera index.
+
+        Returns the new :class:`AnchorView` (its ``index`` is the position to click).
+        The anchor list is part of the saved session, so a replay sees it too.
+        """
+        if not isinstance(camera, Camera):
+            raise TypeError(f"add_anchor: expected a Camera, got {type(camera).__name__}")
+        s = self.config.render_scale
+        a = AnchorView(len(self.anchors), camera if s == 1.0 else camera.scaled(s), camera,
+                       str(source), int(index), None, self)
+        self.anchors.append(a)
+        self._autosave()
+        return a
+
     def _anchor(self, i: int) -> AnchorView:
         if not 0 <= int(i) < len(self.anchors):
             raise DivasInputError(None, f"anchor {i} does not exist ({len(self.anchors)} anchors)")

@@ -303,7 +303,7 @@ def test_panel_draws_session(scene_dir):
     ops = {v for k, v in log if k == "operator"}
     assert {"divas.start_session", "divas.segment_modal", "divas.session_accept",
             "divas.session_undo", "divas.session_reset", "divas.session_finish_object",
-            "divas.extract_selection", "divas.export_selection", "divas.resume_session"} <= ops
+            "divas.session_add_anchor", "divas.extract_selection", "divas.export_selection", "divas.resume_session"} <= ops
     props = {v for k, v in log if k == "prop"}
     assert {"device", "segmenter", "preset", "see_through_gap", "surfel_coverage",
             "gamma"} <= props
@@ -324,3 +324,61 @@ def test_restart_replaces_the_session_and_its_cameras(scene_dir):
     assert session_registry.all_sessions() == [new]
     assert sorted(o.name for o in coll.objects) == sorted(new.anchor_cameras)
     assert not any(i.name.startswith(f"DivAS {obj.name} View") for i in bpy.data.images)
+
+
+def test_add_camera_as_anchor(scene_dir):
+    """Manual anchor selection: a training camera (and a free camera of a moved object)
+    becomes an anchor in the session's scene frame, with its own anchor camera."""
+    out, sc = scene_dir
+    obj, live = _oracle(scene_dir)
+    s = live.session
+    n0 = len(s.anchors)
+    assert bpy.ops.divas.import_cameras(filepath=str(out / "cameras.json")) == {"FINISHED"}
+    train = [o for o in bpy.data.collections["DivAS Cameras"].objects if o.type == "CAMERA"]
+    k = len(train) // 2
+    assert bpy.ops.divas.session_add_anchor(camera=train[k].name) == {"FINISHED"}
+    a = s.anchors[n0]
+    assert (a.source, a.source_index) == ("training", k)
+    ref_cam = next(c for c in sc.cameras if c.name == train[k].name)
+    np.testing.assert_allclose(a.full_camera.c2w, ref_cam.c2w, atol=1e-5)
+    assert (a.full_camera.width, a.full_camera.height) == (ref_cam.width, ref_cam.height)
+    assert a.full_camera.fx == pytest.approx(ref_cam.fx, rel=1e-5)
+    cam = bpy.data.objects[live.anchor_cameras[n0]]
+    assert cam[ANCHOR_PROP] == n0 and cam.parent == obj and bpy.context.scene.camera == cam
+    assert _projection_error(bpy.context.scene, cam, a.camera, np.random.default_rng(1)) < 0.5
+    # the new anchor is clickable like the planned ones
+    sel0 = s.selection.copy()
+    assert bpy.ops.divas.session_click(anchor=n0, xy="%r %r" % _click_xy(live, n0, sc)) == {"FINISHED"}
+    assert bpy.ops.divas.session_accept() == {"FINISHED"}
+    assert s.views[-1].anchor == n0 and s.selection.sum() > sel0.sum()
+    # a moved object: a free world-space camera is converted into the scene frame
+    obj.location = (0.3, -0.2, 0.5)
+    obj.rotation_euler = (0.1, 0.2, 0.3)
+    bpy.context.view_layer.update()
+    cam0 = bpy.data.objects[live.anchor_cameras[0]]
+    free = cam0.copy()
+    free.data = cam0.data.copy()
+    for key in list(free.keys()):
+        del free[key]
+    free.parent = None
+    bpy.context.scene.collection.objects.link(free)
+    free.matrix_world = cam0.matrix_world.copy()
+    apply_render_settings(bpy.context.scene, cam0)  # the scene's render size = anchor 0's
+    bpy.context.view_layer.update()
+    assert bpy.ops.divas.session_add_anchor(camera=free.name) == {"FINISHED"}
+    b = s.anchors[-1]
+    assert b.source == "camera" and b.source_index == -1
+    np.testing.assert_allclose(b.full_camera.c2w, s.anchors[0].camera.c2w, atol=1e-5)
+    assert b.full_camera.fx == pytest.approx(s.anchors[0].camera.fx, rel=1e-5)
+    # errors are one-line reports
+    n = len(s.anchors)
+    with pytest.raises(RuntimeError, match="select a camera object") as e:
+        bpy.ops.divas.session_add_anchor(camera=obj.name)
+    assert "Traceback" not in str(e.value)
+    with pytest.raises(RuntimeError, match="already one of this session's anchor"):
+        bpy.ops.divas.session_add_anchor(camera=cam.name)
+    obj.scale = (1.0, 2.0, 1.0)
+    bpy.context.view_layer.update()
+    with pytest.raises(RuntimeError, match="non-uniform scale"):
+        bpy.ops.divas.session_add_anchor(camera=train[0].name)
+    assert len(s.anchors) == n
