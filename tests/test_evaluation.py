@@ -460,6 +460,37 @@ def test_scripted_user_stops_at_the_view_budget(user_scene):
         s.close()
 
 
+def test_scripted_user_adds_training_cameras_as_manual_anchors():
+    """Plant: c_scene lies on the floor, below the plant, so most Fibonacci anchors miss
+    it; with ``manual_anchors`` the user adds training cameras showing uncovered target
+    (never a test camera) and the selection's recall grows."""
+    from divas_engine.evaluation.metrics import surfel_scores
+    from divas_engine.evaluation.scripted_user import UserBudget
+    from divas_engine.synthetic import generate_scene
+
+    sc = generate_scene("plant", size=6000, seed=0)
+    recall = []
+    for n in (0, 3):
+        s, user, rec, checked = _user_session(sc, UserBudget(manual_anchors=n))
+        try:
+            n_plan = len(s.anchors)
+            log = user.run(s)
+            assert len(log.manual) <= n and len(s.anchors) == n_plan + len(log.manual)
+            for a, i in zip(s.anchors[n_plan:], log.manual):
+                assert (a.source, a.source_index) == ("training", i)
+                assert a.full_camera is sc.cameras[i]
+            assert len(set(log.manual)) == len(log.manual)
+            assert all(t and not c for _, t, c in checked), checked
+            test_poses = [t.c2w for t in sc.test_cameras]
+            assert not any(np.allclose(c.c2w, t) for c in rec.cameras for t in test_poses)
+            recall.append(surfel_scores(s.selection, sc.labels)["recall"])
+            if n:
+                assert log.manual and any(c.anchor >= n_plan for c in log.clicks)
+        finally:
+            s.close()
+    assert recall[1] > recall[0]
+
+
 def test_run_session_user_protocol_feeds_the_accepted_masks(user_scene):
     from divas_engine.evaluation.pipeline import make_segmenter, run_session
     from divas_engine.evaluation.scripted_user import ScriptedUser

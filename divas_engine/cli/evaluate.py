@@ -70,6 +70,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="simulated user: clicks per anchor (default 3)")
     p.add_argument("--max-views", type=int, default=None,
                    help="simulated user: centroid views per session (default 20)")
+    p.add_argument("--manual-anchors", type=int, default=None,
+                   help="simulated user: training cameras it may add as manual anchors after "
+                        "the plan's anchors (paper: manual anchor selection; default 0)")
     p.add_argument("--eval-scale", type=float, default=1.0,
                    help="render the test cameras at this fraction of their size (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
@@ -104,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
         ub = UserBudget(
             clicks_per_anchor=ub.clicks_per_anchor if args.clicks_per_anchor is None
             else int(args.clicks_per_anchor),
-            max_views=ub.max_views if args.max_views is None else int(args.max_views))
+            max_views=ub.max_views if args.max_views is None else int(args.max_views),
+            manual_anchors=ub.manual_anchors if args.manual_anchors is None
+            else int(args.manual_anchors))
     except ValueError as e:
         raise DivasInputError(None, str(e)) from None
     cfg = SuiteConfig(protocol=args.protocol, user=ub, scenes=tuple(args.scenes),

@@ -33,6 +33,14 @@ The anchors are the plan's offered ones (top-K), then — ``more_anchors`` — i
 supported Fibonacci candidates in ranking order (what the user sees on asking for all
 Fibonacci views), visited while the view budget lasts.
 
+Manual anchors (``manual_anchors`` > 0; paper Sec. 1 and limitations: "the GUI exposes
+manual anchor selection" for targets the Fibonacci views do not expose): once the plan's
+anchors are done, the user browses the *training* cameras as thumbnails
+(``browse_scale``), opens the one whose thumbnail shows the largest uncovered target
+region, and — when it shows one at working resolution too — adds it as an anchor
+(:meth:`Session.add_anchor`) and works it like the others; up to ``manual_anchors``
+times. The test cameras are never among them.
+
 The session stops at ``max_views`` centroid views in total (App. "Bounded view
 processing": 5–10 views for LLFF-like scenes, 8–20 for Mip-360 ones; the default 20 is
 the upper end) or when every anchor is complete.
@@ -70,6 +78,10 @@ class UserBudget:
         more_anchors: after the plan's offered anchors, go on with its other supported
             Fibonacci candidates in ranking order (Sec. 3.2's "all Fibonacci views"),
             while the view budget lasts, True.
+        manual_anchors: training cameras the user may add as manual anchors afterwards
+            (module docstring), 0 (off: the paper's automatic anchors only).
+        browse_scale: the training cameras are browsed at this fraction of their size,
+            0.25.
     """
 
     clicks_per_anchor: int = 3
@@ -78,10 +90,16 @@ class UserBudget:
     target_threshold: float = 0.5
     negative_clicks: bool = True
     more_anchors: bool = True
+    manual_anchors: int = 0
+    browse_scale: float = 0.25
 
     def __post_init__(self) -> None:
         if self.clicks_per_anchor < 1 or self.max_views < 1:
             raise ValueError("UserBudget: clicks_per_anchor and max_views must be ≥ 1")
+        if self.manual_anchors < 0:
+            raise ValueError(f"UserBudget.manual_anchors must be ≥ 0, got {self.manual_anchors}")
+        if not 0.0 < self.browse_scale <= 1.0:
+            raise ValueError(f"UserBudget.browse_scale must be in (0, 1], got {self.browse_scale}")
         if not 0.0 <= self.min_region_frac < 1.0:
             raise ValueError(f"UserBudget.min_region_frac must be in [0, 1), "
                              f"got {self.min_region_frac}")
@@ -125,6 +143,7 @@ class UserLog:
         uncovered_after: per anchor, uncovered target pixels at the last look (−1: not
             visited).
         looked_at: names of every camera the user looked at (anchors, centroid views).
+        manual: training-camera indices added as manual anchors, in order.
         stop: ``"complete"`` (every anchor complete), ``"budget"`` (view budget spent)
             or ``"clicks"`` (some anchor's click budget spent, the rest complete).
     """
@@ -133,6 +152,7 @@ class UserLog:
     anchor_status: list[str] = field(default_factory=list)
     uncovered_after: list[int] = field(default_factory=list)
     looked_at: list[str] = field(default_factory=list)
+    manual: list[int] = field(default_factory=list)
     stop: str = ""
 
     @property
@@ -144,6 +164,7 @@ class UserLog:
         return {"clicks": [asdict(c) for c in self.clicks],
                 "anchor_status": self.anchor_status, "complete": self.complete,
                 "uncovered_after": self.uncovered_after, "stop": self.stop,
+                "manual_anchors": list(self.manual),
                 "views": len(self.clicks),
                 "negatives": sum(len(c.negatives) for c in self.clicks),
                 "negatives_kept": sum(c.negative_kept for c in self.clicks)}
@@ -200,6 +221,7 @@ class ScriptedUser:
     def __init__(self, gt_values: np.ndarray, budget: UserBudget | None = None) -> None:
         self.gt_values = np.asarray(gt_values, np.float32)
         self.budget = budget or UserBudget()
+        self._thumbs: dict[tuple, np.ndarray] = {}  # training-camera thumbnail targets
 
     # -------------------------------------------------------------- what the user sees
     def target(self, session, camera, log: UserLog | None = None) -> np.ndarray:
@@ -233,53 +255,106 @@ class ScriptedUser:
         return out
 
     def run(self, session) -> UserLog:
-        """Drive ``session`` (freshly opened, current object empty) over its anchors."""
+        """Drive ``session`` (freshly opened, current object empty) over its anchors, then
+        (``manual_anchors``) over training cameras it adds as manual anchors."""
         b = self.budget
         log = UserLog()
         n_views = 0
-        for ai, anchor in enumerate(session.anchors):
-            if n_views >= b.max_views:
-                log.anchor_status.append("not visited")
-                log.uncovered_after.append(-1)
-                continue
-            cam = anchor.camera
-            min_area = max(1, int(round(b.min_region_frac * cam.width * cam.height)))
-            tried: list[tuple[int, int]] = []
-            status, uncovered = "clicks", 0
-            while True:
-                tgt = self.target(session, cam, log)
-                cov = self.overlay_mask(session, cam)
-                uncovered = int(np.count_nonzero(tgt & ~cov))
-                regions = uncovered_regions(tgt, cov, min_area)
-                if not regions:
-                    status = "complete"
-                    break
-                if n_views >= b.max_views:
-                    status = "budget"
-                    break
-                if len(tried) >= b.clicks_per_anchor:
-                    break
-                # a region an earlier click of this anchor did not cover is clicked again
-                # away from that click (its centroid view would be the same one)
-                xy = region_centre(regions[0], avoid=tried)
-                tried.append((int(xy[0]), int(xy[1])))
-                click = UserClick(ai, xy, int(regions[0].sum()), uncovered,
-                                  int(np.count_nonzero(tgt)))
-                log.clicks.append(click)
-                try:
-                    view = session.click(ai, xy)
-                except DivasInputError:
-                    click.status = "no surface"
-                    continue
-                n_views += 1
-                click.view_id = view.id
-                self._accept(session, view, click, log)
-            log.anchor_status.append(status)
-            log.uncovered_after.append(uncovered)
+        for ai in range(len(session.anchors)):
+            n_views = self._visit(session, ai, log, n_views)
+        seen: set[int] = set()
+        while len(log.manual) < b.manual_anchors and n_views < b.max_views:
+            pick = self._browse(session, seen, log)
+            if pick is None:
+                break
+            a = session.add_anchor(session.cameras[pick], "training", pick)
+            log.manual.append(pick)
+            n_views = self._visit(session, a.index, log, n_views)
         st = log.anchor_status
         log.stop = ("budget" if "budget" in st or "not visited" in st else
                     "complete" if all(x == "complete" for x in st) else "clicks")
         return log
+
+    def _visit(self, session, ai: int, log: UserLog, n_views: int) -> int:
+        """Steps 1–5 on anchor ``ai``; returns the session's centroid-view count."""
+        b = self.budget
+        if n_views >= b.max_views:
+            log.anchor_status.append("not visited")
+            log.uncovered_after.append(-1)
+            return n_views
+        cam = session.anchors[ai].camera
+        min_area = self._min_area(cam)
+        tried: list[tuple[int, int]] = []
+        status, uncovered = "clicks", 0
+        while True:
+            tgt = self.target(session, cam, log)
+            cov = self.overlay_mask(session, cam)
+            uncovered = int(np.count_nonzero(tgt & ~cov))
+            regions = uncovered_regions(tgt, cov, min_area)
+            if not regions:
+                status = "complete"
+                break
+            if n_views >= b.max_views:
+                status = "budget"
+                break
+            if len(tried) >= b.clicks_per_anchor:
+                break
+            # a region an earlier click of this anchor did not cover is clicked again
+            # away from that click (its centroid view would be the same one)
+            xy = region_centre(regions[0], avoid=tried)
+            tried.append((int(xy[0]), int(xy[1])))
+            click = UserClick(ai, xy, int(regions[0].sum()), uncovered,
+                              int(np.count_nonzero(tgt)))
+            log.clicks.append(click)
+            try:
+                view = session.click(ai, xy)
+            except DivasInputError:
+                click.status = "no surface"
+                continue
+            n_views += 1
+            click.view_id = view.id
+            self._accept(session, view, click, log)
+        log.anchor_status.append(status)
+        log.uncovered_after.append(uncovered)
+        return n_views
+
+    def _min_area(self, cam) -> int:
+        return max(1, int(round(self.budget.min_region_frac * cam.width * cam.height)))
+
+    def _browse(self, session, seen: set[int], log: UserLog) -> int | None:
+        """The training camera to add as the next manual anchor, or None: thumbnails
+        ranked by their largest uncovered target region; the best one that still shows
+        a region of the minimum area at working resolution wins (every camera opened
+        is marked ``seen`` and not offered again)."""
+        ranked = []
+        ind = session.indicator()
+        thr = np.float32(session.config.overlay_threshold)
+        for i, full in enumerate(session.cameras):
+            if i in seen:
+                continue
+            thumb = full.scaled(self.budget.browse_scale)
+            tgt = self._thumb_target(session, i, thumb)
+            if not tgt.any():
+                continue
+            cov = session.renderer.render_values(thumb, ind) >= thr
+            regions = uncovered_regions(tgt, cov, self._min_area(thumb))
+            if regions:
+                ranked.append((-int(regions[0].sum()), i))
+        for _, i in sorted(ranked):
+            seen.add(i)
+            cam = session.working_camera(session.cameras[i])
+            if uncovered_regions(self.target(session, cam, log), self.overlay_mask(session, cam),
+                                 self._min_area(cam)):
+                return i
+        return None
+
+    def _thumb_target(self, session, i: int, thumb) -> np.ndarray:
+        """The user's target on training-camera thumbnail ``i`` (cached: it never changes)."""
+        key = (id(session.renderer), i, thumb.width, thumb.height)
+        if key not in self._thumbs:
+            self._thumbs[key] = session.renderer.render_values(thumb, self.gt_values) \
+                >= np.float32(self.budget.target_threshold)
+        return self._thumbs[key]
 
     def _accept(self, session, view, click: UserClick, log: UserLog) -> None:
         b = self.budget

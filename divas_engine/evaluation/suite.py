@@ -189,6 +189,7 @@ def _user_extra(out) -> dict:
     return {"user": {"stop": d["stop"], "anchor_status": d["anchor_status"],
                      "uncovered_after": d["uncovered_after"], "negatives": d["negatives"],
                      "negatives_kept": d["negatives_kept"],
+                     "manual_anchors": d["manual_anchors"],
                      "clicks": [(c["anchor"], round(c["xy"][0], 1), round(c["xy"][1], 1),
                                  c["region_px"], c["status"]) for c in d["clicks"]],
                      "anchors": out.anchors}}
@@ -201,7 +202,7 @@ def _user_note(out) -> str:
     st = lg.anchor_status
     return (f"; user: {len(lg.clicks)} clicks, stop {lg.stop}, anchors complete "
             f"{st.count('complete')}/{len(st) - st.count('not visited')} visited "
-            f"of {len(st)}")
+            f"of {len(st)}" + (f", manual anchors {lg.manual}" if lg.manual else ""))
 
 
 def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict]:
@@ -315,8 +316,10 @@ def markdown_table(result: dict[str, Any]) -> str:
             f"clicks per anchor, ≤ {u.get('max_views')} views, regions ≥ "
             f"{100 * u.get('min_region_frac', 0):.1f} % of the view, negative clicks "
             f"{'on' if u.get('negative_clicks') else 'off'}, "
-            + ("then the other supported Fibonacci anchors)" if u.get("more_anchors")
-               else "offered anchors only)"))]
+            + ("then the other supported Fibonacci anchors" if u.get("more_anchors")
+               else "offered anchors only")
+            + (f", then ≤ {u['manual_anchors']} training cameras as manual anchors)"
+               if u.get("manual_anchors") else ")"))]
     t = result.get("targets") or {}
     if t:
         lines += ["", "Targets (oracle): mean DivAS-full IoU "
