@@ -43,12 +43,16 @@ class GridImportSettings:
     display: bool = True
 
 
+#: Collection the training cameras are imported into (and looked up from).
+TRAINING_CAMERAS = "DivAS Cameras"
+
+
 @dataclass(frozen=True)
 class CameraImportSettings:
     """``filepath``: cameras.json, transforms.json, a COLMAP model file or folder."""
 
     filepath: Path
-    collection_name: str = "DivAS Cameras"
+    collection_name: str = TRAINING_CAMERAS
 
 
 def _object_name(path: Path) -> str:

@@ -27,12 +27,14 @@ import sys
 import tempfile
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import bpy
 import numpy as np
 
+from divas_engine.blender_convention import camera_from_blender
+from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.io.cameras import load_cameras
 from divas_engine.point_attributes import INDEX, SELECTED
@@ -41,7 +43,9 @@ from divas_engine.session import Session, SessionConfig, SessionView, anchor_pla
 from divas_engine.session.prompts import resolve_anchors
 
 from . import bridge, overlays, session_registry, source
-from .camera_objects import apply_render_settings, create_camera_object, engine_camera
+from .camera_objects import (apply_render_settings, blender_params, create_camera_object,
+                             engine_camera)
+from .importers import TRAINING_CAMERAS
 from .modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP, Target, target_from_props
 from .reporting import USER_ERRORS
 from .session_registry import LiveSession
@@ -270,10 +274,13 @@ def _training_cameras(context, ref: source.SourceRef, path: Path | None):
         path = ref.path.parent / "cameras.json"
     if path is not None:
         return load_cameras(path)
-    coll = bpy.data.collections.get("DivAS Cameras")
-    if coll is None:
-        return []
-    return [engine_camera(context.scene, o) for o in coll.objects if o.type == "CAMERA"]
+    return [engine_camera(context.scene, o) for o in _training_camera_objects()]
+
+
+def _training_camera_objects() -> list:
+    """The camera objects of the training-camera collection, in its order."""
+    coll = bpy.data.collections.get(TRAINING_CAMERAS)
+    return [] if coll is None else [o for o in coll.objects if o.type == "CAMERA"]
 
 
 def _check_segmenter(settings: StartSettings) -> None:
@@ -328,16 +335,10 @@ def _make_anchor_cameras(context, obj, live: LiveSession) -> None:
         _make_anchor_camera(context, obj, live, i, with_selection=False)
 
 
-def scene_camera_of(obj, cam_obj, scene) -> "Camera":
+def scene_camera_of(obj, cam_obj, scene) -> Camera:
     """The engine camera of Blender camera ``cam_obj`` in ``obj``'s scene frame (the
     session's): ``obj.matrix_world⁻¹ @ cam.matrix_world`` — the anchor cameras are
     parented to ``obj``, training cameras usually are not."""
-    from dataclasses import replace
-
-    from divas_engine.blender_convention import camera_from_blender
-
-    from .camera_objects import blender_params
-
     ow = np.array(obj.matrix_world, np.float64)
     g = ow[:3, :3].T @ ow[:3, :3]  # s²·I for a rotation with uniform scale s
     if not np.allclose(g, np.eye(3) * np.trace(g) / 3.0, rtol=0, atol=1e-5 * np.trace(g)):
@@ -356,8 +357,7 @@ def add_anchor(context, obj, live: LiveSession, cam_obj) -> int:
     if cam_obj.name in live.anchor_cameras or cam_obj.name in live.view_cameras.values():
         raise DivasInputError(None, f"{cam_obj.name!r} is already one of this session's "
                                     "anchor or view cameras")
-    coll = bpy.data.collections.get("DivAS Cameras")
-    training = [o.name for o in coll.objects if o.type == "CAMERA"] if coll else []
+    training = [o.name for o in _training_camera_objects()]
     source_name, index = (("training", training.index(cam_obj.name))
                           if cam_obj.name in training else ("camera", -1))
     t0 = time.perf_counter()

@@ -362,9 +362,7 @@ class ScriptedUser:
         if b.negative_clicks and prev.selection.accepted:
             tgt = self.target(session, view.camera, log)
             mask = np.asarray(prev.selection.mask) >= 0.5
-            cam = view.camera
-            fp = uncovered_regions(mask, tgt, max(1, int(round(b.min_region_frac
-                                                               * cam.width * cam.height))))
+            fp = uncovered_regions(mask, tgt, self._min_area(view.camera))
             if fp:
                 nxy = region_centre(fp[0])
                 click.negatives.append(nxy)

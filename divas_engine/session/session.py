@@ -546,9 +546,8 @@ class Session:
         """
         if not isinstance(camera, Camera):
             raise TypeError(f"add_anchor: expected a Camera, got {type(camera).__name__}")
-        s = self.config.render_scale
-        a = AnchorView(len(self.anchors), camera if s == 1.0 else camera.scaled(s), camera,
-                       str(source), int(index), None, self)
+        a = AnchorView(len(self.anchors), self.working_camera(camera), camera, str(source),
+                       int(index), None, self)
         self.anchors.append(a)
         self._autosave()
         return a
