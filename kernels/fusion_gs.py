@@ -22,7 +22,17 @@ Choices where the paper is silent (also listed in ``divas_engine.fusion.gs_fusio
   γ_ST or d_cam — so a far see-through background in the footprint is not depth
   support and cannot dilute p_covered (eq:gs-coverage, "prevents … background …
   from deflating the ratio");
-* a voxel with a corner at z ≤ ε (straddling the camera plane) skips the view.
+* a voxel with a corner at z ≤ ε (straddling the camera plane) skips the view;
+* eq:gs-depthweight's segment is ``[d_min, max(d_max, d_ref)]``: the tuple's depths
+  come from different primitives (blended in centre-depth order, each at its own
+  ray–plane hit), so on a surface covered by several overlapping surfels D_max can
+  land a hair *before* D_min or D_ref (≈ 20 % of target pixels on the synthetic
+  scenes, by ~10⁻³ h_v); the literal half-width ``max(½(d_max − d_min), ε)`` then
+  makes r̂ ≈ 10²–10⁴ and the vote's weight exp(−α₁ r̂²) underflows to 0 — an accepted
+  thick vote that counts nothing and, being exclusive, also blocks the thin path.
+  Ordered, t̂ ∈ [d_min, d_ref] stays inside the segment and w ∈ [e^{−α₁}, 1], the
+  paper's "maximal at the segment centre, decaying toward its edges" (NOTES: e⁻¹ at
+  the edge).
 
 Precision: per-voxel geometry (centre, projection, footprint corners, pixel ray,
 spatial gate, depth weight) is float64 — eq:gs-depthweight divides by the half-width
@@ -171,8 +181,11 @@ def gs_contribution(v: ViewData, p: GsParams, xc: wp.vec3d, rho: float) -> wp.ve
         if front:
             depth_ok = xd - dmin <= tol
         if delta <= tau_sp and depth_ok:
-            d_ctr = wp.float64(0.5) * (dmin_r + dmax_r)
-            d_hw = wp.max(wp.float64(0.5) * (dmax_r - dmin_r), wp.float64(p.eps))
+            # the segment [d_min, d_max] ordered to hold t̂'s range [d_min, d_ref] (decision
+            # in the module docstring: 2DGS depths are per-primitive and not monotone)
+            seg_hi = wp.max(dmax_r, wp.max(dref_r, dmin_r))
+            d_ctr = wp.float64(0.5) * (dmin_r + seg_hi)
+            d_hw = wp.max(wp.float64(0.5) * (seg_hi - dmin_r), wp.float64(p.eps))
             rr = (t_hat - d_ctr) / d_hw
             w = wp.exp(-wp.float64(p.alpha1) * rr * rr)  # eq:gs-depthweight
             return wp.vec3(float(wp.float64(m) * w), float(w), 1.0)

@@ -175,8 +175,9 @@ def gs_view(centers: np.ndarray, density: np.ndarray, h: float, view: FusionView
     gap = np.where(front, xd - dmin - tol, np.abs(xd - dmed) - tol)  # eq:asym-gate
     mg.note(cand, gap, xd, f64=True)
     acc = cand & (delta <= tau_sp) & (gap <= 0)
-    d_ctr = 0.5 * (dmin_r + dmax_r)
-    d_hw = np.maximum(0.5 * (dmax_r - dmin_r), eps)
+    seg_hi = np.maximum(dmax_r, np.maximum(dref_r, dmin_r))  # ordered segment (kernel doc)
+    d_ctr = 0.5 * (dmin_r + seg_hi)
+    d_hw = np.maximum(0.5 * (seg_hi - dmin_r), eps)
     w = np.exp(-cfg.alpha1 * ((t_hat - d_ctr) / d_hw) ** 2)  # eq:gs-depthweight
     num[acc], den[acc], kind[acc] = (m * w)[acc], w[acc], 1
     # behind-surface gate (eq:behind-gate)

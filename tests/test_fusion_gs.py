@@ -196,6 +196,24 @@ def test_depth_weight_and_compact_fusion():
     assert (r.n_thick[0], r.n_thin[0], int(r.vmask[0, 0])) == (1, 1, 0b11)
 
 
+@pytest.mark.parametrize("dmax", [4.0 - 1e-4, 3.9995, 4.0])
+def test_depth_weight_on_non_monotone_tuple(dmax):
+    """2DGS tuples are per-primitive hits and not monotone: D_max a hair before D_min (or
+    D_med) must not zero an accepted thick vote. Segment = [d_min, max(d_max, d_ref)]:
+    here [4, 4] (width 0 → ε floor, t̂ = 4 at its centre) → w = 1."""
+    cam = axis_camera()
+    v = const_view(cam, 4.0, dmin=4.0, dmax=dmax, mask=0.8)
+    num, den, kind = gs_contrib(X0, H, v, THICK)
+    assert kind == 1 and den == pytest.approx(1.0) and num == pytest.approx(0.8)
+    # D_max before D_med but after D_min: segment [3.9, 4.0], t̂ = 4 at its edge → e⁻¹
+    v = const_view(cam, 4.0, dmin=3.9, dmax=3.95, mask=0.8)
+    num, den, kind = gs_contrib(X0, H, v, THICK)
+    assert kind == 1 and den == pytest.approx(math.exp(-1.0), rel=1e-6)
+    f = GsFusion(one_voxel_grid(X0, H), THICK)
+    f.add_view(const_view(cam, 4.0, dmin=4.0, dmax=dmax, mask=0.8))
+    assert f.result().P[0] == pytest.approx(0.8, rel=1e-6) and f.result().segmented[0]
+
+
 def _thin_view(cam, centre, valid=None, mask=0.9, dmed=4.0, d_cam=4.0):
     """Centre pixel: (d_med, mask) tuple; other pixels d_med / mask, invalid where ~valid."""
     dm = np.full((cam.height, cam.width), dmed, np.float32)

@@ -39,6 +39,10 @@ Decisions on points the paper leaves open (see also the kernel docstring):
     many); a test checks identical output with and without it.
 12. Accumulation in int64 fixed point, per-view sparse records for undo
     (``state.py``); the bitmask bit of a view is its slot, ≤ max_views (64) live.
+13. eq:gs-depthweight runs on the ordered segment ``[d_min, max(d_max, d_ref)]``: the
+    depth tuple is not monotone on 2DGS (per-primitive hits blended in centre-depth
+    order), and with D_max a hair before D_min the literal half-width collapses to ε
+    and the weight of an accepted thick vote to 0 (kernel docstring).
 """
 
 from __future__ import annotations
