@@ -53,7 +53,7 @@ def predict_hv(spec: SceneSpec, size: int, seed: int) -> float:
     """NOTES h_v of the surfels the builder will produce, from a pilot sample.
 
     The pilot draws ``PILOT`` centres with the final per-surface proportions and
-    the final per-surface spacing (floaters and needles, ~1 %, are left out)."""
+    the final per-surface spacing (floaters and needles, ~2.5 %, are left out)."""
     n_surf = size - int(round(spec.floater_share * size))
     counts = allocate_counts(spec.surfaces, n_surf)
     areas = np.array([s.area() for s in spec.surfaces])
