@@ -525,3 +525,58 @@ def test_clicks_protocol_still_selectable(user_scene):
         SuiteConfig(protocol="nope")
     text = markdown_table({"rows": [], "config": {"protocol": "clicks"}})
     assert "View protocol: clicks" in text
+
+
+def test_multi_seed_means_and_targets():
+    """Targets are checked on the per-scene means over the seeds; per-seed wins counted."""
+    from divas_engine.evaluation.suite import (SuiteConfig, check_targets, markdown_table,
+                                               scene_means, suite_means)
+
+    iou = {  # (scene, method) → IoU per seed 0, 1
+        ("ribs", "full"): (0.90, 0.92), ("ribs", "no_thin"): (0.85, 0.86),
+        ("ribs", "centre_vote"): (0.91, 0.89), ("ribs", "contrib_vote"): (0.80, 0.80),
+        ("plant", "full"): (0.80, 0.78), ("plant", "no_thin"): (0.5, 0.5),
+        ("plant", "centre_vote"): (0.81, 0.72), ("plant", "contrib_vote"): (0.4, 0.4)}
+    rows = [{"scene": sc, "seed": k, "kind": "2dgs", "segmenter": "oracle", "method": m,
+             "label": m, "iou": v[k], "accuracy": 0.99, "precision_3d": None,
+             "recall_3d": 0.5 + k / 10} for (sc, m), v in iou.items() for k in (0, 1)]
+    per = {(r["scene"], r["method"]): r for r in scene_means(rows)}
+    assert per[("plant", "full")]["iou"] == pytest.approx(0.79)
+    assert per[("plant", "full")]["iou_seeds"] == [0.80, 0.78]
+    assert (per[("ribs", "centre_vote")]["iou_min"], per[("ribs", "centre_vote")]["iou_max"]) \
+        == (0.89, 0.91)
+    assert per[("ribs", "full")]["recall_3d"] == pytest.approx(0.55)
+    assert per[("ribs", "full")]["precision_3d"] is None
+    t = check_targets(rows)
+    assert t["seeds"] == [0, 1]
+    assert t["mean_full_iou"] == pytest.approx((0.91 + 0.79) / 2)
+    assert not t["mean_full_iou_ge_0.90"]
+    # means: ribs 0.91 ≥ 0.90 (centre) — plant 0.79 ≥ 0.765; per seed: ribs wins seed 1 only,
+    # plant seed 1 only (0.80 < 0.81 in seed 0)
+    assert t["full_beats_baselines"] == {"plant": True, "ribs": True}
+    assert t["full_beats_baselines_seeds"] == {"plant": 1, "ribs": 1}
+    assert t["ribs_thin_path_helps"]
+    m = {r["method"]: r for r in suite_means(scene_means(rows))}
+    assert m["full"]["scenes"] == 2 and m["full"]["iou"] == pytest.approx(0.85)
+    text = markdown_table({"rows": rows, "scene_means": scene_means(rows),
+                           "means": suite_means(scene_means(rows)), "targets": t})
+    assert "| ribs | 1 | oracle | full | 0.920 |" in text
+    assert "Mean over seeds 0, 1" in text and "0.890–0.910" in text
+    assert "plant yes (1/2 seeds)" in text
+    assert SuiteConfig(seeds=(3, 4)).run_seeds == (3, 4) and SuiteConfig(seed=5).run_seeds == (5,)
+    with pytest.raises(ValueError):
+        SuiteConfig(seeds=(1, 1))
+
+
+def test_eval_cli_seeds_argument():
+    import argparse
+
+    from divas_engine.cli import evaluate
+
+    p = argparse.ArgumentParser()
+    evaluate.add_parser(p.add_subparsers())
+    assert p.parse_args(["eval", "--seeds", "0,1,2"]).seeds == (0, 1, 2)
+    assert p.parse_args(["eval"]).seeds is None
+    for bad in ("0,0", "a,1", ","):
+        with pytest.raises(SystemExit):
+            p.parse_args(["eval", "--seeds", bad])

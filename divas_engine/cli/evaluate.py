@@ -41,6 +41,16 @@ def _csv(choices: tuple[str, ...], what: str):
     return parse
 
 
+def _int_list(s: str) -> tuple[int, ...]:
+    try:
+        items = tuple(int(x) for x in s.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {s!r}") from None
+    if not items or len(set(items)) != len(items):
+        raise argparse.ArgumentTypeError(f"expected distinct comma-separated integers, got {s!r}")
+    return items
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from ..synthetic import SCENE_NAMES
 
@@ -53,6 +63,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=int, default=DEFAULT_SIZE,
                    help=f"surfels per scene (default {DEFAULT_SIZE})")
     p.add_argument("--seed", type=int, default=0, help="scene / segmenter seed (default 0)")
+    p.add_argument("--seeds", type=_int_list, default=None,
+                   help="comma-separated seeds: run the suite once per seed and check the "
+                        "targets on the per-scene means (overrides --seed)")
     p.add_argument("--segmenters", type=_csv(("oracle", "classic"), "--segmenters"),
                    default=("oracle", "classic"), help="oracle,classic (default both)")
     p.add_argument("--no-nerf", action="store_true", help="skip the NeRF path on the ribs grid")
@@ -114,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
         raise DivasInputError(None, str(e)) from None
     cfg = SuiteConfig(protocol=args.protocol, user=ub, scenes=tuple(args.scenes),
                       segmenters=tuple(args.segmenters),
-                      size=int(args.size), seed=int(args.seed), nerf=not args.no_nerf,
+                      size=int(args.size), seed=int(args.seed),
+                      seeds=tuple(args.seeds or ()), nerf=not args.no_nerf,
                       grid_resolution=int(args.grid_resolution),
                       baseline_masks=args.baseline_masks,
                       eval=EvalConfig(scale=float(args.eval_scale)))
@@ -132,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(markdown_table(result))
         print(f"\n{len(result['rows'])} rows, protocol {cfg.protocol}, size {cfg.size}, "
-              f"seed {cfg.seed}, device {dev}, "
+              f"seed{'s' if len(cfg.run_seeds) > 1 else ''} "
+              f"{','.join(map(str, cfg.run_seeds))}, device {dev}, "
               f"{result['wall_s']:.0f} s")
     return 0
 
