@@ -85,7 +85,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="simulated user: centroid views per session (default 20)")
     p.add_argument("--manual-anchors", type=int, default=None,
                    help="simulated user: training cameras it may add as manual anchors after "
-                        "the plan's anchors (paper: manual anchor selection; default 0)")
+                        "the plan's anchors (paper: manual anchor selection; default 4; 0 = the "
+                        "automatic anchors only)")
     p.add_argument("--eval-scale", type=float, default=1.0,
                    help="render the test cameras at this fraction of their size (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
