@@ -255,9 +255,9 @@ def evaluate_suite(config: SuiteConfig = SuiteConfig(), *, device=None,
     rows: list[dict] = []
     for seed in config.run_seeds:
         cfg = replace(config, seed=seed, seeds=())
+        if len(config.run_seeds) > 1 and log is not None:
+            log(f"seed {seed}:")
         for name in config.scenes:
-            if len(config.run_seeds) > 1 and log is not None:
-                log(f"seed {seed}:")
             rows += evaluate_scene(name, cfg, device=device, log=log)
     per_scene = scene_means(rows)
     return {"version": 1, "config": {"scenes": list(config.scenes),
