@@ -580,3 +580,29 @@ def test_eval_cli_seeds_argument():
     for bad in ("0,0", "a,1", ","):
         with pytest.raises(SystemExit):
             p.parse_args(["eval", "--seeds", bad])
+
+
+def test_evaluate_suite_runs_every_seed(monkeypatch):
+    """The suite runs each scene once per seed (scene and segmenter seeded alike) and
+    averages per scene over the seeds before the targets."""
+    from divas_engine.evaluation import suite
+
+    calls = []
+
+    def fake_scene(name, config, *, device=None, log=None):
+        calls.append((name, config.seed, config.seeds))
+        return [{"scene": name, "seed": config.seed, "kind": "2dgs", "segmenter": "oracle",
+                 "method": m, "label": m, "iou": 0.5 + 0.1 * config.seed + d,
+                 "accuracy": 1.0, "precision_3d": 1.0, "recall_3d": 1.0}
+                for m, d in (("full", 0.02), ("no_thin", 0.0), ("centre_vote", 0.01),
+                             ("contrib_vote", 0.0))]
+
+    monkeypatch.setattr(suite, "evaluate_scene", fake_scene)
+    res = suite.evaluate_suite(suite.SuiteConfig(scenes=("ribs", "plant"), seeds=(2, 0),
+                                                 segmenters=("oracle",)))
+    assert calls == [("ribs", 2, ()), ("plant", 2, ()), ("ribs", 0, ()), ("plant", 0, ())]
+    assert res["config"]["seeds"] == [2, 0]
+    full = [r for r in res["scene_means"] if r["method"] == "full"]
+    assert len(full) == 2 and all(r["iou"] == pytest.approx(0.62) for r in full)
+    assert res["targets"]["mean_full_iou"] == pytest.approx(0.62)
+    assert res["targets"]["full_beats_baselines_seeds"] == {"plant": 2, "ribs": 2}
