@@ -16,6 +16,7 @@ from divas_engine.evaluation import (CentreVoteConfig, ContributionVoteConfig, E
 from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
 from divas_engine.render import RenderConfig, make_renderer
 from divas_engine.scene import DensityGrid, SurfelScene
+from divas_engine.segment.base import Segmenter
 from kernels import RasterSettings, resolve_device, upload_surfels
 from kernels.contrib import accumulate_contributions
 
@@ -606,3 +607,48 @@ def test_evaluate_suite_runs_every_seed(monkeypatch):
     assert len(full) == 2 and all(r["iou"] == pytest.approx(0.62) for r in full)
     assert res["targets"]["mean_full_iou"] == pytest.approx(0.62)
     assert res["targets"]["full_beats_baselines_seeds"] == {"plant": 2, "ribs": 2}
+
+
+class _Everything(Segmenter):
+    """A confident segmenter that selects the whole view (a preview leaked everywhere)."""
+
+    name = "everything"
+
+    def _encode(self, rgb, depth, view_id):
+        return rgb.shape[:2]
+
+    def _predict(self, state, points, labels):
+        return np.ones((3, *state), np.float32), np.full(3, 0.9, np.float32)
+
+
+def test_scripted_user_declines_a_leaked_preview(user_scene):
+    """A preview that selects more background than target is not accepted (precision
+    < min_accept_precision): the view stays open and unfused and the user clicks again;
+    with min_accept_precision = 0 every view is accepted."""
+    from divas_engine.evaluation.scripted_user import ScriptedUser, UserBudget
+    from divas_engine.session import Session, SessionConfig, anchor_plan
+
+    sc = user_scene
+    cfg = SessionConfig(render_scale=0.25)
+    for thr, fused in ((0.5, False), (0.0, True)):
+        user = ScriptedUser(sc.labels, UserBudget(min_accept_precision=thr, clicks_per_anchor=2,
+                                                  max_views=4, negative_clicks=False,
+                                                  manual_anchors=0))
+        s = Session.open(sc.scene, sc.cameras, cfg, _Everything(), CPU,
+                         anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
+                         gt_values=sc.labels.astype(np.float32), render_anchors=False)
+        try:
+            log = user.run(s)
+            assert log.clicks
+            statuses = {c.status for c in log.clicks} - {"no surface"}
+            if fused:
+                assert statuses == {"fused"} and s.selection.any()
+            else:
+                assert statuses == {"declined"} and not s.selection.any()
+                assert s.fusion.view_ids == []
+                assert all(v.status not in ("fused", "rejected") for v in s.views)
+                assert log.as_dict()["views"] == len(log.clicks)
+        finally:
+            s.close()
+    with pytest.raises(ValueError):
+        UserBudget(min_accept_precision=1.5)

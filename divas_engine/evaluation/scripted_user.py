@@ -27,7 +27,11 @@ Per anchor of the plan, in plan order, at most ``clicks_per_anchor`` times:
    view selects pixels outside the target there (a false-positive region of at least the
    minimum area), add one negative point at that region's centre and keep the re-prompted
    mask when it agrees better with the target (IoU), else the default prompt's;
-5. accept the view (SAM → depth weighting → fusion → mapping; NeRF: synced at once).
+5. accept the view (SAM → depth weighting → fusion → mapping; NeRF: synced at once) —
+   unless the mask preview it would accept selects more non-target than target pixels
+   (precision against the target < ``min_accept_precision``): a user looking at a
+   preview that has leaked onto the table does not press accept; the view stays open
+   and unfused, and the region is clicked again elsewhere (step 3).
 
 The anchors are the plan's offered ones (top-K), then — ``more_anchors`` — its other
 supported Fibonacci candidates in ranking order (what the user sees on asking for all
@@ -87,6 +91,9 @@ class UserBudget:
             only.
         browse_scale: the training cameras are browsed at this fraction of their size,
             0.25.
+        min_accept_precision: the user declines a view whose mask preview (``≥ 0.5``)
+            has a precision below this against the target at that view, 0.5 (more
+            background than target selected). 0 accepts every view.
     """
 
     clicks_per_anchor: int = 3
@@ -97,12 +104,16 @@ class UserBudget:
     more_anchors: bool = True
     manual_anchors: int = 4
     browse_scale: float = 0.25
+    min_accept_precision: float = 0.5
 
     def __post_init__(self) -> None:
         if self.clicks_per_anchor < 1 or self.max_views < 1:
             raise ValueError("UserBudget: clicks_per_anchor and max_views must be ≥ 1")
         if self.manual_anchors < 0:
             raise ValueError(f"UserBudget.manual_anchors must be ≥ 0, got {self.manual_anchors}")
+        if not 0.0 <= self.min_accept_precision <= 1.0:
+            raise ValueError(f"UserBudget.min_accept_precision must be in [0, 1], "
+                             f"got {self.min_accept_precision}")
         if not 0.0 < self.browse_scale <= 1.0:
             raise ValueError(f"UserBudget.browse_scale must be in (0, 1], got {self.browse_scale}")
         if not 0.0 <= self.min_region_frac < 1.0:
@@ -119,8 +130,8 @@ class UserClick:
         region_px: area of the uncovered region clicked; uncovered_px: all uncovered
             target pixels at the anchor then; target_px: visible target pixels.
         view_id: the centroid view spawned (None when the click hit no surface).
-        status: the view's status after accepting it (``fused`` / ``rejected``), or
-            ``no surface``.
+        status: the view's status after accepting it (``fused`` / ``rejected``),
+            ``declined`` (the user did not accept its preview) or ``no surface``.
         negatives: negative points added on the centroid view (its pixels).
         negative_kept: whether the re-prompted mask was kept.
     """
@@ -207,6 +218,11 @@ def region_centre(region: np.ndarray, avoid=()) -> tuple[float, float]:
     d = ndimage.distance_transform_edt(np.pad(r, 1))[1:-1, 1:-1]
     y, x = divmod(int(np.argmax(d)), r.shape[1])
     return float(x) + 0.5, float(y) + 0.5
+
+
+def _precision(selected: np.ndarray, target: np.ndarray) -> float:
+    n = int(np.count_nonzero(selected))
+    return int(np.count_nonzero(selected & target)) / n if n else 1.0
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -364,19 +380,25 @@ class ScriptedUser:
     def _accept(self, session, view, click: UserClick, log: UserLog) -> None:
         b = self.budget
         prev = session.prompt(view)
-        if b.negative_clicks and prev.selection.accepted:
+        tgt = mask = None
+        if (b.negative_clicks or b.min_accept_precision > 0) and prev.selection.accepted:
             tgt = self.target(session, view.camera, log)
             mask = np.asarray(prev.selection.mask) >= 0.5
+        if b.negative_clicks and tgt is not None:
             fp = uncovered_regions(mask, tgt, self._min_area(view.camera))
             if fp:
                 nxy = region_centre(fp[0])
                 click.negatives.append(nxy)
                 p2 = session.prompt(view, [nxy], [0])
-                ok2 = p2.selection.accepted
-                if ok2 and _iou(np.asarray(p2.selection.mask) >= 0.5, tgt) > _iou(mask, tgt):
+                m2 = np.asarray(p2.selection.mask) >= 0.5 if p2.selection.accepted else None
+                if m2 is not None and _iou(m2, tgt) > _iou(mask, tgt):
                     click.negative_kept = True
+                    mask = m2
                 else:
                     session.prompt(view)             # back to the default prompt
+        if mask is not None and _precision(mask, tgt) < b.min_accept_precision:
+            click.status = "declined"
+            return
         session.accept(view)
         session.sync()
         click.status = view.status
