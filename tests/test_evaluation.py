@@ -652,3 +652,21 @@ def test_scripted_user_declines_a_leaked_preview(user_scene):
             s.close()
     with pytest.raises(ValueError):
         UserBudget(min_accept_precision=1.5)
+
+
+def test_leak_free_fraction_by_hand():
+    """Precision against the target dilated by 2⌈max(H,W)/256⌉ px (a disc)."""
+    from divas_engine.evaluation.scripted_user import leak_free_fraction
+
+    tgt = np.zeros((100, 300), bool)      # max side 300 → k = 2·⌈300/256⌉ = 4 px
+    tgt[40:60, 100:110] = True
+    halo = np.zeros_like(tgt)
+    halo[40:60, 96:114] = True            # 4 px left and right of the target: forgiven
+    halo[36:64, 100:110] = True           # 4 px above and below: forgiven
+    assert leak_free_fraction(halo, tgt) == 1.0
+    wide = np.zeros_like(tgt)
+    wide[40:60, 100:116] = True           # columns 114, 115 lie 5–6 px off: 2 × 20 px leak
+    assert leak_free_fraction(wide, tgt) == pytest.approx(1 - 40 / 320)
+    spilled = np.ones_like(tgt)           # a preview spilled over the whole view
+    assert leak_free_fraction(spilled, tgt) < 0.1
+    assert leak_free_fraction(np.zeros_like(tgt), tgt) == 1.0

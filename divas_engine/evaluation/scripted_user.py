@@ -28,10 +28,12 @@ Per anchor of the plan, in plan order, at most ``clicks_per_anchor`` times:
    minimum area), add one negative point at that region's centre and keep the re-prompted
    mask when it agrees better with the target (IoU), else the default prompt's;
 5. accept the view (SAM → depth weighting → fusion → mapping; NeRF: synced at once) —
-   unless the mask preview it would accept selects more non-target than target pixels
-   (precision against the target < ``min_accept_precision``): a user looking at a
-   preview that has leaked onto the table does not press accept; the view stays open
-   and unfused, and the region is clicked again elsewhere (step 3).
+   unless the mask preview it would accept has leaked: more of its pixels lie off the
+   target than on it, boundary imprecision forgiven (precision against the target
+   dilated by two cells of SAM's 256 logit grid, ``2⌈max(H, W)/256⌉`` px, below
+   ``min_accept_precision``). A user looking at a preview that has spilled onto the
+   table does not press accept; the view stays open and unfused, and the region is
+   clicked again elsewhere (step 3). A halo around a thin target is not a leak.
 
 The anchors are the plan's offered ones (top-K), then — ``more_anchors`` — its other
 supported Fibonacci candidates in ranking order (what the user sees on asking for all
@@ -52,6 +54,7 @@ the upper end) or when every anchor is complete.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -62,7 +65,7 @@ from scipy import ndimage
 from ..errors import DivasInputError
 
 __all__ = ["UserBudget", "UserClick", "UserLog", "ScriptedUser", "uncovered_regions",
-           "region_centre"]
+           "region_centre", "leak_free_fraction"]
 
 
 @dataclass(frozen=True)
@@ -92,8 +95,9 @@ class UserBudget:
         browse_scale: the training cameras are browsed at this fraction of their size,
             0.25.
         min_accept_precision: the user declines a view whose mask preview (``≥ 0.5``)
-            has a precision below this against the target at that view, 0.5 (more
-            background than target selected). 0 accepts every view.
+            has a precision below this against the boundary-tolerant target at that
+            view (module docstring), 0.5: more leaked than target pixels. 0 accepts
+            every view.
     """
 
     clicks_per_anchor: int = 3
@@ -220,9 +224,18 @@ def region_centre(region: np.ndarray, avoid=()) -> tuple[float, float]:
     return float(x) + 0.5, float(y) + 0.5
 
 
-def _precision(selected: np.ndarray, target: np.ndarray) -> float:
-    n = int(np.count_nonzero(selected))
-    return int(np.count_nonzero(selected & target)) / n if n else 1.0
+def leak_free_fraction(selected: np.ndarray, target: np.ndarray) -> float:
+    """Precision of ``selected`` against ``target`` dilated by ``2⌈max(H, W)/256⌉`` px
+    (two cells of SAM's 256 low-res logit grid: boundary imprecision, not a leak); 1 for
+    an empty selection."""
+    sel = np.asarray(selected, bool)
+    n = int(np.count_nonzero(sel))
+    if not n:
+        return 1.0
+    k = 2 * int(math.ceil(max(sel.shape) / 256))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
+    tol = cv2.dilate(np.asarray(target, np.uint8), disc).astype(bool)
+    return int(np.count_nonzero(sel & tol)) / n
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -396,7 +409,7 @@ class ScriptedUser:
                     mask = m2
                 else:
                     session.prompt(view)             # back to the default prompt
-        if mask is not None and _precision(mask, tgt) < b.min_accept_precision:
+        if mask is not None and leak_free_fraction(mask, tgt) < b.min_accept_precision:
             click.status = "declined"
             return
         session.accept(view)
