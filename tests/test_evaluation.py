@@ -16,11 +16,11 @@ from divas_engine.evaluation import (CentreVoteConfig, ContributionVoteConfig, E
 from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
 from divas_engine.render import RenderConfig, make_renderer
 from divas_engine.scene import DensityGrid, SurfelScene
-from divas_engine.segment.base import Segmenter
 from kernels import RasterSettings, resolve_device, upload_surfels
 from kernels.contrib import accumulate_contributions
 
 from .reference_render import random_surfel_scene, surfel_hits
+from .stub_segmenters import ConstantSegmenter
 
 CPU = "cpu"
 
@@ -609,18 +609,6 @@ def test_evaluate_suite_runs_every_seed(monkeypatch):
     assert res["targets"]["full_beats_baselines_seeds"] == {"plant": 2, "ribs": 2}
 
 
-class _Everything(Segmenter):
-    """A confident segmenter that selects the whole view (a preview leaked everywhere)."""
-
-    name = "everything"
-
-    def _encode(self, rgb, depth, view_id):
-        return rgb.shape[:2]
-
-    def _predict(self, state, points, labels):
-        return np.ones((3, *state), np.float32), np.full(3, 0.9, np.float32)
-
-
 def test_scripted_user_declines_a_leaked_preview(user_scene):
     """A preview that selects more background than target is not accepted (precision
     < min_accept_precision): the view stays open and unfused and the user clicks again;
@@ -634,7 +622,7 @@ def test_scripted_user_declines_a_leaked_preview(user_scene):
         user = ScriptedUser(sc.labels, UserBudget(min_accept_precision=thr, clicks_per_anchor=2,
                                                   max_views=4, negative_clicks=False,
                                                   manual_anchors=0))
-        s = Session.open(sc.scene, sc.cameras, cfg, _Everything(), CPU,
+        s = Session.open(sc.scene, sc.cameras, cfg, ConstantSegmenter(1.0), CPU,
                          anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
                          gt_values=sc.labels.astype(np.float32), render_anchors=False)
         try:

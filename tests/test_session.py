@@ -11,9 +11,11 @@ import pytest
 
 from divas_engine import Camera, DivasInputError, load_scene
 from divas_engine.io.ply import iter_vertex_chunks, read_ply_header
-from divas_engine.segment import OracleSegmenter, Segmenter
+from divas_engine.segment import OracleSegmenter
 from divas_engine.session import LABEL_PROPERTY, Session, SessionConfig
 from divas_engine.synthetic import generate_scene
+
+from .stub_segmenters import ConstantSegmenter
 
 SCALE = 0.5
 
@@ -217,21 +219,9 @@ def test_bad_clicks_and_rejected_views(ribs):
     s.close()
 
 
-class _EmptyConfident(Segmenter):
-    """A segmenter that is sure of an empty mask (score 0.9)."""
-
-    name = "empty"
-
-    def _encode(self, rgb, depth, view_id):
-        return rgb.shape[:2]
-
-    def _predict(self, state, points, labels):
-        return np.zeros((3, *state), np.float32), np.full(3, 0.9, np.float32)
-
-
 def test_empty_mask_is_rejected_with_reason(ribs):
     sc, scene, anchors, clicks, _ = ribs
-    s = Session.open(scene, sc.cameras, SessionConfig(render_scale=SCALE), _EmptyConfident(),
+    s = Session.open(scene, sc.cameras, SessionConfig(render_scale=SCALE), ConstantSegmenter(0.0),
                      "cpu", anchors=[anchors[0]], render_anchors=False)
     v = s.click(0, _click_xy(s, 0, clicks[0]))
     r = s.accept(v)
