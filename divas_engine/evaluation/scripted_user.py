@@ -187,7 +187,8 @@ class UserLog:
                 "manual_anchors": list(self.manual),
                 "views": len(self.clicks),
                 "negatives": sum(len(c.negatives) for c in self.clicks),
-                "negatives_kept": sum(c.negative_kept for c in self.clicks)}
+                "negatives_kept": sum(c.negative_kept for c in self.clicks),
+                "declined": sum(c.status == "declined" for c in self.clicks)}
 
 
 def uncovered_regions(target: np.ndarray, covered: np.ndarray, min_area: int

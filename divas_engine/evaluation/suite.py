@@ -203,7 +203,7 @@ def _user_extra(out) -> dict:
     d = out.user_log.as_dict()
     return {"user": {"stop": d["stop"], "anchor_status": d["anchor_status"],
                      "uncovered_after": d["uncovered_after"], "negatives": d["negatives"],
-                     "negatives_kept": d["negatives_kept"],
+                     "negatives_kept": d["negatives_kept"], "declined": d["declined"],
                      "manual_anchors": d["manual_anchors"],
                      "clicks": [(c["anchor"], round(c["xy"][0], 1), round(c["xy"][1], 1),
                                  c["region_px"], c["status"]) for c in d["clicks"]],
@@ -215,7 +215,9 @@ def _user_note(out) -> str:
         return ""
     lg = out.user_log
     st = lg.anchor_status
-    return (f"; user: {len(lg.clicks)} clicks, stop {lg.stop}, anchors complete "
+    declined = sum(c.status == "declined" for c in lg.clicks)
+    return (f"; user: {len(lg.clicks)} clicks" + (f" ({declined} declined)" if declined else "")
+            + f", stop {lg.stop}, anchors complete "
             f"{st.count('complete')}/{len(st) - st.count('not visited')} visited "
             f"of {len(st)}" + (f", manual anchors {lg.manual}" if lg.manual else ""))
 
