@@ -176,6 +176,11 @@ class UserLog:
     stop: str = ""
 
     @property
+    def declined(self) -> int:
+        """Centroid views the user did not accept (leaked previews)."""
+        return sum(c.status == "declined" for c in self.clicks)
+
+    @property
     def complete(self) -> list[bool]:
         """Per anchor: no uncovered region of the minimum area was left there."""
         return [s == "complete" for s in self.anchor_status]
@@ -188,7 +193,7 @@ class UserLog:
                 "views": len(self.clicks),
                 "negatives": sum(len(c.negatives) for c in self.clicks),
                 "negatives_kept": sum(c.negative_kept for c in self.clicks),
-                "declined": sum(c.status == "declined" for c in self.clicks)}
+                "declined": self.declined}
 
 
 def uncovered_regions(target: np.ndarray, covered: np.ndarray, min_area: int

@@ -215,8 +215,8 @@ def _user_note(out) -> str:
         return ""
     lg = out.user_log
     st = lg.anchor_status
-    declined = sum(c.status == "declined" for c in lg.clicks)
-    return (f"; user: {len(lg.clicks)} clicks" + (f" ({declined} declined)" if declined else "")
+    return (f"; user: {len(lg.clicks)} clicks"
+            + (f" ({lg.declined} declined)" if lg.declined else "")
             + f", stop {lg.stop}, anchors complete "
             f"{st.count('complete')}/{len(st) - st.count('not visited')} visited "
             f"of {len(st)}" + (f", manual anchors {lg.manual}" if lg.manual else ""))
