@@ -26,6 +26,11 @@ class Camera:
         fx, fy, cx, cy: intrinsics in pixels (principal point in the +0.5 convention).
         c2w: ``[4,4]`` float64 camera-to-world transform (OpenCV axes).
         name: optional identifier (training image name, anchor id, …).
+        near: this camera's own near clip distance, planar depth in world units (like a
+            Blender camera's ``clip_start``); renderers clip at ``max(their near, near)``
+            (:meth:`clip_near`). 0 (default): the renderer's near alone. Views the engine
+            synthesises around a target (centroid views) set it to a fraction of their
+            orbit radius, so a camera placed next to a faint floater does not see it.
     """
 
     width: int
@@ -36,6 +41,7 @@ class Camera:
     cy: float
     c2w: np.ndarray = field(default_factory=lambda: np.eye(4))
     name: str = ""
+    near: float = 0.0
 
     def __post_init__(self) -> None:
         c2w = np.asarray(self.c2w, dtype=np.float64)
@@ -52,6 +58,10 @@ class Camera:
             v = float(getattr(self, k))
             if not math.isfinite(v) or v <= 0:
                 raise ValueError(f"camera {self.name!r}: focal length {k}={v} must be positive")
+        near = float(self.near)
+        if not math.isfinite(near) or near < 0:
+            raise ValueError(f"camera {self.name!r}: near clip {self.near} must be finite and ≥ 0")
+        object.__setattr__(self, "near", near)
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ValueError(f"camera {self.name!r}: image size {self.width}x{self.height} is empty")
         object.__setattr__(self, "c2w", c2w)
@@ -105,11 +115,20 @@ class Camera:
         w, h = max(1, round(self.width * s)), max(1, round(self.height * s))
         sx, sy = w / self.width, h / self.height
         return Camera(w, h, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
-                      self.c2w, self.name)
+                      self.c2w, self.name, self.near)
 
     def with_pose(self, c2w: np.ndarray, name: str | None = None) -> "Camera":
         return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, c2w,
-                      self.name if name is None else name)
+                      self.name if name is None else name, self.near)
+
+    def with_near(self, near: float) -> "Camera":
+        """Same camera with its own near clip distance set to ``near``."""
+        return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.c2w,
+                      self.name, near)
+
+    def clip_near(self, renderer_near: float) -> float:
+        """The near plane a renderer with near ``renderer_near`` uses for this camera."""
+        return max(float(renderer_near), self.near)
 
     # --- projection -------------------------------------------------------
     def world_to_camera(self, points: np.ndarray) -> np.ndarray:
@@ -144,7 +163,7 @@ class Camera:
     @classmethod
     def look_at(cls, eye: np.ndarray, target: np.ndarray, up: np.ndarray, *, width: int,
                 height: int, fx: float, fy: float | None = None, cx: float | None = None,
-                cy: float | None = None, name: str = "") -> "Camera":
+                cy: float | None = None, name: str = "", near: float = 0.0) -> "Camera":
         """A camera at ``eye`` looking at ``target`` with image-up close to ``up``."""
         eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
         fwd = target - eye
@@ -161,7 +180,8 @@ class Camera:
         c2w = np.eye(4)
         c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, fwd, eye
         return cls(width, height, fx, fy if fy is not None else fx,
-                   width / 2.0 if cx is None else cx, height / 2.0 if cy is None else cy, c2w, name)
+                   width / 2.0 if cx is None else cx, height / 2.0 if cy is None else cy, c2w, name,
+                   near)
 
     # --- (de)serialisation in the NOTES prompts-file camera schema ----------
     def to_dict(self) -> dict[str, Any]:
@@ -170,18 +190,21 @@ class Camera:
                              "c2w": self.c2w.tolist()}
         if self.name:
             d["name"] = self.name
+        if self.near > 0:
+            d["near"] = self.near
         return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Camera":
-        """Inverse of :meth:`to_dict`; raises ``ValueError``/``KeyError`` on a bad entry."""
-        known = {"width", "height", "fx", "fy", "cx", "cy", "c2w", "name"}
+        """Inverse of :meth:`to_dict`; raises ``ValueError``/``KeyError`` on a bad entry.
+        ``name`` and ``near`` are optional."""
+        known = {"width", "height", "fx", "fy", "cx", "cy", "c2w", "name", "near"}
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown camera keys {sorted(unknown)}")
-        missing = known - {"name"} - set(d)
+        missing = known - {"name", "near"} - set(d)
         if missing:
             raise ValueError(f"camera is missing {sorted(missing)}")
         return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
                    float(d["cx"]), float(d["cy"]), np.asarray(d["c2w"], dtype=np.float64),
-                   str(d.get("name", "")))
+                   str(d.get("name", "")), float(d.get("near", 0.0)))

@@ -97,7 +97,7 @@ def map_reference(scene: SurfelScene, geometry: GridGeometry, active_codes: np.n
         az = t0[cidx] @ rw[2]
         bz = t1[cidx] @ rw[2]
         zr = np.sqrt(kmax * (az * az + bz * bz))
-        marg = pc[:, 2] - zr - config.near
+        marg = pc[:, 2] - zr - cam.clip_near(config.near)
         amb[cidx[np.abs(marg) < 1e-5 * np.maximum(np.abs(pc[:, 2]), 1.0)]] = True
         vis = marg > 0
         cidx, mu = cidx[vis], mu[vis]

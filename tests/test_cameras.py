@@ -460,3 +460,21 @@ def test_blender_semantics_by_hand():
     np.testing.assert_allclose(camera_from_blender(scaled).c2w, np.diag([1.0, -1, -1, 1]))
     with pytest.raises(ValueError, match="sensor_fit"):
         BlenderCameraParams(eye, 50.0, 36.0, 24.0, "FIT", 0, 0, 10, 10)
+
+
+def test_camera_near_clip_is_carried_and_validated():
+    """``Camera.near`` (a camera's own clip, like Blender's clip_start) survives every
+    derived camera and the dict round trip, and the renderer's near wins when larger."""
+    cam = _rand_cameras(1)[0].with_near(0.25)
+    assert cam.near == 0.25
+    assert cam.scaled(0.5).near == 0.25 and cam.with_pose(np.eye(4)).near == 0.25
+    back = Camera.from_dict(json.loads(json.dumps(cam.to_dict())))
+    assert back.near == 0.25
+    assert "near" not in cam.with_near(0.0).to_dict()  # old files stay byte-identical
+    assert Camera.from_dict(cam.with_near(0.0).to_dict()).near == 0.0
+    assert cam.clip_near(0.01) == 0.25 and cam.clip_near(0.5) == 0.5
+    assert Camera.look_at([0, 0, 0], [0, 0, 1], [0, -1, 0], width=8, height=8, fx=8,
+                          near=0.3).near == 0.3
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="near clip"):
+            cam.with_near(bad)

@@ -44,6 +44,7 @@ def test_nerf_centroid_geometry(ff, lam):
     p_new = anchor.center + lam * (x - anchor.center)
     np.testing.assert_allclose(cv.camera.center, p_new, atol=1e-9)
     assert cv.d_cam == pytest.approx((1 - lam) * np.linalg.norm(x - anchor.center))
+    assert cv.camera.near == pytest.approx(ViewConfig().near_fraction * cv.d_cam)
     uv, z = cv.camera.project(x[None])
     np.testing.assert_allclose(uv[0], [anchor.cx, anchor.cy], atol=1e-6)
     assert cv.camera.up @ anchor.up > 0.9 and abs(cv.camera.right @ anchor.up) < 1e-9
@@ -179,3 +180,39 @@ def test_gs_click_on_empty_space(occluded):
     assert buf.alpha[24, 32] < 0.5
     with pytest.raises(DivasInputError, match=r"no surface under the click at \(32.5, 24.5\) in anchor sky"):
         planner.centroid_view(sky, (32.5, 24.5), buf)
+
+
+def test_centroid_camera_clips_a_faint_floater_next_to_it(occluded):
+    """A centroid view carries its own near clip ``near_fraction · d_cam`` (probes too),
+    so a faint floater (α = 0.06 ≥ τ_sig) 2 % of d_cam in front of it — invisible to
+    eq:occfrac, which reads D_med — no longer sets D_min over the image (the chain that
+    made eq:behind-gate drop voxels behind see-through pixels). ``near_fraction = 0``
+    restores the renderer's near alone."""
+    from divas_engine.geometry import rotmat_to_quat
+    from divas_engine.render.surfel_renderer import SurfelRenderer
+    from divas_engine.scene import SurfelScene
+
+    s, r, planner = occluded
+    anchor, buf, click = _occluded_click(s, r)
+    cv = planner.centroid_view(anchor, click, buf)
+    cam = cv.camera
+    assert cam.near == pytest.approx(0.05 * cv.d_cam) and cv.d_cam > 0
+    assert Camera.from_dict(cv.to_dict()["camera"]).near == cam.near
+    off = GsCentroidPlanner(s.scene, r, ViewConfig(near_fraction=0.0)).centroid_view(anchor, click, buf)
+    assert off.camera.near == 0.0 and np.array_equal(off.camera.c2w, cam.c2w)
+    with pytest.raises(ValueError, match="near_fraction"):
+        ViewConfig(near_fraction=1.0)
+    # the floater: a disc facing the camera at 0.02 d_cam, wide enough to fill the image
+    sc = s.scene
+    q = rotmat_to_quat(cam.c2w[None, :3, :3]).astype(np.float32)
+    veil = SurfelScene(
+        np.vstack([sc.means, (cam.center + 0.02 * cv.d_cam * cam.forward)[None]]).astype(np.float32),
+        np.vstack([sc.quats, q]), np.vstack([sc.scales, np.full((1, 2), 0.2 * cv.d_cam)]).astype(np.float32),
+        np.append(sc.opacities, np.float32(0.06)), np.concatenate([sc.sh, sc.sh[:1]]), sc.sh_degree)
+    rv = SurfelRenderer(veil, device="cpu")
+    h, w = cam.height // 2, cam.width // 2
+    seen = rv.render(off.camera).D_min
+    assert seen[h, w] == pytest.approx(0.02 * cv.d_cam, rel=1e-3)
+    clipped = rv.render(cam).D_min
+    assert np.array_equal(clipped, r.render(cam).D_min)  # as if the floater were not there
+    assert clipped[h, w] > 0.5 * cv.d_cam

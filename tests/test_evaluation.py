@@ -14,6 +14,7 @@ from divas_engine.evaluation import (CentreVoteConfig, ContributionVoteConfig, E
                                      MaskView, ViewEvaluator, centre_vote, contribution_vote,
                                      evaluate_selection, mask_scores, surfel_scores)
 from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
+from divas_engine.evaluation.baselines import ContributionVoter
 from divas_engine.render import RenderConfig, make_renderer
 from divas_engine.scene import DensityGrid, SurfelScene
 from kernels import RasterSettings, resolve_device, upload_surfels
@@ -233,6 +234,12 @@ def test_centre_vote_hand_case():
     tie = centre_vote(scene, masks[:1] + [MaskView(cam, np.zeros((48, 64), np.float32))],
                       renderer=make_renderer(scene, CPU))
     assert not tie.selected[0]
+    # view 1 with its own near clip at 4.5: s0, s1 (z = 4) and the wall (z = 3) are cut
+    # and cast no vote there; the wall no longer hides the z = 5 surfel, which votes +
+    clipped = centre_vote(scene, [MaskView(cam.with_near(4.5), masks[0].mask)] + masks[1:],
+                          renderer=make_renderer(scene, CPU))
+    assert clipped.positive.tolist() == [1, 2, 0, 1]
+    assert clipped.negative.tolist() == [1, 0, 2, 0]
 
 
 def test_contribution_vote_rule_and_bias(two_planes):
@@ -248,6 +255,13 @@ def test_contribution_vote_rule_and_bias(two_planes):
     assert strict.selected.sum() < res.selected.sum()
     with pytest.raises(ValueError):
         ContributionVoteConfig(gamma=1.0)
+    # the weights honour a view camera's own near clip like the renderer's near
+    zc = cam.world_to_camera(scene.means.astype(np.float64))[:, 2]
+    near = float(np.median(zc))
+    a = ContributionVoter(scene, CPU).contributions(MaskView(cam.with_near(near), m))
+    b = ContributionVoter(scene, CPU, RenderConfig(near=near)).contributions(MaskView(cam, m))
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert not np.array_equal(a[0], ContributionVoter(scene, CPU).contributions(MaskView(cam, m))[0])
 
 
 # ----------------------------------------------------------------------------- pipeline helpers
@@ -282,6 +296,8 @@ def test_caching_renderer_is_transparent():
     v = np.arange(len(scene), dtype=np.float32) % 2
     assert np.array_equal(c.render_values(cam, v), inner.render_values(cam, v))
     assert c.render_values(cam, 1 - v) is not c.render_values(cam, v)
+    clipped = c.render(cam.with_near(3.0))            # a camera's near is part of the key
+    assert clipped is not a and np.array_equal(clipped.D_med, inner.render(cam.with_near(3.0)).D_med)
     with pytest.raises(ValueError):
         a.rgb[0, 0, 0] = 1.0                          # cached arrays are read-only
     assert c.num_primitives == len(scene)

@@ -373,3 +373,25 @@ def test_view_cache_add_drop_reclaim(monkeypatch):
     want = SurfelMapper(sc, grid, device=DEV).map(fused, pool[:2], [0, 5],
                                                   MappingConfig(mask_threshold=0.7))
     assert np.array_equal(got.kappa, want.kappa)
+
+
+def test_pass3_uses_the_view_cameras_own_near_clip():
+    """Pass 3 scores a surfel in a view only beyond that view's near plane — the camera's
+    own ``near`` when it is larger than ``MappingConfig.near`` (what the renderer drew)."""
+    cam = _axis_cam()
+    sc = _scene([[0, 0, 0.5], [0, 0, 2.0]], np.full((2, 2), 0.005))
+    grid = _hand_grid(np.unique(voxel_codes_numpy(sc.means, np.zeros(3), 8.0, 2.0, 8)), half=8.0)
+    fused = _fused(np.ones(len(grid), bool), np.ones((len(grid), 1)))
+    cfg = MappingConfig(needle_filter=False)
+    full = np.ones((40, 40))
+    plain = map_to_surfels(sc, grid, fused, [_view(cam, full)], [0], cfg, device=DEV)
+    assert plain.selected.tolist() == [True, True]
+    clipped_views = [_view(cam.with_near(1.0), full)]
+    clipped = map_to_surfels(sc, grid, fused, clipped_views, [0], cfg, device=DEV)
+    assert clipped.selected.tolist() == [False, True] and clipped.kappa[0] == 0.0
+    ref = map_reference(sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask,
+                        clipped_views, [0], cfg)
+    assert np.array_equal(ref["selected"], clipped.selected)
+    # a camera near below the config's changes nothing
+    low = map_to_surfels(sc, grid, fused, [_view(cam.with_near(1e-4), full)], [0], cfg, device=DEV)
+    assert np.array_equal(low.kappa, plain.kappa)

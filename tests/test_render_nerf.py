@@ -191,3 +191,19 @@ def test_render_values(grid):
 def test_cuda_matches_reference(grid):
     for cam in CAMS:
         _compare(make_renderer(grid, "cuda:0").render(cam), reference_nerf(grid, cam))
+
+
+def test_camera_near_clip_nerf():
+    """The ray-marcher clips at a camera's own near exactly like at a renderer near of
+    that value; the slab behind z = 3.6 disappears when the clip passes its back face."""
+    cam = Camera(32, 24, 60.0, 60.0, 16.5, 12.5)
+    grid = _slab(50.0)
+    r = make_renderer(grid, "cpu")
+    a = r.render(cam.with_near(3.8))
+    b = make_renderer(grid, "cpu", RenderConfig(near=3.8)).render(cam)
+    for k, v in a.as_dict().items():
+        if isinstance(v, np.ndarray):
+            assert np.array_equal(v, getattr(b, k)), k
+    assert a.D_min[12, 16] >= 3.8 - 1e-6 > r.render(cam).D_min[12, 16]
+    assert r.render(cam.with_near(4.7)).alpha.max() < 1e-6  # past the back face
+    assert np.array_equal(r.render(cam.with_near(0.001)).D_min, r.render(cam).D_min)

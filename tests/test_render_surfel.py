@@ -315,3 +315,31 @@ def test_kernels_compile_for_cuda(tmp_path):
                 pytest.skip(f"no NVRTC: {e}")
             raise
         assert any(p.suffix in (".cubin", ".ptx") for p in (tmp_path / m.__name__).iterdir())
+
+
+def test_camera_near_clip(random_case):
+    """A camera's own near clip renders exactly like a renderer whose near is that value
+    (the rasterizer's one near rule); a smaller one changes nothing. A faint surfel just
+    in front of the camera sets D_min over the image until the clip removes it."""
+    sc, cam, _ = random_case
+    r = SurfelRenderer(sc, device="cpu")
+    zc = cam.world_to_camera(sc.means.astype(np.float64))[:, 2]
+    near = float(np.percentile(zc[zc > 0], 30))  # clips a good share of the surfels
+    a = r.render(cam.with_near(near))
+    b = SurfelRenderer(sc, device="cpu", config=RenderConfig(near=near)).render(cam)
+    for k, v in a.as_dict().items():
+        if isinstance(v, np.ndarray):
+            assert np.array_equal(v, getattr(b, k)), k
+    assert not np.array_equal(a.D_min, r.render(cam).D_min)
+    small = r.render(cam.with_near(RenderConfig().near / 2))
+    assert np.array_equal(small.D_min, r.render(cam).D_min)
+    v = np.arange(len(sc), dtype=np.float32)
+    assert np.array_equal(r.render_values(cam.with_near(near), v),
+                          SurfelRenderer(sc, device="cpu", config=RenderConfig(near=near))
+                          .render_values(cam, v))
+    # a faint veil (α = 0.06 ≥ τ_sig) at z = 0.05 in front of an opaque wall at z = 4
+    wall = _scene([[0, 0, 4.0], [0, 0, 0.05]], [[1e4, 1e4], [1.0, 1.0]], [1.0, 0.06])
+    rw = SurfelRenderer(wall, device="cpu")
+    assert np.allclose(rw.render(CAM).D_min, 0.05, rtol=1e-4)
+    clipped = rw.render(CAM.with_near(0.2))
+    assert np.allclose(clipped.D_min, 4.0, rtol=1e-4) and np.allclose(clipped.D_med, 4.0, rtol=1e-4)

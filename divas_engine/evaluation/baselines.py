@@ -7,7 +7,8 @@ entry").
 
 (a) :func:`centre_vote` — centre-projection majority voting. A surfel is *seen* by a
     view when its centre projects inside the image (pixel ``⌊u⌋, ⌊v⌋``), lies in front
-    of the camera (planar depth ``z > near``) and is not hidden: ``D_med = 0`` at that
+    of the camera (planar depth ``z >`` the view's near plane, ``Camera.clip_near``) and
+    is not hidden: ``D_med = 0`` at that
     pixel (accumulated opacity never reached ½: nothing opaque in front) or
 
         z ≤ D_med · (1 + depth_rel_tol) + scale_tol · max(s₁, s₂)
@@ -39,7 +40,7 @@ from typing import Sequence
 
 import numpy as np
 
-from kernels import RasterSettings, resolve_device, upload_surfels
+from kernels import resolve_device, upload_surfels
 from kernels.contrib import accumulate_contributions
 
 from ..camera import Camera
@@ -103,7 +104,8 @@ class CentreVoteConfig:
         mask_threshold: mask-positive pixel ``m ≥`` this (0.5).
         depth_rel_tol: relative depth tolerance of the visibility test (0.01).
         scale_tol: absolute tolerance in multiples of the surfel's larger scale (2).
-        near: in front of the camera: planar depth ``>`` this (the renderer's near, 0.01).
+        near: in front of the camera: planar depth ``>`` this (the renderer's near, 0.01),
+            or the view camera's own larger near (``Camera.clip_near``).
     """
 
     mask_threshold: float = 0.5
@@ -132,7 +134,7 @@ def centre_vote(scene: SurfelScene, views: Sequence, *, config: CentreVoteConfig
             d_med = r.render(cam).D_med
         uv, z = cam.project(means)
         with np.errstate(invalid="ignore"):
-            inside = (z > config.near) & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & \
+            inside = (z > cam.clip_near(config.near)) & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & \
                 (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
         idx = np.flatnonzero(inside)
         x = np.floor(uv[idx, 0]).astype(np.int64)
@@ -169,13 +171,6 @@ class ContributionVoteConfig:
             raise ValueError(f"ContributionVoteConfig.gamma must be in (-1, 1), got {self.gamma}")
 
 
-def _raster_settings(c: RenderConfig) -> RasterSettings:
-    return RasterSettings(tau_sig=c.tau_sig, tau_cw=c.tau_cw, t_min=c.t_min,
-                          alpha_min=c.alpha_min, alpha_max=c.alpha_max,
-                          lowpass_sigma=c.lowpass_sigma, near=c.near, tile=c.tile,
-                          max_duplicates=c.max_duplicates, blend=c.blend, threads=c.threads)
-
-
 class ContributionVoter:
     """Baseline (b) for one scene: the surfels are uploaded once; :meth:`vote` per view set.
 
@@ -199,7 +194,7 @@ class ContributionVoter:
         positive = np.asarray(view.mask) >= np.float32(mask_threshold)
         out = accumulate_contributions(self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy,
                                        cam.width, cam.height, positive,
-                                       _raster_settings(self.render_config))
+                                       self.render_config.raster_settings(cam))
         return out.a1.numpy(), out.a0.numpy()
 
     def vote(self, views: Sequence, config: ContributionVoteConfig = ContributionVoteConfig()

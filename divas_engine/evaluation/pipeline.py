@@ -116,7 +116,7 @@ class CachingRenderer:
     @staticmethod
     def _cam_key(camera: Camera, scale: float) -> tuple:
         return (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
-                camera.c2w.tobytes(), camera.name, float(scale))
+                camera.c2w.tobytes(), camera.name, camera.near, float(scale))
 
     def _get(self, key: tuple, make):
         with self._lock:

@@ -23,8 +23,9 @@ class MappingConfig:
             1σ"; alg:vox2surfel (ii)).
         accept_sigma: per-pixel acceptance radius: ``u² + v² ≤ accept_sigma²`` (the
             rasterizer's 3σ ellipse test, alg:vox2surfel (iv)).
-        near: near plane (planar camera depth, world units; the renderer's default): a
-            surfel is scored in a view only if its whole acceptance disc lies beyond it.
+        near: near plane (planar camera depth, world units; the renderer's default), or
+            the view camera's own larger near (``Camera.clip_near``): a surfel is scored
+            in a view only if its whole acceptance disc lies beyond it.
         needle_filter: apply Pass 2 (False: ``f² = f¹``; tab:ablation_needle_surfel).
         coverage_filter: apply Pass 3 (False: ``f = f²``; tab:ablation_needle_surfel).
         early_out: exact early-outs in Pass 3 (identical κ; see ``kernels/coverage.py``).

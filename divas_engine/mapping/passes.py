@@ -34,7 +34,8 @@ Decisions on points the paper leaves open:
    term (coverage is geometric; a sub-pixel surfel whose box holds no pixel centre
    gets κ_s = 0 in that view).
 6. A surfel is scored in a view only when its whole 3σ disc lies beyond the near
-   plane (the rasterizer's rule); otherwise κ_s = 0 there.
+   plane (the rasterizer's rule, with the view camera's own near when larger:
+   ``Camera.clip_near``); otherwise κ_s = 0 there.
 7. Masks are binarised once per view, ``M̃ ≥ τ_M`` compared in float32.
 8. κ_i = 0 for surfels never scored; κ is computed in float32 as
    ``mask_fp / max(total_fp, 1)`` and compared with float32(τ_κ).
@@ -187,7 +188,8 @@ class _ViewCache:
             _, _, moff, soff, _, _ = self.res[id(v)]
             c = v.camera
             structs.append(kcov.make_coverage_view(c.w2c, c.fx, c.fy, c.cx, c.cy, c.width,
-                                                   c.height, cfg.near, int(s), moff, soff))
+                                                   c.height, c.clip_near(cfg.near), int(s),
+                                                   moff, soff))
         self.views_dev = wp.array(structs, dtype=kcov.CoverageView, device=self.device)
         self.key = key
         return self.views_dev, self.mbuf, self.sbuf

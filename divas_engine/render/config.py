@@ -4,6 +4,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from kernels import MarchSettings, RasterSettings
+
+    from ..camera import Camera
 
 __all__ = ["RenderConfig"]
 
@@ -23,7 +29,8 @@ class RenderConfig:
             counted in ``N_samp`` (NeRF).
         alpha_max: 2DGS opacity clamp ``α = min(alpha_max, opacity · G)`` (0.99).
         lowpass_sigma: σ of the 2DGS screen-space low-pass filter, pixels (√2/2).
-        near: near plane, planar camera depth in world units.
+        near: near plane, planar camera depth in world units; a camera with its own
+            larger ``Camera.near`` clips there instead (:meth:`Camera.clip_near`).
         tile: rasterizer tile edge, pixels (16).
         max_duplicates: soft cap on (tile, surfel) pairs held at once; the image is
             rendered in bands of tile rows above it (bounds memory on huge scenes).
@@ -49,3 +56,24 @@ class RenderConfig:
     nerf_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
     threads: int | None = None
     profile: bool = False
+
+    def raster_settings(self, camera: "Camera | None" = None) -> "RasterSettings":
+        """The surfel rasterizer's settings for ``camera`` (its near: ``clip_near``)."""
+        from kernels import RasterSettings
+
+        return RasterSettings(tau_sig=self.tau_sig, tau_cw=self.tau_cw, t_min=self.t_min,
+                              alpha_min=self.alpha_min, alpha_max=self.alpha_max,
+                              lowpass_sigma=self.lowpass_sigma, near=self._near(camera),
+                              tile=self.tile, max_duplicates=self.max_duplicates,
+                              blend=self.blend, threads=self.threads, profile=self.profile)
+
+    def march_settings(self, camera: "Camera | None" = None) -> "MarchSettings":
+        """The density-grid ray-marcher's settings for ``camera``."""
+        from kernels import MarchSettings
+
+        return MarchSettings(tau_sig=self.tau_sig, tau_cw=self.tau_cw, t_min=self.t_min,
+                             alpha_min=self.alpha_min, near=self._near(camera),
+                             step_scale=self.nerf_step_scale, threads=self.threads)
+
+    def _near(self, camera: "Camera | None") -> float:
+        return self.near if camera is None else camera.clip_near(self.near)

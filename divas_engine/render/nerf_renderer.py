@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kernels import MarchSettings, raymarch_grid, resolve_device, upload_grid
+from kernels import raymarch_grid, resolve_device, upload_grid
 
 from ..camera import Camera
 from ..scene import DensityGrid
@@ -35,15 +35,9 @@ class NerfRenderer:
         self.grid_shape = tuple(grid.density.shape)
         self._buf = upload_grid(grid.density, grid.aabb, grid.rgb, self.device)
 
-    def _settings(self) -> MarchSettings:
-        c = self.config
-        return MarchSettings(tau_sig=c.tau_sig, tau_cw=c.tau_cw, t_min=c.t_min,
-                             alpha_min=c.alpha_min, near=c.near, step_scale=c.nerf_step_scale,
-                             threads=c.threads)
-
     def _run(self, cam: Camera, values: np.ndarray | None):
         return raymarch_grid(self._buf, cam.c2w, cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
-                             cam.height, self._settings(), values=values,
+                             cam.height, self.config.march_settings(cam), values=values,
                              color=self.config.nerf_color, background=self.config.background)
 
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kernels import RasterSettings, rasterize_surfels, resolve_device, upload_surfels
+from kernels import rasterize_surfels, resolve_device, upload_surfels
 
 from ..camera import Camera
 from ..scene import SurfelScene
@@ -26,7 +26,8 @@ class SurfelRenderer:
     * the low-pass Gaussian is always combined by max (as 2DGS does), which is the
       edge-on fallback; its depth is the centre depth;
     * a surfel is drawn only if its whole cutoff disc (α ≥ 1/255, ≤ 3.33σ) lies beyond
-      ``config.near``; screen bounds are exact for that disc (not a fixed 3σ box);
+      the near plane (``config.near``, or the camera's own larger ``Camera.near``);
+      screen bounds are exact for that disc (not a fixed 3σ box);
     * "stop when T < 1e-4": the element that brings T below is blended, then stop;
     * ``N_samp`` with no ``D_med`` counts every traversed contributing surfel.
     """
@@ -40,17 +41,9 @@ class SurfelRenderer:
         self._buf = upload_surfels(scene.means, scene.rotations(), scene.scales, scene.opacities,
                                    scene.sh, scene.sh_degree, self.device, self.config.alpha_min)
 
-    def _settings(self) -> RasterSettings:
-        c = self.config
-        return RasterSettings(tau_sig=c.tau_sig, tau_cw=c.tau_cw, t_min=c.t_min,
-                              alpha_min=c.alpha_min, alpha_max=c.alpha_max,
-                              lowpass_sigma=c.lowpass_sigma, near=c.near, tile=c.tile,
-                              max_duplicates=c.max_duplicates, blend=c.blend, threads=c.threads,
-                              profile=c.profile)
-
     def _run(self, cam: Camera, values: np.ndarray | None):
         return rasterize_surfels(self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
-                                 cam.height, self._settings(), values=values,
+                                 cam.height, self.config.raster_settings(cam), values=values,
                                  background=self.config.background)
 
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:

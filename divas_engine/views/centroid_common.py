@@ -97,9 +97,11 @@ def click_point(anchor: Camera, click, depth_map: np.ndarray, alpha: np.ndarray,
 
 
 def build_pose(anchor: Camera, target: np.ndarray, view_dir: np.ndarray, radius: float,
-               name: str = "") -> Camera:
+               name: str = "", near_fraction: float = 0.0) -> Camera:
     """BuildPose: anchor intrinsics, centre ``target − radius·view_dir``, looking at
-    ``target`` (it projects to the principal point), image-up = the anchor's up."""
+    ``target`` (it projects to the principal point), image-up = the anchor's up; its own
+    near clip ``Camera.near = near_fraction · radius`` (``ViewConfig.near_fraction``)."""
     eye = np.asarray(target, dtype=np.float64) - float(radius) * np.asarray(view_dir, dtype=np.float64)
     return Camera.look_at(eye, target, anchor.up, width=anchor.width, height=anchor.height,
-                          fx=anchor.fx, fy=anchor.fy, cx=anchor.cx, cy=anchor.cy, name=name)
+                          fx=anchor.fx, fy=anchor.fy, cx=anchor.cx, cy=anchor.cy, name=name,
+                          near=float(near_fraction) * float(radius))

@@ -135,7 +135,7 @@ class GsCentroidPlanner:
         probes: list[ProbeRecord] = []
         r_star, accepted = float(radii[-1]), False
         for r_k in radii:
-            cam = build_pose(anchor, x_w, v, float(r_k))
+            cam = build_pose(anchor, x_w, v, float(r_k), near_fraction=cfg.near_fraction)
             d_med = self.renderer.render(cam, scale=s).D_med
             o, valid = occluded_fraction(d_med, 0.0, cfg.f_fill)  # validity only
             if valid == 0:
@@ -155,7 +155,7 @@ class GsCentroidPlanner:
             if ok:
                 r_star, accepted = float(r_k), True
                 break
-        cam = build_pose(anchor, x_w, v, r_star, name)
+        cam = build_pose(anchor, x_w, v, r_star, name, cfg.near_fraction)
         return CentroidView(cam, r_star, x_w, (float(click[0]), float(click[1])), z, box,
                             f"{s1}+{'probe' if accepted else 'fallback'}", float(r_init),
                             int(len(nb)), probes)

@@ -40,6 +40,6 @@ def nerf_centroid_view(anchor: Camera, click, buffers: RenderBuffers, *,
     dist = float(np.linalg.norm(x_w - p))
     view_dir = (x_w - p) / dist
     d_cam = float(np.linalg.norm(x_w - p_new))
-    cam = build_pose(anchor, x_w, view_dir, d_cam, name)
+    cam = build_pose(anchor, x_w, view_dir, d_cam, name, cfg.near_fraction)
     return CentroidView(cam, d_cam, x_w, (float(click[0]), float(click[1])), z, None,
                         "nerf-zoom", dist)

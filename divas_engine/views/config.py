@@ -52,6 +52,17 @@ class ViewConfig:
         probe_scale: σ, probe renders at σ × the anchor resolution (not given by the
             paper; 0.25) …
         probe_min_size: … but at least this many pixels on each side (64).
+        near_fraction: a centroid view's own near clip, as a fraction of its orbit radius
+            ``d_cam`` (not in the paper; 0.05). The paper's failure mode of a centroid
+            camera placed *inside* a floater (App. C, Strategy 2) has a faint form that
+            eq:occfrac cannot see: a floater with α ≈ 0.05 a few centimetres from the
+            camera leaves D_med alone but sets D_min (first weight ≥ τ_sig) over half
+            the image, and eq:behind-gate then drops every voxel behind those
+            see-through pixels. The reference 2DGS/3DGS rasterizers cull primitives at
+            camera z ≤ 0.2 scene units — about 5 % of their typical viewing distance;
+            this is that rule made scale-free for the views DivAS synthesises. The
+            clicked surface sits at ``d_cam``, far behind ``0.05 d_cam``. 0 disables it
+            (the renderer's near alone).
     """
 
     # anchors
@@ -88,3 +99,8 @@ class ViewConfig:
     tau_o: float = 0.15
     probe_scale: float = 0.25
     probe_min_size: int = 64
+    near_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.near_fraction < 1.0:
+            raise ValueError(f"ViewConfig.near_fraction must be in [0, 1), got {self.near_fraction}")
