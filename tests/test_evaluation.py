@@ -428,7 +428,7 @@ def _user_session(sc, budget):
 
 
 def test_scripted_user_follows_the_protocol(user_scene):
-    from divas_engine.evaluation.scripted_user import UserBudget
+    from divas_engine.evaluation.scripted_user import VIEW_BUDGET, UserBudget
 
     sc = user_scene
     budget = UserBudget()
@@ -438,16 +438,23 @@ def test_scripted_user_follows_the_protocol(user_scene):
         # it clicked, and only on target pixels the overlay did not cover yet
         assert checked and len(checked) == len(log.clicks)
         assert all(t and not c for _, t, c in checked), checked
-        assert len(s.views) == sum(c.view_id is not None for c in log.clicks) <= budget.max_views
-        # per-anchor budget; every anchor complete, out of clicks, or past the view budget
+        # the paper's view budget for the capture type (tab:view-budget's upper end)
+        assert log.max_views == VIEW_BUDGET[s.forward_facing] == user.max_views(s)
+        assert len(s.views) == sum(c.view_id is not None for c in log.clicks) <= log.max_views
+        # no per-anchor cap: every anchor complete, stalled, past the view budget or unvisited
         per = np.bincount([c.anchor for c in log.clicks], minlength=len(s.anchors))
-        assert per.max() <= budget.clicks_per_anchor
         assert len(log.anchor_status) == len(s.anchors)
+        min_area = user._min_area(s.anchors[0].camera)
         for a, st in enumerate(log.anchor_status):
-            assert st in ("complete", "clicks", "budget", "not visited")
-            assert st != "clicks" or per[a] == budget.clicks_per_anchor
+            assert st in ("complete", "stalled", "budget", "not visited")
             assert st != "not visited" or per[a] == 0
-        assert (log.stop == "budget") == (len(s.views) == budget.max_views)
+            if st == "stalled":  # its last max_failed_clicks clicks shrank nothing
+                seq = [c.uncovered_px for c in log.clicks if c.anchor == a] + \
+                    [log.uncovered_after[a]]
+                k = budget.max_failed_clicks
+                assert len(seq) > k and all(seq[i] - seq[i + 1] < min_area
+                                            for i in range(len(seq) - k - 1, len(seq) - 1))
+        assert (log.stop == "budget") == (len(s.views) == log.max_views)
         assert (log.stop == "complete") == all(log.complete)
         assert any(v.status == "fused" for v in s.views) and s.selection.any()
         # anchors from the session's own plan; the user never looked at a test camera
@@ -460,6 +467,26 @@ def test_scripted_user_follows_the_protocol(user_scene):
         assert not set(log.looked_at) & {t.name for t in sc.test_cameras}
     finally:
         s.close()
+
+
+def test_scripted_user_per_anchor_cap(user_scene):
+    """The optional hard cap on clicks per anchor."""
+    from divas_engine.evaluation.scripted_user import UserBudget
+
+    s, user, _, _ = _user_session(user_scene, UserBudget(clicks_per_anchor=1, manual_anchors=0))
+    try:
+        log = user.run(s)
+        per = np.bincount([c.anchor for c in log.clicks], minlength=len(s.anchors))
+        assert per.max() == 1
+        for a, st in enumerate(log.anchor_status):
+            assert st != "clicks" or per[a] == 1
+        assert "clicks" in log.anchor_status or log.stop == "complete"
+    finally:
+        s.close()
+    with pytest.raises(ValueError, match="clicks_per_anchor"):
+        UserBudget(clicks_per_anchor=0)
+    with pytest.raises(ValueError, match="max_failed_clicks"):
+        UserBudget(max_failed_clicks=0)
 
 
 def test_scripted_user_stops_at_the_view_budget(user_scene):
@@ -657,6 +684,32 @@ def test_scripted_user_declines_a_leaked_preview(user_scene):
             s.close()
     with pytest.raises(ValueError):
         UserBudget(min_accept_precision=1.5)
+
+
+def test_scripted_user_gives_up_on_an_anchor_without_progress(user_scene):
+    """A segmenter sure of an empty mask never covers anything: the user clicks each
+    anchor exactly ``max_failed_clicks`` times (no hard cap), marks it stalled and
+    moves on — it does not spend the whole view budget on one anchor."""
+    from divas_engine.evaluation.scripted_user import ScriptedUser, UserBudget
+    from divas_engine.session import Session, SessionConfig, anchor_plan
+
+    sc = user_scene
+    cfg = SessionConfig(render_scale=0.25)
+    for k in (1, 2):
+        user = ScriptedUser(sc.labels, UserBudget(max_failed_clicks=k, manual_anchors=0,
+                                                  max_views=50, negative_clicks=False))
+        s = Session.open(sc.scene, sc.cameras, cfg, ConstantSegmenter(0.0), CPU,
+                         anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
+                         gt_values=sc.labels.astype(np.float32), render_anchors=False)
+        try:
+            log = user.run(s)
+            per = np.bincount([c.anchor for c in log.clicks], minlength=len(s.anchors))
+            visited = [a for a, st in enumerate(log.anchor_status) if st != "complete"]
+            assert visited and all(log.anchor_status[a] == "stalled" for a in visited)
+            assert all(per[a] == k for a in visited) and log.stop == "incomplete"
+            assert not s.selection.any()
+        finally:
+            s.close()
 
 
 def test_leak_free_fraction_by_hand():

@@ -4,8 +4,9 @@ suite.
 
 Per scene: scripted DivAS sessions — by default a simulated user that looks at each of
 the session's anchors with the overlay of the running selection and clicks the largest
-uncovered region of its target until coverage is complete (paper Sec. 3.3/3.7; at most
-3 clicks per anchor, 20 views); ``--protocol clicks``: the metadata clicks on the
+uncovered region of its target until coverage is complete (paper Sec. 3.3/3.7; it gives
+up on an anchor after 2 clicks in a row without progress; at most 10 views on a
+forward-facing capture, 20 on a 360° one, the paper's view budget); ``--protocol clicks``: the metadata clicks on the
 training cameras that see them, every centroid view accepted. Each with the SAM-like
 oracle and the classic segmenter: DivAS full, without the thin path, without depth
 weighting, Pass 1 only, Pass 1+2; and two peer baselines fed the same accepted view masks
@@ -80,9 +81,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "paper's Sec. 3.3/3.7) or the metadata clicks on training cameras "
                         "(clicks, the divas demo protocol)")
     p.add_argument("--clicks-per-anchor", type=int, default=None,
-                   help="simulated user: clicks per anchor (default 3)")
+                   help="simulated user: hard cap on clicks per anchor (default: none — it "
+                        "works an anchor until complete, or until 2 clicks in a row make no "
+                        "progress)")
     p.add_argument("--max-views", type=int, default=None,
-                   help="simulated user: centroid views per session (default 20)")
+                   help="simulated user: centroid views per session (default: the paper's "
+                        "bounded view processing, 10 forward-facing / 20 for 360° captures)")
     p.add_argument("--manual-anchors", type=int, default=None,
                    help="simulated user: training cameras it may add as manual anchors after "
                         "the plan's anchors (paper: manual anchor selection; default 4; 0 = the "

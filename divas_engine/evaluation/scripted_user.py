@@ -14,7 +14,10 @@ What the simulated user sees is what a user sees, nothing more:
 * its *intent*: the ground-truth target rendered at the view it is looking at
   (``≥ target_threshold``) — the stand-in for the user knowing what they want.
 
-Per anchor of the plan, in plan order, at most ``clicks_per_anchor`` times:
+Per anchor of the plan, in plan order, until the anchor is complete (step 3) — or the
+user gives up on it after ``max_failed_clicks`` clicks in a row that did not shrink its
+uncovered target by a region's worth (``stalled``), or hits the optional hard cap
+``clicks_per_anchor``:
 
 1. visible target ``T`` (GT render ≥ 0.5) and overlay ``O`` at the anchor;
 2. the connected regions (8-connectivity) of ``T ∧ ¬O`` with at least
@@ -47,9 +50,13 @@ region, and — when it shows one at working resolution too — adds it as an an
 (:meth:`Session.add_anchor`) and works it like the others; up to ``manual_anchors``
 times. The test cameras are never among them.
 
-The session stops at ``max_views`` centroid views in total (App. "Bounded view
-processing": 5–10 views for LLFF-like scenes, 8–20 for Mip-360 ones; the default 20 is
-the upper end) or when every anchor is complete.
+The session stops at ``max_views`` centroid views in total — by default the upper end of
+the paper's bounded view processing (App. "Bounded view processing", tab:view-budget:
+5–10 centroid views on LLFF-like forward-facing captures, at most 20 on Mip-NeRF 360
+ones), i.e. 10 on a forward-facing capture and 20 on a 360° one — or when every anchor
+is complete or given up. The paper's loop has no per-anchor cap ("the user re-prompts
+only uncaptured regions", Sec. 3.3): the earlier default of 3 clicks per anchor stopped
+the user one click short of complete coverage on the first ribs anchor in every seed.
 """
 
 from __future__ import annotations
@@ -64,7 +71,11 @@ from scipy import ndimage
 
 from ..errors import DivasInputError
 
-__all__ = ["UserBudget", "UserClick", "UserLog", "ScriptedUser", "uncovered_regions",
+#: Default view budget per capture type (tab:view-budget's upper ends): forward-facing
+#: (LLFF-like) 10 centroid views, 360° (Mip-NeRF 360) 20.
+VIEW_BUDGET: dict[bool, int] = {True: 10, False: 20}
+
+__all__ = ["VIEW_BUDGET", "UserBudget", "UserClick", "UserLog", "ScriptedUser", "uncovered_regions",
            "region_centre", "leak_free_fraction"]
 
 
@@ -73,9 +84,16 @@ class UserBudget:
     """Budgets and thresholds of the simulated user.
 
     Attributes:
-        clicks_per_anchor: positive clicks (centroid views) per anchor, 3.
-        max_views: centroid views per session in total, 20 (the paper's upper range for
-            360° scenes, App. "Bounded view processing").
+        clicks_per_anchor: optional hard cap on positive clicks (centroid views) per
+            anchor; None (default): none — the user works an anchor until it is complete
+            or stalled.
+        max_failed_clicks: the user gives up on an anchor after this many clicks in a row
+            that did not shrink its uncovered target pixels by at least one minimum
+            region (a view that failed, was rejected or declined, or covered too little),
+            2.
+        max_views: centroid views per session in total; None (default): the upper end of
+            the paper's bounded view processing (tab:view-budget) for the capture type,
+            :data:`VIEW_BUDGET` (10 forward-facing, 20 for 360°).
         min_region_frac: smallest uncovered (or false-positive) region worth a click, as
             a fraction of the view's pixels, 0.002 (0.2 %: 614 px at 640×480).
         target_threshold: the user's target at a view = GT render ``≥`` this, 0.5 (the
@@ -100,8 +118,9 @@ class UserBudget:
             every view.
     """
 
-    clicks_per_anchor: int = 3
-    max_views: int = 20
+    clicks_per_anchor: int | None = None
+    max_failed_clicks: int = 2
+    max_views: int | None = None
     min_region_frac: float = 0.002
     target_threshold: float = 0.5
     negative_clicks: bool = True
@@ -111,8 +130,12 @@ class UserBudget:
     min_accept_precision: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.clicks_per_anchor < 1 or self.max_views < 1:
-            raise ValueError("UserBudget: clicks_per_anchor and max_views must be ≥ 1")
+        for k in ("clicks_per_anchor", "max_views"):
+            v = getattr(self, k)
+            if v is not None and v < 1:
+                raise ValueError(f"UserBudget.{k} must be ≥ 1 (or None), got {v}")
+        if self.max_failed_clicks < 1:
+            raise ValueError(f"UserBudget.max_failed_clicks must be ≥ 1, got {self.max_failed_clicks}")
         if self.manual_anchors < 0:
             raise ValueError(f"UserBudget.manual_anchors must be ≥ 0, got {self.manual_anchors}")
         if not 0.0 <= self.min_accept_precision <= 1.0:
@@ -158,14 +181,16 @@ class UserLog:
     Attributes:
         clicks: the positive clicks in order.
         anchor_status: per anchor, ``"complete"`` (no uncovered region of the minimum
-            area left), ``"clicks"`` (its click budget spent first), ``"budget"`` (the
-            session's view budget ran out there) or ``"not visited"`` (after that).
+            area left), ``"stalled"`` (given up after ``max_failed_clicks`` clicks without
+            progress), ``"clicks"`` (the optional per-anchor cap reached), ``"budget"``
+            (the session's view budget ran out there) or ``"not visited"`` (after that).
         uncovered_after: per anchor, uncovered target pixels at the last look (−1: not
             visited).
         looked_at: names of every camera the user looked at (anchors, centroid views).
         manual: training-camera indices added as manual anchors, in order.
         stop: ``"complete"`` (every anchor complete), ``"budget"`` (view budget spent)
-            or ``"clicks"`` (some anchor's click budget spent, the rest complete).
+            or ``"incomplete"`` (some anchor stalled or capped, the rest complete).
+        max_views: the view budget the session ran under.
     """
 
     clicks: list[UserClick] = field(default_factory=list)
@@ -174,6 +199,7 @@ class UserLog:
     looked_at: list[str] = field(default_factory=list)
     manual: list[int] = field(default_factory=list)
     stop: str = ""
+    max_views: int = 0
 
     @property
     def declined(self) -> int:
@@ -189,7 +215,7 @@ class UserLog:
         return {"clicks": [asdict(c) for c in self.clicks],
                 "anchor_status": self.anchor_status, "complete": self.complete,
                 "uncovered_after": self.uncovered_after, "stop": self.stop,
-                "manual_anchors": list(self.manual),
+                "manual_anchors": list(self.manual), "max_views": self.max_views,
                 "views": len(self.clicks),
                 "negatives": sum(len(c.negatives) for c in self.clicks),
                 "negatives_kept": sum(c.negative_kept for c in self.clicks),
@@ -294,16 +320,23 @@ class ScriptedUser:
                     seen.add((c.source, int(c.index)))
         return out
 
+    def max_views(self, session) -> int:
+        """The session's view budget: ``max_views``, else :data:`VIEW_BUDGET` of its
+        capture type."""
+        b = self.budget
+        return int(b.max_views) if b.max_views is not None else \
+            VIEW_BUDGET[bool(session.forward_facing)]
+
     def run(self, session) -> UserLog:
         """Drive ``session`` (freshly opened, current object empty) over its anchors, then
         (``manual_anchors``) over training cameras it adds as manual anchors."""
         b = self.budget
-        log = UserLog()
+        log = UserLog(max_views=self.max_views(session))
         n_views = 0
         for ai in range(len(session.anchors)):
             n_views = self._visit(session, ai, log, n_views)
         seen: set[int] = set()
-        while len(log.manual) < b.manual_anchors and n_views < b.max_views:
+        while len(log.manual) < b.manual_anchors and n_views < log.max_views:
             pick = self._browse(session, seen, log)
             if pick is None:
                 break
@@ -312,32 +345,39 @@ class ScriptedUser:
             n_views = self._visit(session, a.index, log, n_views)
         st = log.anchor_status
         log.stop = ("budget" if "budget" in st or "not visited" in st else
-                    "complete" if all(x == "complete" for x in st) else "clicks")
+                    "complete" if all(x == "complete" for x in st) else "incomplete")
         return log
 
     def _visit(self, session, ai: int, log: UserLog, n_views: int) -> int:
         """Steps 1–5 on anchor ``ai``; returns the session's centroid-view count."""
         b = self.budget
-        if n_views >= b.max_views:
+        if n_views >= log.max_views:
             log.anchor_status.append("not visited")
             log.uncovered_after.append(-1)
             return n_views
         cam = session.anchors[ai].camera
         min_area = self._min_area(cam)
         tried: list[tuple[int, int]] = []
+        failed, last = 0, None
         status, uncovered = "clicks", 0
         while True:
             tgt = self.target(session, cam, log)
             cov = self.overlay_mask(session, cam)
             uncovered = int(np.count_nonzero(tgt & ~cov))
+            if last is not None:  # did the last click shrink the uncovered target?
+                failed = 0 if last - uncovered >= min_area else failed + 1
+            last = uncovered
             regions = uncovered_regions(tgt, cov, min_area)
             if not regions:
                 status = "complete"
                 break
-            if n_views >= b.max_views:
+            if n_views >= log.max_views:
                 status = "budget"
                 break
-            if len(tried) >= b.clicks_per_anchor:
+            if failed >= b.max_failed_clicks:
+                status = "stalled"
+                break
+            if b.clicks_per_anchor is not None and len(tried) >= b.clicks_per_anchor:
                 break
             # a region an earlier click of this anchor did not cover is clicked again
             # away from that click (its centroid view would be the same one)

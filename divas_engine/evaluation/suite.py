@@ -383,8 +383,12 @@ def markdown_table(result: dict[str, Any]) -> str:
         u = cfg.get("user") or {}
         lines += ["", f"View protocol: {cfg['protocol']}" + (
             "" if cfg["protocol"] != "user" else
-            f" (simulated user on the session's anchor plan: ≤ {u.get('clicks_per_anchor')} "
-            f"clicks per anchor, ≤ {u.get('max_views')} views, regions ≥ "
+            f" (simulated user on the session's anchor plan: "
+            + (f"≤ {u['clicks_per_anchor']} clicks per anchor" if u.get("clicks_per_anchor")
+               else f"each anchor until complete or {u.get('max_failed_clicks')} clicks "
+                    "without progress")
+            + ", ≤ " + (f"{u['max_views']}" if u.get("max_views") else "10 (forward-facing) / "
+                        "20 (360°)") + " views, regions ≥ "
             f"{100 * u.get('min_region_frac', 0):.1f} % of the view, negative clicks "
             f"{'on' if u.get('negative_clicks') else 'off'}, "
             + ("then the other supported Fibonacci anchors" if u.get("more_anchors")
