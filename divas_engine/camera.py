@@ -60,7 +60,8 @@ class Camera:
                 raise ValueError(f"camera {self.name!r}: focal length {k}={v} must be positive")
         near = float(self.near)
         if not math.isfinite(near) or near < 0:
-            raise ValueError(f"camera {self.name!r}: near clip {self.near} must be finite and ≥ 0")
+            raise ValueError(f"camera {self.name!r}: near clip {self.near} must be finite "
+                             "and ≥ 0")
         object.__setattr__(self, "near", near)
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ValueError(f"camera {self.name!r}: image size {self.width}x{self.height} is empty")

@@ -198,16 +198,18 @@ def test_centroid_camera_clips_a_faint_floater_next_to_it(occluded):
     cam = cv.camera
     assert cam.near == pytest.approx(0.05 * cv.d_cam) and cv.d_cam > 0
     assert Camera.from_dict(cv.to_dict()["camera"]).near == cam.near
-    off = GsCentroidPlanner(s.scene, r, ViewConfig(near_fraction=0.0)).centroid_view(anchor, click, buf)
+    off = GsCentroidPlanner(s.scene, r, ViewConfig(near_fraction=0.0)).centroid_view(
+        anchor, click, buf)
     assert off.camera.near == 0.0 and np.array_equal(off.camera.c2w, cam.c2w)
     with pytest.raises(ValueError, match="near_fraction"):
         ViewConfig(near_fraction=1.0)
     # the floater: a disc facing the camera at 0.02 d_cam, wide enough to fill the image
     sc = s.scene
     q = rotmat_to_quat(cam.c2w[None, :3, :3]).astype(np.float32)
+    centre = (cam.center + 0.02 * cv.d_cam * cam.forward)[None]
     veil = SurfelScene(
-        np.vstack([sc.means, (cam.center + 0.02 * cv.d_cam * cam.forward)[None]]).astype(np.float32),
-        np.vstack([sc.quats, q]), np.vstack([sc.scales, np.full((1, 2), 0.2 * cv.d_cam)]).astype(np.float32),
+        np.vstack([sc.means, centre]).astype(np.float32), np.vstack([sc.quats, q]),
+        np.vstack([sc.scales, np.full((1, 2), 0.2 * cv.d_cam)]).astype(np.float32),
         np.append(sc.opacities, np.float32(0.06)), np.concatenate([sc.sh, sc.sh[:1]]), sc.sh_degree)
     rv = SurfelRenderer(veil, device="cpu")
     h, w = cam.height // 2, cam.width // 2

@@ -261,7 +261,8 @@ def test_contribution_vote_rule_and_bias(two_planes):
     a = ContributionVoter(scene, CPU).contributions(MaskView(cam.with_near(near), m))
     b = ContributionVoter(scene, CPU, RenderConfig(near=near)).contributions(MaskView(cam, m))
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
-    assert not np.array_equal(a[0], ContributionVoter(scene, CPU).contributions(MaskView(cam, m))[0])
+    plain = ContributionVoter(scene, CPU).contributions(MaskView(cam, m))
+    assert not np.array_equal(a[0], plain[0])
 
 
 # ----------------------------------------------------------------------------- pipeline helpers
@@ -297,7 +298,8 @@ def test_caching_renderer_is_transparent():
     assert np.array_equal(c.render_values(cam, v), inner.render_values(cam, v))
     assert c.render_values(cam, 1 - v) is not c.render_values(cam, v)
     clipped = c.render(cam.with_near(3.0))            # a camera's near is part of the key
-    assert clipped is not a and np.array_equal(clipped.D_med, inner.render(cam.with_near(3.0)).D_med)
+    assert clipped is not a
+    assert np.array_equal(clipped.D_med, inner.render(cam.with_near(3.0)).D_med)
     with pytest.raises(ValueError):
         a.rgb[0, 0, 0] = 1.0                          # cached arrays are read-only
     assert c.num_primitives == len(scene)

@@ -6,8 +6,9 @@ Per scene: scripted DivAS sessions — by default a simulated user that looks at
 the session's anchors with the overlay of the running selection and clicks the largest
 uncovered region of its target until coverage is complete (paper Sec. 3.3/3.7; it gives
 up on an anchor after 2 clicks in a row without progress; at most 10 views on a
-forward-facing capture, 20 on a 360° one, the paper's view budget); ``--protocol clicks``: the metadata clicks on the
-training cameras that see them, every centroid view accepted. Each with the SAM-like
+forward-facing capture, 20 on a 360° one, the paper's view budget); ``--protocol
+clicks``: the metadata clicks on the training cameras that see them, every centroid view
+accepted. Each with the SAM-like
 oracle and the classic segmenter: DivAS full, without the thin path, without depth
 weighting, Pass 1 only, Pass 1+2; and two peer baselines fed the same accepted view masks
 (centre-projection voting, FlashSplat-style contribution voting); the NeRF path on the

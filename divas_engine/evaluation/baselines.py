@@ -134,8 +134,9 @@ def centre_vote(scene: SurfelScene, views: Sequence, *, config: CentreVoteConfig
             d_med = r.render(cam).D_med
         uv, z = cam.project(means)
         with np.errstate(invalid="ignore"):
-            inside = (z > cam.clip_near(config.near)) & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & \
-                (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+            inside = (z > cam.clip_near(config.near)) & np.isfinite(uv).all(axis=1) & \
+                (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & \
+                (uv[:, 1] < cam.height)
         idx = np.flatnonzero(inside)
         x = np.floor(uv[idx, 0]).astype(np.int64)
         y = np.floor(uv[idx, 1]).astype(np.int64)

@@ -75,8 +75,8 @@ from ..errors import DivasInputError
 #: (LLFF-like) 10 centroid views, 360° (Mip-NeRF 360) 20.
 VIEW_BUDGET: dict[bool, int] = {True: 10, False: 20}
 
-__all__ = ["VIEW_BUDGET", "UserBudget", "UserClick", "UserLog", "ScriptedUser", "uncovered_regions",
-           "region_centre", "leak_free_fraction"]
+__all__ = ["VIEW_BUDGET", "UserBudget", "UserClick", "UserLog", "ScriptedUser",
+           "uncovered_regions", "region_centre", "leak_free_fraction"]
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,8 @@ class UserBudget:
             if v is not None and v < 1:
                 raise ValueError(f"UserBudget.{k} must be ≥ 1 (or None), got {v}")
         if self.max_failed_clicks < 1:
-            raise ValueError(f"UserBudget.max_failed_clicks must be ≥ 1, got {self.max_failed_clicks}")
+            raise ValueError(f"UserBudget.max_failed_clicks must be ≥ 1, "
+                             f"got {self.max_failed_clicks}")
         if self.manual_anchors < 0:
             raise ValueError(f"UserBudget.manual_anchors must be ≥ 0, got {self.manual_anchors}")
         if not 0.0 <= self.min_accept_precision <= 1.0:
