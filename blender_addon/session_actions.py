@@ -179,6 +179,12 @@ def _new_camera(context, obj, camera, name: str, session: Session):
                                display_size=_display_size(session))
     cam[OWNER_PROP] = obj.name
     cam.parent = obj  # world = object @ camera: follows the object's transform
+    if camera.near > 0:
+        # the engine camera's own near clip (centroid views), so the camera view hides
+        # what the engine's render did; Blender clips in the normalised camera frame,
+        # i.e. in world units: scene units × the object's uniform scale
+        s = abs(float(np.linalg.det(np.array(obj.matrix_world, np.float64)[:3, :3]))) ** (1 / 3)
+        cam.data.clip_start = max(cam.data.clip_start, camera.near * s)
     return cam
 
 

@@ -123,6 +123,10 @@ def test_start_session_cameras_images_projection(scene_dir):
     assert vcam[VIEW_PROP] == v.id and vcam.name in coll.objects and vcam.parent == obj
     assert tuple(vcam.data.background_images[0].image.size) == (v.camera.width, v.camera.height)
     assert _projection_error(bpy.context.scene, vcam, v.camera, rng) < 0.5
+    # its own near clip (a fraction of the orbit radius) carried to the Blender camera
+    s_obj = abs(np.linalg.det(np.array(obj.matrix_world)[:3, :3])) ** (1 / 3)
+    assert v.camera.near > 0.01
+    assert vcam.data.clip_start == pytest.approx(v.camera.near * s_obj, rel=1e-5)
     assert v.preview is not None  # the default prompt was previewed
     assert live.last_update["what"] == f"view {v.id}" and live.last_update["update_s"] > 0
 
