@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEMO   ?= demo_out
 
-.PHONY: demo test bench clean extension
+.PHONY: demo test lint bench clean extension
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +16,13 @@ demo: $(PY)
 
 test: $(PY)
 	$(PY) -m pip install -q -e ".[test]"
+	$(MAKE) --no-print-directory lint
 	$(PY) -m pytest -q
+
+# Style: ruff lint and format check (configured in pyproject.toml)
+lint: $(PY)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 bench: $(PY)
 	$(PY) -m pip install -q -e .

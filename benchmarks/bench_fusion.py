@@ -36,9 +36,12 @@ from divas_engine.fusion.config import GridConfig, GsFusionConfig, nerf_preset  
 from divas_engine.fusion.gs_fusion import GsFusion  # noqa: E402
 from divas_engine.fusion.morton import morton_encode  # noqa: E402
 from divas_engine.fusion.nerf_fusion import NerfFusion  # noqa: E402
-from divas_engine.fusion.nerf_occupancy import NerfOccupancy, NerfBuildReport  # noqa: E402
-from divas_engine.fusion.occupancy import (GridGeometry, OccupancyGrid,  # noqa: E402
-                                           build_occupancy)
+from divas_engine.fusion.nerf_occupancy import NerfBuildReport, NerfOccupancy  # noqa: E402
+from divas_engine.fusion.occupancy import (
+    GridGeometry,
+    OccupancyGrid,  # noqa: E402
+    build_occupancy,
+)
 from divas_engine.fusion.views import FusionView  # noqa: E402
 from divas_engine.scene import SurfelScene  # noqa: E402
 from tests import fusion_reference as ref  # noqa: E402
@@ -109,7 +112,9 @@ def make_views(r: float, k: int = 20, seed: int = 0) -> list[FusionView]:
         a = 2 * np.pi * i / k
         eye = 3.0 * np.array([np.cos(a), np.sin(a), 0.3 * np.sin(3 * a)])
         f = 772.0 * (4 if i % 2 else 1)
-        target = 0.6 * r * np.array([np.cos(a + 0.3), np.sin(a + 0.3), 0.0]) if i % 2 else np.zeros(3)
+        target = (
+            0.6 * r * np.array([np.cos(a + 0.3), np.sin(a + 0.3), 0.0]) if i % 2 else np.zeros(3)
+        )
         cam = Camera.look_at(eye, target, np.array([0, 0, 1.0]), width=640, height=480, fx=f)
         views.append(sphere_view(cam, rng, r))
     return views
@@ -120,8 +125,15 @@ def in_frame(centers: np.ndarray, views: list[FusionView]) -> int:
     tot = 0
     for v in views:
         uv, z = v.camera.project(centers)
-        tot += int(((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < v.camera.width) & (uv[:, 1] >= 0)
-                    & (uv[:, 1] < v.camera.height)).sum())
+        tot += int(
+            (
+                (z > 0)
+                & (uv[:, 0] >= 0)
+                & (uv[:, 0] < v.camera.width)
+                & (uv[:, 1] >= 0)
+                & (uv[:, 1] < v.camera.height)
+            ).sum()
+        )
     return tot
 
 
@@ -175,10 +187,21 @@ def bench_gs(sizes, ref_max, device) -> list[dict]:
         res = f.result()
         recs = len(f._records[1]) if 1 in f._records else 0
         stream = n * (12 + 9 + 40) + recs * 30
-        row = dict(kind="2DGS", n=n, kernel=t_kernel, upload=t_upload, update=t_update,
-                   undo=t_undo, full=t_full, stream_gbs=stream / t_update / 1e9,
-                   ns_per_voxel=t_kernel / n * 1e9, thick=int(res.n_thick.sum()),
-                   thin=int(res.n_thin.sum()), seg=int(res.segmented.sum()), ref=None)
+        row = dict(
+            kind="2DGS",
+            n=n,
+            kernel=t_kernel,
+            upload=t_upload,
+            update=t_update,
+            undo=t_undo,
+            full=t_full,
+            stream_gbs=stream / t_update / 1e9,
+            ns_per_voxel=t_kernel / n * 1e9,
+            thick=int(res.n_thick.sum()),
+            thin=int(res.n_thin.sum()),
+            seg=int(res.segmented.sum()),
+            ref=None,
+        )
         c = grid.centers()
         row["in_frame"] = in_frame(c, views)
         if n <= ref_max:
@@ -198,14 +221,22 @@ def bench_nerf(sizes, ref_max, device) -> list[dict]:
         codes = shell_codes(rng, n)
         views = make_views(shell_radius(n))
         from divas_engine.fusion.morton import morton_decode
+
         ijk = morton_decode(codes)
         lin = np.sort((ijk[:, 2] * G + ijk[:, 1]) * G + ijk[:, 0])
         cell = np.full(3, H)
-        rep = NerfBuildReport((G, G, G), G ** 3, n, n / G ** 3, n, H, False, 0.0, 8 * n)
-        occ = NerfOccupancy(wp.array(lin.astype(np.int32), dtype=wp.int32, device=device),
-                            wp.array(np.full(n, 100.0, np.float32), dtype=float, device=device),
-                            (G, G, G), np.array([[-B] * 3, [B] * 3]), cell, H, cfg,
-                            wp.get_device(device), rep)
+        rep = NerfBuildReport((G, G, G), G**3, n, n / G**3, n, H, False, 0.0, 8 * n)
+        occ = NerfOccupancy(
+            wp.array(lin.astype(np.int32), dtype=wp.int32, device=device),
+            wp.array(np.full(n, 100.0, np.float32), dtype=float, device=device),
+            (G, G, G),
+            np.array([[-B] * 3, [B] * 3]),
+            cell,
+            H,
+            cfg,
+            wp.get_device(device),
+            rep,
+        )
         f = NerfFusion(occ, cfg, device)
         f.add_view(views[0])
         f.reset()
@@ -225,10 +256,22 @@ def bench_nerf(sizes, ref_max, device) -> list[dict]:
         t_full = timed(refuse, 1)
         res = f.result()
         c = occ.centers()
-        row = dict(kind="NeRF", in_frame=in_frame(c, views), n=n, kernel=t_kernel, upload=t_upload, update=t_update,
-                   undo=t_undo, full=t_full, stream_gbs=n * (8 + 9 + 40) / t_update / 1e9,
-                   ns_per_voxel=t_kernel / n * 1e9, thick=int(res.n_thick.sum()),
-                   thin=int(res.n_thin.sum()), seg=int(res.segmented.sum()), ref=None)
+        row = dict(
+            kind="NeRF",
+            in_frame=in_frame(c, views),
+            n=n,
+            kernel=t_kernel,
+            upload=t_upload,
+            update=t_update,
+            undo=t_undo,
+            full=t_full,
+            stream_gbs=n * (8 + 9 + 40) / t_update / 1e9,
+            ns_per_voxel=t_kernel / n * 1e9,
+            thick=int(res.n_thick.sum()),
+            thin=int(res.n_thin.sum()),
+            seg=int(res.segmented.sum()),
+            ref=None,
+        )
         if n <= ref_max:
             row["ref"] = timed(lambda: ref.nerf_view(c, np.full(n, 100.0), cell, views[1], cfg), 1)
         rows.append(row)
@@ -239,11 +282,14 @@ def bench_nerf(sizes, ref_max, device) -> list[dict]:
 def print_row(r: dict) -> None:
     refs = "—" if r["ref"] is None else f"{r['ref']:.2f}"
     sp = "—" if r["ref"] is None else f"{r['ref'] / r['kernel']:.0f}×"
-    print(f"| {r['kind']} | {r['n']:,} | {r['upload'] * 1e3:.1f} | {r['kernel'] * 1e3:.1f} | "
-          f"{r['update'] * 1e3:.1f} | "
-          f"{r['undo'] * 1e3:.2f} | {r['full']:.2f} | {refs} | {sp} | {r['ns_per_voxel']:.0f} | "
-          f"{r['in_frame'] / 1e6:.2f} | {r['full'] / r['in_frame'] * 1e9:.0f} | "
-          f"{r['stream_gbs']:.2f} | {r['thick']:,}/{r['thin']:,} |", flush=True)
+    print(
+        f"| {r['kind']} | {r['n']:,} | {r['upload'] * 1e3:.1f} | {r['kernel'] * 1e3:.1f} | "
+        f"{r['update'] * 1e3:.1f} | "
+        f"{r['undo'] * 1e3:.2f} | {r['full']:.2f} | {refs} | {sp} | {r['ns_per_voxel']:.0f} | "
+        f"{r['in_frame'] / 1e6:.2f} | {r['full'] / r['in_frame'] * 1e9:.0f} | "
+        f"{r['stream_gbs']:.2f} | {r['thick']:,}/{r['thin']:,} |",
+        flush=True,
+    )
 
 
 def bench_build(counts, device) -> None:
@@ -254,15 +300,22 @@ def bench_build(counts, device) -> None:
         p = rng.normal(size=(n, 3))
         p /= np.linalg.norm(p, axis=1, keepdims=True)
         p *= rng.choice([0.5, 0.75, 1.0], (n, 1))
-        s = SurfelScene(p.astype(np.float32), np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
-                        np.full((n, 2), 3e-4, np.float32), rng.uniform(0.2, 1, n).astype(np.float32),
-                        np.zeros((n, 1, 3), np.float32), 0)
+        s = SurfelScene(
+            p.astype(np.float32),
+            np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
+            np.full((n, 2), 3e-4, np.float32),
+            rng.uniform(0.2, 1, n).astype(np.float32),
+            np.zeros((n, 1, 3), np.float32),
+            0,
+        )
         build_occupancy(s, GridConfig(), device)  # warm-up
         g = build_occupancy(s, GridConfig(), device)
         r = g.report
-        print(f"| {n:,} | {r.g} | {r.n_active:,} | {r.surfels_per_active:.2f} | "
-              f"{r.build_time_s:.2f} | {r.peak_bytes / 2**20:.0f} | {r.resident_bytes / 2**20:.1f} |",
-              flush=True)
+        print(
+            f"| {n:,} | {r.g} | {r.n_active:,} | {r.surfels_per_active:.2f} | "
+            f"{r.build_time_s:.2f} | {r.peak_bytes / 2**20:.0f} | {r.resident_bytes / 2**20:.1f} |",
+            flush=True,
+        )
 
 
 def main() -> None:
@@ -277,14 +330,18 @@ def main() -> None:
     wp.init()
     device = wp.get_device(args.device)
     sizes = [int(s) for s in args.sizes.split(",")]
-    print(f"# fusion benchmark — {platform.processor() or platform.machine()}, "
-          f"{os.cpu_count()} cores, device {device}, {datetime.date.today()}, "
-          f"warp {wp.__version__}, numpy {np.__version__}")
-    print("\n| backend | active voxels | upload ms (SATs, π_dg) | kernel ms (1 view) | "
-          "update ms (add 1 view, total) | undo ms | "
-          "full re-fuse 20 views s | NumPy ref s (1 view) | speedup (kernel) | kernel ns/voxel | "
-          "in-frame voxel·views (20 views, M) | full re-fuse ns per in-frame voxel·view | "
-          "stream GB/s | thick/thin votes (20 views) |")
+    print(
+        f"# fusion benchmark — {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} cores, device {device}, {datetime.date.today()}, "
+        f"warp {wp.__version__}, numpy {np.__version__}"
+    )
+    print(
+        "\n| backend | active voxels | upload ms (SATs, π_dg) | kernel ms (1 view) | "
+        "update ms (add 1 view, total) | undo ms | "
+        "full re-fuse 20 views s | NumPy ref s (1 view) | speedup (kernel) | kernel ns/voxel | "
+        "in-frame voxel·views (20 views, M) | full re-fuse ns per in-frame voxel·view | "
+        "stream GB/s | thick/thin votes (20 views) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = bench_gs(sizes, args.ref_max, device)
     if args.nerf:
@@ -293,10 +350,13 @@ def main() -> None:
         rr = [r for r in rows if r["kind"] == kind]
         if len(rr) > 1:
             a, b = rr[0], rr[-1]
-            print(f"\n{kind} scaling {a['n']:,} → {b['n']:,} voxels (×{b['n'] / a['n']:.0f}): "
-                  f"kernel ×{b['kernel'] / a['kernel']:.1f}, update ×{b['update'] / a['update']:.1f}, "
-                  f"full ×{b['full'] / a['full']:.1f}; in-frame voxel·views "
-                  f"×{b['in_frame'] / a['in_frame']:.1f}")
+            print(
+                f"\n{kind} scaling {a['n']:,} → {b['n']:,} voxels (×{b['n'] / a['n']:.0f}): "
+                f"kernel ×{b['kernel'] / a['kernel']:.1f}, "
+                f"update ×{b['update'] / a['update']:.1f}, "
+                f"full ×{b['full'] / a['full']:.1f}; in-frame voxel·views "
+                f"×{b['in_frame'] / a['in_frame']:.1f}"
+            )
     if args.build:
         bench_build([int(s) for s in args.build.split(",")], device)
 

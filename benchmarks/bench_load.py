@@ -44,7 +44,7 @@ def write_random_3dgs(path: Path, n: int, seed: int = 0, chunk: int = 1 << 20) -
         for start in range(0, n, chunk):
             m = min(chunk, n - start)
             flat = rng.standard_normal((m, len(names)), dtype=np.float32)
-            flat[:, names.index("scale_0"):names.index("scale_2") + 1] -= 4
+            flat[:, names.index("scale_0") : names.index("scale_2") + 1] -= 4
             flat.view(dtype).tofile(f)
 
 
@@ -55,8 +55,10 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     args = ap.parse_args()
     args.dir.mkdir(parents=True, exist_ok=True)
-    print(f"# load_scene benchmark — {platform.processor() or platform.machine()}, "
-          f"{datetime.date.today()}, Python {platform.python_version()}")
+    print(
+        f"# load_scene benchmark — {platform.processor() or platform.machine()}, "
+        f"{datetime.date.today()}, Python {platform.python_version()}"
+    )
     print("| surfels | file MB | best wall s | peak RSS MB | rows/s |")
     print("|---:|---:|---:|---:|---:|")
     for n in (int(s) for s in args.sizes.split(",")):
@@ -67,12 +69,15 @@ def main() -> None:
             print(f"(wrote {path} in {time.perf_counter() - t:.1f} s)", file=sys.stderr)
         runs = []
         for _ in range(args.repeats):
-            out = subprocess.run([sys.executable, "-c", CHILD, str(path)], capture_output=True,
-                                 text=True, check=True)
+            out = subprocess.run(
+                [sys.executable, "-c", CHILD, str(path)], capture_output=True, text=True, check=True
+            )
             runs.append(json.loads(out.stdout))
         best = min(runs, key=lambda r: r["seconds"])
-        print(f"| {n:,} | {path.stat().st_size / 2**20:,.0f} | {best['seconds']:.2f} | "
-              f"{max(r['peak_rss_mb'] for r in runs):,.0f} | {n / best['seconds']:,.0f} |")
+        print(
+            f"| {n:,} | {path.stat().st_size / 2**20:,.0f} | {best['seconds']:.2f} | "
+            f"{max(r['peak_rss_mb'] for r in runs):,.0f} | {n / best['seconds']:,.0f} |"
+        )
 
 
 if __name__ == "__main__":

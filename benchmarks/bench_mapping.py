@@ -53,8 +53,17 @@ def make_cameras(k: int, seed: int = 0) -> list[Camera]:
         d[2] = -abs(d[2]) - 0.3  # mostly from the camera side of the room (z < target)
         d /= np.linalg.norm(d)
         eye = TARGET + rng.uniform(4.0, 6.0) * d
-        cams.append(Camera.look_at(eye, TARGET, np.array([0, -1.0, 0]), width=640, height=480,
-                                   fx=640 / (2 * np.tan(np.radians(30))), name=f"v{i}"))
+        cams.append(
+            Camera.look_at(
+                eye,
+                TARGET,
+                np.array([0, -1.0, 0]),
+                width=640,
+                height=480,
+                fx=640 / (2 * np.tan(np.radians(30))),
+                name=f"v{i}",
+            )
+        )
     return cams
 
 
@@ -86,8 +95,17 @@ def synth_fusion(grid, cams: list[Camera]) -> FusionResult:
         facing = np.einsum("ij,ij->i", nrm, cam.center - cen) > 0
         vm[:, s // 32] |= np.where(seg & facing, np.uint32(1 << (s % 32)), np.uint32(0))
     z = np.zeros(a)
-    return FusionResult(P=seg.astype(float), segmented=seg, vmask=vm, vmask_raw=vm, W=z, Z=z,
-                        W_thin=z, n_thick=np.zeros(a, np.int32), n_thin=np.zeros(a, np.int32))
+    return FusionResult(
+        P=seg.astype(float),
+        segmented=seg,
+        vmask=vm,
+        vmask_raw=vm,
+        W=z,
+        Z=z,
+        W_thin=z,
+        n_thick=np.zeros(a, np.int32),
+        n_thin=np.zeros(a, np.int32),
+    )
 
 
 def view(cam: Camera, mask: np.ndarray) -> FusionView:
@@ -126,12 +144,16 @@ def main() -> None:
     cams = make_cameras(max(vcounts))
     masks = [sphere_mask(c) for c in cams]
     all_views = [view(c, m) for c, m in zip(cams, masks)]
-    print(f"# mapping benchmark — {platform.processor() or platform.machine()}, "
-          f"{os.cpu_count()} cores, device {device}, {datetime.date.today()}, "
-          f"warp {wp.__version__}, numpy {np.__version__}")
-    print("\n| surfels | views | f¹ | f² | f | scored surfel·views | accepted pixels (M) | "
-          "update ms | pass1 / pass2 / views / pass3 / readback ms | full-count ms | "
-          "NumPy ref s | speedup (update) | speedup (full-count) |")
+    print(
+        f"# mapping benchmark — {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} cores, device {device}, {datetime.date.today()}, "
+        f"warp {wp.__version__}, numpy {np.__version__}"
+    )
+    print(
+        "\n| surfels | views | f¹ | f² | f | scored surfel·views | accepted pixels (M) | "
+        "update ms | pass1 / pass2 / views / pass3 / readback ms | full-count ms | "
+        "NumPy ref s | speedup (update) | speedup (full-count) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n in [int(s) for s in args.sizes.split(",")]:
         scene = surfel_scene(n, sh_degree=0)
@@ -148,19 +170,29 @@ def main() -> None:
             ref_s = sp_up = sp_full = "—"
             if px < args.ref_max_pairs:
                 t = time.perf_counter()
-                ref = map_reference(scene, grid.geometry, grid.codes.numpy(), fused.segmented,
-                                    fused.vmask, vs, list(range(k)))
+                ref = map_reference(
+                    scene,
+                    grid.geometry,
+                    grid.codes.numpy(),
+                    fused.segmented,
+                    fused.vmask,
+                    vs,
+                    list(range(k)),
+                )
                 ref_t = time.perf_counter() - t
                 ok = ~ref["ambiguous"]
                 assert np.array_equal(ref["selected"][ok], r.selected[ok])
                 ref_s = f"{ref_t:.2f}"
                 sp_up = f"{ref_t / t_up:.0f}×"
                 sp_full = f"{ref_t / t_full:.0f}×"
-            print(f"| {n:,} | {k} | {r.n_pass1:,} | {r.n_pass2:,} | {r.n_selected:,} | "
-                  f"{r.n_scored:,} | {px / 1e6:.2f} | {t_up * 1e3:.1f} | "
-                  f"{sec['pass1'] * 1e3:.1f} / {sec['pass2'] * 1e3:.1f} / {sec['views'] * 1e3:.1f} / "
-                  f"{sec['pass3'] * 1e3:.1f} / {sec['readback'] * 1e3:.1f} | "
-                  f"{t_full * 1e3:.1f} | {ref_s} | {sp_up} | {sp_full} |", flush=True)
+            print(
+                f"| {n:,} | {k} | {r.n_pass1:,} | {r.n_pass2:,} | {r.n_selected:,} | "
+                f"{r.n_scored:,} | {px / 1e6:.2f} | {t_up * 1e3:.1f} | "
+                f"{sec['pass1'] * 1e3:.1f} / {sec['pass2'] * 1e3:.1f} / {sec['views'] * 1e3:.1f} / "
+                f"{sec['pass3'] * 1e3:.1f} / {sec['readback'] * 1e3:.1f} | "
+                f"{t_full * 1e3:.1f} | {ref_s} | {sp_up} | {sp_full} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

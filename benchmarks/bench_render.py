@@ -39,8 +39,9 @@ from tests.reference_render import reference_nerf, reference_surfels_pairs  # no
 def _machine() -> str:
     try:
         out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        model = next(ln.split(":", 1)[1].strip() for ln in out.splitlines()
-                     if ln.startswith("Model name"))
+        model = next(
+            ln.split(":", 1)[1].strip() for ln in out.splitlines() if ln.startswith("Model name")
+        )
     except (OSError, subprocess.CalledProcessError, StopIteration):
         model = platform.processor() or "unknown CPU"
     import os
@@ -81,10 +82,16 @@ def bench_surfels(n: int, width: int, repeats: int, ref_rows: int, scene_cache: 
     t = time.perf_counter()
     ref = reference_surfels_pairs(scene, cam, rows=rows)
     t_ref = (time.perf_counter() - t) * cam.height / ref_rows
-    return {"case": f"2DGS {n // 1000}k surfels", "res": f"{cam.width}×{cam.height}",
-            "warp": t_warp, "ref": t_ref, "agree": _agree(b, ref, rows),
-            "trav": float(ref["n_trav"].mean()), "visible": b.stats.get("visible", 0),
-            "pairs": b.stats.get("pairs", 0)}
+    return {
+        "case": f"2DGS {n // 1000}k surfels",
+        "res": f"{cam.width}×{cam.height}",
+        "warp": t_warp,
+        "ref": t_ref,
+        "agree": _agree(b, ref, rows),
+        "trav": float(ref["n_trav"].mean()),
+        "visible": b.stats.get("visible", 0),
+        "pairs": b.stats.get("pairs", 0),
+    }
 
 
 def bench_nerf(res: int, width: int, repeats: int, ref_rows: int) -> dict:
@@ -97,9 +104,16 @@ def bench_nerf(res: int, width: int, repeats: int, ref_rows: int) -> dict:
     t = time.perf_counter()
     ref = reference_nerf(grid, cam, rows=rows)
     t_ref = (time.perf_counter() - t) * cam.height / ref_rows
-    return {"case": f"NeRF {res}³ grid", "res": f"{cam.width}×{cam.height}", "warp": t_warp,
-            "ref": t_ref, "agree": _agree(b, ref, rows), "trav": float(b.N_samp.mean()),
-            "visible": int((grid.density > 0).sum()), "pairs": 0}
+    return {
+        "case": f"NeRF {res}³ grid",
+        "res": f"{cam.width}×{cam.height}",
+        "warp": t_warp,
+        "ref": t_ref,
+        "agree": _agree(b, ref, rows),
+        "trav": float(b.N_samp.mean()),
+        "visible": int((grid.density > 0).sum()),
+        "pairs": 0,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -114,22 +128,34 @@ def main(argv: list[str] | None = None) -> int:
     wp.init()
     cache: dict = {}
     rows = []
-    sizes = [(250_000, 640)] if a.quick else [(250_000, 640), (250_000, 1280), (1_000_000, 640),
-                                              (1_000_000, 1280)]
+    sizes = (
+        [(250_000, 640)]
+        if a.quick
+        else [(250_000, 640), (250_000, 1280), (1_000_000, 640), (1_000_000, 1280)]
+    )
     for n, w in sizes:
         rows.append(bench_surfels(n, w, a.repeats, a.ref_rows, cache))
         print(f"  done: {rows[-1]['case']} {rows[-1]['res']}", file=sys.stderr)
     rows.append(bench_nerf(128 if a.quick else 256, 640, a.repeats, min(a.ref_rows, 24)))
-    print(f"\nMachine: {_machine()}; Warp {wp.__version__} on `cpu`; "
-          f"{datetime.date.today().isoformat()}\n")
-    print("| case | image | Warp CPU (s) | NumPy ref (s, extrapolated) | speed-up | agree | "
-          "mean per pixel |")
+    print(
+        f"\nMachine: {_machine()}; Warp {wp.__version__} on `cpu`; "
+        f"{datetime.date.today().isoformat()}\n"
+    )
+    print(
+        "| case | image | Warp CPU (s) | NumPy ref (s, extrapolated) | speed-up | agree | "
+        "mean per pixel |"
+    )
     print("|---|---|---:|---:|---:|---:|---|")
     for r in rows:
-        per = (f"{r['trav']:.1f} surfels traversed" if r["case"].startswith("2DGS")
-               else f"N_samp {r['trav']:.1f}")
-        print(f"| {r['case']} | {r['res']} | {r['warp']:.3f} | {r['ref']:.1f} | "
-              f"{r['ref'] / r['warp']:.0f}× | {r['agree']:.4%} | {per} |")
+        per = (
+            f"{r['trav']:.1f} surfels traversed"
+            if r["case"].startswith("2DGS")
+            else f"N_samp {r['trav']:.1f}"
+        )
+        print(
+            f"| {r['case']} | {r['res']} | {r['warp']:.3f} | {r['ref']:.1f} | "
+            f"{r['ref'] / r['warp']:.0f}× | {r['agree']:.4%} | {per} |"
+        )
     return 0
 
 

@@ -32,7 +32,9 @@ from divas_engine.views import GsCentroidPlanner  # noqa: E402
 def best_anchor(s, r, click, max_candidates: int = 8):
     cams = {c.name: c for c in s.cameras}
     names = click["visible_in"]
-    pick = np.unique(np.linspace(0, len(names) - 1, min(max_candidates, len(names))).round().astype(int))
+    pick = np.unique(
+        np.linspace(0, len(names) - 1, min(max_candidates, len(names))).round().astype(int)
+    )
     x = np.array([click["xyz"]])
     best = None
     for i in pick:
@@ -71,7 +73,7 @@ def main(argv=None) -> int:
         labels = s.labels.astype(np.float32)
         part_of = np.array([sf["part"] for sf in s.metadata["surfaces"]] + ["<floater>"])
         surfel_part = part_of[s.surface_ids]  # surface_ids == -1 → floater (last entry)
-        for k, click in enumerate(s.metadata["clicks"][:a.clicks]):
+        for k, click in enumerate(s.metadata["clicks"][: a.clicks]):
             best = best_anchor(s, r, click)
             if best is None:
                 rows.append((name, f"{k}:{click['part']}", None, None, "no unoccluded anchor", 0.0))
@@ -89,23 +91,32 @@ def main(argv=None) -> int:
                 masks, _ = seg.predict(prompt, np.array([1]))
                 res.append((iou(masks[1] >= 0.5, gt), iou(masks[1] >= 0.5, gt_part)))
             fill = float(gt.mean())
-            rows.append((name, f"{k}:{click['part']} ({anchor.name})", res[0], res[1],
-                         cv.strategy, fill))
+            rows.append(
+                (name, f"{k}:{click['part']} ({anchor.name})", res[0], res[1], cv.strategy, fill)
+            )
     print(f"synthetic scenes, size {a.size}, seed {a.seed}; {time.perf_counter() - t0:.0f} s\n")
     print("IoU vs the whole target object / vs the clicked part (a single click asks for a part)\n")
-    print("| scene | view (click:part (anchor)) | centroid strategy | GT fill | classic (object) | "
-          "flood fill (object) | classic (part) | flood fill (part) |")
+    print(
+        "| scene | view (click:part (anchor)) | centroid strategy | GT fill | classic (object) | "
+        "flood fill (object) | classic (part) | flood fill (part) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for n, v, c, f, st, fill in rows:
         if c is None:
             print(f"| {n} | {v} | {st} | — | — | — | — | — |")
             continue
-        print(f"| {n} | {v} | {st} | {fill:.2f} | {c[0]:.3f} | {f[0]:.3f} | {c[1]:.3f} | {f[1]:.3f} |")
+        print(
+            f"| {n} | {v} | {st} | {fill:.2f} | {c[0]:.3f} | {f[0]:.3f} | {c[1]:.3f} | {f[1]:.3f} |"
+        )
     for n in a.scenes + ["all"]:
         sel = [r_ for r_ in rows if (n == "all" or r_[0] == n) and r_[2] is not None]
         if sel:
             m = [np.nanmean([x[i][j] for x in sel]) for i, j in ((2, 0), (3, 0), (2, 1), (3, 1))]
-            print(f"| {n} | **mean** ({len(sel)} views) | | | " + " | ".join(f"{v:.3f}" for v in m) + " |")
+            print(
+                f"| {n} | **mean** ({len(sel)} views) | | | "
+                + " | ".join(f"{v:.3f}" for v in m)
+                + " |"
+            )
     return 0
 
 

@@ -31,10 +31,15 @@ def main() -> None:
     ap.add_argument("--scene", default="plant")
     ap.add_argument("--segmenters", default="oracle,classic")
     args = ap.parse_args()
-    print(f"# Session per-update latency — {platform.machine()}, {datetime.date.today()}, "
-          f"scene {args.scene}, 640×480 views, device cpu")
-    print("| surfels | segmenter | active voxels | views fused | " +
-          " | ".join(c.removesuffix("_s") + " ms" for c in COLS) + " | T_pipe s |")
+    print(
+        f"# Session per-update latency — {platform.machine()}, {datetime.date.today()}, "
+        f"scene {args.scene}, 640×480 views, device cpu"
+    )
+    print(
+        "| surfels | segmenter | active voxels | views fused | "
+        + " | ".join(c.removesuffix("_s") + " ms" for c in COLS)
+        + " | T_pipe s |"
+    )
     print("|---:|---|---:|---:|" + "---:|" * (len(COLS) + 1))
     for n in (int(s) for s in args.sizes.split(",")):
         with tempfile.TemporaryDirectory() as tmp:
@@ -42,17 +47,32 @@ def main() -> None:
             sc = generate_scene(args.scene, out, size=n, seed=0)
             demo_prompts(sc.metadata, sc.cameras).write(out / "prompts.json")
             for seg in args.segmenters.split(","):
-                report, _ = segment_scene(out / "scene.ply", out / "prompts.json",
-                                          cameras_path=out / "cameras.json", out=out / "sel.ply",
-                                          segmenter=seg, gt_labels=out / "labels.npy",
-                                          device="cpu", progress=False)
+                report, _ = segment_scene(
+                    out / "scene.ply",
+                    out / "prompts.json",
+                    cameras_path=out / "cameras.json",
+                    out=out / "sel.ply",
+                    segmenter=seg,
+                    gt_labels=out / "labels.npy",
+                    device="cpu",
+                    progress=False,
+                )
                 fused = [u for u in report["updates"] if u["status"] == "fused"]
-                med = [np.median([u[c] for u in fused if u.get(c) is not None]) * 1e3
-                       if fused else float("nan") for c in COLS]
-                t_pipe = report["timings"].get("T_pipe_s", report["timings"].get("total_s", float("nan")))
-                print(f"| {n:,} | {seg} | {report['grid'].get('n_active', '—'):,} | "
-                      f"{len(fused)}/{len(report['updates'])} | " +
-                      " | ".join(f"{m:.0f}" for m in med) + f" | {t_pipe:.1f} |")
+                med = [
+                    np.median([u[c] for u in fused if u.get(c) is not None]) * 1e3
+                    if fused
+                    else float("nan")
+                    for c in COLS
+                ]
+                t_pipe = report["timings"].get(
+                    "T_pipe_s", report["timings"].get("total_s", float("nan"))
+                )
+                print(
+                    f"| {n:,} | {seg} | {report['grid'].get('n_active', '—'):,} | "
+                    f"{len(fused)}/{len(report['updates'])} | "
+                    + " | ".join(f"{m:.0f}" for m in med)
+                    + f" | {t_pipe:.1f} |"
+                )
 
 
 if __name__ == "__main__":

@@ -10,8 +10,12 @@ from divas_engine.geometry import rotmat_to_quat
 from divas_engine.scene import DensityGrid, SurfelScene
 
 #: (centre, radius) of the spheres.
-SPHERES = (((-1.6, 0.3, 5.0), 1.0), ((0.9, 0.2, 4.0), 1.2), ((0.2, -1.0, 6.5), 0.9),
-           ((2.4, -0.6, 7.0), 0.8))
+SPHERES = (
+    ((-1.6, 0.3, 5.0), 1.0),
+    ((0.9, 0.2, 4.0), 1.2),
+    ((0.2, -1.0, 6.5), 0.9),
+    ((2.4, -0.6, 7.0), 0.8),
+)
 
 
 def bench_camera(width: int = 640, height: int = 480) -> Camera:
@@ -50,8 +54,9 @@ def _room_faces(rng: np.random.Generator, counts: np.ndarray):
     return pts, nrm
 
 
-def surfel_scene(n: int, seed: int = 0, sh_degree: int = 3, coverage: float = 0.8,
-                 opacity_lo: float = 0.9) -> SurfelScene:
+def surfel_scene(
+    n: int, seed: int = 0, sh_degree: int = 3, coverage: float = 0.8, opacity_lo: float = 0.9
+) -> SurfelScene:
     """``n`` surfels on the six faces of a room around the camera and four spheres.
 
     Surfels are spread evenly over the surface area; each surfel's 1σ disc area is
@@ -61,8 +66,14 @@ def surfel_scene(n: int, seed: int = 0, sh_degree: int = 3, coverage: float = 0.
     rng = np.random.default_rng(seed)
     lo, hi = np.array(ROOM[0]), np.array(ROOM[1])
     ext = hi - lo
-    face = [ext[1] * ext[2], ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[2], ext[0] * ext[1],
-            ext[0] * ext[1]]
+    face = [
+        ext[1] * ext[2],
+        ext[1] * ext[2],
+        ext[0] * ext[2],
+        ext[0] * ext[2],
+        ext[0] * ext[1],
+        ext[0] * ext[1],
+    ]
     areas = np.array(face + [4 * np.pi * r * r for _, r in SPHERES])
     counts = rng.multinomial(n, areas / areas.sum())
     pts, nrm = _room_faces(rng, counts[:6])
@@ -80,8 +91,14 @@ def surfel_scene(n: int, seed: int = 0, sh_degree: int = 3, coverage: float = 0.
     base = rng.uniform(0.1, 0.9, (n, 3))
     sh[:, 0] = (base - 0.5) / 0.28209479177387814
     op = rng.uniform(opacity_lo, 1.0, n)
-    return SurfelScene(pts.astype(np.float32), rotmat_to_quat(rot).astype(np.float32),
-                       s.astype(np.float32), op.astype(np.float32), sh.astype(np.float32), sh_degree)
+    return SurfelScene(
+        pts.astype(np.float32),
+        rotmat_to_quat(rot).astype(np.float32),
+        s.astype(np.float32),
+        op.astype(np.float32),
+        sh.astype(np.float32),
+        sh_degree,
+    )
 
 
 def density_grid(res: int = 256, seed: int = 0) -> DensityGrid:
@@ -92,7 +109,7 @@ def density_grid(res: int = 256, seed: int = 0) -> DensityGrid:
     z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     dens = np.zeros((res, res, res), np.float32)
     rgb = np.zeros((res, res, res, 3), np.float32)
-    for j, (cen, r) in enumerate(SPHERES):
+    for cen, r in SPHERES:
         inside = (x - cen[0]) ** 2 + (y - cen[1]) ** 2 + (z - cen[2]) ** 2 <= r * r
         dens[inside] = 40.0
         rgb[inside] = rng.uniform(0.2, 0.9, 3)

@@ -21,17 +21,32 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-__all__ = ["new_point_cloud_object", "write_attribute", "write_attributes", "read_attribute",
-           "read_attributes", "attribute_names", "point_count", "remove_attribute", "write_image"]
+__all__ = [
+    "new_point_cloud_object",
+    "write_attribute",
+    "write_attributes",
+    "read_attribute",
+    "read_attributes",
+    "attribute_names",
+    "point_count",
+    "remove_attribute",
+    "write_image",
+]
 
 #: Blender data type → (foreach property, NumPy dtype, components per element).
 _TYPES = {
-    "FLOAT": ("value", np.float32, 1), "INT": ("value", np.int32, 1),
-    "BOOLEAN": ("value", bool, 1), "INT8": ("value", np.int32, 1),
-    "FLOAT_VECTOR": ("vector", np.float32, 3), "FLOAT2": ("vector", np.float32, 2),
-    "FLOAT_COLOR": ("color", np.float32, 4), "BYTE_COLOR": ("color", np.float32, 4),
-    "QUATERNION": ("value", np.float32, 4), "INT32_2D": ("value", np.int32, 2),
-    "INT16_2D": ("value", np.int32, 2), "FLOAT4X4": ("value", np.float32, 16),
+    "FLOAT": ("value", np.float32, 1),
+    "INT": ("value", np.int32, 1),
+    "BOOLEAN": ("value", bool, 1),
+    "INT8": ("value", np.int32, 1),
+    "FLOAT_VECTOR": ("vector", np.float32, 3),
+    "FLOAT2": ("vector", np.float32, 2),
+    "FLOAT_COLOR": ("color", np.float32, 4),
+    "BYTE_COLOR": ("color", np.float32, 4),
+    "QUATERNION": ("value", np.float32, 4),
+    "INT32_2D": ("value", np.int32, 2),
+    "INT16_2D": ("value", np.int32, 2),
+    "FLOAT4X4": ("value", np.float32, 16),
 }
 
 
@@ -100,9 +115,13 @@ def read_attribute(geometry, name: str) -> np.ndarray:
 
 def attribute_names(geometry, *, include_internal: bool = False) -> list[str]:
     """Point-domain attributes that :func:`read_attribute` can read, in storage order."""
-    return [a.name for a in geometry.attributes
-            if a.domain == "POINT" and a.data_type in _TYPES
-            and (include_internal or not a.name.startswith("."))]
+    return [
+        a.name
+        for a in geometry.attributes
+        if a.domain == "POINT"
+        and a.data_type in _TYPES
+        and (include_internal or not a.name.startswith("."))
+    ]
 
 
 def read_attributes(geometry, names: list[str] | None = None) -> dict[str, tuple[str, np.ndarray]]:
@@ -133,8 +152,9 @@ def new_point_cloud_object(name: str, positions: np.ndarray, collection) -> bpy.
     collection.objects.link(obj)
     ctx = bpy.context
     try:
-        with ctx.temp_override(object=obj, active_object=obj, selected_objects=[obj],
-                               selected_editable_objects=[obj]):
+        with ctx.temp_override(
+            object=obj, active_object=obj, selected_objects=[obj], selected_editable_objects=[obj]
+        ):
             result = bpy.ops.object.convert(target="POINTCLOUD")
     finally:
         if mesh.users == 0:

@@ -16,12 +16,23 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from divas_engine.blender_convention import (BlenderCameraParams, camera_from_blender,
-                                             camera_to_blender)
+from divas_engine.blender_convention import (
+    BlenderCameraParams,
+    camera_from_blender,
+    camera_to_blender,
+)
 from divas_engine.camera import Camera
 
-__all__ = ["RESOLUTION_PROP", "PIXEL_ASPECT_PROP", "create_camera_object", "apply_params",
-           "apply_render_settings", "blender_params", "engine_camera", "is_divas_camera"]
+__all__ = [
+    "RESOLUTION_PROP",
+    "PIXEL_ASPECT_PROP",
+    "create_camera_object",
+    "apply_params",
+    "apply_render_settings",
+    "blender_params",
+    "engine_camera",
+    "is_divas_camera",
+]
 
 RESOLUTION_PROP, PIXEL_ASPECT_PROP = "divas_resolution", "divas_pixel_aspect"
 
@@ -39,9 +50,14 @@ def apply_params(obj: bpy.types.Object, p: BlenderCameraParams) -> None:
     obj[PIXEL_ASPECT_PROP] = [float(p.pixel_aspect_x), float(p.pixel_aspect_y)]
 
 
-def create_camera_object(cam: Camera, collection, *, name: str | None = None,
-                         display_size: float = 0.25, clip: tuple[float, float] = (0.01, 1000.0)
-                         ) -> bpy.types.Object:
+def create_camera_object(
+    cam: Camera,
+    collection,
+    *,
+    name: str | None = None,
+    display_size: float = 0.25,
+    clip: tuple[float, float] = (0.01, 1000.0),
+) -> bpy.types.Object:
     """A Blender camera reproducing ``cam`` exactly (when its render settings are applied)."""
     name = name or cam.name or "DivAS Camera"
     data = bpy.data.cameras.new(name)
@@ -68,18 +84,30 @@ def apply_render_settings(scene: bpy.types.Scene, obj: bpy.types.Object) -> None
     r.pixel_aspect_x, r.pixel_aspect_y = (float(v) for v in obj[PIXEL_ASPECT_PROP])
 
 
-def blender_params(scene: bpy.types.Scene, obj: bpy.types.Object, *,
-                   own_resolution: bool = True) -> BlenderCameraParams:
+def blender_params(
+    scene: bpy.types.Scene, obj: bpy.types.Object, *, own_resolution: bool = True
+) -> BlenderCameraParams:
     """What Blender holds for ``obj``; with ``own_resolution`` the camera's stored size wins."""
     d, r = obj.data, scene.render
     res, pct = (r.resolution_x, r.resolution_y), r.resolution_percentage
     aspect = (r.pixel_aspect_x, r.pixel_aspect_y)
     if own_resolution and is_divas_camera(obj):
         res, pct, aspect = tuple(obj[RESOLUTION_PROP]), 100, tuple(obj[PIXEL_ASPECT_PROP])
-    return BlenderCameraParams(np.array(obj.matrix_world), d.lens, d.sensor_width,
-                               d.sensor_height, d.sensor_fit, d.shift_x, d.shift_y,
-                               int(res[0]), int(res[1]), float(aspect[0]), float(aspect[1]),
-                               int(pct), obj.name)
+    return BlenderCameraParams(
+        np.array(obj.matrix_world),
+        d.lens,
+        d.sensor_width,
+        d.sensor_height,
+        d.sensor_fit,
+        d.shift_x,
+        d.shift_y,
+        int(res[0]),
+        int(res[1]),
+        float(aspect[0]),
+        float(aspect[1]),
+        int(pct),
+        obj.name,
+    )
 
 
 def engine_camera(scene: bpy.types.Scene, obj: bpy.types.Object) -> Camera:

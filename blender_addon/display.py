@@ -13,8 +13,15 @@ from __future__ import annotations
 
 import bpy
 
-__all__ = ["DISPLAY_GROUP", "MATERIAL", "MODIFIER", "SELECTED_TINT", "ensure_material",
-           "ensure_display_group", "add_display_modifier"]
+__all__ = [
+    "DISPLAY_GROUP",
+    "MATERIAL",
+    "MODIFIER",
+    "SELECTED_TINT",
+    "ensure_material",
+    "ensure_display_group",
+    "add_display_modifier",
+]
 
 DISPLAY_GROUP = "DivAS Point Display"
 MATERIAL = "DivAS Splat"
@@ -45,7 +52,11 @@ def ensure_material() -> bpy.types.Material:
         n.attribute_type, n.attribute_name, n.location = "GEOMETRY", name, (-700, y)
         return n
 
-    color, selected, opacity = attr("divas_color", 200), attr("divas_selected", 0), attr("divas_opacity", -200)
+    color, selected, opacity = (
+        attr("divas_color", 200),
+        attr("divas_selected", 0),
+        attr("divas_opacity", -200),
+    )
     tint = nt.nodes.new("ShaderNodeMix")
     tint.data_type, tint.location = "RGBA", (-450, 150)
     nt.links.new(selected.outputs["Factor"], _socket(tint.inputs, "Factor_Float"))

@@ -21,8 +21,14 @@ from divas_engine.scene import DensityGrid, SurfelScene
 
 from . import bridge, camera_objects, display, source
 
-__all__ = ["SplatImportSettings", "GridImportSettings", "CameraImportSettings",
-           "import_splats", "import_density_grid", "import_cameras"]
+__all__ = [
+    "SplatImportSettings",
+    "GridImportSettings",
+    "CameraImportSettings",
+    "import_splats",
+    "import_density_grid",
+    "import_cameras",
+]
 
 
 @dataclass(frozen=True)
@@ -70,8 +76,9 @@ def _activate(context, obj) -> None:
 def _new_points_object(context, name, table, scene, show: bool) -> bpy.types.Object:
     if context.mode != "OBJECT" and context.active_object is not None:
         bpy.ops.object.mode_set(mode="OBJECT")  # new objects are made in object mode
-    obj = bridge.new_point_cloud_object(name, table.positions,
-                                       context.collection or context.scene.collection)
+    obj = bridge.new_point_cloud_object(
+        name, table.positions, context.collection or context.scene.collection
+    )
     bridge.write_attributes(obj.data, table.columns)
     source.tag_object(obj, scene)
     if show:
@@ -89,7 +96,9 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
     try:
         scene = load_scene(path)
         if isinstance(scene, DensityGrid):
-            raise DivasInputError(path, "is a NeRF density grid; use Import › NeRF Density Grid (.npz)")
+            raise DivasInputError(
+                path, "is a NeRF density grid; use Import › NeRF Density Grid (.npz)"
+            )
         wm.progress_update(1)
         table = surfel_point_table(scene)
         wm.progress_update(2)
@@ -128,8 +137,11 @@ def import_cameras(context, settings: CameraImportSettings) -> list[bpy.types.Ob
     centres = np.array([c.center for c in cams])
     spread = float(np.linalg.norm(centres.max(0) - centres.min(0))) if len(cams) > 1 else 1.0
     size = max(0.02 * spread, 1e-3)
-    objs = [camera_objects.create_camera_object(c, coll, name=c.name or f"camera_{i:04d}",
-                                                display_size=size)
-            for i, c in enumerate(cams)]
+    objs = [
+        camera_objects.create_camera_object(
+            c, coll, name=c.name or f"camera_{i:04d}", display_size=size
+        )
+        for i, c in enumerate(cams)
+    ]
     camera_objects.apply_render_settings(context.scene, objs[0])
     return objs

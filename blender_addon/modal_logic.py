@@ -19,27 +19,55 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-__all__ = ["Key", "KeyKind", "Target", "Step", "StepKind", "decide", "plan", "target_from_props",
-           "HEADER_TEXT", "ANCHOR_PROP", "VIEW_PROP", "OWNER_PROP"]
+__all__ = [
+    "Key",
+    "KeyKind",
+    "Target",
+    "Step",
+    "StepKind",
+    "decide",
+    "plan",
+    "target_from_props",
+    "HEADER_TEXT",
+    "ANCHOR_PROP",
+    "VIEW_PROP",
+    "OWNER_PROP",
+]
 
 #: custom properties of the cameras a session creates (see :mod:`.session_actions`).
 ANCHOR_PROP, VIEW_PROP, OWNER_PROP = "divas_anchor", "divas_view", "divas_owner"
 
-HEADER_TEXT = ("DivAS — LMB: add (positive)  ·  Shift+LMB / RMB: remove (negative)  ·  "
-               "Enter: accept view  ·  Backspace: undo last view  ·  Esc: leave")
+HEADER_TEXT = (
+    "DivAS — LMB: add (positive)  ·  Shift+LMB / RMB: remove (negative)  ·  "
+    "Enter: accept view  ·  Backspace: undo last view  ·  Esc: leave"
+)
 
 _ACCEPT_KEYS = {"RET", "NUMPAD_ENTER"}
 #: a quick second click arrives as DOUBLE_CLICK instead of PRESS: a click all the same.
 _PRESSES = ("PRESS", "DOUBLE_CLICK")
 #: events that move the view or are never ours: always passed through.
-_NAVIGATION = {"MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "WHEELINMOUSE", "WHEELOUTMOUSE",
-               "TRACKPADPAN", "TRACKPADZOOM", "MOUSEROTATE", "MOUSESMARTZOOM", "MOUSEMOVE",
-               "INBETWEEN_MOUSEMOVE", "TIMER", "TIMER_REPORT", "NDOF_MOTION", "WINDOW_DEACTIVATE"}
+_NAVIGATION = {
+    "MIDDLEMOUSE",
+    "WHEELUPMOUSE",
+    "WHEELDOWNMOUSE",
+    "WHEELINMOUSE",
+    "WHEELOUTMOUSE",
+    "TRACKPADPAN",
+    "TRACKPADZOOM",
+    "MOUSEROTATE",
+    "MOUSESMARTZOOM",
+    "MOUSEMOVE",
+    "INBETWEEN_MOUSEMOVE",
+    "TIMER",
+    "TIMER_REPORT",
+    "NDOF_MOTION",
+    "WINDOW_DEACTIVATE",
+}
 
 
 class KeyKind(Enum):
-    PASS = "pass"        # hand the event to Blender
-    IGNORE = "ignore"    # ours, but nothing to do (e.g. a key release)
+    PASS = "pass"  # hand the event to Blender
+    IGNORE = "ignore"  # ours, but nothing to do (e.g. a key release)
     CLICK = "click"
     ACCEPT = "accept"
     UNDO = "undo"
@@ -63,8 +91,11 @@ def decide(event_type: str, value: str, *, shift: bool = False, in_region: bool 
             return Key(KeyKind.IGNORE)
         return Key(KeyKind.CLICK, positive=event_type == "LEFTMOUSE" and not shift)
     if value != "PRESS":
-        return Key(KeyKind.IGNORE) if event_type in (*_ACCEPT_KEYS, "BACK_SPACE", "ESC") \
+        return (
+            Key(KeyKind.IGNORE)
+            if event_type in (*_ACCEPT_KEYS, "BACK_SPACE", "ESC")
             else Key(KeyKind.PASS)
+        )
     if event_type in _ACCEPT_KEYS:
         return Key(KeyKind.ACCEPT)
     if event_type == "BACK_SPACE":
@@ -109,10 +140,10 @@ def target_from_props(props: dict, status_of=None) -> Target:
 class StepKind(Enum):
     PASS = "pass"
     NOTHING = "nothing"
-    MESSAGE = "message"          # tell the user why nothing happens
-    SPAWN = "spawn"              # positive click on an anchor → centroid view
+    MESSAGE = "message"  # tell the user why nothing happens
+    SPAWN = "spawn"  # positive click on an anchor → centroid view
     ANCHOR_NEGATIVE = "anchor_negative"
-    PROMPT = "prompt"            # add a point to a centroid view, refresh the preview
+    PROMPT = "prompt"  # add a point to a centroid view, refresh the preview
     ACCEPT = "accept"
     UNDO = "undo"
     EXIT = "exit"
@@ -157,8 +188,11 @@ def plan(key: Key, target: Target, xy: tuple[float, float] | None = None) -> Ste
                 return Step(StepKind.MESSAGE, message=_accepted(target))
             return Step(StepKind.ACCEPT, target.anchor, target.view_id)
         if target.is_anchor:
-            return Step(StepKind.MESSAGE, message="Click the object on the anchor first, then "
-                                                  "press Enter in the view it opens")
+            return Step(
+                StepKind.MESSAGE,
+                message="Click the object on the anchor first, then "
+                "press Enter in the view it opens",
+            )
         return Step(StepKind.MESSAGE, message=_NO_CAMERA)
     # a click
     if not (target.is_view or target.is_anchor):

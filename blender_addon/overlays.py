@@ -14,8 +14,17 @@ import numpy as np
 
 from . import bridge
 
-__all__ = ["PREVIEW_COLOR", "PREVIEW_ALPHA", "POSITIVE_COLOR", "NEGATIVE_COLOR", "tint",
-           "draw_points", "preview_image", "set_background", "image_name"]
+__all__ = [
+    "PREVIEW_COLOR",
+    "PREVIEW_ALPHA",
+    "POSITIVE_COLOR",
+    "NEGATIVE_COLOR",
+    "tint",
+    "draw_points",
+    "preview_image",
+    "set_background",
+    "image_name",
+]
 
 #: the 2D mask preview (blue, so it is not mistaken for the 3D selection's orange).
 PREVIEW_COLOR, PREVIEW_ALPHA = (0.15, 0.55, 1.0), 0.45

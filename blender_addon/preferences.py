@@ -14,19 +14,37 @@ import bpy
 from bpy.props import EnumProperty, StringProperty
 from bpy.types import AddonPreferences
 
-__all__ = ["ADDON_ID", "DIVAS_AddonPreferences", "DivasSettings", "get_preferences",
-           "get_settings", "DEVICES", "SEGMENTERS", "SAM_MODEL_TYPES"]
+__all__ = [
+    "ADDON_ID",
+    "DIVAS_AddonPreferences",
+    "DivasSettings",
+    "get_preferences",
+    "get_settings",
+    "DEVICES",
+    "SEGMENTERS",
+    "SAM_MODEL_TYPES",
+]
 
 ADDON_ID = __package__
 
-DEVICES = (("cpu", "CPU", "Run the kernels on the CPU (always available)"),
-           ("cuda", "CUDA", "Run the kernels on the first CUDA GPU (needs an NVIDIA driver)"))
-SEGMENTERS = (("classic", "Classic", "Weight-free GrabCut on colour + depth (no model files)"),
-              ("sam_onnx", "SAM (ONNX)", "SAM / MobileSAM encoder + decoder .onnx files via onnxruntime"),
-              ("sam_torch", "SAM (PyTorch)", "A segment-anything checkpoint (needs torch in Blender's Python)"))
-SAM_MODEL_TYPES = (("vit_h", "ViT-H", "sam_vit_h_4b8939.pth"),
-                   ("vit_l", "ViT-L", "sam_vit_l_0b3195.pth"),
-                   ("vit_b", "ViT-B", "sam_vit_b_01ec64.pth"))
+DEVICES = (
+    ("cpu", "CPU", "Run the kernels on the CPU (always available)"),
+    ("cuda", "CUDA", "Run the kernels on the first CUDA GPU (needs an NVIDIA driver)"),
+)
+SEGMENTERS = (
+    ("classic", "Classic", "Weight-free GrabCut on colour + depth (no model files)"),
+    ("sam_onnx", "SAM (ONNX)", "SAM / MobileSAM encoder + decoder .onnx files via onnxruntime"),
+    (
+        "sam_torch",
+        "SAM (PyTorch)",
+        "A segment-anything checkpoint (needs torch in Blender's Python)",
+    ),
+)
+SAM_MODEL_TYPES = (
+    ("vit_h", "ViT-H", "sam_vit_h_4b8939.pth"),
+    ("vit_l", "ViT-L", "sam_vit_l_0b3195.pth"),
+    ("vit_b", "ViT-B", "sam_vit_b_01ec64.pth"),
+)
 
 
 @dataclass(frozen=True)
@@ -74,6 +92,11 @@ def get_settings(context=None) -> DivasSettings:
     prefs = get_preferences(context)
     if prefs is None:
         return DivasSettings()
-    return DivasSettings(prefs.device, prefs.segmenter, bpy.path.abspath(prefs.sam_encoder_path),
-                         bpy.path.abspath(prefs.sam_decoder_path),
-                         bpy.path.abspath(prefs.sam_checkpoint_path), prefs.sam_model_type)
+    return DivasSettings(
+        prefs.device,
+        prefs.segmenter,
+        bpy.path.abspath(prefs.sam_encoder_path),
+        bpy.path.abspath(prefs.sam_decoder_path),
+        bpy.path.abspath(prefs.sam_checkpoint_path),
+        prefs.sam_model_type,
+    )

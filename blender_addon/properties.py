@@ -18,48 +18,88 @@ from divas_engine.fusion import GridConfig, GsFusionConfig
 from divas_engine.mapping import MappingConfig
 from divas_engine.session import SessionConfig
 
-__all__ = ["DIVAS_PG_session_settings", "PRESETS", "CLASSES", "register", "unregister",
-           "scene_settings", "session_config", "preset_from_cli"]
+__all__ = [
+    "DIVAS_PG_session_settings",
+    "PRESETS",
+    "CLASSES",
+    "register",
+    "unregister",
+    "scene_settings",
+    "session_config",
+    "preset_from_cli",
+]
 
 _GS, _MAP = GsFusionConfig(), MappingConfig()
 
-PRESETS = (("AUTO", "Auto", "From the training cameras: forward-facing or 360°"),
-           ("FORWARD", "Forward-Facing", "LLFF-style capture (2DGS: grid cap 512; NeRF: llff)"),
-           ("UNBOUNDED", "360° / Unbounded", "Object-centred capture (2DGS: grid cap 1024; "
-                                              "NeRF: mip360)"))
+PRESETS = (
+    ("AUTO", "Auto", "From the training cameras: forward-facing or 360°"),
+    ("FORWARD", "Forward-Facing", "LLFF-style capture (2DGS: grid cap 512; NeRF: llff)"),
+    ("UNBOUNDED", "360° / Unbounded", "Object-centred capture (2DGS: grid cap 1024; NeRF: mip360)"),
+)
 #: preset → (2DGS grid config, NeRF preset name); None: chosen by the engine.
-_PRESET_CONFIG = {"AUTO": (None, None), "FORWARD": (GridConfig.forward_facing(), "llff"),
-                  "UNBOUNDED": (GridConfig(), "mip360")}
+_PRESET_CONFIG = {
+    "AUTO": (None, None),
+    "FORWARD": (GridConfig.forward_facing(), "llff"),
+    "UNBOUNDED": (GridConfig(), "mip360"),
+}
 
 
 class DIVAS_PG_session_settings(bpy.types.PropertyGroup):
     """Settings of the next DivAS session started in this scene (defaults: the paper's)."""
 
-    preset: EnumProperty(name="Preset", items=PRESETS, default="AUTO",
-                         description="Capture type: occupancy-grid cap (2DGS) or fusion "
-                                     "preset (NeRF)")
-    render_scale: FloatProperty(name="Render Scale", default=0.5, min=0.01, max=4.0,
-                                soft_min=0.1, soft_max=1.0,
-                                description="Views are rendered at this fraction of their "
-                                            "camera's resolution")
-    see_through_gap: FloatProperty(name="See-Through Gap (γ_ST)", default=_GS.gamma_st,
-                                   min=0.0, soft_max=5.0,
-                                   description="2DGS fusion: see-through gap as a multiple of "
-                                               "the camera distance d_cam (eq. seethrough)")
-    surfel_coverage: FloatProperty(name="Surfel Coverage (τ_κ)", default=_MAP.surfel_coverage,
-                                   min=0.0, max=1.0, subtype="FACTOR",
-                                   description="2DGS mapping: a surfel is kept when this "
-                                               "fraction of it is covered (eq. final-F)")
-    gamma: FloatProperty(name="Depth Tolerance (γ)", default=_GS.gamma, min=0.0, soft_max=10.0,
-                         description="2DGS fusion: base depth tolerance in voxel sizes "
-                                     "(eq. tightening)")
-    mask_channel: IntProperty(name="Mask Channel", default=1, min=0, max=2,
-                              description="Segmenter output kept (1: the paper's mid "
-                                          "granularity)")
+    preset: EnumProperty(
+        name="Preset",
+        items=PRESETS,
+        default="AUTO",
+        description="Capture type: occupancy-grid cap (2DGS) or fusion preset (NeRF)",
+    )
+    render_scale: FloatProperty(
+        name="Render Scale",
+        default=0.5,
+        min=0.01,
+        max=4.0,
+        soft_min=0.1,
+        soft_max=1.0,
+        description="Views are rendered at this fraction of their camera's resolution",
+    )
+    see_through_gap: FloatProperty(
+        name="See-Through Gap (γ_ST)",
+        default=_GS.gamma_st,
+        min=0.0,
+        soft_max=5.0,
+        description="2DGS fusion: see-through gap as a multiple of "
+        "the camera distance d_cam (eq. seethrough)",
+    )
+    surfel_coverage: FloatProperty(
+        name="Surfel Coverage (τ_κ)",
+        default=_MAP.surfel_coverage,
+        min=0.0,
+        max=1.0,
+        subtype="FACTOR",
+        description="2DGS mapping: a surfel is kept when this "
+        "fraction of it is covered (eq. final-F)",
+    )
+    gamma: FloatProperty(
+        name="Depth Tolerance (γ)",
+        default=_GS.gamma,
+        min=0.0,
+        soft_max=10.0,
+        description="2DGS fusion: base depth tolerance in voxel sizes (eq. tightening)",
+    )
+    mask_channel: IntProperty(
+        name="Mask Channel",
+        default=1,
+        min=0,
+        max=2,
+        description="Segmenter output kept (1: the paper's mid granularity)",
+    )
     seed: IntProperty(name="Seed", default=0, min=0, description="Segmenter seed")
-    autosave: BoolProperty(name="Autosave", default=True,
-                           description="Save the session next to the .blend after every "
-                                       "accept (temp folder while unsaved)")
+    autosave: BoolProperty(
+        name="Autosave",
+        default=True,
+        description="Save the session next to the .blend after every "
+        "accept (temp folder while unsaved)",
+    )
 
 
 CLASSES = (DIVAS_PG_session_settings,)
@@ -100,6 +140,13 @@ def session_config(props, *, autosave: str | None = None) -> SessionConfig:
     grid, nerf = _PRESET_CONFIG[props.preset]
     gs = replace(_GS, gamma=_typed(props.gamma), gamma_st=_typed(props.see_through_gap))
     mapping = replace(_MAP, surfel_coverage=_typed(props.surfel_coverage))
-    return SessionConfig(render_scale=_typed(props.render_scale), grid=grid, gs_fusion=gs,
-                         nerf_preset=nerf, mapping=mapping, mask_channel=int(props.mask_channel),
-                         seed=int(props.seed), autosave=autosave)
+    return SessionConfig(
+        render_scale=_typed(props.render_scale),
+        grid=grid,
+        gs_fusion=gs,
+        nerf_preset=nerf,
+        mapping=mapping,
+        mask_channel=int(props.mask_channel),
+        seed=int(props.seed),
+        autosave=autosave,
+    )

@@ -25,8 +25,13 @@ from divas_engine.point_attributes import SELECTED
 
 from . import bridge, display, source
 
-__all__ = ["ExportSettings", "export_selection", "extract_selection", "selected_count",
-           "has_selection"]
+__all__ = [
+    "ExportSettings",
+    "export_selection",
+    "extract_selection",
+    "selected_count",
+    "has_selection",
+]
 
 
 @dataclass(frozen=True)
@@ -40,7 +45,11 @@ class ExportSettings:
 
 def has_selection(obj) -> bool:
     """``obj`` is a point cloud with a ``divas_selected`` attribute (cheap: for polls)."""
-    return obj is not None and obj.type == "POINTCLOUD" and obj.data.attributes.get(SELECTED) is not None
+    return (
+        obj is not None
+        and obj.type == "POINTCLOUD"
+        and obj.data.attributes.get(SELECTED) is not None
+    )
 
 
 def selected_count(obj) -> int | None:
@@ -67,7 +76,9 @@ def export_selection(obj, settings: ExportSettings) -> ExportResult:
         out = out.with_suffix(source.FORMAT_SUFFIX.get(ref.format, ".ply"))
     if not mask.any():
         raise DivasInputError(out, "nothing to export: no point is selected")
-    labels = out.with_name(out.name.split(".")[0] + "_labels.npy") if settings.write_labels else None
+    labels = (
+        out.with_name(out.name.split(".")[0] + "_labels.npy") if settings.write_labels else None
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     return engine_export(scene, mask, out, labels_path=labels)
 
@@ -82,19 +93,25 @@ def extract_selection(context, obj) -> bpy.types.Object:
         raise DivasInputError(None, f"nothing to extract: no point of {obj.name!r} is selected")
     attrs = bridge.read_attributes(geom, [n for n in bridge.attribute_names(geom) if n != SELECTED])
     collection = obj.users_collection[0] if obj.users_collection else context.scene.collection
-    new = bridge.new_point_cloud_object(f"{obj.name} selection", attrs.pop("position")[1][sel],
-                                        collection)
+    new = bridge.new_point_cloud_object(
+        f"{obj.name} selection", attrs.pop("position")[1][sel], collection
+    )
     for name, (data_type, values) in attrs.items():
         bridge.write_attribute(new.data, name, values[sel], data_type=data_type)
-    for key in (source.PATH_PROP, source.FORMAT_PROP, source.KIND_PROP, "divas_grid_shape",
-                "divas_grid_aabb"):
+    for key in (
+        source.PATH_PROP,
+        source.FORMAT_PROP,
+        source.KIND_PROP,
+        "divas_grid_shape",
+        "divas_grid_aabb",
+    ):
         if key in obj:
             new[key] = obj[key]
     new.matrix_world = obj.matrix_world.copy()
     old_mod = obj.modifiers.get(display.MODIFIER)
     if old_mod is not None:
         mod = display.add_display_modifier(new)
-        for key in old_mod.keys():  # modifier inputs, e.g. the radius scale
+        for key in old_mod.keys():  # noqa: SIM118 - ID properties; modifier inputs, e.g. the radius scale
             mod[key] = old_mod[key]
     obj.select_set(False)
     new.select_set(True)

@@ -43,17 +43,39 @@ from divas_engine.session import Session, SessionConfig, SessionView, anchor_pla
 from divas_engine.session.prompts import resolve_anchors
 
 from . import bridge, overlays, session_registry, source
-from .camera_objects import (apply_render_settings, blender_params, create_camera_object,
-                             engine_camera)
+from .camera_objects import (
+    apply_render_settings,
+    blender_params,
+    create_camera_object,
+    engine_camera,
+)
 from .importers import TRAINING_CAMERAS
 from .modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP, Target, target_from_props
 from .reporting import USER_ERRORS
 from .session_registry import LiveSession
 
-__all__ = ["StartSettings", "VIEWS_COLLECTION", "LABEL_ATTRIBUTE", "SESSION_ERRORS",
-           "autosave_path", "start", "resume", "click", "add_prompt", "accept", "sync", "undo",
-           "reset", "finish_object", "write_selection", "point_values", "activate_camera",
-           "camera_target", "report_exception", "full_to_session_xy"]
+__all__ = [
+    "StartSettings",
+    "VIEWS_COLLECTION",
+    "LABEL_ATTRIBUTE",
+    "SESSION_ERRORS",
+    "autosave_path",
+    "start",
+    "resume",
+    "click",
+    "add_prompt",
+    "accept",
+    "sync",
+    "undo",
+    "reset",
+    "finish_object",
+    "write_selection",
+    "point_values",
+    "activate_camera",
+    "camera_target",
+    "report_exception",
+    "full_to_session_xy",
+]
 
 VIEWS_COLLECTION = "DivAS Views"
 #: per-point int32: the label of every finished object plus the current selection.
@@ -62,8 +84,12 @@ LABEL_ATTRIBUTE = "divas_label"
 #: going to the console).
 SESSION_ERRORS = (*USER_ERRORS, ImportError, RuntimeError)
 #: engine segmenter names (``divas segment --segmenter``) by preference value.
-_SEGMENTER_NAMES = {"classic": "classic", "sam_onnx": "sam-onnx", "sam_torch": "sam-torch",
-                    "oracle": "oracle"}
+_SEGMENTER_NAMES = {
+    "classic": "classic",
+    "sam_onnx": "sam-onnx",
+    "sam_torch": "sam-torch",
+    "oracle": "oracle",
+}
 
 
 @dataclass(frozen=True)
@@ -135,8 +161,9 @@ def write_selection(obj, live: LiveSession) -> None:
     geom = obj.data
     index = bridge.read_attribute(geom, INDEX)
     bridge.write_attribute(geom, SELECTED, point_values(s.scene, index, s.selection).astype(bool))
-    bridge.write_attribute(geom, LABEL_ATTRIBUTE,
-                           point_values(s.scene, index, s.label_set()).astype(np.int32))
+    bridge.write_attribute(
+        geom, LABEL_ATTRIBUTE, point_values(s.scene, index, s.label_set()).astype(np.int32)
+    )
     geom.update_tag()
 
 
@@ -175,8 +202,9 @@ def _display_size(session: Session) -> float:
 
 
 def _new_camera(context, obj, camera, name: str, session: Session):
-    cam = create_camera_object(camera, _views_collection(context), name=name,
-                               display_size=_display_size(session))
+    cam = create_camera_object(
+        camera, _views_collection(context), name=name, display_size=_display_size(session)
+    )
     cam[OWNER_PROP] = obj.name
     cam.parent = obj  # world = object @ camera: follows the object's transform
     if camera.near > 0:
@@ -203,8 +231,11 @@ def camera_target(live: LiveSession | None, cam) -> Target:
     """What ``cam`` shows in ``live``'s session (:class:`~.modal_logic.Target`)."""
     if live is None or cam is None:
         return Target()
-    if cam.get(OWNER_PROP) != live.object_name and cam.name not in live.anchor_cameras \
-            and cam.name not in live.view_cameras.values():
+    if (
+        cam.get(OWNER_PROP) != live.object_name
+        and cam.name not in live.anchor_cameras
+        and cam.name not in live.view_cameras.values()
+    ):
         return Target()
 
     def status(vid: str) -> str | None:
@@ -257,8 +288,9 @@ def _view_camera(context, obj, live: LiveSession, v: SessionView):
     return cam
 
 
-def _show_view(context, obj, live: LiveSession, v: SessionView, image=None, *,
-               activate: bool = True):
+def _show_view(
+    context, obj, live: LiveSession, v: SessionView, image=None, *, activate: bool = True
+):
     cam = _view_camera(context, obj, live, v)
     overlays.set_background(cam, _view_image(live, v) if image is None else image)
     if activate:
@@ -293,14 +325,19 @@ def _check_segmenter(settings: StartSettings) -> None:
     """The engine's checks, worded for the UI (where the model paths are preferences)."""
     name = settings.segmenter
     if name == "oracle" and settings.gt_labels is None:
-        raise DivasInputError(None, "the oracle segmenter needs ground-truth labels "
-                                    "(Ground Truth .npy)")
+        raise DivasInputError(
+            None, "the oracle segmenter needs ground-truth labels (Ground Truth .npy)"
+        )
     if name == "sam_onnx" and (settings.sam_encoder is None or settings.sam_decoder is None):
-        raise DivasInputError(None, "SAM (ONNX) needs the encoder and decoder .onnx files: set "
-                                    "them in the DivAS add-on preferences")
+        raise DivasInputError(
+            None,
+            "SAM (ONNX) needs the encoder and decoder .onnx files: set "
+            "them in the DivAS add-on preferences",
+        )
     if name == "sam_torch" and settings.sam_checkpoint is None:
-        raise DivasInputError(None, "SAM (PyTorch) needs a checkpoint: set it in the DivAS "
-                                    "add-on preferences")
+        raise DivasInputError(
+            None, "SAM (PyTorch) needs a checkpoint: set it in the DivAS add-on preferences"
+        )
 
 
 def _engine_inputs(context, obj, settings: StartSettings):
@@ -309,17 +346,25 @@ def _engine_inputs(context, obj, settings: StartSettings):
 
     ref = source.source_of(obj)
     if ref is None:
-        raise DivasInputError(None, f"{getattr(obj, 'name', None)!r} is not a DivAS-imported "
-                                    "point cloud (import splats or a density grid first)")
+        raise DivasInputError(
+            None,
+            f"{getattr(obj, 'name', None)!r} is not a DivAS-imported "
+            "point cloud (import splats or a density grid first)",
+        )
     _check_segmenter(settings)
     scene = source.load_source_scene(ref)
     cameras = _training_cameras(context, ref, settings.cameras_path)
     gt = load_gt(settings.gt_labels, scene) if settings.gt_labels is not None else None
-    seg = build_segmenter(_SEGMENTER_NAMES.get(settings.segmenter, settings.segmenter),
-                          seed=settings.config.seed, sam_encoder=settings.sam_encoder,
-                          sam_decoder=settings.sam_decoder, sam_checkpoint=settings.sam_checkpoint,
-                          sam_model_type=settings.sam_model_type, gt_available=gt is not None,
-                          device=settings.device)
+    seg = build_segmenter(
+        _SEGMENTER_NAMES.get(settings.segmenter, settings.segmenter),
+        seed=settings.config.seed,
+        sam_encoder=settings.sam_encoder,
+        sam_decoder=settings.sam_decoder,
+        sam_checkpoint=settings.sam_checkpoint,
+        sam_model_type=settings.sam_model_type,
+        gt_available=gt is not None,
+        device=settings.device,
+    )
     try:
         device = resolve_device(settings.device)
     except RuntimeError as e:
@@ -348,8 +393,11 @@ def scene_camera_of(obj, cam_obj, scene) -> Camera:
     ow = np.array(obj.matrix_world, np.float64)
     g = ow[:3, :3].T @ ow[:3, :3]  # s²·I for a rotation with uniform scale s
     if not np.allclose(g, np.eye(3) * np.trace(g) / 3.0, rtol=0, atol=1e-5 * np.trace(g)):
-        raise DivasInputError(None, f"{obj.name!r} has a non-uniform scale or shear: apply "
-                                    "its scale (Ctrl+A) before adding a camera as an anchor")
+        raise DivasInputError(
+            None,
+            f"{obj.name!r} has a non-uniform scale or shear: apply "
+            "its scale (Ctrl+A) before adding a camera as an anchor",
+        )
     p = blender_params(scene, cam_obj)
     return camera_from_blender(replace(p, matrix_world=np.linalg.inv(ow) @ p.matrix_world))
 
@@ -361,18 +409,21 @@ def add_anchor(context, obj, live: LiveSession, cam_obj) -> int:
     if cam_obj is None or cam_obj.type != "CAMERA":
         raise DivasInputError(None, "select a camera object to add as an anchor")
     if cam_obj.name in live.anchor_cameras or cam_obj.name in live.view_cameras.values():
-        raise DivasInputError(None, f"{cam_obj.name!r} is already one of this session's "
-                                    "anchor or view cameras")
+        raise DivasInputError(
+            None, f"{cam_obj.name!r} is already one of this session's anchor or view cameras"
+        )
     training = [o.name for o in _training_camera_objects()]
-    source_name, index = (("training", training.index(cam_obj.name))
-                          if cam_obj.name in training else ("camera", -1))
+    source_name, index = (
+        ("training", training.index(cam_obj.name)) if cam_obj.name in training else ("camera", -1)
+    )
     t0 = time.perf_counter()
     cam = scene_camera_of(obj, cam_obj, context.scene)
     a = live.session.add_anchor(cam, source_name, index)
     _make_anchor_camera(context, obj, live, a.index, with_selection=True)
     _show_anchor(context, live, a.index)
-    live.record({"what": f"anchor {a.index} from {cam_obj.name}",
-                 "update_s": time.perf_counter() - t0})
+    live.record(
+        {"what": f"anchor {a.index} from {cam_obj.name}", "update_s": time.perf_counter() - t0}
+    )
     return a.index
 
 
@@ -389,19 +440,27 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
         anchors = None
         if settings.prompts_path is not None:
             prompts = load_prompts(settings.prompts_path)
-            resolved = resolve_anchors(prompts, cameras, lambda: [
-                a.camera for a in anchor_plan(scene, cameras, config).candidates])
+            resolved = resolve_anchors(
+                prompts,
+                cameras,
+                lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates],
+            )
             anchors = [(r.camera, r.source, r.index) for r in resolved]
-        session = Session.open(scene, cameras, config, seg, device, anchors=anchors,
-                               gt_values=gt, render_anchors=False)
+        session = Session.open(
+            scene, cameras, config, seg, device, anchors=anchors, gt_values=gt, render_anchors=False
+        )
         wm.progress_update(40)
         try:
             n = len(session.anchors)
             for k, a in enumerate(session.anchors):
                 _ = a.buffers
                 wm.progress_update(40 + int(50 * (k + 1) / max(n, 1)))
-            live = LiveSession(session, obj.name, autosave=None if config.autosave is None
-                               else Path(config.autosave), segmenter=settings.segmenter)
+            live = LiveSession(
+                session,
+                obj.name,
+                autosave=None if config.autosave is None else Path(config.autosave),
+                segmenter=settings.segmenter,
+            )
             session_registry.drop(obj)  # a restart: the old session and its cameras go
             _remove_cameras_of(obj.name)
             _make_anchor_cameras(context, obj, live)
@@ -433,8 +492,9 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
             raise DivasInputError(path, "no saved DivAS session here")
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
         wm.progress_update(20)
-        session = Session.load(path, scene, seg, device, cameras=cameras, gt_values=gt,
-                               autosave=str(path))
+        session = Session.load(
+            path, scene, seg, device, cameras=cameras, gt_values=gt, autosave=str(path)
+        )
         wm.progress_update(70)
         try:
             live = LiveSession(session, obj.name, autosave=path, segmenter=settings.segmenter)
@@ -467,8 +527,9 @@ def full_to_session_xy(live: LiveSession, anchor: int, xy) -> tuple[float, float
     return xy[0] * sx, xy[1] * sy
 
 
-def click(context, obj, live: LiveSession, anchor: int, xy, positive: bool = True, *,
-          preview: bool = True):
+def click(
+    context, obj, live: LiveSession, anchor: int, xy, positive: bool = True, *, preview: bool = True
+):
     """A click on anchor ``anchor``: positive spawns (and shows) the centroid view with
     its default-prompt preview; negative becomes a negative prompt of the anchor's views."""
     s = live.session
@@ -478,8 +539,9 @@ def click(context, obj, live: LiveSession, anchor: int, xy, positive: bool = Tru
     res = s.click(int(anchor), (float(xy[0]), float(xy[1])), positive=positive)
     if not positive:
         _show_anchor(context, live, int(anchor), activate=False)
-        live.record({"what": f"negative click on anchor {anchor}",
-                     "update_s": time.perf_counter() - t0})
+        live.record(
+            {"what": f"negative click on anchor {anchor}", "update_s": time.perf_counter() - t0}
+        )
         return res
     timings = dict(res.timings)
     if preview:
@@ -506,20 +568,20 @@ def refresh_preview(context, obj, live: LiveSession, view_id: str):
     pts, labs = _extras(live, view_id)
     prev = s.prompt(v, pts, labs)
     _show_view(context, obj, live, v)
-    live.record({"what": f"preview {v.id}", "segmenter_s": prev.seconds,
-                 "update_s": prev.seconds})
+    live.record({"what": f"preview {v.id}", "segmenter_s": prev.seconds, "update_s": prev.seconds})
     return prev
 
 
 def _extras(live: LiveSession, view_id: str) -> tuple[np.ndarray, np.ndarray]:
     e = live.extra_prompts.get(view_id, [])
-    return (np.array([(x, y) for x, y, _ in e], np.float64).reshape(-1, 2),
-            np.array([lab for _, _, lab in e], np.int64))
+    return (
+        np.array([(x, y) for x, y, _ in e], np.float64).reshape(-1, 2),
+        np.array([lab for _, _, lab in e], np.int64),
+    )
 
 
 # ----------------------------------------------------------------------------- accept …
-def accept(context, obj, live: LiveSession, view_id: str | None = None, points=None,
-           labels=None):
+def accept(context, obj, live: LiveSession, view_id: str | None = None, points=None, labels=None):
     """Accept a centroid view (default: the scene camera's, else the next open one):
     fuse + map, recolour the points, show the selection on the next view (or back on the
     anchor). ``points``/``labels`` replace the view's added prompt points."""
@@ -531,8 +593,9 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
     if not view_id:
         nxt = s.next_view()
         if nxt is None:
-            raise DivasInputError(None, "no open view to accept: click the object on an anchor "
-                                        "first")
+            raise DivasInputError(
+                None, "no open view to accept: click the object on an anchor first"
+            )
         view_id = nxt.id
     v = s.view(view_id)
     if points is not None:

@@ -21,8 +21,17 @@ from divas_engine.session import Session
 
 from .modal_logic import OWNER_PROP
 
-__all__ = ["LiveSession", "put", "get", "drop", "clear", "find", "owner_object", "all_sessions",
-           "on_load_pre"]
+__all__ = [
+    "LiveSession",
+    "put",
+    "get",
+    "drop",
+    "clear",
+    "find",
+    "owner_object",
+    "all_sessions",
+    "on_load_pre",
+]
 
 
 @dataclass(eq=False)

@@ -25,13 +25,28 @@ from divas_engine.scene import DensityGrid, Scene
 
 from . import bridge
 
-__all__ = ["SourceRef", "tag_object", "source_of", "load_source_scene", "selection_of", "clear_cache",
-           "FORMAT_SUFFIX", "PATH_PROP", "FORMAT_PROP", "KIND_PROP"]
+__all__ = [
+    "SourceRef",
+    "tag_object",
+    "source_of",
+    "load_source_scene",
+    "selection_of",
+    "clear_cache",
+    "FORMAT_SUFFIX",
+    "PATH_PROP",
+    "FORMAT_PROP",
+    "KIND_PROP",
+]
 
 PATH_PROP, FORMAT_PROP, KIND_PROP = "divas_source_path", "divas_source_format", "divas_kind"
 #: file suffix an export in each engine format gets.
-FORMAT_SUFFIX = {"ply": ".ply", "compressed_ply": ".ply", "splat": ".splat", "spz": ".spz",
-                 "npz": ".npz"}
+FORMAT_SUFFIX = {
+    "ply": ".ply",
+    "compressed_ply": ".ply",
+    "splat": ".splat",
+    "spz": ".spz",
+    "npz": ".npz",
+}
 
 _cache: dict[str, object] = {"key": None, "scene": None}
 
@@ -55,8 +70,11 @@ def source_of(obj: bpy.types.Object | None) -> SourceRef | None:
     """The source of an imported/extracted object, or None for any other object."""
     if obj is None or obj.type != "POINTCLOUD" or not obj.get(PATH_PROP):
         return None
-    return SourceRef(Path(bpy.path.abspath(obj[PATH_PROP])), str(obj.get(FORMAT_PROP, "")),
-                     str(obj.get(KIND_PROP, "surfels")))
+    return SourceRef(
+        Path(bpy.path.abspath(obj[PATH_PROP])),
+        str(obj.get(FORMAT_PROP, "")),
+        str(obj.get(KIND_PROP, "surfels")),
+    )
 
 
 def load_source_scene(ref: SourceRef) -> Scene:
@@ -64,7 +82,9 @@ def load_source_scene(ref: SourceRef) -> Scene:
     try:
         st = os.stat(ref.path)
     except OSError as e:
-        raise DivasInputError(ref.path, f"source file of this object is gone ({e.strerror})") from None
+        raise DivasInputError(
+            ref.path, f"source file of this object is gone ({e.strerror})"
+        ) from None
     key = (str(ref.path), st.st_size, st.st_mtime_ns)
     if _cache["key"] != key:
         _cache["scene"], _cache["key"] = None, None
@@ -84,8 +104,11 @@ def selection_of(obj: bpy.types.Object, scene: Scene) -> np.ndarray:
     if geom.attributes.get(SELECTED) is None:
         raise DivasInputError(None, f"{obj.name!r} has no selection (no {SELECTED!r} attribute)")
     try:
-        return scene_selection(scene, bridge.read_attribute(geom, INDEX),
-                               bridge.read_attribute(geom, SELECTED))
+        return scene_selection(
+            scene, bridge.read_attribute(geom, INDEX), bridge.read_attribute(geom, SELECTED)
+        )
     except (KeyError, ValueError) as e:
-        raise DivasInputError(scene.source.path if scene.source else None,
-                              f"{obj.name!r} does not match this file ({e})") from None
+        raise DivasInputError(
+            scene.source.path if scene.source else None,
+            f"{obj.name!r} does not match this file ({e})",
+        ) from None

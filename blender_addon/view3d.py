@@ -32,8 +32,9 @@ def camera_frame_in_region(region, rv3d, scene, cam_obj) -> np.ndarray | None:
     return np.array(out, dtype=np.float64)
 
 
-def click_to_camera_pixel(region, rv3d, scene, cam_obj,
-                          mouse_region: tuple[int, int]) -> tuple[float, float] | None:
+def click_to_camera_pixel(
+    region, rv3d, scene, cam_obj, mouse_region: tuple[int, int]
+) -> tuple[float, float] | None:
     """Continuous pixel ``(u, v)`` of ``cam_obj``'s image under a click, or None outside it."""
     frame = camera_frame_in_region(region, rv3d, scene, cam_obj)
     if frame is None:

@@ -52,12 +52,24 @@ PINNED = {
 
 #: Blender platform → pip platform tags (newest first; Blender 4.2 needs glibc 2.28 / macOS 11.2).
 PLATFORMS = {
-    "linux-x64": ["manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64",
-                  "manylinux2014_x86_64", "manylinux1_x86_64", "linux_x86_64"],
+    "linux-x64": [
+        "manylinux_2_28_x86_64",
+        "manylinux_2_27_x86_64",
+        "manylinux_2_17_x86_64",
+        "manylinux2014_x86_64",
+        "manylinux1_x86_64",
+        "linux_x86_64",
+    ],
     "windows-x64": ["win_amd64"],
-    "macos-arm64": ["macosx_14_0_arm64", "macosx_13_0_arm64", "macosx_12_0_arm64",
-                    "macosx_11_0_arm64", "macosx_13_0_universal2", "macosx_11_0_universal2",
-                    "macosx_10_9_universal2"],
+    "macos-arm64": [
+        "macosx_14_0_arm64",
+        "macosx_13_0_arm64",
+        "macosx_12_0_arm64",
+        "macosx_11_0_arm64",
+        "macosx_13_0_universal2",
+        "macosx_11_0_universal2",
+        "macosx_10_9_universal2",
+    ],
 }
 PYTHONS = ("311", "313")
 
@@ -80,15 +92,30 @@ def download_wheels(platform: str, python: str, cache: Path) -> list[Path]:
         prefix = f"{_norm(name)}-{version}-"
         have = sorted(p for p in dest.glob("*.whl") if p.name.lower().startswith(prefix))
         if not have:
-            cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps",
-                   "--only-binary=:all:", "--python-version", python, "--implementation", "cp",
-                   "--dest", str(dest), f"{name}=={version}"]
+            cmd = [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "--quiet",
+                "--no-deps",
+                "--only-binary=:all:",
+                "--python-version",
+                python,
+                "--implementation",
+                "cp",
+                "--dest",
+                str(dest),
+                f"{name}=={version}",
+            ]
             for tag in PLATFORMS[platform]:
                 cmd += ["--platform", tag]
             _run(cmd)
             have = sorted(p for p in dest.glob("*.whl") if p.name.lower().startswith(prefix))
         if len(have) != 1:
-            raise SystemExit(f"expected one {name} {version} wheel for {platform} cp{python}, got {have}")
+            raise SystemExit(
+                f"expected one {name} {version} wheel for {platform} cp{python}, got {have}"
+            )
         out.append(have[0])
     return out
 
@@ -98,8 +125,19 @@ def engine_wheel(dest: Path) -> Path:
     dest.mkdir(parents=True, exist_ok=True)
     for old in dest.glob("divas-*.whl"):
         old.unlink()
-    _run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps",
-          "--wheel-dir", str(dest), str(REPO)])
+    _run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--quiet",
+            "--no-deps",
+            "--wheel-dir",
+            str(dest),
+            str(REPO),
+        ]
+    )
     (whl,) = dest.glob("divas-*.whl")
     return whl
 
@@ -141,12 +179,19 @@ def _zip_ourselves(stage: Path, out: Path, version: str, platforms: list[str]) -
                 rel = f.relative_to(stage).as_posix()
                 if f.is_dir() or "__pycache__" in rel:
                     continue
-                if rel.startswith("wheels/") and "none-any" not in rel and not any(t in rel for t in tags):
+                if (
+                    rel.startswith("wheels/")
+                    and "none-any" not in rel
+                    and not any(t in rel for t in tags)
+                ):
                     continue
                 if rel == "blender_manifest.toml":
                     text = f.read_text()
-                    keep = [w for w in re.findall(r'"(\./wheels/[^"]+)"', text)
-                            if "none-any" in w or any(t in w for t in tags)]
+                    keep = [
+                        w
+                        for w in re.findall(r'"(\./wheels/[^"]+)"', text)
+                        if "none-any" in w or any(t in w for t in tags)
+                    ]
                     tmp = stage.parent / "manifest.tmp"
                     tmp.write_text(text)
                     write_manifest(tmp, tmp, keep, [plat])
@@ -173,9 +218,15 @@ def build(platforms: list[str], pythons: list[str], out: Path, cache: Path) -> l
         if w.name not in names:
             shutil.copy2(w, stage / "wheels" / w.name)
             names.append(w.name)
-    write_manifest(ADDON / "blender_manifest.toml", stage / "blender_manifest.toml",
-                   [f"./wheels/{n}" for n in names], platforms)
-    version = re.search(r'(?m)^version\s*=\s*"([^"]+)"', (stage / "blender_manifest.toml").read_text())[1]
+    write_manifest(
+        ADDON / "blender_manifest.toml",
+        stage / "blender_manifest.toml",
+        [f"./wheels/{n}" for n in names],
+        platforms,
+    )
+    version = re.search(
+        r'(?m)^version\s*=\s*"([^"]+)"', (stage / "blender_manifest.toml").read_text()
+    )[1]
     out.mkdir(parents=True, exist_ok=True)
     for old in out.glob(f"divas-{version}*.zip"):
         old.unlink()
@@ -183,8 +234,10 @@ def build(platforms: list[str], pythons: list[str], out: Path, cache: Path) -> l
     if packager is None:
         zips = _zip_ourselves(stage, out, version, platforms)
     else:
-        _run(packager + ["build", "--source-dir", str(stage), "--output-dir", str(out),
-                         "--split-platforms"])
+        _run(
+            packager
+            + ["build", "--source-dir", str(stage), "--output-dir", str(out), "--split-platforms"]
+        )
         zips = sorted(out.glob(f"divas-{version}*.zip"))
     print(f"built {len(zips)} package(s) in {time.perf_counter() - t0:.1f} s:")
     for z in zips:
@@ -196,15 +249,23 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--platforms", nargs="+", choices=sorted(PLATFORMS), default=list(PLATFORMS))
     ap.add_argument("--python", nargs="+", choices=PYTHONS, default=list(PYTHONS), dest="pythons")
-    ap.add_argument("--out", type=Path, default=REPO / "dist", help="where the zips go (default: dist/)")
-    ap.add_argument("--wheel-cache", type=Path, default=BUILD / "wheels",
-                    help="downloaded wheels, reused between builds")
+    ap.add_argument(
+        "--out", type=Path, default=REPO / "dist", help="where the zips go (default: dist/)"
+    )
+    ap.add_argument(
+        "--wheel-cache",
+        type=Path,
+        default=BUILD / "wheels",
+        help="downloaded wheels, reused between builds",
+    )
     args = ap.parse_args(argv)
     try:
         zips = build(args.platforms, args.pythons, args.out, args.wheel_cache)
     except subprocess.CalledProcessError as e:
-        print(f"build_extension: command failed ({e.returncode}): {' '.join(map(str, e.cmd))}",
-              file=sys.stderr)
+        print(
+            f"build_extension: command failed ({e.returncode}): {' '.join(map(str, e.cmd))}",
+            file=sys.stderr,
+        )
         return 1
     return 0 if zips else 1
 

@@ -26,8 +26,12 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SEGMENTERS = {"classic": "classic", "sam-onnx": "sam_onnx", "sam-torch": "sam_torch",
-              "oracle": "oracle"}
+SEGMENTERS = {
+    "classic": "classic",
+    "sam-onnx": "sam_onnx",
+    "sam-torch": "sam_torch",
+    "oracle": "oracle",
+}
 
 
 class ScriptError(Exception):
@@ -35,13 +39,23 @@ class ScriptError(Exception):
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="blender -b --python blender_scripts/segment.py --",
-                                description="Segment a scene headless through the DivAS "
-                                            "add-on's operators (mirrors `divas segment`).")
-    p.add_argument("--scene", type=Path, required=True,
-                   help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz density grid")
-    p.add_argument("--cameras", type=Path, default=None,
-                   help="training cameras (default: cameras.json beside the scene, if any)")
+    p = argparse.ArgumentParser(
+        prog="blender -b --python blender_scripts/segment.py --",
+        description="Segment a scene headless through the DivAS "
+        "add-on's operators (mirrors `divas segment`).",
+    )
+    p.add_argument(
+        "--scene",
+        type=Path,
+        required=True,
+        help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz density grid",
+    )
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        default=None,
+        help="training cameras (default: cameras.json beside the scene, if any)",
+    )
     p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
     p.add_argument("--out", type=Path, required=True, help="output: the selected primitives")
     p.add_argument("--labels-out", type=Path, default=None, help="bool .npy per input row")
@@ -50,26 +64,42 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--sam-decoder", type=Path, default=None)
     p.add_argument("--sam-checkpoint", type=Path, default=None)
     p.add_argument("--sam-model-type", default="vit_h")
-    p.add_argument("--gt-labels", type=Path, default=None,
-                   help="ground truth .npy: the oracle's target and a 3D score in the report")
-    p.add_argument("--preset", choices=("llff", "mip360"), default=None,
-                   help="NeRF fusion preset (default: from the training cameras)")
+    p.add_argument(
+        "--gt-labels",
+        type=Path,
+        default=None,
+        help="ground truth .npy: the oracle's target and a 3D score in the report",
+    )
+    p.add_argument(
+        "--preset",
+        choices=("llff", "mip360"),
+        default=None,
+        help="NeRF fusion preset (default: from the training cameras)",
+    )
     p.add_argument("--scale", type=float, default=1.0, help="render scale (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--report", type=Path, default=None, help="write a JSON report here")
-    p.add_argument("--session", type=Path, default=None,
-                   help="save the session here (autosaved after every accept)")
+    p.add_argument(
+        "--session",
+        type=Path,
+        default=None,
+        help="save the session here (autosaved after every accept)",
+    )
     p.add_argument("--mask-channel", type=int, default=1, choices=(0, 1, 2))
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--min-opacity", type=float, default=0.0,
-                   help="NeRF grids: voxels imported as points (0, every voxel, keeps the "
-                        "export identical to `divas segment`)")
+    p.add_argument(
+        "--min-opacity",
+        type=float,
+        default=0.0,
+        help="NeRF grids: voxels imported as points (0, every voxel, keeps the "
+        "export identical to `divas segment`)",
+    )
     return p.parse_args(argv)
 
 
 def script_argv(argv: list[str]) -> list[str]:
     """The arguments after ``--`` (Blender passes its own before it)."""
-    return argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
+    return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
 
 
 def enable_addon():
@@ -120,8 +150,10 @@ def run(args: argparse.Namespace) -> dict:
     view_prop = importlib.import_module(f"{addon.__name__}.modal_logic").VIEW_PROP
     scale_prop = properties.DIVAS_PG_session_settings.bl_rna.properties["render_scale"]
     if not scale_prop.hard_min <= args.scale <= scale_prop.hard_max:
-        raise ScriptError(f"--scale must be in [{scale_prop.hard_min:g}, "
-                          f"{scale_prop.hard_max:g}], got {args.scale}")
+        raise ScriptError(
+            f"--scale must be in [{scale_prop.hard_min:g}, "
+            f"{scale_prop.hard_max:g}], got {args.scale}"
+        )
     if args.segmenter == "sam-onnx" and (args.sam_encoder is None or args.sam_decoder is None):
         raise ScriptError("--segmenter sam-onnx needs --sam-encoder and --sam-decoder")
     if args.segmenter == "sam-torch" and args.sam_checkpoint is None:
@@ -133,8 +165,13 @@ def run(args: argparse.Namespace) -> dict:
     is_grid = args.scene.suffix.lower() == ".npz"
     t = time.perf_counter()
     if is_grid:
-        _op(ops.import_density_grid, "import", filepath=str(args.scene), display=False,
-            min_opacity=args.min_opacity)
+        _op(
+            ops.import_density_grid,
+            "import",
+            filepath=str(args.scene),
+            display=False,
+            min_opacity=args.min_opacity,
+        )
     else:
         _op(ops.import_splats, "import", filepath=str(args.scene), display=False)
     t_import = time.perf_counter() - t
@@ -150,24 +187,43 @@ def run(args: argparse.Namespace) -> dict:
         prefs.sam_checkpoint_path = str(args.sam_checkpoint or "")
         prefs.sam_model_type = args.sam_model_type
     t = time.perf_counter()
-    _op(ops.start_session, "start", segmenter=SEGMENTERS[args.segmenter], device=args.device,
-        cameras=str(args.cameras or ""), prompts=str(args.prompts),
-        gt_labels=str(args.gt_labels or ""), autosave=str(args.session or ""))
+    _op(
+        ops.start_session,
+        "start",
+        segmenter=SEGMENTERS[args.segmenter],
+        device=args.device,
+        cameras=str(args.cameras or ""),
+        prompts=str(args.prompts),
+        gt_labels=str(args.gt_labels or ""),
+        autosave=str(args.session or ""),
+    )
     t_start_session = time.perf_counter() - t
     live = registry.get(obj)
     # every click first (bad clicks fail before the expensive part), then accept in order
     spawned = []
     for i, a in enumerate(prompts.anchors):
         for k, c in enumerate(a.clicks):
-            _op(ops.session_click, f"anchors[{i}].clicks[{k}]", anchor=i, xy=_xy(c.xy),
-                positive=c.positive, full_resolution=True, preview=False)
+            _op(
+                ops.session_click,
+                f"anchors[{i}].clicks[{k}]",
+                anchor=i,
+                xy=_xy(c.xy),
+                positive=c.positive,
+                full_resolution=True,
+                preview=False,
+            )
             if c.positive:
                 vid = bpy.context.scene.camera.get(view_prop)  # the view just spawned
                 pts = [[p.xy[0], p.xy[1], p.positive] for p in prompts.extra_points(i, k)]
                 spawned.append((vid, pts))
     for vid, pts in spawned:
-        _op(ops.session_accept, f"accept {vid}", view=vid, points=json.dumps(pts),
-            full_resolution=True)
+        _op(
+            ops.session_accept,
+            f"accept {vid}",
+            view=vid,
+            points=json.dumps(pts),
+            full_resolution=True,
+        )
     _op(ops.session_sync, "sync")
     session = live.session
     t = time.perf_counter()
@@ -175,13 +231,23 @@ def run(args: argparse.Namespace) -> dict:
     error = None
     if not session.selection.any():
         reasons = "; ".join(f"{v.id}: {v.reason}" for v in session.views if v.status == "rejected")
-        error = "the selection is empty; nothing to write" + \
-            (f" (rejected views: {reasons})" if reasons else "")
+        error = "the selection is empty; nothing to write" + (
+            f" (rejected views: {reasons})" if reasons else ""
+        )
     else:
-        _op(ops.export_selection, "export", filepath=str(args.out),
-            write_labels=args.labels_out is not None)
-        out = args.out if args.out.suffix else args.out.with_suffix(
-            addon.source.FORMAT_SUFFIX.get(obj.get(addon.source.FORMAT_PROP, ""), ".ply"))
+        _op(
+            ops.export_selection,
+            "export",
+            filepath=str(args.out),
+            write_labels=args.labels_out is not None,
+        )
+        out = (
+            args.out
+            if args.out.suffix
+            else args.out.with_suffix(
+                addon.source.FORMAT_SUFFIX.get(obj.get(addon.source.FORMAT_PROP, ""), ".ply")
+            )
+        )
         outputs.update({"out": str(out), "count": int(session.selection.sum())})
         if args.labels_out is not None:
             made = out.with_name(out.name.split(".")[0] + "_labels.npy")
@@ -195,21 +261,37 @@ def run(args: argparse.Namespace) -> dict:
     t_export = time.perf_counter() - t
     rep = session.report()
     timings = rep.pop("timings")
-    timings.update({"T_pipe_s": time.perf_counter() - t_start, "import_s": t_import,
-                    "start_s": t_start_session, "export_s": t_export})
-    report = {"version": 1, "command": "blender segment", "blender": bpy.app.version_string,
-              "scene": str(args.scene), "cameras": None if args.cameras is None
-              else str(args.cameras), "prompts": str(args.prompts), "kind": rep["kind"],
-              "segmenter": args.segmenter, "seed": args.seed, "device": rep["device"],
-              "render_scale": args.scale, "timings": timings,
-              **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
-              "outputs": outputs}
+    timings.update(
+        {
+            "T_pipe_s": time.perf_counter() - t_start,
+            "import_s": t_import,
+            "start_s": t_start_session,
+            "export_s": t_export,
+        }
+    )
+    report = {
+        "version": 1,
+        "command": "blender segment",
+        "blender": bpy.app.version_string,
+        "scene": str(args.scene),
+        "cameras": None if args.cameras is None else str(args.cameras),
+        "prompts": str(args.prompts),
+        "kind": rep["kind"],
+        "segmenter": args.segmenter,
+        "seed": args.seed,
+        "device": rep["device"],
+        "render_scale": args.scale,
+        "timings": timings,
+        **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
+        "outputs": outputs,
+    }
     if session.kind == "nerf":
         report["preset"] = session.preset
     if args.gt_labels is not None:
         gt = load_gt(args.gt_labels, session.scene)
-        report["evaluation"] = {"surfels" if session.kind == "2dgs" else "voxels":
-                                surfel_scores(session.selection, gt)}
+        report["evaluation"] = {
+            "surfels" if session.kind == "2dgs" else "voxels": surfel_scores(session.selection, gt)
+        }
     if args.report is not None:
         write_report(args.report, report)
     if error is not None:
@@ -226,14 +308,15 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except Exception as e:  # noqa: BLE001 - engine input errors and the like: one line
         from_engine = type(e).__module__.startswith("divas_engine")
-        print(f"error: {e}" if from_engine else f"error: {type(e).__name__}: {e}",
-              file=sys.stderr)
+        print(f"error: {e}" if from_engine else f"error: {type(e).__name__}: {e}", file=sys.stderr)
         return 1
     c = report["counts"]
-    print(f"{c['accepted']} of {c['centroid_views']} centroid views fused "
-          f"({c['rejected']} rejected); {c['selected']} "
-          f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
-          f"({report['timings']['T_pipe_s']:.1f} s)")
+    print(
+        f"{c['accepted']} of {c['centroid_views']} centroid views fused "
+        f"({c['rejected']} rejected); {c['selected']} "
+        f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
+        f"({report['timings']['T_pipe_s']:.1f} s)"
+    )
     return 0
 
 

@@ -7,8 +7,15 @@ from .camera import Camera
 from .errors import DivasInputError
 from .scene import DensityGrid, Scene, SourceInfo, SurfelScene
 
-__all__ = ["Camera", "DivasInputError", "DensityGrid", "Scene", "SourceInfo", "SurfelScene",
-           "load_scene"]
+__all__ = [
+    "Camera",
+    "DivasInputError",
+    "DensityGrid",
+    "Scene",
+    "SourceInfo",
+    "SurfelScene",
+    "load_scene",
+]
 __version__ = "0.1.0"
 
 

@@ -37,8 +37,14 @@ import numpy as np
 
 from .camera import Camera
 
-__all__ = ["BLENDER_TO_OPENCV", "BlenderCameraParams", "camera_from_blender",
-           "camera_to_blender", "project_blender", "world_to_camera_view"]
+__all__ = [
+    "BLENDER_TO_OPENCV",
+    "BlenderCameraParams",
+    "camera_from_blender",
+    "camera_to_blender",
+    "project_blender",
+    "world_to_camera_view",
+]
 
 #: right-multiply a camera-to-world matrix to swap Blender (−z forward, y up) and OpenCV axes.
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -80,15 +86,25 @@ class BlenderCameraParams:
         object.__setattr__(self, "matrix_world", m)
         if self.sensor_fit not in _FITS:
             raise ValueError(f"sensor_fit must be one of {_FITS}, got {self.sensor_fit!r}")
-        for k in ("lens_mm", "sensor_width_mm", "sensor_height_mm", "pixel_aspect_x",
-                  "pixel_aspect_y"):
+        for k in (
+            "lens_mm",
+            "sensor_width_mm",
+            "sensor_height_mm",
+            "pixel_aspect_x",
+            "pixel_aspect_y",
+        ):
             v = float(getattr(self, k))
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{k}={v} must be positive")
-        if int(self.resolution_x) <= 0 or int(self.resolution_y) <= 0 or \
-                int(self.resolution_percentage) <= 0:
-            raise ValueError(f"empty resolution {self.resolution_x}x{self.resolution_y} "
-                             f"at {self.resolution_percentage}%")
+        if (
+            int(self.resolution_x) <= 0
+            or int(self.resolution_y) <= 0
+            or int(self.resolution_percentage) <= 0
+        ):
+            raise ValueError(
+                f"empty resolution {self.resolution_x}x{self.resolution_y} "
+                f"at {self.resolution_percentage}%"
+            )
 
     @property
     def render_size(self) -> tuple[int, int]:
@@ -125,11 +141,20 @@ def camera_to_blender(cam: Camera, sensor_mm: float = 36.0) -> BlenderCameraPara
         sensor_w, sensor_h = sensor_mm * disp_w / disp_h, sensor_mm
         lens = cam.fx * sensor_h / viewfac
     return BlenderCameraParams(
-        matrix_world=cam.c2w @ BLENDER_TO_OPENCV, lens_mm=lens, sensor_width_mm=sensor_w,
-        sensor_height_mm=sensor_h, sensor_fit=fit,
-        shift_x=(w / 2.0 - cam.cx) / viewfac, shift_y=(cam.cy - h / 2.0) * ycor / viewfac,
-        resolution_x=w, resolution_y=h, pixel_aspect_x=aspx, pixel_aspect_y=aspy,
-        resolution_percentage=100, name=cam.name)
+        matrix_world=cam.c2w @ BLENDER_TO_OPENCV,
+        lens_mm=lens,
+        sensor_width_mm=sensor_w,
+        sensor_height_mm=sensor_h,
+        sensor_fit=fit,
+        shift_x=(w / 2.0 - cam.cx) / viewfac,
+        shift_y=(cam.cy - h / 2.0) * ycor / viewfac,
+        resolution_x=w,
+        resolution_y=h,
+        pixel_aspect_x=aspx,
+        pixel_aspect_y=aspy,
+        resolution_percentage=100,
+        name=cam.name,
+    )
 
 
 def _normalized_matrix(m: np.ndarray) -> np.ndarray:
@@ -170,8 +195,11 @@ def world_to_camera_view(params: BlenderCameraParams, points: np.ndarray) -> np.
     # view frame (BKE_camera_view_frame_ex, drawsize 1, unit scale): aspect from resolution
     aspx = params.resolution_x * params.pixel_aspect_x
     aspy = params.resolution_y * params.pixel_aspect_y
-    fit = params.sensor_fit if params.sensor_fit != "AUTO" else (
-        "HORIZONTAL" if aspx >= aspy else "VERTICAL")
+    fit = (
+        params.sensor_fit
+        if params.sensor_fit != "AUTO"
+        else ("HORIZONTAL" if aspx >= aspy else "VERTICAL")
+    )
     r_asp = (1.0, aspy / aspx) if fit == "HORIZONTAL" else (aspx / aspy, 1.0)
     half_sensor = 0.5 * params.sensor_mm
     fac = 0.5
@@ -189,8 +217,9 @@ def world_to_camera_view(params: BlenderCameraParams, points: np.ndarray) -> np.
     return np.stack([x, y, z], -1)
 
 
-def project_blender(params: BlenderCameraParams,
-                    points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project_blender(
+    params: BlenderCameraParams, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates ``[N,2]`` (engine convention: top-left origin, +0.5 centres) and
     planar depth ``[N]`` of world points, through Blender's ``world_to_camera_view``."""
     ndc = world_to_camera_view(params, points)

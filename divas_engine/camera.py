@@ -60,11 +60,12 @@ class Camera:
                 raise ValueError(f"camera {self.name!r}: focal length {k}={v} must be positive")
         near = float(self.near)
         if not math.isfinite(near) or near < 0:
-            raise ValueError(f"camera {self.name!r}: near clip {self.near} must be finite "
-                             "and ≥ 0")
+            raise ValueError(f"camera {self.name!r}: near clip {self.near} must be finite and ≥ 0")
         object.__setattr__(self, "near", near)
         if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ValueError(f"camera {self.name!r}: image size {self.width}x{self.height} is empty")
+            raise ValueError(
+                f"camera {self.name!r}: image size {self.width}x{self.height} is empty"
+            )
         object.__setattr__(self, "c2w", c2w)
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
@@ -111,21 +112,40 @@ class Camera:
     def fov_y(self) -> float:
         return 2.0 * math.atan(self.height / (2.0 * self.fy))
 
-    def scaled(self, s: float) -> "Camera":
+    def scaled(self, s: float) -> Camera:
         """Same pose, image resized by ``s`` (intrinsics scale exactly with +0.5 centres)."""
         w, h = max(1, round(self.width * s)), max(1, round(self.height * s))
         sx, sy = w / self.width, h / self.height
-        return Camera(w, h, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
-                      self.c2w, self.name, self.near)
+        return Camera(
+            w,
+            h,
+            self.fx * sx,
+            self.fy * sy,
+            self.cx * sx,
+            self.cy * sy,
+            self.c2w,
+            self.name,
+            self.near,
+        )
 
-    def with_pose(self, c2w: np.ndarray, name: str | None = None) -> "Camera":
-        return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, c2w,
-                      self.name if name is None else name, self.near)
+    def with_pose(self, c2w: np.ndarray, name: str | None = None) -> Camera:
+        return Camera(
+            self.width,
+            self.height,
+            self.fx,
+            self.fy,
+            self.cx,
+            self.cy,
+            c2w,
+            self.name if name is None else name,
+            self.near,
+        )
 
-    def with_near(self, near: float) -> "Camera":
+    def with_near(self, near: float) -> Camera:
         """Same camera with its own near clip distance set to ``near``."""
-        return Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.c2w,
-                      self.name, near)
+        return Camera(
+            self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.c2w, self.name, near
+        )
 
     def clip_near(self, renderer_near: float) -> float:
         """The near plane a renderer with near ``renderer_near`` uses for this camera."""
@@ -148,8 +168,9 @@ class Camera:
     def ray_directions(self, uv: np.ndarray) -> np.ndarray:
         """Unit world-space ray directions ``[N,3]`` through continuous pixel points ``uv``."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        d = np.stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy,
-                      np.ones(len(uv))], -1)
+        d = np.stack(
+            [(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy, np.ones(len(uv))], -1
+        )
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         return d @ self.c2w[:3, :3].T
 
@@ -157,14 +178,28 @@ class Camera:
         """World points ``[N,3]`` at planar depth ``z`` behind continuous pixel points."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         z = np.asarray(planar_depth, dtype=np.float64).reshape(-1)
-        pc = np.stack([(uv[:, 0] - self.cx) / self.fx * z, (uv[:, 1] - self.cy) / self.fy * z, z], -1)
+        pc = np.stack(
+            [(uv[:, 0] - self.cx) / self.fx * z, (uv[:, 1] - self.cy) / self.fy * z, z], -1
+        )
         return pc @ self.c2w[:3, :3].T + self.c2w[:3, 3]
 
     # --- construction -----------------------------------------------------
     @classmethod
-    def look_at(cls, eye: np.ndarray, target: np.ndarray, up: np.ndarray, *, width: int,
-                height: int, fx: float, fy: float | None = None, cx: float | None = None,
-                cy: float | None = None, name: str = "", near: float = 0.0) -> "Camera":
+    def look_at(
+        cls,
+        eye: np.ndarray,
+        target: np.ndarray,
+        up: np.ndarray,
+        *,
+        width: int,
+        height: int,
+        fx: float,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        name: str = "",
+        near: float = 0.0,
+    ) -> Camera:
         """A camera at ``eye`` looking at ``target`` with image-up close to ``up``."""
         eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
         fwd = target - eye
@@ -180,15 +215,29 @@ class Camera:
         down = np.cross(fwd, right)
         c2w = np.eye(4)
         c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, fwd, eye
-        return cls(width, height, fx, fy if fy is not None else fx,
-                   width / 2.0 if cx is None else cx, height / 2.0 if cy is None else cy, c2w, name,
-                   near)
+        return cls(
+            width,
+            height,
+            fx,
+            fy if fy is not None else fx,
+            width / 2.0 if cx is None else cx,
+            height / 2.0 if cy is None else cy,
+            c2w,
+            name,
+            near,
+        )
 
     # --- (de)serialisation in the NOTES prompts-file camera schema ----------
     def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"width": self.width, "height": self.height, "fx": self.fx,
-                             "fy": self.fy, "cx": self.cx, "cy": self.cy,
-                             "c2w": self.c2w.tolist()}
+        d: dict[str, Any] = {
+            "width": self.width,
+            "height": self.height,
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "c2w": self.c2w.tolist(),
+        }
         if self.name:
             d["name"] = self.name
         if self.near > 0:
@@ -196,7 +245,7 @@ class Camera:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Camera":
+    def from_dict(cls, d: dict[str, Any]) -> Camera:
         """Inverse of :meth:`to_dict`; raises ``ValueError``/``KeyError`` on a bad entry.
         ``name`` and ``near`` are optional."""
         known = {"width", "height", "fx", "fy", "cx", "cy", "c2w", "name", "near"}
@@ -206,6 +255,14 @@ class Camera:
         missing = known - {"name", "near"} - set(d)
         if missing:
             raise ValueError(f"camera is missing {sorted(missing)}")
-        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
-                   float(d["cx"]), float(d["cy"]), np.asarray(d["c2w"], dtype=np.float64),
-                   str(d.get("name", "")), float(d.get("near", 0.0)))
+        return cls(
+            int(d["width"]),
+            int(d["height"]),
+            float(d["fx"]),
+            float(d["fy"]),
+            float(d["cx"]),
+            float(d["cy"]),
+            np.asarray(d["c2w"], dtype=np.float64),
+            str(d.get("name", "")),
+            float(d.get("near", 0.0)),
+        )

@@ -35,7 +35,9 @@ def _check_selection(scene: Scene, selection: np.ndarray) -> np.ndarray:
     sel = np.asarray(selection)
     expected = scene.density.shape if isinstance(scene, DensityGrid) else (len(scene),)
     if sel.dtype != bool or sel.shape != expected:
-        raise ValueError(f"selection must be a bool array of shape {expected}, got {sel.dtype} {sel.shape}")
+        raise ValueError(
+            f"selection must be a bool array of shape {expected}, got {sel.dtype} {sel.shape}"
+        )
     return sel
 
 
@@ -49,19 +51,28 @@ def file_labels(scene: SurfelScene, selection: np.ndarray) -> np.ndarray:
     return out
 
 
-def export_selection(scene: Scene, selection: np.ndarray, out_path: str | PathLike, *,
-                     labels_path: str | PathLike | None = None) -> ExportResult:
+def export_selection(
+    scene: Scene,
+    selection: np.ndarray,
+    out_path: str | PathLike,
+    *,
+    labels_path: str | PathLike | None = None,
+) -> ExportResult:
     """Write the selected primitives (or voxels) of ``scene`` to ``out_path``."""
     out_path = Path(out_path)
     sel = _check_selection(scene, selection)
     if isinstance(scene, DensityGrid):
         from .io.density_grid import write_density_grid
 
-        masked = DensityGrid(np.where(sel, scene.density, 0).astype(np.float32), scene.aabb, scene.rgb)
+        masked = DensityGrid(
+            np.where(sel, scene.density, 0).astype(np.float32), scene.aabb, scene.rgb
+        )
         write_density_grid(out_path, masked, mask=sel)
         if labels_path is not None:
             np.save(labels_path, sel)
-        return ExportResult(out_path, "npz", int(sel.sum()), None if labels_path is None else Path(labels_path))
+        return ExportResult(
+            out_path, "npz", int(sel.sum()), None if labels_path is None else Path(labels_path)
+        )
     if not sel.any():
         raise DivasInputError(out_path, "nothing to export: the selection is empty")
     src = scene.source

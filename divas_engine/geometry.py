@@ -59,26 +59,50 @@ def rotmat_to_quat(r: np.ndarray) -> np.ndarray:
     if np.any(sel):
         rr = r[sel]
         s = np.sqrt(np.maximum(1.0 + tr[sel], 1e-300)) * 2
-        _fill(sel, s, 0.25 * s, (rr[:, 2, 1] - rr[:, 1, 2]) / s,
-              (rr[:, 0, 2] - rr[:, 2, 0]) / s, (rr[:, 1, 0] - rr[:, 0, 1]) / s)
+        _fill(
+            sel,
+            s,
+            0.25 * s,
+            (rr[:, 2, 1] - rr[:, 1, 2]) / s,
+            (rr[:, 0, 2] - rr[:, 2, 0]) / s,
+            (rr[:, 1, 0] - rr[:, 0, 1]) / s,
+        )
     sel = k == 1
     if np.any(sel):
         rr = r[sel]
         s = np.sqrt(np.maximum(1.0 + rr[:, 0, 0] - rr[:, 1, 1] - rr[:, 2, 2], 1e-300)) * 2
-        _fill(sel, s, (rr[:, 2, 1] - rr[:, 1, 2]) / s, 0.25 * s,
-              (rr[:, 0, 1] + rr[:, 1, 0]) / s, (rr[:, 0, 2] + rr[:, 2, 0]) / s)
+        _fill(
+            sel,
+            s,
+            (rr[:, 2, 1] - rr[:, 1, 2]) / s,
+            0.25 * s,
+            (rr[:, 0, 1] + rr[:, 1, 0]) / s,
+            (rr[:, 0, 2] + rr[:, 2, 0]) / s,
+        )
     sel = k == 2
     if np.any(sel):
         rr = r[sel]
         s = np.sqrt(np.maximum(1.0 + rr[:, 1, 1] - rr[:, 0, 0] - rr[:, 2, 2], 1e-300)) * 2
-        _fill(sel, s, (rr[:, 0, 2] - rr[:, 2, 0]) / s, (rr[:, 0, 1] + rr[:, 1, 0]) / s,
-              0.25 * s, (rr[:, 1, 2] + rr[:, 2, 1]) / s)
+        _fill(
+            sel,
+            s,
+            (rr[:, 0, 2] - rr[:, 2, 0]) / s,
+            (rr[:, 0, 1] + rr[:, 1, 0]) / s,
+            0.25 * s,
+            (rr[:, 1, 2] + rr[:, 2, 1]) / s,
+        )
     sel = k == 3
     if np.any(sel):
         rr = r[sel]
         s = np.sqrt(np.maximum(1.0 + rr[:, 2, 2] - rr[:, 0, 0] - rr[:, 1, 1], 1e-300)) * 2
-        _fill(sel, s, (rr[:, 1, 0] - rr[:, 0, 1]) / s, (rr[:, 0, 2] + rr[:, 2, 0]) / s,
-              (rr[:, 1, 2] + rr[:, 2, 1]) / s, 0.25 * s)
+        _fill(
+            sel,
+            s,
+            (rr[:, 1, 0] - rr[:, 0, 1]) / s,
+            (rr[:, 0, 2] + rr[:, 2, 0]) / s,
+            (rr[:, 1, 2] + rr[:, 2, 1]) / s,
+            0.25 * s,
+        )
     q *= np.where(q[..., :1] < 0, -1.0, 1.0)
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     return q

@@ -37,9 +37,18 @@ import numpy as np
 
 from .scene import DensityGrid, SurfelScene, sh_coeff_count
 
-__all__ = ["PointTable", "ENGINE_COLUMNS", "RESERVED_NAMES", "SELECTED", "INDEX",
-           "surfel_point_table", "grid_point_table", "display_radius", "decoded_columns",
-           "scene_selection"]
+__all__ = [
+    "PointTable",
+    "ENGINE_COLUMNS",
+    "RESERVED_NAMES",
+    "SELECTED",
+    "INDEX",
+    "surfel_point_table",
+    "grid_point_table",
+    "display_radius",
+    "decoded_columns",
+    "scene_selection",
+]
 
 INDEX = "divas_index"
 SELECTED = "divas_selected"
@@ -91,8 +100,9 @@ def _ply_columns(path, kept_rows: np.ndarray) -> dict[str, np.ndarray]:
 
     layout = read_ply_header(path)
     dtype = layout.vertex_dtype()
-    out = {n: np.empty(len(kept_rows), _as_column(np.zeros(1, dtype[n])).dtype)
-           for n in dtype.names}
+    out = {
+        n: np.empty(len(kept_rows), _as_column(np.zeros(1, dtype[n])).dtype) for n in dtype.names
+    }
     for start, chunk in iter_vertex_chunks(layout):
         lo, hi = np.searchsorted(kept_rows, [start, start + len(chunk)])
         if hi == lo:
@@ -188,15 +198,19 @@ def grid_point_table(grid: DensityGrid, min_opacity: float = 0.01) -> PointTable
     else:
         color[:, :3] = a[:, None]
     color[:, 3] = a
-    cols = {INDEX: flat.astype(np.int32),
-            "divas_density": grid.density.ravel()[flat].astype(np.float32),
-            "divas_color": color, "divas_opacity": a,
-            "divas_radius": np.full(len(flat), 0.5 * float(np.min(vox)), np.float32)}
+    cols = {
+        INDEX: flat.astype(np.int32),
+        "divas_density": grid.density.ravel()[flat].astype(np.float32),
+        "divas_color": color,
+        "divas_opacity": a,
+        "divas_radius": np.full(len(flat), 0.5 * float(np.min(vox)), np.float32),
+    }
     return PointTable(pos.astype(np.float32), cols)
 
 
-def scene_selection(scene: SurfelScene | DensityGrid, index: np.ndarray,
-                    selected: np.ndarray) -> np.ndarray:
+def scene_selection(
+    scene: SurfelScene | DensityGrid, index: np.ndarray, selected: np.ndarray
+) -> np.ndarray:
     """Engine selection mask from a host's per-point ``divas_index`` and bool selection.
 
     Surfel scenes: ``[len(scene)]`` bool over the scene's primitives (``index`` holds file
@@ -217,7 +231,9 @@ def scene_selection(scene: SurfelScene | DensityGrid, index: np.ndarray,
         return mask.reshape(scene.density.shape)
     kept = scene.source.kept_rows if scene.source is not None else np.arange(len(scene))
     pos = np.searchsorted(kept, rows)
-    if rows.size and (pos.max() >= len(kept) or np.any(kept[np.minimum(pos, len(kept) - 1)] != rows)):
+    if rows.size and (
+        pos.max() >= len(kept) or np.any(kept[np.minimum(pos, len(kept) - 1)] != rows)
+    ):
         raise ValueError("point index is not a primitive of this scene")
     mask = np.zeros(len(scene), bool)
     mask[pos] = True

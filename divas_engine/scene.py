@@ -84,8 +84,13 @@ class SurfelScene:
 
     def __post_init__(self) -> None:
         n = len(self.means)
-        for name, shape in (("means", (n, 3)), ("quats", (n, 4)), ("scales", (n, 2)),
-                            ("opacities", (n,)), ("sh", (n, sh_coeff_count(self.sh_degree), 3))):
+        for name, shape in (
+            ("means", (n, 3)),
+            ("quats", (n, 4)),
+            ("scales", (n, 2)),
+            ("opacities", (n,)),
+            ("sh", (n, sh_coeff_count(self.sh_degree), 3)),
+        ):
             arr = getattr(self, name)
             if arr.shape != shape:
                 raise ValueError(f"SurfelScene.{name} has shape {arr.shape}, expected {shape}")
@@ -104,14 +109,22 @@ class SurfelScene:
         """``[N,3]`` view-independent colour from the SH DC term, clipped to [0,1]."""
         return np.clip(0.5 + SH_C0 * self.sh[:, 0, :], 0.0, 1.0)
 
-    def subset(self, keep: np.ndarray) -> "SurfelScene":
+    def subset(self, keep: np.ndarray) -> SurfelScene:
         """A new scene with the primitives selected by bool mask or index array."""
         src = None
         if self.source is not None:
             src = replace(self.source, kept_rows=self.source.kept_rows[keep])
-        return SurfelScene(self.means[keep], self.quats[keep], self.scales[keep],
-                           self.opacities[keep], self.sh[keep], self.sh_degree,
-                           self.kind, src, dict(self.extras))
+        return SurfelScene(
+            self.means[keep],
+            self.quats[keep],
+            self.scales[keep],
+            self.opacities[keep],
+            self.sh[keep],
+            self.sh_degree,
+            self.kind,
+            src,
+            dict(self.extras),
+        )
 
 
 @dataclass(eq=False)

@@ -28,8 +28,9 @@ class RobustFrame:
     radius: float
 
 
-def robust_frame(points: np.ndarray, weights: np.ndarray | None = None,
-                 percentile: float = 99.0) -> RobustFrame:
+def robust_frame(
+    points: np.ndarray, weights: np.ndarray | None = None, percentile: float = 99.0
+) -> RobustFrame:
     """Median centre and P``percentile`` radius of ``points [N,3]``.
 
     With ``weights`` (e.g. grid densities) the median and percentile are weighted.
@@ -53,8 +54,13 @@ def _weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
 
 def _pct(x: np.ndarray) -> dict[str, float]:
     p1, p50, p99 = np.percentile(x, [1, 50, 99])
-    return {"min": float(x.min()), "p1": float(p1), "median": float(p50), "p99": float(p99),
-            "max": float(x.max())}
+    return {
+        "min": float(x.min()),
+        "p1": float(p1),
+        "median": float(p50),
+        "p99": float(p99),
+        "max": float(x.max()),
+    }
 
 
 def scene_summary(scene: Scene) -> dict:
@@ -69,24 +75,40 @@ def scene_summary(scene: Scene) -> dict:
         frame = robust_frame(scene.means)
         smax = scene.scales.max(axis=1)
         aspect = smax / (scene.scales.min(axis=1) + 1e-12)
-        info.update({
-            "kind": scene.kind, "count": len(scene), "sh_degree": scene.sh_degree,
-            "bounds_min": scene.means.min(0).tolist(), "bounds_max": scene.means.max(0).tolist(),
-            "center": frame.center.tolist(), "radius_p99": frame.radius,
-            "scale_max": _pct(smax), "aspect": _pct(aspect), "opacity": _pct(scene.opacities),
-        })
+        info.update(
+            {
+                "kind": scene.kind,
+                "count": len(scene),
+                "sh_degree": scene.sh_degree,
+                "bounds_min": scene.means.min(0).tolist(),
+                "bounds_max": scene.means.max(0).tolist(),
+                "center": frame.center.tolist(),
+                "radius_p99": frame.radius,
+                "scale_max": _pct(smax),
+                "aspect": _pct(aspect),
+                "opacity": _pct(scene.opacities),
+            }
+        )
     else:
         occupied = scene.density > 0
         idx = np.argwhere(occupied)[:, ::-1]  # (ix, iy, iz)
         centres = scene.aabb[0] + (idx + 0.5) * scene.voxel_size
         frame = robust_frame(centres, scene.density[occupied])
-        info.update({
-            "kind": "nerf_grid", "count": int(scene.density.size), "sh_degree": None,
-            "resolution": list(scene.density.shape), "occupied": int(occupied.sum()),
-            "has_rgb": scene.rgb is not None,
-            "bounds_min": scene.aabb[0].tolist(), "bounds_max": scene.aabb[1].tolist(),
-            "occupied_bounds_min": centres.min(0).tolist(), "occupied_bounds_max": centres.max(0).tolist(),
-            "center": frame.center.tolist(), "radius_p99": frame.radius,
-            "density": _pct(scene.density[occupied]),
-        })
+        info.update(
+            {
+                "kind": "nerf_grid",
+                "count": int(scene.density.size),
+                "sh_degree": None,
+                "resolution": list(scene.density.shape),
+                "occupied": int(occupied.sum()),
+                "has_rgb": scene.rgb is not None,
+                "bounds_min": scene.aabb[0].tolist(),
+                "bounds_max": scene.aabb[1].tolist(),
+                "occupied_bounds_min": centres.min(0).tolist(),
+                "occupied_bounds_max": centres.max(0).tolist(),
+                "center": frame.center.tolist(),
+                "radius_p99": frame.radius,
+                "density": _pct(scene.density[occupied]),
+            }
+        )
     return info

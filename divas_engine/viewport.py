@@ -27,8 +27,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["frame_image_corners", "frame_homography", "region_to_camera_pixel",
-           "camera_pixel_to_region"]
+__all__ = [
+    "frame_image_corners",
+    "frame_homography",
+    "region_to_camera_pixel",
+    "camera_pixel_to_region",
+]
 
 
 def frame_image_corners(width: int, height: int) -> np.ndarray:
@@ -73,9 +77,12 @@ def frame_homography(frame_corners, image_size: tuple[int, int]) -> np.ndarray:
     return _homography(_check_frame(frame_corners), frame_image_corners(w, h))
 
 
-def region_to_camera_pixel(region_size: tuple[int, int], frame_corners,
-                           mouse_region: tuple[float, float],
-                           image_size: tuple[int, int]) -> tuple[float, float] | None:
+def region_to_camera_pixel(
+    region_size: tuple[int, int],
+    frame_corners,
+    mouse_region: tuple[float, float],
+    image_size: tuple[int, int],
+) -> tuple[float, float] | None:
     """Continuous camera pixel ``(u, v)`` (+0.5 centres, y down) under a viewport click.
 
     Args:

@@ -12,8 +12,9 @@ handles work item ``i = base + tid * stride``; :func:`launch_split` fills them.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Literal, Sequence
+from typing import Any, Literal
 
 import warp as wp
 
@@ -58,8 +59,14 @@ def _pool(n: int) -> ThreadPoolExecutor:
     return _POOL
 
 
-def launch_split(kernel: wp.Kernel, n: int, inputs: Sequence[Any], device: wp.context.Device,
-                 threads: int = 1, mode: Literal["chunk", "interleave"] = "chunk") -> None:
+def launch_split(
+    kernel: wp.Kernel,
+    n: int,
+    inputs: Sequence[Any],
+    device: wp.context.Device,
+    threads: int = 1,
+    mode: Literal["chunk", "interleave"] = "chunk",
+) -> None:
     """Launch a split kernel over work items ``[0, n)``.
 
     Args:
@@ -91,7 +98,10 @@ def launch_split(kernel: wp.Kernel, n: int, inputs: Sequence[Any], device: wp.co
         for j in range(t):
             jobs.append(((n - j + t - 1) // t, j, t))
     pool = _pool(t)
-    futures = [pool.submit(wp.launch, kernel, dim=d, inputs=inputs + [b, s], device=device)
-               for d, b, s in jobs if d > 0]
+    futures = [
+        pool.submit(wp.launch, kernel, dim=d, inputs=inputs + [b, s], device=device)
+        for d, b, s in jobs
+        if d > 0
+    ]
     for f in futures:
         f.result()

@@ -6,7 +6,8 @@ front-to-back order with opacity ``α_k`` and planar depth ``z_k``; the weight i
 ``w_k = α_k T_k`` with ``T_k = Π_{j<k} (1 − α_j)``:
 
 * ``D_min``: ``z`` of the first ``k`` with ``w_k ≥ τ_sig``; none → 0.
-* ``D_med``: ``z`` of the ``k`` at which ``1 − T`` (after blending ``k``) first reaches 0.5; none → 0.
+* ``D_med``: ``z`` of the ``k`` at which ``1 − T`` (after blending ``k``) first reaches 0.5;
+  none → 0.
 * ``D_max``: ``z`` of the ``k`` at which ``1 − T`` first reaches ``τ_cw``; never → the last
   *contributing* ``k`` (``α_k ≥ α_min``); none → 0.
 * ``D_exp = Σ w z / Σ w`` (0 when ``Σ w = 0``); ``D_mw``: ``z`` of the largest ``w_k``
@@ -22,8 +23,17 @@ from __future__ import annotations
 
 import warp as wp
 
-__all__ = ["PixState", "BlendParams", "PixelOut", "state_init", "blend_step", "finish_pixel",
-           "ANCHOR_MED", "ANCHOR_MAX", "FLAG_DONE"]
+__all__ = [
+    "PixState",
+    "BlendParams",
+    "PixelOut",
+    "state_init",
+    "blend_step",
+    "finish_pixel",
+    "ANCHOR_MED",
+    "ANCHOR_MAX",
+    "FLAG_DONE",
+]
 
 FLAG_MIN = wp.constant(1)
 FLAG_MED = wp.constant(2)

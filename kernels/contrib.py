@@ -37,24 +37,39 @@ import warp as wp
 
 from ._launch import cpu_threads, launch_split
 from .composite import FLAG_DONE, BlendParams, PixState, blend_step, state_init
-from .rasterize import (RasterSettings, SurfelBuffers, blend_params, preprocess_kernel,
-                        tile_bands)
+from .rasterize import RasterSettings, SurfelBuffers, blend_params, preprocess_kernel, tile_bands
 from .splat import RasterCamera, Splat, make_raster_camera, row_span, splat_alpha
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["ContribOutput", "contrib_pixel_kernel", "contrib_tile_kernel",
-           "accumulate_contributions"]
+__all__ = [
+    "ContribOutput",
+    "contrib_pixel_kernel",
+    "contrib_tile_kernel",
+    "accumulate_contributions",
+]
 
 
 # --------------------------------------------------------------------------- kernels
 @wp.kernel
-def contrib_pixel_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.int32),
-                         rstart: wp.array(dtype=wp.int32), rend: wp.array(dtype=wp.int32),
-                         cam: RasterCamera, inv_var: float, alpha_max: float, bp: BlendParams,
-                         tile: int, tiles_x: int, band_lo: int, positive: wp.array(dtype=wp.uint8),
-                         a1: wp.array2d(dtype=float), a0: wp.array2d(dtype=float), base: int,
-                         stride: int):
+def contrib_pixel_kernel(
+    splats: wp.array(dtype=Splat),
+    vals: wp.array(dtype=wp.int32),
+    rstart: wp.array(dtype=wp.int32),
+    rend: wp.array(dtype=wp.int32),
+    cam: RasterCamera,
+    inv_var: float,
+    alpha_max: float,
+    bp: BlendParams,
+    tile: int,
+    tiles_x: int,
+    band_lo: int,
+    positive: wp.array(dtype=wp.uint8),
+    a1: wp.array2d(dtype=float),
+    a0: wp.array2d(dtype=float),
+    base: int,
+    stride: int,
+):
     """Work item ``g`` = band-local tile ``g // tile²``, pixel ``g % tile²`` (as
     ``blend_pixel_kernel``); adds each surfel's weight to row ``base`` of ``a1``/``a0``."""
     g = base + wp.tid() * stride
@@ -87,12 +102,25 @@ def contrib_pixel_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.
 
 
 @wp.kernel
-def contrib_tile_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.int32),
-                        rstart: wp.array(dtype=wp.int32), rend: wp.array(dtype=wp.int32),
-                        cam: RasterCamera, inv_var: float, alpha_max: float, bp: BlendParams,
-                        tile: int, tiles_x: int, band_lo: int, positive: wp.array(dtype=wp.uint8),
-                        states: wp.array(dtype=PixState), a1: wp.array2d(dtype=float),
-                        a0: wp.array2d(dtype=float), base: int, stride: int):
+def contrib_tile_kernel(
+    splats: wp.array(dtype=Splat),
+    vals: wp.array(dtype=wp.int32),
+    rstart: wp.array(dtype=wp.int32),
+    rend: wp.array(dtype=wp.int32),
+    cam: RasterCamera,
+    inv_var: float,
+    alpha_max: float,
+    bp: BlendParams,
+    tile: int,
+    tiles_x: int,
+    band_lo: int,
+    positive: wp.array(dtype=wp.uint8),
+    states: wp.array(dtype=PixState),
+    a1: wp.array2d(dtype=float),
+    a0: wp.array2d(dtype=float),
+    base: int,
+    stride: int,
+):
     """Work item ``t`` = band-local tile (as ``blend_tile_kernel``): walks each surfel's
     exact row spans ∩ tile; adds the weights to row ``base`` of ``a1``/``a0``."""
     t = base + wp.tid() * stride
@@ -122,8 +150,7 @@ def contrib_tile_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.i
                 s = states[p]
                 if (s.flags & FLAG_DONE) == 0:
                     px = float(x) + 0.5
-                    alpha, z = splat_alpha(sp, px, py, cam.fx, cam.fy, inv_var, alpha_max,
-                                           cam.near)
+                    alpha, z = splat_alpha(sp, px, py, cam.fx, cam.fy, inv_var, alpha_max, cam.near)
                     if alpha >= bp.alpha_min:
                         s, w = blend_step(s, alpha, z, bp)
                         if positive[p] != wp.uint8(0):
@@ -138,8 +165,9 @@ def contrib_tile_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.i
 
 
 @wp.kernel
-def _sum_rows_kernel(rows: wp.array2d(dtype=float), out: wp.array(dtype=float), base: int,
-                     stride: int):
+def _sum_rows_kernel(
+    rows: wp.array2d(dtype=float), out: wp.array(dtype=float), base: int, stride: int
+):
     i = base + wp.tid() * stride
     acc = float(0.0)
     for r in range(rows.shape[0]):
@@ -158,10 +186,18 @@ class ContribOutput:
     stats: dict
 
 
-def accumulate_contributions(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy: float,
-                             cx: float, cy: float, width: int, height: int,
-                             positive: np.ndarray, settings: RasterSettings | None = None
-                             ) -> ContribOutput:
+def accumulate_contributions(
+    buf: SurfelBuffers,
+    w2c: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    positive: np.ndarray,
+    settings: RasterSettings | None = None,
+) -> ContribOutput:
     """A₁ / A₀ of every surfel of ``buf`` for one view (OpenCV pinhole, ``w2c`` 4×4).
 
     Args:
@@ -181,12 +217,10 @@ def accumulate_contributions(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy:
         raise ValueError(f"accumulate_contributions: tile size {T} outside 1..64")
     pos = np.asarray(positive)
     if pos.size != W * H:
-        raise ValueError(f"accumulate_contributions: mask has {pos.size} pixels, the view "
-                         f"{W}x{H}")
+        raise ValueError(f"accumulate_contributions: mask has {pos.size} pixels, the view {W}x{H}")
     mode = s.blend if s.blend != "auto" else ("pixel" if dev.is_cuda else "tile")
     if mode not in ("pixel", "tile"):
-        raise ValueError(f"accumulate_contributions: blend mode {s.blend!r} is not "
-                         f"auto/pixel/tile")
+        raise ValueError(f"accumulate_contributions: blend mode {s.blend!r} is not auto/pixel/tile")
     threads = 1 if dev.is_cuda else cpu_threads(s.threads)
     cam = make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
@@ -197,34 +231,78 @@ def accumulate_contributions(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy:
         a0 = wp.zeros(n, dtype=float)
         if n == 0:
             return ContribOutput(a1, a0, stats)
-        pos_dev = wp.array(np.ascontiguousarray(pos.reshape(-1) != 0, dtype=np.uint8),
-                           dtype=wp.uint8)
+        pos_dev = wp.array(
+            np.ascontiguousarray(pos.reshape(-1) != 0, dtype=np.uint8), dtype=wp.uint8
+        )
         rows1 = wp.zeros((threads, n), dtype=float)
         rows0 = wp.zeros((threads, n), dtype=float)
         splats = wp.empty(n, dtype=Splat)
         keys = wp.empty(2 * n, dtype=float)
         order = wp.empty(2 * n, dtype=wp.int32)
-        launch_split(preprocess_kernel, n,
-                     [buf.means, buf.tu, buf.tv, buf.opacity, buf.rho_cut, buf.sh,
-                      buf.sh_degree, 0, cam, inv_var, splats, keys, order,
-                      wp.empty((1, 3), dtype=float)], dev, threads)
+        launch_split(
+            preprocess_kernel,
+            n,
+            [
+                buf.means,
+                buf.tu,
+                buf.tv,
+                buf.opacity,
+                buf.rho_cut,
+                buf.sh,
+                buf.sh_degree,
+                0,
+                cam,
+                inv_var,
+                splats,
+                keys,
+                order,
+                wp.empty((1, 3), dtype=float),
+            ],
+            dev,
+            threads,
+        )
         wp.utils.radix_sort_pairs(keys, order, n)
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
         tiles_x, tiles_y = -(-W // T), -(-H // T)
         for lo, nt, dvals, rstart, rend, total in tile_bands(
-                splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads):
+            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
+        ):
             if total == 0:
                 continue
-            common = [splats, dvals, rstart, rend, cam, inv_var, float(s.alpha_max), bp, T,
-                      tiles_x, lo, pos_dev]
+            common = [
+                splats,
+                dvals,
+                rstart,
+                rend,
+                cam,
+                inv_var,
+                float(s.alpha_max),
+                bp,
+                T,
+                tiles_x,
+                lo,
+                pos_dev,
+            ]
             # interleave: CPU sub-launch j gets base = j, i.e. its own accumulator row
             if mode == "pixel":
-                launch_split(contrib_pixel_kernel, nt * T * T, common + [rows1, rows0], dev,
-                             threads, mode="interleave")
+                launch_split(
+                    contrib_pixel_kernel,
+                    nt * T * T,
+                    common + [rows1, rows0],
+                    dev,
+                    threads,
+                    mode="interleave",
+                )
             else:
-                launch_split(contrib_tile_kernel, nt, common + [states, rows1, rows0], dev,
-                             threads, mode="interleave")
+                launch_split(
+                    contrib_tile_kernel,
+                    nt,
+                    common + [states, rows1, rows0],
+                    dev,
+                    threads,
+                    mode="interleave",
+                )
         launch_split(_sum_rows_kernel, n, [rows1, a1], dev, threads)
         launch_split(_sum_rows_kernel, n, [rows0, a0], dev, threads)
     return ContribOutput(a1, a0, stats)

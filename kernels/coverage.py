@@ -47,10 +47,23 @@ from .splat import RasterCamera, Splat, make_raster_camera, plane_hit, splat_pla
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["CoverageView", "make_coverage_view", "project_surfel", "splat_rho3",
-           "footprint_counts", "pass1_kernel", "pass2_kernel", "compact_kernel",
-           "coverage_kernel", "select_kernel", "run_pass1", "run_pass2", "compact", "run_coverage",
-           "run_select"]
+__all__ = [
+    "CoverageView",
+    "make_coverage_view",
+    "project_surfel",
+    "splat_rho3",
+    "footprint_counts",
+    "pass1_kernel",
+    "pass2_kernel",
+    "compact_kernel",
+    "coverage_kernel",
+    "select_kernel",
+    "run_pass1",
+    "run_pass2",
+    "compact",
+    "run_coverage",
+    "run_select",
+]
 
 
 @wp.struct
@@ -70,12 +83,23 @@ class CoverageView:
     sat_off: int
 
 
-def make_coverage_view(w2c: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
-                       height: int, near: float, slot: int, mask_off: int, sat_off: int
-                       ) -> CoverageView:
+def make_coverage_view(
+    w2c: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    near: float,
+    slot: int,
+    mask_off: int,
+    sat_off: int,
+) -> CoverageView:
     v = CoverageView()
-    v.cam = make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, width, height,
-                               near)
+    v.cam = make_raster_camera(
+        np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, width, height, near
+    )
     v.word = int(slot) // 32
     v.bit = wp.uint32(1 << (int(slot) % 32))
     v.mask_off = int(mask_off)
@@ -126,18 +150,31 @@ def _tip_dev(p: wp.vec3, c: wp.vec2, cam: RasterCamera, ex: float, ey: float) ->
 
 
 @wp.func
-def _sat_box(sats: wp.array(dtype=wp.int32), off: int, W: int, x0: int, y0: int, x1: int,
-             y1: int) -> int:
+def _sat_box(
+    sats: wp.array(dtype=wp.int32), off: int, W: int, x0: int, y0: int, x1: int, y1: int
+) -> int:
     """Inclusive box sum of a flat ``(H+1)×(W+1)`` summed-area table."""
     s = W + 1
-    return int(sats[off + (y1 + 1) * s + x1 + 1]) - int(sats[off + y0 * s + x1 + 1]) \
-        - int(sats[off + (y1 + 1) * s + x0]) + int(sats[off + y0 * s + x0])
+    return (
+        int(sats[off + (y1 + 1) * s + x1 + 1])
+        - int(sats[off + y0 * s + x1 + 1])
+        - int(sats[off + (y1 + 1) * s + x0])
+        + int(sats[off + y0 * s + x0])
+    )
 
 
 @wp.func
-def footprint_counts(mu: wp.vec3, tu: wp.vec3, tv: wp.vec3, vw: CoverageView,
-                     masks: wp.array(dtype=wp.uint8), sats: wp.array(dtype=wp.int32),
-                     box_sigma: float, rho_acc: float, early_out: int) -> wp.vec3i:
+def footprint_counts(
+    mu: wp.vec3,
+    tu: wp.vec3,
+    tv: wp.vec3,
+    vw: CoverageView,
+    masks: wp.array(dtype=wp.uint8),
+    sats: wp.array(dtype=wp.int32),
+    box_sigma: float,
+    rho_acc: float,
+    early_out: int,
+) -> wp.vec3i:
     """``(total_fp, mask_fp, swept)`` of one surfel in one view (eq:cov-atomics).
 
     ``swept = 0`` when an early-out decided κ_s without a full sweep: then only the
@@ -202,8 +239,13 @@ def footprint_counts(mu: wp.vec3, tu: wp.vec3, tv: wp.vec3, vw: CoverageView,
 
 # --------------------------------------------------------------------------- kernels
 @wp.kernel
-def pass1_kernel(act: wp.array(dtype=wp.int32), seg: wp.array(dtype=wp.uint8),
-                 f1: wp.array(dtype=wp.uint8), base: int, stride: int):
+def pass1_kernel(
+    act: wp.array(dtype=wp.int32),
+    seg: wp.array(dtype=wp.uint8),
+    f1: wp.array(dtype=wp.uint8),
+    base: int,
+    stride: int,
+):
     """eq:pass1: ``f¹_i = B^seg[m_i]`` (``act[i]`` = active index of the surfel's voxel,
     −1 when the NaN/AABB filter dropped it or the voxel is inactive)."""
     i = base + wp.tid() * stride
@@ -216,9 +258,14 @@ def pass1_kernel(act: wp.array(dtype=wp.int32), seg: wp.array(dtype=wp.uint8),
 
 
 @wp.kernel
-def pass2_kernel(f1: wp.array(dtype=wp.uint8), keep: wp.array(dtype=wp.uint8),
-                 f2: wp.array(dtype=wp.uint8), flag: wp.array(dtype=int), base: int,
-                 stride: int):
+def pass2_kernel(
+    f1: wp.array(dtype=wp.uint8),
+    keep: wp.array(dtype=wp.uint8),
+    f2: wp.array(dtype=wp.uint8),
+    flag: wp.array(dtype=int),
+    base: int,
+    stride: int,
+):
     """eq:pass-needle: ``f²_i = f¹_i ∧ (a_i ≤ τ_a)`` (``keep`` = a_i ≤ τ_a); ``flag`` is
     the compaction flag of the Pass-3 candidates."""
     i = base + wp.tid() * stride
@@ -230,22 +277,35 @@ def pass2_kernel(f1: wp.array(dtype=wp.uint8), keep: wp.array(dtype=wp.uint8),
 
 
 @wp.kernel
-def compact_kernel(flag: wp.array(dtype=int), pos: wp.array(dtype=int),
-                   out: wp.array(dtype=wp.int32)):
+def compact_kernel(
+    flag: wp.array(dtype=int), pos: wp.array(dtype=int), out: wp.array(dtype=wp.int32)
+):
     i = wp.tid()
     if flag[i] != 0:
         out[pos[i]] = wp.int32(i)
 
 
 @wp.kernel
-def coverage_kernel(cand: wp.array(dtype=wp.int32), act: wp.array(dtype=wp.int32),
-                    vmask: wp.array2d(dtype=wp.uint32), means: wp.array(dtype=wp.vec3),
-                    tu: wp.array(dtype=wp.vec3), tv: wp.array(dtype=wp.vec3),
-                    views: wp.array(dtype=CoverageView), masks: wp.array(dtype=wp.uint8),
-                    sats: wp.array(dtype=wp.int32), box_sigma: float, rho_acc: float,
-                    early_out: int, kappa: wp.array(dtype=float),
-                    scored: wp.array(dtype=wp.int32), total_out: wp.array(dtype=wp.int32),
-                    mask_out: wp.array(dtype=wp.int32), base: int, stride: int):
+def coverage_kernel(
+    cand: wp.array(dtype=wp.int32),
+    act: wp.array(dtype=wp.int32),
+    vmask: wp.array2d(dtype=wp.uint32),
+    means: wp.array(dtype=wp.vec3),
+    tu: wp.array(dtype=wp.vec3),
+    tv: wp.array(dtype=wp.vec3),
+    views: wp.array(dtype=CoverageView),
+    masks: wp.array(dtype=wp.uint8),
+    sats: wp.array(dtype=wp.int32),
+    box_sigma: float,
+    rho_acc: float,
+    early_out: int,
+    kappa: wp.array(dtype=float),
+    scored: wp.array(dtype=wp.int32),
+    total_out: wp.array(dtype=wp.int32),
+    mask_out: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
     """Pass 3 for candidate ``cand[j]`` over all views (eq:cov-atomics, eq:kappa).
 
     Writes ``kappa[i]`` and ``scored[i]`` (views admitted by the bitmask gate). When
@@ -275,8 +335,15 @@ def coverage_kernel(cand: wp.array(dtype=wp.int32), act: wp.array(dtype=wp.int32
 
 
 @wp.kernel
-def select_kernel(f2: wp.array(dtype=wp.uint8), kappa: wp.array(dtype=float), tau_k: float,
-                  apply: int, out: wp.array(dtype=wp.uint8), base: int, stride: int):
+def select_kernel(
+    f2: wp.array(dtype=wp.uint8),
+    kappa: wp.array(dtype=float),
+    tau_k: float,
+    apply: int,
+    out: wp.array(dtype=wp.uint8),
+    base: int,
+    stride: int,
+):
     """eq:final-F: ``f_i = f²_i ∧ (κ_i ≥ τ_κ)`` (``apply = 0``: ``f = f²``, ablation)."""
     i = base + wp.tid() * stride
     r = wp.uint8(0)
@@ -291,8 +358,9 @@ def run_pass1(act: wp.array, seg: wp.array, f1: wp.array, device, threads: int =
     launch_split(pass1_kernel, act.shape[0], [act, seg, f1], device, threads)
 
 
-def run_pass2(f1: wp.array, keep: wp.array, f2: wp.array, flag: wp.array, device,
-              threads: int = 1) -> None:
+def run_pass2(
+    f1: wp.array, keep: wp.array, f2: wp.array, flag: wp.array, device, threads: int = 1
+) -> None:
     launch_split(pass2_kernel, f1.shape[0], [f1, keep, f2, flag], device, threads)
 
 
@@ -303,30 +371,78 @@ def compact(flag: wp.array, device) -> wp.array:
         return wp.empty(0, dtype=wp.int32, device=device)
     pos = wp.empty(n, dtype=int, device=device)
     wp.utils.array_scan(flag, pos, inclusive=False)
-    k = int(pos[n - 1:n].numpy()[0] + flag[n - 1:n].numpy()[0])
+    k = int(pos[n - 1 : n].numpy()[0] + flag[n - 1 : n].numpy()[0])
     out = wp.empty(k, dtype=wp.int32, device=device)
     wp.launch(compact_kernel, dim=n, inputs=[flag, pos, out], device=device)
     return out
 
 
-def run_coverage(cand: wp.array, act: wp.array, vmask: wp.array, means: wp.array, tu: wp.array,
-                 tv: wp.array, views: wp.array, masks: wp.array, sats: wp.array,
-                 box_sigma: float, accept_sigma: float, early_out: bool, kappa: wp.array,
-                 scored: wp.array, total_out: wp.array | None = None,
-                 mask_out: wp.array | None = None, device=None, threads: int = 1) -> None:
+def run_coverage(
+    cand: wp.array,
+    act: wp.array,
+    vmask: wp.array,
+    means: wp.array,
+    tu: wp.array,
+    tv: wp.array,
+    views: wp.array,
+    masks: wp.array,
+    sats: wp.array,
+    box_sigma: float,
+    accept_sigma: float,
+    early_out: bool,
+    kappa: wp.array,
+    scored: wp.array,
+    total_out: wp.array | None = None,
+    mask_out: wp.array | None = None,
+    device=None,
+    threads: int = 1,
+) -> None:
     """Launch Pass 3 over the candidates (``kappa``/``scored`` are ``[N]``, zeroed by the
     caller for non-candidates)."""
     device = device or means.device
     if total_out is None:
         total_out = wp.empty(0, dtype=wp.int32, device=device)
         mask_out = wp.empty(0, dtype=wp.int32, device=device)
-    launch_split(coverage_kernel, cand.shape[0],
-                 [cand, act, vmask, means, tu, tv, views, masks, sats, float(box_sigma),
-                  float(accept_sigma) ** 2, 1 if early_out else 0, kappa, scored, total_out,
-                  mask_out], device, threads, mode="interleave")
+    launch_split(
+        coverage_kernel,
+        cand.shape[0],
+        [
+            cand,
+            act,
+            vmask,
+            means,
+            tu,
+            tv,
+            views,
+            masks,
+            sats,
+            float(box_sigma),
+            float(accept_sigma) ** 2,
+            1 if early_out else 0,
+            kappa,
+            scored,
+            total_out,
+            mask_out,
+        ],
+        device,
+        threads,
+        mode="interleave",
+    )
 
 
-def run_select(f2: wp.array, kappa: wp.array, tau_k: float, apply: bool, out: wp.array,
-               device, threads: int = 1) -> None:
-    launch_split(select_kernel, f2.shape[0],
-                 [f2, kappa, float(np.float32(tau_k)), 1 if apply else 0, out], device, threads)
+def run_select(
+    f2: wp.array,
+    kappa: wp.array,
+    tau_k: float,
+    apply: bool,
+    out: wp.array,
+    device,
+    threads: int = 1,
+) -> None:
+    launch_split(
+        select_kernel,
+        f2.shape[0],
+        [f2, kappa, float(np.float32(tau_k)), 1 if apply else 0, out],
+        device,
+        threads,
+    )

@@ -28,10 +28,16 @@ def _flag_kernel(kind: wp.array(dtype=wp.uint8), flags: wp.array(dtype=int)):
 
 
 @wp.kernel
-def _gather_kernel(kind: wp.array(dtype=wp.uint8), num: wp.array(dtype=float),
-                   den: wp.array(dtype=float), pos: wp.array(dtype=int),
-                   idx_out: wp.array(dtype=wp.int32), num_out: wp.array(dtype=float),
-                   den_out: wp.array(dtype=float), kind_out: wp.array(dtype=wp.uint8)):
+def _gather_kernel(
+    kind: wp.array(dtype=wp.uint8),
+    num: wp.array(dtype=float),
+    den: wp.array(dtype=float),
+    pos: wp.array(dtype=int),
+    idx_out: wp.array(dtype=wp.int32),
+    num_out: wp.array(dtype=float),
+    den_out: wp.array(dtype=float),
+    kind_out: wp.array(dtype=wp.uint8),
+):
     a = wp.tid()
     if kind[a] != wp.uint8(0):
         j = pos[a]
@@ -42,11 +48,20 @@ def _gather_kernel(kind: wp.array(dtype=wp.uint8), num: wp.array(dtype=float),
 
 
 @wp.kernel
-def _apply_kernel(idx: wp.array(dtype=wp.int32), num: wp.array(dtype=float),
-                  den: wp.array(dtype=float), kind: wp.array(dtype=wp.uint8), slot: int,
-                  sign: int, acc_w: wp.array(dtype=wp.int64), acc_z: wp.array(dtype=wp.int64),
-                  acc_wthin: wp.array(dtype=wp.int64), n_thick: wp.array(dtype=wp.int32),
-                  n_thin: wp.array(dtype=wp.int32), vmask: wp.array2d(dtype=wp.uint32)):
+def _apply_kernel(
+    idx: wp.array(dtype=wp.int32),
+    num: wp.array(dtype=float),
+    den: wp.array(dtype=float),
+    kind: wp.array(dtype=wp.uint8),
+    slot: int,
+    sign: int,
+    acc_w: wp.array(dtype=wp.int64),
+    acc_z: wp.array(dtype=wp.int64),
+    acc_wthin: wp.array(dtype=wp.int64),
+    n_thick: wp.array(dtype=wp.int32),
+    n_thin: wp.array(dtype=wp.int32),
+    vmask: wp.array2d(dtype=wp.uint32),
+):
     r = wp.tid()
     a = int(idx[r])
     s = wp.int64(sign)
@@ -68,10 +83,16 @@ def _apply_kernel(idx: wp.array(dtype=wp.int32), num: wp.array(dtype=float),
 
 
 @wp.kernel
-def _readout_kernel(acc_w: wp.array(dtype=wp.int64), acc_z: wp.array(dtype=wp.int64),
-                    z_eps: wp.int64, tau_cons: wp.float64, vmask: wp.array2d(dtype=wp.uint32),
-                    p_out: wp.array(dtype=wp.float64), seg: wp.array(dtype=wp.uint8),
-                    vmask_out: wp.array2d(dtype=wp.uint32)):
+def _readout_kernel(
+    acc_w: wp.array(dtype=wp.int64),
+    acc_z: wp.array(dtype=wp.int64),
+    z_eps: wp.int64,
+    tau_cons: wp.float64,
+    vmask: wp.array2d(dtype=wp.uint32),
+    p_out: wp.array(dtype=wp.float64),
+    seg: wp.array(dtype=wp.uint8),
+    vmask_out: wp.array2d(dtype=wp.uint32),
+):
     a = wp.tid()
     p = wp.float64(0.0)
     z = acc_z[a]
@@ -101,26 +122,34 @@ class Records:
         return sum(a.capacity for a in (self.idx, self.num, self.den, self.kind))
 
 
-def compact_contributions(num: wp.array, den: wp.array, kind: wp.array, flags: wp.array,
-                          pos: wp.array, device=None) -> Records:
+def compact_contributions(
+    num: wp.array, den: wp.array, kind: wp.array, flags: wp.array, pos: wp.array, device=None
+) -> Records:
     """Sparse :class:`Records` of the voxels with ``kind != 0`` (``flags``/``pos``:
     ``[A] int`` scratch)."""
     device = device or num.device
     n = num.shape[0]
     if n == 0:
-        return Records(*(wp.zeros(0, dtype=t, device=device)
-                         for t in (wp.int32, float, float, wp.uint8)))
+        return Records(
+            *(wp.zeros(0, dtype=t, device=device) for t in (wp.int32, float, float, wp.uint8))
+        )
     wp.launch(_flag_kernel, dim=n, inputs=[kind, flags], device=device)
     wp.utils.array_scan(flags, pos, inclusive=True)
-    count = int(pos[n - 1:n].numpy()[0])
-    rec = Records(wp.empty(count, dtype=wp.int32, device=device),
-                  wp.empty(count, dtype=float, device=device),
-                  wp.empty(count, dtype=float, device=device),
-                  wp.empty(count, dtype=wp.uint8, device=device))
+    count = int(pos[n - 1 : n].numpy()[0])
+    rec = Records(
+        wp.empty(count, dtype=wp.int32, device=device),
+        wp.empty(count, dtype=float, device=device),
+        wp.empty(count, dtype=float, device=device),
+        wp.empty(count, dtype=wp.uint8, device=device),
+    )
     if count:
         wp.utils.array_scan(flags, pos, inclusive=False)
-        wp.launch(_gather_kernel, dim=n, inputs=[kind, num, den, pos, rec.idx, rec.num, rec.den,
-                                                 rec.kind], device=device)
+        wp.launch(
+            _gather_kernel,
+            dim=n,
+            inputs=[kind, num, den, pos, rec.idx, rec.num, rec.den, rec.kind],
+            device=device,
+        )
     return rec
 
 
@@ -129,14 +158,30 @@ def apply_records(rec: Records, slot: int, sign: int, acc: dict, device=None) ->
     if len(rec) == 0:
         return
     device = device or rec.idx.device
-    wp.launch(_apply_kernel, dim=len(rec), inputs=[rec.idx, rec.num, rec.den, rec.kind, int(slot),
-                                                   int(sign), acc["w"], acc["z"], acc["wthin"],
-                                                   acc["n_thick"], acc["n_thin"], acc["vmask"]],
-              device=device)
+    wp.launch(
+        _apply_kernel,
+        dim=len(rec),
+        inputs=[
+            rec.idx,
+            rec.num,
+            rec.den,
+            rec.kind,
+            int(slot),
+            int(sign),
+            acc["w"],
+            acc["z"],
+            acc["wthin"],
+            acc["n_thick"],
+            acc["n_thin"],
+            acc["vmask"],
+        ],
+        device=device,
+    )
 
 
-def readout(acc: dict, eps: float, tau_cons: float, device=None
-            ) -> tuple[wp.array, wp.array, wp.array]:
+def readout(
+    acc: dict, eps: float, tau_cons: float, device=None
+) -> tuple[wp.array, wp.array, wp.array]:
     """P ``[A] float64``, V_seg ``[A] uint8`` and the P-masked view bitmask."""
     w = acc["w"]
     device = device or w.device
@@ -146,7 +191,10 @@ def readout(acc: dict, eps: float, tau_cons: float, device=None
     vm = wp.empty(acc["vmask"].shape, dtype=wp.uint32, device=device)
     if n:
         z_eps = int(eps * QSCALE)
-        wp.launch(_readout_kernel, dim=n, inputs=[w, acc["z"], wp.int64(z_eps),
-                                                  wp.float64(tau_cons), acc["vmask"], p, seg, vm],
-                  device=device)
+        wp.launch(
+            _readout_kernel,
+            dim=n,
+            inputs=[w, acc["z"], wp.int64(z_eps), wp.float64(tau_cons), acc["vmask"], p, seg, vm],
+            device=device,
+        )
     return p, seg, vm

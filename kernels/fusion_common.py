@@ -16,9 +16,22 @@ import warp as wp
 
 from .integral_image import sat_sum
 
-__all__ = ["ViewData", "QSCALE", "vec3l", "project", "pixel_ray", "unproject", "footprint",
-           "centre_pixel", "footprint_sums", "footprint_mean", "layered_exact", "pixel_depths",
-           "quantize", "depth_gradient_factor"]
+__all__ = [
+    "ViewData",
+    "QSCALE",
+    "vec3l",
+    "project",
+    "pixel_ray",
+    "unproject",
+    "footprint",
+    "centre_pixel",
+    "footprint_sums",
+    "footprint_mean",
+    "layered_exact",
+    "pixel_depths",
+    "quantize",
+    "depth_gradient_factor",
+]
 
 #: Fixed-point scale of the accumulators. Contributions lie in [0, 1]; with ≤ 2^11
 #: views the sums stay below 2^63. Resolution 2.2e-16 ≈ float64.
@@ -33,7 +46,8 @@ class ViewData:
     ``rot``/``trans``: world→camera rotation (rows) and translation; ``origin``: camera
     centre; the ``*_d`` twins are float64 (per-voxel geometry runs in float64: the
     depth weight eq:gs-depthweight is ill-conditioned when the surface segment is
-    thin, so float32 would set P's precision; per-pixel thin sweeps use float32). ``mask`` [H,W] refined probabilities; ``dmin``, ``dref`` (D_med for 2DGS,
+    thin, so float32 would set P's precision; per-pixel thin sweeps use float32).
+    ``mask`` [H,W] refined probabilities; ``dmin``, ``dref`` (D_med for 2DGS,
     D_exp for NeRF), ``dmax`` [H,W] planar depths; ``nsamp`` [H,W] int32; ``sat_*``
     [H+1,W+1] integral images; ``pdg`` [H,W] depth-gradient factor π_dg; ``d_cam``
     the view's camera-to-target distance.
@@ -83,8 +97,11 @@ def pixel_ray(v: ViewData, px: int, py: int) -> wp.vec4d:
     """World unit direction of the ray through the centre of pixel (px, py) and
     cos θ = ⟨ê_fwd, d̂⟩ (eq:planar-to-ray), packed as (dx, dy, dz, cos θ)."""
     half = wp.float64(0.5)
-    dc = wp.vec3d((wp.float64(px) + half - v.cx_d) / v.fx_d,
-                  (wp.float64(py) + half - v.cy_d) / v.fy_d, wp.float64(1.0))
+    dc = wp.vec3d(
+        (wp.float64(px) + half - v.cx_d) / v.fx_d,
+        (wp.float64(py) + half - v.cy_d) / v.fy_d,
+        wp.float64(1.0),
+    )
     inv = wp.float64(1.0) / wp.length(dc)
     d = wp.transpose(v.rot_d) @ (dc * inv)
     return wp.vec4d(d[0], d[1], d[2], inv)
@@ -136,19 +153,24 @@ def centre_pixel(v: ViewData, q: wp.vec3d, eps: float) -> wp.vec2i:
     zero = wp.float64(0.0)
     if q[2] <= wp.float64(eps):
         return wp.vec2i(-1, -1)
-    if not (q[0] >= zero and q[0] < wp.float64(v.width) and q[1] >= zero
-            and q[1] < wp.float64(v.height)):
+    if not (
+        q[0] >= zero and q[0] < wp.float64(v.width) and q[1] >= zero and q[1] < wp.float64(v.height)
+    ):
         return wp.vec2i(-1, -1)
-    return wp.vec2i(wp.min(int(wp.floor(q[0])), v.width - 1),
-                    wp.min(int(wp.floor(q[1])), v.height - 1))
+    return wp.vec2i(
+        wp.min(int(wp.floor(q[0])), v.width - 1), wp.min(int(wp.floor(q[1])), v.height - 1)
+    )
 
 
 @wp.func
 def footprint_sums(v: ViewData, fp: wp.vec4i) -> vec3l:
     """(A_B, Σ N_samp, Σ N_samp²) over the footprint — exact, from the integral images."""
     area = wp.int64((fp[2] - fp[0] + 1) * (fp[3] - fp[1] + 1))
-    return vec3l(area, sat_sum(v.sat_n, fp[0], fp[1], fp[2], fp[3]),
-                 sat_sum(v.sat_n2, fp[0], fp[1], fp[2], fp[3]))
+    return vec3l(
+        area,
+        sat_sum(v.sat_n, fp[0], fp[1], fp[2], fp[3]),
+        sat_sum(v.sat_n2, fp[0], fp[1], fp[2], fp[3]),
+    )
 
 
 @wp.func
@@ -187,8 +209,14 @@ def quantize(x: float) -> wp.int64:
 
 
 @wp.func
-def _centre_depth(dmin: wp.array2d(dtype=float), dref: wp.array2d(dtype=float),
-                  dmax: wp.array2d(dtype=float), x: int, y: int, eps: float) -> float:
+def _centre_depth(
+    dmin: wp.array2d(dtype=float),
+    dref: wp.array2d(dtype=float),
+    dmax: wp.array2d(dtype=float),
+    x: int,
+    y: int,
+    eps: float,
+) -> float:
     """App. D centre depth ½(D_min + D_max) (with the ``pixel_depths`` fallback); 0 where
     the pixel has no surface (D_ref < ε)."""
     dr = dref[y, x]
@@ -204,9 +232,14 @@ def _centre_depth(dmin: wp.array2d(dtype=float), dref: wp.array2d(dtype=float),
 
 
 @wp.kernel
-def _depth_gradient_kernel(dmin: wp.array2d(dtype=float), dref: wp.array2d(dtype=float),
-                           dmax: wp.array2d(dtype=float), k: float, eps: float,
-                           out: wp.array2d(dtype=float)):
+def _depth_gradient_kernel(
+    dmin: wp.array2d(dtype=float),
+    dref: wp.array2d(dtype=float),
+    dmax: wp.array2d(dtype=float),
+    k: float,
+    eps: float,
+    out: wp.array2d(dtype=float),
+):
     y, x = wp.tid()
     h = dref.shape[0]
     w = dref.shape[1]
@@ -218,19 +251,28 @@ def _depth_gradient_kernel(dmin: wp.array2d(dtype=float), dref: wp.array2d(dtype
     xm = wp.max(x - 1, 0)
     yp = wp.min(y + 1, h - 1)
     ym = wp.max(y - 1, 0)
-    gx = (_centre_depth(dmin, dref, dmax, xp, y, eps) - _centre_depth(dmin, dref, dmax, xm, y, eps)) / (2.0 * d)
-    gy = (_centre_depth(dmin, dref, dmax, x, yp, eps) - _centre_depth(dmin, dref, dmax, x, ym, eps)) / (2.0 * d)
+    gx = (
+        _centre_depth(dmin, dref, dmax, xp, y, eps) - _centre_depth(dmin, dref, dmax, xm, y, eps)
+    ) / (2.0 * d)
+    gy = (
+        _centre_depth(dmin, dref, dmax, x, yp, eps) - _centre_depth(dmin, dref, dmax, x, ym, eps)
+    ) / (2.0 * d)
     out[y, x] = wp.exp(-k * (gx * gx + gy * gy))
 
 
-def depth_gradient_factor(dmin: wp.array2d, dref: wp.array2d, dmax: wp.array2d, k: float,
-                          eps: float, device=None) -> wp.array2d:
+def depth_gradient_factor(
+    dmin: wp.array2d, dref: wp.array2d, dmax: wp.array2d, k: float, eps: float, device=None
+) -> wp.array2d:
     """π_dg ``[H,W]`` (App. D; NOTES): relative central differences of the centre depth
     d = ½(D_min + D_max), G = g_x² + g_y², π_dg = exp(−k G). Border pixels replicate
     their edge neighbour; a pixel without a surface has π_dg = 0 and reads as depth 0
     when it is a neighbour (a silhouette is a depth discontinuity)."""
     device = device or dref.device
     out = wp.empty(dref.shape, dtype=float, device=device)
-    wp.launch(_depth_gradient_kernel, dim=dref.shape, inputs=[dmin, dref, dmax, float(k),
-                                                               float(eps), out], device=device)
+    wp.launch(
+        _depth_gradient_kernel,
+        dim=dref.shape,
+        inputs=[dmin, dref, dmax, float(k), float(eps), out],
+        device=device,
+    )
     return out

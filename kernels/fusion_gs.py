@@ -46,8 +46,19 @@ from __future__ import annotations
 
 import warp as wp
 
-from .fusion_common import (ViewData, centre_pixel, footprint, footprint_mean, footprint_sums,
-                            layered_exact, pixel_depths, pixel_ray, project, unproject, vec3l)
+from .fusion_common import (
+    ViewData,
+    centre_pixel,
+    footprint,
+    footprint_mean,
+    footprint_sums,
+    layered_exact,
+    pixel_depths,
+    pixel_ray,
+    project,
+    unproject,
+    vec3l,
+)
 from .integral_image import sat_sum_i32
 from .occupancy import GridGeom, voxel_center_d
 
@@ -96,13 +107,15 @@ def gs_depth_ok(xd: float, dmin: float, dmed: float, front: bool, tol: float) ->
 def gs_n_min(area: int, p: GsParams) -> int:
     """eq:thin-nmin, n_min = max(n_abs, ⌈ρ_occ A_B⌉); the 1e-4 slack keeps a decimal
     product such as 0.1·30 from rounding up to 4 in binary."""
-    return wp.max(p.n_abs, int(wp.ceil(wp.float64(p.rho_occ) * wp.float64(area)
-                                       - wp.float64(1.0e-4))))
+    return wp.max(
+        p.n_abs, int(wp.ceil(wp.float64(p.rho_occ) * wp.float64(area) - wp.float64(1.0e-4)))
+    )
 
 
 @wp.func
-def gs_thin_score(v: ViewData, p: GsParams, xc: wp.vec3, xd: float, fp: wp.vec4i,
-                  sums: vec3l) -> float:
+def gs_thin_score(
+    v: ViewData, p: GsParams, xc: wp.vec3, xd: float, fp: wp.vec4i, sums: vec3l
+) -> float:
     """alg:gs-thin: two-counter footprint coverage, t_x^i of eq:thin-tthin-gs."""
     mean = footprint_mean(sums)
     n_depth = int(0)
@@ -206,9 +219,16 @@ def gs_contribution(v: ViewData, p: GsParams, xc: wp.vec3d, rho: float) -> wp.ve
 
 
 @wp.kernel
-def _gs_fuse_kernel(codes: wp.array(dtype=wp.int64), density: wp.array(dtype=float),
-                    geom: GridGeom, v: ViewData, p: GsParams, out_num: wp.array(dtype=float),
-                    out_den: wp.array(dtype=float), out_kind: wp.array(dtype=wp.uint8)):
+def _gs_fuse_kernel(
+    codes: wp.array(dtype=wp.int64),
+    density: wp.array(dtype=float),
+    geom: GridGeom,
+    v: ViewData,
+    p: GsParams,
+    out_num: wp.array(dtype=float),
+    out_den: wp.array(dtype=float),
+    out_kind: wp.array(dtype=wp.uint8),
+):
     a = wp.tid()
     xc = voxel_center_d(codes[a], geom)
     c = gs_contribution(v, p, xc, density[a])
@@ -217,16 +237,32 @@ def _gs_fuse_kernel(codes: wp.array(dtype=wp.int64), density: wp.array(dtype=flo
     out_kind[a] = wp.uint8(int(c[2]))
 
 
-def gs_fuse_view(codes: wp.array, density: wp.array, geom: GridGeom, view: ViewData,
-                 params: GsParams, out_num: wp.array, out_den: wp.array, out_kind: wp.array,
-                 device=None) -> None:
+def gs_fuse_view(
+    codes: wp.array,
+    density: wp.array,
+    geom: GridGeom,
+    view: ViewData,
+    params: GsParams,
+    out_num: wp.array,
+    out_den: wp.array,
+    out_kind: wp.array,
+    device=None,
+) -> None:
     """Contribution of one view to every active voxel (dense ``[A]`` outputs)."""
     device = device or codes.device
     n = codes.shape[0]
-    for name, arr in (("density", density), ("out_num", out_num), ("out_den", out_den),
-                      ("out_kind", out_kind)):
+    for name, arr in (
+        ("density", density),
+        ("out_num", out_num),
+        ("out_den", out_den),
+        ("out_kind", out_kind),
+    ):
         if arr.shape[0] != n:
             raise ValueError(f"gs_fuse_view: {name} has {arr.shape[0]} entries, expected {n}")
     if n:
-        wp.launch(_gs_fuse_kernel, dim=n, inputs=[codes, density, geom, view, params, out_num,
-                                                  out_den, out_kind], device=device)
+        wp.launch(
+            _gs_fuse_kernel,
+            dim=n,
+            inputs=[codes, density, geom, view, params, out_num, out_den, out_kind],
+            device=device,
+        )

@@ -68,8 +68,9 @@ def nerf_center(lin: int, g: NerfGridGeom) -> wp.vec3d:
     iy = (lin / g.nx) % g.ny
     iz = lin / (g.nx * g.ny)
     h = wp.float64(0.5)
-    return g.origin_d + wp.cw_mul(wp.vec3d(wp.float64(ix) + h, wp.float64(iy) + h,
-                                           wp.float64(iz) + h), g.cell_d)
+    return g.origin_d + wp.cw_mul(
+        wp.vec3d(wp.float64(ix) + h, wp.float64(iy) + h, wp.float64(iz) + h), g.cell_d
+    )
 
 
 @wp.func
@@ -94,8 +95,9 @@ def nerf_thin_score(v: ViewData, p: NerfParams, dx: float, xd: float, fp: wp.vec
 
 
 @wp.func
-def nerf_contribution(v: ViewData, p: NerfParams, g: NerfGridGeom, xc: wp.vec3d, rho: float
-                      ) -> wp.vec3:
+def nerf_contribution(
+    v: ViewData, p: NerfParams, g: NerfGridGeom, xc: wp.vec3d, rho: float
+) -> wp.vec3:
     """(num, den, kind) of voxel ``xc`` in view ``v`` — alg:nerf-fusion loop body
     (per-voxel geometry in float64, the thin per-pixel sweep in float32)."""
     none = wp.vec3(0.0, 0.0, 0.0)
@@ -117,7 +119,9 @@ def nerf_contribution(v: ViewData, p: NerfParams, g: NerfGridGeom, xc: wp.vec3d,
             hi = wp.float64(wp.max(dd[0], dd[2])) / r[3]
             t_c = wp.clamp(wp.dot(xc - v.origin_d, rd), lo, hi)
             delta = wp.length(xc - (v.origin_d + t_c * rd))  # eq:distance_cond
-            tau_sp = dx * wp.float64(v.pdg[py, px]) + wp.float64(p.lambda_range) * (hi - lo)  # eq:dist_tol
+            tau_sp = dx * wp.float64(v.pdg[py, px]) + wp.float64(p.lambda_range) * (
+                hi - lo
+            )  # eq:dist_tol
             b = wp.min(wp.float64(p.beta) * wp.float64(v.nsamp[py, px]), wp.float64(p.b_max))
             tau_d = (wp.float64(p.gamma) + b) * dx  # eq:depth_tol
             if delta <= tau_sp and wp.abs(xd - wp.float64(dd[1])) <= tau_d:  # eq:nerf-accept
@@ -142,10 +146,16 @@ def nerf_contribution(v: ViewData, p: NerfParams, g: NerfGridGeom, xc: wp.vec3d,
 
 
 @wp.kernel
-def _nerf_fuse_kernel(index: wp.array(dtype=wp.int32), density: wp.array(dtype=float),
-                      g: NerfGridGeom, v: ViewData, p: NerfParams,
-                      out_num: wp.array(dtype=float), out_den: wp.array(dtype=float),
-                      out_kind: wp.array(dtype=wp.uint8)):
+def _nerf_fuse_kernel(
+    index: wp.array(dtype=wp.int32),
+    density: wp.array(dtype=float),
+    g: NerfGridGeom,
+    v: ViewData,
+    p: NerfParams,
+    out_num: wp.array(dtype=float),
+    out_den: wp.array(dtype=float),
+    out_kind: wp.array(dtype=wp.uint8),
+):
     a = wp.tid()
     xc = nerf_center(int(index[a]), g)
     c = nerf_contribution(v, p, g, xc, density[a])
@@ -154,16 +164,32 @@ def _nerf_fuse_kernel(index: wp.array(dtype=wp.int32), density: wp.array(dtype=f
     out_kind[a] = wp.uint8(int(c[2]))
 
 
-def nerf_fuse_view(index: wp.array, density: wp.array, geom: NerfGridGeom, view: ViewData,
-                   params: NerfParams, out_num: wp.array, out_den: wp.array,
-                   out_kind: wp.array, device=None) -> None:
+def nerf_fuse_view(
+    index: wp.array,
+    density: wp.array,
+    geom: NerfGridGeom,
+    view: ViewData,
+    params: NerfParams,
+    out_num: wp.array,
+    out_den: wp.array,
+    out_kind: wp.array,
+    device=None,
+) -> None:
     """Contribution of one view to every active voxel (dense ``[A]`` outputs)."""
     device = device or index.device
     n = index.shape[0]
-    for name, arr in (("density", density), ("out_num", out_num), ("out_den", out_den),
-                      ("out_kind", out_kind)):
+    for name, arr in (
+        ("density", density),
+        ("out_num", out_num),
+        ("out_den", out_den),
+        ("out_kind", out_kind),
+    ):
         if arr.shape[0] != n:
             raise ValueError(f"nerf_fuse_view: {name} has {arr.shape[0]} entries, expected {n}")
     if n:
-        wp.launch(_nerf_fuse_kernel, dim=n, inputs=[index, density, geom, view, params, out_num,
-                                                    out_den, out_kind], device=device)
+        wp.launch(
+            _nerf_fuse_kernel,
+            dim=n,
+            inputs=[index, density, geom, view, params, out_num, out_den, out_kind],
+            device=device,
+        )

@@ -31,9 +31,14 @@ def sat_sum_i32(s: wp.array2d(dtype=wp.int32), x0: int, y0: int, x1: int, y1: in
 
 
 @wp.kernel
-def _rows_kernel(nsamp: wp.array2d(dtype=wp.int32), mask: wp.array2d(dtype=float), thr: float,
-                 sat_n: wp.array2d(dtype=wp.int64), sat_n2: wp.array2d(dtype=wp.int64),
-                 sat_pos: wp.array2d(dtype=wp.int32)):
+def _rows_kernel(
+    nsamp: wp.array2d(dtype=wp.int32),
+    mask: wp.array2d(dtype=float),
+    thr: float,
+    sat_n: wp.array2d(dtype=wp.int64),
+    sat_n2: wp.array2d(dtype=wp.int64),
+    sat_pos: wp.array2d(dtype=wp.int32),
+):
     y = wp.tid()
     a = wp.int64(0)
     a2 = wp.int64(0)
@@ -50,8 +55,11 @@ def _rows_kernel(nsamp: wp.array2d(dtype=wp.int32), mask: wp.array2d(dtype=float
 
 
 @wp.kernel
-def _cols_kernel(sat_n: wp.array2d(dtype=wp.int64), sat_n2: wp.array2d(dtype=wp.int64),
-                 sat_pos: wp.array2d(dtype=wp.int32)):
+def _cols_kernel(
+    sat_n: wp.array2d(dtype=wp.int64),
+    sat_n2: wp.array2d(dtype=wp.int64),
+    sat_pos: wp.array2d(dtype=wp.int32),
+):
     x = wp.tid()
     for y in range(1, sat_n.shape[0]):
         sat_n[y, x] = sat_n[y, x] + sat_n[y - 1, x]
@@ -59,8 +67,9 @@ def _cols_kernel(sat_n: wp.array2d(dtype=wp.int64), sat_n2: wp.array2d(dtype=wp.
         sat_pos[y, x] = sat_pos[y, x] + sat_pos[y - 1, x]
 
 
-def integral_images(nsamp: wp.array2d, mask: wp.array2d, mask_thresh: float,
-                    device=None) -> tuple[wp.array2d, wp.array2d, wp.array2d]:
+def integral_images(
+    nsamp: wp.array2d, mask: wp.array2d, mask_thresh: float, device=None
+) -> tuple[wp.array2d, wp.array2d, wp.array2d]:
     """Summed-area tables of ``nsamp [H,W] int32``, its square and ``mask > mask_thresh``.
 
     Returns ``(sat_n, sat_n2, sat_pos)``, each ``[H+1, W+1]`` (int64, int64, int32).
@@ -74,18 +83,25 @@ def integral_images(nsamp: wp.array2d, mask: wp.array2d, mask_thresh: float,
     sat_n = wp.zeros((h + 1, w + 1), dtype=wp.int64, device=device)
     sat_n2 = wp.zeros((h + 1, w + 1), dtype=wp.int64, device=device)
     sat_pos = wp.zeros((h + 1, w + 1), dtype=wp.int32, device=device)
-    wp.launch(_rows_kernel, dim=h, inputs=[nsamp, mask, float(mask_thresh), sat_n, sat_n2, sat_pos],
-              device=device)
+    wp.launch(
+        _rows_kernel,
+        dim=h,
+        inputs=[nsamp, mask, float(mask_thresh), sat_n, sat_n2, sat_pos],
+        device=device,
+    )
     wp.launch(_cols_kernel, dim=w + 1, inputs=[sat_n, sat_n2, sat_pos], device=device)
     return sat_n, sat_n2, sat_pos
 
 
-def integral_images_numpy(nsamp: np.ndarray, mask: np.ndarray, mask_thresh: float
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def integral_images_numpy(
+    nsamp: np.ndarray, mask: np.ndarray, mask_thresh: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NumPy twin (tests)."""
+
     def sat(a: np.ndarray, dt) -> np.ndarray:
         s = np.zeros((a.shape[0] + 1, a.shape[1] + 1), dtype=dt)
         s[1:, 1:] = a.astype(dt).cumsum(0).cumsum(1)
         return s
+
     n = np.asarray(nsamp, dtype=np.int64)
     return sat(n, np.int64), sat(n * n, np.int64), sat(np.asarray(mask) > mask_thresh, np.int32)

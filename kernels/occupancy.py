@@ -24,10 +24,21 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-__all__ = ["GridGeom", "point_voxel_code", "morton_encode3", "morton_decode3", "hash_lookup",
-           "voxel_center", "voxel_center_d",
-           "make_grid_geom", "surfel_codes", "build_active", "hash_build", "hash_query",
-           "HASH_EMPTY"]
+__all__ = [
+    "GridGeom",
+    "point_voxel_code",
+    "morton_encode3",
+    "morton_decode3",
+    "hash_lookup",
+    "voxel_center",
+    "voxel_center_d",
+    "make_grid_geom",
+    "surfel_codes",
+    "build_active",
+    "hash_build",
+    "hash_query",
+    "HASH_EMPTY",
+]
 
 _M21 = wp.constant(wp.uint64(0x1FFFFF))
 _S1 = wp.constant(wp.uint64(0x1F00000000FFFF))
@@ -78,16 +89,22 @@ def _compact1by2(x: wp.uint64) -> wp.uint64:
 @wp.func
 def morton_encode3(ix: int, iy: int, iz: int) -> wp.int64:
     """Interleave three ≤21-bit coordinates (x lowest)."""
-    c = _part1by2(wp.uint64(ix)) | (_part1by2(wp.uint64(iy)) << wp.uint64(1)) \
+    c = (
+        _part1by2(wp.uint64(ix))
+        | (_part1by2(wp.uint64(iy)) << wp.uint64(1))
         | (_part1by2(wp.uint64(iz)) << wp.uint64(2))
+    )
     return wp.int64(c)
 
 
 @wp.func
 def morton_decode3(code: wp.int64) -> wp.vec3i:
     c = wp.uint64(code)
-    return wp.vec3i(int(_compact1by2(c)), int(_compact1by2(c >> wp.uint64(1))),
-                    int(_compact1by2(c >> wp.uint64(2))))
+    return wp.vec3i(
+        int(_compact1by2(c)),
+        int(_compact1by2(c >> wp.uint64(1))),
+        int(_compact1by2(c >> wp.uint64(2))),
+    )
 
 
 @wp.func
@@ -113,8 +130,10 @@ def point_voxel_code(p: wp.vec3, geom: GridGeom, filtered: wp.int64) -> wp.int64
 def voxel_center(code: wp.int64, geom: GridGeom) -> wp.vec3:
     """World centre ``c − b + (i + ½) h_v`` of the voxel ``code`` (float32)."""
     ijk = morton_decode3(code)
-    return geom.origin + wp.vec3(float(ijk[0]) + 0.5, float(ijk[1]) + 0.5,
-                                 float(ijk[2]) + 0.5) * geom.hf
+    return (
+        geom.origin
+        + wp.vec3(float(ijk[0]) + 0.5, float(ijk[1]) + 0.5, float(ijk[2]) + 0.5) * geom.hf
+    )
 
 
 @wp.func
@@ -123,8 +142,11 @@ def voxel_center_d(code: wp.int64, geom: GridGeom) -> wp.vec3d:
     ijk = morton_decode3(code)
     half = wp.float64(0.5)
     o = geom.center - wp.vec3d(geom.half, geom.half, geom.half)
-    return o + wp.vec3d(wp.float64(ijk[0]) + half, wp.float64(ijk[1]) + half,
-                        wp.float64(ijk[2]) + half) * geom.h
+    return (
+        o
+        + wp.vec3d(wp.float64(ijk[0]) + half, wp.float64(ijk[1]) + half, wp.float64(ijk[2]) + half)
+        * geom.h
+    )
 
 
 @wp.func
@@ -133,8 +155,9 @@ def _hash_slot(code: wp.int64, shift: int) -> int:
 
 
 @wp.func
-def hash_lookup(keys: wp.array(dtype=wp.int64), vals: wp.array(dtype=wp.int32),
-                shift: int, code: wp.int64) -> int:
+def hash_lookup(
+    keys: wp.array(dtype=wp.int64), vals: wp.array(dtype=wp.int32), shift: int, code: wp.int64
+) -> int:
     """Active index of ``code`` or −1 (linear probing; expected O(1) at load ≤ ½)."""
     mask = keys.shape[0] - 1
     s = _hash_slot(code, shift)
@@ -150,9 +173,15 @@ def hash_lookup(keys: wp.array(dtype=wp.int64), vals: wp.array(dtype=wp.int32),
 
 # --- kernels --------------------------------------------------------------------
 @wp.kernel
-def _codes_kernel(means: wp.array(dtype=wp.vec3), geom: GridGeom, filtered: wp.int64,
-                  codes: wp.array(dtype=wp.int64), values: wp.array(dtype=float),
-                  opac: wp.array(dtype=float), n_valid: wp.array(dtype=int)):
+def _codes_kernel(
+    means: wp.array(dtype=wp.vec3),
+    geom: GridGeom,
+    filtered: wp.int64,
+    codes: wp.array(dtype=wp.int64),
+    values: wp.array(dtype=float),
+    opac: wp.array(dtype=float),
+    n_valid: wp.array(dtype=int),
+):
     i = wp.tid()
     c = point_voxel_code(means[i], geom, filtered)
     codes[i] = c
@@ -175,17 +204,24 @@ def _heads_kernel(codes: wp.array(dtype=wp.int64), n: int, heads: wp.array(dtype
 
 
 @wp.kernel
-def _seg_start_kernel(heads: wp.array(dtype=int), seg_id: wp.array(dtype=int),
-                      starts: wp.array(dtype=int)):
+def _seg_start_kernel(
+    heads: wp.array(dtype=int), seg_id: wp.array(dtype=int), starts: wp.array(dtype=int)
+):
     i = wp.tid()
     if heads[i] == 1:
         starts[seg_id[i]] = i
 
 
 @wp.kernel
-def _seg_sum_kernel(starts: wp.array(dtype=int), n: int, values: wp.array(dtype=float),
-                    tau: wp.float64, sums: wp.array(dtype=wp.float64),
-                    counts: wp.array(dtype=int), active: wp.array(dtype=int)):
+def _seg_sum_kernel(
+    starts: wp.array(dtype=int),
+    n: int,
+    values: wp.array(dtype=float),
+    tau: wp.float64,
+    sums: wp.array(dtype=wp.float64),
+    counts: wp.array(dtype=int),
+    active: wp.array(dtype=int),
+):
     s = wp.tid()
     b = starts[s]
     e = n
@@ -200,11 +236,17 @@ def _seg_sum_kernel(starts: wp.array(dtype=int), n: int, values: wp.array(dtype=
 
 
 @wp.kernel
-def _compact_kernel(starts: wp.array(dtype=int), keys: wp.array(dtype=wp.int64),
-                    sums: wp.array(dtype=wp.float64), counts: wp.array(dtype=int),
-                    active: wp.array(dtype=int), pos: wp.array(dtype=int),
-                    out_codes: wp.array(dtype=wp.int64), out_density: wp.array(dtype=float),
-                    out_count: wp.array(dtype=wp.int32)):
+def _compact_kernel(
+    starts: wp.array(dtype=int),
+    keys: wp.array(dtype=wp.int64),
+    sums: wp.array(dtype=wp.float64),
+    counts: wp.array(dtype=int),
+    active: wp.array(dtype=int),
+    pos: wp.array(dtype=int),
+    out_codes: wp.array(dtype=wp.int64),
+    out_density: wp.array(dtype=float),
+    out_count: wp.array(dtype=wp.int32),
+):
     s = wp.tid()
     if active[s] == 1:
         j = pos[s]
@@ -214,8 +256,12 @@ def _compact_kernel(starts: wp.array(dtype=int), keys: wp.array(dtype=wp.int64),
 
 
 @wp.kernel
-def _hash_insert_kernel(codes: wp.array(dtype=wp.int64), shift: int,
-                        keys: wp.array(dtype=wp.int64), vals: wp.array(dtype=wp.int32)):
+def _hash_insert_kernel(
+    codes: wp.array(dtype=wp.int64),
+    shift: int,
+    keys: wp.array(dtype=wp.int64),
+    vals: wp.array(dtype=wp.int32),
+):
     a = wp.tid()
     code = codes[a]
     mask = keys.shape[0] - 1
@@ -229,9 +275,13 @@ def _hash_insert_kernel(codes: wp.array(dtype=wp.int64), shift: int,
 
 
 @wp.kernel
-def _hash_query_kernel(keys: wp.array(dtype=wp.int64), vals: wp.array(dtype=wp.int32),
-                       shift: int, codes: wp.array(dtype=wp.int64),
-                       out: wp.array(dtype=wp.int32)):
+def _hash_query_kernel(
+    keys: wp.array(dtype=wp.int64),
+    vals: wp.array(dtype=wp.int32),
+    shift: int,
+    codes: wp.array(dtype=wp.int64),
+    out: wp.array(dtype=wp.int32),
+):
     i = wp.tid()
     c = codes[i]
     r = -1
@@ -253,9 +303,15 @@ def make_grid_geom(center: np.ndarray, half: float, h: float, g: int) -> GridGeo
     return geom
 
 
-def surfel_codes(means: wp.array, geom: GridGeom, *, filtered: int = -1,
-                 opacities: wp.array | None = None, capacity: int | None = None,
-                 device=None) -> tuple[wp.array, wp.array | None, int]:
+def surfel_codes(
+    means: wp.array,
+    geom: GridGeom,
+    *,
+    filtered: int = -1,
+    opacities: wp.array | None = None,
+    capacity: int | None = None,
+    device=None,
+) -> tuple[wp.array, wp.array | None, int]:
     """Voxel Morton code of every surfel centre (``filtered`` where Pass 1 drops it).
 
     Args:
@@ -276,13 +332,24 @@ def surfel_codes(means: wp.array, geom: GridGeom, *, filtered: int = -1,
     values = wp.zeros(cap if opacities is not None else 0, dtype=float, device=device)
     opac = opacities if opacities is not None else wp.zeros(0, dtype=float, device=device)
     n_valid = wp.zeros(1, dtype=int, device=device)
-    wp.launch(_codes_kernel, dim=n, inputs=[means, geom, wp.int64(filtered), codes, values, opac,
-                                            n_valid], device=device)
+    wp.launch(
+        _codes_kernel,
+        dim=n,
+        inputs=[means, geom, wp.int64(filtered), codes, values, opac, n_valid],
+        device=device,
+    )
     return codes, (values if opacities is not None else None), int(n_valid.numpy()[0])
 
 
-def build_active(means: wp.array, opacities: wp.array, geom: GridGeom, bits: int, tau: float,
-                 device=None, mem=None) -> dict:
+def build_active(
+    means: wp.array,
+    opacities: wp.array,
+    geom: GridGeom,
+    bits: int,
+    tau: float,
+    device=None,
+    mem=None,
+) -> dict:
     """Sort + segment-reduce the surfel opacities; return the active-voxel list.
 
     Returns a dict with ``codes [A] int64`` (ascending), ``density [A] float32``,
@@ -293,8 +360,9 @@ def build_active(means: wp.array, opacities: wp.array, geom: GridGeom, bits: int
     track = mem or (lambda _d: None)
     n = means.shape[0]
     sentinel = 1 << (3 * bits)
-    keys, values, n_kept = surfel_codes(means, geom, filtered=sentinel, opacities=opacities,
-                                        capacity=max(2 * n, 2), device=device)
+    keys, values, n_kept = surfel_codes(
+        means, geom, filtered=sentinel, opacities=opacities, capacity=max(2 * n, 2), device=device
+    )
     track(keys.capacity + values.capacity)
     if n > 0:
         wp.utils.radix_sort_pairs(keys, values, n, 0, 3 * bits + 1)
@@ -304,12 +372,15 @@ def build_active(means: wp.array, opacities: wp.array, geom: GridGeom, bits: int
     wp.launch(_heads_kernel, dim=max(n, 1), inputs=[keys, n_kept, heads], device=device)
     wp.utils.array_scan(heads, seg_id, inclusive=False)
     m = heads.shape[0]
-    n_occ = int(seg_id[m - 1:m].numpy()[0] + heads[m - 1:m].numpy()[0])
+    n_occ = int(seg_id[m - 1 : m].numpy()[0] + heads[m - 1 : m].numpy()[0])
     out = {"n_kept": n_kept, "n_occupied": n_occ}
     if n_occ == 0:
         z = wp.zeros(0, dtype=wp.int64, device=device)
-        out.update(codes=z, density=wp.zeros(0, dtype=float, device=device),
-                   count=wp.zeros(0, dtype=wp.int32, device=device))
+        out.update(
+            codes=z,
+            density=wp.zeros(0, dtype=float, device=device),
+            count=wp.zeros(0, dtype=wp.int32, device=device),
+        )
         return out
     starts = wp.empty(n_occ, dtype=int, device=device)
     wp.launch(_seg_start_kernel, dim=max(n, 1), inputs=[heads, seg_id, starts], device=device)
@@ -319,16 +390,24 @@ def build_active(means: wp.array, opacities: wp.array, geom: GridGeom, bits: int
     active = wp.empty(n_occ, dtype=int, device=device)
     pos = wp.empty(n_occ, dtype=int, device=device)
     track(starts.capacity + sums.capacity + counts.capacity + active.capacity + pos.capacity)
-    wp.launch(_seg_sum_kernel, dim=n_occ, inputs=[starts, n_kept, values, wp.float64(tau), sums,
-                                                   counts, active], device=device)
+    wp.launch(
+        _seg_sum_kernel,
+        dim=n_occ,
+        inputs=[starts, n_kept, values, wp.float64(tau), sums, counts, active],
+        device=device,
+    )
     wp.utils.array_scan(active, pos, inclusive=False)
-    n_act = int(pos[n_occ - 1:n_occ].numpy()[0] + active[n_occ - 1:n_occ].numpy()[0])
+    n_act = int(pos[n_occ - 1 : n_occ].numpy()[0] + active[n_occ - 1 : n_occ].numpy()[0])
     codes = wp.empty(n_act, dtype=wp.int64, device=device)
     dens = wp.empty(n_act, dtype=float, device=device)
     cnt = wp.empty(n_act, dtype=wp.int32, device=device)
     track(codes.capacity + dens.capacity + cnt.capacity)
-    wp.launch(_compact_kernel, dim=n_occ, inputs=[starts, keys, sums, counts, active, pos, codes,
-                                                   dens, cnt], device=device)
+    wp.launch(
+        _compact_kernel,
+        dim=n_occ,
+        inputs=[starts, keys, sums, counts, active, pos, codes, dens, cnt],
+        device=device,
+    )
     out.update(codes=codes, density=dens, count=cnt)
     return out
 
@@ -352,17 +431,26 @@ def hash_build(codes: wp.array, device=None) -> tuple[wp.array, wp.array, int]:
     keys = wp.full(cap, HASH_EMPTY, dtype=wp.int64, device=device)
     vals = wp.full(cap, -1, dtype=wp.int32, device=device)
     if codes.shape[0] > 0:
-        wp.launch(_hash_insert_kernel, dim=codes.shape[0], inputs=[codes, shift, keys, vals],
-                  device=device)
+        wp.launch(
+            _hash_insert_kernel,
+            dim=codes.shape[0],
+            inputs=[codes, shift, keys, vals],
+            device=device,
+        )
     return keys, vals, shift
 
 
-def hash_query(keys: wp.array, vals: wp.array, shift: int, codes: wp.array,
-               device=None) -> wp.array:
+def hash_query(
+    keys: wp.array, vals: wp.array, shift: int, codes: wp.array, device=None
+) -> wp.array:
     """``[M] int32`` active index of each code (−1 when absent or code < 0)."""
     device = device or keys.device
     out = wp.empty(codes.shape[0], dtype=wp.int32, device=device)
     if codes.shape[0] > 0:
-        wp.launch(_hash_query_kernel, dim=codes.shape[0], inputs=[keys, vals, shift, codes, out],
-                  device=device)
+        wp.launch(
+            _hash_query_kernel,
+            dim=codes.shape[0],
+            inputs=[keys, vals, shift, codes, out],
+            device=device,
+        )
     return out

@@ -29,7 +29,8 @@ scaled by ``s_1, s_2``), with rows ``m_x = (t_u.x, t_v.x, μ.x)`` (likewise ``m_
 the hit satisfies ``(u, v, 1) ∝ p = (r_x m_z − m_x) × (r_y m_z − m_y)``, which is
 linear in ``r``: ``p = Q r`` (:class:`kernels.splat.Splat`, evaluated from the offset
 to the projected centre's ray). So ``ρ_3 = u² + v²`` with ``u = p_x/p_z, v = p_y/p_z``
-and the planar depth is ``z = m_z·(u, v, 1) = det[m]/p_z``. Low-pass: ``ρ_2 = d² / σ²`` with ``d`` the pixel
+and the planar depth is ``z = m_z·(u, v, 1) = det[m]/p_z``. Low-pass: ``ρ_2 = d² / σ²`` with
+``d`` the pixel
 distance to the projected centre and ``σ = √2/2`` px. ``ρ = min(ρ_3, ρ_2)`` (the max
 of the two Gaussians, as 2DGS does: it takes over exactly when the ray is near
 edge-on or the surfel is sub-pixel); the depth is the intersection depth when
@@ -53,8 +54,15 @@ from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, sp
 # forward only: no adjoint code (halves compile time)
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["RasterSettings", "RasterOutput", "SurfelBuffers", "upload_surfels", "rasterize_surfels", "tile_bands",
-           "make_raster_camera"]
+__all__ = [
+    "RasterSettings",
+    "RasterOutput",
+    "SurfelBuffers",
+    "upload_surfels",
+    "rasterize_surfels",
+    "tile_bands",
+    "make_raster_camera",
+]
 
 
 @dataclass
@@ -130,9 +138,16 @@ class SurfelBuffers:
         return self.means.shape[0]
 
 
-def upload_surfels(means: np.ndarray, rotations: np.ndarray, scales: np.ndarray,
-                   opacities: np.ndarray, sh: np.ndarray, sh_degree: int, device,
-                   alpha_min: float = 1.0 / 255.0) -> SurfelBuffers:
+def upload_surfels(
+    means: np.ndarray,
+    rotations: np.ndarray,
+    scales: np.ndarray,
+    opacities: np.ndarray,
+    sh: np.ndarray,
+    sh_degree: int,
+    device,
+    alpha_min: float = 1.0 / 255.0,
+) -> SurfelBuffers:
     """Copy a surfel scene to ``device``. ``rotations`` ``[N,3,3]`` (columns t_u, t_v, n)."""
     n = len(means)
     if rotations.shape != (n, 3, 3) or scales.shape != (n, 2) or opacities.shape != (n,):
@@ -154,18 +169,31 @@ def upload_surfels(means: np.ndarray, rotations: np.ndarray, scales: np.ndarray,
         opacity=wp.array(f32(op), dtype=float, device=device),
         rho_cut=wp.array(f32(rho_cut), dtype=float, device=device),
         sh=wp.array(f32(sh), dtype=wp.vec3, device=device),
-        sh_degree=int(sh_degree), device=device)
+        sh_degree=int(sh_degree),
+        device=device,
+    )
 
 
 # --------------------------------------------------------------------------- kernels
 @wp.kernel
-def preprocess_kernel(means: wp.array(dtype=wp.vec3), tu: wp.array(dtype=wp.vec3),
-                      tv: wp.array(dtype=wp.vec3), opacity: wp.array(dtype=float),
-                      rho_cut: wp.array(dtype=float), sh: wp.array2d(dtype=wp.vec3),
-                      sh_degree: int, with_color: int, cam: RasterCamera, inv_var: float,
-                      splats: wp.array(dtype=Splat), sort_keys: wp.array(dtype=float),
-                      sort_vals: wp.array(dtype=wp.int32), colors: wp.array2d(dtype=float),
-                      base: int, stride: int):
+def preprocess_kernel(
+    means: wp.array(dtype=wp.vec3),
+    tu: wp.array(dtype=wp.vec3),
+    tv: wp.array(dtype=wp.vec3),
+    opacity: wp.array(dtype=float),
+    rho_cut: wp.array(dtype=float),
+    sh: wp.array2d(dtype=wp.vec3),
+    sh_degree: int,
+    with_color: int,
+    cam: RasterCamera,
+    inv_var: float,
+    splats: wp.array(dtype=Splat),
+    sort_keys: wp.array(dtype=float),
+    sort_vals: wp.array(dtype=wp.int32),
+    colors: wp.array2d(dtype=float),
+    base: int,
+    stride: int,
+):
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour."""
     i = base + wp.tid() * stride
     mu = means[i]
@@ -209,7 +237,9 @@ def preprocess_kernel(means: wp.array(dtype=wp.vec3), tu: wp.array(dtype=wp.vec3
         cyd = wp.float64(cam.fy) * pd[1] / pd[2] + wp.float64(cam.cy)
         c = wp.vec2(wp.float32(cxd), wp.float32(cyd))
         sp.center = c
-        sp.center_lo = wp.vec2(wp.float32(cxd - wp.float64(c[0])), wp.float32(cyd - wp.float64(c[1])))
+        sp.center_lo = wp.vec2(
+            wp.float32(cxd - wp.float64(c[0])), wp.float32(cyd - wp.float64(c[1]))
+        )
         # … united with the low-pass disc around the projected centre
         r2 = wp.sqrt(k2 / inv_var) + 0.01
         sp.r2 = r2
@@ -257,9 +287,16 @@ def band_tiles(sp: Splat, tile: int, band_lo: int, band_hi: int):
 
 
 @wp.kernel
-def count_kernel(splats: wp.array(dtype=Splat), order: wp.array(dtype=wp.int32), tile: int,
-                 band_lo: int, band_hi: int, counts: wp.array(dtype=wp.int32), base: int,
-                 stride: int):
+def count_kernel(
+    splats: wp.array(dtype=Splat),
+    order: wp.array(dtype=wp.int32),
+    tile: int,
+    band_lo: int,
+    band_hi: int,
+    counts: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
     """Tiles touched in the band by the ``j``-th surfel in depth order."""
     j = base + wp.tid() * stride
     tx0, tx1, ty0, ty1 = band_tiles(splats[order[j]], tile, band_lo, band_hi)
@@ -270,10 +307,20 @@ def count_kernel(splats: wp.array(dtype=Splat), order: wp.array(dtype=wp.int32),
 
 
 @wp.kernel
-def duplicate_kernel(splats: wp.array(dtype=Splat), order: wp.array(dtype=wp.int32), tile: int,
-                     band_lo: int, band_hi: int, tiles_x: int, incl: wp.array(dtype=wp.int32),
-                     counts: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32), vals: wp.array(dtype=wp.int32), base: int,
-                     stride: int):
+def duplicate_kernel(
+    splats: wp.array(dtype=Splat),
+    order: wp.array(dtype=wp.int32),
+    tile: int,
+    band_lo: int,
+    band_hi: int,
+    tiles_x: int,
+    incl: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=wp.int32),
+    vals: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
     """Emit one (band-local tile id, surfel) pair per touched tile, in depth order."""
     j = base + wp.tid() * stride
     i = order[j]
@@ -288,8 +335,14 @@ def duplicate_kernel(splats: wp.array(dtype=Splat), order: wp.array(dtype=wp.int
 
 
 @wp.kernel
-def ranges_kernel(keys: wp.array(dtype=wp.int32), n: int, rstart: wp.array(dtype=wp.int32),
-                  rend: wp.array(dtype=wp.int32), base: int, stride: int):
+def ranges_kernel(
+    keys: wp.array(dtype=wp.int32),
+    n: int,
+    rstart: wp.array(dtype=wp.int32),
+    rend: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
     """``[rstart[t], rend[t])``: the sorted pairs of tile ``t``."""
     e = base + wp.tid() * stride
     k = keys[e]
@@ -337,10 +390,19 @@ def alloc_pixel_out(P: int, C: int, bg: np.ndarray, device) -> PixelOut:
     return out
 
 
-def rasterize_surfels(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy: float, cx: float,
-                      cy: float, width: int, height: int, settings: RasterSettings | None = None,
-                      values: np.ndarray | None = None,
-                      background: np.ndarray | tuple = (0.0, 0.0, 0.0)) -> RasterOutput:
+def rasterize_surfels(
+    buf: SurfelBuffers,
+    w2c: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    settings: RasterSettings | None = None,
+    values: np.ndarray | None = None,
+    background: np.ndarray | tuple = (0.0, 0.0, 0.0),
+) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
     Args:
@@ -385,28 +447,75 @@ def rasterize_surfels(buf: SurfelBuffers, w2c: np.ndarray, fx: float, fy: float,
         splats = wp.empty(n, dtype=Splat)
         keys = wp.empty(2 * n, dtype=float)
         order = wp.empty(2 * n, dtype=wp.int32)
-        launch_split(preprocess_kernel, n,
-                     [buf.means, buf.tu, buf.tv, buf.opacity, buf.rho_cut, buf.sh, buf.sh_degree,
-                      with_color, cam, inv_var, splats, keys, order,
-                      feat if with_color else wp.empty((1, 3), dtype=float)], dev, threads)
+        launch_split(
+            preprocess_kernel,
+            n,
+            [
+                buf.means,
+                buf.tu,
+                buf.tv,
+                buf.opacity,
+                buf.rho_cut,
+                buf.sh,
+                buf.sh_degree,
+                with_color,
+                cam,
+                inv_var,
+                splats,
+                keys,
+                order,
+                feat if with_color else wp.empty((1, 3), dtype=float),
+            ],
+            dev,
+            threads,
+        )
         tm.lap("preprocess")
         wp.utils.radix_sort_pairs(keys, order, n)
         tm.lap("depth_sort")
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
-        for lo, nt, dvals, rstart, rend, _ in tile_bands(splats, order, n, T, tiles_x, tiles_y,
-                                                         s.max_duplicates, stats, dev, threads,
-                                                         tm):
-            _blend(mode, splats, dvals, rstart, rend, feat, cam, inv_var, s, bp, T, tiles_x, lo,
-                   nt, states, out, dev, threads)
+        for lo, nt, dvals, rstart, rend, _ in tile_bands(
+            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm
+        ):
+            _blend(
+                mode,
+                splats,
+                dvals,
+                rstart,
+                rend,
+                feat,
+                cam,
+                inv_var,
+                s,
+                bp,
+                T,
+                tiles_x,
+                lo,
+                nt,
+                states,
+                out,
+                dev,
+                threads,
+            )
             tm.lap("blend")
         if s.profile:  # a device → host copy of the sort keys: only when profiling
             stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
     return RasterOutput(out, W, H, stats)
 
 
-def tile_bands(splats: wp.array, order: wp.array, n: int, T: int, tiles_x: int, tiles_y: int,
-               max_duplicates: int, stats: dict, dev, threads: int, tm: "_Timer | None" = None):
+def tile_bands(
+    splats: wp.array,
+    order: wp.array,
+    n: int,
+    T: int,
+    tiles_x: int,
+    tiles_y: int,
+    max_duplicates: int,
+    stats: dict,
+    dev,
+    threads: int,
+    tm: _Timer | None = None,
+):
     """Bin depth-sorted splats into tiles, one band of tile rows at a time.
 
     Per band: count the tiles each splat touches, scan, split the band in two while it
@@ -423,7 +532,7 @@ def tile_bands(splats: wp.array, order: wp.array, n: int, T: int, tiles_x: int, 
         lo, hi = bands.pop(0)
         launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
         wp.utils.array_scan(counts, incl, inclusive=True)
-        total = int(incl[n - 1:n].numpy()[0])
+        total = int(incl[n - 1 : n].numpy()[0])
         lap("count")
         if total > max_duplicates and hi - lo > 1:
             mid = (lo + hi) // 2
@@ -437,8 +546,13 @@ def tile_bands(splats: wp.array, order: wp.array, n: int, T: int, tiles_x: int, 
         if total > 0:
             dkeys = wp.empty(2 * total, dtype=wp.int32)
             dvals = wp.empty(2 * total, dtype=wp.int32)
-            launch_split(duplicate_kernel, n, [splats, order, T, lo, hi, tiles_x, incl, counts,
-                                               dkeys, dvals], dev, threads)
+            launch_split(
+                duplicate_kernel,
+                n,
+                [splats, order, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
+                dev,
+                threads,
+            )
             lap("duplicate")
             wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
             lap("tile_sort")
@@ -448,12 +562,42 @@ def tile_bands(splats: wp.array, order: wp.array, n: int, T: int, tiles_x: int, 
         yield lo, nt, dvals, rstart, rend, total
 
 
-def _blend(mode, splats, vals, rstart, rend, feat, cam, inv_var, s, bp, T, tiles_x, band_lo, nt,
-           states, out, dev, threads) -> None:
+def _blend(
+    mode,
+    splats,
+    vals,
+    rstart,
+    rend,
+    feat,
+    cam,
+    inv_var,
+    s,
+    bp,
+    T,
+    tiles_x,
+    band_lo,
+    nt,
+    states,
+    out,
+    dev,
+    threads,
+) -> None:
     from .rasterize_blend import blend_pixel_kernel, blend_tile_kernel
 
-    common = [splats, vals, rstart, rend, feat, cam, inv_var, float(s.alpha_max), bp, T, tiles_x,
-              band_lo]
+    common = [
+        splats,
+        vals,
+        rstart,
+        rend,
+        feat,
+        cam,
+        inv_var,
+        float(s.alpha_max),
+        bp,
+        T,
+        tiles_x,
+        band_lo,
+    ]
     if mode == "pixel":
         launch_split(blend_pixel_kernel, nt * T * T, common + [out], dev, threads)
     else:
@@ -464,6 +608,23 @@ def _blend_empty(out, P, cam, s, T, tiles_x, tiles_y, feat, mode, threads, dev) 
     """No surfels: every pixel gets the empty tuple and the background."""
     z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32, device=dev)
     splats = wp.empty(1, dtype=Splat, device=dev)
-    _blend(mode, splats, wp.empty(1, dtype=wp.int32, device=dev), z, z, feat, cam,
-           1.0 / float(s.lowpass_sigma) ** 2, s, blend_params(s), T, tiles_x, 0, tiles_x * tiles_y,
-           wp.empty(P, dtype=PixState, device=dev) if mode == "tile" else None, out, dev, threads)
+    _blend(
+        mode,
+        splats,
+        wp.empty(1, dtype=wp.int32, device=dev),
+        z,
+        z,
+        feat,
+        cam,
+        1.0 / float(s.lowpass_sigma) ** 2,
+        s,
+        blend_params(s),
+        T,
+        tiles_x,
+        0,
+        tiles_x * tiles_y,
+        wp.empty(P, dtype=PixState, device=dev) if mode == "tile" else None,
+        out,
+        dev,
+        threads,
+    )

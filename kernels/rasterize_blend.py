@@ -7,7 +7,8 @@ order, so their outputs are bit-identical:
 
 * :data:`blend_pixel_kernel` — one thread per pixel (GPU form).
 * :data:`blend_tile_kernel` — one thread per tile; for each surfel of the tile it
-  walks only the surfel's row spans (:func:`kernels.splat.row_span`) ∩ tile and keeps the pixel states in a
+  walks only the surfel's row spans (:func:`kernels.splat.row_span`) ∩ tile and keeps the
+  pixel states in a
   scratch array (CPU form: Warp runs CPU launches serially per thread, so the
   work should scale with covered pixels, not with list length × tile area).
 """
@@ -16,7 +17,15 @@ from __future__ import annotations
 
 import warp as wp
 
-from .composite import FLAG_DONE, BlendParams, PixelOut, PixState, blend_step, finish_pixel, state_init
+from .composite import (
+    FLAG_DONE,
+    BlendParams,
+    PixelOut,
+    PixState,
+    blend_step,
+    finish_pixel,
+    state_init,
+)
 from .splat import RasterCamera, Splat, row_span, splat_alpha
 
 # forward only: no adjoint code (halves compile time)
@@ -26,11 +35,23 @@ __all__ = ["blend_pixel_kernel", "blend_tile_kernel"]
 
 
 @wp.kernel
-def blend_pixel_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.int32),
-                       rstart: wp.array(dtype=wp.int32), rend: wp.array(dtype=wp.int32),
-                       feat: wp.array2d(dtype=float), cam: RasterCamera, inv_var: float,
-                       alpha_max: float, bp: BlendParams, tile: int, tiles_x: int, band_lo: int,
-                       out: PixelOut, base: int, stride: int):
+def blend_pixel_kernel(
+    splats: wp.array(dtype=Splat),
+    vals: wp.array(dtype=wp.int32),
+    rstart: wp.array(dtype=wp.int32),
+    rend: wp.array(dtype=wp.int32),
+    feat: wp.array2d(dtype=float),
+    cam: RasterCamera,
+    inv_var: float,
+    alpha_max: float,
+    bp: BlendParams,
+    tile: int,
+    tiles_x: int,
+    band_lo: int,
+    out: PixelOut,
+    base: int,
+    stride: int,
+):
     """Work item ``g`` = band-local tile ``g // tile²``, pixel ``g % tile²`` of that tile."""
     g = base + wp.tid() * stride
     tpix = tile * tile
@@ -60,11 +81,24 @@ def blend_pixel_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def blend_tile_kernel(splats: wp.array(dtype=Splat), vals: wp.array(dtype=wp.int32),
-                      rstart: wp.array(dtype=wp.int32), rend: wp.array(dtype=wp.int32),
-                      feat: wp.array2d(dtype=float), cam: RasterCamera, inv_var: float,
-                      alpha_max: float, bp: BlendParams, tile: int, tiles_x: int, band_lo: int,
-                      states: wp.array(dtype=PixState), out: PixelOut, base: int, stride: int):
+def blend_tile_kernel(
+    splats: wp.array(dtype=Splat),
+    vals: wp.array(dtype=wp.int32),
+    rstart: wp.array(dtype=wp.int32),
+    rend: wp.array(dtype=wp.int32),
+    feat: wp.array2d(dtype=float),
+    cam: RasterCamera,
+    inv_var: float,
+    alpha_max: float,
+    bp: BlendParams,
+    tile: int,
+    tiles_x: int,
+    band_lo: int,
+    states: wp.array(dtype=PixState),
+    out: PixelOut,
+    base: int,
+    stride: int,
+):
     """Work item ``t`` = band-local tile index."""
     t = base + wp.tid() * stride
     X0 = (t % tiles_x) * tile

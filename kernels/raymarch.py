@@ -25,8 +25,15 @@ import numpy as np
 import warp as wp
 
 from ._launch import cpu_threads, launch_split
-from .composite import (ANCHOR_MAX, FLAG_DONE, BlendParams, PixelOut, blend_step, finish_pixel,
-                        state_init)
+from .composite import (
+    ANCHOR_MAX,
+    FLAG_DONE,
+    BlendParams,
+    PixelOut,
+    blend_step,
+    finish_pixel,
+    state_init,
+)
 
 # forward only: no adjoint code (halves compile time)
 wp.set_module_options({"enable_backward": False})
@@ -97,8 +104,9 @@ def occupancy_blocks(density: np.ndarray, block: int) -> np.ndarray:
     return dil.reshape(d, block, h, block, w, block).max(axis=(1, 3, 5))
 
 
-def upload_grid(density: np.ndarray, aabb: np.ndarray, rgb: np.ndarray | None, device,
-                block: int = 8) -> GridBuffers:
+def upload_grid(
+    density: np.ndarray, aabb: np.ndarray, rgb: np.ndarray | None, device, block: int = 8
+) -> GridBuffers:
     """Copy a density grid (``[D,H,W]``, σ ≥ 0) and its optional RGB to ``device``."""
     density = np.ascontiguousarray(np.maximum(np.asarray(density, np.float32), 0.0))
     if density.ndim != 3 or min(density.shape) < 1:
@@ -111,10 +119,15 @@ def upload_grid(density: np.ndarray, aabb: np.ndarray, rgb: np.ndarray | None, d
     occ = occupancy_blocks(density, block)
     return GridBuffers(
         density=wp.array(density, dtype=float, device=device),
-        rgb=None if rgb is None else wp.array(np.ascontiguousarray(rgb, np.float32), dtype=float,
-                                              device=device),
+        rgb=None
+        if rgb is None
+        else wp.array(np.ascontiguousarray(rgb, np.float32), dtype=float, device=device),
         occ=wp.array(np.ascontiguousarray(occ), dtype=float, device=device),
-        aabb=aabb, shape=density.shape, block=int(block), device=device)
+        aabb=aabb,
+        shape=density.shape,
+        block=int(block),
+        device=device,
+    )
 
 
 # --------------------------------------------------------------------------- funcs
@@ -129,13 +142,21 @@ def cell_coords(g: GridInfo, p: wp.vec3):
     y0 = int(fy)
     z0 = int(fz)
     w = wp.vec3(f[0] - fx, f[1] - fy, f[2] - fz)
-    return (wp.clamp(x0, 0, g.nx - 1), wp.clamp(x0 + 1, 0, g.nx - 1), wp.clamp(y0, 0, g.ny - 1),
-            wp.clamp(y0 + 1, 0, g.ny - 1), wp.clamp(z0, 0, g.nz - 1), wp.clamp(z0 + 1, 0, g.nz - 1), w)
+    return (
+        wp.clamp(x0, 0, g.nx - 1),
+        wp.clamp(x0 + 1, 0, g.nx - 1),
+        wp.clamp(y0, 0, g.ny - 1),
+        wp.clamp(y0 + 1, 0, g.ny - 1),
+        wp.clamp(z0, 0, g.nz - 1),
+        wp.clamp(z0 + 1, 0, g.nz - 1),
+        w,
+    )
 
 
 @wp.func
-def lerp3(a: wp.array3d(dtype=float), x0: int, x1: int, y0: int, y1: int, z0: int, z1: int,
-          w: wp.vec3) -> float:
+def lerp3(
+    a: wp.array3d(dtype=float), x0: int, x1: int, y0: int, y1: int, z0: int, z1: int, w: wp.vec3
+) -> float:
     c00 = a[z0, y0, x0] * (1.0 - w[0]) + a[z0, y0, x1] * w[0]
     c01 = a[z0, y1, x0] * (1.0 - w[0]) + a[z0, y1, x1] * w[0]
     c10 = a[z1, y0, x0] * (1.0 - w[0]) + a[z1, y0, x1] * w[0]
@@ -146,8 +167,17 @@ def lerp3(a: wp.array3d(dtype=float), x0: int, x1: int, y0: int, y1: int, z0: in
 
 
 @wp.func
-def lerp4(a: wp.array4d(dtype=float), x0: int, x1: int, y0: int, y1: int, z0: int, z1: int,
-          w: wp.vec3, c: int) -> float:
+def lerp4(
+    a: wp.array4d(dtype=float),
+    x0: int,
+    x1: int,
+    y0: int,
+    y1: int,
+    z0: int,
+    z1: int,
+    w: wp.vec3,
+    c: int,
+) -> float:
     c00 = a[z0, y0, x0, c] * (1.0 - w[0]) + a[z0, y0, x1, c] * w[0]
     c01 = a[z0, y1, x0, c] * (1.0 - w[0]) + a[z0, y1, x1, c] * w[0]
     c10 = a[z1, y0, x0, c] * (1.0 - w[0]) + a[z1, y0, x1, c] * w[0]
@@ -187,9 +217,19 @@ def slab(o: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3, t0: float, t1: float)
 
 # --------------------------------------------------------------------------- kernel
 @wp.kernel
-def march_kernel(dens: wp.array3d(dtype=float), occ: wp.array3d(dtype=float),
-                 feat: wp.array4d(dtype=float), const_color: int, color: wp.vec3, g: GridInfo,
-                 cam: MarchCamera, bp: BlendParams, out: PixelOut, base: int, stride: int):
+def march_kernel(
+    dens: wp.array3d(dtype=float),
+    occ: wp.array3d(dtype=float),
+    feat: wp.array4d(dtype=float),
+    const_color: int,
+    color: wp.vec3,
+    g: GridInfo,
+    cam: MarchCamera,
+    bp: BlendParams,
+    out: PixelOut,
+    base: int,
+    stride: int,
+):
     """One pixel: march, composite, write the tuple (``feat`` ``[D,H,W,C]`` or constant)."""
     p = base + wp.tid() * stride
     x = p % cam.width
@@ -217,7 +257,9 @@ def march_kernel(dens: wp.array3d(dtype=float), occ: wp.array3d(dtype=float),
             bz = wp.clamp(int(wp.floor(q[2] / bsz[2])), 0, occ.shape[0] - 1)
             if occ[bz, by, bx] <= 0.0:
                 # σ = 0 throughout this block: jump past its exit (never backwards)
-                blo = g.lo + wp.cw_div(wp.vec3(float(bx), float(by), float(bz)) * float(g.block), g.inv_vox)
+                blo = g.lo + wp.cw_div(
+                    wp.vec3(float(bx), float(by), float(bz)) * float(g.block), g.inv_vox
+                )
                 bhi = blo + wp.cw_div(bsz, g.inv_vox)
                 ea, eb = slab(o, d, blo, bhi, -1.0e30, 1.0e30)
                 kn = int(wp.ceil(wp.min((eb - t0) / g.step - 0.5, float(n)))) - 1
@@ -233,7 +275,9 @@ def march_kernel(dens: wp.array3d(dtype=float), occ: wp.array3d(dtype=float),
                             out.feat[p, c] = out.feat[p, c] + wk * color[c]
                     else:
                         for c in range(nc):
-                            out.feat[p, c] = out.feat[p, c] + wk * lerp4(feat, x0, x1, y0, y1, z0, z1, w, c)
+                            out.feat[p, c] = out.feat[p, c] + wk * lerp4(
+                                feat, x0, x1, y0, y1, z0, z1, w, c
+                            )
                     if (s.flags & FLAG_DONE) != 0:
                         break
                 k += 1
@@ -241,10 +285,20 @@ def march_kernel(dens: wp.array3d(dtype=float), occ: wp.array3d(dtype=float),
 
 
 # --------------------------------------------------------------------------- wrapper
-def raymarch_grid(buf: GridBuffers, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float,
-                  width: int, height: int, settings: MarchSettings | None = None,
-                  values: np.ndarray | None = None, color=(0.8, 0.8, 0.8),
-                  background=(0.0, 0.0, 0.0)) -> PixelOut:
+def raymarch_grid(
+    buf: GridBuffers,
+    c2w: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    settings: MarchSettings | None = None,
+    values: np.ndarray | None = None,
+    color=(0.8, 0.8, 0.8),
+    background=(0.0, 0.0, 0.0),
+) -> PixelOut:
     """March every pixel of a ``width × height`` OpenCV pinhole view (``c2w`` 4×4).
 
     Args:
@@ -271,8 +325,14 @@ def raymarch_grid(buf: GridBuffers, c2w: np.ndarray, fx: float, fy: float, cx: f
     c2w = np.asarray(c2w, np.float64)
     cam.Rc = wp.mat33(*c2w[:3, :3].astype(np.float32).ravel())
     cam.center = wp.vec3(*c2w[:3, 3].astype(np.float32))
-    cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.near = (float(fx), float(fy), float(cx),
-                                                           float(cy), W, float(s.near))
+    cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.near = (
+        float(fx),
+        float(fy),
+        float(cx),
+        float(cy),
+        W,
+        float(s.near),
+    )
     bp = BlendParams()
     bp.tau_sig, bp.tau_cw, bp.t_min = float(s.tau_sig), float(s.tau_cw), float(s.t_min)
     bp.alpha_min, bp.anchor = float(s.alpha_min), ANCHOR_MAX
@@ -280,18 +340,32 @@ def raymarch_grid(buf: GridBuffers, c2w: np.ndarray, fx: float, fy: float, cx: f
         if values is None:
             C, bg = 3, np.asarray(background, np.float32).reshape(3)
             const = 1 if buf.rgb is None else 0
-            feat = (wp.zeros((1, 1, 1, 3), dtype=float) if buf.rgb is None
-                    else buf.rgb)
+            feat = wp.zeros((1, 1, 1, 3), dtype=float) if buf.rgb is None else buf.rgb
         else:
             v = np.asarray(values, np.float32)
             if v.shape[:3] != buf.shape or v.ndim not in (3, 4):
-                raise ValueError(f"raymarch_grid: values must be {buf.shape} or {buf.shape}+(C,), "
-                                 f"got {v.shape}")
+                raise ValueError(
+                    f"raymarch_grid: values must be {buf.shape} or {buf.shape}+(C,), got {v.shape}"
+                )
             v = v.reshape(buf.shape + (-1,))
             C, bg, const = v.shape[3], np.zeros(v.shape[3], np.float32), 0
             feat = wp.array(np.ascontiguousarray(v), dtype=float)
         out = alloc_pixel_out(W * H, C, bg, dev)
-        launch_split(march_kernel, W * H,
-                     [buf.density, buf.occ, feat, const, wp.vec3(*np.asarray(color, np.float32)),
-                      g, cam, bp, out], dev, cpu_threads(s.threads))
+        launch_split(
+            march_kernel,
+            W * H,
+            [
+                buf.density,
+                buf.occ,
+                feat,
+                const,
+                wp.vec3(*np.asarray(color, np.float32)),
+                g,
+                cam,
+                bp,
+                out,
+            ],
+            dev,
+            cpu_threads(s.threads),
+        )
     return out

@@ -7,8 +7,15 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-__all__ = ["RasterCamera", "Splat", "make_raster_camera", "conic_range", "splat_alpha", "row_span",
-           "BIG"]
+__all__ = [
+    "RasterCamera",
+    "Splat",
+    "make_raster_camera",
+    "conic_range",
+    "splat_alpha",
+    "row_span",
+    "BIG",
+]
 
 BIG = wp.constant(1.0e30)
 
@@ -61,8 +68,16 @@ class Splat:
     y1: int
 
 
-def make_raster_camera(w2c: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
-                       height: int, near: float) -> RasterCamera:
+def make_raster_camera(
+    w2c: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    near: float,
+) -> RasterCamera:
     c = RasterCamera()
     c.R = wp.mat33(*np.asarray(w2c[:3, :3], dtype=np.float32).ravel())
     c.t = wp.vec3(*np.asarray(w2c[:3, 3], dtype=np.float32))
@@ -127,8 +142,16 @@ def plane_hit(sp: Splat, ex: float, ey: float) -> wp.vec2:
 
 
 @wp.func
-def splat_alpha(sp: Splat, px: float, py: float, fx: float, fy: float, inv_var: float,
-                alpha_max: float, near: float):
+def splat_alpha(
+    sp: Splat,
+    px: float,
+    py: float,
+    fx: float,
+    fy: float,
+    inv_var: float,
+    alpha_max: float,
+    near: float,
+):
     """Opacity and planar depth of splat ``sp`` at pixel centre ``(px, py)`` (focal
     lengths ``fx, fy``). Returns ``(α, z)``; ``α = 0`` when the pixel is beyond the
     cutoff or the hit lies before the near plane."""

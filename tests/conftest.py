@@ -13,5 +13,7 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
-        pytest.fail(f"shared test data not found at {SHARED_DATA} (the repo must sit beside shared/)")
+        pytest.fail(
+            f"shared test data not found at {SHARED_DATA} (the repo must sit beside shared/)"
+        )
     return SHARED_DATA

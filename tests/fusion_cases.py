@@ -67,13 +67,25 @@ def make_view(cam: Camera, rng: np.random.Generator, d_cam: float) -> FusionView
     m = np.where(sph, rng.uniform(0.55, 1.0, (h, w)), rng.uniform(0.0, 0.45, (h, w)))
     flip = rng.random((h, w)) < 0.05
     m = np.where(flip, 1.0 - m, m)
-    return FusionView(cam, m.astype(np.float32), dmin.astype(np.float32), dmed,
-                      dmax.astype(np.float32), n.astype(np.float32), d_cam)
+    return FusionView(
+        cam,
+        m.astype(np.float32),
+        dmin.astype(np.float32),
+        dmed,
+        dmax.astype(np.float32),
+        n.astype(np.float32),
+        d_cam,
+    )
 
 
-def random_views(k: int, seed: int = 1, size: tuple[int, int] = (64, 48),
-                 zoom_every: int = 2, zoom_size: tuple[int, int] = (96, 72),
-                 zoom_fx: float = 250.0) -> list[FusionView]:
+def random_views(
+    k: int,
+    seed: int = 1,
+    size: tuple[int, int] = (64, 48),
+    zoom_every: int = 2,
+    zoom_size: tuple[int, int] = (96, 72),
+    zoom_fx: float = 250.0,
+) -> list[FusionView]:
     """``k`` views at distance 3.5; every ``zoom_every``-th one zoomed in (long focal)."""
     rng = np.random.default_rng(seed)
     views = []
@@ -85,8 +97,15 @@ def random_views(k: int, seed: int = 1, size: tuple[int, int] = (64, 48),
         target = rng.normal(scale=0.3, size=3)
         zoom = bool(zoom_every) and i % zoom_every == 1
         wh = zoom_size if zoom else size
-        cam = Camera.look_at(eye, target, np.array([0, 0, 1.0]), width=wh[0], height=wh[1],
-                             fx=zoom_fx if zoom else 60.0, name=f"v{i}")
+        cam = Camera.look_at(
+            eye,
+            target,
+            np.array([0, 0, 1.0]),
+            width=wh[0],
+            height=wh[1],
+            fx=zoom_fx if zoom else 60.0,
+            name=f"v{i}",
+        )
         views.append(make_view(cam, rng, float(np.linalg.norm(eye - target))))
     return views
 
@@ -113,6 +132,7 @@ def const_view(cam: Camera, dmed, dmin=None, dmax=None, n=5, mask=0.9, d_cam=4.0
 def one_voxel_grid(xc, h: float, rho: float = 1.0, device="cpu"):
     """An OccupancyGrid holding the single voxel of edge ``h`` centred at ``xc``."""
     from divas_engine.fusion.occupancy import GridGeometry, OccupancyGrid
+
     geo = GridGeometry(np.asarray(xc, dtype=np.float64), h / 2.0, float(h), 1, 1.0, 0.0, False)
     return OccupancyGrid.from_codes(geo, np.array([0]), np.array([rho]), device=device)
 
@@ -120,12 +140,13 @@ def one_voxel_grid(xc, h: float, rho: float = 1.0, device="cpu"):
 def gs_contrib(xc, h: float, view: FusionView, cfg, rho: float = 1.0):
     """(num, den, kind) of one voxel in one view through the Warp kernel."""
     from divas_engine.fusion.gs_fusion import GsFusion
+
     num, den, kind = GsFusion(one_voxel_grid(xc, h, rho), cfg).contributions(view)
     return float(num[0]), float(den[0]), int(kind[0])
 
 
 def checker(shape, a: int, b: int) -> np.ndarray:
-    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
     return np.where((xx + yy) % 2 == 0, a, b)
 
 
@@ -135,11 +156,12 @@ def nerf_case():
     from divas_engine.fusion.config import nerf_preset
     from divas_engine.fusion.nerf_occupancy import build_nerf_occupancy
     from divas_engine.scene import DensityGrid
+
     n = 48
     ax = (np.arange(n) + 0.5) / n * 4 - 2
     z, y, x = np.meshgrid(ax, ax, ax, indexing="ij")
-    r = np.sqrt(x ** 2 + y ** 2 + z ** 2)
-    dens = (60 * np.exp(-((r - 1) / 0.08) ** 2)).astype(np.float32)
+    r = np.sqrt(x**2 + y**2 + z**2)
+    dens = (60 * np.exp(-(((r - 1) / 0.08) ** 2))).astype(np.float32)
     dens[np.abs(z + 1.2) < 0.05] += 40
     cfg = nerf_preset("llff", gamma=0.5)
     occ = build_nerf_occupancy(DensityGrid(dens, np.array([[-2, -2, -2], [2, 2, 2.0]])), cfg, "cpu")

@@ -88,8 +88,9 @@ def project(cam: Camera, pts: np.ndarray):
 
 
 def pixel_rays(cam: Camera, px, py):
-    dc = np.stack([(px + 0.5 - cam.cx) / cam.fx, (py + 0.5 - cam.cy) / cam.fy,
-                   np.ones(len(px))], -1)
+    dc = np.stack(
+        [(px + 0.5 - cam.cx) / cam.fx, (py + 0.5 - cam.cy) / cam.fy, np.ones(len(px))], -1
+    )
     nrm = np.linalg.norm(dc, axis=1)
     return (dc / nrm[:, None]) @ cam.c2w[:3, :3].T, 1.0 / nrm
 
@@ -136,8 +137,14 @@ def _centre_and_frame(cam: Camera, xc: np.ndarray, eps: float, mg: _Margin):
 # ---------------------------------------------------------------------------------
 # 2DGS (alg:gs-fusion, alg:gs-thin)
 # ---------------------------------------------------------------------------------
-def gs_view(centers: np.ndarray, density: np.ndarray, h: float, view: FusionView, cfg,
-            return_debug: bool = False):
+def gs_view(
+    centers: np.ndarray,
+    density: np.ndarray,
+    h: float,
+    view: FusionView,
+    cfg,
+    return_debug: bool = False,
+):
     """One view's (num, den, kind, margin) for every voxel (kind 1 thick, 2 thin)."""
     cam, eps = view.camera, cfg.eps
     a = len(centers)
@@ -190,8 +197,23 @@ def gs_view(centers: np.ndarray, density: np.ndarray, h: float, view: FusionView
     t = np.zeros(a)
     idx = np.flatnonzero(thin)
     if len(idx):
-        t[idx] = _gs_thin(view, cfg, h, centers[idx], xd[idx], x0[idx], y0[idx], x1[idx], y1[idx],
-                          mean[idx], n_img, s1, s2, mg, idx)
+        t[idx] = _gs_thin(
+            view,
+            cfg,
+            h,
+            centers[idx],
+            xd[idx],
+            x0[idx],
+            y0[idx],
+            x1[idx],
+            y1[idx],
+            mean[idx],
+            n_img,
+            s1,
+            s2,
+            mg,
+            idx,
+        )
     tv = thin & (t >= cfg.tau_thin) & (t > 0)
     num[tv], den[tv], kind[tv] = t[tv], 1.0, 2
     if return_debug:
@@ -284,8 +306,9 @@ def nerf_view(centers: np.ndarray, density: np.ndarray, cell: np.ndarray, view: 
     idx = np.flatnonzero(thin)
     t = np.zeros(a)
     if len(idx):
-        t[idx] = _nerf_thin(view, cfg, dx_edge, xd[idx], x0[idx], y0[idx], x1[idx], y1[idx],
-                            mg, idx)
+        t[idx] = _nerf_thin(
+            view, cfg, dx_edge, xd[idx], x0[idx], y0[idx], x1[idx], y1[idx], mg, idx
+        )
     tv = thin & (t >= cfg.tau_thin) & (t > 0)
     num[tv], den[tv], kind[tv] = t[tv], 1.0, 2
     return num, den, kind, mg.m
@@ -315,8 +338,15 @@ def _nerf_thin(view, cfg, dx_edge, xd, x0, y0, x1, y1, mg, gidx):
 
 
 # ---------------------------------------------------------------------------------
-def fuse(view_fn, views: list[FusionView], slots: list[int] | None = None, *, eps: float,
-         tau_cons: float, words: int = 2) -> dict:
+def fuse(
+    view_fn,
+    views: list[FusionView],
+    slots: list[int] | None = None,
+    *,
+    eps: float,
+    tau_cons: float,
+    words: int = 2,
+) -> dict:
     """eq:compact-fusion over views with the per-view function ``view_fn(view)``."""
     out = None
     slots = list(range(len(views))) if slots is None else slots
@@ -324,9 +354,14 @@ def fuse(view_fn, views: list[FusionView], slots: list[int] | None = None, *, ep
         num, den, kind, mg = view_fn(v)
         if out is None:
             a = len(num)
-            out = dict(W=np.zeros(a), Z=np.zeros(a), n_thick=np.zeros(a, np.int32),
-                       n_thin=np.zeros(a, np.int32), vmask=np.zeros((a, words), np.uint32),
-                       margin=np.full(a, np.inf))
+            out = dict(
+                W=np.zeros(a),
+                Z=np.zeros(a),
+                n_thick=np.zeros(a, np.int32),
+                n_thin=np.zeros(a, np.int32),
+                vmask=np.zeros((a, words), np.uint32),
+                margin=np.full(a, np.inf),
+            )
         out["W"] += num
         out["Z"] += den
         out["n_thick"] += kind == 1

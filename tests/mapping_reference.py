@@ -16,7 +16,7 @@ else (and the chosen cases have none).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -38,9 +38,16 @@ def _near_int(x: np.ndarray) -> np.ndarray:
     return np.abs(x - np.rint(x)) < PX_TOL
 
 
-def map_reference(scene: SurfelScene, geometry: GridGeometry, active_codes: np.ndarray,
-                  segmented: np.ndarray, vmask: np.ndarray, views: Sequence, slots: Sequence[int],
-                  config: MappingConfig = MappingConfig()) -> dict:
+def map_reference(
+    scene: SurfelScene,
+    geometry: GridGeometry,
+    active_codes: np.ndarray,
+    segmented: np.ndarray,
+    vmask: np.ndarray,
+    views: Sequence,
+    slots: Sequence[int],
+    config: MappingConfig = MappingConfig(),
+) -> dict:
     """The mapping of ``scene`` given the active voxels (``active_codes``, ascending),
     their segmentation flags and ``[A, words]`` view bitmask.
 
@@ -51,8 +58,9 @@ def map_reference(scene: SurfelScene, geometry: GridGeometry, active_codes: np.n
     n = len(scene)
     means = np.asarray(scene.means, dtype=np.float32).astype(np.float64)
     # ---- Pass 1 (eq:pass1): NaN/AABB filter, Morton code, segmentation bit
-    codes = voxel_codes_numpy(means, geometry.center, geometry.half_extent, geometry.voxel_size,
-                              geometry.resolution)
+    codes = voxel_codes_numpy(
+        means, geometry.center, geometry.half_extent, geometry.voxel_size, geometry.resolution
+    )
     ac = np.asarray(active_codes, dtype=np.int64)
     pos = np.clip(np.searchsorted(ac, codes), 0, max(len(ac) - 1, 0))
     hit = (codes >= 0) & (len(ac) > 0) & (ac[pos] == codes if len(ac) else False)
@@ -78,8 +86,8 @@ def map_reference(scene: SurfelScene, geometry: GridGeometry, active_codes: np.n
     R = quat_to_rotmat(rot)
     t0 = R[:, :, 0] * s[:, :1]
     t1 = R[:, :, 1] * s[:, 1:2]
-    acc2 = config.accept_sigma ** 2
-    kmax = max(acc2, config.box_sigma ** 2)
+    acc2 = config.accept_sigma**2
+    kmax = max(acc2, config.box_sigma**2)
     tau_m = np.float32(config.mask_threshold)
     vmask = np.asarray(vmask, dtype=np.uint32).reshape(len(ac), -1)
     for si, (view, slot) in enumerate(zip(views, slots)):
@@ -165,6 +173,16 @@ def map_reference(scene: SurfelScene, geometry: GridGeometry, active_codes: np.n
         sel = f2 & (kappa >= np.float32(config.surfel_coverage))
     else:
         sel = f2.copy()
-    return {"pass1": f1, "pass2": f2, "selected": sel, "kappa": kappa, "tau_a": tau_a,
-            "total_fp": total, "mask_fp": maskc, "scored": scored, "ambiguous": amb,
-            "active": act, "n_needles": int((~keep).sum())}
+    return {
+        "pass1": f1,
+        "pass2": f2,
+        "selected": sel,
+        "kappa": kappa,
+        "tau_a": tau_a,
+        "total_fp": total,
+        "mask_fp": maskc,
+        "scored": scored,
+        "ambiguous": amb,
+        "active": act,
+        "n_needles": int((~keep).sum()),
+    }

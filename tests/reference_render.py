@@ -24,16 +24,28 @@ from divas_engine.scene import DensityGrid, SurfelScene
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
-         0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+SH_C2 = (
+    1.0925484305920792,
+    -1.0925484305920792,
+    0.31539156525252005,
+    -1.0925484305920792,
+    0.5462742152960396,
+)
+SH_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
 
 
 def sh_colors(sh: np.ndarray, degree: int, dirs: np.ndarray) -> np.ndarray:
     """``[N,3]`` colour ``max(0, 0.5 + Σ c_lm Y_lm(d))`` for unit directions ``dirs`` ``[N,3]``."""
     sh = np.asarray(sh, dtype=np.float64)
-    x, y, z = (dirs[:, i:i + 1] for i in range(3))
+    x, y, z = (dirs[:, i : i + 1] for i in range(3))
     c = SH_C0 * sh[:, 0]
     if degree > 0:
         c = c - SH_C1 * y * sh[:, 1] + SH_C1 * z * sh[:, 2] - SH_C1 * x * sh[:, 3]
@@ -43,8 +55,15 @@ def sh_colors(sh: np.ndarray, degree: int, dirs: np.ndarray) -> np.ndarray:
         for j in range(5):
             c = c + SH_C2[j] * basis[j] * sh[:, 4 + j]
     if degree > 2:
-        basis = [y * (3 * xx - yy), x * y * z, y * (4 * zz - xx - yy), z * (2 * zz - 3 * xx - 3 * yy),
-                 x * (4 * zz - xx - yy), z * (xx - yy), x * (xx - 3 * yy)]
+        basis = [
+            y * (3 * xx - yy),
+            x * y * z,
+            y * (4 * zz - xx - yy),
+            z * (2 * zz - 3 * xx - 3 * yy),
+            x * (4 * zz - xx - yy),
+            z * (xx - yy),
+            x * (xx - 3 * yy),
+        ]
         for j in range(7):
             c = c + SH_C3[j] * basis[j] * sh[:, 9 + j]
     return np.maximum(c + 0.5, 0.0)
@@ -58,8 +77,14 @@ def _pixel_rays(cam: Camera, xs: np.ndarray, ys: np.ndarray):
     return d, cos, uv
 
 
-def _composite(alpha: np.ndarray, depth: np.ndarray, feats: np.ndarray, cfg: RenderConfig,
-               anchor: str, bg: np.ndarray) -> dict[str, np.ndarray]:
+def _composite(
+    alpha: np.ndarray,
+    depth: np.ndarray,
+    feats: np.ndarray,
+    cfg: RenderConfig,
+    anchor: str,
+    bg: np.ndarray,
+) -> dict[str, np.ndarray]:
     """Blend ``[P, K]`` elements (front to back along axis 1; ``alpha == 0`` = skipped).
 
     ``feats`` is ``[P, K, C]``. Returns the NOTES depth tuple, ``alpha`` and ``feat``.
@@ -93,7 +118,9 @@ def _composite(alpha: np.ndarray, depth: np.ndarray, feats: np.ndarray, cfg: Ren
     klast = K - 1 - np.argmax(contrib[:, ::-1], axis=1)
     out["D_max"] = np.where(has_max, depth[rows, kmax], np.where(any_c, depth[rows, klast], 0.0))
     ws = w.sum(axis=1)
-    out["D_exp"] = np.where(ws > 0, (w * np.where(valid, depth, 0.0)).sum(axis=1) / np.maximum(ws, 1e-300), 0.0)
+    out["D_exp"] = np.where(
+        ws > 0, (w * np.where(valid, depth, 0.0)).sum(axis=1) / np.maximum(ws, 1e-300), 0.0
+    )
     kmw = np.argmax(w, axis=1)
     out["D_mw"] = np.where(w.max(axis=1) > 0, depth[rows, kmw], 0.0)
     has_a, ka = (has_med, kmed) if anchor == "med" else (has_max, kmax)
@@ -113,22 +140,37 @@ def rendered_mask(scene: SurfelScene, cam: Camera, cfg: RenderConfig) -> np.ndar
         rho_cut = np.where(op > cfg.alpha_min, 2.0 * np.log(op / cfg.alpha_min), -1.0)
     fwd = cam.forward
     zc = (mu - cam.center) @ fwd
-    zr = np.sqrt(np.maximum(rho_cut, 0) * ((s[:, 0] * (tu @ fwd)) ** 2 + (s[:, 1] * (tv @ fwd)) ** 2))
+    zr = np.sqrt(
+        np.maximum(rho_cut, 0) * ((s[:, 0] * (tu @ fwd)) ** 2 + (s[:, 1] * (tv @ fwd)) ** 2)
+    )
     return (rho_cut > 0) & (zc - zr > cfg.near)
 
 
 def _surfel_frame(scene: SurfelScene):
     rot = scene.rotations().astype(np.float64)
-    return (scene.means.astype(np.float64), rot[:, :, 0], rot[:, :, 1], rot[:, :, 2],
-            scene.scales.astype(np.float64), scene.opacities.astype(np.float64))
+    return (
+        scene.means.astype(np.float64),
+        rot[:, :, 0],
+        rot[:, :, 1],
+        rot[:, :, 2],
+        scene.scales.astype(np.float64),
+        scene.opacities.astype(np.float64),
+    )
 
 
-def surfel_hits(scene: SurfelScene, cam: Camera, xs: np.ndarray, ys: np.ndarray,
-                cfg: RenderConfig, idx: np.ndarray | None = None):
+def surfel_hits(
+    scene: SurfelScene,
+    cam: Camera,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    cfg: RenderConfig,
+    idx: np.ndarray | None = None,
+):
     """``α`` and planar depth ``[P, M]`` of pixels ``(xs, ys)`` against surfels ``idx``.
 
     Only surfels whose whole cutoff disc lies beyond the near plane are rendered
-    (:func:`rendered_mask`). Straight from NOTES: intersect the pixel ray with the surfel plane, local
+    (:func:`rendered_mask`). Straight from NOTES: intersect the pixel ray with the surfel
+    plane, local
     ``(u, v)`` in units of the scales, ``G = exp(−(u²+v²)/2)``; low-pass
     ``exp(−d²/(2σ²))`` around the projected centre; the larger Gaussian wins (its
     depth: intersection or centre); ``α = min(α_max, opacity · G)``; ``α < α_min``
@@ -155,14 +197,15 @@ def surfel_hits(scene: SurfelScene, cam: Camera, xs: np.ndarray, ys: np.ndarray,
     zc = rel @ fwd
     cuv, _ = cam.project(mu)
     d2 = ((uv[:, None, :] - cuv[None, :, :]) ** 2).sum(-1)
-    rho2 = d2 / cfg.lowpass_sigma ** 2
+    rho2 = d2 / cfg.lowpass_sigma**2
     use3 = rho3 <= rho2
     rho = np.where(use3, rho3, rho2)
     z = np.where(use3, z3, zc[None, :])
     with np.errstate(over="ignore", invalid="ignore"):
         alpha = np.minimum(cfg.alpha_max, op[None, :] * np.exp(-0.5 * rho))
-    alpha = np.where(keep[None, :] & np.isfinite(rho) & (alpha >= cfg.alpha_min) & (z >= cfg.near),
-                     alpha, 0.0)
+    alpha = np.where(
+        keep[None, :] & np.isfinite(rho) & (alpha >= cfg.alpha_min) & (z >= cfg.near), alpha, 0.0
+    )
     return alpha, np.where(alpha > 0, z, 0.0), zc
 
 
@@ -172,8 +215,13 @@ def _surfel_colors(scene: SurfelScene, cam: Camera) -> np.ndarray:
     return sh_colors(scene.sh, scene.sh_degree, dirs)
 
 
-def reference_surfels(scene: SurfelScene, cam: Camera, cfg: RenderConfig | None = None,
-                      values: np.ndarray | None = None, chunk: int = 256) -> dict[str, np.ndarray]:
+def reference_surfels(
+    scene: SurfelScene,
+    cam: Camera,
+    cfg: RenderConfig | None = None,
+    values: np.ndarray | None = None,
+    chunk: int = 256,
+) -> dict[str, np.ndarray]:
     """Brute-force render: dict of ``[H,W]`` channels (``feat`` ``[H,W,C]``)."""
     cfg = cfg or RenderConfig()
     n = len(scene)
@@ -185,11 +233,11 @@ def reference_surfels(scene: SurfelScene, cam: Camera, cfg: RenderConfig | None 
         feats = np.asarray(values, np.float64).reshape(n, -1)
         bg = np.zeros(feats.shape[1])
     feats = feats[order]
-    ys, xs = np.mgrid[0:cam.height, 0:cam.width]
+    ys, xs = np.mgrid[0 : cam.height, 0 : cam.width]
     xs, ys = xs.ravel(), ys.ravel()
     parts = []
     for lo in range(0, len(xs), chunk):
-        a, z, _ = surfel_hits(scene, cam, xs[lo:lo + chunk], ys[lo:lo + chunk], cfg, order)
+        a, z, _ = surfel_hits(scene, cam, xs[lo : lo + chunk], ys[lo : lo + chunk], cfg, order)
         f = np.broadcast_to(feats[None], (len(a),) + feats.shape)
         parts.append(_composite(a, z, f, cfg, "med", bg))
     return _assemble(parts, cam)
@@ -204,9 +252,14 @@ def _assemble(parts: list[dict], cam: Camera) -> dict[str, np.ndarray]:
     return out
 
 
-def random_surfel_scene(n: int, seed: int = 0, sh_degree: int = 3, extent: float = 1.0,
-                        z_range: tuple[float, float] = (2.0, 6.0),
-                        scale_range: tuple[float, float] = (0.01, 0.15)) -> SurfelScene:
+def random_surfel_scene(
+    n: int,
+    seed: int = 0,
+    sh_degree: int = 3,
+    extent: float = 1.0,
+    z_range: tuple[float, float] = (2.0, 6.0),
+    scale_range: tuple[float, float] = (0.01, 0.15),
+) -> SurfelScene:
     """Random surfels in a box in front of the identity camera (test fixture)."""
     rng = np.random.default_rng(seed)
     z = rng.uniform(*z_range, n)
@@ -219,8 +272,14 @@ def random_surfel_scene(n: int, seed: int = 0, sh_degree: int = 3, extent: float
     k = (sh_degree + 1) ** 2
     sh = rng.normal(scale=0.3, size=(n, k, 3))
     sh[:, 0] = rng.normal(scale=1.0, size=(n, 3))
-    return SurfelScene(means, q.astype(np.float32), scales.astype(np.float32),
-                       op.astype(np.float32), sh.astype(np.float32), sh_degree)
+    return SurfelScene(
+        means,
+        q.astype(np.float32),
+        scales.astype(np.float32),
+        op.astype(np.float32),
+        sh.astype(np.float32),
+        sh_degree,
+    )
 
 
 # --------------------------------------------------------------------------- pair-list reference
@@ -255,15 +314,23 @@ def _conservative_rects(scene: SurfelScene, cam: Camera, cfg: RenderConfig):
         size = cam.width if j == 0 else cam.height
         lo = np.nan_to_num(np.clip(lo, -2, size + 2), nan=size + 2)
         hi = np.nan_to_num(np.clip(hi, -2, size + 2), nan=-2)
-        out += [np.maximum(np.ceil(lo - 0.5), 0).astype(np.int64),
-                np.minimum(np.floor(hi - 0.5), size - 1).astype(np.int64)]
+        out += [
+            np.maximum(np.ceil(lo - 0.5), 0).astype(np.int64),
+            np.minimum(np.floor(hi - 0.5), size - 1).astype(np.int64),
+        ]
     x0, x1, y0, y1 = out
     x1 = np.where(rendered_mask(scene, cam, cfg), x1, -1)
     return x0, x1, y0, y1
 
 
-def _pair_hits(scene: SurfelScene, cam: Camera, cfg: RenderConfig, sid: np.ndarray,
-               px: np.ndarray, py: np.ndarray):
+def _pair_hits(
+    scene: SurfelScene,
+    cam: Camera,
+    cfg: RenderConfig,
+    sid: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+):
     """``α`` and planar depth of (surfel ``sid``, pixel ``(px, py)``) pairs (same maths as
     :func:`surfel_hits`, one pair per row)."""
     mu, tu, tv, nrm, s, op = (a[sid] for a in _surfel_frame(scene))
@@ -278,7 +345,7 @@ def _pair_hits(scene: SurfelScene, cam: Camera, cfg: RenderConfig, sid: np.ndarr
     rho3 = np.where((denom != 0) & np.isfinite(rho3), rho3, np.inf)
     zc = rel @ cam.forward
     cuv, _ = cam.project(mu)
-    rho2 = ((uv - cuv) ** 2).sum(1) / cfg.lowpass_sigma ** 2
+    rho2 = ((uv - cuv) ** 2).sum(1) / cfg.lowpass_sigma**2
     use3 = rho3 <= rho2
     rho = np.where(use3, rho3, rho2)
     z = np.where(use3, t * cos, zc)
@@ -288,9 +355,13 @@ def _pair_hits(scene: SurfelScene, cam: Camera, cfg: RenderConfig, sid: np.ndarr
     return alpha, z
 
 
-def reference_surfels_pairs(scene: SurfelScene, cam: Camera, cfg: RenderConfig | None = None,
-                            rows: tuple[int, int] | None = None,
-                            band: int = 32) -> dict[str, np.ndarray]:
+def reference_surfels_pairs(
+    scene: SurfelScene,
+    cam: Camera,
+    cfg: RenderConfig | None = None,
+    rows: tuple[int, int] | None = None,
+    band: int = 32,
+) -> dict[str, np.ndarray]:
     """The brute-force reference vectorised over (surfel, pixel) pairs.
 
     Pairs come from conservative per-surfel rectangles, one band of ``band`` image
@@ -324,7 +395,9 @@ def reference_surfels_pairs(scene: SurfelScene, cam: Camera, cfg: RenderConfig |
         sid, px, py, alpha, z = sid[keep], px[keep], py[keep], alpha[keep], z[keep]
         pix = (py - b0) * W + px
         o = np.lexsort((rank[sid], pix))
-        parts.append(_composite_pairs(pix[o], alpha[o], z[o], colors[sid[o]], (b1 - b0) * W, cfg, bg))
+        parts.append(
+            _composite_pairs(pix[o], alpha[o], z[o], colors[sid[o]], (b1 - b0) * W, cfg, bg)
+        )
     out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     h = y_hi - y_lo
     out = {k: v.reshape((h, W) + v.shape[1:]) for k, v in out.items()}
@@ -332,12 +405,27 @@ def reference_surfels_pairs(scene: SurfelScene, cam: Camera, cfg: RenderConfig |
     return out
 
 
-def _composite_pairs(pix: np.ndarray, alpha: np.ndarray, z: np.ndarray, feat: np.ndarray, P: int,
-                     cfg: RenderConfig, bg: np.ndarray) -> dict[str, np.ndarray]:
+def _composite_pairs(
+    pix: np.ndarray,
+    alpha: np.ndarray,
+    z: np.ndarray,
+    feat: np.ndarray,
+    P: int,
+    cfg: RenderConfig,
+    bg: np.ndarray,
+) -> dict[str, np.ndarray]:
     """Segmented front-to-back compositing of pairs sorted by (pixel, order)."""
-    out = {"D_min": np.zeros(P), "D_med": np.zeros(P), "D_max": np.zeros(P), "D_exp": np.zeros(P),
-           "D_mw": np.zeros(P), "N_samp": np.zeros(P, np.int32), "alpha": np.zeros(P),
-           "n_trav": np.zeros(P, np.int32), "feat": np.tile(bg, (P, 1))}
+    out = {
+        "D_min": np.zeros(P),
+        "D_med": np.zeros(P),
+        "D_max": np.zeros(P),
+        "D_exp": np.zeros(P),
+        "D_mw": np.zeros(P),
+        "N_samp": np.zeros(P, np.int32),
+        "alpha": np.zeros(P),
+        "n_trav": np.zeros(P, np.int32),
+        "feat": np.tile(bg, (P, 1)),
+    }
     if len(pix) == 0:
         return out
     starts = np.r_[0, np.nonzero(np.diff(pix))[0] + 1]
@@ -399,15 +487,19 @@ def trilinear(grid: np.ndarray, aabb: np.ndarray, pts: np.ndarray) -> np.ndarray
                 ix = np.clip(i0[:, 0] + dx, 0, W - 1)
                 iy = np.clip(i0[:, 1] + dy, 0, H - 1)
                 iz = np.clip(i0[:, 2] + dz, 0, D - 1)
-                wt = ((w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
-                      * (w[:, 2] if dz else 1 - w[:, 2]))
+                wt = (
+                    (w[:, 0] if dx else 1 - w[:, 0])
+                    * (w[:, 1] if dy else 1 - w[:, 1])
+                    * (w[:, 2] if dz else 1 - w[:, 2])
+                )
                 v = grid[iz, iy, ix]
                 out = out + (wt[:, None] * v if v.ndim > 1 else wt * v)
     return out
 
 
-def march_samples(grid: DensityGrid, cam: Camera, xs: np.ndarray, ys: np.ndarray,
-                  cfg: RenderConfig):
+def march_samples(
+    grid: DensityGrid, cam: Camera, xs: np.ndarray, ys: np.ndarray, cfg: RenderConfig
+):
     """Per ray: segment list ``(t_mid [P,K], δ [P,K], valid [P,K])``, directions and cos θ.
 
     Entry ``t0 = max(slab entry, near / cos θ)``, exit = slab exit; segments of
@@ -433,13 +525,18 @@ def march_samples(grid: DensityGrid, cam: Camera, xs: np.ndarray, ys: np.ndarray
     return 0.5 * (ta + tb), np.where(valid, tb - ta, 0.0), valid, d, cos
 
 
-def reference_nerf(grid: DensityGrid, cam: Camera, cfg: RenderConfig | None = None,
-                   values: np.ndarray | None = None, rows: tuple[int, int] | None = None,
-                   chunk: int = 1024) -> dict[str, np.ndarray]:
+def reference_nerf(
+    grid: DensityGrid,
+    cam: Camera,
+    cfg: RenderConfig | None = None,
+    values: np.ndarray | None = None,
+    rows: tuple[int, int] | None = None,
+    chunk: int = 1024,
+) -> dict[str, np.ndarray]:
     """Reference ray-march (no empty-space skipping) of image rows ``rows`` (default all)."""
     cfg = cfg or RenderConfig()
     y0, y1 = rows or (0, cam.height)
-    ys, xs = np.mgrid[y0:y1, 0:cam.width]
+    ys, xs = np.mgrid[y0:y1, 0 : cam.width]
     xs, ys = xs.ravel(), ys.ravel()
     if values is None:
         fgrid = grid.rgb
@@ -449,7 +546,9 @@ def reference_nerf(grid: DensityGrid, cam: Camera, cfg: RenderConfig | None = No
         bg = np.zeros(fgrid.shape[3])
     parts = []
     for lo in range(0, len(xs), chunk):
-        tm, dt, valid, d, cos = march_samples(grid, cam, xs[lo:lo + chunk], ys[lo:lo + chunk], cfg)
+        tm, dt, valid, d, cos = march_samples(
+            grid, cam, xs[lo : lo + chunk], ys[lo : lo + chunk], cfg
+        )
         P, K = tm.shape
         pts = cam.center + (tm[..., None] * d[:, None, :]).reshape(-1, 3)
         sigma = trilinear(grid.density.astype(np.float64), grid.aabb, pts).reshape(P, K)

@@ -11,8 +11,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from divas_engine.blender_convention import (BlenderCameraParams, camera_from_blender,
-                                             camera_to_blender, project_blender)
+from divas_engine.blender_convention import (
+    BlenderCameraParams,
+    camera_from_blender,
+    camera_to_blender,
+    project_blender,
+)
 from divas_engine.camera import Camera
 
 bpy = pytest.importorskip("bpy")
@@ -21,9 +25,14 @@ from mathutils import Matrix, Vector  # noqa: E402
 
 # (width, height, fx, fy, cx, cy): square pixels, fx≠fy both ways, off-centre principal
 # points, landscape, portrait, and a case where pixel aspect flips the fitted side
-SPECS = [(640, 480, 500, 500, 320, 240), (640, 480, 520, 480, 300.5, 250.25),
-         (480, 640, 450, 530, 250, 300), (300, 900, 400, 700, 120, 500),
-         (1000, 900, 800, 600, 480, 530), (900, 1000, 500, 800, 470, 520)]
+SPECS = [
+    (640, 480, 500, 500, 320, 240),
+    (640, 480, 520, 480, 300.5, 250.25),
+    (480, 640, 450, 530, 250, 300),
+    (300, 900, 400, 700, 120, 500),
+    (1000, 900, 800, 600, 480, 530),
+    (900, 1000, 500, 800, 470, 520),
+]
 
 
 @pytest.fixture(scope="module")
@@ -50,10 +59,20 @@ def _apply(scene, obj, p: BlenderCameraParams) -> None:
 
 def _read_back(scene, obj) -> BlenderCameraParams:
     d, r = obj.data, scene.render
-    return BlenderCameraParams(np.array(obj.matrix_world), d.lens, d.sensor_width,
-                               d.sensor_height, d.sensor_fit, d.shift_x, d.shift_y,
-                               r.resolution_x, r.resolution_y, r.pixel_aspect_x,
-                               r.pixel_aspect_y, r.resolution_percentage)
+    return BlenderCameraParams(
+        np.array(obj.matrix_world),
+        d.lens,
+        d.sensor_width,
+        d.sensor_height,
+        d.sensor_fit,
+        d.shift_x,
+        d.shift_y,
+        r.resolution_x,
+        r.resolution_y,
+        r.pixel_aspect_x,
+        r.pixel_aspect_y,
+        r.resolution_percentage,
+    )
 
 
 def _bpy_project(scene, obj, pts: np.ndarray) -> np.ndarray:
@@ -68,8 +87,17 @@ def test_engine_camera_matches_bpy(scene_and_camera, spec):
     scene, obj = scene_and_camera
     w, h, fx, fy, cx, cy = spec
     rng = np.random.default_rng(SPECS.index(spec))
-    cam = Camera.look_at(rng.normal(size=3) * 4, rng.normal(size=3) * 0.3, [0, 0, 1],
-                         width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy)
+    cam = Camera.look_at(
+        rng.normal(size=3) * 4,
+        rng.normal(size=3) * 0.3,
+        [0, 0, 1],
+        width=w,
+        height=h,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+    )
     p = camera_to_blender(cam)
     _apply(scene, obj, p)
     # random points in (and around) the frustum, at varied depths
@@ -86,19 +114,37 @@ def test_engine_camera_matches_bpy(scene_and_camera, spec):
     np.testing.assert_allclose(back.c2w, cam.c2w, atol=1e-5)
 
 
-@pytest.mark.parametrize("fit,res,pct,shift", [("AUTO", (500, 1000), 100, (0.1, -0.05)),
-                                               ("AUTO", (1000, 500), 50, (-0.07, 0.12)),
-                                               ("VERTICAL", (800, 600), 100, (0.2, 0.1)),
-                                               ("HORIZONTAL", (600, 800), 100, (0.05, 0.3))])
+@pytest.mark.parametrize(
+    "fit,res,pct,shift",
+    [
+        ("AUTO", (500, 1000), 100, (0.1, -0.05)),
+        ("AUTO", (1000, 500), 50, (-0.07, 0.12)),
+        ("VERTICAL", (800, 600), 100, (0.2, 0.1)),
+        ("HORIZONTAL", (600, 800), 100, (0.05, 0.3)),
+    ],
+)
 def test_blender_settings_to_engine_camera(scene_and_camera, fit, res, pct, shift):
     """Arbitrary Blender settings (AUTO fit, portrait, percentage) read into the engine."""
     scene, obj = scene_and_camera
     rng = np.random.default_rng(5)
-    cam0 = Camera.look_at(rng.normal(size=3) * 4, np.zeros(3), [0, 0, 1], width=10, height=10,
-                          fx=10)
+    cam0 = Camera.look_at(
+        rng.normal(size=3) * 4, np.zeros(3), [0, 0, 1], width=10, height=10, fx=10
+    )
     m = cam0.c2w @ np.diag([1.0, -1, -1, 1]) @ np.diag([1.5, 1.5, 1.5, 1])  # with object scale
-    p = BlenderCameraParams(m, 42.0, 30.0, 20.0, fit, shift[0], shift[1], res[0], res[1],
-                            pixel_aspect_x=1.0, pixel_aspect_y=1.3, resolution_percentage=pct)
+    p = BlenderCameraParams(
+        m,
+        42.0,
+        30.0,
+        20.0,
+        fit,
+        shift[0],
+        shift[1],
+        res[0],
+        res[1],
+        pixel_aspect_x=1.0,
+        pixel_aspect_y=1.3,
+        resolution_percentage=pct,
+    )
     _apply(scene, obj, p)
     cam = camera_from_blender(p)
     uv = rng.uniform([0, 0], [cam.width, cam.height], (64, 2))

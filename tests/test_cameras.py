@@ -11,17 +11,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from divas_engine.blender_convention import (BlenderCameraParams, camera_from_blender,
-                                             camera_to_blender, project_blender,
-                                             world_to_camera_view)
+from divas_engine.blender_convention import (
+    BlenderCameraParams,
+    camera_from_blender,
+    camera_to_blender,
+    project_blender,
+    world_to_camera_view,
+)
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.io.cameras import detect_camera_format, load_cameras, save_cameras
 from divas_engine.io.cameras_json import write_cameras_json
-from divas_engine.io.colmap import (qvec_to_rotmat, read_colmap, rotmat_to_qvec,
-                                    write_colmap)
-from divas_engine.io.transforms_json import (image_size, read_transforms_json,
-                                             write_transforms_json)
+from divas_engine.io.colmap import qvec_to_rotmat, read_colmap, rotmat_to_qvec, write_colmap
+from divas_engine.io.transforms_json import image_size, read_transforms_json, write_transforms_json
 
 S = math.sqrt(0.5)
 
@@ -32,9 +34,20 @@ def _rand_cameras(n: int = 4, seed: int = 0) -> list[Camera]:
     for i in range(n):
         w, h = (640, 480) if i % 2 == 0 else (360, 720)
         eye = rng.normal(size=3) * 4
-        cams.append(Camera.look_at(eye, rng.normal(size=3) * 0.3, [0, 0, 1], width=w, height=h,
-                                   fx=500 + 37 * i, fy=520 - 11 * i, cx=w / 2 + 13 * i - 20,
-                                   cy=h / 2 - 7 * i + 5, name=f"img_{i:03d}.png"))
+        cams.append(
+            Camera.look_at(
+                eye,
+                rng.normal(size=3) * 0.3,
+                [0, 0, 1],
+                width=w,
+                height=h,
+                fx=500 + 37 * i,
+                fy=520 - 11 * i,
+                cx=w / 2 + 13 * i - 20,
+                cy=h / 2 - 7 * i + 5,
+                name=f"img_{i:03d}.png",
+            )
+        )
     # two cameras sharing intrinsics (COLMAP writer dedupes them)
     if n > 1:
         cams.append(cams[0].with_pose(cams[1].c2w, name="img_shared.png"))
@@ -78,8 +91,9 @@ def test_scaled_keeps_half_pixel_centres():
 
 
 def test_look_at_target_at_principal_point():
-    cam = Camera.look_at([3, -2, 1], [0.5, 0.2, -0.1], [0, 0, 1], width=800, height=600,
-                         fx=700, cx=390.0, cy=310.0)
+    cam = Camera.look_at(
+        [3, -2, 1], [0.5, 0.2, -0.1], [0, 0, 1], width=800, height=600, fx=700, cx=390.0, cy=310.0
+    )
     uv, z = cam.project(np.array([[0.5, 0.2, -0.1]]))
     np.testing.assert_allclose(uv, [[390.0, 310.0]], atol=1e-9)
     assert z[0] > 0
@@ -121,8 +135,11 @@ def test_colmap_writer_round_trip(tmp_path, binary):
     assert [c.name for c in got] == sorted(c.name for c in cams)
     for name, c in _by_name(cams).items():
         _assert_same(_by_name(got)[name], c, 1e-9)
-    n_cam_lines = [ln for ln in (d / "cameras.txt").read_text().splitlines()
-                   if ln and not ln.startswith("#")] if not binary else None
+    n_cam_lines = (
+        [ln for ln in (d / "cameras.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+        if not binary
+        else None
+    )
     if n_cam_lines is not None:
         assert len(n_cam_lines) == len(cams) - 1  # shared intrinsics written once
 
@@ -150,10 +167,24 @@ HAND_IMAGES_TXT = f"""# Image list with two lines of data per image:
 
 def _check_hand_model(cams: list[Camera]) -> None:
     a, b = cams
-    assert (a.name, a.width, a.height, a.fx, a.fy, a.cx, a.cy) == \
-        ("a.jpg", 640, 480, 500, 510, 320.5, 240.25)
-    assert (b.name, b.width, b.height, b.fx, b.fy, b.cx, b.cy) == \
-        ("b.jpg", 200, 100, 150, 150, 99.5, 50)
+    assert (a.name, a.width, a.height, a.fx, a.fy, a.cx, a.cy) == (
+        "a.jpg",
+        640,
+        480,
+        500,
+        510,
+        320.5,
+        240.25,
+    )
+    assert (b.name, b.width, b.height, b.fx, b.fy, b.cx, b.cy) == (
+        "b.jpg",
+        200,
+        100,
+        150,
+        150,
+        99.5,
+        50,
+    )
     np.testing.assert_allclose(a.c2w, HAND_C2W_A, atol=1e-12)
     np.testing.assert_allclose(b.c2w, HAND_C2W_B, atol=1e-12)
     # world origin seen by camera a at x_cam = t = (1, 2, 3)
@@ -193,18 +224,21 @@ def test_colmap_binary_by_hand(tmp_path):
 
 def test_colmap_distortion_warns_and_unsupported_model(tmp_path):
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 1 1 x.png\n\n2 1 0 0 0 0 0 2 2 y.png\n")
-    (tmp_path / "cameras.txt").write_text("1 SIMPLE_RADIAL 100 80 90 50 40 0.0\n"
-                                          "2 OPENCV 100 80 90 91 50 40 0.01 0 0 0\n")
+    (tmp_path / "cameras.txt").write_text(
+        "1 SIMPLE_RADIAL 100 80 90 50 40 0.0\n2 OPENCV 100 80 90 91 50 40 0.01 0 0 0\n"
+    )
     with pytest.warns(UserWarning, match=r"distortion of camera\(s\) 2 \(OPENCV\) is ignored"):
         cams = read_colmap(tmp_path)
     assert [(c.fx, c.fy) for c in cams] == [(90, 90), (90, 91)]
-    (tmp_path / "cameras.txt").write_text("1 SIMPLE_RADIAL 100 80 90 50 40 0.0\n"
-                                          "2 RADIAL 100 80 90 50 40 0 0\n")
+    (tmp_path / "cameras.txt").write_text(
+        "1 SIMPLE_RADIAL 100 80 90 50 40 0.0\n2 RADIAL 100 80 90 50 40 0 0\n"
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # zero distortion: no warning
         read_colmap(tmp_path)
-    (tmp_path / "cameras.txt").write_text("1 PINHOLE 100 80 90 90 50 40\n"
-                                          "2 OPENCV_FISHEYE 100 80 90 90 50 40 0 0 0 0\n")
+    (tmp_path / "cameras.txt").write_text(
+        "1 PINHOLE 100 80 90 90 50 40\n2 OPENCV_FISHEYE 100 80 90 90 50 40 0 0 0 0\n"
+    )
     with pytest.raises(DivasInputError, match="OPENCV_FISHEYE is not supported") as e:
         read_colmap(tmp_path)
     assert e.value.source.endswith("cameras.txt")
@@ -273,9 +307,19 @@ def test_transforms_opengl_flip_by_hand(tmp_path):
     # OpenGL camera at (0, 0, 5), identity rotation: looks down world −z, i.e. at the origin
     m = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]]
     p = tmp_path / "transforms.json"
-    p.write_text(json.dumps({"fl_x": 400, "fl_y": 410, "cx": 330.5, "cy": 235.25, "w": 640,
-                             "h": 480, "frames": [{"file_path": "./a.png",
-                                                   "transform_matrix": m}]}))
+    p.write_text(
+        json.dumps(
+            {
+                "fl_x": 400,
+                "fl_y": 410,
+                "cx": 330.5,
+                "cy": 235.25,
+                "w": 640,
+                "h": 480,
+                "frames": [{"file_path": "./a.png", "transform_matrix": m}],
+            }
+        )
+    )
     (cam,) = read_transforms_json(p)
     uv, z = cam.project(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]))
     np.testing.assert_allclose(uv[0], [330.5, 235.25], atol=1e-12)
@@ -292,18 +336,43 @@ def test_transforms_camera_angle_and_image_header(tmp_path):
     _write_image(tmp_path / "train" / "r_1.jpg", 80, 60)
     m = np.eye(4).tolist()
     p = tmp_path / "transforms_train.json"
-    p.write_text(json.dumps({"camera_angle_x": 0.6911112070083618, "frames": [
-        {"file_path": "./train/r_0", "transform_matrix": m},
-        {"file_path": "./train/r_1", "transform_matrix": m, "camera_angle_y": 0.5}]}))
+    p.write_text(
+        json.dumps(
+            {
+                "camera_angle_x": 0.6911112070083618,
+                "frames": [
+                    {"file_path": "./train/r_0", "transform_matrix": m},
+                    {"file_path": "./train/r_1", "transform_matrix": m, "camera_angle_y": 0.5},
+                ],
+            }
+        )
+    )
     a, b = read_transforms_json(p)
     f = 0.5 * 80 / math.tan(0.5 * 0.6911112070083618)
     assert (a.width, a.height, a.cx, a.cy) == (80, 60, 40, 30)
     assert a.fx == pytest.approx(f) and a.fy == pytest.approx(f)
     assert b.fy == pytest.approx(0.5 * 60 / math.tan(0.25)) and b.fx == pytest.approx(f)
     # per-frame override of fl_x and size; the frame's own w/h win
-    p.write_text(json.dumps({"fl_x": 100, "w": 80, "h": 60, "frames": [
-        {"file_path": "x", "transform_matrix": m},
-        {"file_path": "y", "transform_matrix": m, "fl_x": 50, "fl_y": 55, "w": 40, "h": 30}]}))
+    p.write_text(
+        json.dumps(
+            {
+                "fl_x": 100,
+                "w": 80,
+                "h": 60,
+                "frames": [
+                    {"file_path": "x", "transform_matrix": m},
+                    {
+                        "file_path": "y",
+                        "transform_matrix": m,
+                        "fl_x": 50,
+                        "fl_y": 55,
+                        "w": 40,
+                        "h": 30,
+                    },
+                ],
+            }
+        )
+    )
     a, b = read_transforms_json(p)
     assert (a.fx, a.fy, a.width, a.cx) == (100, 100, 80, 40)
     assert (b.fx, b.fy, b.width, b.height, b.cx, b.cy) == (50, 55, 40, 30, 20, 15)
@@ -326,27 +395,40 @@ def test_transforms_round_trip_and_bad_input(tmp_path):
     bad = {
         "{not json": "not valid JSON",
         json.dumps({"frames": []}): "non-empty 'frames'",
-        json.dumps({"frames": [{"file_path": "nope", "transform_matrix": m,
-                                "camera_angle_x": 1.0}]}): "image 'nope' was not found",
+        json.dumps(
+            {"frames": [{"file_path": "nope", "transform_matrix": m, "camera_angle_x": 1.0}]}
+        ): "image 'nope' was not found",
         json.dumps({"w": 10, "h": 10, "frames": [{"transform_matrix": m}]}): "no focal length",
-        json.dumps({"w": 10, "h": 10, "fl_x": 0, "frames": [{"transform_matrix": m}]}):
-            "focal length fx=0.0",
-        json.dumps({"w": 10, "h": 10, "camera_angle_x": 0, "frames": [{"transform_matrix": m}]}):
-            "camera_angle_x=0.0",
-        json.dumps({"w": 10, "h": 10, "fl_x": 5, "frames": [{"file_path": "a"}]}):
-            "missing key 'transform_matrix'",
-        json.dumps({"w": 10, "h": 10, "fl_x": 5, "frames": [{"transform_matrix": [[1, 0]]}]}):
-            "transform_matrix must be 4x4",
-        json.dumps({"w": 10, "h": 10, "fl_x": 5, "camera_model": "OPENCV_FISHEYE",
-                    "frames": [{"transform_matrix": m}]}): "not supported",
+        json.dumps(
+            {"w": 10, "h": 10, "fl_x": 0, "frames": [{"transform_matrix": m}]}
+        ): "focal length fx=0.0",
+        json.dumps(
+            {"w": 10, "h": 10, "camera_angle_x": 0, "frames": [{"transform_matrix": m}]}
+        ): "camera_angle_x=0.0",
+        json.dumps(
+            {"w": 10, "h": 10, "fl_x": 5, "frames": [{"file_path": "a"}]}
+        ): "missing key 'transform_matrix'",
+        json.dumps(
+            {"w": 10, "h": 10, "fl_x": 5, "frames": [{"transform_matrix": [[1, 0]]}]}
+        ): "transform_matrix must be 4x4",
+        json.dumps(
+            {
+                "w": 10,
+                "h": 10,
+                "fl_x": 5,
+                "camera_model": "OPENCV_FISHEYE",
+                "frames": [{"transform_matrix": m}],
+            }
+        ): "not supported",
     }
     for text, msg in bad.items():
         p.write_text(text)
         with pytest.raises(DivasInputError, match=msg) as e:
             read_transforms_json(p)
         assert e.value.source == str(p)
-    p.write_text(json.dumps({"w": 10, "h": 10, "fl_x": 5, "k1": 0.1,
-                             "frames": [{"transform_matrix": m}]}))
+    p.write_text(
+        json.dumps({"w": 10, "h": 10, "fl_x": 5, "k1": 0.1, "frames": [{"transform_matrix": m}]})
+    )
     with pytest.warns(UserWarning, match="distortion of 1 frame"):
         read_transforms_json(p)
 
@@ -379,11 +461,13 @@ def test_load_cameras_autodetect(tmp_path):
     (tmp_path / "bad.json").write_text("[1, 2")
     (tmp_path / "empty").mkdir()
     (tmp_path / "model.ply").write_text("ply")
-    for path, msg in [(tmp_path / "x.json", "unknown camera format"),
-                      (tmp_path / "bad.json", "not valid JSON"),
-                      (tmp_path / "empty", "unknown camera format"),
-                      (tmp_path / "model.ply", "unknown camera format"),
-                      (tmp_path / "missing", "does not exist")]:
+    for path, msg in [
+        (tmp_path / "x.json", "unknown camera format"),
+        (tmp_path / "bad.json", "not valid JSON"),
+        (tmp_path / "empty", "unknown camera format"),
+        (tmp_path / "model.ply", "unknown camera format"),
+        (tmp_path / "missing", "does not exist"),
+    ]:
         with pytest.raises(DivasInputError, match=msg) as e:
             load_cameras(path)
         assert e.value.source == str(path)
@@ -391,8 +475,11 @@ def test_load_cameras_autodetect(tmp_path):
 
 def test_save_cameras_by_path(tmp_path):
     cams = _rand_cameras(2)
-    for name, fmt in [("cams.json", "cameras_json"), ("transforms.json", "transforms_json"),
-                      ("colmap_out", "colmap")]:
+    for name, fmt in [
+        ("cams.json", "cameras_json"),
+        ("transforms.json", "transforms_json"),
+        ("colmap_out", "colmap"),
+    ]:
         out = save_cameras(tmp_path / name, cams)
         assert detect_camera_format(out)[0] == fmt
     out = save_cameras(tmp_path / "txt_model", cams, fmt="colmap_text")
@@ -404,12 +491,28 @@ def test_save_cameras_by_path(tmp_path):
 # --- Blender convention (pure math; the bpy cross-check is in test_blender_convention_bpy) ---
 def _blender_cams() -> list[Camera]:
     rng = np.random.default_rng(7)
-    specs = [(640, 480, 500, 500, 320, 240), (640, 480, 520, 480, 300.5, 250.25),
-             (480, 640, 450, 530, 250, 300), (300, 900, 400, 700, 120, 500),
-             (1000, 1000, 800, 600, 480, 530)]
-    return [Camera.look_at(rng.normal(size=3) * 3, rng.normal(size=3) * 0.2, [0, 0, 1],
-                           width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy, name=f"b{i}")
-            for i, (w, h, fx, fy, cx, cy) in enumerate(specs)]
+    specs = [
+        (640, 480, 500, 500, 320, 240),
+        (640, 480, 520, 480, 300.5, 250.25),
+        (480, 640, 450, 530, 250, 300),
+        (300, 900, 400, 700, 120, 500),
+        (1000, 1000, 800, 600, 480, 530),
+    ]
+    return [
+        Camera.look_at(
+            rng.normal(size=3) * 3,
+            rng.normal(size=3) * 0.2,
+            [0, 0, 1],
+            width=w,
+            height=h,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            name=f"b{i}",
+        )
+        for i, (w, h, fx, fy, cx, cy) in enumerate(specs)
+    ]
 
 
 def test_blender_round_trip_and_projection():
@@ -417,11 +520,13 @@ def test_blender_round_trip_and_projection():
     for cam in _blender_cams():
         p = camera_to_blender(cam)
         assert min(p.pixel_aspect_x, p.pixel_aspect_y) == 1.0
-        assert p.sensor_fit == ("HORIZONTAL" if cam.width / cam.fx >= cam.height / cam.fy
-                                else "VERTICAL")
+        assert p.sensor_fit == (
+            "HORIZONTAL" if cam.width / cam.fx >= cam.height / cam.fy else "VERTICAL"
+        )
         _assert_same(camera_from_blender(p), cam, 1e-9)
-        uv = rng.uniform([-0.5 * cam.width, -0.5 * cam.height],
-                         [1.5 * cam.width, 1.5 * cam.height], (200, 2))
+        uv = rng.uniform(
+            [-0.5 * cam.width, -0.5 * cam.height], [1.5 * cam.width, 1.5 * cam.height], (200, 2)
+        )
         pts = cam.unproject(uv, rng.uniform(0.2, 30, 200))
         uvb, zb = project_blender(p, pts)
         np.testing.assert_allclose(uvb, uv, atol=1e-7)
@@ -444,8 +549,20 @@ def test_blender_semantics_by_hand():
     assert p.fit == "VERTICAL" and c.fx == pytest.approx(50 * 1000 / 36)
     assert (c.cx, c.cy) == (pytest.approx(250 - 100), pytest.approx(500 - 100))
     # pixel aspect 2:1 (y/x): ycor = 2, fx = 2·fy; resolution percentage scales everything
-    p = BlenderCameraParams(eye, 36.0, 36.0, 24.0, "HORIZONTAL", 0.0, 0.0, 400, 200,
-                            pixel_aspect_x=1.0, pixel_aspect_y=2.0, resolution_percentage=50)
+    p = BlenderCameraParams(
+        eye,
+        36.0,
+        36.0,
+        24.0,
+        "HORIZONTAL",
+        0.0,
+        0.0,
+        400,
+        200,
+        pixel_aspect_x=1.0,
+        pixel_aspect_y=2.0,
+        resolution_percentage=50,
+    )
     c = camera_from_blender(p)
     assert (c.width, c.height, c.fx, c.fy) == (200, 100, pytest.approx(200.0), pytest.approx(100.0))
     # the optical axis point projects to the principal point; (0, 0) is bottom-left
@@ -455,8 +572,9 @@ def test_blender_semantics_by_hand():
     ndc = world_to_camera_view(q, np.array([[-0.36, -0.36, -1.0]]))  # bottom-left corner
     np.testing.assert_allclose(ndc[:, :2], [[0.0, 0.0]], atol=1e-12)
     # object scale in matrix_world is ignored
-    scaled = BlenderCameraParams(np.diag([2.0, 3.0, 4.0, 1.0]), 50.0, 36.0, 24.0, "AUTO", 0, 0,
-                                 100, 100)
+    scaled = BlenderCameraParams(
+        np.diag([2.0, 3.0, 4.0, 1.0]), 50.0, 36.0, 24.0, "AUTO", 0, 0, 100, 100
+    )
     np.testing.assert_allclose(camera_from_blender(scaled).c2w, np.diag([1.0, -1, -1, 1]))
     with pytest.raises(ValueError, match="sensor_fit"):
         BlenderCameraParams(eye, 50.0, 36.0, 24.0, "FIT", 0, 0, 10, 10)
@@ -473,8 +591,10 @@ def test_camera_near_clip_is_carried_and_validated():
     assert "near" not in cam.with_near(0.0).to_dict()  # old files stay byte-identical
     assert Camera.from_dict(cam.with_near(0.0).to_dict()).near == 0.0
     assert cam.clip_near(0.01) == 0.25 and cam.clip_near(0.5) == 0.5
-    assert Camera.look_at([0, 0, 0], [0, 0, 1], [0, -1, 0], width=8, height=8, fx=8,
-                          near=0.3).near == 0.3
+    assert (
+        Camera.look_at([0, 0, 0], [0, 0, 1], [0, -1, 0], width=8, height=8, fx=8, near=0.3).near
+        == 0.3
+    )
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="near clip"):
             cam.with_near(bad)

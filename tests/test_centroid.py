@@ -10,8 +10,13 @@ import pytest
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.render.buffers import RenderBuffers
-from divas_engine.views import (GsCentroidPlanner, ViewConfig, central_patch, nerf_centroid_view,
-                                occluded_fraction)
+from divas_engine.views import (
+    GsCentroidPlanner,
+    ViewConfig,
+    central_patch,
+    nerf_centroid_view,
+    occluded_fraction,
+)
 
 
 @pytest.fixture(scope="module")
@@ -27,16 +32,27 @@ def occluded():
 def _flat_buffers(cam: Camera, depth: float, alpha: float = 1.0) -> RenderBuffers:
     h, w = cam.height, cam.width
     d = np.full((h, w), depth, np.float32)
-    return RenderBuffers(rgb=np.zeros((h, w, 3), np.float32), alpha=np.full((h, w), alpha, np.float32),
-                         D_min=d, D_ref=d, D_max=d, D_mw=d, D_exp=d, D_med=d,
-                         N_samp=np.ones((h, w), np.int32), camera=cam, kind="nerf")
+    return RenderBuffers(
+        rgb=np.zeros((h, w, 3), np.float32),
+        alpha=np.full((h, w), alpha, np.float32),
+        D_min=d,
+        D_ref=d,
+        D_max=d,
+        D_mw=d,
+        D_exp=d,
+        D_med=d,
+        N_samp=np.ones((h, w), np.int32),
+        camera=cam,
+        kind="nerf",
+    )
 
 
 # ----------------------------------------------------------------------------- NeRF
 @pytest.mark.parametrize("ff,lam", [(True, 0.67), (False, 0.47)])
 def test_nerf_centroid_geometry(ff, lam):
-    anchor = Camera.look_at([0.3, -4.0, 1.0], [0, 0, 0.5], [0, 0, 1.0], width=80, height=60, fx=70.0,
-                            cx=41.0, cy=29.5)
+    anchor = Camera.look_at(
+        [0.3, -4.0, 1.0], [0, 0, 0.5], [0, 0, 1.0], width=80, height=60, fx=70.0, cx=41.0, cy=29.5
+    )
     click = (20.5, 40.5)
     cv = nerf_centroid_view(anchor, click, _flat_buffers(anchor, 3.0), forward_facing=ff)
     x = anchor.unproject(np.array([click]), np.array([3.0]))[0]
@@ -64,8 +80,8 @@ def test_occluded_fraction_patch():
     d = np.ones((40, 60), np.float32)
     rs, cs = central_patch(40, 60, 0.5)
     assert (rs.stop - rs.start, cs.stop - cs.start) == (20, 30) and (rs.start, cs.start) == (10, 15)
-    d[rs.start:rs.start + 5, cs] = 0.2       # 5 of 20 rows occluded
-    d[rs.stop - 2:rs.stop, cs] = 0.0         # 2 rows invalid (not counted)
+    d[rs.start : rs.start + 5, cs] = 0.2  # 5 of 20 rows occluded
+    d[rs.stop - 2 : rs.stop, cs] = 0.0  # 2 rows invalid (not counted)
     o, n = occluded_fraction(d, 0.5, 0.5)
     assert n == 18 * 30 and o == pytest.approx(5 / 18)
     assert math.isnan(occluded_fraction(np.zeros((8, 8)), 0.5, 0.5)[0])
@@ -95,13 +111,16 @@ def test_gs_centroid_looks_at_click(occluded):
     cfg = planner.config
     tan_half = math.tan(anchor.fov_x / 2)
     mu = s.scene.means.astype(np.float64)
-    nb = (np.linalg.norm(mu - cv.target, axis=1) < cfg.p_f * z * tan_half) & \
-         (s.scene.opacities > cfg.alpha_min)
+    nb = (np.linalg.norm(mu - cv.target, axis=1) < cfg.p_f * z * tan_half) & (
+        s.scene.opacities > cfg.alpha_min
+    )
     assert cv.neighbours == nb.sum() >= 5 and cv.strategy.startswith("dense")
     rr = mu[nb] - cv.target
     r_lat = np.percentile(np.linalg.norm(rr - np.outer(rr @ ray, ray), axis=1), 90)
     assert cv.r_init == pytest.approx(r_lat / (0.5 * tan_half))
-    assert cv.box is not None and cv.box[0] <= uv[0] <= cv.box[2] and cv.box[1] <= uv[1] <= cv.box[3]
+    assert (
+        cv.box is not None and cv.box[0] <= uv[0] <= cv.box[2] and cv.box[1] <= uv[1] <= cv.box[3]
+    )
     assert cv.probes and cv.d_cam == pytest.approx(cv.probes[-1].radius)
 
 
@@ -133,21 +152,29 @@ def test_gs_strategy2_avoids_occluder(occluded):
     # independent check: neighbourhood by brute force, τ_occ = 0.85 z_near, O over the patch
     z = float(buf.D_med[int(click[1]), int(click[0])])
     mu = s.scene.means.astype(np.float64)
-    nb = mu[(np.linalg.norm(mu - cv.target, axis=1) < cfg.p_f * z * math.tan(anchor.fov_x / 2))
-            & (s.scene.opacities > cfg.alpha_min)]
+    nb = mu[
+        (np.linalg.norm(mu - cv.target, axis=1) < cfg.p_f * z * math.tan(anchor.fov_x / 2))
+        & (s.scene.opacities > cfg.alpha_min)
+    ]
 
     def occ(cam):
         zc = cam.world_to_camera(nb)[:, 2]
         tau = 0.85 * zc[zc > 0].min()
         d = r.render(cam, scale=0.25).D_med
         h, w = d.shape
-        patch = d[h // 4:h // 4 + h // 2, w // 4:w // 4 + w // 2]
+        patch = d[h // 4 : h // 4 + h // 2, w // 4 : w // 4 + w // 2]
         patch = patch[patch > 0]
         return np.count_nonzero(patch < tau) / patch.size
 
     assert occ(cv.camera) < 0.15
-    first = Camera.look_at(cv.target - cv.r_init * cv.camera.forward, cv.target, anchor.up,
-                           width=anchor.width, height=anchor.height, fx=anchor.fx)
+    first = Camera.look_at(
+        cv.target - cv.r_init * cv.camera.forward,
+        cv.target,
+        anchor.up,
+        width=anchor.width,
+        height=anchor.height,
+        fx=anchor.fx,
+    )
     assert occ(first) >= 0.15  # the r_init view really is occluded
 
 
@@ -164,9 +191,13 @@ def test_gs_sparse_fallback_and_probe_fallback(occluded):
     assert cv.neighbours == 0 and cv.box is None and cv.strategy == "sparse+fallback"
     assert cv.r_init == pytest.approx(0.25 * z)
     assert cv.d_cam == pytest.approx(0.3 * cv.r_init)
-    assert all(math.isnan(p.z_near) and p.tau_occ == pytest.approx(0.7 * p.radius)
-               for p in cv.probes if p.valid)
+    assert all(
+        math.isnan(p.z_near) and p.tau_occ == pytest.approx(0.7 * p.radius)
+        for p in cv.probes
+        if p.valid
+    )
     import json
+
     doc = json.loads(json.dumps(cv.to_dict(), allow_nan=False))
     assert doc["strategy"] == "sparse+fallback" and doc["box"] is None and len(doc["probes"]) == 3
     assert Camera.from_dict(doc["camera"]).width == anchor.width
@@ -174,11 +205,14 @@ def test_gs_sparse_fallback_and_probe_fallback(occluded):
 
 def test_gs_click_on_empty_space(occluded):
     s, r, planner = occluded
-    sky = Camera.look_at([0, -2.0, 0.6], [0, -2.0, 9.0], [0, 1.0, 0], width=64, height=48, fx=60.0,
-                         name="sky")
+    sky = Camera.look_at(
+        [0, -2.0, 0.6], [0, -2.0, 9.0], [0, 1.0, 0], width=64, height=48, fx=60.0, name="sky"
+    )
     buf = r.render(sky)
     assert buf.alpha[24, 32] < 0.5
-    with pytest.raises(DivasInputError, match=r"no surface under the click at \(32.5, 24.5\) in anchor sky"):
+    with pytest.raises(
+        DivasInputError, match=r"no surface under the click at \(32.5, 24.5\) in anchor sky"
+    ):
         planner.centroid_view(sky, (32.5, 24.5), buf)
 
 
@@ -199,7 +233,8 @@ def test_centroid_camera_clips_a_faint_floater_next_to_it(occluded):
     assert cam.near == pytest.approx(0.05 * cv.d_cam) and cv.d_cam > 0
     assert Camera.from_dict(cv.to_dict()["camera"]).near == cam.near
     off = GsCentroidPlanner(s.scene, r, ViewConfig(near_fraction=0.0)).centroid_view(
-        anchor, click, buf)
+        anchor, click, buf
+    )
     assert off.camera.near == 0.0 and np.array_equal(off.camera.c2w, cam.c2w)
     with pytest.raises(ValueError, match="near_fraction"):
         ViewConfig(near_fraction=1.0)
@@ -208,9 +243,13 @@ def test_centroid_camera_clips_a_faint_floater_next_to_it(occluded):
     q = rotmat_to_quat(cam.c2w[None, :3, :3]).astype(np.float32)
     centre = (cam.center + 0.02 * cv.d_cam * cam.forward)[None]
     veil = SurfelScene(
-        np.vstack([sc.means, centre]).astype(np.float32), np.vstack([sc.quats, q]),
+        np.vstack([sc.means, centre]).astype(np.float32),
+        np.vstack([sc.quats, q]),
         np.vstack([sc.scales, np.full((1, 2), 0.2 * cv.d_cam)]).astype(np.float32),
-        np.append(sc.opacities, np.float32(0.06)), np.concatenate([sc.sh, sc.sh[:1]]), sc.sh_degree)
+        np.append(sc.opacities, np.float32(0.06)),
+        np.concatenate([sc.sh, sc.sh[:1]]),
+        sc.sh_degree,
+    )
     rv = SurfelRenderer(veil, device="cpu")
     h, w = cam.height // 2, cam.width // 2
     seen = rv.render(off.camera).D_min

@@ -34,8 +34,23 @@ def files(tmp_path_factory):
 
 def test_render_from_camera_file(files, capsys):
     out = files / "out" / "view"
-    assert main(["render", str(files / "scene.ply"), "--cameras", str(files / "cameras.json"),
-                 "--index", "0", "--out", str(out), "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(files / "scene.ply"),
+                "--cameras",
+                str(files / "cameras.json"),
+                "--index",
+                "0",
+                "--out",
+                str(out),
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     z = np.load(str(out) + ".npz")
     assert set(CHANNELS) <= set(z.files)
     want = make_renderer(load_scene(files / "scene.ply"), "cpu").render(CAM)
@@ -52,14 +67,42 @@ def test_render_from_camera_file(files, capsys):
 
 def test_render_camera_json_scale_and_grid(files, tmp_path):
     cam_json = json.dumps(CAM.to_dict())
-    assert main(["render", str(files / "grid.npz"), "--camera-json", cam_json, "--scale", "0.5",
-                 "--out", str(tmp_path / "g"), "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(files / "grid.npz"),
+                "--camera-json",
+                cam_json,
+                "--scale",
+                "0.5",
+                "--out",
+                str(tmp_path / "g"),
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     z = np.load(tmp_path / "g.npz")
     assert z["rgb"].shape == (18, 24, 3) and z["N_samp"].dtype == np.int32
     assert np.array_equal(z["D_ref"], z["D_exp"])
     (tmp_path / "cam.json").write_text(cam_json)
-    assert main(["render", str(files / "scene.ply"), "--camera-json", str(tmp_path / "cam.json"),
-                 "--out", str(tmp_path / "s"), "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(files / "scene.ply"),
+                "--camera-json",
+                str(tmp_path / "cam.json"),
+                "--out",
+                str(tmp_path / "s"),
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
 
 
 def test_render_orbit(files, tmp_path):
@@ -70,23 +113,50 @@ def test_render_orbit(files, tmp_path):
     r90 = np.percentile(np.linalg.norm(scene.means - c, axis=1), 90)
     assert np.isclose(np.linalg.norm(cam.center - c), 2.5 * r90)
     assert np.allclose(cam.forward, (c - cam.center) / np.linalg.norm(c - cam.center))
-    assert main(["render", str(files / "scene.ply"), "--orbit", "30,20", "--scale", "0.25",
-                 "--out", str(tmp_path / "o"), "--device", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(files / "scene.ply"),
+                "--orbit",
+                "30,20",
+                "--scale",
+                "0.25",
+                "--out",
+                str(tmp_path / "o"),
+                "--device",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     assert np.load(tmp_path / "o.npz")["alpha"].max() > 0.5
 
 
-@pytest.mark.parametrize("extra, msg", [
-    (["--cameras", "CAMS", "--index", "7"], "out of range"),
-    (["--cameras", "CAMS"], "--index"),
-    (["--camera-json", "{not json"], "not valid JSON"),
-    (["--camera-json", '{"width": 10}'], "missing"),
-    (["--camera-json", "[1, 2]"], "one JSON object"),
-    (["--orbit", "10"], "--orbit"),
-    (["--orbit", "0,0", "--scale", "-1"], "--scale"),
-])
+@pytest.mark.parametrize(
+    "extra, msg",
+    [
+        (["--cameras", "CAMS", "--index", "7"], "out of range"),
+        (["--cameras", "CAMS"], "--index"),
+        (["--camera-json", "{not json"], "not valid JSON"),
+        (["--camera-json", '{"width": 10}'], "missing"),
+        (["--camera-json", "[1, 2]"], "one JSON object"),
+        (["--orbit", "10"], "--orbit"),
+        (["--orbit", "0,0", "--scale", "-1"], "--scale"),
+    ],
+)
 def test_bad_input_exits_2(files, tmp_path, capsys, extra, msg):
     extra = [str(files / "cameras.json") if a == "CAMS" else a for a in extra]
-    rc = main(["render", str(files / "scene.ply"), *extra, "--out", str(tmp_path / "x"),
-               "--device", "cpu"])
+    rc = main(
+        [
+            "render",
+            str(files / "scene.ply"),
+            *extra,
+            "--out",
+            str(tmp_path / "x"),
+            "--device",
+            "cpu",
+        ]
+    )
     assert rc == 2
     assert msg in capsys.readouterr().err

@@ -10,11 +10,19 @@ import numpy as np
 import pytest
 
 from divas_engine.camera import Camera
-from divas_engine.evaluation import (CentreVoteConfig, ContributionVoteConfig, EvalConfig,
-                                     MaskView, ViewEvaluator, centre_vote, contribution_vote,
-                                     evaluate_selection, mask_scores, surfel_scores)
-from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
+from divas_engine.evaluation import (
+    ContributionVoteConfig,
+    EvalConfig,
+    MaskView,
+    ViewEvaluator,
+    centre_vote,
+    contribution_vote,
+    evaluate_selection,
+    mask_scores,
+    surfel_scores,
+)
 from divas_engine.evaluation.baselines import ContributionVoter
+from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
 from divas_engine.render import RenderConfig, make_renderer
 from divas_engine.scene import DensityGrid, SurfelScene
 from kernels import RasterSettings, resolve_device, upload_surfels
@@ -35,8 +43,11 @@ def _plane(cx, cy, z, half, spacing, scale, opacity=1.0) -> dict:
     g = np.arange(-half + spacing / 2, half, spacing)
     xs, ys = np.meshgrid(g + cx, g + cy)
     n = xs.size
-    return {"means": np.stack([xs.ravel(), ys.ravel(), np.full(n, z)], 1),
-            "scales": np.full((n, 2), scale), "opacities": np.full(n, opacity)}
+    return {
+        "means": np.stack([xs.ravel(), ys.ravel(), np.full(n, z)], 1),
+        "scales": np.full((n, 2), scale),
+        "opacities": np.full(n, opacity),
+    }
 
 
 def _scene(*planes) -> SurfelScene:
@@ -44,20 +55,26 @@ def _scene(*planes) -> SurfelScene:
     n = len(means)
     quats = np.tile([1.0, 0, 0, 0], (n, 1)).astype(np.float32)  # identity: normal = +z
     sh = np.full((n, 1, 3), 0.5, np.float32)
-    return SurfelScene(means, quats, np.concatenate([p["scales"] for p in planes]).astype(np.float32),
-                       np.concatenate([p["opacities"] for p in planes]).astype(np.float32), sh, 0)
+    return SurfelScene(
+        means,
+        quats,
+        np.concatenate([p["scales"] for p in planes]).astype(np.float32),
+        np.concatenate([p["opacities"] for p in planes]).astype(np.float32),
+        sh,
+        0,
+    )
 
 
 # ----------------------------------------------------------------------------- metrics
 def test_mask_scores_hand_case():
     pred = np.zeros((4, 5), bool)
     gt = np.zeros((4, 5), bool)
-    pred[0, :3] = True          # 3 pixels
-    gt[0, 1:5] = True           # 4 pixels, overlap 2
+    pred[0, :3] = True  # 3 pixels
+    gt[0, 1:5] = True  # 4 pixels, overlap 2
     s = mask_scores(pred, gt, "v")
     assert (s.intersection, s.union) == (2, 5)
     assert s.iou == pytest.approx(2 / 5)
-    assert s.accuracy == pytest.approx((20 - 3) / 20)   # 1 FP + 2 FN wrong
+    assert s.accuracy == pytest.approx((20 - 3) / 20)  # 1 FP + 2 FN wrong
     assert s.precision == pytest.approx(2 / 3) and s.recall == pytest.approx(2 / 4)
     empty = mask_scores(np.zeros((2, 2), bool), np.zeros((2, 2), bool))
     assert empty.iou == 1.0 and empty.accuracy == 1.0 and empty.precision == 1.0
@@ -70,7 +87,9 @@ def test_surfel_scores_hand_case():
     gt = np.array([0, 1, 1, 1, 1, 0], bool)
     s = surfel_scores(sel, gt)
     assert s["precision"] == pytest.approx(2 / 3) and s["recall"] == pytest.approx(2 / 4)
-    assert s["iou"] == pytest.approx(2 / 5) and s["f1"] == pytest.approx(2 * (2 / 3) * 0.5 / (2 / 3 + 0.5))
+    assert s["iou"] == pytest.approx(2 / 5) and s["f1"] == pytest.approx(
+        2 * (2 / 3) * 0.5 / (2 / 3 + 0.5)
+    )
     assert surfel_scores(np.zeros(3, bool), np.zeros(3, bool))["precision"] == 1.0
 
 
@@ -95,10 +114,11 @@ def test_two_planes_iou_by_hand(two_planes):
     # depth 4, plus a rim of at most 1.5 px (surfel σ = 0.2 px beyond the edge and the
     # 0.7 px low-pass): |A| = |B| ∈ [15², 18²]. By hand: IoU = |A| / (|A| + |B|) = 1/2,
     # accuracy = 1 − |B| / (64·48), precision 1/2, recall 1.
-    both = evaluate_selection(scene, [cam], np.ones(len(scene), bool), labels, config=same,
-                              renderer=r)
+    both = evaluate_selection(
+        scene, [cam], np.ones(len(scene), bool), labels, config=same, renderer=r
+    )
     v = both.views[0]
-    assert 15 ** 2 <= v.gt_pixels <= 18 ** 2 and v.pred_pixels == 2 * v.gt_pixels
+    assert 15**2 <= v.gt_pixels <= 18**2 and v.pred_pixels == 2 * v.gt_pixels
     assert both.iou == pytest.approx(0.5, abs=1e-9)
     assert both.accuracy == pytest.approx(1 - v.gt_pixels / (64 * 48))
     assert both.precision == pytest.approx(0.5) and both.recall == 1.0
@@ -119,19 +139,21 @@ def test_evaluator_scores_many_selections_in_one_pass(two_planes):
     assert out["a"].recall == 1.0
     assert out["none"].iou == 0.0 and out["none"].precision == 0.0
     assert out["b"].iou == 0.0
-    for v in out["b"].views:  # disjoint prediction and truth: every predicted or true pixel is wrong
+    for v in out[
+        "b"
+    ].views:  # disjoint prediction and truth: every predicted or true pixel is wrong
         assert v.accuracy == pytest.approx(1 - (v.pred_pixels + v.gt_pixels) / v.pixels)
     one = ev.score({"b": ~labels})["b"]
     assert [v.pred_pixels for v in one.views] == [v.pred_pixels for v in out["b"].views]
 
 
 def test_nerf_masks_segmented_density():
-    d = np.zeros((16, 16, 32), np.float32)           # [D,H,W] = z, y, x
-    d[6:10, 6:10, 4:12] = 200.0                       # cube A (left)
-    d[6:10, 6:10, 20:28] = 200.0                      # cube B (right)
+    d = np.zeros((16, 16, 32), np.float32)  # [D,H,W] = z, y, x
+    d[6:10, 6:10, 4:12] = 200.0  # cube A (left)
+    d[6:10, 6:10, 20:28] = 200.0  # cube B (right)
     grid = DensityGrid(d, np.array([[-2.0, -1.0, 3.0], [2.0, 1.0, 5.0]]))
     labels = np.zeros(d.shape, bool)
-    labels[:, :, :16] = True                          # A's half of the grid
+    labels[:, :, :16] = True  # A's half of the grid
     cam = _cam(64, 48, 40.0)
     exact = evaluate_selection(grid, [cam], labels, labels)
     assert exact.iou == 1.0 and exact.views[0].gt_pixels > 50
@@ -147,17 +169,17 @@ def _reference_contrib(scene, cam, pos, cfg: RenderConfig):
     n = len(scene)
     zc = scene.means.astype(np.float64) @ cam.w2c[2, :3] + cam.w2c[2, 3]
     order = np.lexsort((np.arange(n), zc))
-    ys, xs = np.mgrid[0:cam.height, 0:cam.width]
+    ys, xs = np.mgrid[0 : cam.height, 0 : cam.width]
     xs, ys, p = xs.ravel(), ys.ravel(), pos.ravel()
     a1, a0 = np.zeros(n), np.zeros(n)
     for lo in range(0, len(xs), 256):
-        a, _, _ = surfel_hits(scene, cam, xs[lo:lo + 256], ys[lo:lo + 256], cfg, order)
+        a, _, _ = surfel_hits(scene, cam, xs[lo : lo + 256], ys[lo : lo + 256], cfg, order)
         t_after = np.cumprod(1 - a, axis=1)
         stop = t_after < cfg.t_min
         a = np.where(((np.cumsum(stop, 1) - stop) == 0) & (a > 0), a, 0.0)
         t_before = np.concatenate([np.ones((len(a), 1)), np.cumprod(1 - a, 1)[:, :-1]], 1)
         w = a * t_before
-        pp = p[lo:lo + 256]
+        pp = p[lo : lo + 256]
         a1[order] += w[pp].sum(0)
         a0[order] += w[~pp].sum(0)
     return a1, a0
@@ -169,10 +191,27 @@ def test_contrib_kernel_matches_reference(blend, threads):
     cam = _cam()
     pos = np.random.default_rng(0).random((48, 64)) < 0.4
     dev = resolve_device(CPU)
-    buf = upload_surfels(scene.means, scene.rotations(), scene.scales, scene.opacities, scene.sh,
-                         scene.sh_degree, dev)
-    out = accumulate_contributions(buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, 64, 48, pos,
-                                   RasterSettings(blend=blend, threads=threads, tile=8))
+    buf = upload_surfels(
+        scene.means,
+        scene.rotations(),
+        scene.scales,
+        scene.opacities,
+        scene.sh,
+        scene.sh_degree,
+        dev,
+    )
+    out = accumulate_contributions(
+        buf,
+        cam.w2c,
+        cam.fx,
+        cam.fy,
+        cam.cx,
+        cam.cy,
+        64,
+        48,
+        pos,
+        RasterSettings(blend=blend, threads=threads, tile=8),
+    )
     r1, r0 = _reference_contrib(scene, cam, pos, RenderConfig())
     assert (r1 + r0 > 0).sum() > 100
     for got, ref in ((out.a1.numpy(), r1), (out.a0.numpy(), r0)):
@@ -180,21 +219,28 @@ def test_contrib_kernel_matches_reference(blend, threads):
     # Σ_i (A₁ + A₀) = Σ_p accumulated opacity (the weights of every pixel sum to 1 − T)
     alpha = make_renderer(scene, CPU).render(cam).alpha
     assert float(out.a1.numpy().sum() + out.a0.numpy().sum()) == pytest.approx(
-        float(alpha.sum()), rel=1e-4)
+        float(alpha.sum()), rel=1e-4
+    )
 
 
 def test_contrib_front_surfel_hides_back_one():
-    front = {"means": np.array([[0.0, 0.0, 2.0]]), "scales": np.array([[3.0, 3.0]]),
-             "opacities": np.array([1.0])}                  # one big opaque surfel
-    back = {"means": np.array([[0.0, 0.0, 3.0]]), "scales": np.array([[0.1, 0.1]]),
-            "opacities": np.array([1.0])}
+    front = {
+        "means": np.array([[0.0, 0.0, 2.0]]),
+        "scales": np.array([[3.0, 3.0]]),
+        "opacities": np.array([1.0]),
+    }  # one big opaque surfel
+    back = {
+        "means": np.array([[0.0, 0.0, 3.0]]),
+        "scales": np.array([[0.1, 0.1]]),
+        "opacities": np.array([1.0]),
+    }
     alone = _scene(back)
     scene = _scene(front, back)
     cam = _cam()
     pos = np.ones((48, 64), bool)
     res = contribution_vote(scene, [MaskView(cam, pos.astype(np.float32))], device=CPU)
     res_alone = contribution_vote(alone, [MaskView(cam, pos.astype(np.float32))], device=CPU)
-    assert res.negative.sum() == 0.0                     # every pixel is mask-positive
+    assert res.negative.sum() == 0.0  # every pixel is mask-positive
     assert res.positive[0] > 100 and res_alone.positive[0] > 5
     assert res.positive[1] < 0.0105 * res_alone.positive[0]  # T ≈ 0.01 behind α ≈ 0.99
 
@@ -202,14 +248,26 @@ def test_contrib_front_surfel_hides_back_one():
 # ----------------------------------------------------------------------------- baselines
 def test_centre_vote_hand_case():
     # three small surfels on the axis side by side, one hidden behind a big opaque one
-    s0 = {"means": np.array([[-0.5, 0.0, 4.0]]), "scales": np.array([[0.05, 0.05]]),
-          "opacities": np.array([1.0])}
-    s1 = {"means": np.array([[0.5, 0.0, 4.0]]), "scales": np.array([[0.05, 0.05]]),
-          "opacities": np.array([1.0])}
-    wall = {"means": np.array([[0.0, 0.8, 3.0]]), "scales": np.array([[0.3, 0.3]]),
-            "opacities": np.array([1.0])}
-    hidden = {"means": np.array([[0.0, 0.8, 5.0]]), "scales": np.array([[0.05, 0.05]]),
-              "opacities": np.array([1.0])}
+    s0 = {
+        "means": np.array([[-0.5, 0.0, 4.0]]),
+        "scales": np.array([[0.05, 0.05]]),
+        "opacities": np.array([1.0]),
+    }
+    s1 = {
+        "means": np.array([[0.5, 0.0, 4.0]]),
+        "scales": np.array([[0.05, 0.05]]),
+        "opacities": np.array([1.0]),
+    }
+    wall = {
+        "means": np.array([[0.0, 0.8, 3.0]]),
+        "scales": np.array([[0.3, 0.3]]),
+        "opacities": np.array([1.0]),
+    }
+    hidden = {
+        "means": np.array([[0.0, 0.8, 5.0]]),
+        "scales": np.array([[0.05, 0.05]]),
+        "opacities": np.array([1.0]),
+    }
     scene = _scene(s0, s1, wall, hidden)
     cam = _cam()
     uv, _ = cam.project(scene.means)
@@ -227,17 +285,24 @@ def test_centre_vote_hand_case():
     assert res.selected.tolist() == [True, True, False, False]
     # a view that does not see a surfel (out of frame) does not vote
     far = _cam(c2w=np.array([[1, 0, 0, 50.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
-    res2 = centre_vote(scene, masks + [(far, np.zeros((48, 64), np.float32))],
-                       renderer=make_renderer(scene, CPU))
+    res2 = centre_vote(
+        scene, masks + [(far, np.zeros((48, 64), np.float32))], renderer=make_renderer(scene, CPU)
+    )
     assert res2.negative.tolist() == [1, 1, 3, 0]
     # tie → background
-    tie = centre_vote(scene, masks[:1] + [MaskView(cam, np.zeros((48, 64), np.float32))],
-                      renderer=make_renderer(scene, CPU))
+    tie = centre_vote(
+        scene,
+        masks[:1] + [MaskView(cam, np.zeros((48, 64), np.float32))],
+        renderer=make_renderer(scene, CPU),
+    )
     assert not tie.selected[0]
     # view 1 with its own near clip at 4.5: s0, s1 (z = 4) and the wall (z = 3) are cut
     # and cast no vote there; the wall no longer hides the z = 5 surfel, which votes +
-    clipped = centre_vote(scene, [MaskView(cam.with_near(4.5), masks[0].mask)] + masks[1:],
-                          renderer=make_renderer(scene, CPU))
+    clipped = centre_vote(
+        scene,
+        [MaskView(cam.with_near(4.5), masks[0].mask)] + masks[1:],
+        renderer=make_renderer(scene, CPU),
+    )
     assert clipped.positive.tolist() == [1, 2, 0, 1]
     assert clipped.negative.tolist() == [1, 0, 2, 0]
 
@@ -250,8 +315,9 @@ def test_contribution_vote_rule_and_bias(two_planes):
     assert np.array_equal(res.selected, res.positive > res.negative)
     vis = res.positive + res.negative > 0
     assert surfel_scores(res.selected[vis], labels[vis])["iou"] > 0.97
-    strict = contribution_vote(scene, [(cam, m)], device=CPU,
-                               config=ContributionVoteConfig(gamma=0.9))
+    strict = contribution_vote(
+        scene, [(cam, m)], device=CPU, config=ContributionVoteConfig(gamma=0.9)
+    )
     assert strict.selected.sum() < res.selected.sum()
     with pytest.raises(ValueError):
         ContributionVoteConfig(gamma=1.0)
@@ -275,9 +341,10 @@ def test_variant_configs():
     rng = np.random.default_rng(0)
     mask = rng.random((20, 30)).astype(np.float32)
     depth = rng.uniform(1, 10, (20, 30))
-    depth[:3] = 0.0                                     # no surface there
-    w, band = apply_gs_bandpass(mask, depth, np.array([[5.0, 5.0]]), np.array([1]),
-                                config=nd.bandpass)
+    depth[:3] = 0.0  # no surface there
+    w, band = apply_gs_bandpass(
+        mask, depth, np.array([[5.0, 5.0]]), np.array([1]), config=nd.bandpass
+    )
     assert band is not None and np.array_equal(w, mask)
     assert np.array_equal(apply_nerf_depth_weight(mask, depth, config=nd.nerf_weight), mask)
     assert variant_config("full") == variant_config("full")
@@ -297,11 +364,11 @@ def test_caching_renderer_is_transparent():
     v = np.arange(len(scene), dtype=np.float32) % 2
     assert np.array_equal(c.render_values(cam, v), inner.render_values(cam, v))
     assert c.render_values(cam, 1 - v) is not c.render_values(cam, v)
-    clipped = c.render(cam.with_near(3.0))            # a camera's near is part of the key
+    clipped = c.render(cam.with_near(3.0))  # a camera's near is part of the key
     assert clipped is not a
     assert np.array_equal(clipped.D_med, inner.render(cam.with_near(3.0)).D_med)
     with pytest.raises(ValueError):
-        a.rgb[0, 0, 0] = 1.0                          # cached arrays are read-only
+        a.rgb[0, 0, 0] = 1.0  # cached arrays are read-only
     assert c.num_primitives == len(scene)
 
 
@@ -311,8 +378,14 @@ def test_eval_table_end_to_end_occluded():
     from divas_engine.evaluation.suite import METHODS, SuiteConfig, evaluate_scene, markdown_table
     from divas_engine.session import SessionConfig
 
-    cfg = SuiteConfig(scenes=("occluded",), segmenters=("oracle",), size=20_000, nerf=False,
-                      session=SessionConfig(render_scale=0.5), eval=EvalConfig(scale=0.5))
+    cfg = SuiteConfig(
+        scenes=("occluded",),
+        segmenters=("oracle",),
+        size=20_000,
+        nerf=False,
+        session=SessionConfig(render_scale=0.5),
+        eval=EvalConfig(scale=0.5),
+    )
     rows = evaluate_scene("occluded", cfg, device=CPU)
     assert [r["method"] for r in rows] == list(METHODS)
     for r in rows:
@@ -320,7 +393,7 @@ def test_eval_table_end_to_end_occluded():
             assert 0.0 <= r[k] <= 1.0, (r["method"], k, r[k])
         assert r["views_fused"] == r["views"] > 0
     by = {r["method"]: r for r in rows}
-    assert by["full"]["iou"] > 0.8                      # the oracle on the occluded vase
+    assert by["full"]["iou"] > 0.8  # the oracle on the occluded vase
     assert by["full"]["precision_3d"] > 0.9
     assert by["no_thin"]["recall_3d"] < by["full"]["recall_3d"]
     # the mapping chain is monotone: f ⊆ f² ⊆ f¹
@@ -357,10 +430,10 @@ def test_uncovered_regions_and_centre_by_hand():
     from divas_engine.evaluation.scripted_user import region_centre, uncovered_regions
 
     tgt = np.zeros((20, 30), bool)
-    tgt[2:12, 2:12] = True          # 100 px square
-    tgt[15:18, 20:29] = True        # 27 px strip
+    tgt[2:12, 2:12] = True  # 100 px square
+    tgt[15:18, 20:29] = True  # 27 px strip
     cov = np.zeros_like(tgt)
-    cov[2:12, 2:7] = True           # left half of the square covered → 50 px left
+    cov[2:12, 2:7] = True  # left half of the square covered → 50 px left
     regs = uncovered_regions(tgt, cov, min_area=10)
     assert [int(r.sum()) for r in regs] == [50, 27]
     assert not (regs[0] & cov).any() and (regs[0] <= tgt).all()
@@ -369,7 +442,7 @@ def test_uncovered_regions_and_centre_by_hand():
     # earlier clicks count as border: the next click moves away from them
     x2, y2 = region_centre(regs[0], avoid=[(9, 4)])
     assert regs[0][int(y2), int(x2)] and (int(x2), int(y2)) != (9, 4) and int(y2) >= 6
-    x, y = region_centre(regs[0])                     # columns 7..11, rows 2..11
+    x, y = region_centre(regs[0])  # columns 7..11, rows 2..11
     assert regs[0][int(y), int(x)] and int(x) == 9 and 4 <= int(y) <= 9  # 3 px from every side
     with pytest.raises(ValueError):
         region_centre(np.zeros((3, 3), bool))
@@ -408,10 +481,17 @@ def _user_session(sc, budget):
     rec = _Recorder(make_renderer(sc.scene, device=CPU))
     cfg = SessionConfig(render_scale=0.25)
     user = ScriptedUser(sc.labels, budget)
-    s = Session.open(sc.scene, sc.cameras, cfg, make_segmenter("oracle"), CPU,
-                     anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
-                     gt_values=sc.labels.astype(np.float32), render_anchors=False,
-                     renderer=rec)
+    s = Session.open(
+        sc.scene,
+        sc.cameras,
+        cfg,
+        make_segmenter("oracle"),
+        CPU,
+        anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
+        gt_values=sc.labels.astype(np.float32),
+        render_anchors=False,
+        renderer=rec,
+    )
     checked = []
     click = s.click
 
@@ -419,8 +499,10 @@ def _user_session(sc, budget):
         # what the user saw at that moment, recomputed independently of the user
         cam = s.anchors[ai].camera
         tgt = rec.inner.render_values(cam, sc.labels.astype(np.float32)) >= 0.5
-        cov = rec.inner.render_values(cam, s.selection.astype(np.float32)) >= \
-            s.config.overlay_threshold
+        cov = (
+            rec.inner.render_values(cam, s.selection.astype(np.float32))
+            >= s.config.overlay_threshold
+        )
         x, y = int(xy[0]), int(xy[1])
         checked.append((ai, bool(tgt[y, x]), bool(cov[y, x])))
         return click(ai, xy, positive)
@@ -451,21 +533,24 @@ def test_scripted_user_follows_the_protocol(user_scene):
             assert st in ("complete", "stalled", "budget", "not visited")
             assert st != "not visited" or per[a] == 0
             if st == "stalled":  # its last max_failed_clicks clicks shrank nothing
-                seq = [c.uncovered_px for c in log.clicks if c.anchor == a] + \
-                    [log.uncovered_after[a]]
+                seq = [c.uncovered_px for c in log.clicks if c.anchor == a] + [
+                    log.uncovered_after[a]
+                ]
                 k = budget.max_failed_clicks
-                assert len(seq) > k and all(seq[i] - seq[i + 1] < min_area
-                                            for i in range(len(seq) - k - 1, len(seq) - 1))
+                assert len(seq) > k and all(
+                    seq[i] - seq[i + 1] < min_area for i in range(len(seq) - k - 1, len(seq) - 1)
+                )
         assert (log.stop == "budget") == (len(s.views) == log.max_views)
         assert (log.stop == "complete") == all(log.complete)
         assert any(v.status == "fused" for v in s.views) and s.selection.any()
         # anchors from the session's own plan; the user never looked at a test camera
         names = [a.full_camera.name for a in s.anchors]
-        assert names[:len(s.plan.anchors)] == [a.camera.name for a in s.plan.anchors]
+        assert names[: len(s.plan.anchors)] == [a.camera.name for a in s.plan.anchors]
         assert set(names) <= {a.camera.name for a in s.plan.anchors + s.plan.candidates}
         test_poses = [t.c2w for t in sc.test_cameras]
-        assert rec.cameras and not any(np.allclose(c.c2w, t) for c in rec.cameras
-                                       for t in test_poses)
+        assert rec.cameras and not any(
+            np.allclose(c.c2w, t) for c in rec.cameras for t in test_poses
+        )
         assert not set(log.looked_at) & {t.name for t in sc.test_cameras}
     finally:
         s.close()
@@ -500,7 +585,7 @@ def test_scripted_user_stops_at_the_view_budget(user_scene):
         assert len(s.views) == 2 and log.stop == "budget"
         assert all(t and not c for _, t, c in checked) and len(checked) == 2
         assert "budget" in log.anchor_status
-        after = log.anchor_status[log.anchor_status.index("budget") + 1:]
+        after = log.anchor_status[log.anchor_status.index("budget") + 1 :]
         assert set(after) <= {"not visited"}
     finally:
         s.close()
@@ -545,9 +630,15 @@ def test_run_session_user_protocol_feeds_the_accepted_masks(user_scene):
     sc = user_scene
     with pytest.raises(ValueError):
         run_session(sc.scene, sc.cameras, sc.labels, segmenter=make_segmenter("oracle"))
-    out = run_session(sc.scene, sc.cameras, sc.labels, segmenter=make_segmenter("oracle"),
-                      config=SessionConfig(render_scale=0.25), device=CPU,
-                      user=ScriptedUser(sc.labels))
+    out = run_session(
+        sc.scene,
+        sc.cameras,
+        sc.labels,
+        segmenter=make_segmenter("oracle"),
+        config=SessionConfig(render_scale=0.25),
+        device=CPU,
+        user=ScriptedUser(sc.labels),
+    )
     fused = [vid for vid, st, _ in out.statuses if st == "fused"]
     assert out.user_log is not None and len(out.statuses) == len(out.user_log.clicks)
     assert len(out.views) == len(fused) > 0 and out.selection.any()
@@ -561,9 +652,15 @@ def test_clicks_protocol_still_selectable(user_scene):
 
     sc = user_scene
     anchors = scripted_anchors(sc.metadata, sc.cameras)
-    out = run_session(sc.scene, sc.cameras, sc.labels, anchors,
-                      segmenter=make_segmenter("oracle"),
-                      config=SessionConfig(render_scale=0.25), device=CPU)
+    out = run_session(
+        sc.scene,
+        sc.cameras,
+        sc.labels,
+        anchors,
+        segmenter=make_segmenter("oracle"),
+        config=SessionConfig(render_scale=0.25),
+        device=CPU,
+    )
     assert out.user_log is None
     assert len(out.statuses) == sum(len(a[3]) for a in anchors)
     assert [n for n, _, _ in out.anchors] == [a[0].name for a in anchors]
@@ -575,22 +672,47 @@ def test_clicks_protocol_still_selectable(user_scene):
 
 def test_multi_seed_means_and_targets():
     """Targets are checked on the per-scene means over the seeds; per-seed wins counted."""
-    from divas_engine.evaluation.suite import (SuiteConfig, check_targets, markdown_table,
-                                               scene_means, suite_means)
+    from divas_engine.evaluation.suite import (
+        SuiteConfig,
+        check_targets,
+        markdown_table,
+        scene_means,
+        suite_means,
+    )
 
     iou = {  # (scene, method) → IoU per seed 0, 1
-        ("ribs", "full"): (0.90, 0.92), ("ribs", "no_thin"): (0.85, 0.86),
-        ("ribs", "centre_vote"): (0.91, 0.89), ("ribs", "contrib_vote"): (0.80, 0.80),
-        ("plant", "full"): (0.80, 0.78), ("plant", "no_thin"): (0.5, 0.5),
-        ("plant", "centre_vote"): (0.81, 0.72), ("plant", "contrib_vote"): (0.4, 0.4)}
-    rows = [{"scene": sc, "seed": k, "kind": "2dgs", "segmenter": "oracle", "method": m,
-             "label": m, "iou": v[k], "accuracy": 0.99, "precision_3d": None,
-             "recall_3d": 0.5 + k / 10} for (sc, m), v in iou.items() for k in (0, 1)]
+        ("ribs", "full"): (0.90, 0.92),
+        ("ribs", "no_thin"): (0.85, 0.86),
+        ("ribs", "centre_vote"): (0.91, 0.89),
+        ("ribs", "contrib_vote"): (0.80, 0.80),
+        ("plant", "full"): (0.80, 0.78),
+        ("plant", "no_thin"): (0.5, 0.5),
+        ("plant", "centre_vote"): (0.81, 0.72),
+        ("plant", "contrib_vote"): (0.4, 0.4),
+    }
+    rows = [
+        {
+            "scene": sc,
+            "seed": k,
+            "kind": "2dgs",
+            "segmenter": "oracle",
+            "method": m,
+            "label": m,
+            "iou": v[k],
+            "accuracy": 0.99,
+            "precision_3d": None,
+            "recall_3d": 0.5 + k / 10,
+        }
+        for (sc, m), v in iou.items()
+        for k in (0, 1)
+    ]
     per = {(r["scene"], r["method"]): r for r in scene_means(rows)}
     assert per[("plant", "full")]["iou"] == pytest.approx(0.79)
     assert per[("plant", "full")]["iou_seeds"] == [0.80, 0.78]
-    assert (per[("ribs", "centre_vote")]["iou_min"], per[("ribs", "centre_vote")]["iou_max"]) \
-        == (0.89, 0.91)
+    assert (per[("ribs", "centre_vote")]["iou_min"], per[("ribs", "centre_vote")]["iou_max"]) == (
+        0.89,
+        0.91,
+    )
     assert per[("ribs", "full")]["recall_3d"] == pytest.approx(0.55)
     assert per[("ribs", "full")]["precision_3d"] is None
     t = check_targets(rows)
@@ -604,8 +726,14 @@ def test_multi_seed_means_and_targets():
     assert t["ribs_thin_path_helps"]
     m = {r["method"]: r for r in suite_means(scene_means(rows))}
     assert m["full"]["scenes"] == 2 and m["full"]["iou"] == pytest.approx(0.85)
-    text = markdown_table({"rows": rows, "scene_means": scene_means(rows),
-                           "means": suite_means(scene_means(rows)), "targets": t})
+    text = markdown_table(
+        {
+            "rows": rows,
+            "scene_means": scene_means(rows),
+            "means": suite_means(scene_means(rows)),
+            "targets": t,
+        }
+    )
     assert "| ribs | 1 | oracle | full | 0.920 |" in text
     assert "Mean over seeds 0, 1" in text and "0.890–0.910" in text
     assert "plant yes (1/2 seeds)" in text
@@ -637,15 +765,31 @@ def test_evaluate_suite_runs_every_seed(monkeypatch):
 
     def fake_scene(name, config, *, device=None, log=None):
         calls.append((name, config.seed, config.seeds))
-        return [{"scene": name, "seed": config.seed, "kind": "2dgs", "segmenter": "oracle",
-                 "method": m, "label": m, "iou": 0.5 + 0.1 * config.seed + d,
-                 "accuracy": 1.0, "precision_3d": 1.0, "recall_3d": 1.0}
-                for m, d in (("full", 0.02), ("no_thin", 0.0), ("centre_vote", 0.01),
-                             ("contrib_vote", 0.0))]
+        return [
+            {
+                "scene": name,
+                "seed": config.seed,
+                "kind": "2dgs",
+                "segmenter": "oracle",
+                "method": m,
+                "label": m,
+                "iou": 0.5 + 0.1 * config.seed + d,
+                "accuracy": 1.0,
+                "precision_3d": 1.0,
+                "recall_3d": 1.0,
+            }
+            for m, d in (
+                ("full", 0.02),
+                ("no_thin", 0.0),
+                ("centre_vote", 0.01),
+                ("contrib_vote", 0.0),
+            )
+        ]
 
     monkeypatch.setattr(suite, "evaluate_scene", fake_scene)
-    res = suite.evaluate_suite(suite.SuiteConfig(scenes=("ribs", "plant"), seeds=(2, 0),
-                                                 segmenters=("oracle",)))
+    res = suite.evaluate_suite(
+        suite.SuiteConfig(scenes=("ribs", "plant"), seeds=(2, 0), segmenters=("oracle",))
+    )
     assert calls == [("ribs", 2, ()), ("plant", 2, ()), ("ribs", 0, ()), ("plant", 0, ())]
     assert res["config"]["seeds"] == [2, 0]
     full = [r for r in res["scene_means"] if r["method"] == "full"]
@@ -664,12 +808,26 @@ def test_scripted_user_declines_a_leaked_preview(user_scene):
     sc = user_scene
     cfg = SessionConfig(render_scale=0.25)
     for thr, fused in ((0.5, False), (0.0, True)):
-        user = ScriptedUser(sc.labels, UserBudget(min_accept_precision=thr, clicks_per_anchor=2,
-                                                  max_views=4, negative_clicks=False,
-                                                  manual_anchors=0))
-        s = Session.open(sc.scene, sc.cameras, cfg, ConstantSegmenter(1.0), CPU,
-                         anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
-                         gt_values=sc.labels.astype(np.float32), render_anchors=False)
+        user = ScriptedUser(
+            sc.labels,
+            UserBudget(
+                min_accept_precision=thr,
+                clicks_per_anchor=2,
+                max_views=4,
+                negative_clicks=False,
+                manual_anchors=0,
+            ),
+        )
+        s = Session.open(
+            sc.scene,
+            sc.cameras,
+            cfg,
+            ConstantSegmenter(1.0),
+            CPU,
+            anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
+            gt_values=sc.labels.astype(np.float32),
+            render_anchors=False,
+        )
         try:
             log = user.run(s)
             assert log.clicks
@@ -681,7 +839,8 @@ def test_scripted_user_declines_a_leaked_preview(user_scene):
                 assert s.fusion.view_ids == []
                 assert all(v.status not in ("fused", "rejected") for v in s.views)
                 assert log.as_dict()["declined"] == len(log.clicks) - sum(
-                    c.status == "no surface" for c in log.clicks)
+                    c.status == "no surface" for c in log.clicks
+                )
         finally:
             s.close()
     with pytest.raises(ValueError):
@@ -698,11 +857,20 @@ def test_scripted_user_gives_up_on_an_anchor_without_progress(user_scene):
     sc = user_scene
     cfg = SessionConfig(render_scale=0.25)
     for k in (1, 2):
-        user = ScriptedUser(sc.labels, UserBudget(max_failed_clicks=k, manual_anchors=0,
-                                                  max_views=50, negative_clicks=False))
-        s = Session.open(sc.scene, sc.cameras, cfg, ConstantSegmenter(0.0), CPU,
-                         anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
-                         gt_values=sc.labels.astype(np.float32), render_anchors=False)
+        user = ScriptedUser(
+            sc.labels,
+            UserBudget(max_failed_clicks=k, manual_anchors=0, max_views=50, negative_clicks=False),
+        )
+        s = Session.open(
+            sc.scene,
+            sc.cameras,
+            cfg,
+            ConstantSegmenter(0.0),
+            CPU,
+            anchors=user.anchors(anchor_plan(sc.scene, sc.cameras, cfg)),
+            gt_values=sc.labels.astype(np.float32),
+            render_anchors=False,
+        )
         try:
             log = user.run(s)
             per = np.bincount([c.anchor for c in log.clicks], minlength=len(s.anchors))
@@ -718,15 +886,15 @@ def test_leak_free_fraction_by_hand():
     """Precision against the target dilated by 2⌈max(H,W)/256⌉ px (a disc)."""
     from divas_engine.evaluation.scripted_user import leak_free_fraction
 
-    tgt = np.zeros((100, 300), bool)      # max side 300 → k = 2·⌈300/256⌉ = 4 px
+    tgt = np.zeros((100, 300), bool)  # max side 300 → k = 2·⌈300/256⌉ = 4 px
     tgt[40:60, 100:110] = True
     halo = np.zeros_like(tgt)
-    halo[40:60, 96:114] = True            # 4 px left and right of the target: forgiven
-    halo[36:64, 100:110] = True           # 4 px above and below: forgiven
+    halo[40:60, 96:114] = True  # 4 px left and right of the target: forgiven
+    halo[36:64, 100:110] = True  # 4 px above and below: forgiven
     assert leak_free_fraction(halo, tgt) == 1.0
     wide = np.zeros_like(tgt)
-    wide[40:60, 100:116] = True           # columns 114, 115 lie 5–6 px off: 2 × 20 px leak
+    wide[40:60, 100:116] = True  # columns 114, 115 lie 5–6 px off: 2 × 20 px leak
     assert leak_free_fraction(wide, tgt) == pytest.approx(1 - 40 / 320)
-    spilled = np.ones_like(tgt)           # a preview spilled over the whole view
+    spilled = np.ones_like(tgt)  # a preview spilled over the whole view
     assert leak_free_fraction(spilled, tgt) < 0.1
     assert leak_free_fraction(np.zeros_like(tgt), tgt) == 1.0

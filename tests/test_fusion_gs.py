@@ -11,9 +11,6 @@ import numpy as np
 import pytest
 import warp as wp
 
-from tests import fusion_reference as ref
-from tests.fusion_cases import (axis_camera, checker, const_view, gs_contrib, one_voxel_grid,
-                          random_views, sphere_floor_scene)
 from divas_engine.camera import Camera
 from divas_engine.fusion.config import GridConfig, GsFusionConfig
 from divas_engine.fusion.gs_fusion import GsFusion, fuse_views_gs
@@ -21,6 +18,16 @@ from divas_engine.fusion.occupancy import build_occupancy
 from divas_engine.fusion.state import FusionCapacityError
 from kernels.fusion_common import depth_gradient_factor
 from kernels.integral_image import integral_images, integral_images_numpy
+from tests import fusion_reference as ref
+from tests.fusion_cases import (
+    axis_camera,
+    checker,
+    const_view,
+    gs_contrib,
+    one_voxel_grid,
+    random_views,
+    sphere_floor_scene,
+)
 
 DEV = "cpu"
 CFG = GsFusionConfig()
@@ -57,7 +64,7 @@ def test_matches_numpy_reference(sphere_case):
     assert np.array_equal(res.vmask_raw[ok], r["vmask"][ok])
     assert np.abs(res.P - r["P"])[ok].max() < 1e-5
     assert np.array_equal(res.segmented[ok], r["segmented"][ok])
-    seg = res.P >= CFG.tau_cons
+    seg = CFG.tau_cons <= res.P
     assert np.array_equal(res.vmask[seg], res.vmask_raw[seg]) and not res.vmask[~seg].any()
 
 
@@ -75,12 +82,15 @@ def test_integral_images_and_depth_gradient():
     rng = np.random.default_rng(5)
     n = rng.integers(0, 300, (37, 53)).astype(np.int32)
     m = rng.random((37, 53)).astype(np.float32)
-    sats = integral_images(wp.array(n, dtype=wp.int32, device=DEV), wp.array(m, dtype=float, device=DEV), 0.5)
+    sats = integral_images(
+        wp.array(n, dtype=wp.int32, device=DEV), wp.array(m, dtype=float, device=DEV), 0.5
+    )
     for got, exp in zip(sats, integral_images_numpy(n, m, 0.5)):
         assert np.array_equal(got.numpy(), exp)
     v = random_views(1, seed=9)[0]
-    pdg = depth_gradient_factor(*(wp.array(a, dtype=float, device=DEV) for a in (v.d_min, v.d_ref, v.d_max)),
-                                400.0, 1e-6).numpy()
+    pdg = depth_gradient_factor(
+        *(wp.array(a, dtype=float, device=DEV) for a in (v.d_min, v.d_ref, v.d_max)), 400.0, 1e-6
+    ).numpy()
     assert np.allclose(pdg, ref.depth_gradient(v, 400.0, 1e-6), atol=2e-6)
 
 
@@ -113,10 +123,14 @@ def test_layered_switches_to_front_hit():
     cam = axis_camera()
     _, n = _layer_view(cam, 0)
     box = n[17:24, 17:24].astype(np.int64)
-    s1, s2 = box.sum() - box[3, 3], (box ** 2).sum() - box[3, 3] ** 2
-    c_star = next(c for c in range(200)
-                  if ref.layered_exact(np.array([c]), np.array([49]), np.array([s1 + c]),
-                                       np.array([s2 + c * c]))[0])
+    s1, s2 = box.sum() - box[3, 3], (box**2).sum() - box[3, 3] ** 2
+    c_star = next(
+        c
+        for c in range(200)
+        if ref.layered_exact(
+            np.array([c]), np.array([49]), np.array([s1 + c]), np.array([s2 + c * c])
+        )[0]
+    )
     assert c_star > 7
     assert gs_contrib(X0, H, _layer_view(cam, c_star - 1)[0], THICK)[2] == 0
     assert gs_contrib(X0, H, _layer_view(cam, c_star)[0], THICK)[2] == 1
@@ -157,8 +171,12 @@ def test_tolerance_tightening():
     cam = axis_camera()
     n = checker((41, 41), 10, 0)
     box = n[17:24, 17:24]
-    assert n[20, 20] == 10 and not ref.layered_exact(np.array([10]), np.array([49]),
-                                                     np.array([box.sum()]), np.array([(box ** 2).sum()]))[0]
+    assert (
+        n[20, 20] == 10
+        and not ref.layered_exact(
+            np.array([10]), np.array([49]), np.array([box.sum()]), np.array([(box**2).sum()])
+        )[0]
+    )
     e = 10 - box.mean()
     tol = H / (1 + CFG.beta * e)
     assert tol < 0.9 * H
@@ -185,7 +203,9 @@ def test_depth_weight_and_compact_fusion():
     v = const_view(cam, 4.0, dmin=3.9, dmax=4.3, mask=0.8)
     num, den, kind = gs_contrib(X0, H, v, THICK)
     w = math.exp(-1.0 * ((4.0 - 4.1) / 0.2) ** 2)  # t̂ = 4, d_ctr = 4.1, d_hw = 0.2
-    assert kind == 1 and den == pytest.approx(w, rel=1e-6) and num == pytest.approx(0.8 * w, rel=1e-6)
+    assert (
+        kind == 1 and den == pytest.approx(w, rel=1e-6) and num == pytest.approx(0.8 * w, rel=1e-6)
+    )
     thin = const_view(cam, 4.28, dmin=4.279, dmax=4.29, mask=0.9)  # δ = 0.28 > h_v: thick fails
     tv = gs_contrib(X0, H, thin, replace(CFG, gamma=2.0))
     assert tv[2] == 2 and tv[0] == pytest.approx(0.9) and tv[1] == 1.0
@@ -221,8 +241,14 @@ def _thin_view(cam, centre, valid=None, mask=0.9, dmed=4.0, d_cam=4.0):
     if valid is not None:
         dm[~valid] = 0.0
     dm[20, 20], mk[20, 20] = centre
-    return const_view(cam, dm, dmin=np.where(dm > 0, dm - 0.001, 0), dmax=np.where(dm > 0, dm + 0.002, 0),
-                      mask=mk, d_cam=d_cam)
+    return const_view(
+        cam,
+        dm,
+        dmin=np.where(dm > 0, dm - 0.001, 0),
+        dmax=np.where(dm > 0, dm + 0.002, 0),
+        mask=mk,
+        d_cam=d_cam,
+    )
 
 
 def test_behind_surface_gate():
@@ -244,8 +270,9 @@ def test_thin_n_min_floor(early_out, h, n_min):
     rng = np.random.default_rng(0)
     lo, hi = (17, 24) if h == H else (12, 29)
     pix = [(y, x) for y in range(lo, hi) for x in range(lo, hi) if (y, x) != (20, 20)]
-    order = [(20, 21), (21, 20)] + [p for p in (pix[i] for i in rng.permutation(len(pix)))
-                                    if p not in ((20, 21), (21, 20))]
+    order = [(20, 21), (21, 20)] + [
+        p for p in (pix[i] for i in rng.permutation(len(pix))) if p not in ((20, 21), (21, 20))
+    ]
     for k, kind in ((n_min, 2), (n_min - 1, 0)):
         valid = np.zeros((41, 41), bool)
         for p in order[:k]:
@@ -257,8 +284,9 @@ def test_thin_n_min_floor(early_out, h, n_min):
 def test_thin_coverage_over_depth_support(early_out):
     cam = axis_camera()
     cfg = replace(CFG, early_out=early_out)
-    idx = [(20, 21)] + [(y, x) for y in range(17, 24) for x in range(17, 24)
-                        if (y, x) not in ((20, 20), (20, 21))]
+    idx = [(20, 21)] + [
+        (y, x) for y in range(17, 24) for x in range(17, 24) if (y, x) not in ((20, 20), (20, 21))
+    ]
     valid = np.zeros((41, 41), bool)
     for p in idx[:30]:  # 30 depth-consistent pixels, the rest have no surface
         valid[p] = True
@@ -277,14 +305,14 @@ def test_thin_gate_ignores_see_through_background(early_out):
     cam = axis_camera()
     cfg = replace(CFG, early_out=early_out)
     h = 0.6  # footprint 17×17 = 289 px, n_min = ⌈0.1·289⌉ = 29
-    dmed = np.full((41, 41), 20.0, np.float32)   # background: 20 > γ_ST·d_cam = 6
+    dmed = np.full((41, 41), 20.0, np.float32)  # background: 20 > γ_ST·d_cam = 6
     mask = np.full((41, 41), 0.1, np.float32)
-    dmed[12:29, 18:21] = 4.0                      # a 3-px stem at the voxel's depth, 51 px
+    dmed[12:29, 18:21] = 4.0  # a 3-px stem at the voxel's depth, 51 px
     mask[12:29, 18:21] = 0.9
-    dmed[20, 20], mask[20, 20] = 20.0, 0.1        # the centre pixel misses it: thin path
+    dmed[20, 20], mask[20, 20] = 20.0, 0.1  # the centre pixel misses it: thin path
     v = const_view(cam, dmed, mask=mask)
     num, den, kind = gs_contrib(X0, h, v, cfg)
-    assert kind == 2 and num == pytest.approx(0.9)   # n_depth = 50, p_covered = 1
+    assert kind == 2 and num == pytest.approx(0.9)  # n_depth = 50, p_covered = 1
     # the reference agrees
     r = ref.gs_view(X0[None], np.array([1.0]), h, v, cfg)
     assert int(r[2][0]) == 2
@@ -295,7 +323,9 @@ def test_thin_distance_gate():
     cfg = replace(CFG, gamma=2.0)  # depth-consistent up to 2 h_v; the gate is 1.5 h_v
     for k, kind in ((0.99, 2), (1.01, 0)):
         dz = k * 1.5 * H  # the centre pixel unprojects dz behind the voxel (thick: δ > h_v)
-        assert gs_contrib(X0, H, const_view(cam, 4.0 + dz, dmin=4.0 + dz - 0.001), cfg)[2] == kind, k
+        assert (
+            gs_contrib(X0, H, const_view(cam, 4.0 + dz, dmin=4.0 + dz - 0.001), cfg)[2] == kind
+        ), k
 
 
 def test_thin_acceptance_and_mask_positive():

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.fusion_cases import nerf_case, random_views, sphere_floor_scene
 from divas_engine.fusion.config import GridConfig, GsFusionConfig
 from divas_engine.fusion.gs_fusion import GsFusion
 from divas_engine.fusion.nerf_fusion import NerfFusion
 from divas_engine.fusion.occupancy import build_occupancy
+from tests.fusion_cases import nerf_case, random_views, sphere_floor_scene
 
 DEV = "cpu"
 

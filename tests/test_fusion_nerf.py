@@ -9,13 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests import fusion_reference as ref
-from tests.fusion_cases import axis_camera, const_view, nerf_case
 from divas_engine.camera import Camera
 from divas_engine.fusion.config import nerf_preset
 from divas_engine.fusion.nerf_fusion import NerfFusion, fuse_views_nerf
 from divas_engine.fusion.nerf_occupancy import build_nerf_occupancy
 from divas_engine.scene import DensityGrid
+from tests import fusion_reference as ref
+from tests.fusion_cases import axis_camera, const_view, nerf_case
 
 DEV = "cpu"
 LLFF = nerf_preset("llff")
@@ -44,8 +44,9 @@ def test_matches_numpy_reference():
     occ, cfg, views = nerf_case()
     res = fuse_views_nerf(occ, views, cfg)
     c, d = occ.centers(), occ.density.numpy().astype(np.float64)
-    r = ref.fuse(lambda v: ref.nerf_view(c, d, occ.cell, v, cfg), views, eps=cfg.eps,
-                 tau_cons=cfg.tau_cons)
+    r = ref.fuse(
+        lambda v: ref.nerf_view(c, d, occ.cell, v, cfg), views, eps=cfg.eps, tau_cons=cfg.tau_cons
+    )
     ok = r["margin"] > 1e-5
     assert (~ok).sum() <= 0.01 * len(ok)
     assert r["n_thick"].sum() > 500 and r["n_thin"].sum() > 200
@@ -80,7 +81,12 @@ def test_spatial_tolerance_with_depth_range(off_axis):
     h, width = 0.02, 1.0
     tau = h + LLFF.lambda_range * width
     if off_axis:  # pixel (175, 20): cos θ = 0.8, voxel at ray distance 5
-        cam, xc, t0, cos = Camera(201, 41, 100.0, 100.0, 100.5, 20.5, np.eye(4)), np.array([3.0, 0, 4]), 5.0, 0.8
+        cam, xc, t0, cos = (
+            Camera(201, 41, 100.0, 100.0, 100.5, 20.5, np.eye(4)),
+            np.array([3.0, 0, 4]),
+            5.0,
+            0.8,
+        )
     else:
         cam, xc, t0, cos = axis_camera(), X0, 4.0, 1.0
     for k, kind in ((0.99, 1), (1.01, 0)):
@@ -91,9 +97,13 @@ def test_spatial_tolerance_with_depth_range(off_axis):
 
 def test_depth_weight():
     cam = axis_camera()
-    num, den, kind = nerf_contrib(X0, 0.02, const_view(cam, 4.0, dmin=3.9, dmax=4.3, mask=0.7), LLFF)
-    w = math.exp(-((4.0 - 4.1) / 0.2) ** 2)
-    assert kind == 1 and den == pytest.approx(w, rel=1e-6) and num == pytest.approx(0.7 * w, rel=1e-6)
+    num, den, kind = nerf_contrib(
+        X0, 0.02, const_view(cam, 4.0, dmin=3.9, dmax=4.3, mask=0.7), LLFF
+    )
+    w = math.exp(-(((4.0 - 4.1) / 0.2) ** 2))
+    assert (
+        kind == 1 and den == pytest.approx(w, rel=1e-6) and num == pytest.approx(0.7 * w, rel=1e-6)
+    )
 
 
 def _thin_view(cam, centre_mask=0.3, mask=0.9, dexp=4.0, n=0):
@@ -107,7 +117,9 @@ def test_thin_eligibility_mask_and_density():
     h = 0.2  # 7×7 footprint
     assert nerf_contrib(X0, h, _thin_view(cam, f32_above(0.1)), LLFF, rho=50.0)[2] == 2
     assert nerf_contrib(X0, h, _thin_view(cam, 0.1), LLFF, rho=50.0)[2] == 0  # m > 0.1
-    assert nerf_contrib(X0, h, _thin_view(cam, 0.3), LLFF, rho=f32_below(50.0))[2] == 0  # ρ ≥ ρ_thin
+    assert (
+        nerf_contrib(X0, h, _thin_view(cam, 0.3), LLFF, rho=f32_below(50.0))[2] == 0
+    )  # ρ ≥ ρ_thin
 
 
 def test_thin_doubled_base_multiplier():

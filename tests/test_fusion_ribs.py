@@ -48,8 +48,13 @@ def ribs_views():
         # is within one voxel of the centre's own depth
         uvv, z = cv.camera.project(centres)
         ij = np.floor(uvv).astype(np.int64)
-        inside = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < cv.camera.width) \
+        inside = (
+            (z > 0)
+            & (ij[:, 0] >= 0)
+            & (ij[:, 1] >= 0)
+            & (ij[:, 0] < cv.camera.width)
             & (ij[:, 1] < cv.camera.height)
+        )
         d = np.zeros(len(z))
         d[inside] = b.D_ref[ij[inside, 1], ij[inside, 0]]
         visible |= inside & (np.abs(d - z) < grid.report.h_v)
@@ -79,8 +84,10 @@ def test_thin_path_recovers_ribs(ribs_views):
     rec_full = (full & visible_ribs).sum() / visible_ribs.sum()
     rec_thick = (thick_only & visible_ribs).sum() / visible_ribs.sum()
     prec_full = (full & target).sum() / full.sum()
-    print(f"visible rib voxels {visible_ribs.sum()}: recall full {rec_full:.3f}, "
-          f"thick only {rec_thick:.3f}; precision full {prec_full:.4f}")
+    print(
+        f"visible rib voxels {visible_ribs.sum()}: recall full {rec_full:.3f}, "
+        f"thick only {rec_thick:.3f}; precision full {prec_full:.4f}"
+    )
     assert prec_full > 0.97
     assert rec_full > 0.6
     assert rec_full > rec_thick + 0.15

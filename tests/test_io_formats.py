@@ -26,8 +26,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from divas_engine.errors import DivasInputError
-from divas_engine.io.compressed_ply import (decode_compressed_ply_rows, is_compressed_ply,
-                                            read_compressed_ply, write_compressed_ply_subset)
+from divas_engine.io.compressed_ply import (
+    decode_compressed_ply_rows,
+    is_compressed_ply,
+    read_compressed_ply,
+    write_compressed_ply_subset,
+)
 from divas_engine.io.ply import read_ply_header, write_ply_rows
 from divas_engine.io.splat import read_splat, write_splat_subset
 from divas_engine.io.spz import read_spz, write_spz_subset
@@ -42,12 +46,17 @@ BIKER_SPZ = PC / "biker.spz"
 
 # ---------------------------------------------------------------- helpers ----
 
+
 def _quat_to_mat(w, x, y, z):
     n = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _check_surfel(scene, i, quat_wxyz, scales3, tol=1e-5):
@@ -81,7 +90,7 @@ def _unorm(v, shift, bits):
 def _cply_row_by_hand(path: Path, i: int) -> dict:
     """One compressed-PLY row decoded straight from the bytes, per the format definition."""
     data, off, els = _ply_sections(path)
-    (cn, cc, cprops), (vn, vc, _) = els[0], els[1]
+    (cn, cc, cprops), (vn, _vc, _) = els[0], els[1]
     assert (cn, vn) == ("chunk", "vertex")
     nc = len(cprops)
     ch = struct.unpack_from(f"<{nc}f", data, off + (i // 256) * 4 * nc)
@@ -98,14 +107,23 @@ def _cply_row_by_hand(path: Path, i: int) -> dict:
     if nc == 18:
         rgb = [lerp(ch[12 + a], ch[15 + a], rgb[a]) for a in range(3)]
     largest = pr >> 30
-    smalls = [(_unorm(pr, 20, 10) - 0.5) * math.sqrt(2), (_unorm(pr, 10, 10) - 0.5) * math.sqrt(2),
-              (_unorm(pr, 0, 10) - 0.5) * math.sqrt(2)]
+    smalls = [
+        (_unorm(pr, 20, 10) - 0.5) * math.sqrt(2),
+        (_unorm(pr, 10, 10) - 0.5) * math.sqrt(2),
+        (_unorm(pr, 0, 10) - 0.5) * math.sqrt(2),
+    ]
     q = [0.0] * 4  # rot_0..3 = w, x, y, z
     for idx, v in zip([j for j in range(4) if j != largest], smalls):
         q[idx] = v
     q[largest] = math.sqrt(max(0.0, 1 - sum(v * v for v in smalls)))
-    return {"pos": pos, "log_scale": log_s, "rgb": rgb, "alpha": (pc & 0xFF) / 255, "quat": q,
-            "words": (pp, pr, ps, pc)}
+    return {
+        "pos": pos,
+        "log_scale": log_s,
+        "rgb": rgb,
+        "alpha": (pc & 0xFF) / 255,
+        "quat": q,
+        "words": (pp, pr, ps, pc),
+    }
 
 
 def _spz_v4_by_hand(path: Path) -> dict:
@@ -119,21 +137,34 @@ def _spz_v4_by_hand(path: Path) -> dict:
     cols = []
     for s in range(n_streams):
         csize, usize = struct.unpack_from("<QQ", data, toc + 16 * s)
-        raw = zstandard.ZstdDecompressor().decompress(data[off:off + csize], max_output_size=usize)
+        raw = zstandard.ZstdDecompressor().decompress(
+            data[off : off + csize], max_output_size=usize
+        )
         assert len(raw) == usize
         cols.append(raw)
         off += csize
     assert off == len(data)
-    return {"version": version, "n": n, "deg": deg, "frac": frac, "flags": flags,
-            "n_streams": n_streams, "toc": toc, "cols": cols}
+    return {
+        "version": version,
+        "n": n,
+        "deg": deg,
+        "frac": frac,
+        "flags": flags,
+        "n_streams": n_streams,
+        "toc": toc,
+        "cols": cols,
+    }
 
 
 def _spz_row_by_hand(h: dict, i: int) -> dict:
     """One SPZ v3/v4 point in SPZ's own RUB frame, quaternion (x, y, z, w)."""
     pos_b, alpha_b, col_b, scale_b, rot_b = h["cols"][:5]
-    pos = [int.from_bytes(pos_b[9 * i + 3 * a: 9 * i + 3 * a + 3], "little", signed=True)
-           / (1 << h["frac"]) for a in range(3)]
-    word = int.from_bytes(rot_b[4 * i: 4 * i + 4], "little")
+    pos = [
+        int.from_bytes(pos_b[9 * i + 3 * a : 9 * i + 3 * a + 3], "little", signed=True)
+        / (1 << h["frac"])
+        for a in range(3)
+    ]
+    word = int.from_bytes(rot_b[4 * i : 4 * i + 4], "little")
     largest = word >> 30
     q = [0.0] * 4
     rest = word
@@ -144,12 +175,17 @@ def _spz_row_by_hand(h: dict, i: int) -> dict:
         rest >>= 10
         q[j] = (-1 if neg else 1) * math.sqrt(0.5) * mag / 511
     q[largest] = math.sqrt(max(0.0, 1 - sum(v * v for v in q)))
-    return {"pos": pos, "alpha": alpha_b[i] / 255,
-            "f_dc": [(col_b[3 * i + c] / 255 - 0.5) / 0.15 for c in range(3)],
-            "log_scale": [scale_b[3 * i + a] / 16 - 10 for a in range(3)], "quat_xyzw": q}
+    return {
+        "pos": pos,
+        "alpha": alpha_b[i] / 255,
+        "f_dc": [(col_b[3 * i + c] / 255 - 0.5) / 0.15 for c in range(3)],
+        "log_scale": [scale_b[3 * i + a] / 16 - 10 for a in range(3)],
+        "quat_xyzw": q,
+    }
 
 
 # ------------------------------------------------------- compressed PLY ----
+
 
 @pytest.fixture(scope="module")
 def biker_cply():
@@ -161,8 +197,9 @@ def biker_spz():
     return read_spz(BIKER_SPZ)
 
 
-@pytest.mark.parametrize("path,count,chunks", [(BIKER_CPLY, 152_746, 597),
-                                               (GUITAR_CPLY, 90_854, 355)])
+@pytest.mark.parametrize(
+    "path,count,chunks", [(BIKER_CPLY, 152_746, 597), (GUITAR_CPLY, 90_854, 355)]
+)
 def test_compressed_ply_counts(path, count, chunks):
     layout = read_ply_header(path)
     assert is_compressed_ply(layout)
@@ -208,8 +245,20 @@ def _synthetic_cply(path: Path, n: int, n_rest: int, color_bounds: bool, seed: i
     """A compressed PLY with random packed words, sane chunk bounds and an ``sh`` element."""
     rng = np.random.default_rng(seed)
     c = -(-n // 256)
-    names = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y",
-             "min_scale_z", "max_scale_x", "max_scale_y", "max_scale_z"]
+    names = [
+        "min_x",
+        "min_y",
+        "min_z",
+        "max_x",
+        "max_y",
+        "max_z",
+        "min_scale_x",
+        "min_scale_y",
+        "min_scale_z",
+        "max_scale_x",
+        "max_scale_y",
+        "max_scale_z",
+    ]
     if color_bounds:
         names += ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"]
     chunk = np.zeros(c, dtype=[(nm, "<f4") for nm in names])
@@ -220,9 +269,17 @@ def _synthetic_cply(path: Path, n: int, n_rest: int, color_bounds: bool, seed: i
         chunk[f"max_scale_{ax}"] = rng.uniform(-4, -1, c)
     if color_bounds:
         for ch in "rgb":
-            chunk[f"min_{ch}"], chunk[f"max_{ch}"] = rng.uniform(-0.2, 0.3, c), rng.uniform(0.6, 1.2, c)
-    vert = np.zeros(n, dtype=[(nm, "<u4") for nm in
-                              ("packed_position", "packed_rotation", "packed_scale", "packed_color")])
+            chunk[f"min_{ch}"], chunk[f"max_{ch}"] = (
+                rng.uniform(-0.2, 0.3, c),
+                rng.uniform(0.6, 1.2, c),
+            )
+    vert = np.zeros(
+        n,
+        dtype=[
+            (nm, "<u4")
+            for nm in ("packed_position", "packed_rotation", "packed_scale", "packed_color")
+        ],
+    )
     for nm in vert.dtype.names:
         vert[nm] = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
     elements = {"chunk": chunk, "vertex": vert}
@@ -249,7 +306,9 @@ def test_compressed_ply_sh_element(tmp_path):
     for i in (0, 1, 7, 599):
         for ch in range(3):
             for k in range(8):  # f_rest is channel-major: f_rest[ch*8 + k] is coeff k+1
-                assert scene.sh[i, k + 1, ch] == pytest.approx(deq(int(sh[i][f"f_rest_{ch * 8 + k}"])))
+                assert scene.sh[i, k + 1, ch] == pytest.approx(
+                    deq(int(sh[i][f"f_rest_{ch * 8 + k}"]))
+                )
         h = _cply_row_by_hand(p, i)
         np.testing.assert_allclose(scene.means[i], h["pos"], rtol=0, atol=1e-5)
         np.testing.assert_allclose(scene.sh[i, 0], [(c - 0.5) / SH_C0 for c in h["rgb"]], atol=1e-5)
@@ -306,11 +365,12 @@ def test_compressed_ply_subset_biker(tmp_path, biker_cply):
     np.testing.assert_array_equal(sub.opacities, biker_cply.opacities[rows])
     # end to end: positions move by at most half a step of the (smaller) fresh ranges
     step = np.array([2047, 1023, 2047])
-    orig_range = (np.ptp(biker_cply.means, axis=0) / step)
+    orig_range = np.ptp(biker_cply.means, axis=0) / step
     assert np.all(np.abs(sub.means - biker_cply.means[rows]) <= orig_range)
 
 
 # ------------------------------------------------------------------ SPZ ----
+
 
 def test_biker_spz_rows_by_hand(biker_spz):
     scene = biker_spz
@@ -338,7 +398,9 @@ def test_biker_compressed_ply_and_spz_agree(biker_cply, biker_spz):
     # the order really is the same: nearest neighbours agree for (almost) every point
     _, nn = cKDTree(c.means).query(s.means)
     assert np.mean(nn == np.arange(len(s))) > 0.99
-    assert np.all(np.linalg.norm(c.means[nn] - s.means, axis=1) <= d.max(axis=1) * math.sqrt(3) + 1e-7)
+    assert np.all(
+        np.linalg.norm(c.means[nn] - s.means, axis=1) <= d.max(axis=1) * math.sqrt(3) + 1e-7
+    )
     assert np.abs(s.opacities - c.opacities).max() <= 0.5 / 255 + 1e-7
     assert np.abs(s.sh[:, 0] - c.sh[:, 0]).max() <= 0.5 / (255 * 0.15) + 1e-5
     # log-scales: SPZ stores (s + 10) * 16 in a byte, so it clamps to [-10, 5.9375]
@@ -348,8 +410,9 @@ def test_biker_compressed_ply_and_spz_agree(biker_cply, biker_spz):
     assert np.mean(same_axes) > 0.99
 
 
-def _spz_payload(version: int, n: int, deg: int, cols: dict, flags: int = 0,
-                 ext: bytes = b"") -> bytes:
+def _spz_payload(
+    version: int, n: int, deg: int, cols: dict, flags: int = 0, ext: bytes = b""
+) -> bytes:
     head = struct.pack("<4sIIBBBB", b"NGSP", version, n, deg, 12, flags, 0)
     order = ("positions", "alphas", "colors", "scales", "rotations", "sh")
     return head + ext + b"".join(cols[k] for k in order)
@@ -367,7 +430,9 @@ def _smallest_three(q_xyzw) -> bytes:
     word = big
     for j in range(4):
         if j != big:
-            word = (word << 10) | (int(q[j] < 0) << 9) | int(round(511 * abs(q[j]) / math.sqrt(0.5)))
+            word = (
+                (word << 10) | (int(q[j] < 0) << 9) | int(round(511 * abs(q[j]) / math.sqrt(0.5)))
+            )
     return word.to_bytes(4, "little")
 
 
@@ -377,15 +442,26 @@ def _synthetic_spz_cols(version: int):
     if version >= 3:
         rot = _smallest_three(q0) + _smallest_three(q1)
     else:
+
         def first3(q):
             q = np.asarray(q) / np.linalg.norm(q)
             return bytes(int(round(v * 127.5 + 127.5)) for v in q[:3])
+
         rot = first3(q0) + first3(q1)
     sh = bytes([10, 20, 30, 128, 128, 250, 200, 100, 0] + [128] * 9)  # deg 1, [coeff][channel]
-    cols = {"positions": _fixed24(1.0) + _fixed24(2.0) + _fixed24(-3.0)
-            + _fixed24(-0.5) + _fixed24(0.25) + _fixed24(100.0),
-            "alphas": bytes([200, 5]), "colors": bytes([100, 150, 200, 0, 255, 128]),
-            "scales": bytes([160, 144, 128, 0, 255, 100]), "rotations": rot, "sh": sh}
+    cols = {
+        "positions": _fixed24(1.0)
+        + _fixed24(2.0)
+        + _fixed24(-3.0)
+        + _fixed24(-0.5)
+        + _fixed24(0.25)
+        + _fixed24(100.0),
+        "alphas": bytes([200, 5]),
+        "colors": bytes([100, 150, 200, 0, 255, 128]),
+        "scales": bytes([160, 144, 128, 0, 255, 100]),
+        "rotations": rot,
+        "sh": sh,
+    }
     return cols, (q0, q1)
 
 
@@ -398,18 +474,25 @@ def test_spz_gzip_versions_synthetic(tmp_path, version):
     assert len(s) == 2 and s.sh_degree == 1 and s.extras["antialiased"] is True
     np.testing.assert_allclose(s.means, [[1, -2, 3], [-0.5, -0.25, -100]], atol=1e-6)  # RUB -> RDF
     np.testing.assert_allclose(s.opacities, [200 / 255, 5 / 255], atol=1e-7)
-    np.testing.assert_allclose(s.sh[0, 0], [(c / 255 - 0.5) / 0.15 for c in (100, 150, 200)], atol=1e-5)
+    np.testing.assert_allclose(
+        s.sh[0, 0], [(c / 255 - 0.5) / 0.15 for c in (100, 150, 200)], atol=1e-5
+    )
     # SH band 1 (coefficients y, z, x) flips sign for y and z under RUB -> RDF
     expect = np.array([[10, 20, 30], [128, 128, 250], [200, 100, 0]], float)
     expect = (expect - 128) / 128 * np.array([-1, -1, 1])[:, None]
     np.testing.assert_allclose(s.sh[0, 1:], expect, atol=1e-6)
     x, y, z, w = np.asarray(q0) / np.linalg.norm(q0)
     # quantisation: 9-bit magnitudes (v3) or 8-bit components (v2)
-    _check_surfel(s, 0, (w, x, -y, -z), [1.0, math.exp(-1), math.exp(-2)],
-                  tol=1e-5 if version >= 3 else 1e-3)
+    _check_surfel(
+        s, 0, (w, x, -y, -z), [1.0, math.exp(-1), math.exp(-2)], tol=1e-5 if version >= 3 else 1e-3
+    )
     # extension records (flag 0x2) between header and columns are skipped
     p2 = tmp_path / f"v{version}_ext.spz"
-    p2.write_bytes(gzip.compress(_spz_payload(version, 2, 1, cols, flags=3, ext=b"\x02\x00\xbe\xad" + bytes(12))))
+    p2.write_bytes(
+        gzip.compress(
+            _spz_payload(version, 2, 1, cols, flags=3, ext=b"\x02\x00\xbe\xad" + bytes(12))
+        )
+    )
     s2 = read_spz(p2)
     np.testing.assert_array_equal(s2.means, s.means)
     np.testing.assert_array_equal(s2.sh, s.sh)
@@ -420,8 +503,15 @@ def test_spz_subset_v4_biker(tmp_path, biker_spz):
     out = tmp_path / "sub.spz"
     write_spz_subset(biker_spz.source, rows, out)
     a, b = _spz_v4_by_hand(BIKER_SPZ), _spz_v4_by_hand(out)
-    assert (b["version"], b["n"], b["deg"], b["frac"], b["flags"], b["n_streams"], b["toc"]) == \
-        (4, 5_000, a["deg"], a["frac"], a["flags"], a["n_streams"], a["toc"])
+    assert (b["version"], b["n"], b["deg"], b["frac"], b["flags"], b["n_streams"], b["toc"]) == (
+        4,
+        5_000,
+        a["deg"],
+        a["frac"],
+        a["flags"],
+        a["n_streams"],
+        a["toc"],
+    )
     assert BIKER_SPZ.read_bytes()[12:32] == out.read_bytes()[12:32]
     for ca, cb in zip(a["cols"], b["cols"]):
         w = len(ca) // 152_746
@@ -440,7 +530,7 @@ def test_spz_subset_gzip(tmp_path):
     write_spz_subset(s.source, np.array([1]), out)
     got = gzip.decompress(out.read_bytes())
     widths = {"positions": 9, "alphas": 1, "colors": 3, "scales": 3, "rotations": 4, "sh": 9}
-    want = {k: v[len(v) // 2:] for k, v in cols.items()}
+    want = {k: v[len(v) // 2 :] for k, v in cols.items()}
     assert widths == {k: len(v) for k, v in want.items()}
     assert got == _spz_payload(3, 1, 1, want, flags=1)
     sub = read_spz(out)
@@ -450,16 +540,19 @@ def test_spz_subset_gzip(tmp_path):
 
 # ---------------------------------------------------------------- .splat ----
 
+
 def _splat_record(pos, scale, rgba, rot_bytes) -> bytes:
     return struct.pack("<3f3f4B4B", *pos, *scale, *rgba, *rot_bytes)
 
 
 def _synthetic_splat(path: Path) -> list[bytes]:
     c45 = round(math.cos(math.pi / 4) * 128 + 128)  # 219: 90 degrees about z
-    recs = [_splat_record((1, 2, 3), (0.1, 0.2, 0.05), (255, 0, 128, 64), (c45, 128, 128, c45)),
-            _splat_record((math.nan, 0, 0), (1, 1, 1), (1, 2, 3, 4), (255, 128, 128, 128)),
-            _splat_record((0, 0, 0), (1, 1, 1), (1, 2, 3, 4), (128, 128, 128, 128)),
-            _splat_record((-4, 5.5, 0.25), (0.3, 0.01, 0.02), (10, 20, 30, 255), (255, 128, 128, 128))]
+    recs = [
+        _splat_record((1, 2, 3), (0.1, 0.2, 0.05), (255, 0, 128, 64), (c45, 128, 128, c45)),
+        _splat_record((math.nan, 0, 0), (1, 1, 1), (1, 2, 3, 4), (255, 128, 128, 128)),
+        _splat_record((0, 0, 0), (1, 1, 1), (1, 2, 3, 4), (128, 128, 128, 128)),
+        _splat_record((-4, 5.5, 0.25), (0.3, 0.01, 0.02), (10, 20, 30, 255), (255, 128, 128, 128)),
+    ]
     path.write_bytes(b"".join(recs))
     return recs
 
@@ -474,8 +567,9 @@ def test_splat_synthetic(tmp_path):
     np.testing.assert_allclose(s.means, [[1, 2, 3], [-4, 5.5, 0.25]])
     np.testing.assert_allclose(s.scales, [[0.2, 0.1], [0.3, 0.02]], rtol=1e-6)
     np.testing.assert_allclose(s.opacities, [64 / 255, 1.0], atol=1e-7)
-    np.testing.assert_allclose(s.sh[0, 0], [(255 / 255 - 0.5) / SH_C0, -0.5 / SH_C0,
-                                            (128 / 255 - 0.5) / SH_C0], atol=1e-5)
+    np.testing.assert_allclose(
+        s.sh[0, 0], [(255 / 255 - 0.5) / SH_C0, -0.5 / SH_C0, (128 / 255 - 0.5) / SH_C0], atol=1e-5
+    )
     r = s.rotations()[0]  # 90 degrees about z: local y (largest) -> world -x
     assert abs(r[0, 0]) > 0.9999 and abs(r[2, 2]) > 0.9999
     np.testing.assert_allclose(s.rotations()[1], np.eye(3)[:, [0, 2, 1]] * [1, 1, -1], atol=1e-6)
@@ -493,6 +587,7 @@ def test_splat_subset(tmp_path):
 
 # ------------------------------------------------------------ bad input ----
 
+
 def test_bad_splat(tmp_path):
     p = tmp_path / "bad.splat"
     p.write_bytes(bytes(33))
@@ -509,9 +604,15 @@ def test_bad_spz(tmp_path):
         (b"PK\x03\x04" + bytes(40), "not an SPZ"),
         (b"\x1f\x8b" + bytes(30), "corrupt gzip"),
         (gzip.compress(b"ABCD" + bytes(20)), "not an SPZ"),
-        (gzip.compress(struct.pack("<4sIIBBBB", b"NGSP", 1, 1, 0, 12, 0, 0) + bytes(40)), "version 1"),
+        (
+            gzip.compress(struct.pack("<4sIIBBBB", b"NGSP", 1, 1, 0, 12, 0, 0) + bytes(40)),
+            "version 1",
+        ),
         (gzip.compress(struct.pack("<4sIIBBBB", b"NGSP", 3, 0, 0, 12, 0, 0)), "0 points"),
-        (gzip.compress(struct.pack("<4sIIBBBB", b"NGSP", 3, 10, 0, 12, 0, 0) + bytes(50)), "truncated"),
+        (
+            gzip.compress(struct.pack("<4sIIBBBB", b"NGSP", 3, 10, 0, 12, 0, 0) + bytes(50)),
+            "truncated",
+        ),
         (struct.pack("<4sIIBBBBI", b"NGSP", 5, 1, 0, 12, 0, 5, 32) + bytes(12), "version 5"),
         (struct.pack("<4sIIBBBBI", b"NGSP", 4, 0, 0, 12, 0, 5, 32) + bytes(12), "0 points"),
         (BIKER_SPZ.read_bytes()[:20], "truncated"),
@@ -531,15 +632,37 @@ def test_bad_compressed_ply(tmp_path):
     p.write_bytes(BIKER_CPLY.read_bytes()[:1_500_000])
     with pytest.raises(DivasInputError, match="truncated"):
         read_compressed_ply(p)
-    vert = np.zeros(0, dtype=[(nm, "<u4") for nm in
-                              ("packed_position", "packed_rotation", "packed_scale", "packed_color")])
-    names = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y",
-             "min_scale_z", "max_scale_x", "max_scale_y", "max_scale_z"]
+    vert = np.zeros(
+        0,
+        dtype=[
+            (nm, "<u4")
+            for nm in ("packed_position", "packed_rotation", "packed_scale", "packed_color")
+        ],
+    )
+    names = [
+        "min_x",
+        "min_y",
+        "min_z",
+        "max_x",
+        "max_y",
+        "max_z",
+        "min_scale_x",
+        "min_scale_y",
+        "min_scale_z",
+        "max_scale_x",
+        "max_scale_y",
+        "max_scale_z",
+    ]
     write_ply_rows(p, {"chunk": np.zeros(0, dtype=[(n, "<f4") for n in names]), "vertex": vert})
     with pytest.raises(DivasInputError, match="0 vertices"):
         read_compressed_ply(p)
-    write_ply_rows(p, {"chunk": np.zeros(1, dtype=[(n, "<f4") for n in names]),
-                       "vertex": np.zeros(600, dtype=vert.dtype)})
+    write_ply_rows(
+        p,
+        {
+            "chunk": np.zeros(1, dtype=[(n, "<f4") for n in names]),
+            "vertex": np.zeros(600, dtype=vert.dtype),
+        },
+    )
     with pytest.raises(DivasInputError, match="expected 3"):
         read_compressed_ply(p)
 

@@ -63,7 +63,9 @@ def test_2dgs_ply_activations_and_sh_layout(tmp_path, sh_degree):
     assert s.means.dtype == np.float32 and s.sh.dtype == np.float32
     assert np.allclose(s.means[:, 1], rows["y"])
     assert np.allclose(s.scales[:, 0], np.exp(rows["scale_0"].astype(np.float64)), rtol=1e-6)
-    assert np.allclose(s.opacities, 1 / (1 + np.exp(-rows["opacity"].astype(np.float64))), atol=1e-6)
+    assert np.allclose(
+        s.opacities, 1 / (1 + np.exp(-rows["opacity"].astype(np.float64))), atol=1e-6
+    )
     q = np.stack([rows[f"rot_{i}"] for i in range(4)], 1).astype(np.float64)
     assert np.allclose(s.quats, q / np.linalg.norm(q, axis=1, keepdims=True), atol=1e-6)
     k = (sh_degree + 1) ** 2
@@ -78,20 +80,37 @@ def test_3dgs_flattened_to_two_largest_axes(tmp_path):
     rows = _gaussian_rows(3, 0, 3, np.random.default_rng(1))
     # Gaussian 0: identity rotation, scales (z, x, y) order of size: z largest, x smallest
     rows[0]["rot_0"], rows[0]["rot_1"], rows[0]["rot_2"], rows[0]["rot_3"] = 1, 0, 0, 0
-    rows[0]["scale_0"], rows[0]["scale_1"], rows[0]["scale_2"] = np.log(0.01), np.log(0.2), np.log(0.5)
+    rows[0]["scale_0"], rows[0]["scale_1"], rows[0]["scale_2"] = (
+        np.log(0.01),
+        np.log(0.2),
+        np.log(0.5),
+    )
     # Gaussian 1: 90° about z (x→y, y→−x), largest local x, then local y
     c = np.cos(np.pi / 4)
-    rows[1]["rot_0"], rows[1]["rot_1"], rows[1]["rot_2"], rows[1]["rot_3"] = 2 * c, 0, 0, 2 * c  # unnormalised
-    rows[1]["scale_0"], rows[1]["scale_1"], rows[1]["scale_2"] = np.log(0.3), np.log(0.1), np.log(0.001)
+    rows[1]["rot_0"], rows[1]["rot_1"], rows[1]["rot_2"], rows[1]["rot_3"] = (
+        2 * c,
+        0,
+        0,
+        2 * c,
+    )  # unnormalised
+    rows[1]["scale_0"], rows[1]["scale_1"], rows[1]["scale_2"] = (
+        np.log(0.3),
+        np.log(0.1),
+        np.log(0.001),
+    )
     write_ply_rows(tmp_path / "g.ply", {"vertex": rows})
     s = load_scene(tmp_path / "g.ply")
     assert s.kind == "3dgs"
     r = quat_to_rotmat(s.quats.astype(np.float64))
     assert np.allclose(s.scales[0], [0.5, 0.2], rtol=1e-6)
-    assert np.allclose(r[0][:, 0], [0, 0, 1], atol=1e-6) and np.allclose(r[0][:, 1], [0, 1, 0], atol=1e-6)
+    assert np.allclose(r[0][:, 0], [0, 0, 1], atol=1e-6) and np.allclose(
+        r[0][:, 1], [0, 1, 0], atol=1e-6
+    )
     assert np.allclose(abs(r[0][:, 2] @ [1, 0, 0]), 1, atol=1e-6)  # normal = dropped axis
     assert np.allclose(s.scales[1], [0.3, 0.1], rtol=1e-6)
-    assert np.allclose(r[1][:, 0], [0, 1, 0], atol=1e-6) and np.allclose(r[1][:, 1], [-1, 0, 0], atol=1e-6)
+    assert np.allclose(r[1][:, 0], [0, 1, 0], atol=1e-6) and np.allclose(
+        r[1][:, 1], [-1, 0, 0], atol=1e-6
+    )
     assert np.allclose(np.linalg.det(r), 1, atol=1e-5)
 
 
@@ -105,7 +124,9 @@ def test_real_3dgs_ply_matches_plyfile(shared_data, name, count):
     keep = s.source.kept_rows
     assert np.array_equal(s.means[:, 0], raw["x"][keep])
     assert np.array_equal(s.sh[:, 5, 1], raw["f_rest_19"][keep])  # G channel, coefficient 5
-    smax = np.exp(np.stack([raw[f"scale_{i}"] for i in range(3)], 1).astype(np.float64)).max(1)[keep]
+    smax = np.exp(np.stack([raw[f"scale_{i}"] for i in range(3)], 1).astype(np.float64)).max(1)[
+        keep
+    ]
     assert np.allclose(s.scales[:, 0], smax, rtol=1e-5)
     assert s.source.dropped_nonfinite == count - len(s)
 
@@ -138,15 +159,21 @@ def test_surfel_ply_writer_round_trip(tmp_path):
     n = 100
     q = rng.normal(size=(n, 4)).astype(np.float32)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    s = SurfelScene(rng.normal(size=(n, 3)).astype(np.float32), q,
-                    rng.uniform(0.01, 0.1, (n, 2)).astype(np.float32),
-                    rng.uniform(0.05, 0.95, n).astype(np.float32),
-                    rng.normal(size=(n, 4, 3)).astype(np.float32), 1)
+    s = SurfelScene(
+        rng.normal(size=(n, 3)).astype(np.float32),
+        q,
+        rng.uniform(0.01, 0.1, (n, 2)).astype(np.float32),
+        rng.uniform(0.05, 0.95, n).astype(np.float32),
+        rng.normal(size=(n, 4, 3)).astype(np.float32),
+        1,
+    )
     write_surfel_ply(tmp_path / "w.ply", s)
     r = load_scene(tmp_path / "w.ply")
     assert r.kind == "2dgs" and r.sh_degree == 1
     assert np.array_equal(r.means, s.means) and np.array_equal(r.sh, s.sh)
-    assert np.allclose(r.scales, s.scales, rtol=1e-6) and np.allclose(r.opacities, s.opacities, atol=1e-6)
+    assert np.allclose(r.scales, s.scales, rtol=1e-6) and np.allclose(
+        r.opacities, s.opacities, atol=1e-6
+    )
     assert np.allclose(np.abs((r.quats * s.quats).sum(1)), 1, atol=1e-6)
 
 
@@ -155,12 +182,20 @@ def _write_bytes(path, data: bytes):
     return path
 
 
-@pytest.mark.parametrize("case,needle", [
-    ("truncated", "truncated"), ("missing", "missing required"), ("not_ply", "not a PLY"),
-    ("empty", "empty scene"), ("all_nan", "NaN/Inf"), ("bad_sh", "SH degree"),
-    ("bad_header", "malformed PLY header"), ("unknown_ext", "unknown scene format"),
-    ("missing_file", "does not exist"),
-])
+@pytest.mark.parametrize(
+    "case,needle",
+    [
+        ("truncated", "truncated"),
+        ("missing", "missing required"),
+        ("not_ply", "not a PLY"),
+        ("empty", "empty scene"),
+        ("all_nan", "NaN/Inf"),
+        ("bad_sh", "SH degree"),
+        ("bad_header", "malformed PLY header"),
+        ("unknown_ext", "unknown scene format"),
+        ("missing_file", "does not exist"),
+    ],
+)
 def test_bad_ply_input_names_file_and_problem(tmp_path, case, needle):
     rng = np.random.default_rng(5)
     p = tmp_path / f"{case}.ply"
@@ -235,8 +270,11 @@ def test_export_from_ascii_and_with_dropped_rows(tmp_path):
 def _grid(tmp_path, **over):
     d = np.zeros((4, 5, 6), np.float32)
     d[1:3, 2, 3] = 5.0
-    arrays = {"density": d, "aabb": np.array([[0, 0, 0], [6, 5, 4]], float),
-              "rgb": np.full((4, 5, 6, 3), 0.5, np.float32)}
+    arrays = {
+        "density": d,
+        "aabb": np.array([[0, 0, 0], [6, 5, 4]], float),
+        "rgb": np.full((4, 5, 6, 3), 0.5, np.float32),
+    }
     arrays.update(over)
     arrays = {k: v for k, v in arrays.items() if v is not None}
     np.savez(tmp_path / "g.npz", **arrays)
@@ -255,11 +293,14 @@ def test_density_grid_load_export_and_errors(tmp_path):
     nan = np.zeros((4, 5, 6), np.float32)
     nan[0, 0, 0], nan[1, 1, 1] = np.nan, 2.0
     assert read_density_grid(_grid(tmp_path, density=nan)).source.dropped_nonfinite == 1
-    for over, needle in [({"aabb": None}, "needs keys"), ({"density": np.zeros((4, 5))}, "[D,H,W]"),
-                         ({"aabb": np.array([[0, 0, 0], [0, 1, 1]])}, "max > min"),
-                         ({"rgb": np.zeros((4, 5, 6))}, "'rgb' must be"),
-                         ({"density": np.zeros((4, 5, 6))}, "zero everywhere"),
-                         ({"density": -np.ones((4, 5, 6))}, "negative")]:
+    for over, needle in [
+        ({"aabb": None}, "needs keys"),
+        ({"density": np.zeros((4, 5))}, "[D,H,W]"),
+        ({"aabb": np.array([[0, 0, 0], [0, 1, 1]])}, "max > min"),
+        ({"rgb": np.zeros((4, 5, 6))}, "'rgb' must be"),
+        ({"density": np.zeros((4, 5, 6))}, "zero everywhere"),
+        ({"density": -np.ones((4, 5, 6))}, "negative"),
+    ]:
         with pytest.raises(DivasInputError, match=needle.replace("[", r"\[").replace("]", r"\]")):
             load_scene(_grid(tmp_path, **over))
     (tmp_path / "bad.npz").write_bytes(b"PK\x03\x04garbage")
@@ -268,8 +309,12 @@ def test_density_grid_load_export_and_errors(tmp_path):
 
 
 def _divas(*args):
-    return subprocess.run([sys.executable, "-m", "divas_engine", *map(str, args)],
-                          capture_output=True, text=True, cwd=REPO)
+    return subprocess.run(
+        [sys.executable, "-m", "divas_engine", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
 
 
 def test_info_cli_json_and_clean_errors(tmp_path, shared_data):
@@ -277,14 +322,18 @@ def test_info_cli_json_and_clean_errors(tmp_path, shared_data):
     assert r.returncode == 0, r.stderr
     info = json.loads(r.stdout)
     assert info["kind"] == "3dgs" and info["count"] == 6831 and info["sh_degree"] == 3
-    assert len(info["bounds_min"]) == 3 and all(a <= b for a, b in zip(info["bounds_min"], info["bounds_max"]))
+    assert len(info["bounds_min"]) == 3 and all(
+        a <= b for a, b in zip(info["bounds_min"], info["bounds_max"])
+    )
     assert info["camera_count"] == 0
     r = _divas("info", _grid(tmp_path), "--json")
     assert r.returncode == 0 and json.loads(r.stdout)["kind"] == "nerf_grid"
     text = _divas("info", shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply")
     assert text.returncode == 0 and "sh_degree: 3" in text.stdout
     bad = tmp_path / "bad.ply"
-    bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n")
+    bad.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n"
+    )
     r = _divas("info", bad)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert str(bad) in r.stderr and "truncated" in r.stderr

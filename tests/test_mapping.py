@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 from divas_engine.camera import Camera
-from divas_engine.fusion import (FusionResult, FusionView, GridConfig, GsFusion,
-                                 build_occupancy)
+from divas_engine.fusion import FusionResult, FusionView, GridConfig, GsFusion, build_occupancy
 from divas_engine.fusion.morton import morton_encode
 from divas_engine.fusion.occupancy import GridGeometry, OccupancyGrid, voxel_codes_numpy
 from divas_engine.mapping import MappingConfig, SurfelMapper, map_to_surfels
@@ -24,9 +23,14 @@ def _scene(means, scales, quats=None, opac=0.8) -> SurfelScene:
     means = np.asarray(means, dtype=np.float32).reshape(-1, 3)
     n = len(means)
     q = np.tile([1.0, 0, 0, 0], (n, 1)) if quats is None else np.asarray(quats)
-    return SurfelScene(means, q.astype(np.float32),
-                       np.asarray(scales, dtype=np.float32).reshape(n, 2),
-                       np.full(n, opac, np.float32), np.zeros((n, 1, 3), np.float32), 0)
+    return SurfelScene(
+        means,
+        q.astype(np.float32),
+        np.asarray(scales, dtype=np.float32).reshape(n, 2),
+        np.full(n, opac, np.float32),
+        np.zeros((n, 1, 3), np.float32),
+        0,
+    )
 
 
 def _fused(segmented, vmask) -> FusionResult:
@@ -34,9 +38,17 @@ def _fused(segmented, vmask) -> FusionResult:
     a = len(seg)
     vm = np.asarray(vmask, dtype=np.uint32).reshape(a, -1)
     z = np.zeros(a)
-    return FusionResult(P=seg.astype(np.float64), segmented=seg, vmask=vm * seg[:, None],
-                        vmask_raw=vm, W=z, Z=z, W_thin=z, n_thick=np.zeros(a, np.int32),
-                        n_thin=np.zeros(a, np.int32))
+    return FusionResult(
+        P=seg.astype(np.float64),
+        segmented=seg,
+        vmask=vm * seg[:, None],
+        vmask_raw=vm,
+        W=z,
+        Z=z,
+        W_thin=z,
+        n_thick=np.zeros(a, np.int32),
+        n_thin=np.zeros(a, np.int32),
+    )
 
 
 def _view(cam: Camera, mask) -> FusionView:
@@ -71,8 +83,14 @@ def _random_case(seed: int):
     for k in range(3):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
-        cam = Camera.look_at(d * 3.0, rng.normal(scale=0.2, size=3), np.array([0, 0, 1.0]),
-                             width=96, height=72, fx=rng.uniform(80, 160))
+        cam = Camera.look_at(
+            d * 3.0,
+            rng.normal(scale=0.2, size=3),
+            np.array([0, 0, 1.0]),
+            width=96,
+            height=72,
+            fx=rng.uniform(80, 160),
+        )
         yy, xx = np.mgrid[0:72, 0:96]
         m = 0.5 + 0.5 * np.sin(xx / rng.uniform(3, 9) + k) * np.cos(yy / rng.uniform(3, 9))
         views.append(_view(cam, np.clip(m, 0, 1)))
@@ -108,8 +126,9 @@ def test_matches_numpy_reference_random(seed):
     sc, grid, fused, views, slots = _random_case(seed)
     mapper = SurfelMapper(sc, grid, device=DEV)
     res = mapper.map(fused, views, slots)
-    ref = map_reference(sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask,
-                        views, slots)
+    ref = map_reference(
+        sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, views, slots
+    )
     assert res.n_pass1 > 500 and res.n_scored > 500
     assert 0 < res.n_selected < res.n_pass2  # Pass 3 culls some, keeps some
     assert ref["total_fp"].sum() > 5000
@@ -133,8 +152,9 @@ def test_matches_reference_with_real_fusion():
     fused = fusion.result()
     mapper = SurfelMapper(sc, grid, device=DEV)
     res = mapper.map(fused, live, slots)
-    ref = map_reference(sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask,
-                        live, slots)
+    ref = map_reference(
+        sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, live, slots
+    )
     assert res.n_pass1 > 100 and res.n_selected > 50
     _compare(res, ref, mapper, fused, live, slots)
 
@@ -170,8 +190,9 @@ def test_ablation_switches():
 
 # --------------------------------------------------------------------------- Pass 1
 def _hand_grid(codes, center=(0.0, 0.0, 0.0), half=1.0, g=8):
-    geo = GridGeometry(np.asarray(center, dtype=np.float64), half, 2 * half / g, g, half, 0.01,
-                       False)
+    geo = GridGeometry(
+        np.asarray(center, dtype=np.float64), half, 2 * half / g, g, half, 0.01, False
+    )
     codes = np.asarray(codes, dtype=np.int64)
     return OccupancyGrid.from_codes(geo, codes, np.ones(len(codes)), device=DEV)
 
@@ -180,14 +201,16 @@ def test_pass1_admits_exactly_segmented_voxels():
     h = 0.25  # g = 8 over [-1, 1)³
     vc = lambda i, j, k: [-1 + (i + 0.5) * h, -1 + (j + 0.5) * h, -1 + (k + 0.5) * h]  # noqa
     seg_vox, bg_vox = (1, 2, 3), (4, 4, 4)
-    means = [vc(*seg_vox),                        # 0: segmented voxel → in
-             vc(*bg_vox),                         # 1: active, not segmented → out
-             vc(5, 5, 5),                         # 2: inactive voxel → out
-             [np.nan, 0, 0],                      # 3: NaN → out
-             [1.5, 0, 0],                         # 4: outside the cube → out
-             [1.0, 0, 0],                         # 5: on the +b face (|μ−c| ≥ b) → out
-             [-0.999, -0.5 + 1e-3, -0.25 + 1e-3],  # 6: corner of voxel (0,2,3) → in
-             np.add(vc(*seg_vox), 0.12)]          # 7: same voxel, off-centre → in
+    means = [
+        vc(*seg_vox),  # 0: segmented voxel → in
+        vc(*bg_vox),  # 1: active, not segmented → out
+        vc(5, 5, 5),  # 2: inactive voxel → out
+        [np.nan, 0, 0],  # 3: NaN → out
+        [1.5, 0, 0],  # 4: outside the cube → out
+        [1.0, 0, 0],  # 5: on the +b face (|μ−c| ≥ b) → out
+        [-0.999, -0.5 + 1e-3, -0.25 + 1e-3],  # 6: corner of voxel (0,2,3) → in
+        np.add(vc(*seg_vox), 0.12),
+    ]  # 7: same voxel, off-centre → in
     codes = morton_encode(np.array([seg_vox, bg_vox, (0, 2, 3)]))
     grid = _hand_grid(codes)
     sc = _scene(means, np.full((len(means), 2), 0.01))
@@ -292,10 +315,13 @@ def test_pass3_hand_case():
     # (|dx−dy| ≤ 1: 7 + 12; |dx−dy| = 2 with |dx+dy| ≤ 6: 10; hand count)
     assert tot0[N] == 29
     assert res.scored_per_view == [4, 5]
-    ref = map_reference(sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask,
-                        views, slots, cfg)
+    ref = map_reference(
+        sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, views, slots, cfg
+    )
     assert not ref["ambiguous"].any()
-    assert ref["total_fp"][0].tolist() == tot0.tolist() and ref["mask_fp"][1].tolist() == pos1.tolist()
+    assert (
+        ref["total_fp"][0].tolist() == tot0.tolist() and ref["mask_fp"][1].tolist() == pos1.tolist()
+    )
     assert np.array_equal(ref["kappa"], res.kappa) and np.array_equal(ref["selected"], res.selected)
 
 
@@ -305,10 +331,12 @@ def test_pass3_box_is_one_sigma_and_threshold_is_tau_kappa():
     cam = _axis_cam()
     yy, xx = np.mgrid[0:40, 0:40]
     mask = ((xx >= 17) & (xx <= 21)) & ((yy >= 19) & (yy <= 20))  # 5 × 2 = 10 of the box
-    mask |= (xx == 25)  # outside the 1σ box, inside the 3σ one: never counted
+    mask |= xx == 25  # outside the 1σ box, inside the 3σ one: never counted
     sc = _scene([_px(20, 20)], [[0.034, 0.016]])
-    grid = _hand_grid(np.unique(voxel_codes_numpy(sc.means, np.array([0, 0, 1.0]), 1.0, 0.25, 8)),
-                      center=(0, 0, 1.0))
+    grid = _hand_grid(
+        np.unique(voxel_codes_numpy(sc.means, np.array([0, 0, 1.0]), 1.0, 0.25, 8)),
+        center=(0, 0, 1.0),
+    )
     fused = _fused([True], [[1]])
     v = _view(cam, mask.astype(np.float32))
     mapper = SurfelMapper(sc, grid, device=DEV)
@@ -328,8 +356,15 @@ def test_pass3_behind_camera_and_offscreen_not_counted():
     sc = _scene([[0, 0, -1.0], [5.0, 0, 1.0], [0, 0, 0.005]], np.full((3, 2), 0.02))
     grid = _hand_grid(np.unique(voxel_codes_numpy(sc.means, np.zeros(3), 8.0, 2.0, 8)), half=8.0)
     fused = _fused(np.ones(len(grid), bool), np.ones((len(grid), 1)))
-    res = map_to_surfels(sc, grid, fused, [_view(cam, np.ones((40, 40)))], [0],
-                         MappingConfig(needle_filter=False), device=DEV)
+    res = map_to_surfels(
+        sc,
+        grid,
+        fused,
+        [_view(cam, np.ones((40, 40)))],
+        [0],
+        MappingConfig(needle_filter=False),
+        device=DEV,
+    )
     assert res.pass2.all() and not res.selected.any() and (res.kappa == 0).all()
 
 
@@ -356,6 +391,7 @@ def test_view_cache_add_drop_reclaim(monkeypatch):
     """Per-update calls with views added, undone and re-added (device mask buffers are
     appended and reclaimed) give the same result as a fresh mapper."""
     from divas_engine.mapping import passes
+
     monkeypatch.setattr(passes._ViewCache, "min_reclaim", 1)
     sc, grid, fused, views, slots = _random_case(1)
     extra = [_view(v.camera, 1.0 - v.mask) for v in views]  # new objects, other masks
@@ -370,8 +406,9 @@ def test_view_cache_add_drop_reclaim(monkeypatch):
         want = SurfelMapper(sc, grid, device=DEV).map(fused, vs, ss)
         assert np.array_equal(got.kappa, want.kappa) and np.array_equal(got.selected, want.selected)
     got = mapper.map(fused, pool[:2], [0, 5], MappingConfig(mask_threshold=0.7))
-    want = SurfelMapper(sc, grid, device=DEV).map(fused, pool[:2], [0, 5],
-                                                  MappingConfig(mask_threshold=0.7))
+    want = SurfelMapper(sc, grid, device=DEV).map(
+        fused, pool[:2], [0, 5], MappingConfig(mask_threshold=0.7)
+    )
     assert np.array_equal(got.kappa, want.kappa)
 
 
@@ -389,8 +426,9 @@ def test_pass3_uses_the_view_cameras_own_near_clip():
     clipped_views = [_view(cam.with_near(1.0), full)]
     clipped = map_to_surfels(sc, grid, fused, clipped_views, [0], cfg, device=DEV)
     assert clipped.selected.tolist() == [False, True] and clipped.kappa[0] == 0.0
-    ref = map_reference(sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask,
-                        clipped_views, [0], cfg)
+    ref = map_reference(
+        sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, clipped_views, [0], cfg
+    )
     assert np.array_equal(ref["selected"], clipped.selected)
     # a camera near below the config's changes nothing
     low = map_to_surfels(sc, grid, fused, [_view(cam.with_near(1e-4), full)], [0], cfg, device=DEV)

@@ -8,10 +8,15 @@ import pytest
 import warp as wp
 
 from divas_engine.fusion import morton
-from divas_engine.fusion.config import GridConfig, NERF_PRESETS, nerf_preset
+from divas_engine.fusion.config import NERF_PRESETS, GridConfig, nerf_preset
 from divas_engine.fusion.nerf_occupancy import build_nerf_occupancy
-from divas_engine.fusion.occupancy import (build_occupancy, grid_geometry, resolve_resolution,
-                                           surfel_voxel_codes, voxel_codes_numpy)
+from divas_engine.fusion.occupancy import (
+    build_occupancy,
+    grid_geometry,
+    resolve_resolution,
+    surfel_voxel_codes,
+    voxel_codes_numpy,
+)
 from divas_engine.scene import DensityGrid, SurfelScene
 from kernels import occupancy as kocc
 
@@ -21,13 +26,18 @@ DEV = "cpu"
 def _bitwise_encode(i: int, j: int, k: int) -> int:
     c = 0
     for b in range(21):
-        c |= ((i >> b) & 1) << (3 * b) | ((j >> b) & 1) << (3 * b + 1) | ((k >> b) & 1) << (3 * b + 2)
+        c |= (
+            ((i >> b) & 1) << (3 * b)
+            | ((j >> b) & 1) << (3 * b + 1)
+            | ((k >> b) & 1) << (3 * b + 2)
+        )
     return c
 
 
 @wp.kernel
-def _morton_kernel(ijk: wp.array(dtype=wp.vec3i), codes: wp.array(dtype=wp.int64),
-                   back: wp.array(dtype=wp.vec3i)):
+def _morton_kernel(
+    ijk: wp.array(dtype=wp.vec3i), codes: wp.array(dtype=wp.int64), back: wp.array(dtype=wp.vec3i)
+):
     t = wp.tid()
     c = kocc.morton_encode3(ijk[t][0], ijk[t][1], ijk[t][2])
     codes[t] = c
@@ -36,8 +46,11 @@ def _morton_kernel(ijk: wp.array(dtype=wp.vec3i), codes: wp.array(dtype=wp.int64
 
 def test_morton_roundtrip_matches_bitwise_reference():
     rng = np.random.default_rng(0)
-    ijk = np.r_[rng.integers(0, 1 << 21, (300, 3)), rng.integers(0, 1024, (300, 3)),
-                [[0, 0, 0], [1023, 1023, 1023], [(1 << 21) - 1] * 3, [1, 0, 0], [0, 1, 0], [0, 0, 1]]]
+    ijk = np.r_[
+        rng.integers(0, 1 << 21, (300, 3)),
+        rng.integers(0, 1024, (300, 3)),
+        [[0, 0, 0], [1023, 1023, 1023], [(1 << 21) - 1] * 3, [1, 0, 0], [0, 1, 0], [0, 0, 1]],
+    ]
     ref = np.array([_bitwise_encode(*map(int, r)) for r in ijk], dtype=np.int64)
     codes = morton.morton_encode(ijk)
     assert np.array_equal(codes, ref)
@@ -53,13 +66,16 @@ def test_morton_roundtrip_matches_bitwise_reference():
         morton.morton_encode(np.array([[1 << 21, 0, 0]]))
 
 
-@pytest.mark.parametrize("b,h,gmax,exp_g,exp_h,capped", [
-    (1.0, 2.0 / 64, 1024, 64, 2.0 / 64, False),       # 2b/h exactly a power of two
-    (1.0, 2.0 / 64.5, 1024, 128, 2.0 / 64.5, False),  # just above → next power
-    (1.0, 2.0 / 537.6, 1024, 1024, 2.0 / 537.6, False),
-    (1.0, 2.0 / 537.6, 512, 512, 2.0 / 512, True),    # capped: h_v = 2b/g
-    (1.0, 5.0, 1024, 1, 5.0, False),                  # voxel larger than the cube
-])
+@pytest.mark.parametrize(
+    "b,h,gmax,exp_g,exp_h,capped",
+    [
+        (1.0, 2.0 / 64, 1024, 64, 2.0 / 64, False),  # 2b/h exactly a power of two
+        (1.0, 2.0 / 64.5, 1024, 128, 2.0 / 64.5, False),  # just above → next power
+        (1.0, 2.0 / 537.6, 1024, 1024, 2.0 / 537.6, False),
+        (1.0, 2.0 / 537.6, 512, 512, 2.0 / 512, True),  # capped: h_v = 2b/g
+        (1.0, 5.0, 1024, 1, 5.0, False),  # voxel larger than the cube
+    ],
+)
 def test_resolution_rule(b, h, gmax, exp_g, exp_h, capped):
     hh, g, cap = resolve_resolution(b, h, gmax)
     assert (g, cap) == (exp_g, capped)
@@ -68,9 +84,14 @@ def test_resolution_rule(b, h, gmax, exp_g, exp_h, capped):
 
 def _scene(means, scales, opac):
     n = len(means)
-    return SurfelScene(np.asarray(means, np.float32), np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
-                       np.asarray(scales, np.float32), np.asarray(opac, np.float32),
-                       np.zeros((n, 1, 3), np.float32), 0)
+    return SurfelScene(
+        np.asarray(means, np.float32),
+        np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
+        np.asarray(scales, np.float32),
+        np.asarray(opac, np.float32),
+        np.zeros((n, 1, 3), np.float32),
+        0,
+    )
 
 
 def test_grid_geometry_hand_cases():
@@ -99,7 +120,9 @@ def test_grid_geometry_hand_cases():
 
 def _random_scene(n=30000, seed=2):
     rng = np.random.default_rng(seed)
-    means = np.r_[rng.normal(size=(n - 30, 3)), np.full((10, 3), np.nan), rng.normal(size=(20, 3)) * 50]
+    means = np.r_[
+        rng.normal(size=(n - 30, 3)), np.full((10, 3), np.nan), rng.normal(size=(20, 3)) * 50
+    ]
     return _scene(means, rng.uniform(0.001, 0.01, (n, 2)), rng.uniform(0.05, 1.0, n))
 
 
@@ -122,7 +145,9 @@ def test_active_set_matches_numpy_reference():
     assert (r.n_kept, r.n_occupied, r.n_active) == (keep.sum(), len(u), act.sum())
     assert r.surfels_per_active == pytest.approx(cnt[act].sum() / act.sum())
     assert r.active_fraction == pytest.approx(act.sum() / r.g**3)
-    assert np.allclose(grid.centers(), geo.origin + (morton.morton_decode(u[act]) + 0.5) * geo.voxel_size)
+    assert np.allclose(
+        grid.centers(), geo.origin + (morton.morton_decode(u[act]) + 0.5) * geo.voxel_size
+    )
     # O(1) lookup: every active code → its index; inactive/absent → −1
     assert np.array_equal(grid.lookup(u[act]), np.arange(act.sum()))
     assert (grid.lookup(np.r_[u[~act], 2**40, -1]) == -1).all()
@@ -149,17 +174,37 @@ def test_memory_scales_with_active_voxels():
 def test_empty_and_degenerate_scenes():
     with pytest.raises(ValueError):
         build_occupancy(_scene(np.full((3, 3), np.nan), np.ones((3, 2)), np.ones(3)), device=DEV)
-    g = build_occupancy(_scene(np.random.default_rng(0).normal(size=(50, 3)), np.full((50, 2), 1e-3),
-                               np.full(50, 0.1)), device=DEV)
+    g = build_occupancy(
+        _scene(
+            np.random.default_rng(0).normal(size=(50, 3)), np.full((50, 2), 1e-3), np.full(50, 0.1)
+        ),
+        device=DEV,
+    )
     assert len(g) == 0 and g.report.n_active == 0
 
 
 def test_nerf_presets_hold_the_paper_table():
     llff, mip = NERF_PRESETS["llff"], NERF_PRESETS["mip360"]
-    assert (llff.gamma, llff.beta, llff.b_max, llff.lambda_range, llff.rho_thresh, llff.rho_thin,
-            llff.rho_cover, llff.grid_resolution) == (4.0, 0.2, 10, 0.05, 10, 50, 0.20, 128)
-    assert (mip.gamma, mip.beta, mip.b_max, mip.lambda_range, mip.rho_thresh, mip.rho_thin,
-            mip.rho_cover, mip.grid_resolution) == (0.5, 0.2, 1, 5.0, 5, 30, 0.30, 256)
+    assert (
+        llff.gamma,
+        llff.beta,
+        llff.b_max,
+        llff.lambda_range,
+        llff.rho_thresh,
+        llff.rho_thin,
+        llff.rho_cover,
+        llff.grid_resolution,
+    ) == (4.0, 0.2, 10, 0.05, 10, 50, 0.20, 128)
+    assert (
+        mip.gamma,
+        mip.beta,
+        mip.b_max,
+        mip.lambda_range,
+        mip.rho_thresh,
+        mip.rho_thin,
+        mip.rho_cover,
+        mip.grid_resolution,
+    ) == (0.5, 0.2, 1, 5.0, 5, 30, 0.30, 256)
     for c in (llff, mip):
         assert (c.tau_cw, c.tau_thin, c.tau_cons) == (0.75, 0.6, 0.5)
     assert nerf_preset("llff", gamma=1.0).gamma == 1.0

@@ -8,8 +8,14 @@ import pytest
 
 from divas_engine import load_scene
 from divas_engine.io.ply import write_surfel_ply
-from divas_engine.point_attributes import (ENGINE_COLUMNS, decoded_columns, display_radius,
-                                           grid_point_table, scene_selection, surfel_point_table)
+from divas_engine.point_attributes import (
+    ENGINE_COLUMNS,
+    decoded_columns,
+    display_radius,
+    grid_point_table,
+    scene_selection,
+    surfel_point_table,
+)
 from divas_engine.scene import DensityGrid, SourceInfo, SurfelScene
 
 
@@ -17,10 +23,14 @@ def _scene(n=50, seed=0) -> SurfelScene:
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4)).astype(np.float32)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return SurfelScene(rng.normal(size=(n, 3)).astype(np.float32), q,
-                       rng.uniform(0.01, 0.1, (n, 2)).astype(np.float32),
-                       rng.uniform(0.1, 0.9, n).astype(np.float32),
-                       rng.normal(size=(n, 4, 3)).astype(np.float32), 1)
+    return SurfelScene(
+        rng.normal(size=(n, 3)).astype(np.float32),
+        q,
+        rng.uniform(0.01, 0.1, (n, 2)).astype(np.float32),
+        rng.uniform(0.1, 0.9, n).astype(np.float32),
+        rng.normal(size=(n, 4, 3)).astype(np.float32),
+        1,
+    )
 
 
 def test_ply_table_is_raw_rows_and_skips_dropped(tmp_path):

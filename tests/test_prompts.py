@@ -16,18 +16,30 @@ from divas_engine.session.prompts import find_training_camera
 NOTES_EXAMPLE = {
     "version": 1,
     "anchors": [
-        {"camera": {"width": 800, "height": 600, "fx": 700, "fy": 700, "cx": 400, "cy": 300,
-                    "c2w": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]},
-         "clicks": [{"xy": [412.5, 300.0]}, {"xy": [200, 310]}]},
+        {
+            "camera": {
+                "width": 800,
+                "height": 600,
+                "fx": 700,
+                "fy": 700,
+                "cx": 400,
+                "cy": 300,
+                "c2w": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+            },
+            "clicks": [{"xy": [412.5, 300.0]}, {"xy": [200, 310]}],
+        },
         {"training_camera": "IMG_0012", "clicks": [{"xy": [100, 90]}]},
-        {"fibonacci": 2, "clicks": [{"xy": [320, 240]}]}],
+        {"fibonacci": 2, "clicks": [{"xy": [320, 240]}]},
+    ],
     "centroid_prompts": {"0:1": [{"xy": [410, 290], "positive": False}]},
 }
 
 
 def _train_cams():
-    return [Camera(640, 480, 500, 500, 320, 240, np.eye(4), name=n)
-            for n in ("IMG_0011.JPG", "IMG_0012.JPG", "IMG_0013.JPG")]
+    return [
+        Camera(640, 480, 500, 500, 320, 240, np.eye(4), name=n)
+        for n in ("IMG_0011.JPG", "IMG_0012.JPG", "IMG_0013.JPG")
+    ]
 
 
 def _fib():
@@ -75,17 +87,26 @@ BAD = [
     (lambda d: d["anchors"][0]["clicks"][1].pop("xy"), "anchors[0].clicks[1]: missing 'xy'"),
     (lambda d: d["anchors"][0]["clicks"][1].update(xy=[1, 2, 3]), "anchors[0].clicks[1].xy"),
     (lambda d: d["anchors"][0]["clicks"][1].update(xy=[1, "a"]), "anchors[0].clicks[1].xy"),
-    (lambda d: d["anchors"][0]["clicks"][1].update(xy=[1, float("nan")]),
-     "anchors[0].clicks[1].xy"),
+    (
+        lambda d: d["anchors"][0]["clicks"][1].update(xy=[1, float("nan")]),
+        "anchors[0].clicks[1].xy",
+    ),
     (lambda d: d["anchors"][0]["clicks"][1].update(positive=1), "anchors[0].clicks[1].positive"),
     (lambda d: d.update(centroid_prompts=[]), "centroid_prompts"),
     (lambda d: d["centroid_prompts"].update({"0-1": []}), "centroid_prompts['0-1']"),
     (lambda d: d["centroid_prompts"].update({"3:0": []}), "centroid_prompts['3:0']"),
     (lambda d: d["centroid_prompts"].update({"1:4": []}), "centroid_prompts['1:4']"),
-    (lambda d: d["centroid_prompts"].update({"0:0": [{"xy": [1]}]}),
-     "centroid_prompts['0:0'][0].xy"),
-    (lambda d: (d["anchors"][1]["clicks"].__setitem__(0, {"xy": [1, 2], "positive": False}),
-                d["centroid_prompts"].update({"1:0": []})), "centroid_prompts['1:0']"),
+    (
+        lambda d: d["centroid_prompts"].update({"0:0": [{"xy": [1]}]}),
+        "centroid_prompts['0:0'][0].xy",
+    ),
+    (
+        lambda d: (
+            d["anchors"][1]["clicks"].__setitem__(0, {"xy": [1, 2], "positive": False}),
+            d["centroid_prompts"].update({"1:0": []}),
+        ),
+        "centroid_prompts['1:0']",
+    ),
 ]
 
 
@@ -102,13 +123,17 @@ def test_not_an_object():
 
 
 BAD_RESOLVE = [
-    (lambda d: d["anchors"][1].update(training_camera="IMG_9999"),
-     "anchors[1].training_camera: no training camera named"),
+    (
+        lambda d: d["anchors"][1].update(training_camera="IMG_9999"),
+        "anchors[1].training_camera: no training camera named",
+    ),
     (lambda d: d["anchors"][2].update(fibonacci=12), "anchors[2].fibonacci: index 12 out of range"),
     (lambda d: d["anchors"][0]["clicks"][0].update(xy=[800, 10]), "anchors[0].clicks[0].xy"),
     (lambda d: d["anchors"][1]["clicks"][0].update(xy=[10, -0.5]), "anchors[1].clicks[0].xy"),
-    (lambda d: d["centroid_prompts"]["0:1"][0].update(xy=[900, 10]),
-     "centroid_prompts['0:1'][0].xy"),
+    (
+        lambda d: d["centroid_prompts"]["0:1"][0].update(xy=[900, 10]),
+        "centroid_prompts['0:1'][0].xy",
+    ),
 ]
 
 

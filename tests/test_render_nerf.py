@@ -75,9 +75,9 @@ def _expected_slab(cam: Camera, sigma: float, cfg: RenderConfig) -> dict[str, np
                 T *= 1.0 - a
                 if st["D_med"] == 0 and 1 - T >= 0.5:
                     st["D_med"] = z
-                if not anchored and 1 - T >= cfg.tau_cw:
+                if not anchored and cfg.tau_cw <= 1 - T:
                     st["D_max"], anchored = z, True
-                if T < cfg.t_min:
+                if cfg.t_min > T:
                     break
             out["alpha"][y, x] = 1 - T
             for k, v in st.items():
@@ -130,8 +130,10 @@ def _compare(b, ref):
     assert np.array_equal(b.N_samp, ref["N_samp"])
 
 
-CAMS = [Camera.look_at([0.4, -0.3, -0.2], [0.1, 0.05, 3.2], [0, -1, 0], width=80, height=60, fx=70),
-        Camera.look_at([0.1, 0.0, 3.0], [1.0, 0.3, 4.0], [0, -1, 0], width=64, height=48, fx=40)]
+CAMS = [
+    Camera.look_at([0.4, -0.3, -0.2], [0.1, 0.05, 3.2], [0, -1, 0], width=80, height=60, fx=70),
+    Camera.look_at([0.1, 0.0, 3.0], [1.0, 0.3, 4.0], [0, -1, 0], width=64, height=48, fx=40),
+]
 
 
 @pytest.fixture(scope="module")
@@ -164,8 +166,12 @@ def test_empty_space_skipping_is_exact(grid):
     for block in (1, 4, 16):
         buf = upload_grid(grid.density, grid.aabb, grid.rgb, wp.get_device("cpu"), block=block)
         o = raymarch_grid(buf, cam.c2w, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
-        outs.append([getattr(o, k).numpy() for k in ("feat", "alpha", "d_min", "d_med", "d_max",
-                                                       "d_mw", "d_exp", "n_samp")])
+        outs.append(
+            [
+                getattr(o, k).numpy()
+                for k in ("feat", "alpha", "d_min", "d_med", "d_max", "d_mw", "d_exp", "n_samp")
+            ]
+        )
     for a, b in zip(outs[0], outs[1]):
         assert np.array_equal(a, b)
     for a, b in zip(outs[0], outs[2]):

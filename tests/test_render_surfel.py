@@ -18,8 +18,13 @@ from divas_engine.render import RenderConfig, Renderer, make_renderer
 from divas_engine.render.surfel_renderer import SurfelRenderer
 from divas_engine.scene import SH_C0, SurfelScene
 
-from .reference_render import (random_surfel_scene, reference_surfels, reference_surfels_pairs,
-                               sh_colors, surfel_hits)
+from .reference_render import (
+    random_surfel_scene,
+    reference_surfels,
+    reference_surfels_pairs,
+    sh_colors,
+    surfel_hits,
+)
 
 DEPTHS = ("D_min", "D_med", "D_max", "D_mw", "D_exp")
 
@@ -30,9 +35,14 @@ def _scene(means, scales, opac, colors=None, rot=None, sh=None, degree=0) -> Sur
     if sh is None:
         colors = np.full((n, 3), 0.5) if colors is None else np.asarray(colors, float)
         sh = ((colors - 0.5) / SH_C0)[:, None, :]
-    return SurfelScene(np.asarray(means, np.float32), rotmat_to_quat(rot).astype(np.float32),
-                       np.asarray(scales, np.float32), np.asarray(opac, np.float32),
-                       np.asarray(sh, np.float32), degree)
+    return SurfelScene(
+        np.asarray(means, np.float32),
+        rotmat_to_quat(rot).astype(np.float32),
+        np.asarray(scales, np.float32),
+        np.asarray(opac, np.float32),
+        np.asarray(sh, np.float32),
+        degree,
+    )
 
 
 CAM = Camera(64, 48, 60.0, 60.0, 32.0, 24.0)
@@ -91,8 +101,14 @@ def test_two_stacked_planes(op1, op2):
     w1 = op1
     w2 = (1 - op1) * op2
     T = (1 - op1) * (1 - op2)
-    exp = {"alpha": 1 - T, "D_min": z1, "D_med": z1 if op1 >= 0.5 else z2, "D_max": z2,
-           "D_mw": z1 if w1 > w2 else z2, "D_exp": (w1 * z1 + w2 * z2) / (w1 + w2)}
+    exp = {
+        "alpha": 1 - T,
+        "D_min": z1,
+        "D_med": z1 if op1 >= 0.5 else z2,
+        "D_max": z2,
+        "D_mw": z1 if w1 > w2 else z2,
+        "D_exp": (w1 * z1 + w2 * z2) / (w1 + w2),
+    }
     for k, v in exp.items():
         assert np.all(_rel(getattr(b, k), v) < 1e-4), k
     assert np.all(b.N_samp == (1 if op1 >= 0.5 else 2))
@@ -112,13 +128,20 @@ def test_oblique_plane_depth_is_exact():
     p0 = np.array([0.1, 0.0, 5.0])
     sc = _scene([p0], [[1.2, 1.5]], [1.0], rot=rot)
     b = SurfelRenderer(sc, device="cpu").render(CAM)
-    ys, xs = np.mgrid[0:CAM.height, 0:CAM.width]
-    r = np.stack([(xs + 0.5 - CAM.cx) / CAM.fx, (ys + 0.5 - CAM.cy) / CAM.fy, np.ones(xs.shape)], -1)
+    ys, xs = np.mgrid[0 : CAM.height, 0 : CAM.width]
+    r = np.stack(
+        [(xs + 0.5 - CAM.cx) / CAM.fx, (ys + 0.5 - CAM.cy) / CAM.fy, np.ones(xs.shape)], -1
+    )
     z = (n @ p0) / (r @ n)
     covered = b.alpha > 0
     assert covered.mean() > 0.7 and z[covered].max() / z[covered].min() > 2
-    valid = {"D_min": b.alpha >= 0.05, "D_med": b.alpha >= 0.5, "D_max": covered,
-             "D_mw": covered, "D_exp": covered}
+    valid = {
+        "D_min": b.alpha >= 0.05,
+        "D_med": b.alpha >= 0.5,
+        "D_max": covered,
+        "D_mw": covered,
+        "D_exp": covered,
+    }
     for k, m in valid.items():
         d = getattr(b, k)
         assert np.array_equal(d > 0, m), k
@@ -165,8 +188,9 @@ def _compare(b, ref, scene, cam, max_border=3):
 @pytest.fixture(scope="module")
 def random_case():
     sc = random_surfel_scene(2000, seed=1)
-    cam = Camera.look_at([0.2, -0.1, -0.3], [0, 0, 4], [0, -1, 0], width=96, height=72, fx=80,
-                         cx=48.3, cy=35.7)
+    cam = Camera.look_at(
+        [0.2, -0.1, -0.3], [0, 0, 4], [0, -1, 0], width=96, height=72, fx=80, cx=48.3, cy=35.7
+    )
     return sc, cam, reference_surfels(sc, cam)
 
 
@@ -186,8 +210,9 @@ def test_near_plane_and_bands_match_bruteforce():
     rasterizer docstring), large oblique splats, and a duplicate cap that forces the
     image into several bands of tile rows."""
     sc = random_surfel_scene(1500, seed=2, z_range=(-1.0, 3.0), scale_range=(0.01, 0.5), extent=1.5)
-    cam = Camera.look_at([0.3, -0.2, -0.5], [0, 0, 3], [0, -1, 0], width=83, height=61, fx=70,
-                         cx=40.1, cy=31.9)
+    cam = Camera.look_at(
+        [0.3, -0.2, -0.5], [0, 0, 3], [0, -1, 0], width=83, height=61, fx=70, cx=40.1, cy=31.9
+    )
     ref = reference_surfels(sc, cam)
     b = SurfelRenderer(sc, device="cpu", config=RenderConfig(max_duplicates=300)).render(cam)
     assert b.stats["bands"] > 1
@@ -206,11 +231,21 @@ def test_stress_scenes(seed):
     except at rounding-decided pixels. (Seeds that once exposed a row-span root
     cancellation and float32 centre-projection error.)"""
     rng = np.random.default_rng(seed)
-    sc = random_surfel_scene(1500, seed=seed, z_range=(0.05, rng.uniform(2, 30)),
-                             scale_range=(1e-3, rng.uniform(0.05, 3)), extent=rng.uniform(0.5, 3))
-    cam = Camera.look_at(rng.normal(size=3) * 0.3, [0, 0, 5], [0, -1, 0],
-                         width=int(rng.integers(30, 150)), height=int(rng.integers(30, 120)),
-                         fx=float(rng.uniform(30, 200)))
+    sc = random_surfel_scene(
+        1500,
+        seed=seed,
+        z_range=(0.05, rng.uniform(2, 30)),
+        scale_range=(1e-3, rng.uniform(0.05, 3)),
+        extent=rng.uniform(0.5, 3),
+    )
+    cam = Camera.look_at(
+        rng.normal(size=3) * 0.3,
+        [0, 0, 5],
+        [0, -1, 0],
+        width=int(rng.integers(30, 150)),
+        height=int(rng.integers(30, 120)),
+        fx=float(rng.uniform(30, 200)),
+    )
     tile = SurfelRenderer(sc, device="cpu", config=RenderConfig(blend="tile")).render(cam)
     pix = SurfelRenderer(sc, device="cpu", config=RenderConfig(blend="pixel")).render(cam)
     for k, v in tile.as_dict().items():
@@ -285,8 +320,16 @@ def test_protocol_factory_and_scale(random_case):
     half = r.render(cam, scale=0.5)
     assert half.rgb.shape == (36, 48, 3) and half.N_samp.dtype == np.int32
     assert half.camera.width == 48
-    assert set(half.as_dict()) >= {"rgb", "alpha", "D_min", "D_ref", "D_max", "D_mw", "D_exp",
-                                   "N_samp"}
+    assert set(half.as_dict()) >= {
+        "rgb",
+        "alpha",
+        "D_min",
+        "D_ref",
+        "D_max",
+        "D_mw",
+        "D_exp",
+        "N_samp",
+    }
 
 
 @pytest.mark.skipif(wp.get_cuda_device_count() == 0, reason="no CUDA device")
@@ -334,9 +377,10 @@ def test_camera_near_clip(random_case):
     small = r.render(cam.with_near(RenderConfig().near / 2))
     assert np.array_equal(small.D_min, r.render(cam).D_min)
     v = np.arange(len(sc), dtype=np.float32)
-    assert np.array_equal(r.render_values(cam.with_near(near), v),
-                          SurfelRenderer(sc, device="cpu", config=RenderConfig(near=near))
-                          .render_values(cam, v))
+    assert np.array_equal(
+        r.render_values(cam.with_near(near), v),
+        SurfelRenderer(sc, device="cpu", config=RenderConfig(near=near)).render_values(cam, v),
+    )
     # a faint veil (α = 0.06 ≥ τ_sig) at z = 0.05 in front of an opaque wall at z = 4
     wall = _scene([[0, 0, 4.0], [0, 0, 0.05]], [[1e4, 1e4], [1.0, 1.0]], [1.0, 0.06])
     rw = SurfelRenderer(wall, device="cpu")

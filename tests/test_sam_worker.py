@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from divas_engine.segment import SamWorker, Segmenter, SegmentationJobError
+from divas_engine.segment import SamWorker, SegmentationJobError, Segmenter
 from divas_engine.segment.worker import SYNC_PENDING
 
 

@@ -14,9 +14,25 @@ from divas_engine.io.ply import read_ply_header
 from divas_engine.session import AnchorPrompt, Click, Prompts
 from divas_engine.synthetic import generate_scene
 
-REPORT_KEYS = {"version", "command", "scene", "cameras", "prompts", "kind", "segmenter", "seed",
-               "device", "render_scale", "timings", "updates", "counts", "views", "memory",
-               "config", "outputs"}
+REPORT_KEYS = {
+    "version",
+    "command",
+    "scene",
+    "cameras",
+    "prompts",
+    "kind",
+    "segmenter",
+    "seed",
+    "device",
+    "render_scale",
+    "timings",
+    "updates",
+    "counts",
+    "views",
+    "memory",
+    "config",
+    "outputs",
+}
 
 
 @pytest.fixture(scope="module")
@@ -29,23 +45,45 @@ def scene_dir(tmp_path_factory):
 
 def _segment(scene_dir, tmp_path, *extra, scene="scene.ply"):
     out, _ = scene_dir
-    argv = ["segment", str(out / scene), "--prompts", str(out / "prompts.json"),
-            "--scale", "0.5", "--no-progress", "--report", str(tmp_path / "report.json"),
-            *extra]
+    argv = [
+        "segment",
+        str(out / scene),
+        "--prompts",
+        str(out / "prompts.json"),
+        "--scale",
+        "0.5",
+        "--no-progress",
+        "--report",
+        str(tmp_path / "report.json"),
+        *extra,
+    ]
     return cli.main(argv)
 
 
 def test_segment_oracle_2dgs(scene_dir, tmp_path, capsys):
     out, sc = scene_dir
-    rc = _segment(scene_dir, tmp_path, "--out", str(tmp_path / "sel.ply"), "--labels-out",
-                  str(tmp_path / "labels.npy"), "--segmenter", "oracle", "--gt-labels",
-                  str(out / "labels.npy"), "--seed", "3", "--session", str(tmp_path / "s.json"))
+    rc = _segment(
+        scene_dir,
+        tmp_path,
+        "--out",
+        str(tmp_path / "sel.ply"),
+        "--labels-out",
+        str(tmp_path / "labels.npy"),
+        "--segmenter",
+        "oracle",
+        "--gt-labels",
+        str(out / "labels.npy"),
+        "--seed",
+        "3",
+        "--session",
+        str(tmp_path / "s.json"),
+    )
     assert rc == 0, capsys.readouterr().err
     labels = np.load(tmp_path / "labels.npy")
     assert labels.dtype == bool and labels.shape == (len(sc.scene),) and labels.any()
     assert read_ply_header(tmp_path / "sel.ply").vertex.count == labels.sum()
     rep = json.loads((tmp_path / "report.json").read_text())
-    assert REPORT_KEYS <= set(rep) and rep["seed"] == 3 and rep["kind"] == "2dgs"
+    assert set(rep) >= REPORT_KEYS and rep["seed"] == 3 and rep["kind"] == "2dgs"
     t = rep["timings"]
     assert {"render", "segmenter", "kernel", "mapping", "T_pipe_s"} <= set(t)
     assert len(t["kernel"]["per_call_s"]) == rep["counts"]["accepted"] > 0
@@ -70,10 +108,21 @@ def test_segment_classic_2dgs(scene_dir, tmp_path):
 
 def test_segment_nerf_grid(scene_dir, tmp_path):
     out, sc = scene_dir
-    rc = _segment(scene_dir, tmp_path, "--out", str(tmp_path / "seg.npz"), "--labels-out",
-                  str(tmp_path / "grid_sel.npy"), "--segmenter", "oracle", "--gt-labels",
-                  str(out / "grid_labels.npy"), "--cameras", str(out / "cameras.json"),
-                  scene="grid.npz")
+    rc = _segment(
+        scene_dir,
+        tmp_path,
+        "--out",
+        str(tmp_path / "seg.npz"),
+        "--labels-out",
+        str(tmp_path / "grid_sel.npy"),
+        "--segmenter",
+        "oracle",
+        "--gt-labels",
+        str(out / "grid_labels.npy"),
+        "--cameras",
+        str(out / "cameras.json"),
+        scene="grid.npz",
+    )
     assert rc == 0
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["kind"] == "nerf" and rep["preset"] == "llff"
@@ -92,28 +141,46 @@ def _write_prompts(path, prompts):
 
 def test_segment_bad_inputs(scene_dir, tmp_path, capsys):
     out, sc = scene_dir
-    base = ["segment", str(out / "scene.ply"), "--out", str(tmp_path / "x.ply"), "--scale",
-            "0.5", "--no-progress"]
+    base = [
+        "segment",
+        str(out / "scene.ply"),
+        "--out",
+        str(tmp_path / "x.ply"),
+        "--scale",
+        "0.5",
+        "--no-progress",
+    ]
     # oracle without ground truth
-    assert cli.main(base + ["--prompts", str(out / "prompts.json"), "--segmenter",
-                            "oracle"]) == 2
+    assert cli.main(base + ["--prompts", str(out / "prompts.json"), "--segmenter", "oracle"]) == 2
     assert "needs --gt-labels" in capsys.readouterr().err
     # out-of-image click names the entry
-    p = _write_prompts(tmp_path / "oob.json", Prompts((AnchorPrompt(
-        "training_camera", sc.cameras[0].name, (Click((5000.0, 1.0)),)),)))
+    p = _write_prompts(
+        tmp_path / "oob.json",
+        Prompts((AnchorPrompt("training_camera", sc.cameras[0].name, (Click((5000.0, 1.0)),)),)),
+    )
     assert cli.main(base + ["--prompts", str(p)]) == 2
     err = capsys.readouterr().err
     assert "anchors[0].clicks[0].xy" in err and "outside" in err and "Traceback" not in err
     # unknown training camera
-    p = _write_prompts(tmp_path / "cam.json", Prompts((AnchorPrompt(
-        "training_camera", "nope", (Click((5.0, 1.0)),)),)))
+    p = _write_prompts(
+        tmp_path / "cam.json",
+        Prompts((AnchorPrompt("training_camera", "nope", (Click((5.0, 1.0)),)),)),
+    )
     assert cli.main(base + ["--prompts", str(p)]) == 2
     assert "anchors[0].training_camera" in capsys.readouterr().err
     # a click on empty space: a camera looking away from the scene
-    away = {"width": 160, "height": 120, "fx": 100, "fy": 100, "cx": 80, "cy": 60,
-            "c2w": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 40], [0, 0, 0, 1]]}  # looks up, away
-    (tmp_path / "empty.json").write_text(json.dumps(
-        {"version": 1, "anchors": [{"camera": away, "clicks": [{"xy": [80, 60]}]}]}))
+    away = {
+        "width": 160,
+        "height": 120,
+        "fx": 100,
+        "fy": 100,
+        "cx": 80,
+        "cy": 60,
+        "c2w": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 40], [0, 0, 0, 1]],
+    }  # looks up, away
+    (tmp_path / "empty.json").write_text(
+        json.dumps({"version": 1, "anchors": [{"camera": away, "clicks": [{"xy": [80, 60]}]}]})
+    )
     assert cli.main(base + ["--prompts", str(tmp_path / "empty.json")]) == 2
     err = capsys.readouterr().err
     assert "anchors[0].clicks[0]" in err and "no surface under the click" in err
@@ -123,15 +190,40 @@ def test_segment_bad_inputs(scene_dir, tmp_path, capsys):
     assert "anchors[0]" in capsys.readouterr().err
     # ground truth of the wrong shape
     np.save(tmp_path / "gt.npy", np.zeros(7, bool))
-    assert cli.main(base + ["--prompts", str(out / "prompts.json"), "--segmenter", "oracle",
-                            "--gt-labels", str(tmp_path / "gt.npy")]) == 2
+    assert (
+        cli.main(
+            base
+            + [
+                "--prompts",
+                str(out / "prompts.json"),
+                "--segmenter",
+                "oracle",
+                "--gt-labels",
+                str(tmp_path / "gt.npy"),
+            ]
+        )
+        == 2
+    )
     assert "ground-truth labels have shape" in capsys.readouterr().err
 
 
 def test_demo_small(tmp_path, capsys):
-    rc = cli.main(["demo", "--out", str(tmp_path / "demo"), "--size", "20000",
-                   "--views-per-click", "1", "--scale", "0.5", "--no-progress",
-                   "--segmenter", "oracle"])
+    rc = cli.main(
+        [
+            "demo",
+            "--out",
+            str(tmp_path / "demo"),
+            "--size",
+            "20000",
+            "--views-per-click",
+            "1",
+            "--scale",
+            "0.5",
+            "--no-progress",
+            "--segmenter",
+            "oracle",
+        ]
+    )
     assert rc == 0
     text = capsys.readouterr().out
     assert "IoU at 8 test cameras" in text

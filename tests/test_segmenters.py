@@ -28,17 +28,32 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from divas_engine import DivasInputError
-from divas_engine.segment import (ClassicConfig, ClassicSegmenter, FloodFillSegmenter,
-                                  OracleConfig, OracleSegmenter, SamOnnxSegmenter, SamTorchSegmenter,
-                                  select_mask)
-from divas_engine.segment.sam_common import (SAM_PIXEL_MEAN, SAM_PIXEL_STD, decoder_prompts,
-                                             preprocess_shape, resize_antialiased, sigmoid)
+from divas_engine.segment import (
+    ClassicConfig,
+    ClassicSegmenter,
+    FloodFillSegmenter,
+    OracleConfig,
+    OracleSegmenter,
+    SamOnnxSegmenter,
+    SamTorchSegmenter,
+    select_mask,
+)
+from divas_engine.segment.sam_common import (
+    SAM_PIXEL_MEAN,
+    SAM_PIXEL_STD,
+    decoder_prompts,
+    preprocess_shape,
+    resize_antialiased,
+    sigmoid,
+)
 
 # ----------------------------------------------------------------------------- tiny ONNX SAM
 OPSET = 17
 B = np.array([1.0, 2.0, 3.0, 4.0], np.float32)
 R = np.array([8.0, 16.0, 32.0, 64.0], np.float32)
 IOU = np.array([0.1, 0.6, 0.7, 0.8], np.float32)
+
+
 def _save(graph: onnx.GraphProto, path: Path) -> Path:
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
     model.ir_version = 8
@@ -57,9 +72,12 @@ def encoder_weights() -> np.ndarray:
 def make_preprocessed_encoder(path: Path) -> Path:
     x = helper.make_tensor_value_info("input_image", TensorProto.FLOAT, [1, 3, 1024, 1024])
     y = helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, 256, 64, 64])
-    nodes = [helper.make_node("AveragePool", ["input_image"], ["pooled"], kernel_shape=[16, 16],
-                              strides=[16, 16]),
-             helper.make_node("Conv", ["pooled", "w"], ["image_embeddings"])]
+    nodes = [
+        helper.make_node(
+            "AveragePool", ["input_image"], ["pooled"], kernel_shape=[16, 16], strides=[16, 16]
+        ),
+        helper.make_node("Conv", ["pooled", "w"], ["image_embeddings"]),
+    ]
     g = helper.make_graph(nodes, "enc", [x], [y], [numpy_helper.from_array(encoder_weights(), "w")])
     return _save(g, path)
 
@@ -67,48 +85,74 @@ def make_preprocessed_encoder(path: Path) -> Path:
 def make_raw_encoder(path: Path) -> Path:
     x = helper.make_tensor_value_info("input_image", TensorProto.FLOAT, ["h", "w", 3])
     y = helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, 256, 64, 64])
-    nodes = [helper.make_node("ReduceMean", ["input_image"], ["m"], keepdims=0),
-             helper.make_node("Expand", ["m", "shape"], ["image_embeddings"])]
+    nodes = [
+        helper.make_node("ReduceMean", ["input_image"], ["m"], keepdims=0),
+        helper.make_node("Expand", ["m", "shape"], ["image_embeddings"]),
+    ]
     init = [numpy_helper.from_array(np.array([1, 256, 64, 64], np.int64), "shape")]
     return _save(helper.make_graph(nodes, "enc_raw", [x], [y], init), path)
 
 
 def make_decoder(path: Path, n_masks: int = 4, drop_input: str | None = None) -> Path:
     f = TensorProto.FLOAT
-    ins = [helper.make_tensor_value_info("image_embeddings", f, [1, 256, 64, 64]),
-           helper.make_tensor_value_info("point_coords", f, [1, "P", 2]),
-           helper.make_tensor_value_info("point_labels", f, [1, "P"]),
-           helper.make_tensor_value_info("mask_input", f, [1, 1, 256, 256]),
-           helper.make_tensor_value_info("has_mask_input", f, [1]),
-           helper.make_tensor_value_info("orig_im_size", f, [2])]
-    outs = [helper.make_tensor_value_info("masks", f, [1, n_masks, "H", "W"]),
-            helper.make_tensor_value_info("iou_predictions", f, [1, n_masks]),
-            helper.make_tensor_value_info("low_res_masks", f, [1, n_masks, 256, 256])]
-    c = {"i0": np.array(0, np.int64), "i1": np.array(1, np.int64), "zero": np.array(0.0, np.float32),
-         "one": np.array(1.0, np.float32), "half": np.array(0.5, np.float32),
-         "side": np.array(1024.0, np.float32), "b": B[:n_masks].reshape(1, n_masks, 1, 1),
-         "invr2": (1.0 / R[:n_masks] ** 2).reshape(1, n_masks, 1, 1),
-         "iou": IOU[:n_masks].reshape(1, n_masks),
-         "ax0": np.array([0], np.int64), "ax1": np.array([1], np.int64),
-         "reps": np.array([1, n_masks, 1, 1], np.int64)}
+    ins = [
+        helper.make_tensor_value_info("image_embeddings", f, [1, 256, 64, 64]),
+        helper.make_tensor_value_info("point_coords", f, [1, "P", 2]),
+        helper.make_tensor_value_info("point_labels", f, [1, "P"]),
+        helper.make_tensor_value_info("mask_input", f, [1, 1, 256, 256]),
+        helper.make_tensor_value_info("has_mask_input", f, [1]),
+        helper.make_tensor_value_info("orig_im_size", f, [2]),
+    ]
+    outs = [
+        helper.make_tensor_value_info("masks", f, [1, n_masks, "H", "W"]),
+        helper.make_tensor_value_info("iou_predictions", f, [1, n_masks]),
+        helper.make_tensor_value_info("low_res_masks", f, [1, n_masks, 256, 256]),
+    ]
+    c = {
+        "i0": np.array(0, np.int64),
+        "i1": np.array(1, np.int64),
+        "zero": np.array(0.0, np.float32),
+        "one": np.array(1.0, np.float32),
+        "half": np.array(0.5, np.float32),
+        "side": np.array(1024.0, np.float32),
+        "b": B[:n_masks].reshape(1, n_masks, 1, 1),
+        "invr2": (1.0 / R[:n_masks] ** 2).reshape(1, n_masks, 1, 1),
+        "iou": IOU[:n_masks].reshape(1, n_masks),
+        "ax0": np.array([0], np.int64),
+        "ax1": np.array([1], np.int64),
+        "reps": np.array([1, n_masks, 1, 1], np.int64),
+    }
     n = helper.make_node
     nodes = [
-        n("Gather", ["orig_im_size", "i0"], ["H"]), n("Gather", ["orig_im_size", "i1"], ["W"]),
-        n("Max", ["H", "W"], ["S"]), n("Div", ["side", "S"], ["s"]),
-        n("Range", ["zero", "H", "one"], ["ys"]), n("Range", ["zero", "W", "one"], ["xs"]),
+        n("Gather", ["orig_im_size", "i0"], ["H"]),
+        n("Gather", ["orig_im_size", "i1"], ["W"]),
+        n("Max", ["H", "W"], ["S"]),
+        n("Div", ["side", "S"], ["s"]),
+        n("Range", ["zero", "H", "one"], ["ys"]),
+        n("Range", ["zero", "W", "one"], ["xs"]),
         n("Gather", ["point_coords", "i0"], ["p0"], axis=1),  # [1,2]
-        n("Gather", ["p0", "i0"], ["px"], axis=1), n("Gather", ["p0", "i1"], ["py"], axis=1),
-        n("Add", ["xs", "half"], ["xh"]), n("Mul", ["xh", "s"], ["xs_s"]),
-        n("Add", ["px", "half"], ["pxh"]), n("Sub", ["xs_s", "pxh"], ["dx"]),
-        n("Add", ["ys", "half"], ["yh"]), n("Mul", ["yh", "s"], ["ys_s"]),
-        n("Add", ["py", "half"], ["pyh"]), n("Sub", ["ys_s", "pyh"], ["dy"]),
-        n("Mul", ["dx", "dx"], ["dx2"]), n("Mul", ["dy", "dy"], ["dy2"]),
-        n("Unsqueeze", ["dx2", "ax0"], ["dx2r"]), n("Unsqueeze", ["dy2", "ax1"], ["dy2c"]),
+        n("Gather", ["p0", "i0"], ["px"], axis=1),
+        n("Gather", ["p0", "i1"], ["py"], axis=1),
+        n("Add", ["xs", "half"], ["xh"]),
+        n("Mul", ["xh", "s"], ["xs_s"]),
+        n("Add", ["px", "half"], ["pxh"]),
+        n("Sub", ["xs_s", "pxh"], ["dx"]),
+        n("Add", ["ys", "half"], ["yh"]),
+        n("Mul", ["yh", "s"], ["ys_s"]),
+        n("Add", ["py", "half"], ["pyh"]),
+        n("Sub", ["ys_s", "pyh"], ["dy"]),
+        n("Mul", ["dx", "dx"], ["dx2"]),
+        n("Mul", ["dy", "dy"], ["dy2"]),
+        n("Unsqueeze", ["dx2", "ax0"], ["dx2r"]),
+        n("Unsqueeze", ["dy2", "ax1"], ["dy2c"]),
         n("Add", ["dy2c", "dx2r"], ["d2"]),  # [H,W]
-        n("Unsqueeze", ["d2", "ax0"], ["d2a"]), n("Unsqueeze", ["d2a", "ax0"], ["d2b"]),
-        n("Mul", ["d2b", "invr2"], ["scaled"]), n("Sub", ["b", "scaled"], ["masks"]),
+        n("Unsqueeze", ["d2", "ax0"], ["d2a"]),
+        n("Unsqueeze", ["d2a", "ax0"], ["d2b"]),
+        n("Mul", ["d2b", "invr2"], ["scaled"]),
+        n("Sub", ["b", "scaled"], ["masks"]),
         n("ReduceMean", ["image_embeddings"], ["emean"], keepdims=0),
-        n("Mul", ["emean", "zero"], ["ezero"]), n("Add", ["iou", "ezero"], ["iou1"]),
+        n("Mul", ["emean", "zero"], ["ezero"]),
+        n("Add", ["iou", "ezero"], ["iou1"]),
         n("Add", ["iou1", "has_mask_input"], ["iou_predictions"]),
         n("Tile", ["mask_input", "reps"], ["low_res_masks"]),
         n("Identity", ["point_labels"], ["labels_used"]),
@@ -186,35 +230,56 @@ def test_antialiased_resize_hand_weights():
     out = resize_antialiased(x, (1, 4))[0, :, 0]
     v = x[0, :, 0]
     exp = [(v[0] * 3 / 8 + v[1] * 3 / 8 + v[2] / 8) / (7 / 8)]  # left tap dropped, renormalised
-    exp += [v[2 * i - 1] / 8 + v[2 * i] * 3 / 8 + v[2 * i + 1] * 3 / 8 + v[2 * i + 2] / 8 for i in (1, 2)]
+    exp += [
+        v[2 * i - 1] / 8 + v[2 * i] * 3 / 8 + v[2 * i + 1] * 3 / 8 + v[2 * i + 2] / 8
+        for i in (1, 2)
+    ]
     exp += [(v[5] / 8 + v[6] * 3 / 8 + v[7] * 3 / 8) / (7 / 8)]
     np.testing.assert_allclose(out, exp, rtol=1e-6)
     # upscaling is plain half-pixel bilinear (= OpenCV INTER_LINEAR)
     img = _img(12, 16)
-    np.testing.assert_allclose(resize_antialiased(img, (36, 48)),
-                               cv2.resize(img, (48, 36), interpolation=cv2.INTER_LINEAR), atol=1e-5)
+    np.testing.assert_allclose(
+        resize_antialiased(img, (36, 48)),
+        cv2.resize(img, (48, 36), interpolation=cv2.INTER_LINEAR),
+        atol=1e-5,
+    )
 
 
 def test_resize_matches_torch_antialias():
     torch = pytest.importorskip("torch")
     import torch.nn.functional as F
+
     img = _img(300, 450) * 255
     nh, nw = preprocess_shape(300, 450, 256)
-    ref = F.interpolate(torch.from_numpy(img.transpose(2, 0, 1))[None], (nh, nw), mode="bilinear",
-                        align_corners=False, antialias=True)[0].numpy().transpose(1, 2, 0)
+    ref = (
+        F.interpolate(
+            torch.from_numpy(img.transpose(2, 0, 1))[None],
+            (nh, nw),
+            mode="bilinear",
+            align_corners=False,
+            antialias=True,
+        )[0]
+        .numpy()
+        .transpose(1, 2, 0)
+    )
     np.testing.assert_allclose(resize_antialiased(img, (nh, nw)), ref, atol=2e-3)
 
 
 def test_decoder_prompt_mapping_and_padding_point():
-    coords, labels = decoder_prompts(np.array([[10.5, 20.0], [0.25, 95.5]]), np.array([1, 0]), (96, 128))
+    coords, labels = decoder_prompts(
+        np.array([[10.5, 20.0], [0.25, 95.5]]), np.array([1, 0]), (96, 128)
+    )
     s = 1024 / 128
-    np.testing.assert_allclose(coords, [[[10.5 * s - .5, 20.0 * s - .5], [.25 * s - .5, 95.5 * s - .5],
-                                         [0, 0]]], rtol=1e-6)
+    np.testing.assert_allclose(
+        coords,
+        [[[10.5 * s - 0.5, 20.0 * s - 0.5], [0.25 * s - 0.5, 95.5 * s - 0.5], [0, 0]]],
+        rtol=1e-6,
+    )
     np.testing.assert_array_equal(labels, [[1, 0, -1]])
     assert coords.dtype == labels.dtype == np.float32
     # per-axis scale like ResizeLongestSide.apply_coords when the new size rounds
     c, _ = decoder_prompts(np.array([[100.0, 100.0]]), np.array([1]), (200, 300))
-    np.testing.assert_allclose(c[0, 0], [100 * 1024 / 300 - .5, 100 * 683 / 200 - .5], rtol=1e-6)
+    np.testing.assert_allclose(c[0, 0], [100 * 1024 / 300 - 0.5, 100 * 683 / 200 - 0.5], rtol=1e-6)
 
 
 # ----------------------------------------------------------------------------- SAM ONNX
@@ -234,7 +299,9 @@ def test_onnx_preprocessing_feed_and_embedding(onnx_dir):
     emb = seg._state[0]
     pooled = hand[0].reshape(3, 64, 16, 64, 16).mean(axis=(2, 4))
     c = np.arange(256)
-    np.testing.assert_allclose(emb[0], pooled[c % 3] * ((c // 3 + 1) / 86.0)[:, None, None], atol=1e-4)
+    np.testing.assert_allclose(
+        emb[0], pooled[c % 3] * ((c // 3 + 1) / 86.0)[:, None, None], atol=1e-4
+    )
 
 
 def test_onnx_prompts_and_postprocessing(onnx_dir):
@@ -243,8 +310,10 @@ def test_onnx_prompts_and_postprocessing(onnx_dir):
     pts, labs = np.array([[40.5, 30.25], [100.0, 80.0]]), np.array([1, 0])
     masks, scores = seg.predict(pts, labs)
     feed = seg._dec.feeds[-1]
-    np.testing.assert_allclose(feed["point_coords"], [[[40.5 * 8 - .5, 30.25 * 8 - .5],
-                                                       [100 * 8 - .5, 80 * 8 - .5], [0, 0]]])
+    np.testing.assert_allclose(
+        feed["point_coords"],
+        [[[40.5 * 8 - 0.5, 30.25 * 8 - 0.5], [100 * 8 - 0.5, 80 * 8 - 0.5], [0, 0]]],
+    )
     np.testing.assert_array_equal(feed["point_labels"], [[1, 0, -1]])
     assert feed["mask_input"].shape == (1, 1, 256, 256) and not feed["mask_input"].any()
     np.testing.assert_array_equal(feed["has_mask_input"], [0])
@@ -308,8 +377,10 @@ def test_onnx_bad_models(onnx_dir, tmp_path):
         SamOnnxSegmenter(onnx_dir / "dec.onnx", onnx_dir / "dec.onnx")  # decoder given as encoder
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 1, 1024, 1024])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 1, 1024, 1024])
-    gray = _save(helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g", [x], [y]),
-                 tmp_path / "gray.onnx")
+    gray = _save(
+        helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g", [x], [y]),
+        tmp_path / "gray.onnx",
+    )
     with pytest.raises(DivasInputError, match="unrecognised SAM encoder input"):
         SamOnnxSegmenter(gray, onnx_dir / "dec.onnx")
 
@@ -334,8 +405,11 @@ class FakePredictor:
     def __init__(self, torch):
         self.torch = torch
         lin = torch.nn.Linear(1, 1)
-        self.model = type("M", (), {"image_encoder": type("E", (), {"img_size": 1024})(),
-                                    "parameters": lin.parameters})()
+        self.model = type(
+            "M",
+            (),
+            {"image_encoder": type("E", (), {"img_size": 1024})(), "parameters": lin.parameters},
+        )()
         self.set_calls, self.predict_calls = [], []
 
     def set_torch_image(self, img, original_size):
@@ -344,10 +418,24 @@ class FakePredictor:
         self.original_size, self.input_size = tuple(original_size), tuple(img.shape[-2:])
         self.is_image_set = True
 
-    def predict_torch(self, coords, labels, boxes=None, mask_input=None, multimask_output=True,
-                      return_logits=False):
-        self.predict_calls.append((coords.clone(), labels.clone(), multimask_output, return_logits,
-                                   float(self.features.mean())))
+    def predict_torch(
+        self,
+        coords,
+        labels,
+        boxes=None,
+        mask_input=None,
+        multimask_output=True,
+        return_logits=False,
+    ):
+        self.predict_calls.append(
+            (
+                coords.clone(),
+                labels.clone(),
+                multimask_output,
+                return_logits,
+                float(self.features.mean()),
+            )
+        )
         h, w = self.original_size
         logits = self.torch.arange(3, dtype=self.torch.float32)[:, None, None] - 1.0
         return logits.expand(3, h, w)[None], self.torch.tensor([[0.3, 0.8, 0.6]]), None
@@ -363,11 +451,14 @@ def test_sam_torch_wrapper_plumbing():
     seg.set_image(a, view_id="a")  # cached: no third encoder call, features restored
     img, size = fake.set_calls[0]
     assert len(fake.set_calls) == 2 and size == (96, 128) and tuple(img.shape) == (1, 3, 768, 1024)
-    np.testing.assert_allclose(img[0].numpy().transpose(1, 2, 0),
-                               cv2.resize(a * 255, (1024, 768), interpolation=cv2.INTER_LINEAR), atol=2e-3)
+    np.testing.assert_allclose(
+        img[0].numpy().transpose(1, 2, 0),
+        cv2.resize(a * 255, (1024, 768), interpolation=cv2.INTER_LINEAR),
+        atol=2e-3,
+    )
     masks, scores = seg.predict(np.array([[40.5, 30.25], [1.0, 2.0]]), np.array([1, 0]))
     coords, labels, multi, logits, feat = fake.predict_calls[-1]
-    np.testing.assert_allclose(coords.numpy(), [[[40.5 * 8 - .5, 30.25 * 8 - .5], [7.5, 15.5]]])
+    np.testing.assert_allclose(coords.numpy(), [[[40.5 * 8 - 0.5, 30.25 * 8 - 0.5], [7.5, 15.5]]])
     np.testing.assert_array_equal(labels.numpy(), [[1, 0]])
     assert multi and logits and feat == pytest.approx(float(img.mean()), rel=1e-5)
     np.testing.assert_allclose(masks[:, 0, 0], sigmoid(np.array([-1.0, 0.0, 1.0])), rtol=1e-6)
@@ -393,20 +484,45 @@ def test_sam_torch_real_tiny_model_matches_sam_convention():
     sa = pytest.importorskip("segment_anything")
     from functools import partial
 
-    from segment_anything.modeling import (ImageEncoderViT, MaskDecoder, PromptEncoder, Sam,
-                                           TwoWayTransformer)
+    from segment_anything.modeling import (
+        ImageEncoderViT,
+        MaskDecoder,
+        PromptEncoder,
+        Sam,
+        TwoWayTransformer,
+    )
+
     torch.manual_seed(0)
-    enc = ImageEncoderViT(depth=1, embed_dim=32, img_size=1024, mlp_ratio=2, num_heads=1,
-                          norm_layer=partial(torch.nn.LayerNorm, eps=1e-6), patch_size=16,
-                          qkv_bias=True, use_rel_pos=False, global_attn_indexes=(), window_size=0,
-                          out_chans=256)
-    sam = Sam(image_encoder=enc,
-              prompt_encoder=PromptEncoder(embed_dim=256, image_embedding_size=(64, 64),
-                                           input_image_size=(1024, 1024), mask_in_chans=16),
-              mask_decoder=MaskDecoder(num_multimask_outputs=3, transformer_dim=256,
-                                       transformer=TwoWayTransformer(depth=1, embedding_dim=256,
-                                                                     mlp_dim=256, num_heads=8),
-                                       iou_head_depth=3, iou_head_hidden_dim=256)).eval()
+    enc = ImageEncoderViT(
+        depth=1,
+        embed_dim=32,
+        img_size=1024,
+        mlp_ratio=2,
+        num_heads=1,
+        norm_layer=partial(torch.nn.LayerNorm, eps=1e-6),
+        patch_size=16,
+        qkv_bias=True,
+        use_rel_pos=False,
+        global_attn_indexes=(),
+        window_size=0,
+        out_chans=256,
+    )
+    sam = Sam(
+        image_encoder=enc,
+        prompt_encoder=PromptEncoder(
+            embed_dim=256,
+            image_embedding_size=(64, 64),
+            input_image_size=(1024, 1024),
+            mask_in_chans=16,
+        ),
+        mask_decoder=MaskDecoder(
+            num_multimask_outputs=3,
+            transformer_dim=256,
+            transformer=TwoWayTransformer(depth=1, embedding_dim=256, mlp_dim=256, num_heads=8),
+            iou_head_depth=3,
+            iou_head_hidden_dim=256,
+        ),
+    ).eval()
     pred = sa.SamPredictor(sam)
     seg = SamTorchSegmenter.from_predictor(pred)
     img = (_img(1024, 768) * 255).astype(np.uint8)
@@ -418,7 +534,7 @@ def test_sam_torch_real_tiny_model_matches_sam_convention():
     np.testing.assert_allclose(scores, ref_scores, atol=1e-6)
 
 
-# ----------------------------------------------------------------------------- classic vs flood fill
+# ------------------------------------------------------------------------ classic vs flood fill
 def _texture(h, w, seed, amp=45.0):
     """One noise texture for the whole view: colour cannot tell object from background."""
     n = np.random.default_rng(seed).normal(0, 1, (h, w, 3)).astype(np.float32)
@@ -456,7 +572,7 @@ def test_classic_depth_beats_colour_flood_fill(kind):
     seg.set_image(rgb, depth)
     masks, scores = seg.predict(click, np.array([1]))
     assert masks.shape == (3, 240, 320) and masks.dtype == np.float32
-    assert 0 <= masks.min() and masks.max() <= 1
+    assert masks.min() >= 0 and masks.max() <= 1
     iou = _iou(masks[1] >= 0.5, gt)
     assert iou > 0.9 and scores[1] >= 0.5
     flood = FloodFillSegmenter()
@@ -482,7 +598,10 @@ def test_classic_soft_boundary_and_determinism():
     np.testing.assert_array_equal(s1, res.scores)
     edge = cv2.morphologyEx(gt.astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3))).astype(bool)
     soft = (m1[1] > 0.02) & (m1[1] < 0.98)
-    assert soft.any() and soft[~cv2.dilate(edge.astype(np.uint8), np.ones((9, 9))).astype(bool)].sum() == 0
+    assert (
+        soft.any()
+        and soft[~cv2.dilate(edge.astype(np.uint8), np.ones((9, 9))).astype(bool)].sum() == 0
+    )
 
 
 def test_classic_negative_click_removes_region():
@@ -622,6 +741,7 @@ def test_classic_edges_do_not_cut_a_slanted_plane():
 def test_depth_edges_plane_invariant_and_jump():
     """A steep slanted plane has no disparity jump and no crease; a 10 % step is a jump."""
     from divas_engine.segment import depth_edges as de
+
     h, w = 60, 80
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     q = (1 / 1.5 + (1 / 3.0 - 1 / 1.5) * xx / w + 0.05 * yy / h).astype(np.float32)
@@ -760,9 +880,12 @@ def test_oracle_gt_render_callable_and_defaults():
         return g
 
     seg = OracleSegmenter(gt_render=render)
-    res = seg.segment(np.zeros((64, 64, 3), np.uint8), None, np.array([[20.0, 20.0]]), np.array([1]),
-                      view_id="c3")
-    assert calls == ["c3"] and res.masks.shape == (3, 64, 64) and res.scores[1] == pytest.approx(0.9)
+    res = seg.segment(
+        np.zeros((64, 64, 3), np.uint8), None, np.array([[20.0, 20.0]]), np.array([1]), view_id="c3"
+    )
+    assert (
+        calls == ["c3"] and res.masks.shape == (3, 64, 64) and res.scores[1] == pytest.approx(0.9)
+    )
     assert OracleConfig().dropout_prob == 0.3 and OracleConfig().fp_prob == 0.2
     with pytest.raises(ValueError, match="gt"):
         OracleSegmenter().set_image(np.zeros((8, 8, 3), np.uint8))

@@ -45,8 +45,16 @@ def _click_xy(session, i, xyz):
 def _open(ribs, tmp_path=None, **cfg):
     sc, scene, anchors, clicks, _ = ribs
     config = SessionConfig(render_scale=SCALE, **cfg)
-    return Session.open(scene, sc.cameras, config, OracleSegmenter(), "cpu", anchors=anchors,
-                        gt_values=sc.labels, render_anchors=False)
+    return Session.open(
+        scene,
+        sc.cameras,
+        config,
+        OracleSegmenter(),
+        "cpu",
+        anchors=anchors,
+        gt_values=sc.labels,
+        render_anchors=False,
+    )
 
 
 def test_click_accept_undo_reset_save_replay(ribs, tmp_path):
@@ -194,11 +202,25 @@ def test_labelled_ply_of_a_generated_scene(ribs, tmp_path):
 
 def test_bad_clicks_and_rejected_views(ribs):
     sc, scene, anchors, clicks, _ = ribs
-    away = Camera.look_at(np.array([0.0, 0.0, 50.0]), np.array([0.0, 0.0, 100.0]),
-                          np.array([0.0, 1.0, 0.0]), width=200, height=150, fx=150, name="away")
-    s = Session.open(scene, sc.cameras, SessionConfig(render_scale=SCALE),
-                     OracleSegmenter(), "cpu", anchors=[anchors[0], away],
-                     gt_values=np.zeros(len(scene), bool), render_anchors=False)
+    away = Camera.look_at(
+        np.array([0.0, 0.0, 50.0]),
+        np.array([0.0, 0.0, 100.0]),
+        np.array([0.0, 1.0, 0.0]),
+        width=200,
+        height=150,
+        fx=150,
+        name="away",
+    )
+    s = Session.open(
+        scene,
+        sc.cameras,
+        SessionConfig(render_scale=SCALE),
+        OracleSegmenter(),
+        "cpu",
+        anchors=[anchors[0], away],
+        gt_values=np.zeros(len(scene), bool),
+        render_anchors=False,
+    )
     with pytest.raises(DivasInputError, match="anchor 1: no surface under the click"):
         s.click(1, (50, 40))
     with pytest.raises(DivasInputError, match="outside"):
@@ -221,8 +243,15 @@ def test_bad_clicks_and_rejected_views(ribs):
 
 def test_empty_mask_is_rejected_with_reason(ribs):
     sc, scene, anchors, clicks, _ = ribs
-    s = Session.open(scene, sc.cameras, SessionConfig(render_scale=SCALE), ConstantSegmenter(0.0),
-                     "cpu", anchors=[anchors[0]], render_anchors=False)
+    s = Session.open(
+        scene,
+        sc.cameras,
+        SessionConfig(render_scale=SCALE),
+        ConstantSegmenter(0.0),
+        "cpu",
+        anchors=[anchors[0]],
+        render_anchors=False,
+    )
     v = s.click(0, _click_xy(s, 0, clicks[0]))
     r = s.accept(v)
     assert r.status == "rejected" and r.reason == "empty mask after depth weighting"
@@ -236,8 +265,10 @@ def test_negative_anchor_click_becomes_negative_prompt(ribs):
     a = s.anchors[1]
     v = s.click(1, _click_xy(s, 1, clicks[1]))
     # a negative click on a surface visible in the centroid view: the view centre's surface
-    ctr = v.camera.unproject(np.array([[v.camera.cx + 20, v.camera.cy]]),
-                             np.array([v.buffers.D_ref[int(v.camera.cy), int(v.camera.cx) + 20]]))
+    ctr = v.camera.unproject(
+        np.array([[v.camera.cx + 20, v.camera.cy]]),
+        np.array([v.buffers.D_ref[int(v.camera.cy), int(v.camera.cx) + 20]]),
+    )
     uv, _ = a.camera.project(ctr)
     neg = s.click(1, uv[0], positive=False)
     assert not neg.positive and neg.point is not None and neg.index == 1
@@ -260,8 +291,16 @@ def test_nerf_async_groups_and_replay(ribs, tmp_path):
     sc, _, anchors, clicks, _ = ribs
     grid = sc.grid
     seg = _ThreadRecorder()
-    s = Session.open(grid, sc.cameras, SessionConfig(render_scale=SCALE), seg, "cpu",
-                     anchors=anchors[:2], gt_values=sc.grid_labels, render_anchors=False)
+    s = Session.open(
+        grid,
+        sc.cameras,
+        SessionConfig(render_scale=SCALE),
+        seg,
+        "cpu",
+        anchors=anchors[:2],
+        gt_values=sc.grid_labels,
+        render_anchors=False,
+    )
     assert s.kind == "nerf" and s.preset == "llff"
     views = [s.click(i % 2, _click_xy(s, i % 2, clicks[i])) for i in range(4)]
     assert [v.id for v in views] == ["o0:a0:c0", "o0:a1:c0", "o0:a0:c1", "o0:a1:c1"]
@@ -285,15 +324,22 @@ def test_nerf_async_groups_and_replay(ribs, tmp_path):
     s2 = Session.load(s.save(tmp_path / "nerf.json"), grid, device="cpu")
     assert s2.replay_matches and np.array_equal(s2.selection, s.selection)
     res = s.export(tmp_path / "seg.npz", labels_path=tmp_path / "seg_labels.npy")
-    assert res.format == "npz" and np.array_equal(np.load(tmp_path / "seg_labels.npy"),
-                                                 s.selection)
+    assert res.format == "npz" and np.array_equal(np.load(tmp_path / "seg_labels.npy"), s.selection)
     s.close()
 
 
 def test_nerf_pending_views_resubmitted_on_load(ribs, tmp_path):
     sc, _, anchors, clicks, _ = ribs
-    s = Session.open(sc.grid, sc.cameras, SessionConfig(render_scale=SCALE), OracleSegmenter(),
-                     "cpu", anchors=anchors[:1], gt_values=sc.grid_labels, render_anchors=False)
+    s = Session.open(
+        sc.grid,
+        sc.cameras,
+        SessionConfig(render_scale=SCALE),
+        OracleSegmenter(),
+        "cpu",
+        anchors=anchors[:1],
+        gt_values=sc.grid_labels,
+        render_anchors=False,
+    )
     v0 = s.click(0, _click_xy(s, 0, clicks[0]))
     s.click(0, _click_xy(s, 0, clicks[2]))
     s.accept(v0)
@@ -317,8 +363,7 @@ def test_render_iou_protocol(ribs):
     same = render_iou(sc.scene, cams, sc.labels, sc.labels, scale=0.25, device="cpu")
     # prediction ≥ 0.1 vs ground truth ≥ 0.5: the same labels give recall 1, IoU just below 1
     assert same.recall == 1.0 and 0.9 < same.iou < 1.0 and len(same.per_camera) == 2
-    none = render_iou(sc.scene, cams, np.zeros_like(sc.labels), sc.labels, scale=0.25,
-                      device="cpu")
+    none = render_iou(sc.scene, cams, np.zeros_like(sc.labels), sc.labels, scale=0.25, device="cpu")
     assert none.iou == 0.0 and none.recall == 0.0
     g = sc.grid_labels
     grid = render_iou(sc.grid, cams, g, g, scale=0.25, device="cpu")

@@ -258,14 +258,21 @@ def test_needles_and_floaters(scenes, name):
     inside = np.zeros(len(fp), bool)
     for cam in sc.cameras:
         uv, z = cam.project(fp)
-        inside |= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (
-            uv[:, 1] <= cam.height)
+        inside |= (
+            (z > 0)
+            & (uv[:, 0] >= 0)
+            & (uv[:, 0] <= cam.width)
+            & (uv[:, 1] >= 0)
+            & (uv[:, 1] <= cam.height)
+        )
     assert inside.all()
 
 
-TARGETS = {"ribs": ("spine", "tail_cap", "skull", "rib_"),
-           "plant": ("pot_", "soil", "stem_", "leaf_"),
-           "occluded": ("vase_",)}
+TARGETS = {
+    "ribs": ("spine", "tail_cap", "skull", "rib_"),
+    "plant": ("pot_", "soil", "stem_", "leaf_"),
+    "occluded": ("vase_",),
+}
 
 
 @pytest.mark.parametrize("name", SCENE_NAMES)
@@ -290,8 +297,9 @@ def test_ribs_are_thin_relative_to_hv(scenes):
     sc = scenes["ribs"]
     hv = _notes_hv(sc.scene.means, sc.scene.scales, True)
     assert sc.metadata["occupancy_notes"]["h_v"] == pytest.approx(hv, rel=1e-9)
-    ribs = [s for s in sc.metadata["surfaces"] if s["name"].startswith("rib_")
-            and s["type"] == "torus"]
+    ribs = [
+        s for s in sc.metadata["surfaces"] if s["name"].startswith("rib_") and s["type"] == "torus"
+    ]
     assert len(ribs) == 7
     radii = {s["params"]["r"] for s in ribs}
     assert len(radii) == 1
@@ -394,8 +402,16 @@ def test_click_points(scenes, name):
 def test_files_round_trip(tmp_path):
     sc = generate_scene("ribs", tmp_path, size=20_000, seed=5, grid_resolution=64)
     names = {p.name for p in tmp_path.iterdir()}
-    assert {"scene.ply", "cameras.json", "test_cameras.json", "labels.npy", "scene.json",
-            "grid.npz", "grid_labels.npy", "surface_ids.npy"} <= names
+    assert {
+        "scene.ply",
+        "cameras.json",
+        "test_cameras.json",
+        "labels.npy",
+        "scene.json",
+        "grid.npz",
+        "grid_labels.npy",
+        "surface_ids.npy",
+    } <= names
     rd = read_gaussian_ply(tmp_path / "scene.ply")
     assert rd.kind == "2dgs" and rd.sh_degree == sc.scene.sh_degree == 1
     np.testing.assert_array_equal(rd.means, sc.scene.means)
@@ -413,7 +429,14 @@ def test_files_round_trip(tmp_path):
         for a, b in zip(cams, ref):
             np.testing.assert_allclose(a.c2w, b.c2w, atol=1e-12)
             assert (a.fx, a.fy, a.cx, a.cy, a.width, a.height, a.name) == (
-                b.fx, b.fy, b.cx, b.cy, b.width, b.height, b.name)
+                b.fx,
+                b.fy,
+                b.cx,
+                b.cy,
+                b.width,
+                b.height,
+                b.name,
+            )
     meta = json.loads((tmp_path / "scene.json").read_text())
     assert meta["name"] == "ribs" and meta["seed"] == 5 and meta["size"] == 20_000
     assert meta["counts"]["total"] == 20_000 and len(meta["clicks"]) >= 2
@@ -447,8 +470,14 @@ def test_density_grid(scenes):
         for dz in (-1, 0, 1):
             for dy in (-1, 0, 1):
                 for dx in (-1, 0, 1):
-                    out = np.maximum(out, a[np.clip(iz + dz, 0, D - 1), np.clip(iy + dy, 0, H - 1),
-                                           np.clip(ix + dx, 0, W - 1)])
+                    out = np.maximum(
+                        out,
+                        a[
+                            np.clip(iz + dz, 0, D - 1),
+                            np.clip(iy + dy, 0, H - 1),
+                            np.clip(ix + dx, 0, W - 1),
+                        ],
+                    )
         return out
 
     surf = sc.metadata["surfaces"]
@@ -475,8 +504,12 @@ def test_density_grid(scenes):
     o3, o4 = np.asarray(ribs[3]["origin"]), np.asarray(ribs[4]["origin"])
     up = np.array([0.0, 0, 1])
     side = np.cross(ax, up)
-    mids = [(o3 + o4) / 2 + a * side + b * up for a in np.linspace(-0.3, 0.3, 13)
-            for b in np.linspace(-0.3, 0.3, 13) if a * a + b * b < 0.3 ** 2]
+    mids = [
+        (o3 + o4) / 2 + a * side + b * up
+        for a in np.linspace(-0.3, 0.3, 13)
+        for b in np.linspace(-0.3, 0.3, 13)
+        if a * a + b * b < 0.3**2
+    ]
     mids = np.array(mids)
     post = [s for s in sc.surfaces if s.name == "stand_post"][0]
     far_post = post.distance(mids) > 2 * v[0]
@@ -517,8 +550,9 @@ def test_density_grid(scenes):
 
 def test_cli_generate(tmp_path, capsys):
     out = tmp_path / "occ"
-    assert cli_main(["generate", "occluded", "--out", str(out), "--size", "6000",
-                     "--seed", "2"]) == 0
+    assert (
+        cli_main(["generate", "occluded", "--out", str(out), "--size", "6000", "--seed", "2"]) == 0
+    )
     text = capsys.readouterr().out
     assert "6000" in text and "target" in text
     meta = json.loads((out / "scene.json").read_text())

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from divas_engine.viewport import (camera_pixel_to_region, frame_homography,
-                                   region_to_camera_pixel)
+from divas_engine.viewport import camera_pixel_to_region, frame_homography, region_to_camera_pixel
 
 
 def rect(left, bottom, right, top):
@@ -49,10 +48,14 @@ def test_letterbox_inside_and_outside():
 
 def test_frame_edges():
     frame = rect(10, 10, 20, 20)  # 10x10 region px for a 10x10 image
-    assert region_to_camera_pixel((100, 100), frame, (10, 19), (10, 10)) == pytest.approx((0.5, 0.5))
-    assert region_to_camera_pixel((100, 100), frame, (19, 10), (10, 10)) == pytest.approx((9.5, 9.5))
+    assert region_to_camera_pixel((100, 100), frame, (10, 19), (10, 10)) == pytest.approx(
+        (0.5, 0.5)
+    )
+    assert region_to_camera_pixel((100, 100), frame, (19, 10), (10, 10)) == pytest.approx(
+        (9.5, 9.5)
+    )
     assert region_to_camera_pixel((100, 100), frame, (20, 15), (10, 10)) is None  # u = 10.5
-    assert region_to_camera_pixel((100, 100), frame, (9, 15), (10, 10)) is None   # u = -0.5
+    assert region_to_camera_pixel((100, 100), frame, (9, 15), (10, 10)) is None  # u = -0.5
 
 
 def test_non_square_pixel_aspect():
@@ -70,7 +73,8 @@ def test_shifted_frame():
     # lens shift moves the frame off-centre in the region; the mapping follows the corners
     frame = rect(-30, 120, 290, 360)  # 320x240 frame partly left of the region
     assert region_to_camera_pixel((400, 400), frame, (0, 239), (640, 480)) == pytest.approx(
-        ((0.5 + 30) * 2, (360 - 239.5) * 2))
+        ((0.5 + 30) * 2, (360 - 239.5) * 2)
+    )
 
 
 def test_projective_frame_round_trip():
@@ -79,8 +83,9 @@ def test_projective_frame_round_trip():
     img = (640, 480)
     hmat = frame_homography(frame, img)
     corners = np.c_[np.array(frame), np.ones(4)] @ hmat.T
-    np.testing.assert_allclose(corners[:, :2] / corners[:, 2:], [(640, 0), (640, 480), (0, 480), (0, 0)],
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        corners[:, :2] / corners[:, 2:], [(640, 0), (640, 480), (0, 480), (0, 0)], atol=1e-9
+    )
     rng = np.random.default_rng(0)
     uv = rng.uniform([0, 0], img, (50, 2))
     reg = camera_pixel_to_region(uv, frame, img)

@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from divas_engine.camera import Camera
-from divas_engine.views import (ViewConfig, estimate_up, fibonacci_sphere, gs_anchor_radii,
-                                plan_anchors, rank_directions, training_anchor)
+from divas_engine.views import (
+    ViewConfig,
+    estimate_up,
+    fibonacci_sphere,
+    gs_anchor_radii,
+    plan_anchors,
+    rank_directions,
+    training_anchor,
+)
 
 
 def _rot(axis, deg):
@@ -37,7 +44,7 @@ def test_fibonacci_unit_and_uniform(n):
     # eq:fib: golden-angle azimuth steps, equal-area heights (half-index offset, see module)
     az = np.arctan2(d[:, 1], d[:, 0])
     step = np.degrees(np.mod(np.diff(az), 2 * np.pi))
-    np.testing.assert_allclose(step, 360.0 / ((1 + 5 ** 0.5) / 2) % 360.0, atol=1e-9)
+    np.testing.assert_allclose(step, 360.0 / ((1 + 5**0.5) / 2) % 360.0, atol=1e-9)
     np.testing.assert_allclose(d[:, 2], 1 - 2 * (np.arange(n) + 0.5) / n, atol=1e-12)
     # uniformity against the equal-area cap radius rho = arccos(1 - 2/N)
     rho = math.degrees(math.acos(1 - 2 / n))
@@ -47,8 +54,8 @@ def test_fibonacci_unit_and_uniform(n):
     q = np.random.default_rng(0).normal(size=(50_000, 3))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     covering = math.degrees(math.acos((q @ d.T).max(1).min()))
-    assert min_sep >= 1.3 * rho          # no clustering (random points: ≪ rho)
-    assert covering <= 1.5 * rho         # no holes (any set: ≥ rho)
+    assert min_sep >= 1.3 * rho  # no clustering (random points: ≪ rho)
+    assert covering <= 1.5 * rho  # no holes (any set: ≥ rho)
     assert np.linalg.norm(d.mean(0)) < 0.05
 
 
@@ -60,7 +67,7 @@ def test_ranking_hand_computed():
     D = np.array([2.992, 2.08, 4.576, 2.608]) / 3
     np.testing.assert_allclose(r.D_raw, D, atol=1e-12)
     # C_i: nearest axes +z, +x, −z (distance √0.4) and +y (√0.08)
-    np.testing.assert_allclose(r.C_raw, [1 / 0.4 ** 0.5] * 3 + [1 / 0.08 ** 0.5], rtol=1e-5)
+    np.testing.assert_allclose(r.C_raw, [1 / 0.4**0.5] * 3 + [1 / 0.08**0.5], rtol=1e-5)
     # P_i = |elevation| / 90°, elevation asin(±0.8) = ±53.13°
     p = math.degrees(math.asin(0.8)) / 90
     np.testing.assert_allclose(r.P_raw, [p, 0, p, 0], atol=1e-12)
@@ -68,8 +75,8 @@ def test_ranking_hand_computed():
     np.testing.assert_allclose(r.D, [0.304 / 0.832, 0, 1, 0.176 / 0.832], atol=1e-9)
     np.testing.assert_allclose(r.C, [0, 0, 0, 1], atol=1e-6)
     np.testing.assert_allclose(r.P, [1, 0, 1, 0], atol=1e-12)
-    I = np.array([0.4 * 0.304 / 0.832 + 0.3, 0.0, 0.4 + 0.3, 0.4 * 0.176 / 0.832 + 0.3])
-    np.testing.assert_allclose(r.score, I, atol=1e-6)
+    score = np.array([0.4 * 0.304 / 0.832 + 0.3, 0.0, 0.4 + 0.3, 0.4 * 0.176 / 0.832 + 0.3])
+    np.testing.assert_allclose(r.score, score, atol=1e-6)
     assert r.order.tolist() == [2, 0, 3, 1]
 
 
@@ -87,9 +94,12 @@ def _ring(R, center, radius, elevations, counts, rng, jitter=0.0):
     for e, n in zip(elevations, counts):
         for a in np.linspace(0, 360, n, endpoint=False) + 7 * e:
             aa, ee = math.radians(a), math.radians(e + jitter * rng.uniform(-1, 1))
-            local = radius * np.array([math.cos(ee) * math.cos(aa), math.cos(ee) * math.sin(aa),
-                                       math.sin(ee)])
-            cams.append(_cam(center + R @ local, center + jitter * 0.05 * rng.uniform(-1, 1, 3), up))
+            local = radius * np.array(
+                [math.cos(ee) * math.cos(aa), math.cos(ee) * math.sin(aa), math.sin(ee)]
+            )
+            cams.append(
+                _cam(center + R @ local, center + jitter * 0.05 * rng.uniform(-1, 1, 3), up)
+            )
     return cams
 
 
@@ -109,9 +119,13 @@ def test_up_plane_refinement_on_half_ring():
     up = R @ [0, 0, 1.0]
     cams = []
     for a in np.linspace(-160, -20, 15):
-        local = 3.0 * np.array([math.cos(math.radians(25)) * math.cos(math.radians(a)),
-                                math.cos(math.radians(25)) * math.sin(math.radians(a)),
-                                math.sin(math.radians(25))])
+        local = 3.0 * np.array(
+            [
+                math.cos(math.radians(25)) * math.cos(math.radians(a)),
+                math.cos(math.radians(25)) * math.sin(math.radians(a)),
+                math.sin(math.radians(25)),
+            ]
+        )
         cams.append(_cam(R @ local, np.zeros(3), up))
     est = estimate_up(cams)
     assert not est.forward_facing and est.plane_used
@@ -134,8 +148,9 @@ def _dir(deg):
 
 def test_gs_radius_hand_made_rig():
     # cameras at 0°, 10°, …, 40° (distances 2..6) and one at 90° (distance 10)
-    centres = np.array([_dir(a) * r for a, r in [(0, 2), (10, 3), (20, 4), (30, 5), (40, 6),
-                                                 (90, 10)]])
+    centres = np.array(
+        [_dir(a) * r for a, r in [(0, 2), (10, 3), (20, 4), (30, 5), (40, 6), (90, 10)]]
+    )
     dirs = np.array([_dir(0), _dir(90), _dir(180)])
     r, r_knn, r_cap, uns = gs_anchor_radii(dirs, np.zeros(3), centres)
     # +x: 5 nearest = 0..40° → mean 4; cone 45° holds the same five → P90 = 2 + 0.9·4 = 5.6
@@ -157,8 +172,10 @@ def test_gs_radius_cap_binds():
 def test_plan_anchors_360_unsupported_and_all():
     rng = np.random.default_rng(1)
     # a half ring on the −y side: directions towards +y are unsupported
-    cams = [_cam(4 * _dir(a) + [0, 0, 0.8 * rng.uniform()], np.zeros(3), [0, 0, 1.0])
-            for a in np.linspace(-170, -10, 30)]
+    cams = [
+        _cam(4 * _dir(a) + [0, 0, 0.8 * rng.uniform()], np.zeros(3), [0, 0, 1.0])
+        for a in np.linspace(-170, -10, 30)
+    ]
     plan = plan_anchors(np.zeros(3), 1.0, cams, kind="2dgs")
     assert not plan.forward_facing and len(plan.anchors) == 5
     assert all(a.source == "fibonacci" and not a.unsupported for a in plan.anchors)
@@ -187,8 +204,10 @@ def test_plan_anchors_360_unsupported_and_all():
 
 def test_plan_anchors_forward_facing_uses_training_cameras():
     up = np.array([0, 0, 1.0])
-    cams = [_cam([x, -3.0, z], [0, 0, 0], up, f"c{i}")
-            for i, (x, z) in enumerate((x, z) for x in (-1, -0.5, 0, 0.5, 1) for z in (-0.5, 0.5))]
+    cams = [
+        _cam([x, -3.0, z], [0, 0, 0], up, f"c{i}")
+        for i, (x, z) in enumerate((x, z) for x in (-1, -0.5, 0, 0.5, 1) for z in (-0.5, 0.5))
+    ]
     plan = plan_anchors(np.zeros(3), 1.0, cams)
     assert plan.forward_facing
     assert len(plan.anchors) == 5 and all(a.source == "training" for a in plan.anchors)
@@ -226,8 +245,18 @@ def test_cli_anchors(tmp_path):
     generate_scene("occluded", tmp_path / "s", size=3000, seed=0)
     p = argparse.ArgumentParser()
     cli.add_parser(p.add_subparsers())
-    args = p.parse_args(["anchors", str(tmp_path / "s" / "scene.ply"), "--out",
-                         str(tmp_path / "out"), "--device", "cpu", "--scale", "0.1"])
+    args = p.parse_args(
+        [
+            "anchors",
+            str(tmp_path / "s" / "scene.ply"),
+            "--out",
+            str(tmp_path / "out"),
+            "--device",
+            "cpu",
+            "--scale",
+            "0.1",
+        ]
+    )
     assert args.func(args) == 0
     doc = json.loads((tmp_path / "out" / "anchors.json").read_text())
     assert len(doc["anchors"]) == 5

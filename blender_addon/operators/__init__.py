@@ -3,8 +3,18 @@
 
 from __future__ import annotations
 
-from . import (activate_camera, export_objects, export_selection, extract_selection, import_cameras,
-               import_density_grid, import_splats, segment_modal, session_ops, start_session)
+from . import (
+    activate_camera,
+    export_objects,
+    export_selection,
+    extract_selection,
+    import_cameras,
+    import_density_grid,
+    import_splats,
+    segment_modal,
+    session_ops,
+    start_session,
+)
 
 CLASSES = (
     import_splats.DIVAS_OT_import_splats,

@@ -12,8 +12,8 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from .session_ops import _live, _SessionOperator
 from ..session_actions import report_exception
+from .session_ops import _live, _SessionOperator
 
 
 class DIVAS_OT_export_objects(_SessionOperator, bpy.types.Operator):

@@ -21,8 +21,11 @@ class DIVAS_OT_export_selection(bpy.types.Operator):
 
     filepath: StringProperty(name="File Path", subtype="FILE_PATH")
     filter_glob: StringProperty(default="*.ply;*.splat;*.spz;*.npz", options={"HIDDEN"})
-    write_labels: BoolProperty(name="Write Labels", default=False,
-                               description="Also write <name>_labels.npy: one bool per input-file row")
+    write_labels: BoolProperty(
+        name="Write Labels",
+        default=False,
+        description="Also write <name>_labels.npy: one bool per input-file row",
+    )
 
     @classmethod
     def poll(cls, context):
@@ -39,7 +42,11 @@ class DIVAS_OT_export_selection(bpy.types.Operator):
         ref = source.source_of(context.active_object)
         if not self.filepath:
             stem = ref.path.name.split(".")[0]
-            suffix = ".compressed.ply" if ref.format == "compressed_ply" else source.FORMAT_SUFFIX.get(ref.format, ".ply")
+            suffix = (
+                ".compressed.ply"
+                if ref.format == "compressed_ply"
+                else source.FORMAT_SUFFIX.get(ref.format, ".ply")
+            )
             self.filepath = str(ref.path.with_name(f"{stem}_selection{suffix}"))
         context.window_manager.fileselect_add(self)
         return {"RUNNING_MODAL"}
@@ -53,7 +60,10 @@ class DIVAS_OT_export_selection(bpy.types.Operator):
             result = export_selection(context.active_object, settings)
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
-        self.report({"INFO"}, f"Exported {result.count:,} primitives to {result.path.name} ({result.format})")
+        self.report(
+            {"INFO"},
+            f"Exported {result.count:,} primitives to {result.path.name} ({result.format})",
+        )
         return {"FINISHED"}
 
 

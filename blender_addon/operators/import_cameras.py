@@ -34,5 +34,7 @@ class DIVAS_OT_import_cameras(bpy.types.Operator, ImportHelper):
 
 
 def menu_func(self, context):
-    self.layout.operator(DIVAS_OT_import_cameras.bl_idname,
-                         text="Training Cameras (cameras.json, COLMAP, transforms.json)")
+    self.layout.operator(
+        DIVAS_OT_import_cameras.bl_idname,
+        text="Training Cameras (cameras.json, COLMAP, transforms.json)",
+    )

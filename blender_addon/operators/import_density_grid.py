@@ -21,9 +21,13 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
 
     filename_ext = ".npz"
     filter_glob: StringProperty(default="*.npz", options={"HIDDEN"})
-    min_opacity: FloatProperty(name="Minimum Opacity", default=0.01, min=0.0, max=1.0,
-                               description="Skip voxels whose cell opacity 1 - exp(-density * voxel) "
-                                           "is below this")
+    min_opacity: FloatProperty(
+        name="Minimum Opacity",
+        default=0.01,
+        min=0.0,
+        max=1.0,
+        description="Skip voxels whose cell opacity 1 - exp(-density * voxel) is below this",
+    )
     display: BoolProperty(name="Display", default=True)
 
     def execute(self, context):
@@ -32,7 +36,9 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
             obj = import_density_grid(context, settings)
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
-        self.report({"INFO"}, f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}")
+        self.report(
+            {"INFO"}, f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}"
+        )
         return {"FINISHED"}
 
 

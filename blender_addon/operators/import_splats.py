@@ -22,8 +22,11 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
 
     filename_ext = ".ply"
     filter_glob: StringProperty(default="*.ply;*.splat;*.spz", options={"HIDDEN"})
-    display: BoolProperty(name="Display", default=True,
-                          description="Add the DivAS Geometry Nodes display (radius, colour, opacity)")
+    display: BoolProperty(
+        name="Display",
+        default=True,
+        description="Add the DivAS Geometry Nodes display (radius, colour, opacity)",
+    )
 
     def execute(self, context):
         settings = SplatImportSettings(Path(self.filepath), display=self.display)
@@ -33,11 +36,15 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
         n = len(obj.data.points)
-        self.report({"INFO"}, f"Imported {n:,} splats from {settings.filepath.name} "
-                              f"in {time.perf_counter() - t0:.1f} s")
+        self.report(
+            {"INFO"},
+            f"Imported {n:,} splats from {settings.filepath.name} "
+            f"in {time.perf_counter() - t0:.1f} s",
+        )
         return {"FINISHED"}
 
 
 def menu_func(self, context):
-    self.layout.operator(DIVAS_OT_import_splats.bl_idname,
-                         text="Gaussian Splats (.ply, .splat, .spz)")
+    self.layout.operator(
+        DIVAS_OT_import_splats.bl_idname, text="Gaussian Splats (.ply, .splat, .spz)"
+    )

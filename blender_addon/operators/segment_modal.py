@@ -10,14 +10,21 @@ image (:func:`..view3d.click_to_camera_pixel`) and runs the resulting step with
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import bpy
 
 from .. import session_registry
 from ..modal_logic import HEADER_TEXT, KeyKind, Step, StepKind, decide, plan
-from ..session_actions import (accept, activate_camera, add_prompt, camera_target, click,
-                               report_exception, undo)
+from ..session_actions import (
+    accept,
+    activate_camera,
+    add_prompt,
+    camera_target,
+    click,
+    report_exception,
+    undo,
+)
 from ..view3d import click_to_camera_pixel
 
 __all__ = ["DIVAS_OT_segment_modal", "ModalController"]
@@ -33,8 +40,16 @@ class ModalController:
         pixel_fn: ``(region, rv3d, scene, camera, mouse_xy) -> (u, v) | None``.
     """
 
-    def __init__(self, object_name: str, report: Callable, *, region=None, rv3d=None,
-                 area=None, pixel_fn: Callable = click_to_camera_pixel) -> None:
+    def __init__(
+        self,
+        object_name: str,
+        report: Callable,
+        *,
+        region=None,
+        rv3d=None,
+        area=None,
+        pixel_fn: Callable = click_to_camera_pixel,
+    ) -> None:
         self.object_name = object_name
         self.report = report
         self.region, self.rv3d, self.area = region, rv3d, area
@@ -52,8 +67,12 @@ class ModalController:
         if not _inside(r, x, y):
             return None
         for other in getattr(self.area, "regions", ()):
-            if other.type != "WINDOW" and other.width > 1 and other.height > 1 and \
-                    _inside(other, x, y):
+            if (
+                other.type != "WINDOW"
+                and other.width > 1
+                and other.height > 1
+                and _inside(other, x, y)
+            ):
                 return None
         return x - r.x, y - r.y
 
@@ -112,11 +131,12 @@ class ModalController:
             elif k is StepKind.ACCEPT:
                 res = accept(context, obj, live, step.view_id)
                 if res.view.status == "rejected":
-                    self.report({"WARNING"}, f"View rejected: {res.view.reason}; add points "
-                                             "and press Enter again")
-            elif k is StepKind.UNDO:
-                if undo(context, obj, live) is None:
-                    self.report({"WARNING"}, "Nothing to undo")
+                    self.report(
+                        {"WARNING"},
+                        f"View rejected: {res.view.reason}; add points and press Enter again",
+                    )
+            elif k is StepKind.UNDO and undo(context, obj, live) is None:
+                self.report({"WARNING"}, "Nothing to undo")
         except Exception as e:  # noqa: BLE001 - reported; the modal keeps running
             report_exception(_Reporter(self.report), e)
         self.set_header(self.header(live))
@@ -157,8 +177,9 @@ class DIVAS_OT_segment_modal(bpy.types.Operator):
         area = context.area
         region = next((r for r in area.regions if r.type == "WINDOW"), None)
         space = area.spaces.active
-        self._ctl = ModalController(obj.name, self.report, region=region,
-                                    rv3d=space.region_3d, area=area)
+        self._ctl = ModalController(
+            obj.name, self.report, region=region, rv3d=space.region_3d, area=area
+        )
         cam = context.scene.camera
         t = camera_target(live, cam)
         if not (t.is_anchor or t.is_view):

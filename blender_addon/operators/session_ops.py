@@ -16,8 +16,19 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from .. import session_registry, source
-from ..session_actions import (accept, add_anchor, autosave_path, click, finish_object,
-                               full_to_session_xy, report_exception, reset, resume, sync, undo)
+from ..session_actions import (
+    accept,
+    add_anchor,
+    autosave_path,
+    click,
+    finish_object,
+    full_to_session_xy,
+    report_exception,
+    reset,
+    resume,
+    sync,
+    undo,
+)
 from .start_session import DEVICE_ITEMS, SEGMENTER_ITEMS, start_settings
 
 
@@ -49,8 +60,9 @@ def _parse_points(text: str):
         pts = [(float(p[0]), float(p[1])) for p in doc]
         labs = [int(bool(p[2])) if len(p) > 2 else 1 for p in doc]
     except (ValueError, TypeError, IndexError, KeyError) as e:
-        raise ValueError(f"points must be JSON [[x, y, positive], ...], got {text!r} ({e})") \
-            from None
+        raise ValueError(
+            f"points must be JSON [[x, y, positive], ...], got {text!r} ({e})"
+        ) from None
     return pts, labs
 
 
@@ -64,14 +76,23 @@ class DIVAS_OT_session_click(_SessionOperator, bpy.types.Operator):
     anchor: IntProperty(name="Anchor", default=0, min=0)
     x: FloatProperty(name="X", default=0.0)
     y: FloatProperty(name="Y", default=0.0)
-    xy: StringProperty(name="XY (exact)", default="",
-                       description="'x y' as decimal text (double precision); overrides X/Y")
+    xy: StringProperty(
+        name="XY (exact)",
+        default="",
+        description="'x y' as decimal text (double precision); overrides X/Y",
+    )
     positive: BoolProperty(name="Positive", default=True)
-    full_resolution: BoolProperty(name="Full-Resolution Pixels", default=False,
-                                  description="X/Y are pixels of the full camera (the prompts "
-                                              "file's), not of the rendered image")
-    preview: BoolProperty(name="Preview", default=True,
-                          description="Segment the default prompt at once (the mask preview)")
+    full_resolution: BoolProperty(
+        name="Full-Resolution Pixels",
+        default=False,
+        description="X/Y are pixels of the full camera (the prompts "
+        "file's), not of the rendered image",
+    )
+    preview: BoolProperty(
+        name="Preview",
+        default=True,
+        description="Segment the default prompt at once (the mask preview)",
+    )
 
     def execute(self, context):
         obj, live = _live(context)
@@ -79,8 +100,9 @@ class DIVAS_OT_session_click(_SessionOperator, bpy.types.Operator):
             xy = _parse_xy(self.xy) if self.xy else (self.x, self.y)
             if self.full_resolution:
                 if not 0 <= self.anchor < len(live.session.anchors):
-                    raise ValueError(f"anchor {self.anchor} does not exist "
-                                     f"({len(live.session.anchors)} anchors)")
+                    raise ValueError(
+                        f"anchor {self.anchor} does not exist ({len(live.session.anchors)} anchors)"
+                    )
                 xy = full_to_session_xy(live, self.anchor, xy)
             res = click(context, obj, live, self.anchor, xy, self.positive, preview=self.preview)
         except Exception as e:  # noqa: BLE001
@@ -98,9 +120,12 @@ class DIVAS_OT_session_add_anchor(_SessionOperator, bpy.types.Operator):
     bl_label = "Add Camera as Anchor"
     bl_options = {"REGISTER"}
 
-    camera: StringProperty(name="Camera", default="",
-                           description="Camera object (default: the active object when it is "
-                                       "a camera, else the scene camera)")
+    camera: StringProperty(
+        name="Camera",
+        default="",
+        description="Camera object (default: the active object when it is "
+        "a camera, else the scene camera)",
+    )
 
     def execute(self, context):
         obj, live = _live(context)
@@ -126,12 +151,17 @@ class DIVAS_OT_session_accept(_SessionOperator, bpy.types.Operator):
     bl_label = "Accept View"
     bl_options = {"REGISTER"}
 
-    view: StringProperty(name="View", default="",
-                         description="View id (default: the scene camera's view, else the "
-                                     "next open one)")
-    points: StringProperty(name="Prompt Points", default="",
-                           description="JSON [[x, y, positive], ...] replacing the points "
-                                       "added on the view (its default prompt stays)")
+    view: StringProperty(
+        name="View",
+        default="",
+        description="View id (default: the scene camera's view, else the next open one)",
+    )
+    points: StringProperty(
+        name="Prompt Points",
+        default="",
+        description="JSON [[x, y, positive], ...] replacing the points "
+        "added on the view (its default prompt stays)",
+    )
     full_resolution: BoolProperty(name="Full-Resolution Pixels", default=False)
 
     def execute(self, context):
@@ -154,8 +184,11 @@ class DIVAS_OT_session_accept(_SessionOperator, bpy.types.Operator):
         elif v.status == "pending":
             self.report({"INFO"}, f"View {v.id} pending ({res.pending} masks queued)")
         else:
-            self.report({"INFO"}, f"View {v.id} fused: {int(live.session.selection.sum()):,} "
-                                  f"selected ({res.timings.get('update_s', 0.0):.2f} s)")
+            self.report(
+                {"INFO"},
+                f"View {v.id} fused: {int(live.session.selection.sum()):,} "
+                f"selected ({res.timings.get('update_s', 0.0):.2f} s)",
+            )
         return {"FINISHED"}
 
 
@@ -203,8 +236,9 @@ class DIVAS_OT_session_reset(_SessionOperator, bpy.types.Operator):
     bl_label = "Reset"
     bl_options = {"REGISTER"}
 
-    all_objects: BoolProperty(name="All Objects", default=False,
-                              description="Also drop every finished object's label")
+    all_objects: BoolProperty(
+        name="All Objects", default=False, description="Also drop every finished object's label"
+    )
 
     def execute(self, context):
         obj, live = _live(context)
@@ -231,8 +265,10 @@ class DIVAS_OT_session_finish_object(_SessionOperator, bpy.types.Operator):
             rec = finish_object(context, obj, live, self.name or None)
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
-        self.report({"INFO"}, f"Finished {rec.name} (label {rec.label}, "
-                              f"{int(rec.selection.sum()):,} primitives)")
+        self.report(
+            {"INFO"},
+            f"Finished {rec.name} (label {rec.label}, {int(rec.selection.sum()):,} primitives)",
+        )
         return {"FINISHED"}
 
 
@@ -243,8 +279,11 @@ class DIVAS_OT_resume_session(bpy.types.Operator):
     bl_label = "Resume DivAS Session"
     bl_options = {"REGISTER"}
 
-    filepath: StringProperty(name="Session File", subtype="FILE_PATH",
-                             description="Saved session .json (default: the autosave)")
+    filepath: StringProperty(
+        name="Session File",
+        subtype="FILE_PATH",
+        description="Saved session .json (default: the autosave)",
+    )
     segmenter: EnumProperty(name="Segmenter", items=SEGMENTER_ITEMS, default="PREFERENCES")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="PREFERENCES")
     cameras: StringProperty(name="Training Cameras", subtype="FILE_PATH")
@@ -261,19 +300,34 @@ class DIVAS_OT_resume_session(bpy.types.Operator):
         obj = context.active_object
         path = bpy.path.abspath(self.filepath) if self.filepath else str(autosave_path(obj))
         try:
-            settings = start_settings(context, obj, segmenter=self.segmenter, device=self.device,
-                                      cameras=self.cameras, gt_labels=self.gt_labels,
-                                      autosave=path)
+            settings = start_settings(
+                context,
+                obj,
+                segmenter=self.segmenter,
+                device=self.device,
+                cameras=self.cameras,
+                gt_labels=self.gt_labels,
+                autosave=path,
+            )
             live = resume(context, obj, path, settings)
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
         c = live.counts()
         ok = "" if live.session.replay_matches else " (replay differs from the saved labels!)"
-        self.report({"INFO" if ok == "" else "WARNING"},
-                    f"Resumed {c['accepted']} accepted views, {c['selected']:,} selected{ok}")
+        self.report(
+            {"INFO" if ok == "" else "WARNING"},
+            f"Resumed {c['accepted']} accepted views, {c['selected']:,} selected{ok}",
+        )
         return {"FINISHED"}
 
 
-CLASSES = (DIVAS_OT_session_click, DIVAS_OT_session_add_anchor, DIVAS_OT_session_accept,
-           DIVAS_OT_session_sync, DIVAS_OT_session_undo, DIVAS_OT_session_reset,
-           DIVAS_OT_session_finish_object, DIVAS_OT_resume_session)
+CLASSES = (
+    DIVAS_OT_session_click,
+    DIVAS_OT_session_add_anchor,
+    DIVAS_OT_session_accept,
+    DIVAS_OT_session_sync,
+    DIVAS_OT_session_undo,
+    DIVAS_OT_session_reset,
+    DIVAS_OT_session_finish_object,
+    DIVAS_OT_resume_session,
+)

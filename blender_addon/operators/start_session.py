@@ -13,20 +13,38 @@ from ..properties import scene_settings, session_config
 from ..session_actions import StartSettings, autosave_path, report_exception, start
 
 _FROM_PREFS = ("PREFERENCES", "From Preferences", "Use the add-on preferences")
-SEGMENTER_ITEMS = (_FROM_PREFS, *SEGMENTERS,
-                   ("oracle", "Oracle (evaluation)", "Ground-truth oracle with SAM-like errors; "
-                                                     "needs Ground Truth"))
-DEVICE_ITEMS = (_FROM_PREFS, ("auto", "Auto", "CUDA when present, else CPU"),
-                ("cpu", "CPU", ""), ("cuda", "CUDA", ""))
+SEGMENTER_ITEMS = (
+    _FROM_PREFS,
+    *SEGMENTERS,
+    (
+        "oracle",
+        "Oracle (evaluation)",
+        "Ground-truth oracle with SAM-like errors; needs Ground Truth",
+    ),
+)
+DEVICE_ITEMS = (
+    _FROM_PREFS,
+    ("auto", "Auto", "CUDA when present, else CPU"),
+    ("cpu", "CPU", ""),
+    ("cuda", "CUDA", ""),
+)
 
 
 def _path(p: str) -> Path | None:
     return Path(bpy.path.abspath(p)) if p else None
 
 
-def start_settings(context, obj, *, segmenter: str = "PREFERENCES", device: str = "PREFERENCES",
-                   cameras: str = "", prompts: str = "", gt_labels: str = "",
-                   autosave: str = "") -> StartSettings:
+def start_settings(
+    context,
+    obj,
+    *,
+    segmenter: str = "PREFERENCES",
+    device: str = "PREFERENCES",
+    cameras: str = "",
+    prompts: str = "",
+    gt_labels: str = "",
+    autosave: str = "",
+) -> StartSettings:
     """Preferences + the scene's settings + operator overrides → :class:`StartSettings`."""
     prefs = get_settings(context)
     props = scene_settings(context.scene)
@@ -39,9 +57,14 @@ def start_settings(context, obj, *, segmenter: str = "PREFERENCES", device: str 
         config=session_config(props, autosave=save),
         device=prefs.device if device == "PREFERENCES" else device,
         segmenter=prefs.segmenter if segmenter == "PREFERENCES" else segmenter,
-        sam_encoder=_path(prefs.sam_encoder_path), sam_decoder=_path(prefs.sam_decoder_path),
-        sam_checkpoint=_path(prefs.sam_checkpoint_path), sam_model_type=prefs.sam_model_type,
-        cameras_path=_path(cameras), prompts_path=_path(prompts), gt_labels=_path(gt_labels))
+        sam_encoder=_path(prefs.sam_encoder_path),
+        sam_decoder=_path(prefs.sam_decoder_path),
+        sam_checkpoint=_path(prefs.sam_checkpoint_path),
+        sam_model_type=prefs.sam_model_type,
+        cameras_path=_path(cameras),
+        prompts_path=_path(prompts),
+        gt_labels=_path(gt_labels),
+    )
 
 
 class DIVAS_OT_start_session(bpy.types.Operator):
@@ -54,38 +77,60 @@ class DIVAS_OT_start_session(bpy.types.Operator):
 
     segmenter: EnumProperty(name="Segmenter", items=SEGMENTER_ITEMS, default="PREFERENCES")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="PREFERENCES")
-    cameras: StringProperty(name="Training Cameras", subtype="FILE_PATH",
-                            description="cameras.json / COLMAP / transforms.json (default: "
-                                        "cameras.json beside the scene, else the imported "
-                                        "'DivAS Cameras')")
-    prompts: StringProperty(name="Anchors From Prompts File", subtype="FILE_PATH",
-                            description="Use the anchors of this prompts file (version 1) "
-                                        "instead of the planned ones")
-    gt_labels: StringProperty(name="Ground Truth", subtype="FILE_PATH",
-                              description="Ground-truth labels .npy (the oracle's target)")
-    autosave: StringProperty(name="Autosave To", subtype="FILE_PATH",
-                             description="Session file written after every accept (default: "
-                                         "<blend>_divas_session.json when Autosave is on)")
+    cameras: StringProperty(
+        name="Training Cameras",
+        subtype="FILE_PATH",
+        description="cameras.json / COLMAP / transforms.json (default: "
+        "cameras.json beside the scene, else the imported "
+        "'DivAS Cameras')",
+    )
+    prompts: StringProperty(
+        name="Anchors From Prompts File",
+        subtype="FILE_PATH",
+        description="Use the anchors of this prompts file (version 1) instead of the planned ones",
+    )
+    gt_labels: StringProperty(
+        name="Ground Truth",
+        subtype="FILE_PATH",
+        description="Ground-truth labels .npy (the oracle's target)",
+    )
+    autosave: StringProperty(
+        name="Autosave To",
+        subtype="FILE_PATH",
+        description="Session file written after every accept (default: "
+        "<blend>_divas_session.json when Autosave is on)",
+    )
 
     @classmethod
     def poll(cls, context):
         if source.source_of(context.active_object) is None:
-            cls.poll_message_set("Select a DivAS-imported point cloud (Import › Gaussian "
-                                 "Splats / NeRF Density Grid)")
+            cls.poll_message_set(
+                "Select a DivAS-imported point cloud (Import › Gaussian Splats / NeRF Density Grid)"
+            )
             return False
         return context.mode == "OBJECT"
 
     def execute(self, context):
         obj = context.active_object
         try:
-            settings = start_settings(context, obj, segmenter=self.segmenter, device=self.device,
-                                      cameras=self.cameras, prompts=self.prompts,
-                                      gt_labels=self.gt_labels, autosave=self.autosave)
+            settings = start_settings(
+                context,
+                obj,
+                segmenter=self.segmenter,
+                device=self.device,
+                cameras=self.cameras,
+                prompts=self.prompts,
+                gt_labels=self.gt_labels,
+                autosave=self.autosave,
+            )
             live = start(context, obj, settings)
         except Exception as e:  # noqa: BLE001 - reported, never a traceback in the UI
             return report_exception(self, e)
         s = live.session
-        self.report({"INFO"}, f"DivAS started on {obj.name}: {len(s.scene):,} primitives, "
-                              f"{len(s.anchors)} anchors, {len(s.grid):,} active voxels "
-                              f"({live.open_s:.1f} s)")
+        self.report(
+            {"INFO"},
+            f"DivAS started on {obj.name}: {len(s.scene):,} primitives, "
+            f"{len(s.anchors)} anchors, {len(s.grid):,} active voxels "
+            f"({live.open_s:.1f} s)",
+        )
         return {"FINISHED"}

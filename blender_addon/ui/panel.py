@@ -12,10 +12,17 @@ from ..properties import scene_settings
 from ..selection import selected_count
 
 #: (timing key, label) shown for the last update, in pipeline order.
-TIMING_LABELS = (("centroid_s", "Centroid"), ("render_s", "Render"), ("preview_s", "Preview"),
-                 ("segmenter_s", "Segmenter"), ("segmenter_wait_s", "Segmenter wait"),
-                 ("kernel_s", "Fusion"), ("mapping_s", "Mapping"), ("overlay_s", "Overlay"),
-                 ("update_s", "Total"))
+TIMING_LABELS = (
+    ("centroid_s", "Centroid"),
+    ("render_s", "Render"),
+    ("preview_s", "Preview"),
+    ("segmenter_s", "Segmenter"),
+    ("segmenter_wait_s", "Segmenter wait"),
+    ("kernel_s", "Fusion"),
+    ("mapping_s", "Mapping"),
+    ("overlay_s", "Overlay"),
+    ("update_s", "Total"),
+)
 
 
 def backbone_of(ref: source.SourceRef) -> str:
@@ -40,7 +47,9 @@ def _draw_settings(layout, context, ref) -> None:
     else:
         box.prop(prefs, "device")
         box.prop(prefs, "segmenter")
-        if prefs.segmenter == "sam_onnx" and not (prefs.sam_encoder_path and prefs.sam_decoder_path):
+        if prefs.segmenter == "sam_onnx" and not (
+            prefs.sam_encoder_path and prefs.sam_decoder_path
+        ):
             box.label(text="Set the SAM .onnx files in Preferences", icon="ERROR")
         if prefs.segmenter == "sam_torch" and not prefs.sam_checkpoint_path:
             box.label(text="Set the SAM checkpoint in Preferences", icon="ERROR")
@@ -68,10 +77,14 @@ def _draw_session(layout, live) -> None:
     box.label(text="Session", icon="RESTRICT_SELECT_OFF")
     c = live.counts()
     col = box.column(align=True)
-    col.label(text=f"{c['anchors']} anchors · {c['centroid_views']} views "
-                   f"({c['accepted']} fused, {c['rejected']} rejected, {c['pending']} pending)")
-    col.label(text=f"{c['selected']:,} selected · {c['labelled']:,} labelled · "
-                   f"object {len(live.session.objects)}")
+    col.label(
+        text=f"{c['anchors']} anchors · {c['centroid_views']} views "
+        f"({c['accepted']} fused, {c['rejected']} rejected, {c['pending']} pending)"
+    )
+    col.label(
+        text=f"{c['selected']:,} selected · {c['labelled']:,} labelled · "
+        f"object {len(live.session.objects)}"
+    )
     col.label(text=f"{c['active_voxels']:,} active voxels · {c['segmented_voxels']:,} segmented")
     last = live.last_update
     if last:
@@ -119,8 +132,11 @@ class DIVAS_PT_main(bpy.types.Panel):
         if ref is not None:
             row = layout.row(align=True)
             row.scale_y = 1.3
-            row.operator("divas.start_session", text="Restart DivAS" if live is not None
-                         and owner == obj else "Start DivAS", icon="PLAY")
+            row.operator(
+                "divas.start_session",
+                text="Restart DivAS" if live is not None and owner == obj else "Start DivAS",
+                icon="PLAY",
+            )
             row.operator("divas.resume_session", text="", icon="RECOVER_LAST")
         if live is not None:
             _draw_session(layout, live)

@@ -22,8 +22,11 @@ _MODULES = {"eval": "evaluate"}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="divas", description="DivAS: interactive, training-free 3D "
-                                "segmentation of Gaussian-splat and NeRF-grid scenes.")
+    p = argparse.ArgumentParser(
+        prog="divas",
+        description="DivAS: interactive, training-free 3D "
+        "segmentation of Gaussian-splat and NeRF-grid scenes.",
+    )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in _COMMANDS:
         importlib.import_module(f".{_MODULES.get(name, name)}", __name__).add_parser(sub)

@@ -19,18 +19,36 @@ from ..errors import DivasInputError
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("anchors", help="pick the anchor views of a scene and render them")
-    p.add_argument("scene", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz grid")
-    p.add_argument("--cameras", type=Path, default=None,
-                   help="training cameras (default: cameras.json beside the scene, if any; "
-                        "none → camera-free anchors around the robust centre)")
-    p.add_argument("--all", action="store_true", dest="all_views",
-                   help="offer every Fibonacci view (unsupported ones included), ranked")
-    p.add_argument("--up", default=None, metavar="X,Y,Z",
-                   help="scene up direction (default: estimated from the cameras; +z camera-free)")
+    p.add_argument(
+        "scene", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz grid"
+    )
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        default=None,
+        help="training cameras (default: cameras.json beside the scene, if any; "
+        "none → camera-free anchors around the robust centre)",
+    )
+    p.add_argument(
+        "--all",
+        action="store_true",
+        dest="all_views",
+        help="offer every Fibonacci view (unsupported ones included), ranked",
+    )
+    p.add_argument(
+        "--up",
+        default=None,
+        metavar="X,Y,Z",
+        help="scene up direction (default: estimated from the cameras; +z camera-free)",
+    )
     p.add_argument("--scale", type=float, default=1.0, help="render scale of the PNGs (default 1)")
     p.add_argument("--no-render", action="store_true", help="write anchors.json only")
-    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"),
-                   help="Warp device for the renders (default auto)")
+    p.add_argument(
+        "--device",
+        default="auto",
+        choices=("auto", "cpu", "cuda"),
+        help="Warp device for the renders (default auto)",
+    )
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.set_defaults(func=run)
 
@@ -50,12 +68,15 @@ def _parse_up(text: str | None) -> np.ndarray | None:
 def make_renderer(scene, device):
     """The renderer for ``scene`` (the render package's factory when it has one)."""
     from .. import render as render_pkg
+
     factory = getattr(render_pkg, "make_renderer", None)
     if factory is not None:
         return factory(scene, device=device)
     from ..scene import SurfelScene
+
     if isinstance(scene, SurfelScene):
         from ..render.surfel_renderer import SurfelRenderer
+
         return SurfelRenderer(scene, device=device)
     return None
 
@@ -76,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     cameras = load_cameras(cams_path) if cams_path is not None else []
     frame = scene_frame(scene)
     kind = "2dgs" if isinstance(scene, SurfelScene) else "nerf"
-    plan = plan_anchors(frame.center, frame.radius, cameras, kind=kind, all_views=args.all_views,
-                        up=up)
+    plan = plan_anchors(
+        frame.center, frame.radius, cameras, kind=kind, all_views=args.all_views, up=up
+    )
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     doc = plan.to_dict()
@@ -86,8 +108,10 @@ def run(args: argparse.Namespace) -> int:
     doc["r_fg"] = frame.radius
     renderer = None if args.no_render else make_renderer(scene, args.device)
     if renderer is None and not args.no_render:
-        print("divas anchors: no renderer for this scene type yet; writing anchors.json only",
-              file=sys.stderr)
+        print(
+            "divas anchors: no renderer for this scene type yet; writing anchors.json only",
+            file=sys.stderr,
+        )
     for i, (a, entry) in enumerate(zip(plan.anchors, doc["anchors"])):
         if renderer is None:
             continue
@@ -99,9 +123,11 @@ def run(args: argparse.Namespace) -> int:
         cv2.imwrite(str(out / name), img[..., ::-1])
         entry["image"] = name
     (out / "anchors.json").write_text(json.dumps(doc, indent=1))
-    print(f"{len(plan.anchors)} anchors ({'camera-free' if plan.camera_free else len(cameras)} "
-          f"{'' if plan.camera_free else 'training cameras, '}"
-          f"{'forward-facing' if plan.forward_facing else '360°'}) → {out / 'anchors.json'}")
+    print(
+        f"{len(plan.anchors)} anchors ({'camera-free' if plan.camera_free else len(cameras)} "
+        f"{'' if plan.camera_free else 'training cameras, '}"
+        f"{'forward-facing' if plan.forward_facing else '360°'}) → {out / 'anchors.json'}"
+    )
     return 0
 
 

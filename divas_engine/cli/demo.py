@@ -26,25 +26,41 @@ from ..errors import DivasInputError
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from ..synthetic import SCENE_NAMES
 
-    p = sub.add_parser("demo", help="generate a synthetic scene, segment it, print the IoU",
-                       description="End-to-end demo on a synthetic scene with ground truth.")
+    p = sub.add_parser(
+        "demo",
+        help="generate a synthetic scene, segment it, print the IoU",
+        description="End-to-end demo on a synthetic scene with ground truth.",
+    )
     p.add_argument("--scene", choices=SCENE_NAMES, default="ribs", help="synthetic scene (ribs)")
     p.add_argument("--size", type=int, default=50_000, help="surfels (default 50000)")
     p.add_argument("--seed", type=int, default=0, help="scene and segmenter seed (default 0)")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
-    p.add_argument("--segmenter", choices=("classic", "oracle"), default="classic",
-                   help="classic (default, weight-free) or the SAM-like oracle")
-    p.add_argument("--views-per-click", type=int, default=3,
-                   help="training cameras (anchors) per metadata click point (default 3)")
-    p.add_argument("--mask-channel", type=int, default=1, choices=(0, 1, 2),
-                   help="segmenter channel kept (default 1, the paper's)")
+    p.add_argument(
+        "--segmenter",
+        choices=("classic", "oracle"),
+        default="classic",
+        help="classic (default, weight-free) or the SAM-like oracle",
+    )
+    p.add_argument(
+        "--views-per-click",
+        type=int,
+        default=3,
+        help="training cameras (anchors) per metadata click point (default 3)",
+    )
+    p.add_argument(
+        "--mask-channel",
+        type=int,
+        default=1,
+        choices=(0, 1, 2),
+        help="segmenter channel kept (default 1, the paper's)",
+    )
     p.add_argument("--scale", type=float, default=1.0, help="render scale (default 1)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
-def demo_prompts(metadata: dict, cameras: list, views_per_click: int = 3) -> "object":
+def demo_prompts(metadata: dict, cameras: list, views_per_click: int = 3) -> object:
     """Prompts from the synthetic metadata: each click point goes on ``views_per_click``
     training cameras that see it and frame it, taken at evenly spread positions of its
     ``visible_in`` list (click ``k``, copy ``j`` of ``n·m``: position ``(2(k·m+j)+1)/(2n·m)``,
@@ -75,15 +91,14 @@ def demo_prompts(metadata: dict, cameras: list, views_per_click: int = 3) -> "ob
                     break
     if not groups:
         raise DivasInputError(None, "no metadata click is visible in a training camera")
-    return Prompts(tuple(AnchorPrompt("training_camera", n, tuple(cs))
-                         for n, cs in groups.items()))
+    return Prompts(tuple(AnchorPrompt("training_camera", n, tuple(cs)) for n, cs in groups.items()))
 
 
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from ..io.cameras import load_cameras
     from ..evaluation.metrics import EvalConfig, evaluate_selection
+    from ..io.cameras import load_cameras
     from ..session.evaluate import MaskScores
     from ..synthetic import MIN_SIZE, generate_scene
     from .segment import segment_scene, write_report
@@ -94,8 +109,10 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sc = generate_scene(args.scene, out / "scene", size=args.size, seed=args.seed)
-    print(f"generated {args.scene} ({len(sc.scene)} surfels, {len(sc.metadata['clicks'])} click "
-          f"points) in {time.perf_counter() - t0:.1f} s → {out / 'scene'}")
+    print(
+        f"generated {args.scene} ({len(sc.scene)} surfels, {len(sc.metadata['clicks'])} click "
+        f"points) in {time.perf_counter() - t0:.1f} s → {out / 'scene'}"
+    )
     prompts = demo_prompts(sc.metadata, sc.cameras, args.views_per_click)
     prompts_path = out / "prompts.json"
     prompts.write(prompts_path)
@@ -103,18 +120,34 @@ def run(args: argparse.Namespace) -> int:
 
     prompts = load_prompts(prompts_path)  # what the user would pass to `divas segment`
     report, session = segment_scene(
-        out / "scene" / "scene.ply", prompts, cameras_path=out / "scene" / "cameras.json",
-        out=out / "segmented.ply", labels_out=out / "labels.npy", segmenter=args.segmenter,
-        gt_labels=out / "scene" / "labels.npy", scale=args.scale, device=args.device,
-        seed=args.seed, progress=not args.no_progress, keep_session=True,
-        mask_channel=args.mask_channel)
+        out / "scene" / "scene.ply",
+        prompts,
+        cameras_path=out / "scene" / "cameras.json",
+        out=out / "segmented.ply",
+        labels_out=out / "labels.npy",
+        segmenter=args.segmenter,
+        gt_labels=out / "scene" / "labels.npy",
+        scale=args.scale,
+        device=args.device,
+        seed=args.seed,
+        progress=not args.no_progress,
+        keep_session=True,
+        mask_channel=args.mask_channel,
+    )
     try:
         test_cams = load_cameras(out / "scene" / "test_cameras.json")
         gt = np.load(out / "scene" / "labels.npy")[session.scene.source.kept_rows]
         t = time.perf_counter()
-        scores = MaskScores.from_scene_scores(evaluate_selection(
-            session.scene, test_cams, session.selection, gt,
-            config=EvalConfig(scale=args.scale), renderer=session.renderer))
+        scores = MaskScores.from_scene_scores(
+            evaluate_selection(
+                session.scene,
+                test_cams,
+                session.selection,
+                gt,
+                config=EvalConfig(scale=args.scale),
+                renderer=session.renderer,
+            )
+        )
         for cam in test_cams:
             ov = session.overlay(cam)
             img = (np.clip(ov.image, 0, 1) * 255 + 0.5).astype(np.uint8)
@@ -126,17 +159,21 @@ def run(args: argparse.Namespace) -> int:
     finally:
         session.close()
     c = report["counts"]
-    print(f"segmented with {args.segmenter}: {c['accepted']} of {c['centroid_views']} centroid "
-          f"views fused, {c['selected']} surfels selected → {out / 'segmented.ply'}")
+    print(
+        f"segmented with {args.segmenter}: {c['accepted']} of {c['centroid_views']} centroid "
+        f"views fused, {c['selected']} surfels selected → {out / 'segmented.ply'}"
+    )
     for v in report["views"]:
         if v["status"] == "rejected":
             print(f"  rejected {v['id']}: {v['reason']}")
     e3 = report["evaluation"]["surfels"]
     print(f"3D: precision {e3['precision']:.3f}, recall {e3['recall']:.3f}, IoU {e3['iou']:.3f}")
-    print(f"IoU at {len(test_cams)} test cameras (NOTES 'Evaluation'): mean {scores.iou:.3f} "
-          f"(precision {scores.precision:.3f}, recall {scores.recall:.3f}); overlays → "
-          f"{out}/overlay_*.png; report → {out / 'report.json'}; "
-          f"total {time.perf_counter() - t0:.1f} s")
+    print(
+        f"IoU at {len(test_cams)} test cameras (NOTES 'Evaluation'): mean {scores.iou:.3f} "
+        f"(precision {scores.precision:.3f}, recall {scores.recall:.3f}); overlays → "
+        f"{out}/overlay_*.png; report → {out / 'report.json'}; "
+        f"total {time.perf_counter() - t0:.1f} s"
+    )
     return 0
 
 

@@ -37,9 +37,11 @@ def _csv(choices: tuple[str, ...], what: str):
         items = tuple(x.strip() for x in s.split(",") if x.strip())
         bad = [x for x in items if x not in choices]
         if not items or bad:
-            raise argparse.ArgumentTypeError(f"{what} must be a comma-separated subset of "
-                                             f"{','.join(choices)} (got {s!r})")
+            raise argparse.ArgumentTypeError(
+                f"{what} must be a comma-separated subset of {','.join(choices)} (got {s!r})"
+            )
         return tuple(dict.fromkeys(items))
+
     return parse
 
 
@@ -56,47 +58,91 @@ def _int_list(s: str) -> tuple[int, ...]:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from ..synthetic import SCENE_NAMES
 
-    p = sub.add_parser("eval", help="evaluation table on the synthetic suite (IoU, accuracy, "
-                                    "precision/recall; ablations and baselines)",
-                       description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
-    p.add_argument("--scenes", type=_csv(tuple(SCENE_NAMES), "--scenes"),
-                   default=tuple(SCENE_NAMES), help="comma-separated synthetic scenes "
-                   f"(default {','.join(SCENE_NAMES)})")
-    p.add_argument("--size", type=int, default=DEFAULT_SIZE,
-                   help=f"surfels per scene (default {DEFAULT_SIZE})")
+    p = sub.add_parser(
+        "eval",
+        help="evaluation table on the synthetic suite (IoU, accuracy, "
+        "precision/recall; ablations and baselines)",
+        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+    )
+    p.add_argument(
+        "--scenes",
+        type=_csv(tuple(SCENE_NAMES), "--scenes"),
+        default=tuple(SCENE_NAMES),
+        help=f"comma-separated synthetic scenes (default {','.join(SCENE_NAMES)})",
+    )
+    p.add_argument(
+        "--size", type=int, default=DEFAULT_SIZE, help=f"surfels per scene (default {DEFAULT_SIZE})"
+    )
     p.add_argument("--seed", type=int, default=0, help="scene / segmenter seed (default 0)")
-    p.add_argument("--seeds", type=_int_list, default=None,
-                   help="comma-separated seeds: run the suite once per seed and check the "
-                        "targets on the per-scene means (overrides --seed)")
-    p.add_argument("--segmenters", type=_csv(("oracle", "classic"), "--segmenters"),
-                   default=("oracle", "classic"), help="oracle,classic (default both)")
+    p.add_argument(
+        "--seeds",
+        type=_int_list,
+        default=None,
+        help="comma-separated seeds: run the suite once per seed and check the "
+        "targets on the per-scene means (overrides --seed)",
+    )
+    p.add_argument(
+        "--segmenters",
+        type=_csv(("oracle", "classic"), "--segmenters"),
+        default=("oracle", "classic"),
+        help="oracle,classic (default both)",
+    )
     p.add_argument("--no-nerf", action="store_true", help="skip the NeRF path on the ribs grid")
-    p.add_argument("--grid-resolution", type=int, default=128,
-                   help="ribs NeRF grid cells along its longest side (default 128)")
-    p.add_argument("--baseline-masks", choices=("raw", "weighted"), default="raw",
-                   help="masks fed to the baselines: the segmenter's (raw, default) or "
-                        "DivAS's depth-weighted ones")
-    p.add_argument("--protocol", choices=("user", "clicks"), default="user",
-                   help="view protocol: the simulated user clicking uncovered target regions "
-                        "under the overlay on the session's anchors (user, default, the "
-                        "paper's Sec. 3.3/3.7) or the metadata clicks on training cameras "
-                        "(clicks, the divas demo protocol)")
-    p.add_argument("--clicks-per-anchor", type=int, default=None,
-                   help="simulated user: hard cap on clicks per anchor (default: none — it "
-                        "works an anchor until complete, or until 2 clicks in a row make no "
-                        "progress)")
-    p.add_argument("--max-views", type=int, default=None,
-                   help="simulated user: centroid views per session (default: the paper's "
-                        "bounded view processing, 10 forward-facing / 20 for 360° captures)")
-    p.add_argument("--manual-anchors", type=int, default=None,
-                   help="simulated user: training cameras it may add as manual anchors after "
-                        "the plan's anchors (paper: manual anchor selection; default 4; 0 = the "
-                        "automatic anchors only)")
-    p.add_argument("--eval-scale", type=float, default=1.0,
-                   help="render the test cameras at this fraction of their size (default 1)")
+    p.add_argument(
+        "--grid-resolution",
+        type=int,
+        default=128,
+        help="ribs NeRF grid cells along its longest side (default 128)",
+    )
+    p.add_argument(
+        "--baseline-masks",
+        choices=("raw", "weighted"),
+        default="raw",
+        help="masks fed to the baselines: the segmenter's (raw, default) or "
+        "DivAS's depth-weighted ones",
+    )
+    p.add_argument(
+        "--protocol",
+        choices=("user", "clicks"),
+        default="user",
+        help="view protocol: the simulated user clicking uncovered target regions "
+        "under the overlay on the session's anchors (user, default, the "
+        "paper's Sec. 3.3/3.7) or the metadata clicks on training cameras "
+        "(clicks, the divas demo protocol)",
+    )
+    p.add_argument(
+        "--clicks-per-anchor",
+        type=int,
+        default=None,
+        help="simulated user: hard cap on clicks per anchor (default: none — it "
+        "works an anchor until complete, or until 2 clicks in a row make no "
+        "progress)",
+    )
+    p.add_argument(
+        "--max-views",
+        type=int,
+        default=None,
+        help="simulated user: centroid views per session (default: the paper's "
+        "bounded view processing, 10 forward-facing / 20 for 360° captures)",
+    )
+    p.add_argument(
+        "--manual-anchors",
+        type=int,
+        default=None,
+        help="simulated user: training cameras it may add as manual anchors after "
+        "the plan's anchors (paper: manual anchor selection; default 4; 0 = the "
+        "automatic anchors only)",
+    )
+    p.add_argument(
+        "--eval-scale",
+        type=float,
+        default=1.0,
+        help="render the test cameras at this fraction of their size (default 1)",
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of "
-                                                       "the Markdown table")
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object instead of the Markdown table"
+    )
     p.add_argument("--out", type=Path, default=None, help="also write the JSON result here")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=run)
@@ -124,20 +170,29 @@ def run(args: argparse.Namespace) -> int:
     ub = UserBudget()
     try:
         ub = UserBudget(
-            clicks_per_anchor=ub.clicks_per_anchor if args.clicks_per_anchor is None
+            clicks_per_anchor=ub.clicks_per_anchor
+            if args.clicks_per_anchor is None
             else int(args.clicks_per_anchor),
             max_views=ub.max_views if args.max_views is None else int(args.max_views),
-            manual_anchors=ub.manual_anchors if args.manual_anchors is None
-            else int(args.manual_anchors))
+            manual_anchors=ub.manual_anchors
+            if args.manual_anchors is None
+            else int(args.manual_anchors),
+        )
     except ValueError as e:
         raise DivasInputError(None, str(e)) from None
-    cfg = SuiteConfig(protocol=args.protocol, user=ub, scenes=tuple(args.scenes),
-                      segmenters=tuple(args.segmenters),
-                      size=int(args.size), seed=int(args.seed),
-                      seeds=tuple(args.seeds or ()), nerf=not args.no_nerf,
-                      grid_resolution=int(args.grid_resolution),
-                      baseline_masks=args.baseline_masks,
-                      eval=EvalConfig(scale=float(args.eval_scale)))
+    cfg = SuiteConfig(
+        protocol=args.protocol,
+        user=ub,
+        scenes=tuple(args.scenes),
+        segmenters=tuple(args.segmenters),
+        size=int(args.size),
+        seed=int(args.seed),
+        seeds=tuple(args.seeds or ()),
+        nerf=not args.no_nerf,
+        grid_resolution=int(args.grid_resolution),
+        baseline_masks=args.baseline_masks,
+        eval=EvalConfig(scale=float(args.eval_scale)),
+    )
     t0 = time.perf_counter()
     log = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     result = evaluate_suite(cfg, device=dev, log=log)
@@ -151,10 +206,12 @@ def run(args: argparse.Namespace) -> int:
         print(text)
     else:
         print(markdown_table(result))
-        print(f"\n{len(result['rows'])} rows, protocol {cfg.protocol}, size {cfg.size}, "
-              f"seed{'s' if len(cfg.run_seeds) > 1 else ''} "
-              f"{','.join(map(str, cfg.run_seeds))}, device {dev}, "
-              f"{result['wall_s']:.0f} s")
+        print(
+            f"\n{len(result['rows'])} rows, protocol {cfg.protocol}, size {cfg.size}, "
+            f"seed{'s' if len(cfg.run_seeds) > 1 else ''} "
+            f"{','.join(map(str, cfg.run_seeds))}, device {dev}, "
+            f"{result['wall_s']:.0f} s"
+        )
     return 0
 
 

@@ -12,18 +12,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from ..synthetic import SCENE_NAMES
 
     p = sub.add_parser(
-        "generate", help="write a synthetic scene with ground-truth labels (ribs, plant, occluded)",
+        "generate",
+        help="write a synthetic scene with ground-truth labels (ribs, plant, occluded)",
         description="Sample a synthetic 2DGS scene on analytic surfaces and write scene.ply, "
-                    "cameras.json, test_cameras.json, labels.npy, surface_ids.npy and scene.json "
-                    "(ribs also grid.npz and grid_labels.npy, its NeRF density-grid version).")
+        "cameras.json, test_cameras.json, labels.npy, surface_ids.npy and scene.json "
+        "(ribs also grid.npz and grid_labels.npy, its NeRF density-grid version).",
+    )
     p.add_argument("name", choices=SCENE_NAMES, help="which scene")
     p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     p.add_argument("--size", type=int, default=50_000, help="total surfel count (default 50000)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--sh-degree", type=int, default=1, choices=(0, 1, 2, 3),
-                   help="SH degree of the colours (default 1)")
-    p.add_argument("--grid-res", type=int, default=128,
-                   help="cells on the longest side of the ribs NeRF grid (default 128)")
+    p.add_argument(
+        "--sh-degree",
+        type=int,
+        default=1,
+        choices=(0, 1, 2, 3),
+        help="SH degree of the colours (default 1)",
+    )
+    p.add_argument(
+        "--grid-res",
+        type=int,
+        default=128,
+        help="cells on the longest side of the ribs NeRF grid (default 128)",
+    )
     p.set_defaults(func=run)
 
 
@@ -36,21 +47,33 @@ def run(args: argparse.Namespace) -> int:
         raise DivasInputError(None, f"--grid-res {args.grid_res} is too small (minimum 8)")
     if args.out.exists() and not args.out.is_dir():
         raise DivasInputError(args.out, "--out exists and is not a folder")
-    sc = generate_scene(args.name, args.out, size=args.size, seed=args.seed,
-                        sh_degree=args.sh_degree, grid_resolution=args.grid_res)
+    sc = generate_scene(
+        args.name,
+        args.out,
+        size=args.size,
+        seed=args.seed,
+        sh_degree=args.sh_degree,
+        grid_resolution=args.grid_res,
+    )
     m = sc.metadata
     c = m["counts"]
     occ = m["occupancy_notes"]
     print(f"{args.name} (seed {args.seed}) → {args.out}")
-    print(f"  surfels {c['total']}: target {c['target']}, background {c['background']} "
-          f"(floaters {c['floaters']}, needles {c['needles']}) on {len(sc.surfaces)} surfaces")
-    print(f"  cameras: {c['train_cameras']} training, {c['test_cameras']} test; "
-          f"centre {[round(v, 3) for v in m['center']]}, radius {m['radius']:.3f}")
+    print(
+        f"  surfels {c['total']}: target {c['target']}, background {c['background']} "
+        f"(floaters {c['floaters']}, needles {c['needles']}) on {len(sc.surfaces)} surfaces"
+    )
+    print(
+        f"  cameras: {c['train_cameras']} training, {c['test_cameras']} test; "
+        f"centre {[round(v, 3) for v in m['center']]}, radius {m['radius']:.3f}"
+    )
     print(f"  occupancy (NOTES): r_fg {occ['r_fg']:.3f}, h_v {occ['h_v']:.4f}, g {occ['g']}")
     if sc.grid is not None:
         g = m["grid"]
-        print(f"  NeRF grid {tuple(g['shape_dhw'])} (D,H,W), voxel {g['voxel_size']:.4f}, "
-              f"{g['label_voxels']} target voxels")
+        print(
+            f"  NeRF grid {tuple(g['shape_dhw'])} (D,H,W), voxel {g['voxel_size']:.4f}, "
+            f"{g['label_voxels']} target voxels"
+        )
     if "ribs" in m:
         r = m["ribs"]
         print(f"  ribs: radius {r['rib_radius']:.4f} = {r['rib_radius_voxels']:.2f} h_v")

@@ -7,12 +7,19 @@ import json
 from pathlib import Path
 
 
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("info", help="describe a scene file (counts, bounds, robust centre, SH, scales)")
-    p.add_argument("path", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz grid")
-    p.add_argument("--cameras", type=Path, default=None,
-                   help="camera file/folder (default: cameras.json beside the scene, if any)")
+    p = sub.add_parser(
+        "info", help="describe a scene file (counts, bounds, robust centre, SH, scales)"
+    )
+    p.add_argument(
+        "path", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz grid"
+    )
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        default=None,
+        help="camera file/folder (default: cameras.json beside the scene, if any)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -22,8 +29,11 @@ def _cameras_info(path: Path) -> dict:
 
     cams = load_cameras(path)
     sizes = sorted({(c.width, c.height) for c in cams})
-    return {"cameras_file": str(path), "camera_count": len(cams),
-            "image_sizes": [list(s) for s in sizes]}
+    return {
+        "cameras_file": str(path),
+        "camera_count": len(cams),
+        "image_sizes": [list(s) for s in sizes],
+    }
 
 
 def run(args: argparse.Namespace) -> int:

@@ -37,17 +37,27 @@ ORBIT_RADIUS = 2.5
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="render RGB + depth tuple of one view to PNG/NPZ")
-    p.add_argument("scene", type=Path, help="scene file (.ply, compressed .ply, .splat, .spz, .npz grid)")
+    p.add_argument(
+        "scene", type=Path, help="scene file (.ply, compressed .ply, .splat, .spz, .npz grid)"
+    )
     cam = p.add_mutually_exclusive_group(required=True)
     cam.add_argument("--cameras", type=Path, help="camera file or folder (use with --index)")
-    cam.add_argument("--camera-json", help="one camera as JSON (Camera.to_dict schema) or a file with it")
+    cam.add_argument(
+        "--camera-json", help="one camera as JSON (Camera.to_dict schema) or a file with it"
+    )
     cam.add_argument("--orbit", metavar="AZ,EL", help="orbit camera: azimuth,elevation in degrees")
     p.add_argument("--index", type=int, default=None, help="camera index in --cameras")
     p.add_argument("--up", default="0,-1,0", help="world up for --orbit (default 0,-1,0)")
-    p.add_argument("--out", type=Path, required=True, help="output prefix (PREFIX.png, PREFIX.npz, …)")
+    p.add_argument(
+        "--out", type=Path, required=True, help="output prefix (PREFIX.png, PREFIX.npz, …)"
+    )
     p.add_argument("--scale", type=float, default=1.0, help="image scale factor (default 1)")
-    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"),
-                   help="Warp device (auto: CUDA when available)")
+    p.add_argument(
+        "--device",
+        default="auto",
+        choices=("auto", "cpu", "cuda"),
+        help="Warp device (auto: CUDA when available)",
+    )
     p.set_defaults(func=run)
 
 
@@ -118,8 +128,9 @@ def orbit_camera(scene, az_deg: float, el_deg: float, up=(0.0, -1.0, 0.0)) -> Ca
     r = ORBIT_RADIUS * max(float(frame.radius), 1e-6)
     eye = np.asarray(frame.center, np.float64) + r * direction
     w, h = ORBIT_SIZE
-    return Camera.look_at(eye, frame.center, up, width=w, height=h, fx=ORBIT_FX,
-                          name=f"orbit_{az_deg:g}_{el_deg:g}")
+    return Camera.look_at(
+        eye, frame.center, up, width=w, height=h, fx=ORBIT_FX, name=f"orbit_{az_deg:g}_{el_deg:g}"
+    )
 
 
 def _colorize(v: np.ndarray, valid: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -147,7 +158,7 @@ def write_outputs(buffers, prefix: Path) -> list[Path]:
     written.append(p)
     depths = [getattr(buffers, c) for c in DEPTH_CHANNELS]
     allv = np.concatenate([d[d > 0] for d in depths])
-    lo, hi = (np.percentile(allv, [1, 99]) if allv.size else (0.0, 1.0))
+    lo, hi = np.percentile(allv, [1, 99]) if allv.size else (0.0, 1.0)
     for name, d in zip(DEPTH_CHANNELS, depths):
         p = prefix.with_name(f"{prefix.name}_{name}.png")
         cv2.imwrite(str(p), _colorize(d, d > 0, float(lo), float(hi)))
@@ -174,8 +185,11 @@ def _pick_camera(args, scene) -> Camera:
     if args.index is None:
         raise DivasInputError(args.cameras, f"--cameras needs --index (0..{len(cams) - 1})")
     if not 0 <= args.index < len(cams):
-        raise DivasInputError(args.cameras, f"camera index {args.index} out of range: the file "
-                              f"has {len(cams)} camera(s) (0..{len(cams) - 1})")
+        raise DivasInputError(
+            args.cameras,
+            f"camera index {args.index} out of range: the file "
+            f"has {len(cams)} camera(s) (0..{len(cams) - 1})",
+        )
     return cams[args.index]
 
 
@@ -200,8 +214,10 @@ def run(args: argparse.Namespace) -> int:
     dt = time.perf_counter() - t0
     paths = write_outputs(buf, args.out)
     h, w = buf.shape
-    print(f"rendered {args.scene.name} ({renderer.kind}, {w}x{h}, device {renderer.device}) in "
-          f"{dt:.3f} s; coverage {float((buf.alpha > 0.5).mean()):.1%}")
+    print(
+        f"rendered {args.scene.name} ({renderer.kind}, {w}x{h}, device {renderer.device}) in "
+        f"{dt:.3f} s; coverage {float((buf.alpha > 0.5).mean()):.1%}"
+    )
     for p in paths:
         print(f"  {p}")
     return 0

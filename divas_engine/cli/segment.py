@@ -41,39 +41,80 @@ SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("segment", help="segment a scene headless from a prompts file",
-                       description="Run the DivAS loop on the anchors/clicks of a prompts file "
-                                   "(NOTES 'Headless prompts file') and write the selection.")
-    p.add_argument("scene", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz "
-                                            "or .npz density grid")
-    p.add_argument("--cameras", type=Path, default=None,
-                   help="training cameras (default: cameras.json beside the scene, if any)")
+    p = sub.add_parser(
+        "segment",
+        help="segment a scene headless from a prompts file",
+        description="Run the DivAS loop on the anchors/clicks of a prompts file "
+        "(NOTES 'Headless prompts file') and write the selection.",
+    )
+    p.add_argument(
+        "scene",
+        type=Path,
+        help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz density grid",
+    )
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        default=None,
+        help="training cameras (default: cameras.json beside the scene, if any)",
+    )
     p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
-    p.add_argument("--out", type=Path, required=True,
-                   help="output: the selected primitives (PLY subset / same format), or the "
-                        "masked grid .npz for NeRF scenes")
-    p.add_argument("--labels-out", type=Path, default=None,
-                   help="bool .npy per input row (NeRF: [D,H,W] bool)")
-    p.add_argument("--segmenter", choices=SEGMENTERS, default="classic",
-                   help="2D mask source (default classic; oracle is for evaluation only)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="output: the selected primitives (PLY subset / same format), or the "
+        "masked grid .npz for NeRF scenes",
+    )
+    p.add_argument(
+        "--labels-out", type=Path, default=None, help="bool .npy per input row (NeRF: [D,H,W] bool)"
+    )
+    p.add_argument(
+        "--segmenter",
+        choices=SEGMENTERS,
+        default="classic",
+        help="2D mask source (default classic; oracle is for evaluation only)",
+    )
     p.add_argument("--sam-encoder", type=Path, default=None, help="SAM ONNX image encoder")
     p.add_argument("--sam-decoder", type=Path, default=None, help="SAM ONNX prompt decoder")
     p.add_argument("--sam-checkpoint", type=Path, default=None, help="SAM PyTorch checkpoint")
     p.add_argument("--sam-model-type", default="vit_h", help="SAM model type (default vit_h)")
-    p.add_argument("--gt-labels", type=Path, default=None,
-                   help="ground truth .npy (bool per surfel / input row; NeRF [D,H,W] bool): "
-                        "the oracle's target, and a 3D score in the report")
-    p.add_argument("--preset", choices=("llff", "mip360"), default=None,
-                   help="NeRF fusion preset (default: llff for forward-facing captures)")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="render scale of every view (default 1)")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
-                   help="Warp device (default auto)")
+    p.add_argument(
+        "--gt-labels",
+        type=Path,
+        default=None,
+        help="ground truth .npy (bool per surfel / input row; NeRF [D,H,W] bool): "
+        "the oracle's target, and a 3D score in the report",
+    )
+    p.add_argument(
+        "--preset",
+        choices=("llff", "mip360"),
+        default=None,
+        help="NeRF fusion preset (default: llff for forward-facing captures)",
+    )
+    p.add_argument(
+        "--scale", type=float, default=1.0, help="render scale of every view (default 1)"
+    )
+    p.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="auto",
+        help="Warp device (default auto)",
+    )
     p.add_argument("--report", type=Path, default=None, help="write a JSON report here")
-    p.add_argument("--session", type=Path, default=None,
-                   help="save the session here (JSON + .npz; autosaved after every accept)")
-    p.add_argument("--mask-channel", type=int, default=1, choices=(0, 1, 2),
-                   help="segmenter channel kept (default 1, the paper's mid granularity)")
+    p.add_argument(
+        "--session",
+        type=Path,
+        default=None,
+        help="save the session here (JSON + .npz; autosaved after every accept)",
+    )
+    p.add_argument(
+        "--mask-channel",
+        type=int,
+        default=1,
+        choices=(0, 1, 2),
+        help="segmenter channel kept (default 1, the paper's mid granularity)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the segmenter (default 0)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
@@ -82,14 +123,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _progress(iterable=None, *, total=None, desc: str, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(iterable, total=total, desc=desc, file=sys.stderr, disable=not enabled,
-                leave=False, dynamic_ncols=True)
+    return tqdm(
+        iterable,
+        total=total,
+        desc=desc,
+        file=sys.stderr,
+        disable=not enabled,
+        leave=False,
+        dynamic_ncols=True,
+    )
 
 
-def build_segmenter(name: str, *, seed: int = 0, sam_encoder: Path | None = None,
-                    sam_decoder: Path | None = None, sam_checkpoint: Path | None = None,
-                    sam_model_type: str = "vit_h", gt_available: bool = False,
-                    device: str = "auto"):
+def build_segmenter(
+    name: str,
+    *,
+    seed: int = 0,
+    sam_encoder: Path | None = None,
+    sam_decoder: Path | None = None,
+    sam_checkpoint: Path | None = None,
+    sam_model_type: str = "vit_h",
+    gt_available: bool = False,
+    device: str = "auto",
+):
     """The segmenter named on the command line (errors as :class:`DivasInputError`)."""
     from ..segment import ClassicConfig, ClassicSegmenter, OracleConfig, OracleSegmenter
 
@@ -101,8 +156,9 @@ def build_segmenter(name: str, *, seed: int = 0, sam_encoder: Path | None = None
         return OracleSegmenter(config=OracleConfig(seed=seed))
     if name == "sam-onnx":
         if sam_encoder is None or sam_decoder is None:
-            raise DivasInputError(None, "--segmenter sam-onnx needs --sam-encoder and "
-                                        "--sam-decoder")
+            raise DivasInputError(
+                None, "--segmenter sam-onnx needs --sam-encoder and --sam-decoder"
+            )
         from ..segment import SamOnnxSegmenter
 
         return SamOnnxSegmenter(sam_encoder, sam_decoder)
@@ -112,8 +168,9 @@ def build_segmenter(name: str, *, seed: int = 0, sam_encoder: Path | None = None
         from ..segment import SamTorchSegmenter
 
         try:
-            return SamTorchSegmenter(sam_checkpoint, sam_model_type,
-                                     device=None if device == "auto" else device)
+            return SamTorchSegmenter(
+                sam_checkpoint, sam_model_type, device=None if device == "auto" else device
+            )
         except ImportError as e:
             raise DivasInputError(None, str(e)) from None
     raise DivasInputError(None, f"unknown segmenter {name!r}")
@@ -136,12 +193,15 @@ def load_gt(path: Path, scene) -> np.ndarray:
             return g
         if src is not None and g.shape == (src.num_rows,):
             return g[src.kept_rows]
-        raise DivasInputError(path, f"ground-truth labels have shape {g.shape}; the scene has "
-                                    f"{len(scene)} surfels"
-                                    + (f" ({src.num_rows} input rows)" if src else ""))
+        raise DivasInputError(
+            path,
+            f"ground-truth labels have shape {g.shape}; the scene has "
+            f"{len(scene)} surfels" + (f" ({src.num_rows} input rows)" if src else ""),
+        )
     if g.shape != scene.density.shape:
-        raise DivasInputError(path, f"ground-truth grid has shape {g.shape}, the density grid "
-                                    f"{scene.density.shape}")
+        raise DivasInputError(
+            path, f"ground-truth grid has shape {g.shape}, the density grid {scene.density.shape}"
+        )
     return g
 
 
@@ -154,23 +214,37 @@ def _device(name: str):
         raise DivasInputError(None, str(e)) from None
 
 
-def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: Path | None = None,
-                  out: Path | None = None, labels_out: Path | None = None,
-                  segmenter: str = "classic", sam_encoder: Path | None = None,
-                  sam_decoder: Path | None = None, sam_checkpoint: Path | None = None,
-                  sam_model_type: str = "vit_h", gt_labels: Path | None = None,
-                  preset: str | None = None, scale: float = 1.0, device: str = "auto",
-                  session_path: Path | None = None, seed: int = 0, progress: bool = True,
-                  keep_session: bool = False, mask_channel: int = 1) -> tuple[dict[str, Any], Any]:
+def segment_scene(
+    scene_path: Path,
+    prompts_path: Path | Any,
+    *,
+    cameras_path: Path | None = None,
+    out: Path | None = None,
+    labels_out: Path | None = None,
+    segmenter: str = "classic",
+    sam_encoder: Path | None = None,
+    sam_decoder: Path | None = None,
+    sam_checkpoint: Path | None = None,
+    sam_model_type: str = "vit_h",
+    gt_labels: Path | None = None,
+    preset: str | None = None,
+    scale: float = 1.0,
+    device: str = "auto",
+    session_path: Path | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    keep_session: bool = False,
+    mask_channel: int = 1,
+) -> tuple[dict[str, Any], Any]:
     """The whole ``divas segment`` pipeline; returns ``(report, session)``.
 
     ``prompts_path`` may also be a parsed :class:`~divas_engine.session.Prompts`. The
     session is closed unless ``keep_session``.
     """
+    from ..evaluation.metrics import surfel_scores
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
     from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
-    from ..evaluation.metrics import surfel_scores
     from ..session.prompts import resolve_anchors
 
     t_start = time.perf_counter()
@@ -183,22 +257,40 @@ def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: P
         cameras_path = Path(scene_path).parent / "cameras.json"
     cameras = load_cameras(cameras_path) if cameras_path is not None else []
     gt = load_gt(gt_labels, scene) if gt_labels is not None else None
-    seg = build_segmenter(segmenter, seed=seed, sam_encoder=sam_encoder, sam_decoder=sam_decoder,
-                          sam_checkpoint=sam_checkpoint, sam_model_type=sam_model_type,
-                          gt_available=gt is not None, device=device)
+    seg = build_segmenter(
+        segmenter,
+        seed=seed,
+        sam_encoder=sam_encoder,
+        sam_decoder=sam_decoder,
+        sam_checkpoint=sam_checkpoint,
+        sam_model_type=sam_model_type,
+        gt_available=gt is not None,
+        device=device,
+    )
     if mask_channel not in (0, 1, 2):
         raise DivasInputError(None, f"--mask-channel must be 0, 1 or 2, got {mask_channel}")
-    config = SessionConfig(render_scale=float(scale), nerf_preset=preset, seed=int(seed),
-                           mask_channel=int(mask_channel),
-                           autosave=None if session_path is None else str(session_path))
-    resolved = resolve_anchors(prompts, cameras,
-                               lambda: [a.camera for a in anchor_plan(scene, cameras, config)
-                                        .candidates])
+    config = SessionConfig(
+        render_scale=float(scale),
+        nerf_preset=preset,
+        seed=int(seed),
+        mask_channel=int(mask_channel),
+        autosave=None if session_path is None else str(session_path),
+    )
+    resolved = resolve_anchors(
+        prompts, cameras, lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates]
+    )
     t_load = time.perf_counter() - t_start
     t = time.perf_counter()
-    session = Session.open(scene, cameras, config, seg, dev,
-                           anchors=[(r.camera, r.source, r.index) for r in resolved],
-                           gt_values=gt, render_anchors=False)
+    session = Session.open(
+        scene,
+        cameras,
+        config,
+        seg,
+        dev,
+        anchors=[(r.camera, r.source, r.index) for r in resolved],
+        gt_values=gt,
+        render_anchors=False,
+    )
     try:
         for a in _progress(session.anchors, desc="anchors", enabled=progress):
             _ = a.buffers
@@ -214,8 +306,9 @@ def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: P
                 try:
                     v = session.click(i, (c.xy[0] * sx, c.xy[1] * sy), positive=c.positive)
                 except DivasInputError as e:
-                    raise DivasInputError(prompts.source, f"anchors[{i}].clicks[{k}]: "
-                                                          f"{e.problem}") from None
+                    raise DivasInputError(
+                        prompts.source, f"anchors[{i}].clicks[{k}]: {e.problem}"
+                    ) from None
                 if c.positive:
                     extra = prompts.extra_points(i, k)
                     pts = np.array([[p.xy[0] * sx, p.xy[1] * sy] for p in extra]).reshape(-1, 2)
@@ -233,10 +326,12 @@ def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: P
         sel = session.selection
         if out is not None:
             if not sel.any():
-                reasons = "; ".join(f"{v.id}: {v.reason}" for v, _, _ in spawned
-                                    if v.status == "rejected")
-                error = ("the selection is empty; nothing to write"
-                         + (f" (rejected views: {reasons})" if reasons else ""))
+                reasons = "; ".join(
+                    f"{v.id}: {v.reason}" for v, _, _ in spawned if v.status == "rejected"
+                )
+                error = "the selection is empty; nothing to write" + (
+                    f" (rejected views: {reasons})" if reasons else ""
+                )
             else:
                 Path(out).parent.mkdir(parents=True, exist_ok=True)
                 res = session.export(out, labels_path=labels_out)
@@ -249,21 +344,35 @@ def segment_scene(scene_path: Path, prompts_path: Path | Any, *, cameras_path: P
         t_export = time.perf_counter() - t
         rep = session.report()
         timings = rep.pop("timings")
-        timings.update({"T_pipe_s": time.perf_counter() - t_start, "load_s": t_load,
-                        "open_s": t_open, "export_s": t_export})
+        timings.update(
+            {
+                "T_pipe_s": time.perf_counter() - t_start,
+                "load_s": t_load,
+                "open_s": t_open,
+                "export_s": t_export,
+            }
+        )
         report: dict[str, Any] = {
-            "version": 1, "command": "segment", "scene": str(scene_path),
+            "version": 1,
+            "command": "segment",
+            "scene": str(scene_path),
             "cameras": None if cameras_path is None else str(cameras_path),
-            "prompts": prompts.source, "kind": rep["kind"], "segmenter": segmenter,
-            "seed": int(seed), "device": rep["device"], "render_scale": float(scale),
-            "timings": timings, **{k: v for k, v in rep.items()
-                                   if k not in ("kind", "seed", "device", "segmenter")},
-            "outputs": outputs}
+            "prompts": prompts.source,
+            "kind": rep["kind"],
+            "segmenter": segmenter,
+            "seed": int(seed),
+            "device": rep["device"],
+            "render_scale": float(scale),
+            "timings": timings,
+            **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
+            "outputs": outputs,
+        }
         if session.kind == "nerf":
             report["preset"] = session.preset
         if gt is not None:
-            report["evaluation"] = {"surfels" if session.kind == "2dgs" else "voxels":
-                                    surfel_scores(sel, gt)}
+            report["evaluation"] = {
+                "surfels" if session.kind == "2dgs" else "voxels": surfel_scores(sel, gt)
+            }
         if segmenter == "oracle":
             from dataclasses import asdict
 
@@ -300,12 +409,25 @@ def _json_default(o):
 def run(args: argparse.Namespace) -> int:
     try:
         report, _ = segment_scene(
-            args.scene, args.prompts, cameras_path=args.cameras, out=args.out,
-            labels_out=args.labels_out, segmenter=args.segmenter, sam_encoder=args.sam_encoder,
-            sam_decoder=args.sam_decoder, sam_checkpoint=args.sam_checkpoint,
-            sam_model_type=args.sam_model_type, gt_labels=args.gt_labels, preset=args.preset,
-            scale=args.scale, device=args.device, session_path=args.session, seed=args.seed,
-            progress=not args.no_progress, mask_channel=args.mask_channel)
+            args.scene,
+            args.prompts,
+            cameras_path=args.cameras,
+            out=args.out,
+            labels_out=args.labels_out,
+            segmenter=args.segmenter,
+            sam_encoder=args.sam_encoder,
+            sam_decoder=args.sam_decoder,
+            sam_checkpoint=args.sam_checkpoint,
+            sam_model_type=args.sam_model_type,
+            gt_labels=args.gt_labels,
+            preset=args.preset,
+            scale=args.scale,
+            device=args.device,
+            session_path=args.session,
+            seed=args.seed,
+            progress=not args.no_progress,
+            mask_channel=args.mask_channel,
+        )
     except DivasInputError as e:
         if args.report is not None and getattr(e, "report", None) is not None:
             write_report(args.report, e.report)  # the report says which views were rejected
@@ -313,17 +435,21 @@ def run(args: argparse.Namespace) -> int:
     if args.report is not None:
         write_report(args.report, report)
     c = report["counts"]
-    print(f"{c['accepted']} of {c['centroid_views']} centroid views fused "
-          f"({c['rejected']} rejected); {c['selected']} "
-          f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
-          f"({report['timings']['T_pipe_s']:.1f} s)")
+    print(
+        f"{c['accepted']} of {c['centroid_views']} centroid views fused "
+        f"({c['rejected']} rejected); {c['selected']} "
+        f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
+        f"({report['timings']['T_pipe_s']:.1f} s)"
+    )
     for v in report["views"]:
         if v["status"] == "rejected":
             print(f"  rejected {v['id']}: {v['reason']}")
     if "evaluation" in report:
         e = next(iter(report["evaluation"].values()))
-        print(f"  vs ground truth: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
-              f"IoU {e['iou']:.3f}")
+        print(
+            f"  vs ground truth: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
+            f"IoU {e['iou']:.3f}"
+        )
     return 0
 
 

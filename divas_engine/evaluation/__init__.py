@@ -11,15 +11,48 @@
 * :mod:`.suite` — the ``divas eval`` table.
 """
 
-from .baselines import (BaselineResult, CentreVoteConfig, ContributionVoteConfig,
-                        ContributionVoter, MaskView, centre_vote, contribution_vote)
-from .metrics import (EvalConfig, SceneScores, ViewEvaluator, ViewScore, evaluate_selection,
-                      ground_truth_masks, mask_scores, predicted_masks, segmented_grid,
-                      surfel_scores)
+from .baselines import (
+    BaselineResult,
+    CentreVoteConfig,
+    ContributionVoteConfig,
+    ContributionVoter,
+    MaskView,
+    centre_vote,
+    contribution_vote,
+)
+from .metrics import (
+    EvalConfig,
+    SceneScores,
+    ViewEvaluator,
+    ViewScore,
+    evaluate_selection,
+    ground_truth_masks,
+    mask_scores,
+    predicted_masks,
+    segmented_grid,
+    surfel_scores,
+)
 from .scripted_user import ScriptedUser, UserBudget, UserLog
 
-__all__ = ["EvalConfig", "SceneScores", "ViewEvaluator", "ViewScore", "evaluate_selection",
-           "ground_truth_masks", "mask_scores", "predicted_masks", "segmented_grid",
-           "surfel_scores", "BaselineResult", "CentreVoteConfig", "ContributionVoteConfig",
-           "ContributionVoter", "MaskView", "centre_vote", "contribution_vote",
-           "ScriptedUser", "UserBudget", "UserLog"]
+__all__ = [
+    "EvalConfig",
+    "SceneScores",
+    "ViewEvaluator",
+    "ViewScore",
+    "evaluate_selection",
+    "ground_truth_masks",
+    "mask_scores",
+    "predicted_masks",
+    "segmented_grid",
+    "surfel_scores",
+    "BaselineResult",
+    "CentreVoteConfig",
+    "ContributionVoteConfig",
+    "ContributionVoter",
+    "MaskView",
+    "centre_vote",
+    "contribution_vote",
+    "ScriptedUser",
+    "UserBudget",
+    "UserLog",
+]

@@ -35,8 +35,8 @@ entry").
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -47,8 +47,16 @@ from ..camera import Camera
 from ..render import RenderConfig, make_renderer
 from ..scene import SurfelScene
 
-__all__ = ["MaskView", "BaselineResult", "CentreVoteConfig", "centre_vote",
-           "ContributionVoteConfig", "ContributionVoter", "contribution_vote", "as_mask_views"]
+__all__ = [
+    "MaskView",
+    "BaselineResult",
+    "CentreVoteConfig",
+    "centre_vote",
+    "ContributionVoteConfig",
+    "ContributionVoter",
+    "contribution_vote",
+    "as_mask_views",
+]
 
 
 @dataclass(eq=False)
@@ -63,8 +71,10 @@ class MaskView:
     def __post_init__(self) -> None:
         m = np.asarray(self.mask)
         if m.shape != (self.camera.height, self.camera.width):
-            raise ValueError(f"MaskView: mask {m.shape} does not match the "
-                             f"{self.camera.width}x{self.camera.height} camera")
+            raise ValueError(
+                f"MaskView: mask {m.shape} does not match the "
+                f"{self.camera.width}x{self.camera.height} camera"
+            )
         if self.d_med is not None and np.shape(self.d_med) != m.shape:
             raise ValueError(f"MaskView: D_med {np.shape(self.d_med)} vs mask {m.shape}")
 
@@ -114,8 +124,14 @@ class CentreVoteConfig:
     near: float = 0.01
 
 
-def centre_vote(scene: SurfelScene, views: Sequence, *, config: CentreVoteConfig = CentreVoteConfig(),
-                renderer=None, device=None) -> BaselineResult:
+def centre_vote(
+    scene: SurfelScene,
+    views: Sequence,
+    *,
+    config: CentreVoteConfig = CentreVoteConfig(),
+    renderer=None,
+    device=None,
+) -> BaselineResult:
     """Baseline (a): centre-projection majority voting (module docstring)."""
     t0 = time.perf_counter()
     mv = as_mask_views(views)
@@ -134,9 +150,14 @@ def centre_vote(scene: SurfelScene, views: Sequence, *, config: CentreVoteConfig
             d_med = r.render(cam).D_med
         uv, z = cam.project(means)
         with np.errstate(invalid="ignore"):
-            inside = (z > cam.clip_near(config.near)) & np.isfinite(uv).all(axis=1) & \
-                (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & \
-                (uv[:, 1] < cam.height)
+            inside = (
+                (z > cam.clip_near(config.near))
+                & np.isfinite(uv).all(axis=1)
+                & (uv[:, 0] >= 0)
+                & (uv[:, 0] < cam.width)
+                & (uv[:, 1] >= 0)
+                & (uv[:, 1] < cam.height)
+            )
         idx = np.flatnonzero(inside)
         x = np.floor(uv[idx, 0]).astype(np.int64)
         y = np.floor(uv[idx, 1]).astype(np.int64)
@@ -150,8 +171,13 @@ def centre_vote(scene: SurfelScene, views: Sequence, *, config: CentreVoteConfig
         pos[ids[m[seen]]] += 1
         neg[ids[~m[seen]]] += 1
     sel = pos > neg
-    return BaselineResult(sel, pos, neg, time.perf_counter() - t0,
-                          {"views": len(mv), "seen": int(np.count_nonzero(pos + neg))})
+    return BaselineResult(
+        sel,
+        pos,
+        neg,
+        time.perf_counter() - t0,
+        {"views": len(mv), "seen": int(np.count_nonzero(pos + neg))},
+    )
 
 
 # ----------------------------------------------------------------------------- (b)
@@ -184,22 +210,40 @@ class ContributionVoter:
         self.device = resolve_device(device)
         self.render_config = render_config or RenderConfig()
         self.n = len(scene)
-        self._buf = upload_surfels(scene.means, scene.rotations(), scene.scales, scene.opacities,
-                                   scene.sh, scene.sh_degree, self.device,
-                                   self.render_config.alpha_min)
+        self._buf = upload_surfels(
+            scene.means,
+            scene.rotations(),
+            scene.scales,
+            scene.opacities,
+            scene.sh,
+            scene.sh_degree,
+            self.device,
+            self.render_config.alpha_min,
+        )
 
-    def contributions(self, view: MaskView, mask_threshold: float = 0.5
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def contributions(
+        self, view: MaskView, mask_threshold: float = 0.5
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(A₁, A₀)`` ``[N]`` float32 of one view."""
         cam = view.camera
         positive = np.asarray(view.mask) >= np.float32(mask_threshold)
-        out = accumulate_contributions(self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy,
-                                       cam.width, cam.height, positive,
-                                       self.render_config.raster_settings(cam))
+        out = accumulate_contributions(
+            self._buf,
+            cam.w2c,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            positive,
+            self.render_config.raster_settings(cam),
+        )
         return out.a1.numpy(), out.a0.numpy()
 
-    def vote(self, views: Sequence, config: ContributionVoteConfig = ContributionVoteConfig()
-             ) -> BaselineResult:
+    def vote(
+        self, views: Sequence, config: ContributionVoteConfig = ContributionVoteConfig()
+    ) -> BaselineResult:
         t0 = time.perf_counter()
         mv = as_mask_views(views)
         a1 = np.zeros(self.n, np.float64)
@@ -209,13 +253,26 @@ class ContributionVoter:
             a1 += p
             a0 += q
         sel = a1 > a0 + config.gamma * (a0 + a1)
-        return BaselineResult(sel, a1, a0, time.perf_counter() - t0,
-                              {"views": len(mv), "gamma": config.gamma,
-                               "contributing": int(np.count_nonzero(a0 + a1 > 0))})
+        return BaselineResult(
+            sel,
+            a1,
+            a0,
+            time.perf_counter() - t0,
+            {
+                "views": len(mv),
+                "gamma": config.gamma,
+                "contributing": int(np.count_nonzero(a0 + a1 > 0)),
+            },
+        )
 
 
-def contribution_vote(scene: SurfelScene, views: Sequence, *,
-                      config: ContributionVoteConfig = ContributionVoteConfig(), device=None,
-                      render_config: RenderConfig | None = None) -> BaselineResult:
+def contribution_vote(
+    scene: SurfelScene,
+    views: Sequence,
+    *,
+    config: ContributionVoteConfig = ContributionVoteConfig(),
+    device=None,
+    render_config: RenderConfig | None = None,
+) -> BaselineResult:
     """Baseline (b): contribution-weighted voting (module docstring), one-shot form."""
     return ContributionVoter(scene, device, render_config).vote(views, config)

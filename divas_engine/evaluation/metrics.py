@@ -24,8 +24,8 @@ per camera (the blending weights do not depend on the values).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -33,9 +33,18 @@ from ..camera import Camera
 from ..render import make_renderer
 from ..scene import DensityGrid, Scene, SurfelScene
 
-__all__ = ["EvalConfig", "ViewScore", "SceneScores", "mask_scores", "surfel_scores",
-           "segmented_grid", "predicted_masks", "ground_truth_masks", "ViewEvaluator",
-           "evaluate_selection"]
+__all__ = [
+    "EvalConfig",
+    "ViewScore",
+    "SceneScores",
+    "mask_scores",
+    "surfel_scores",
+    "segmented_grid",
+    "predicted_masks",
+    "ground_truth_masks",
+    "ViewEvaluator",
+    "evaluate_selection",
+]
 
 
 @dataclass(frozen=True)
@@ -95,9 +104,15 @@ class SceneScores:
     primitives: dict | None = None
 
     def as_dict(self) -> dict:
-        return {"iou": self.iou, "accuracy": self.accuracy, "precision": self.precision,
-                "recall": self.recall, "pooled_iou": self.pooled_iou,
-                "views": [asdict(v) for v in self.views], "primitives": self.primitives}
+        return {
+            "iou": self.iou,
+            "accuracy": self.accuracy,
+            "precision": self.precision,
+            "recall": self.recall,
+            "pooled_iou": self.pooled_iou,
+            "views": [asdict(v) for v in self.views],
+            "primitives": self.primitives,
+        }
 
 
 def mask_scores(pred: np.ndarray, gt: np.ndarray, camera: str = "") -> ViewScore:
@@ -109,12 +124,18 @@ def mask_scores(pred: np.ndarray, gt: np.ndarray, camera: str = "") -> ViewScore
     union = int(np.count_nonzero(p | g))
     npred, ngt, total = int(np.count_nonzero(p)), int(np.count_nonzero(g)), int(p.size)
     agree = total - (union - inter)
-    return ViewScore(camera=camera, iou=inter / union if union else 1.0,
-                     accuracy=agree / total if total else 1.0,
-                     precision=inter / npred if npred else float(ngt == 0),
-                     recall=inter / ngt if ngt else 1.0,
-                     pred_pixels=npred, gt_pixels=ngt, intersection=inter, union=union,
-                     pixels=total)
+    return ViewScore(
+        camera=camera,
+        iou=inter / union if union else 1.0,
+        accuracy=agree / total if total else 1.0,
+        precision=inter / npred if npred else float(ngt == 0),
+        recall=inter / ngt if ngt else 1.0,
+        pred_pixels=npred,
+        gt_pixels=ngt,
+        intersection=inter,
+        union=union,
+        pixels=total,
+    )
 
 
 def surfel_scores(selection: np.ndarray, gt: np.ndarray) -> dict:
@@ -130,9 +151,15 @@ def surfel_scores(selection: np.ndarray, gt: np.ndarray) -> dict:
     ns, ng, nu = int(np.count_nonzero(s)), int(np.count_nonzero(g)), int(np.count_nonzero(s | g))
     prec = tp / ns if ns else float(ng == 0)
     rec = tp / ng if ng else 1.0
-    return {"precision": prec, "recall": rec, "iou": tp / nu if nu else 1.0,
-            "f1": 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0,
-            "selected": ns, "ground_truth": ng, "true_positive": tp}
+    return {
+        "precision": prec,
+        "recall": rec,
+        "iou": tp / nu if nu else 1.0,
+        "f1": 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0,
+        "selected": ns,
+        "ground_truth": ng,
+        "true_positive": tp,
+    }
 
 
 def segmented_grid(grid: DensityGrid, keep: np.ndarray) -> DensityGrid:
@@ -151,10 +178,16 @@ def _check_selection(scene: Scene, sel: np.ndarray, what: str) -> np.ndarray:
     return a
 
 
-def predicted_masks(scene: Scene, cameras: Sequence[Camera],
-                    selections: Mapping[str, np.ndarray], *, config: EvalConfig = EvalConfig(),
-                    renderer=None, device=None, thresholds: Mapping[str, float] | None = None
-                    ) -> dict[str, list[np.ndarray]]:
+def predicted_masks(
+    scene: Scene,
+    cameras: Sequence[Camera],
+    selections: Mapping[str, np.ndarray],
+    *,
+    config: EvalConfig = EvalConfig(),
+    renderer=None,
+    device=None,
+    thresholds: Mapping[str, float] | None = None,
+) -> dict[str, list[np.ndarray]]:
     """Binary ``[H,W]`` masks of each selection at each camera (module docstring rules).
 
     Surfel scenes: one ``render_values`` per camera with one channel per selection,
@@ -167,8 +200,13 @@ def predicted_masks(scene: Scene, cameras: Sequence[Camera],
         return out
     thr = {k: (thresholds or {}).get(k, config.pred_threshold) for k in names}
     if isinstance(scene, SurfelScene):
-        vals = np.stack([_check_selection(scene, selections[k], f"selection {k!r}")
-                         .astype(np.float32) for k in names], axis=1)
+        vals = np.stack(
+            [
+                _check_selection(scene, selections[k], f"selection {k!r}").astype(np.float32)
+                for k in names
+            ],
+            axis=1,
+        )
         r = renderer or make_renderer(scene, device=device)
         for cam in cameras:
             img = r.render_values(cam, vals, config.scale)  # [H,W,C]
@@ -183,14 +221,27 @@ def predicted_masks(scene: Scene, cameras: Sequence[Camera],
     return out
 
 
-def ground_truth_masks(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray, *,
-                       config: EvalConfig = EvalConfig(), renderer=None, device=None
-                       ) -> list[np.ndarray]:
+def ground_truth_masks(
+    scene: Scene,
+    cameras: Sequence[Camera],
+    labels: np.ndarray,
+    *,
+    config: EvalConfig = EvalConfig(),
+    renderer=None,
+    device=None,
+) -> list[np.ndarray]:
     """Ground-truth ``[H,W]`` masks: rendered labels ``≥ gt_threshold`` (surfels) or the
     accumulated opacity of the label grid's density ``≥ nerf_threshold`` (grids)."""
     if isinstance(scene, SurfelScene):
-        return predicted_masks(scene, cameras, {"gt": labels}, config=config, renderer=renderer,
-                               device=device, thresholds={"gt": config.gt_threshold})["gt"]
+        return predicted_masks(
+            scene,
+            cameras,
+            {"gt": labels},
+            config=config,
+            renderer=renderer,
+            device=device,
+            thresholds={"gt": config.gt_threshold},
+        )["gt"]
     return predicted_masks(scene, cameras, {"gt": labels}, config=config, device=device)["gt"]
 
 
@@ -206,8 +257,16 @@ class ViewEvaluator:
         renderer: a renderer of ``scene`` to reuse (surfels; else one is made).
     """
 
-    def __init__(self, scene: Scene, cameras: Sequence[Camera], labels: np.ndarray, *,
-                 config: EvalConfig = EvalConfig(), renderer=None, device=None) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        cameras: Sequence[Camera],
+        labels: np.ndarray,
+        *,
+        config: EvalConfig = EvalConfig(),
+        renderer=None,
+        device=None,
+    ) -> None:
         self.scene = scene
         self.cameras = list(cameras)
         if not self.cameras:
@@ -215,15 +274,25 @@ class ViewEvaluator:
         self.labels = _check_selection(scene, labels, "labels").astype(bool)
         self.config = config
         self.device = device
-        self.renderer = renderer if (renderer is not None or not isinstance(scene, SurfelScene)) \
+        self.renderer = (
+            renderer
+            if (renderer is not None or not isinstance(scene, SurfelScene))
             else make_renderer(scene, device=device)
-        self.gt_masks = ground_truth_masks(scene, self.cameras, self.labels, config=config,
-                                           renderer=self.renderer, device=device)
+        )
+        self.gt_masks = ground_truth_masks(
+            scene, self.cameras, self.labels, config=config, renderer=self.renderer, device=device
+        )
 
     def masks(self, selections: Mapping[str, np.ndarray]) -> dict[str, list[np.ndarray]]:
         """Predicted masks of each selection at each test camera."""
-        return predicted_masks(self.scene, self.cameras, selections, config=self.config,
-                               renderer=self.renderer, device=self.device)
+        return predicted_masks(
+            self.scene,
+            self.cameras,
+            selections,
+            config=self.config,
+            renderer=self.renderer,
+            device=self.device,
+        )
 
     def score(self, selections: Mapping[str, np.ndarray]) -> dict[str, SceneScores]:
         """:class:`SceneScores` of each named selection (one render pass per camera for
@@ -231,20 +300,34 @@ class ViewEvaluator:
         preds = self.masks(selections)
         out = {}
         for k, masks in preds.items():
-            views = [mask_scores(p, g, c.name) for p, g, c in zip(masks, self.gt_masks,
-                                                                   self.cameras)]
-            mean = lambda a: float(np.mean([getattr(v, a) for v in views]))  # noqa: E731
+            views = [
+                mask_scores(p, g, c.name) for p, g, c in zip(masks, self.gt_masks, self.cameras)
+            ]
+            mean = lambda a: float(np.mean([getattr(v, a) for v in views]))  # noqa: E731, B023
             inter = sum(v.intersection for v in views)
             union = sum(v.union for v in views)
-            out[k] = SceneScores(mean("iou"), mean("accuracy"), mean("precision"),
-                                 mean("recall"), inter / union if union else 1.0, views,
-                                 surfel_scores(selections[k], self.labels))
+            out[k] = SceneScores(
+                mean("iou"),
+                mean("accuracy"),
+                mean("precision"),
+                mean("recall"),
+                inter / union if union else 1.0,
+                views,
+                surfel_scores(selections[k], self.labels),
+            )
         return out
 
 
-def evaluate_selection(scene: Scene, cameras: Sequence[Camera], selection: np.ndarray,
-                       labels: np.ndarray, *, config: EvalConfig = EvalConfig(),
-                       renderer=None, device=None) -> SceneScores:
+def evaluate_selection(
+    scene: Scene,
+    cameras: Sequence[Camera],
+    selection: np.ndarray,
+    labels: np.ndarray,
+    *,
+    config: EvalConfig = EvalConfig(),
+    renderer=None,
+    device=None,
+) -> SceneScores:
     """One-shot form of :class:`ViewEvaluator` for a single selection."""
     ev = ViewEvaluator(scene, cameras, labels, config=config, renderer=renderer, device=device)
     return ev.score({"selection": selection})["selection"]

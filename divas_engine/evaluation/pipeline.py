@@ -38,8 +38,9 @@ import math
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -51,8 +52,15 @@ from ..session import Session, SessionConfig
 from .baselines import MaskView
 from .scripted_user import ScriptedUser, UserLog
 
-__all__ = ["VARIANTS", "variant_config", "scripted_anchors", "SessionOutcome", "run_session",
-           "make_segmenter", "CachingRenderer"]
+__all__ = [
+    "VARIANTS",
+    "variant_config",
+    "scripted_anchors",
+    "SessionOutcome",
+    "run_session",
+    "make_segmenter",
+    "CachingRenderer",
+]
 
 #: Session variants: name → description.
 VARIANTS: dict[str, str] = {
@@ -68,18 +76,23 @@ def variant_config(name: str, base: SessionConfig | None = None) -> SessionConfi
     if name == "full":
         return cfg
     if name == "no_thin":
-        return replace(cfg, gs_fusion=replace(cfg.gs_fusion or GsFusionConfig(),
-                                              rho_thin=math.inf))
+        return replace(cfg, gs_fusion=replace(cfg.gs_fusion or GsFusionConfig(), rho_thin=math.inf))
     if name == "no_depth_weight":
-        return replace(cfg, bandpass=replace(cfg.bandpass or GsBandpassConfig(),
-                                             denom_floor=math.inf, invalid_weight=1.0),
-                       nerf_weight=replace(cfg.nerf_weight or NerfDepthWeightConfig(),
-                                           denom_floor=math.inf, invalid_weight=1.0))
+        return replace(
+            cfg,
+            bandpass=replace(
+                cfg.bandpass or GsBandpassConfig(), denom_floor=math.inf, invalid_weight=1.0
+            ),
+            nerf_weight=replace(
+                cfg.nerf_weight or NerfDepthWeightConfig(), denom_floor=math.inf, invalid_weight=1.0
+            ),
+        )
     raise ValueError(f"unknown variant {name!r}; choose one of {list(VARIANTS)}")
 
 
-def scripted_anchors(metadata: dict, cameras: Sequence[Camera]
-                     ) -> list[tuple[Camera, str, int, list[tuple[float, float]]]]:
+def scripted_anchors(
+    metadata: dict, cameras: Sequence[Camera]
+) -> list[tuple[Camera, str, int, list[tuple[float, float]]]]:
     """``(camera, "training", index, clicks)`` per anchor, from the scene metadata
     (the ``divas demo`` protocol, :func:`~divas_engine.cli.demo.demo_prompts`)."""
     from ..cli.demo import demo_prompts
@@ -115,8 +128,18 @@ class CachingRenderer:
 
     @staticmethod
     def _cam_key(camera: Camera, scale: float) -> tuple:
-        return (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
-                camera.c2w.tobytes(), camera.name, camera.near, float(scale))
+        return (
+            camera.width,
+            camera.height,
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            camera.c2w.tobytes(),
+            camera.name,
+            camera.near,
+            float(scale),
+        )
 
     def _get(self, key: tuple, make):
         with self._lock:
@@ -126,8 +149,11 @@ class CachingRenderer:
                 self.hits += 1
                 return hit[0]
         val = make()
-        arrays = [val] if isinstance(val, np.ndarray) else \
-            [a for a in vars(val).values() if isinstance(a, np.ndarray)]
+        arrays = (
+            [val]
+            if isinstance(val, np.ndarray)
+            else [a for a in vars(val).values() if isinstance(a, np.ndarray)]
+        )
         for a in arrays:
             a.flags.writeable = False
         nbytes = sum(a.nbytes for a in arrays)
@@ -142,14 +168,17 @@ class CachingRenderer:
         return val
 
     def render(self, camera: Camera, scale: float = 1.0):
-        return self._get(("rgb",) + self._cam_key(camera, scale),
-                         lambda: self.inner.render(camera, scale))
+        return self._get(
+            ("rgb",) + self._cam_key(camera, scale), lambda: self.inner.render(camera, scale)
+        )
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         v = np.ascontiguousarray(values)
         digest = hashlib.blake2b(v.view(np.uint8).reshape(-1), digest_size=16).hexdigest()
-        return self._get(("values", v.dtype.str, v.shape, digest) + self._cam_key(camera, scale),
-                         lambda: self.inner.render_values(camera, values, scale))
+        return self._get(
+            ("values", v.dtype.str, v.shape, digest) + self._cam_key(camera, scale),
+            lambda: self.inner.render_values(camera, values, scale),
+        )
 
 
 def make_segmenter(name: str, seed: int = 0):
@@ -189,15 +218,22 @@ class SessionOutcome:
     statuses: list[tuple[str, str, str | None]]
     seconds: float
     timings: dict = field(default_factory=dict)
-    user_log: "UserLog | None" = None
+    user_log: UserLog | None = None
     anchors: list = field(default_factory=list)
 
 
-def run_session(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray,
-                anchors: Sequence[tuple[Camera, str, int, Sequence[tuple[float, float]]]]
-                | None = None, *, segmenter: Any, config: SessionConfig | None = None,
-                device=None, renderer=None, user: "ScriptedUser | None" = None
-                ) -> SessionOutcome:
+def run_session(
+    scene: Scene,
+    cameras: Sequence[Camera],
+    labels: np.ndarray,
+    anchors: Sequence[tuple[Camera, str, int, Sequence[tuple[float, float]]]] | None = None,
+    *,
+    segmenter: Any,
+    config: SessionConfig | None = None,
+    device=None,
+    renderer=None,
+    user: ScriptedUser | None = None,
+) -> SessionOutcome:
     """Open a session on ``scene`` and drive it with one of the two protocols.
 
     * ``user`` given (protocol ``"user"``): the session opens on its own anchor plan
@@ -223,9 +259,17 @@ def run_session(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray,
         items = user.anchors(anchor_plan(scene, list(cameras), cfg))
     else:
         items = [(c, src, i) for c, src, i, _ in anchors]
-    s = Session.open(scene, list(cameras), cfg, segmenter, device, anchors=items,
-                     gt_values=np.asarray(labels, np.float32), render_anchors=False,
-                     renderer=renderer)
+    s = Session.open(
+        scene,
+        list(cameras),
+        cfg,
+        segmenter,
+        device,
+        anchors=items,
+        gt_values=np.asarray(labels, np.float32),
+        render_anchors=False,
+        renderer=renderer,
+    )
     try:
         user_log = None
         if user is not None:
@@ -258,9 +302,17 @@ def run_session(scene: Scene, cameras: Sequence[Camera], labels: np.ndarray,
             p1 = np.zeros_like(sel) if m is None else m.pass1.copy()
             p2 = np.zeros_like(sel) if m is None else m.pass2.copy()
         return SessionOutcome(
-            selection=sel, pass1=p1, pass2=p2, views=views, weighted_views=weighted,
-            counts=s.counts(), statuses=statuses, seconds=time.perf_counter() - t0,
-            timings=s.timings.summary(), user_log=user_log,
-            anchors=[(a.full_camera.name, a.source, a.source_index) for a in s.anchors])
+            selection=sel,
+            pass1=p1,
+            pass2=p2,
+            views=views,
+            weighted_views=weighted,
+            counts=s.counts(),
+            statuses=statuses,
+            seconds=time.perf_counter() - t0,
+            timings=s.timings.summary(),
+            user_log=user_log,
+            anchors=[(a.full_camera.name, a.source, a.source_index) for a in s.anchors],
+        )
     finally:
         s.close()

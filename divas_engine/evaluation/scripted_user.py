@@ -75,8 +75,16 @@ from ..errors import DivasInputError
 #: (LLFF-like) 10 centroid views, 360° (Mip-NeRF 360) 20.
 VIEW_BUDGET: dict[bool, int] = {True: 10, False: 20}
 
-__all__ = ["VIEW_BUDGET", "UserBudget", "UserClick", "UserLog", "ScriptedUser",
-           "uncovered_regions", "region_centre", "leak_free_fraction"]
+__all__ = [
+    "VIEW_BUDGET",
+    "UserBudget",
+    "UserClick",
+    "UserLog",
+    "ScriptedUser",
+    "uncovered_regions",
+    "region_centre",
+    "leak_free_fraction",
+]
 
 
 @dataclass(frozen=True)
@@ -135,18 +143,22 @@ class UserBudget:
             if v is not None and v < 1:
                 raise ValueError(f"UserBudget.{k} must be ≥ 1 (or None), got {v}")
         if self.max_failed_clicks < 1:
-            raise ValueError(f"UserBudget.max_failed_clicks must be ≥ 1, "
-                             f"got {self.max_failed_clicks}")
+            raise ValueError(
+                f"UserBudget.max_failed_clicks must be ≥ 1, got {self.max_failed_clicks}"
+            )
         if self.manual_anchors < 0:
             raise ValueError(f"UserBudget.manual_anchors must be ≥ 0, got {self.manual_anchors}")
         if not 0.0 <= self.min_accept_precision <= 1.0:
-            raise ValueError(f"UserBudget.min_accept_precision must be in [0, 1], "
-                             f"got {self.min_accept_precision}")
+            raise ValueError(
+                f"UserBudget.min_accept_precision must be in [0, 1], "
+                f"got {self.min_accept_precision}"
+            )
         if not 0.0 < self.browse_scale <= 1.0:
             raise ValueError(f"UserBudget.browse_scale must be in (0, 1], got {self.browse_scale}")
         if not 0.0 <= self.min_region_frac < 1.0:
-            raise ValueError(f"UserBudget.min_region_frac must be in [0, 1), "
-                             f"got {self.min_region_frac}")
+            raise ValueError(
+                f"UserBudget.min_region_frac must be in [0, 1), got {self.min_region_frac}"
+            )
 
 
 @dataclass
@@ -213,18 +225,22 @@ class UserLog:
         return [s == "complete" for s in self.anchor_status]
 
     def as_dict(self) -> dict[str, Any]:
-        return {"clicks": [asdict(c) for c in self.clicks],
-                "anchor_status": self.anchor_status, "complete": self.complete,
-                "uncovered_after": self.uncovered_after, "stop": self.stop,
-                "manual_anchors": list(self.manual), "max_views": self.max_views,
-                "views": len(self.clicks),
-                "negatives": sum(len(c.negatives) for c in self.clicks),
-                "negatives_kept": sum(c.negative_kept for c in self.clicks),
-                "declined": self.declined}
+        return {
+            "clicks": [asdict(c) for c in self.clicks],
+            "anchor_status": self.anchor_status,
+            "complete": self.complete,
+            "uncovered_after": self.uncovered_after,
+            "stop": self.stop,
+            "manual_anchors": list(self.manual),
+            "max_views": self.max_views,
+            "views": len(self.clicks),
+            "negatives": sum(len(c.negatives) for c in self.clicks),
+            "negatives_kept": sum(c.negative_kept for c in self.clicks),
+            "declined": self.declined,
+        }
 
 
-def uncovered_regions(target: np.ndarray, covered: np.ndarray, min_area: int
-                      ) -> list[np.ndarray]:
+def uncovered_regions(target: np.ndarray, covered: np.ndarray, min_area: int) -> list[np.ndarray]:
     """Connected regions (8-connectivity) of ``target ∧ ¬covered`` with at least
     ``min_area`` pixels, as bool masks, largest first (ties: lower label first)."""
     miss = np.asarray(target, bool) & ~np.asarray(covered, bool)
@@ -325,8 +341,11 @@ class ScriptedUser:
         """The session's view budget: ``max_views``, else :data:`VIEW_BUDGET` of its
         capture type."""
         b = self.budget
-        return int(b.max_views) if b.max_views is not None else \
-            VIEW_BUDGET[bool(session.forward_facing)]
+        return (
+            int(b.max_views)
+            if b.max_views is not None
+            else VIEW_BUDGET[bool(session.forward_facing)]
+        )
 
     def run(self, session) -> UserLog:
         """Drive ``session`` (freshly opened, current object empty) over its anchors, then
@@ -345,8 +364,13 @@ class ScriptedUser:
             log.manual.append(pick)
             n_views = self._visit(session, a.index, log, n_views)
         st = log.anchor_status
-        log.stop = ("budget" if "budget" in st or "not visited" in st else
-                    "complete" if all(x == "complete" for x in st) else "incomplete")
+        log.stop = (
+            "budget"
+            if "budget" in st or "not visited" in st
+            else "complete"
+            if all(x == "complete" for x in st)
+            else "incomplete"
+        )
         return log
 
     def _visit(self, session, ai: int, log: UserLog, n_views: int) -> int:
@@ -384,8 +408,7 @@ class ScriptedUser:
             # away from that click (its centroid view would be the same one)
             xy = region_centre(regions[0], avoid=tried)
             tried.append((int(xy[0]), int(xy[1])))
-            click = UserClick(ai, xy, int(regions[0].sum()), uncovered,
-                              int(np.count_nonzero(tgt)))
+            click = UserClick(ai, xy, int(regions[0].sum()), uncovered, int(np.count_nonzero(tgt)))
             log.clicks.append(click)
             try:
                 view = session.click(ai, xy)
@@ -424,8 +447,9 @@ class ScriptedUser:
         for _, i in sorted(ranked):
             seen.add(i)
             cam = session.working_camera(session.cameras[i])
-            if uncovered_regions(self.target(session, cam, log), self.overlay_mask(session, cam),
-                                 self._min_area(cam)):
+            if uncovered_regions(
+                self.target(session, cam, log), self.overlay_mask(session, cam), self._min_area(cam)
+            ):
                 return i
         return None
 
@@ -433,8 +457,9 @@ class ScriptedUser:
         """The user's target on training-camera thumbnail ``i`` (cached: it never changes)."""
         key = (id(session.renderer), i, thumb.width, thumb.height)
         if key not in self._thumbs:
-            self._thumbs[key] = session.renderer.render_values(thumb, self.gt_values) \
-                >= np.float32(self.budget.target_threshold)
+            self._thumbs[key] = session.renderer.render_values(thumb, self.gt_values) >= np.float32(
+                self.budget.target_threshold
+            )
         return self._thumbs[key]
 
     def _accept(self, session, view, click: UserClick, log: UserLog) -> None:
@@ -455,7 +480,7 @@ class ScriptedUser:
                     click.negative_kept = True
                     mask = m2
                 else:
-                    session.prompt(view)             # back to the default prompt
+                    session.prompt(view)  # back to the default prompt
         if mask is not None and leak_free_fraction(mask, tgt) < b.min_accept_precision:
             click.status = "declined"
             return

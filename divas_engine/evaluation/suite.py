@@ -20,21 +20,28 @@ against the label grid.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..session import SessionConfig
 from .baselines import CentreVoteConfig, ContributionVoteConfig, ContributionVoter, centre_vote
 from .metrics import EvalConfig, ViewEvaluator
-from .pipeline import (CachingRenderer, make_segmenter, run_session, scripted_anchors,
-                       variant_config)
+from .pipeline import CachingRenderer, make_segmenter, run_session, scripted_anchors, variant_config
 from .scripted_user import ScriptedUser, UserBudget
 
-__all__ = ["METHODS", "NERF_METHODS", "PROTOCOLS", "SuiteConfig", "evaluate_scene",
-           "evaluate_suite",
-           "markdown_table", "check_targets"]
+__all__ = [
+    "METHODS",
+    "NERF_METHODS",
+    "PROTOCOLS",
+    "SuiteConfig",
+    "evaluate_scene",
+    "evaluate_suite",
+    "markdown_table",
+    "check_targets",
+]
 
 #: Table rows per (scene, segmenter) on surfels, in order: key → label.
 METHODS: dict[str, str] = {
@@ -100,8 +107,9 @@ class SuiteConfig:
 
     def __post_init__(self) -> None:
         if self.baseline_masks not in ("raw", "weighted"):
-            raise ValueError(f"baseline_masks must be 'raw' or 'weighted', "
-                             f"got {self.baseline_masks!r}")
+            raise ValueError(
+                f"baseline_masks must be 'raw' or 'weighted', got {self.baseline_masks!r}"
+            )
         if self.protocol not in PROTOCOLS:
             raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
         if len(set(self.seeds)) != len(self.seeds):
@@ -113,58 +121,95 @@ class SuiteConfig:
         return tuple(self.seeds) or (self.seed,)
 
 
-def _row(scene: str, kind: str, seg: str, method: str, label: str, sc, extra: dict,
-         seed: int) -> dict:
+def _row(
+    scene: str, kind: str, seg: str, method: str, label: str, sc, extra: dict, seed: int
+) -> dict:
     p = sc.primitives or {}
-    return {"scene": scene, "seed": seed, "kind": kind, "segmenter": seg, "method": method,
-            "label": label,
-            "iou": sc.iou, "accuracy": sc.accuracy, "pooled_iou": sc.pooled_iou,
-            "precision_2d": sc.precision, "recall_2d": sc.recall,
-            "precision_3d": p.get("precision"), "recall_3d": p.get("recall"),
-            "iou_3d": p.get("iou"), "selected": p.get("selected"),
-            "per_view_iou": [v.iou for v in sc.views], **extra}
+    return {
+        "scene": scene,
+        "seed": seed,
+        "kind": kind,
+        "segmenter": seg,
+        "method": method,
+        "label": label,
+        "iou": sc.iou,
+        "accuracy": sc.accuracy,
+        "pooled_iou": sc.pooled_iou,
+        "precision_2d": sc.precision,
+        "recall_2d": sc.recall,
+        "precision_3d": p.get("precision"),
+        "recall_3d": p.get("recall"),
+        "iou_3d": p.get("iou"),
+        "selected": p.get("selected"),
+        "per_view_iou": [v.iou for v in sc.views],
+        **extra,
+    }
 
 
-def evaluate_scene(name: str, config: SuiteConfig = SuiteConfig(), *, device=None,
-                   log: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+def evaluate_scene(
+    name: str,
+    config: SuiteConfig = SuiteConfig(),
+    *,
+    device=None,
+    log: Callable[[str], None] | None = None,
+) -> list[dict[str, Any]]:
     """All rows of one synthetic scene (surfel methods × segmenters, + NeRF for ribs)."""
     from ..render import make_renderer
     from ..synthetic import generate_scene
 
     say = log or (lambda _m: None)
     t0 = time.perf_counter()
-    sc = generate_scene(name, size=config.size, seed=config.seed,
-                        grid_resolution=config.grid_resolution)
-    anchors = scripted_anchors(sc.metadata, sc.cameras) if config.protocol == "clicks" \
-        else None
+    sc = generate_scene(
+        name, size=config.size, seed=config.seed, grid_resolution=config.grid_resolution
+    )
+    anchors = scripted_anchors(sc.metadata, sc.cameras) if config.protocol == "clicks" else None
     renderer = make_renderer(sc.scene, device=device, config=config.session.render)
     cached = CachingRenderer(renderer)  # the variant sessions share anchor/view renders
-    say(f"{name}: {len(sc.scene)} surfels, protocol {config.protocol}"
-        + ("" if anchors is None else f", {len(anchors)} anchors, "
-           f"{sum(len(a[3]) for a in anchors)} clicks")
-        + f", {len(sc.test_cameras)} test cameras ({time.perf_counter() - t0:.1f} s)")
+    say(
+        f"{name}: {len(sc.scene)} surfels, protocol {config.protocol}"
+        + (
+            ""
+            if anchors is None
+            else f", {len(anchors)} anchors, {sum(len(a[3]) for a in anchors)} clicks"
+        )
+        + f", {len(sc.test_cameras)} test cameras ({time.perf_counter() - t0:.1f} s)"
+    )
     selections: dict[str, np.ndarray] = {}
     extras: dict[str, dict] = {}
     voter = ContributionVoter(sc.scene, device, config.session.render)
     for seg in config.segmenters:
         full = None
         for var in ("full", "no_thin", "no_depth_weight"):
-            out = run_session(sc.scene, sc.cameras, sc.labels, anchors,
-                              segmenter=make_segmenter(seg, config.seed),
-                              config=variant_config(var, config.session), device=device,
-                              renderer=cached, user=_user(config, sc.labels))
+            out = run_session(
+                sc.scene,
+                sc.cameras,
+                sc.labels,
+                anchors,
+                segmenter=make_segmenter(seg, config.seed),
+                config=variant_config(var, config.session),
+                device=device,
+                renderer=cached,
+                user=_user(config, sc.labels),
+            )
             fused = sum(1 for _, st, _ in out.statuses if st == "fused")
             selections[f"{seg}/{var}"] = out.selection
-            extras[f"{seg}/{var}"] = {"views_fused": fused, "views": len(out.statuses),
-                                      "seconds": out.seconds, **_user_extra(out)}
-            say(f"  {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
-                f"{int(out.selection.sum())} selected ({out.seconds:.1f} s)"
-                + _user_note(out))
+            extras[f"{seg}/{var}"] = {
+                "views_fused": fused,
+                "views": len(out.statuses),
+                "seconds": out.seconds,
+                **_user_extra(out),
+            }
+            say(
+                f"  {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
+                f"{int(out.selection.sum())} selected ({out.seconds:.1f} s)" + _user_note(out)
+            )
             if var == "full":
                 full = out
         assert full is not None
-        ex = {"views_fused": extras[f"{seg}/full"]["views_fused"],
-              "views": extras[f"{seg}/full"]["views"]}
+        ex = {
+            "views_fused": extras[f"{seg}/full"]["views_fused"],
+            "views": extras[f"{seg}/full"]["views"],
+        }
         selections[f"{seg}/pass1"], extras[f"{seg}/pass1"] = full.pass1, dict(ex)
         selections[f"{seg}/pass12"], extras[f"{seg}/pass12"] = full.pass2, dict(ex)
         mviews = full.views if config.baseline_masks == "raw" else full.weighted_views
@@ -174,20 +219,24 @@ def evaluate_scene(name: str, config: SuiteConfig = SuiteConfig(), *, device=Non
         extras[f"{seg}/centre_vote"] = {**ex, "seconds": a.seconds}
         selections[f"{seg}/contrib_vote"] = b.selected
         extras[f"{seg}/contrib_vote"] = {**ex, "seconds": b.seconds}
-        say(f"  {seg:7s} baselines: centre vote {int(a.selected.sum())}, contribution vote "
-            f"{int(b.selected.sum())} selected ({a.seconds + b.seconds:.1f} s)")
+        say(
+            f"  {seg:7s} baselines: centre vote {int(a.selected.sum())}, contribution vote "
+            f"{int(b.selected.sum())} selected ({a.seconds + b.seconds:.1f} s)"
+        )
     t = time.perf_counter()
-    ev = ViewEvaluator(sc.scene, sc.test_cameras, sc.labels, config=config.eval,
-                       renderer=renderer, device=device)
+    ev = ViewEvaluator(
+        sc.scene, sc.test_cameras, sc.labels, config=config.eval, renderer=renderer, device=device
+    )
     scores = ev.score(selections)
-    say(f"  scored {len(selections)} selections at {len(sc.test_cameras)} test cameras "
-        f"({time.perf_counter() - t:.1f} s)")
+    say(
+        f"  scored {len(selections)} selections at {len(sc.test_cameras)} test cameras "
+        f"({time.perf_counter() - t:.1f} s)"
+    )
     rows = []
     for seg in config.segmenters:
         for m, label in METHODS.items():
             k = f"{seg}/{m}"
-            rows.append(_row(name, "2dgs", seg, m, label, scores[k], extras[k],
-                             config.seed))
+            rows.append(_row(name, "2dgs", seg, m, label, scores[k], extras[k], config.seed))
     if config.nerf and sc.grid is not None:
         rows += _nerf_rows(name, sc, anchors, config, device, say)
     return rows
@@ -201,13 +250,28 @@ def _user_extra(out) -> dict:
     if out.user_log is None:
         return {}
     d = out.user_log.as_dict()
-    return {"user": {"stop": d["stop"], "anchor_status": d["anchor_status"],
-                     "uncovered_after": d["uncovered_after"], "negatives": d["negatives"],
-                     "negatives_kept": d["negatives_kept"], "declined": d["declined"],
-                     "manual_anchors": d["manual_anchors"],
-                     "clicks": [(c["anchor"], round(c["xy"][0], 1), round(c["xy"][1], 1),
-                                 c["region_px"], c["status"]) for c in d["clicks"]],
-                     "anchors": out.anchors}}
+    return {
+        "user": {
+            "stop": d["stop"],
+            "anchor_status": d["anchor_status"],
+            "uncovered_after": d["uncovered_after"],
+            "negatives": d["negatives"],
+            "negatives_kept": d["negatives_kept"],
+            "declined": d["declined"],
+            "manual_anchors": d["manual_anchors"],
+            "clicks": [
+                (
+                    c["anchor"],
+                    round(c["xy"][0], 1),
+                    round(c["xy"][1], 1),
+                    c["region_px"],
+                    c["status"],
+                )
+                for c in d["clicks"]
+            ],
+            "anchors": out.anchors,
+        }
+    }
 
 
 def _user_note(out) -> str:
@@ -215,11 +279,13 @@ def _user_note(out) -> str:
         return ""
     lg = out.user_log
     st = lg.anchor_status
-    return (f"; user: {len(lg.clicks)} clicks"
-            + (f" ({lg.declined} declined)" if lg.declined else "")
-            + f", stop {lg.stop}, anchors complete "
-            f"{st.count('complete')}/{len(st) - st.count('not visited')} visited "
-            f"of {len(st)}" + (f", manual anchors {lg.manual}" if lg.manual else ""))
+    return (
+        f"; user: {len(lg.clicks)} clicks"
+        + (f" ({lg.declined} declined)" if lg.declined else "")
+        + f", stop {lg.stop}, anchors complete "
+        f"{st.count('complete')}/{len(st) - st.count('not visited')} visited "
+        f"of {len(st)}" + (f", manual anchors {lg.manual}" if lg.manual else "")
+    )
 
 
 def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict]:
@@ -230,27 +296,43 @@ def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict
     sels, extras = {}, {}
     for seg in config.segmenters:
         for var, key in (("full", "nerf_full"), ("no_depth_weight", "nerf_no_depth_weight")):
-            out = run_session(grid, sc.cameras, labels, anchors,
-                              segmenter=make_segmenter(seg, config.seed),
-                              config=variant_config(var, config.session), device=device,
-                              renderer=renderer, user=_user(config, labels))
+            out = run_session(
+                grid,
+                sc.cameras,
+                labels,
+                anchors,
+                segmenter=make_segmenter(seg, config.seed),
+                config=variant_config(var, config.session),
+                device=device,
+                renderer=renderer,
+                user=_user(config, labels),
+            )
             fused = sum(1 for _, st, _ in out.statuses if st == "fused")
             sels[f"{seg}/{key}"] = out.selection
-            extras[f"{seg}/{key}"] = {"views_fused": fused, "views": len(out.statuses),
-                                      "seconds": out.seconds, **_user_extra(out)}
-            say(f"  nerf {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
-                f"{int(out.selection.sum())} voxels ({out.seconds:.1f} s)" + _user_note(out))
+            extras[f"{seg}/{key}"] = {
+                "views_fused": fused,
+                "views": len(out.statuses),
+                "seconds": out.seconds,
+                **_user_extra(out),
+            }
+            say(
+                f"  nerf {seg:7s} {var:16s} {fused}/{len(out.statuses)} views fused, "
+                f"{int(out.selection.sum())} voxels ({out.seconds:.1f} s)" + _user_note(out)
+            )
     t = time.perf_counter()
     ev = ViewEvaluator(grid, sc.test_cameras, labels, config=config.eval, device=device)
     scores = ev.score(sels)
     say(f"  nerf scored {len(sels)} selections ({time.perf_counter() - t:.1f} s)")
-    return [_row(name, "nerf", seg, m, label, scores[f"{seg}/{m}"], extras[f"{seg}/{m}"],
-                 config.seed)
-            for seg in config.segmenters for m, label in NERF_METHODS.items()]
+    return [
+        _row(name, "nerf", seg, m, label, scores[f"{seg}/{m}"], extras[f"{seg}/{m}"], config.seed)
+        for seg in config.segmenters
+        for m, label in NERF_METHODS.items()
+    ]
 
 
-def evaluate_suite(config: SuiteConfig = SuiteConfig(), *, device=None,
-                   log: Callable[[str], None] | None = None) -> dict[str, Any]:
+def evaluate_suite(
+    config: SuiteConfig = SuiteConfig(), *, device=None, log: Callable[[str], None] | None = None
+) -> dict[str, Any]:
     """Rows of every scene of ``config`` (per seed of :attr:`SuiteConfig.run_seeds`), the
     per-scene means over the seeds, per-method means over the scenes, and the targets."""
     t0 = time.perf_counter()
@@ -262,18 +344,26 @@ def evaluate_suite(config: SuiteConfig = SuiteConfig(), *, device=None,
         for name in config.scenes:
             rows += evaluate_scene(name, cfg, device=device, log=log)
     per_scene = scene_means(rows)
-    return {"version": 1, "config": {"scenes": list(config.scenes),
-                                     "segmenters": list(config.segmenters),
-                                     "size": config.size, "seed": config.seed,
-                                     "seeds": list(config.run_seeds),
-                                     "baseline_masks": config.baseline_masks,
-                                     "protocol": config.protocol,
-                                     "user": config.user.__dict__.copy()
-                                     if config.protocol == "user" else None,
-                                     "eval": config.eval.__dict__.copy(),
-                                     "oracle_seed": config.seed},
-            "rows": rows, "scene_means": per_scene, "means": suite_means(per_scene),
-            "targets": check_targets(rows), "seconds": time.perf_counter() - t0}
+    return {
+        "version": 1,
+        "config": {
+            "scenes": list(config.scenes),
+            "segmenters": list(config.segmenters),
+            "size": config.size,
+            "seed": config.seed,
+            "seeds": list(config.run_seeds),
+            "baseline_masks": config.baseline_masks,
+            "protocol": config.protocol,
+            "user": config.user.__dict__.copy() if config.protocol == "user" else None,
+            "eval": config.eval.__dict__.copy(),
+            "oracle_seed": config.seed,
+        },
+        "rows": rows,
+        "scene_means": per_scene,
+        "means": suite_means(per_scene),
+        "targets": check_targets(rows),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 _METRICS = ("iou", "accuracy", "precision_3d", "recall_3d")
@@ -293,10 +383,20 @@ def scene_means(rows: Sequence[dict]) -> list[dict]:
     out = []
     for (scene, kind, seg, m), rs in groups.items():
         ious = [float(r["iou"]) for r in rs]
-        out.append({"scene": scene, "kind": kind, "segmenter": seg, "method": m,
-                    "label": rs[0]["label"], "seeds": [r.get("seed") for r in rs],
-                    **{k: _mean(rs, k) for k in _METRICS}, "iou_seeds": ious,
-                    "iou_min": min(ious), "iou_max": max(ious)})
+        out.append(
+            {
+                "scene": scene,
+                "kind": kind,
+                "segmenter": seg,
+                "method": m,
+                "label": rs[0]["label"],
+                "seeds": [r.get("seed") for r in rs],
+                **{k: _mean(rs, k) for k in _METRICS},
+                "iou_seeds": ious,
+                "iou_min": min(ious),
+                "iou_max": max(ious),
+            }
+        )
     return out
 
 
@@ -308,9 +408,16 @@ def suite_means(rows: Sequence[dict]) -> list[dict]:
         groups.setdefault((r["kind"], r["segmenter"], r["method"]), []).append(r)
     out = []
     for (kind, seg, m), rs in groups.items():
-        out.append({"kind": kind, "segmenter": seg, "method": m, "label": rs[0]["label"],
-                    "scenes": len({r["scene"] for r in rs}),
-                    **{k: _mean(rs, k) for k in _METRICS}})
+        out.append(
+            {
+                "kind": kind,
+                "segmenter": seg,
+                "method": m,
+                "label": rs[0]["label"],
+                "scenes": len({r["scene"] for r in rs}),
+                **{k: _mean(rs, k) for k in _METRICS},
+            }
+        )
     return out
 
 
@@ -328,16 +435,19 @@ def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
     full = [by[(s, "full")] for s in scenes]
 
     def beats(s: str, get) -> bool:
-        return bool(get(s, "full") >= get(s, "centre_vote")
-                    and get(s, "full") >= get(s, "contrib_vote"))
+        return bool(
+            get(s, "full") >= get(s, "centre_vote") and get(s, "full") >= get(s, "contrib_vote")
+        )
 
     out: dict[str, Any] = {
-        "seeds": seeds, "mean_full_iou": float(np.mean(full)),
+        "seeds": seeds,
+        "mean_full_iou": float(np.mean(full)),
         "mean_full_iou_ge_0.90": bool(np.mean(full) >= 0.90),
         "full_beats_baselines": {s: beats(s, lambda a, m: by[(a, m)]) for s in scenes},
         "full_beats_baselines_seeds": {
-            s: sum(beats(s, lambda a, m, k=k: per_seed[(a, m, k)]) for k in seeds)
-            for s in scenes}}
+            s: sum(beats(s, lambda a, m, k=k: per_seed[(a, m, k)]) for k in seeds) for s in scenes
+        },
+    }
     if "ribs" in scenes:
         out["ribs_thin_path_helps"] = bool(by[("ribs", "no_thin")] < by[("ribs", "full")])
     return out
@@ -351,60 +461,106 @@ def markdown_table(result: dict[str, Any]) -> str:
     """The rows as a Markdown table, then the suite means and the targets."""
     seeds = sorted({r.get("seed") for r in result["rows"]}, key=lambda x: (x is None, x))
     multi = len(seeds) > 1
-    lines = ["| scene | " + ("seed | " if multi else "")
-             + "segmenter | method | IoU | acc | P₃D | R₃D | views |",
-             "|---|" + ("---:|" if multi else "") + "---|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| scene | "
+        + ("seed | " if multi else "")
+        + "segmenter | method | IoU | acc | P₃D | R₃D | views |",
+        "|---|" + ("---:|" if multi else "") + "---|---|---:|---:|---:|---:|---:|",
+    ]
     for r in result["rows"]:
         sc = r["scene"] + (" (NeRF grid)" if r["kind"] == "nerf" else "")
-        lines.append(f"| {sc} | " + (f"{r.get('seed')} | " if multi else "")
-                     + f"{r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
-                     f"{_f(r['accuracy'])} | {_f(r['precision_3d'])} | {_f(r['recall_3d'])} | "
-                     f"{r.get('views_fused', '–')}/{r.get('views', '–')} |")
+        lines.append(
+            f"| {sc} | "
+            + (f"{r.get('seed')} | " if multi else "")
+            + f"{r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
+            f"{_f(r['accuracy'])} | {_f(r['precision_3d'])} | {_f(r['recall_3d'])} | "
+            f"{r.get('views_fused', '–')}/{r.get('views', '–')} |"
+        )
     if multi and result.get("scene_means"):
-        lines += ["", f"Mean over seeds {', '.join(map(str, seeds))} (min–max):", "",
-                  "| scene | segmenter | method | IoU | IoU min–max | acc | P₃D | R₃D |",
-                  "|---|---|---|---:|---:|---:|---:|---:|"]
+        lines += [
+            "",
+            f"Mean over seeds {', '.join(map(str, seeds))} (min–max):",
+            "",
+            "| scene | segmenter | method | IoU | IoU min–max | acc | P₃D | R₃D |",
+            "|---|---|---|---:|---:|---:|---:|---:|",
+        ]
         for r in result["scene_means"]:
             sc = r["scene"] + (" (NeRF grid)" if r["kind"] == "nerf" else "")
-            lines.append(f"| {sc} | {r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
-                         f"{_f(r['iou_min'])}–{_f(r['iou_max'])} | {_f(r['accuracy'])} | "
-                         f"{_f(r['precision_3d'])} | {_f(r['recall_3d'])} |")
+            lines.append(
+                f"| {sc} | {r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
+                f"{_f(r['iou_min'])}–{_f(r['iou_max'])} | {_f(r['accuracy'])} | "
+                f"{_f(r['precision_3d'])} | {_f(r['recall_3d'])} |"
+            )
     means = result.get("means") or []
     if means:
-        lines += ["", "Mean over scenes:", "",
-                  "| kind | segmenter | method | scenes | IoU | acc | P₃D | R₃D |",
-                  "|---|---|---|---:|---:|---:|---:|---:|"]
+        lines += [
+            "",
+            "Mean over scenes:",
+            "",
+            "| kind | segmenter | method | scenes | IoU | acc | P₃D | R₃D |",
+            "|---|---|---|---:|---:|---:|---:|---:|",
+        ]
         for m in means:
-            lines.append(f"| {m['kind']} | {m['segmenter']} | {m['label']} | {m['scenes']} | "
-                         f"{_f(m['iou'])} | {_f(m['accuracy'])} | {_f(m['precision_3d'])} | "
-                         f"{_f(m['recall_3d'])} |")
+            lines.append(
+                f"| {m['kind']} | {m['segmenter']} | {m['label']} | {m['scenes']} | "
+                f"{_f(m['iou'])} | {_f(m['accuracy'])} | {_f(m['precision_3d'])} | "
+                f"{_f(m['recall_3d'])} |"
+            )
     cfg = result.get("config") or {}
     if cfg.get("protocol"):
         u = cfg.get("user") or {}
-        lines += ["", f"View protocol: {cfg['protocol']}" + (
-            "" if cfg["protocol"] != "user" else
-            f" (simulated user on the session's anchor plan: "
-            + (f"≤ {u['clicks_per_anchor']} clicks per anchor" if u.get("clicks_per_anchor")
-               else f"each anchor until complete or {u.get('max_failed_clicks')} clicks "
-                    "without progress")
-            + ", ≤ " + (f"{u['max_views']}" if u.get("max_views") else "10 (forward-facing) / "
-                        "20 (360°)") + " views, regions ≥ "
-            f"{100 * u.get('min_region_frac', 0):.1f} % of the view, negative clicks "
-            f"{'on' if u.get('negative_clicks') else 'off'}, "
-            + ("then the other supported Fibonacci anchors" if u.get("more_anchors")
-               else "offered anchors only")
-            + (f", then ≤ {u['manual_anchors']} training cameras as manual anchors)"
-               if u.get("manual_anchors") else ")"))]
+        lines += [
+            "",
+            f"View protocol: {cfg['protocol']}"
+            + (
+                ""
+                if cfg["protocol"] != "user"
+                else " (simulated user on the session's anchor plan: "
+                + (
+                    f"≤ {u['clicks_per_anchor']} clicks per anchor"
+                    if u.get("clicks_per_anchor")
+                    else f"each anchor until complete or {u.get('max_failed_clicks')} clicks "
+                    "without progress"
+                )
+                + ", ≤ "
+                + (f"{u['max_views']}" if u.get("max_views") else "10 (forward-facing) / 20 (360°)")
+                + " views, regions ≥ "
+                f"{100 * u.get('min_region_frac', 0):.1f} % of the view, negative clicks "
+                f"{'on' if u.get('negative_clicks') else 'off'}, "
+                + (
+                    "then the other supported Fibonacci anchors"
+                    if u.get("more_anchors")
+                    else "offered anchors only"
+                )
+                + (
+                    f", then ≤ {u['manual_anchors']} training cameras as manual anchors)"
+                    if u.get("manual_anchors")
+                    else ")"
+                )
+            ),
+        ]
     t = result.get("targets") or {}
     if t:
-        lines += ["", "Targets (oracle" + (", means over the seeds" if multi else "")
-                  + "): mean DivAS-full IoU "
-                  f"{t['mean_full_iou']:.3f} (≥ 0.90: {'yes' if t['mean_full_iou_ge_0.90'] else 'NO'}); "
-                  "≥ both baselines: " + ", ".join(
-                      f"{s} {'yes' if ok else 'NO'}" + (
-                          f" ({t['full_beats_baselines_seeds'][s]}/{len(t['seeds'])} seeds)"
-                          if len(t.get("seeds", ())) > 1 else "")
-                      for s, ok in t["full_beats_baselines"].items())
-                  + ("" if "ribs_thin_path_helps" not in t else
-                     f"; thin path raises ribs IoU: {'yes' if t['ribs_thin_path_helps'] else 'NO'}")]
+        lines += [
+            "",
+            "Targets (oracle"
+            + (", means over the seeds" if multi else "")
+            + "): mean DivAS-full IoU "
+            f"{t['mean_full_iou']:.3f} (≥ 0.90: {'yes' if t['mean_full_iou_ge_0.90'] else 'NO'}); "
+            "≥ both baselines: "
+            + ", ".join(
+                f"{s} {'yes' if ok else 'NO'}"
+                + (
+                    f" ({t['full_beats_baselines_seeds'][s]}/{len(t['seeds'])} seeds)"
+                    if len(t.get("seeds", ())) > 1
+                    else ""
+                )
+                for s, ok in t["full_beats_baselines"].items()
+            )
+            + (
+                ""
+                if "ribs_thin_path_helps" not in t
+                else f"; thin path raises ribs IoU: {'yes' if t['ribs_thin_path_helps'] else 'NO'}"
+            ),
+        ]
     return "\n".join(lines)

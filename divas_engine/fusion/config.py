@@ -36,7 +36,7 @@ class GridConfig:
     percentile: float = 99.0
 
     @classmethod
-    def forward_facing(cls, **kw) -> "GridConfig":
+    def forward_facing(cls, **kw) -> GridConfig:
         """LLFF-style captures: ``g_max = 512``."""
         return cls(g_max=512, **kw)
 
@@ -148,16 +148,32 @@ class NerfFusionConfig:
     eps: float = 1e-6
     early_out: bool = True
 
-    def with_(self, **kw) -> "NerfFusionConfig":
+    def with_(self, **kw) -> NerfFusionConfig:
         return replace(self, **kw)
 
 
 #: tab:kernel_hyperparams — LLFF (uniform sampling) and Mip-NeRF 360 (proposal sampling).
 NERF_PRESETS: dict[str, NerfFusionConfig] = {
-    "llff": NerfFusionConfig(gamma=4.0, beta=0.2, b_max=10.0, lambda_range=0.05, rho_thresh=10.0,
-                             rho_thin=50.0, rho_cover=0.20, grid_resolution=128),
-    "mip360": NerfFusionConfig(gamma=0.5, beta=0.2, b_max=1.0, lambda_range=5.0, rho_thresh=5.0,
-                               rho_thin=30.0, rho_cover=0.30, grid_resolution=256),
+    "llff": NerfFusionConfig(
+        gamma=4.0,
+        beta=0.2,
+        b_max=10.0,
+        lambda_range=0.05,
+        rho_thresh=10.0,
+        rho_thin=50.0,
+        rho_cover=0.20,
+        grid_resolution=128,
+    ),
+    "mip360": NerfFusionConfig(
+        gamma=0.5,
+        beta=0.2,
+        b_max=1.0,
+        lambda_range=5.0,
+        rho_thresh=5.0,
+        rho_thin=30.0,
+        rho_cover=0.30,
+        grid_resolution=256,
+    ),
 }
 
 
@@ -166,5 +182,7 @@ def nerf_preset(name: str, **overrides) -> NerfFusionConfig:
     try:
         cfg = NERF_PRESETS[name]
     except KeyError:
-        raise ValueError(f"unknown NeRF preset {name!r}; expected one of {sorted(NERF_PRESETS)}")
+        raise ValueError(
+            f"unknown NeRF preset {name!r}; expected one of {sorted(NERF_PRESETS)}"
+        ) from None
     return replace(cfg, **overrides) if overrides else cfg

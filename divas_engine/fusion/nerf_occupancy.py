@@ -87,8 +87,11 @@ class NerfOccupancy:
         idx = self.index.numpy()
         lin = np.asarray(linear, dtype=np.int64)
         pos = np.searchsorted(idx, lin)
-        hit = (pos < len(idx)) & (idx[np.minimum(pos, len(idx) - 1)] == lin) if len(idx) else \
-            np.zeros(lin.shape, bool)
+        hit = (
+            (pos < len(idx)) & (idx[np.minimum(pos, len(idx) - 1)] == lin)
+            if len(idx)
+            else np.zeros(lin.shape, bool)
+        )
         return np.where(hit, pos, -1).astype(np.int32)
 
     def to_dense(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
@@ -99,8 +102,7 @@ class NerfOccupancy:
         return out.reshape(nz, ny, nx)
 
 
-def build_nerf_occupancy(grid: DensityGrid, config: NerfFusionConfig, device=None
-                         ) -> NerfOccupancy:
+def build_nerf_occupancy(grid: DensityGrid, config: NerfFusionConfig, device=None) -> NerfOccupancy:
     """Active cells ``σ ≥ ρ_thresh`` of ``grid`` (linear order) on ``device``."""
     device = wp.get_device(device)
     t0 = time.perf_counter()
@@ -115,15 +117,25 @@ def build_nerf_occupancy(grid: DensityGrid, config: NerfFusionConfig, device=Non
     cell = np.asarray(grid.voxel_size, dtype=np.float64)
     occ = NerfOccupancy(
         wp.array(lin.astype(np.int32), dtype=wp.int32, device=device),
-        wp.array(flat[lin], dtype=float, device=device), grid.shape_xyz,
-        np.asarray(grid.aabb, dtype=np.float64), cell, float(cell.max()), config, device,
-        None)  # type: ignore[arg-type]
+        wp.array(flat[lin], dtype=float, device=device),
+        grid.shape_xyz,
+        np.asarray(grid.aabb, dtype=np.float64),
+        cell,
+        float(cell.max()),
+        config,
+        device,
+        None,
+    )  # type: ignore[arg-type]
     res = config.grid_resolution
     occ.report = NerfBuildReport(
-        shape_xyz=tuple(grid.shape_xyz), n_cells=int(flat.size), n_active=len(lin),
+        shape_xyz=tuple(grid.shape_xyz),
+        n_cells=int(flat.size),
+        n_active=len(lin),
         active_fraction=len(lin) / max(flat.size, 1),
-        n_thin_eligible=int((flat[lin] >= config.rho_thin).sum()), voxel_edge=float(cell.max()),
+        n_thin_eligible=int((flat[lin] >= config.rho_thin).sum()),
+        voxel_edge=float(cell.max()),
         resolution_matches=tuple(grid.shape_xyz) == (res, res, res),
         build_time_s=time.perf_counter() - t0,
-        resident_bytes=occ.index.capacity + occ.density.capacity)
+        resident_bytes=occ.index.capacity + occ.density.capacity,
+    )
     return occ

@@ -38,8 +38,17 @@ from ..scene_stats import robust_frame
 from .config import GridConfig
 from .morton import morton_decode
 
-__all__ = ["GridGeometry", "grid_geometry", "aabb_filter", "resolve_resolution", "OccupancyGrid", "BuildReport", "build_occupancy",
-           "surfel_voxel_codes", "voxel_codes_numpy"]
+__all__ = [
+    "GridGeometry",
+    "grid_geometry",
+    "aabb_filter",
+    "resolve_resolution",
+    "OccupancyGrid",
+    "BuildReport",
+    "build_occupancy",
+    "surfel_voxel_codes",
+    "voxel_codes_numpy",
+]
 
 
 def _next_pow2_at_least(x: float) -> int:
@@ -96,8 +105,9 @@ def resolve_resolution(half_extent: float, h_raw: float, g_max: int) -> tuple[fl
     return h_raw, g, False
 
 
-def grid_geometry(means: np.ndarray, scales: np.ndarray, config: GridConfig = GridConfig()
-                  ) -> GridGeometry:
+def grid_geometry(
+    means: np.ndarray, scales: np.ndarray, config: GridConfig = GridConfig()
+) -> GridGeometry:
     """c_scene, r_fg, b, s̄, h_v and g from surfel centres ``[N,3]`` and scales ``[N,2]``."""
     means = np.asarray(means)
     finite = np.all(np.isfinite(means), axis=1)
@@ -112,7 +122,9 @@ def grid_geometry(means: np.ndarray, scales: np.ndarray, config: GridConfig = Gr
     s_bar = float(np.median(smax)) if smax.size else 0.0
     h_raw = max(config.alpha_v * s_bar, config.beta_v * frame.radius / config.g0)
     h, g, capped = resolve_resolution(b, h_raw, config.g_max)
-    return GridGeometry(frame.center, float(b), float(h), int(g), float(frame.radius), s_bar, capped)
+    return GridGeometry(
+        frame.center, float(b), float(h), int(g), float(frame.radius), s_bar, capped
+    )
 
 
 def aabb_filter(means: np.ndarray, center: np.ndarray, half: float) -> np.ndarray:
@@ -123,13 +135,15 @@ def aabb_filter(means: np.ndarray, center: np.ndarray, half: float) -> np.ndarra
         return np.all(np.isfinite(p), axis=1) & np.all(np.abs(r) < half, axis=1)
 
 
-def voxel_codes_numpy(means: np.ndarray, center: np.ndarray, half: float, h: float, g: int
-                      ) -> np.ndarray:
+def voxel_codes_numpy(
+    means: np.ndarray, center: np.ndarray, half: float, h: float, g: int
+) -> np.ndarray:
     """NumPy twin of ``kernels.occupancy.point_voxel_code`` (−1 = filtered).
 
     Same float64 operations in the same order, so voxel assignments agree bit for bit.
     """
     from .morton import morton_encode
+
     p = np.asarray(means, dtype=np.float32).astype(np.float64)
     ok = aabb_filter(p, center, half)
     r = p[ok] - np.asarray(center, dtype=np.float64)
@@ -191,12 +205,20 @@ class OccupancyGrid:
 
     @property
     def nbytes(self) -> int:
-        return sum(a.capacity for a in (self.codes, self.density, self.count, self.hash_keys,
-                                        self.hash_vals))
+        return sum(
+            a.capacity
+            for a in (self.codes, self.density, self.count, self.hash_keys, self.hash_vals)
+        )
 
     @classmethod
-    def from_codes(cls, geometry: GridGeometry, codes: np.ndarray, density: np.ndarray,
-                   config: GridConfig = GridConfig(), device=None) -> "OccupancyGrid":
+    def from_codes(
+        cls,
+        geometry: GridGeometry,
+        codes: np.ndarray,
+        density: np.ndarray,
+        config: GridConfig = GridConfig(),
+        device=None,
+    ) -> OccupancyGrid:
         """A grid over given active ``codes`` (sorted ascending here) and their density
         (tests, hand-made grids)."""
         device = wp.get_device(device)
@@ -207,9 +229,23 @@ class OccupancyGrid:
         cnt = wp.zeros(len(codes), dtype=wp.int32, device=device)
         keys, vals, shift = kocc.hash_build(c, device=device)
         g = geometry.resolution
-        rep = BuildReport(g, geometry.voxel_size, geometry.half_extent, geometry.s_bar,
-                          geometry.r_fg, geometry.capped, 0, 0, len(codes), len(codes),
-                          len(codes) / float(g) ** 3, 0.0, 0.0, 0, 0)
+        rep = BuildReport(
+            g,
+            geometry.voxel_size,
+            geometry.half_extent,
+            geometry.s_bar,
+            geometry.r_fg,
+            geometry.capped,
+            0,
+            0,
+            len(codes),
+            len(codes),
+            len(codes) / float(g) ** 3,
+            0.0,
+            0.0,
+            0,
+            0,
+        )
         grid = cls(geometry, config, c, d, cnt, keys, vals, shift, device, rep)
         grid.report.resident_bytes = grid.nbytes
         return grid
@@ -220,16 +256,23 @@ class OccupancyGrid:
 
     def lookup(self, codes: np.ndarray | wp.array) -> np.ndarray:
         """``[M] int32`` active index of each Morton code (−1 absent/filtered)."""
-        c = codes if isinstance(codes, wp.array) else wp.array(
-            np.ascontiguousarray(codes, dtype=np.int64), dtype=wp.int64, device=self.device)
-        return kocc.hash_query(self.hash_keys, self.hash_vals, self.hash_shift, c,
-                               device=self.device).numpy()
+        c = (
+            codes
+            if isinstance(codes, wp.array)
+            else wp.array(
+                np.ascontiguousarray(codes, dtype=np.int64), dtype=wp.int64, device=self.device
+            )
+        )
+        return kocc.hash_query(
+            self.hash_keys, self.hash_vals, self.hash_shift, c, device=self.device
+        ).numpy()
 
     def surfel_active_index(self, means: np.ndarray | wp.array) -> np.ndarray:
         """``[N] int32`` active index of each surfel's voxel (−1: filtered or inactive)."""
         codes = surfel_voxel_codes(means, self.geometry, device=self.device)
-        return kocc.hash_query(self.hash_keys, self.hash_vals, self.hash_shift, codes,
-                               device=self.device).numpy()
+        return kocc.hash_query(
+            self.hash_keys, self.hash_vals, self.hash_shift, codes, device=self.device
+        ).numpy()
 
 
 def _as_vec3(means, device) -> wp.array:
@@ -238,8 +281,9 @@ def _as_vec3(means, device) -> wp.array:
     return wp.array(np.ascontiguousarray(means, dtype=np.float32), dtype=wp.vec3, device=device)
 
 
-def surfel_voxel_codes(means: np.ndarray | wp.array, geometry: GridGeometry,
-                       device=None) -> wp.array:
+def surfel_voxel_codes(
+    means: np.ndarray | wp.array, geometry: GridGeometry, device=None
+) -> wp.array:
     """``[N] int64`` Morton code of each surfel's voxel, −1 where the AABB/NaN filter
     drops it — the exact filter and encoding of the build (alg:vox2surfel Pass 1)."""
     device = wp.get_device(device)
@@ -248,8 +292,9 @@ def surfel_voxel_codes(means: np.ndarray | wp.array, geometry: GridGeometry,
     return codes
 
 
-def build_occupancy(scene: SurfelScene, config: GridConfig = GridConfig(),
-                    device=None) -> OccupancyGrid:
+def build_occupancy(
+    scene: SurfelScene, config: GridConfig = GridConfig(), device=None
+) -> OccupancyGrid:
     """Build the active-voxel list of ``scene`` on ``device`` (App. B, four passes)."""
     device = wp.get_device(device)
     t0 = time.perf_counter()
@@ -261,24 +306,36 @@ def build_occupancy(scene: SurfelScene, config: GridConfig = GridConfig(),
         mem["peak"] = max(mem["peak"], mem["cur"])
 
     means = _as_vec3(scene.means, device)
-    opac = wp.array(np.ascontiguousarray(scene.opacities, dtype=np.float32), dtype=float,
-                    device=device)
+    opac = wp.array(
+        np.ascontiguousarray(scene.opacities, dtype=np.float32), dtype=float, device=device
+    )
     track(means.capacity + opac.capacity)
-    res = kocc.build_active(means, opac, geo.device_geom(), geo.bits, config.tau_tf,
-                            device=device, mem=track)
+    res = kocc.build_active(
+        means, opac, geo.device_geom(), geo.bits, config.tau_tf, device=device, mem=track
+    )
     keys, vals, shift = kocc.hash_build(res["codes"], device=device)
     track(keys.capacity + vals.capacity)
     wp.synchronize_device(device)
     n_act = res["codes"].shape[0]
     in_active = int(res["count"].numpy().sum()) if n_act else 0
-    grid = OccupancyGrid(geo, config, res["codes"], res["density"], res["count"], keys, vals,
-                         shift, device, None)  # type: ignore[arg-type]
+    grid = OccupancyGrid(
+        geo, config, res["codes"], res["density"], res["count"], keys, vals, shift, device, None
+    )  # type: ignore[arg-type]
     grid.report = BuildReport(
-        g=geo.resolution, h_v=geo.voxel_size, b=geo.half_extent, s_bar=geo.s_bar, r_fg=geo.r_fg,
-        capped=geo.capped, n_surfels=len(scene), n_kept=res["n_kept"],
-        n_occupied=res["n_occupied"], n_active=n_act,
+        g=geo.resolution,
+        h_v=geo.voxel_size,
+        b=geo.half_extent,
+        s_bar=geo.s_bar,
+        r_fg=geo.r_fg,
+        capped=geo.capped,
+        n_surfels=len(scene),
+        n_kept=res["n_kept"],
+        n_occupied=res["n_occupied"],
+        n_active=n_act,
         active_fraction=n_act / float(geo.resolution) ** 3,
         surfels_per_active=in_active / n_act if n_act else 0.0,
-        build_time_s=time.perf_counter() - t0, peak_bytes=mem["peak"],
-        resident_bytes=grid.nbytes)
+        build_time_s=time.perf_counter() - t0,
+        peak_bytes=mem["peak"],
+        resident_bytes=grid.nbytes,
+    )
     return grid

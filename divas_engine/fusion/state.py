@@ -65,8 +65,17 @@ class IncrementalFusion:
     :class:`~divas_engine.fusion.nerf_fusion.NerfFusion`. Subclasses implement
     :meth:`_launch` (fill ``self._num/_den/_kind`` for one uploaded view)."""
 
-    def __init__(self, n_active: int, *, max_views: int | None, eps: float, tau_cons: float,
-                 mask_pos: float, k_dg: float, device) -> None:
+    def __init__(
+        self,
+        n_active: int,
+        *,
+        max_views: int | None,
+        eps: float,
+        tau_cons: float,
+        mask_pos: float,
+        k_dg: float,
+        device,
+    ) -> None:
         self.device = wp.get_device(device)
         self.n_active = int(n_active)
         self.max_views = max_views
@@ -74,7 +83,8 @@ class IncrementalFusion:
         words = 0 if max_views is None else (max_views + 31) // 32
         d, n = self.device, self.n_active
         self._acc = {
-            "w": wp.zeros(n, dtype=wp.int64, device=d), "z": wp.zeros(n, dtype=wp.int64, device=d),
+            "w": wp.zeros(n, dtype=wp.int64, device=d),
+            "z": wp.zeros(n, dtype=wp.int64, device=d),
             "wthin": wp.zeros(n, dtype=wp.int64, device=d),
             "n_thick": wp.zeros(n, dtype=wp.int32, device=d),
             "n_thin": wp.zeros(n, dtype=wp.int32, device=d),
@@ -108,11 +118,13 @@ class IncrementalFusion:
                 return s
         raise FusionCapacityError(
             f"the view-coverage bitmask holds {self.max_views} views and all are in use; "
-            f"undo a view or raise max_views")
+            f"undo a view or raise max_views"
+        )
 
     def upload(self, view: FusionView) -> ViewData:
-        return upload_view(view, mask_pos=self._mask_pos, k_dg=self._k_dg, eps=self._eps,
-                           device=self.device)
+        return upload_view(
+            view, mask_pos=self._mask_pos, k_dg=self._k_dg, eps=self._eps, device=self.device
+        )
 
     def add_view(self, view: FusionView, view_id: int | None = None) -> int:
         """Fuse one view (only this view's kernel runs); returns its id."""
@@ -121,13 +133,17 @@ class IncrementalFusion:
         elif view_id in self._records:
             raise ValueError(f"view id {view_id} is already fused")
         elif self.max_views is not None and not 0 <= view_id < self.max_views:
-            raise FusionCapacityError(f"view id {view_id} outside the bitmask [0, {self.max_views})")
+            raise FusionCapacityError(
+                f"view id {view_id} outside the bitmask [0, {self.max_views})"
+            )
         vd = self.upload(view)
         self._launch(vd)
-        rec = compact_contributions(self._num, self._den, self._kind, self._flags, self._pos,
-                                    device=self.device)
-        apply_records(rec, view_id if self.max_views is not None else -1, +1, self._acc,
-                      device=self.device)
+        rec = compact_contributions(
+            self._num, self._den, self._kind, self._flags, self._pos, device=self.device
+        )
+        apply_records(
+            rec, view_id if self.max_views is not None else -1, +1, self._acc, device=self.device
+        )
         self._records[view_id] = rec
         return view_id
 
@@ -137,8 +153,9 @@ class IncrementalFusion:
             rec = self._records.pop(view_id)
         except KeyError:
             raise KeyError(f"view id {view_id} is not fused (live: {self.view_ids})") from None
-        apply_records(rec, view_id if self.max_views is not None else -1, -1, self._acc,
-                      device=self.device)
+        apply_records(
+            rec, view_id if self.max_views is not None else -1, -1, self._acc, device=self.device
+        )
 
     def reset(self) -> None:
         for a in self._acc.values():
@@ -158,13 +175,16 @@ class IncrementalFusion:
         has_mask = self.max_views is not None
         q = 1.0 / QSCALE
         return FusionResult(
-            P=p.numpy(), segmented=seg.numpy().astype(bool),
+            P=p.numpy(),
+            segmented=seg.numpy().astype(bool),
             vmask=vm.numpy() if has_mask else None,
             vmask_raw=self._acc["vmask"].numpy() if has_mask else None,
             W=self._acc["w"].numpy().astype(np.float64) * q,
             Z=self._acc["z"].numpy().astype(np.float64) * q,
             W_thin=self._acc["wthin"].numpy().astype(np.float64) * q,
-            n_thick=self._acc["n_thick"].numpy(), n_thin=self._acc["n_thin"].numpy())
+            n_thick=self._acc["n_thick"].numpy(),
+            n_thin=self._acc["n_thin"].numpy(),
+        )
 
     def accumulators(self) -> dict[str, np.ndarray]:
         """Raw int accumulators (tests compare these for bit-exactness)."""

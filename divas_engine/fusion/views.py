@@ -46,8 +46,10 @@ class FusionView:
         for k in ("mask", "d_min", "d_ref", "d_max", "n_samp"):
             a = np.asarray(getattr(self, k))
             if a.shape != shape:
-                raise ValueError(f"FusionView {self.name!r}: {k} has shape {a.shape}, "
-                                 f"expected {shape} from the camera")
+                raise ValueError(
+                    f"FusionView {self.name!r}: {k} has shape {a.shape}, "
+                    f"expected {shape} from the camera"
+                )
             if k != "n_samp" and not np.all(np.isfinite(a)):
                 raise ValueError(f"FusionView {self.name!r}: {k} contains NaN/Inf")
             setattr(self, k, a)
@@ -58,8 +60,7 @@ class FusionView:
             raise ValueError(f"FusionView {self.name!r}: d_cam={self.d_cam} must be ≥ 0 and finite")
 
 
-def upload_view(view: FusionView, *, mask_pos: float, k_dg: float, eps: float,
-                device) -> ViewData:
+def upload_view(view: FusionView, *, mask_pos: float, k_dg: float, eps: float, device) -> ViewData:
     """Copy a view to ``device`` and precompute its integral images and π_dg."""
     cam = view.camera
     w2c = cam.w2c

@@ -18,9 +18,9 @@ from pathlib import Path
 
 from ..camera import Camera
 from ..errors import DivasInputError
-from .json_file import read_json
 from .cameras_json import read_cameras_json, write_cameras_json
 from .colmap import find_colmap_model, read_colmap, write_colmap
+from .json_file import read_json
 from .transforms_json import read_transforms_json, write_transforms_json
 
 __all__ = ["CAMERA_FORMATS", "detect_camera_format", "load_cameras", "save_cameras"]
@@ -35,8 +35,11 @@ def _json_kind(path: Path) -> str:
         return "cameras_json"
     if isinstance(data, dict) and "frames" in data:
         return "transforms_json"
-    raise DivasInputError(path, "unknown camera format: JSON is neither a list of cameras "
-                                "(3DGS cameras.json) nor an object with 'frames' (transforms.json)")
+    raise DivasInputError(
+        path,
+        "unknown camera format: JSON is neither a list of cameras "
+        "(3DGS cameras.json) nor an object with 'frames' (transforms.json)",
+    )
 
 
 def detect_camera_format(path: str | PathLike) -> tuple[str, Path]:
@@ -54,9 +57,12 @@ def detect_camera_format(path: str | PathLike) -> tuple[str, Path]:
         for name in ("transforms.json", "cameras.json"):
             if (p / name).is_file():
                 return _json_kind(p / name), p / name
-    raise DivasInputError(p, "unknown camera format (expected a 3DGS cameras.json, a "
-                             "transforms.json, or a COLMAP model folder with cameras.bin|txt + "
-                             "images.bin|txt, possibly in sparse/0)")
+    raise DivasInputError(
+        p,
+        "unknown camera format (expected a 3DGS cameras.json, a "
+        "transforms.json, or a COLMAP model folder with cameras.bin|txt + "
+        "images.bin|txt, possibly in sparse/0)",
+    )
 
 
 def load_cameras(path: str | PathLike) -> list[Camera]:
@@ -83,8 +89,11 @@ def save_cameras(path: str | PathLike, cameras: list[Camera], fmt: str | None = 
         elif p.suffix == "" or p.is_dir():
             fmt = "colmap"
         else:
-            raise DivasInputError(p, "cannot choose a camera format from this path: use a .json "
-                                     "file name or a folder (COLMAP), or pass fmt=")
+            raise DivasInputError(
+                p,
+                "cannot choose a camera format from this path: use a .json "
+                "file name or a folder (COLMAP), or pass fmt=",
+            )
     if fmt not in CAMERA_FORMATS:
         raise ValueError(f"unknown camera format {fmt!r}; choose one of {CAMERA_FORMATS}")
     if not cameras:

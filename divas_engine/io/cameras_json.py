@@ -34,9 +34,18 @@ def read_cameras_json(path: str | PathLike) -> list[Camera]:
             c2w[:3, :3] = np.asarray(e["rotation"], dtype=np.float64)
             c2w[:3, 3] = np.asarray(e["position"], dtype=np.float64)
             w, h = int(e["width"]), int(e["height"])
-            cams.append(Camera(w, h, float(e["fx"]), float(e["fy"]),
-                               float(e.get("cx", w / 2.0)), float(e.get("cy", h / 2.0)),
-                               c2w, str(e.get("img_name", e.get("id", i)))))
+            cams.append(
+                Camera(
+                    w,
+                    h,
+                    float(e["fx"]),
+                    float(e["fy"]),
+                    float(e.get("cx", w / 2.0)),
+                    float(e.get("cy", h / 2.0)),
+                    c2w,
+                    str(e.get("img_name", e.get("id", i))),
+                )
+            )
         except (KeyError, TypeError, ValueError) as err:
             what = f"missing key {err}" if isinstance(err, KeyError) else str(err)
             raise DivasInputError(path, f"camera entry {i}: {what}") from None
@@ -47,8 +56,18 @@ def write_cameras_json(path: str | PathLike, cameras: list[Camera]) -> None:
     """Write cameras in the 3DGS schema (plus ``cx``/``cy`` so no intrinsic is lost)."""
     out = []
     for i, c in enumerate(cameras):
-        out.append({"id": i, "img_name": c.name or f"{i:05d}", "width": c.width,
-                    "height": c.height, "position": c.c2w[:3, 3].tolist(),
-                    "rotation": c.c2w[:3, :3].tolist(), "fx": c.fx, "fy": c.fy,
-                    "cx": c.cx, "cy": c.cy})
+        out.append(
+            {
+                "id": i,
+                "img_name": c.name or f"{i:05d}",
+                "width": c.width,
+                "height": c.height,
+                "position": c.c2w[:3, 3].tolist(),
+                "rotation": c.c2w[:3, :3].tolist(),
+                "fx": c.fx,
+                "fy": c.fy,
+                "cx": c.cx,
+                "cy": c.cy,
+            }
+        )
     Path(path).write_text(json.dumps(out, indent=1))

@@ -42,21 +42,40 @@ import numpy as np
 from ..camera import Camera
 from ..errors import DivasInputError
 
-__all__ = ["CAMERA_MODELS", "ColmapCamera", "ColmapImage", "find_colmap_model", "qvec_to_rotmat",
-           "read_colmap", "read_colmap_model", "rotmat_to_qvec", "write_colmap"]
+__all__ = [
+    "CAMERA_MODELS",
+    "ColmapCamera",
+    "ColmapImage",
+    "find_colmap_model",
+    "qvec_to_rotmat",
+    "read_colmap",
+    "read_colmap_model",
+    "rotmat_to_qvec",
+    "write_colmap",
+]
 
 #: model name -> (model id, number of params), as in COLMAP's ``models.h``.
 CAMERA_MODELS: dict[str, tuple[int, int]] = {
-    "SIMPLE_PINHOLE": (0, 3), "PINHOLE": (1, 4), "SIMPLE_RADIAL": (2, 4), "RADIAL": (3, 5),
-    "OPENCV": (4, 8), "OPENCV_FISHEYE": (5, 8), "FULL_OPENCV": (6, 12), "FOV": (7, 5),
-    "SIMPLE_RADIAL_FISHEYE": (8, 4), "RADIAL_FISHEYE": (9, 5), "THIN_PRISM_FISHEYE": (10, 12),
+    "SIMPLE_PINHOLE": (0, 3),
+    "PINHOLE": (1, 4),
+    "SIMPLE_RADIAL": (2, 4),
+    "RADIAL": (3, 5),
+    "OPENCV": (4, 8),
+    "OPENCV_FISHEYE": (5, 8),
+    "FULL_OPENCV": (6, 12),
+    "FOV": (7, 5),
+    "SIMPLE_RADIAL_FISHEYE": (8, 4),
+    "RADIAL_FISHEYE": (9, 5),
+    "THIN_PRISM_FISHEYE": (10, 12),
     "RAD_TAN_THIN_PRISM_FISHEYE": (11, 16),
 }
 _MODEL_BY_ID = {mid: (name, n) for name, (mid, n) in CAMERA_MODELS.items()}
 #: supported models: name -> (indices of fx, fy, cx, cy in params, first distortion index)
 _SUPPORTED: dict[str, tuple[tuple[int, int, int, int], int]] = {
-    "SIMPLE_PINHOLE": ((0, 0, 1, 2), 3), "PINHOLE": ((0, 1, 2, 3), 4),
-    "SIMPLE_RADIAL": ((0, 0, 1, 2), 3), "RADIAL": ((0, 0, 1, 2), 3),
+    "SIMPLE_PINHOLE": ((0, 0, 1, 2), 3),
+    "PINHOLE": ((0, 1, 2, 3), 4),
+    "SIMPLE_RADIAL": ((0, 0, 1, 2), 3),
+    "RADIAL": ((0, 0, 1, 2), 3),
     "OPENCV": ((0, 1, 2, 3), 4),
 }
 
@@ -87,10 +106,13 @@ class ColmapImage:
 def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
     """``[3,3]`` rotation of the unit quaternion ``(w, x, y, z)`` (normalised first)."""
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def rotmat_to_qvec(r: np.ndarray) -> np.ndarray:
@@ -155,24 +177,31 @@ class _Buf:
     def take(self, fmt: str, what: str) -> tuple:
         n = struct.calcsize(fmt)
         if self.pos + n > len(self.data):
-            raise DivasInputError(self.path, f"truncated binary file: {what} needs {n} bytes at "
-                                             f"offset {self.pos}, file has {len(self.data)}")
+            raise DivasInputError(
+                self.path,
+                f"truncated binary file: {what} needs {n} bytes at "
+                f"offset {self.pos}, file has {len(self.data)}",
+            )
         out = struct.unpack_from(fmt, self.data, self.pos)
         self.pos += n
         return out
 
     def skip(self, n: int, what: str) -> None:
         if n < 0 or self.pos + n > len(self.data):
-            raise DivasInputError(self.path, f"truncated binary file: {what} needs {n} bytes at "
-                                             f"offset {self.pos}, file has {len(self.data)}")
+            raise DivasInputError(
+                self.path,
+                f"truncated binary file: {what} needs {n} bytes at "
+                f"offset {self.pos}, file has {len(self.data)}",
+            )
         self.pos += n
 
     def cstring(self, what: str) -> str:
         end = self.data.find(b"\0", self.pos)
         if end < 0:
-            raise DivasInputError(self.path,
-                                  f"truncated binary file: {what} has no terminating NUL")
-        raw = self.data[self.pos:end]
+            raise DivasInputError(
+                self.path, f"truncated binary file: {what} has no terminating NUL"
+            )
+        raw = self.data[self.pos : end]
         self.pos = end + 1
         try:
             return raw.decode("utf-8")
@@ -183,14 +212,20 @@ class _Buf:
         (n,) = self.take("<Q", f"number of {what}")
         if n * min_record > len(self.data) - self.pos:
             left = len(self.data) - self.pos
-            raise DivasInputError(self.path, f"truncated or corrupt binary file: header says "
-                                             f"{n} {what}, but only {left} bytes follow")
+            raise DivasInputError(
+                self.path,
+                f"truncated or corrupt binary file: header says "
+                f"{n} {what}, but only {left} bytes follow",
+            )
         return n
 
     def finish(self) -> None:
         if self.pos != len(self.data):
-            raise DivasInputError(self.path, f"corrupt binary file: {len(self.data) - self.pos} "
-                                             f"unexpected trailing bytes at offset {self.pos}")
+            raise DivasInputError(
+                self.path,
+                f"corrupt binary file: {len(self.data) - self.pos} "
+                f"unexpected trailing bytes at offset {self.pos}",
+            )
 
 
 def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
@@ -199,8 +234,9 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
     for i in range(b.count(24, "cameras")):
         cam_id, model_id, w, h = b.take("<IiQQ", f"camera record {i}")
         if model_id not in _MODEL_BY_ID:
-            raise DivasInputError(path, f"camera {cam_id}: unknown COLMAP camera model id "
-                                        f"{model_id}")
+            raise DivasInputError(
+                path, f"camera {cam_id}: unknown COLMAP camera model id {model_id}"
+            )
         model, n = _MODEL_BY_ID[model_id]
         params = b.take(f"<{n}d", f"camera {cam_id} parameters")
         if cam_id in out:
@@ -242,13 +278,17 @@ def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
             cam_id, model, w, h = int(e[0]), e[1], int(e[2]), int(e[3])
             params = tuple(float(v) for v in e[4:])
         except (IndexError, ValueError):
-            raise DivasInputError(path, f"line {ln}: expected 'CAMERA_ID MODEL WIDTH HEIGHT "
-                                        f"PARAMS…', got {s[:80]!r}") from None
+            raise DivasInputError(
+                path, f"line {ln}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS…', got {s[:80]!r}"
+            ) from None
         if model not in CAMERA_MODELS:
             raise DivasInputError(path, f"line {ln}: unknown COLMAP camera model {model!r}")
         if len(params) != CAMERA_MODELS[model][1]:
-            raise DivasInputError(path, f"line {ln}: camera model {model} takes "
-                                        f"{CAMERA_MODELS[model][1]} parameters, got {len(params)}")
+            raise DivasInputError(
+                path,
+                f"line {ln}: camera model {model} takes "
+                f"{CAMERA_MODELS[model][1]} parameters, got {len(params)}",
+            )
         if cam_id in out:
             raise DivasInputError(path, f"line {ln}: camera id {cam_id} is defined twice")
         out[cam_id] = ColmapCamera(cam_id, model, w, h, params)
@@ -284,26 +324,34 @@ def _read_images_txt(path: Path) -> list[ColmapImage]:
             vals = [float(v) for v in e[1:8]]
             cam_id = int(e[8])
         except ValueError:
-            raise DivasInputError(path, f"line {k}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ "
-                                        f"CAMERA_ID NAME', got {s[:80]!r}") from None
-        out.append(ColmapImage(img_id, np.array(vals[:4]), np.array(vals[4:]), cam_id,
-                               " ".join(e[9:])))
+            raise DivasInputError(
+                path,
+                f"line {k}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ "
+                f"CAMERA_ID NAME', got {s[:80]!r}",
+            ) from None
+        out.append(
+            ColmapImage(img_id, np.array(vals[:4]), np.array(vals[4:]), cam_id, " ".join(e[9:]))
+        )
         if k < len(lines) and _is_points_line(lines[k]):
             k += 1  # the POINTS2D line that follows every image line (may be empty)
     return out
 
 
 # --- public API ----------------------------------------------------------------
-def read_colmap_model(path: str | PathLike) -> tuple[dict[int, ColmapCamera], list[ColmapImage],
-                                                      tuple[Path, Path]]:
+def read_colmap_model(
+    path: str | PathLike,
+) -> tuple[dict[int, ColmapCamera], list[ColmapImage], tuple[Path, Path]]:
     """Raw COLMAP cameras (by id), images and the two files read.
 
     ``path``: a model folder, a scene folder with ``sparse/0`` or ``sparse``, or one model file.
     """
     d = find_colmap_model(path)
     if d is None:
-        raise DivasInputError(path, "no COLMAP model found (expected cameras.bin + images.bin or "
-                                    "cameras.txt + images.txt here, in sparse/0 or in sparse)")
+        raise DivasInputError(
+            path,
+            "no COLMAP model found (expected cameras.bin + images.bin or "
+            "cameras.txt + images.txt here, in sparse/0 or in sparse)",
+        )
     cpath, ipath = _model_files(d)  # type: ignore[misc]
     if cpath.suffix == ".bin":
         return _read_cameras_bin(cpath), _read_images_bin(ipath), (cpath, ipath)
@@ -319,21 +367,30 @@ def read_colmap(path: str | PathLike) -> list[Camera]:
     out: list[Camera] = []
     for im in images:
         if im.camera_id not in cams:
-            raise DivasInputError(ipath, f"image {im.image_id} ({im.name!r}) refers to camera "
-                                         f"{im.camera_id}, which {cpath.name} does not define "
-                                         f"(cameras: {sorted(cams)[:10]})")
+            raise DivasInputError(
+                ipath,
+                f"image {im.image_id} ({im.name!r}) refers to camera "
+                f"{im.camera_id}, which {cpath.name} does not define "
+                f"(cameras: {sorted(cams)[:10]})",
+            )
         c = cams[im.camera_id]
         if c.model not in _SUPPORTED:
-            raise DivasInputError(cpath, f"camera {c.camera_id}: COLMAP model {c.model} is not "
-                                         f"supported (use PINHOLE/SIMPLE_PINHOLE; undistort the "
-                                         f"images first, e.g. `colmap image_undistorter`)")
+            raise DivasInputError(
+                cpath,
+                f"camera {c.camera_id}: COLMAP model {c.model} is not "
+                f"supported (use PINHOLE/SIMPLE_PINHOLE; undistort the "
+                f"images first, e.g. `colmap image_undistorter`)",
+            )
         (ifx, ify, icx, icy), d0 = _SUPPORTED[c.model]
         if any(v != 0.0 for v in c.params[d0:]):
             distorted.append(f"{c.camera_id} ({c.model})")
         qn = float(np.linalg.norm(im.qvec))
         if not math.isfinite(qn) or qn < 1e-12:
-            raise DivasInputError(ipath, f"image {im.image_id} ({im.name!r}): invalid rotation "
-                                         f"quaternion {im.qvec.tolist()}")
+            raise DivasInputError(
+                ipath,
+                f"image {im.image_id} ({im.name!r}): invalid rotation "
+                f"quaternion {im.qvec.tolist()}",
+            )
         r = qvec_to_rotmat(im.qvec)
         c2w = np.eye(4)
         c2w[:3, :3] = r.T
@@ -344,10 +401,13 @@ def read_colmap(path: str | PathLike) -> list[Camera]:
         except ValueError as e:
             raise DivasInputError(cpath, f"camera {c.camera_id} (image {im.name!r}): {e}") from None
     if distorted:
-        warnings.warn(f"{cpath}: lens distortion of camera(s) {', '.join(sorted(set(distorted)))} "
-                      f"is ignored; the cameras are treated as pinhole. Undistort the images "
-                      f"(e.g. `colmap image_undistorter`) for accurate results.", UserWarning,
-                      stacklevel=2)
+        warnings.warn(
+            f"{cpath}: lens distortion of camera(s) {', '.join(sorted(set(distorted)))} "
+            f"is ignored; the cameras are treated as pinhole. Undistort the images "
+            f"(e.g. `colmap image_undistorter`) for accurate results.",
+            UserWarning,
+            stacklevel=2,
+        )
     out.sort(key=lambda cam: cam.name)
     return out
 
@@ -367,8 +427,12 @@ def write_colmap(path: str | PathLike, cameras: list[Camera], binary: bool = Tru
     d = Path(path)
     d.mkdir(parents=True, exist_ok=True)
     if not binary and (d / "cameras.bin").exists():
-        warnings.warn(f"{d}: cameras.bin exists next to the text model being written; COLMAP "
-                      f"and this reader prefer the binary files", UserWarning, stacklevel=2)
+        warnings.warn(
+            f"{d}: cameras.bin exists next to the text model being written; COLMAP "
+            f"and this reader prefer the binary files",
+            UserWarning,
+            stacklevel=2,
+        )
     intr: dict[tuple, int] = {}
     cam_rows: list[tuple[int, int, int, tuple[float, ...]]] = []
     img_rows: list[tuple[int, np.ndarray, np.ndarray, int, str]] = []
@@ -378,8 +442,15 @@ def write_colmap(path: str | PathLike, cameras: list[Camera], binary: bool = Tru
             intr[key] = len(intr) + 1
             cam_rows.append((intr[key], c.width, c.height, (c.fx, c.fy, c.cx, c.cy)))
         w2c = c.w2c
-        img_rows.append((i + 1, rotmat_to_qvec(w2c[:3, :3]), w2c[:3, 3], intr[key],
-                         _check_name(c.name or f"image_{i:05d}")))
+        img_rows.append(
+            (
+                i + 1,
+                rotmat_to_qvec(w2c[:3, :3]),
+                w2c[:3, 3],
+                intr[key],
+                _check_name(c.name or f"image_{i:05d}"),
+            )
+        )
     pin_id = CAMERA_MODELS["PINHOLE"][0]
     if binary:
         cb = [struct.pack("<Q", len(cam_rows))]
@@ -387,27 +458,37 @@ def write_colmap(path: str | PathLike, cameras: list[Camera], binary: bool = Tru
             cb.append(struct.pack("<IiQQ4d", cid, pin_id, w, h, *p))
         ib = [struct.pack("<Q", len(img_rows))]
         for iid, q, t, cid, name in img_rows:
-            ib.append(struct.pack("<I7dI", iid, *q, *t, cid) + name.encode("utf-8") + b"\0"
-                      + struct.pack("<Q", 0))
+            ib.append(
+                struct.pack("<I7dI", iid, *q, *t, cid)
+                + name.encode("utf-8")
+                + b"\0"
+                + struct.pack("<Q", 0)
+            )
         (d / "cameras.bin").write_bytes(b"".join(cb))
         (d / "images.bin").write_bytes(b"".join(ib))
         (d / "points3D.bin").write_bytes(struct.pack("<Q", 0))
     else:
         g = lambda v: format(float(v), ".17g")  # noqa: E731  (exact float round trip)
-        ct = ["# Camera list with one line of data per camera:",
-              "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
-              f"# Number of cameras: {len(cam_rows)}"]
+        ct = [
+            "# Camera list with one line of data per camera:",
+            "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
+            f"# Number of cameras: {len(cam_rows)}",
+        ]
         ct += [f"{cid} PINHOLE {w} {h} " + " ".join(g(v) for v in p) for cid, w, h, p in cam_rows]
-        it = ["# Image list with two lines of data per image:",
-              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
-              "#   POINTS2D[] as (X, Y, POINT3D_ID)",
-              f"# Number of images: {len(img_rows)}, mean observations per image: 0"]
+        it = [
+            "# Image list with two lines of data per image:",
+            "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+            "#   POINTS2D[] as (X, Y, POINT3D_ID)",
+            f"# Number of images: {len(img_rows)}, mean observations per image: 0",
+        ]
         for iid, q, t, cid, name in img_rows:
             it.append(f"{iid} " + " ".join(g(v) for v in (*q, *t)) + f" {cid} {name}")
             it.append("")
         (d / "cameras.txt").write_text("\n".join(ct) + "\n")
         (d / "images.txt").write_text("\n".join(it) + "\n")
-        (d / "points3D.txt").write_text("# 3D point list with one line of data per point:\n"
-                                        "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n"
-                                        "# Number of points: 0, mean track length: 0\n")
+        (d / "points3D.txt").write_text(
+            "# 3D point list with one line of data per point:\n"
+            "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n"
+            "# Number of points: 0, mean track length: 0\n"
+        )
     return d

@@ -55,15 +55,31 @@ from ..scene import SH_C0, SourceInfo, SurfelScene, sh_coeff_count
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS, PlyLayout, read_ply_header, write_ply_rows
 
-__all__ = ["is_compressed_ply", "read_compressed_ply", "write_compressed_ply_subset",
-           "decode_compressed_ply_rows", "SPLATS_PER_CHUNK"]
+__all__ = [
+    "is_compressed_ply",
+    "read_compressed_ply",
+    "write_compressed_ply_subset",
+    "decode_compressed_ply_rows",
+    "SPLATS_PER_CHUNK",
+]
 
 #: Splats that share one row of chunk bounds.
 SPLATS_PER_CHUNK = 256
 
-_CHUNK_BASE = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
-               "min_scale_x", "min_scale_y", "min_scale_z",
-               "max_scale_x", "max_scale_y", "max_scale_z")
+_CHUNK_BASE = (
+    "min_x",
+    "min_y",
+    "min_z",
+    "max_x",
+    "max_y",
+    "max_z",
+    "min_scale_x",
+    "min_scale_y",
+    "min_scale_z",
+    "max_scale_x",
+    "max_scale_y",
+    "max_scale_z",
+)
 _CHUNK_COLOR = ("min_r", "min_g", "min_b", "max_r", "max_g", "max_b")
 _PACKED = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
 _SQRT2 = np.sqrt(2.0)
@@ -90,8 +106,11 @@ class _Layout:
         off = layout.data_offset
         for e in layout.elements:
             if any(isinstance(p, plyfile.PlyListProperty) for p in e.properties):
-                raise DivasInputError(path, f"compressed PLY element '{e.name}' has list "
-                                            "properties; expected fixed-size rows")
+                raise DivasInputError(
+                    path,
+                    f"compressed PLY element '{e.name}' has list "
+                    "properties; expected fixed-size rows",
+                )
             offsets[e.name] = off
             off += e.count * np.dtype(e.dtype(layout.byte_order)).itemsize
         chunk, vertex = layout.element("chunk"), layout.element("vertex")
@@ -118,8 +137,11 @@ class _Layout:
             raise DivasInputError(path, "empty scene: the compressed PLY has 0 vertices")
         expect = -(-self.n // SPLATS_PER_CHUNK)
         if self.n_chunks != expect:
-            raise DivasInputError(path, f"compressed PLY has {self.n_chunks} chunks for "
-                                        f"{self.n} splats; expected {expect} (256 per chunk)")
+            raise DivasInputError(
+                path,
+                f"compressed PLY has {self.n_chunks} chunks for "
+                f"{self.n} splats; expected {expect} (256 per chunk)",
+            )
         self.chunk_off = offsets["chunk"]
         self.vertex_off = offsets["vertex"]
         sh = layout.element("sh")
@@ -132,49 +154,61 @@ class _Layout:
             n_rest = len(dt.names)
             degs = {3 * (sh_coeff_count(d) - 1): d for d in (1, 2, 3)}
             if n_rest not in degs:
-                raise DivasInputError(path, f"compressed PLY 'sh' element has {n_rest} "
-                                            "properties; expected 9, 24 or 45")
+                raise DivasInputError(
+                    path,
+                    f"compressed PLY 'sh' element has {n_rest} properties; expected 9, 24 or 45",
+                )
             want = [f"f_rest_{i}" for i in range(n_rest)]
             if set(dt.names) != set(want) or any(dt[nm] != np.dtype("u1") for nm in want):
-                raise DivasInputError(path, "compressed PLY 'sh' element must hold uchar "
-                                            f"f_rest_0..{n_rest - 1}")
+                raise DivasInputError(
+                    path, f"compressed PLY 'sh' element must hold uchar f_rest_0..{n_rest - 1}"
+                )
             if sh.count != self.n:
-                raise DivasInputError(path, f"compressed PLY 'sh' element has {sh.count} "
-                                            f"rows for {self.n} vertices")
+                raise DivasInputError(
+                    path, f"compressed PLY 'sh' element has {sh.count} rows for {self.n} vertices"
+                )
             self.sh_dtype, self.sh_off, self.sh_names = dt, offsets["sh"], want
             self.sh_degree = degs[n_rest]
         size = Path(path).stat().st_size
         if size < off:
-            raise DivasInputError(path, f"truncated compressed PLY: header promises {off} "
-                                        f"bytes, file has {size}")
+            raise DivasInputError(
+                path, f"truncated compressed PLY: header promises {off} bytes, file has {size}"
+            )
 
     def read_chunks(self) -> dict[str, np.ndarray | None]:
-        c = np.fromfile(self.path, dtype=self.chunk_dtype, count=self.n_chunks,
-                        offset=self.chunk_off)
+        c = np.fromfile(
+            self.path, dtype=self.chunk_dtype, count=self.n_chunks, offset=self.chunk_off
+        )
         if len(c) != self.n_chunks:
             raise DivasInputError(self.path, "truncated compressed PLY chunk data")
 
         def cols(*names: str) -> np.ndarray:
             return np.stack([c[nm].astype(np.float64) for nm in names], axis=1)
 
-        out = {"pmin": cols("min_x", "min_y", "min_z"), "pmax": cols("max_x", "max_y", "max_z"),
-               "smin": cols("min_scale_x", "min_scale_y", "min_scale_z"),
-               "smax": cols("max_scale_x", "max_scale_y", "max_scale_z"),
-               "cmin": None, "cmax": None}
+        out = {
+            "pmin": cols("min_x", "min_y", "min_z"),
+            "pmax": cols("max_x", "max_y", "max_z"),
+            "smin": cols("min_scale_x", "min_scale_y", "min_scale_z"),
+            "smax": cols("max_scale_x", "max_scale_y", "max_scale_z"),
+            "cmin": None,
+            "cmax": None,
+        }
         if self.has_color:
             out["cmin"] = cols("min_r", "min_g", "min_b")
             out["cmax"] = cols("max_r", "max_g", "max_b")
         return out
 
     def vertex_memmap(self) -> np.memmap:
-        return np.memmap(self.path, dtype=self.vertex_dtype, mode="r",
-                         offset=self.vertex_off, shape=(self.n,))
+        return np.memmap(
+            self.path, dtype=self.vertex_dtype, mode="r", offset=self.vertex_off, shape=(self.n,)
+        )
 
     def sh_memmap(self) -> np.memmap | None:
         if self.sh_dtype is None:
             return None
-        return np.memmap(self.path, dtype=self.sh_dtype, mode="r", offset=self.sh_off,
-                         shape=(self.n,))
+        return np.memmap(
+            self.path, dtype=self.sh_dtype, mode="r", offset=self.sh_off, shape=(self.n,)
+        )
 
 
 def _unorm(word: np.ndarray, shift: int, bits: int) -> np.ndarray:
@@ -193,9 +227,14 @@ def _lerp(lo: np.ndarray, hi: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _unpack_rotation(word: np.ndarray) -> np.ndarray:
     """``[n,4]`` float64 quaternions (w, x, y, z) from ``packed_rotation`` words."""
     n = len(word)
-    small = np.stack([(_unorm(word, 20, 10) - 0.5) * _SQRT2,
-                      (_unorm(word, 10, 10) - 0.5) * _SQRT2,
-                      (_unorm(word, 0, 10) - 0.5) * _SQRT2], axis=1)
+    small = np.stack(
+        [
+            (_unorm(word, 20, 10) - 0.5) * _SQRT2,
+            (_unorm(word, 10, 10) - 0.5) * _SQRT2,
+            (_unorm(word, 0, 10) - 0.5) * _SQRT2,
+        ],
+        axis=1,
+    )
     big = (word >> np.uint32(30)).astype(np.int64)
     q = np.empty((n, 4), np.float64)
     rows = np.arange(n)
@@ -208,16 +247,23 @@ def _unpack_rotation(word: np.ndarray) -> np.ndarray:
 
 def _decode_fields(packed: np.ndarray, chunk_idx: np.ndarray, ch: dict) -> dict[str, np.ndarray]:
     """Stored-space values of vertex rows (float64), given each row's chunk index."""
-    pos = _lerp(ch["pmin"][chunk_idx], ch["pmax"][chunk_idx],
-                _unpack_111011(packed["packed_position"]))
-    log_s = _lerp(ch["smin"][chunk_idx], ch["smax"][chunk_idx],
-                  _unpack_111011(packed["packed_scale"]))
+    pos = _lerp(
+        ch["pmin"][chunk_idx], ch["pmax"][chunk_idx], _unpack_111011(packed["packed_position"])
+    )
+    log_s = _lerp(
+        ch["smin"][chunk_idx], ch["smax"][chunk_idx], _unpack_111011(packed["packed_scale"])
+    )
     cw = packed["packed_color"]
     rgb = np.stack([_unorm(cw, 24, 8), _unorm(cw, 16, 8), _unorm(cw, 8, 8)], axis=1)
     if ch["cmin"] is not None:
         rgb = _lerp(ch["cmin"][chunk_idx], ch["cmax"][chunk_idx], rgb)
-    return {"pos": pos, "log_scale": log_s, "rgb": rgb, "alpha": _unorm(cw, 0, 8),
-            "quat": _unpack_rotation(packed["packed_rotation"])}
+    return {
+        "pos": pos,
+        "log_scale": log_s,
+        "rgb": rgb,
+        "alpha": _unorm(cw, 0, 8),
+        "quat": _unpack_rotation(packed["packed_rotation"]),
+    }
 
 
 def _dequantize_sh(sh_rows: np.ndarray, names: list[str]) -> np.ndarray:
@@ -229,8 +275,9 @@ def _dequantize_sh(sh_rows: np.ndarray, names: list[str]) -> np.ndarray:
     return v
 
 
-def decode_compressed_ply_rows(path: str | PathLike, rows: np.ndarray | None = None,
-                               layout: PlyLayout | None = None) -> dict[str, np.ndarray]:
+def decode_compressed_ply_rows(
+    path: str | PathLike, rows: np.ndarray | None = None, layout: PlyLayout | None = None
+) -> dict[str, np.ndarray]:
     """Stored-space values of some (or all) rows, for tests and tools.
 
     Returns float64 ``pos [n,3]``, ``log_scale [n,3]``, ``rgb [n,3]`` (colour space),
@@ -242,8 +289,11 @@ def decode_compressed_ply_rows(path: str | PathLike, rows: np.ndarray | None = N
     ch = cl.read_chunks()
     out = _decode_fields(np.asarray(cl.vertex_memmap()[rows]), rows // SPLATS_PER_CHUNK, ch)
     shm = cl.sh_memmap()
-    out["f_rest"] = (np.zeros((len(rows), 0), np.float32) if shm is None
-                     else _dequantize_sh(np.asarray(shm[rows]), cl.sh_names))
+    out["f_rest"] = (
+        np.zeros((len(rows), 0), np.float32)
+        if shm is None
+        else _dequantize_sh(np.asarray(shm[rows]), cl.sh_names)
+    )
     return out
 
 
@@ -272,12 +322,16 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
         sl = slice(start, stop)
         rows = np.arange(start, stop)
         f = _decode_fields(np.asarray(vmm[sl]), rows // SPLATS_PER_CHUNK, ch)
-        ok = (np.isfinite(f["pos"]).all(1) & np.isfinite(f["log_scale"]).all(1)
-              & np.isfinite(f["rgb"]).all(1))
+        ok = (
+            np.isfinite(f["pos"]).all(1)
+            & np.isfinite(f["log_scale"]).all(1)
+            & np.isfinite(f["rgb"]).all(1)
+        )
         with np.errstate(over="ignore", invalid="ignore"):
             s_act = np.exp(np.clip(f["log_scale"], -80.0, 80.0)).astype(np.float32)
-        q2, s2 = surfels_from_arrays(f["quat"].astype(np.float32),
-                                     np.where(ok[:, None], s_act, np.float32(1.0)))
+        q2, s2 = surfels_from_arrays(
+            f["quat"].astype(np.float32), np.where(ok[:, None], s_act, np.float32(1.0))
+        )
         means[sl] = f["pos"]
         quats[sl], scales[sl] = q2, s2
         opac[sl] = f["alpha"]
@@ -287,8 +341,9 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
             sh[sl, 1:, :] = rest.reshape(-1, 3, k - 1).transpose(0, 2, 1)
         finite[sl] = ok
 
-    return scene_from_rows(path, "compressed_ply", (means, quats, scales, opac, sh), finite, deg,
-                           "3dgs")
+    return scene_from_rows(
+        path, "compressed_ply", (means, quats, scales, opac, sh), finite, deg, "3dgs"
+    )
 
 
 def _chunk_bounds(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -316,12 +371,16 @@ def _pack_unorm(t: np.ndarray, bits: int) -> np.ndarray:
 
 
 def _pack_111011(t: np.ndarray) -> np.ndarray:
-    return ((_pack_unorm(t[:, 0], 11) << np.uint32(21)) | (_pack_unorm(t[:, 1], 10) << np.uint32(11))
-            | _pack_unorm(t[:, 2], 11))
+    return (
+        (_pack_unorm(t[:, 0], 11) << np.uint32(21))
+        | (_pack_unorm(t[:, 1], 10) << np.uint32(11))
+        | _pack_unorm(t[:, 2], 11)
+    )
 
 
-def write_compressed_ply_subset(source: SourceInfo, file_rows: np.ndarray,
-                                out_path: str | PathLike) -> None:
+def write_compressed_ply_subset(
+    source: SourceInfo, file_rows: np.ndarray, out_path: str | PathLike
+) -> None:
     """Write rows ``file_rows`` (in that order) of a compressed PLY as a new one.
 
     Positions, log-scales and (with colour bounds) colours are re-encoded against
@@ -357,10 +416,12 @@ def write_compressed_ply_subset(source: SourceInfo, file_rows: np.ndarray,
         rgb = f["rgb"].astype(np.float32).astype(np.float64)
         cmin, cmax = _chunk_bounds(rgb)
         t = _normalize(rgb, cmin[ci], cmax[ci])
-        out_v["packed_color"] = ((_pack_unorm(t[:, 0], 8) << np.uint32(24))
-                                 | (_pack_unorm(t[:, 1], 8) << np.uint32(16))
-                                 | (_pack_unorm(t[:, 2], 8) << np.uint32(8))
-                                 | (cw & np.uint32(0xFF)))
+        out_v["packed_color"] = (
+            (_pack_unorm(t[:, 0], 8) << np.uint32(24))
+            | (_pack_unorm(t[:, 1], 8) << np.uint32(16))
+            | (_pack_unorm(t[:, 2], 8) << np.uint32(8))
+            | (cw & np.uint32(0xFF))
+        )
         names += list(_CHUNK_COLOR)
         bounds += [cmin, cmax]
     else:

@@ -28,7 +28,9 @@ def read_density_grid(path: str | PathLike) -> DensityGrid:
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)
             if "density" not in keys or "aabb" not in keys:
-                raise DivasInputError(path, f"density grid needs keys 'density' and 'aabb', has {sorted(keys)}")
+                raise DivasInputError(
+                    path, f"density grid needs keys 'density' and 'aabb', has {sorted(keys)}"
+                )
             density = np.asarray(z["density"], dtype=np.float32)
             aabb = np.asarray(z["aabb"], dtype=np.float64)
             rgb = np.asarray(z["rgb"], dtype=np.float32) if "rgb" in keys else None
@@ -37,9 +39,13 @@ def read_density_grid(path: str | PathLike) -> DensityGrid:
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
         raise DivasInputError(path, f"not a readable .npz density grid ({e})") from None
     if density.ndim != 3 or min(density.shape) < 2:
-        raise DivasInputError(path, f"'density' must be [D,H,W] with every side ≥ 2, got {density.shape}")
+        raise DivasInputError(
+            path, f"'density' must be [D,H,W] with every side ≥ 2, got {density.shape}"
+        )
     if aabb.shape != (2, 3) or not np.all(np.isfinite(aabb)) or np.any(aabb[1] <= aabb[0]):
-        raise DivasInputError(path, f"'aabb' must be finite [2,3] with max > min, got {aabb.tolist()}")
+        raise DivasInputError(
+            path, f"'aabb' must be finite [2,3] with max > min, got {aabb.tolist()}"
+        )
     if rgb is not None and rgb.shape != density.shape + (3,):
         raise DivasInputError(path, f"'rgb' must be {density.shape + (3,)}, got {rgb.shape}")
     bad = ~np.isfinite(density)

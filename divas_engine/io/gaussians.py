@@ -12,7 +12,13 @@ from ..errors import DivasInputError
 from ..geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
 from ..scene import SourceInfo, SurfelScene
 
-__all__ = ["sigmoid", "flatten_to_surfels", "surfels_from_arrays", "scene_from_rows", "check_file_rows"]
+__all__ = [
+    "sigmoid",
+    "flatten_to_surfels",
+    "surfels_from_arrays",
+    "scene_from_rows",
+    "check_file_rows",
+]
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
@@ -56,9 +62,16 @@ def surfels_from_arrays(quats_raw: np.ndarray, scales: np.ndarray) -> tuple[np.n
     return q, np.ascontiguousarray(scales, dtype=np.float32)
 
 
-def scene_from_rows(path, fmt: str, arrays: tuple[np.ndarray, ...], valid: np.ndarray,
-                    sh_degree: int, kind: str, extras: dict | None = None,
-                    invalid_what: str = "NaN/Inf values") -> SurfelScene:
+def scene_from_rows(
+    path,
+    fmt: str,
+    arrays: tuple[np.ndarray, ...],
+    valid: np.ndarray,
+    sh_degree: int,
+    kind: str,
+    extras: dict | None = None,
+    invalid_what: str = "NaN/Inf values",
+) -> SurfelScene:
     """The scene of every decoder: drop the rows where ``valid`` is False, count them.
 
     ``arrays`` = ``(means, quats, scales, opacities, sh)`` over all file rows, in file order.

@@ -15,7 +15,6 @@ channel-major: ``f_rest[c*(K-1) + k]`` is coefficient ``k+1`` of channel ``c``.
 
 from __future__ import annotations
 
-
 from os import PathLike
 from pathlib import Path
 
@@ -27,14 +26,34 @@ from ..geometry import normalize_quats
 from ..scene import SurfelScene, sh_coeff_count
 from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
 
-__all__ = ["PlyLayout", "read_ply_header", "read_gaussian_ply", "write_surfel_ply", "surfel_rows",
-           "write_ply_rows", "CHUNK_ROWS"]
+__all__ = [
+    "PlyLayout",
+    "read_ply_header",
+    "read_gaussian_ply",
+    "write_surfel_ply",
+    "surfel_rows",
+    "write_ply_rows",
+    "CHUNK_ROWS",
+]
 
 #: Rows converted per chunk: bounds the transient memory of a load.
 CHUNK_ROWS = 1 << 18
 
-_REQUIRED = ("x", "y", "z", "opacity", "scale_0", "scale_1", "rot_0", "rot_1", "rot_2",
-             "rot_3", "f_dc_0", "f_dc_1", "f_dc_2")
+_REQUIRED = (
+    "x",
+    "y",
+    "z",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+)
 
 
 class PlyLayout:
@@ -96,7 +115,9 @@ def read_ply_header(path: str | PathLike) -> PlyLayout:
             need += e.count * np.dtype(e.dtype(header.byte_order)).itemsize
         size = path.stat().st_size
         if need is not None and size < need:
-            raise DivasInputError(path, f"truncated PLY: header promises {need} bytes, file has {size}")
+            raise DivasInputError(
+                path, f"truncated PLY: header promises {need} bytes, file has {size}"
+            )
     return layout
 
 
@@ -142,8 +163,9 @@ def _sh_layout(path: Path, names: list[str]) -> int:
             if not expected <= set(names):
                 raise DivasInputError(path, "f_rest_* properties are not numbered 0..N-1")
             return deg
-    raise DivasInputError(path, f"{n_rest} f_rest_* properties match no SH degree 0-3 "
-                                "(expected 0, 9, 24 or 45)")
+    raise DivasInputError(
+        path, f"{n_rest} f_rest_* properties match no SH degree 0-3 (expected 0, 9, 24 or 45)"
+    )
 
 
 def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> SurfelScene:
@@ -179,7 +201,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
         sl = slice(start, start + len(rows))
 
         def col(name: str) -> np.ndarray:
-            return rows[name].astype(np.float32, copy=False)
+            return rows[name].astype(np.float32, copy=False)  # noqa: B023 (called in this iteration)
 
         m = np.stack([col("x"), col("y"), col("z")], 1)
         q = np.stack([col(f"rot_{i}") for i in range(4)], 1)
@@ -190,13 +212,27 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
             c[:, 0, ch] = col(f"f_dc_{ch}")
             for j in range(k - 1):
                 c[:, j + 1, ch] = col(rest_names[ch * (k - 1) + j])
-        ok = (np.isfinite(m).all(1) & np.isfinite(q).all(1) & np.isfinite(s).all(1)
-              & np.isfinite(o) & np.isfinite(c).all((1, 2)))
+        ok = (
+            np.isfinite(m).all(1)
+            & np.isfinite(q).all(1)
+            & np.isfinite(s).all(1)
+            & np.isfinite(o)
+            & np.isfinite(c).all((1, 2))
+        )
         with np.errstate(over="ignore", invalid="ignore"):
             s_act = np.exp(np.clip(s, -80.0, 80.0)).astype(np.float32)
         ok &= np.linalg.norm(q, axis=1) > 0
-        q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, 1.0), np.where(ok[:, None], s_act, 1.0))
-        means[sl], quats[sl], scales[sl], opac[sl], sh[sl], finite[sl] = m, q2, s2, sigmoid(o), c, ok
+        q2, s2 = surfels_from_arrays(
+            np.where(ok[:, None], q, 1.0), np.where(ok[:, None], s_act, 1.0)
+        )
+        means[sl], quats[sl], scales[sl], opac[sl], sh[sl], finite[sl] = (
+            m,
+            q2,
+            s2,
+            sigmoid(o),
+            c,
+            ok,
+        )
 
     return scene_from_rows(path, "ply", (means, quats, scales, opac, sh), finite, deg, kind)
 
@@ -242,14 +278,23 @@ def surfel_rows(scene: SurfelScene, *, flat_axis: float | None = None) -> np.nda
     return rows
 
 
-def write_ply_rows(path: str | PathLike, elements: dict[str, np.ndarray],
-                   comments: list[str] | None = None) -> None:
+def write_ply_rows(
+    path: str | PathLike, elements: dict[str, np.ndarray], comments: list[str] | None = None
+) -> None:
     """Write structured arrays as a binary little-endian PLY, one element per entry.
 
     Field order and types are kept exactly; big-endian fields are converted.
     """
-    type_names = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
-                  "u4": "uint", "f4": "float", "f8": "double"}
+    type_names = {
+        "i1": "char",
+        "u1": "uchar",
+        "i2": "short",
+        "u2": "ushort",
+        "i4": "int",
+        "u4": "uint",
+        "f4": "float",
+        "f8": "double",
+    }
     lines = ["ply", "format binary_little_endian 1.0"]
     lines += [f"comment {c}" for c in (comments or [])]
     bodies = []
@@ -269,5 +314,3 @@ def write_ply_rows(path: str | PathLike, elements: dict[str, np.ndarray],
         f.write(header)
         for b in bodies:
             b.tofile(f)
-
-

@@ -18,8 +18,16 @@ from .ply import iter_vertex_chunks, read_ply_header
 
 __all__ = ["write_ply_subset"]
 
-_PLY_TYPE = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
-             "u4": "uint", "f4": "float", "f8": "double"}
+_PLY_TYPE = {
+    "i1": "char",
+    "u1": "uchar",
+    "i2": "short",
+    "u2": "ushort",
+    "i4": "int",
+    "u4": "uint",
+    "f4": "float",
+    "f8": "double",
+}
 
 
 def _header(layout, counts: dict[str, int], extra: dict[str, np.dtype]) -> bytes:
@@ -37,8 +45,13 @@ def _header(layout, counts: dict[str, int], extra: dict[str, np.dtype]) -> bytes
     return ("\n".join(lines) + "\nend_header\n").encode("ascii")
 
 
-def write_ply_subset(src: str | PathLike, file_rows: np.ndarray | None, out: str | PathLike, *,
-                     extra_columns: dict[str, np.ndarray] | None = None) -> int:
+def write_ply_subset(
+    src: str | PathLike,
+    file_rows: np.ndarray | None,
+    out: str | PathLike,
+    *,
+    extra_columns: dict[str, np.ndarray] | None = None,
+) -> int:
     """Write the vertex rows ``file_rows`` (ascending file indices; None = all) of ``src``
     to ``out``, optionally with extra per-row vertex properties appended after the
     original ones (``extra_columns``: name → ``[num_rows]`` array over the *file* rows).
@@ -49,7 +62,9 @@ def write_ply_subset(src: str | PathLike, file_rows: np.ndarray | None, out: str
     src, out = Path(src), Path(out)
     layout = read_ply_header(src)
     n_file = layout.vertex.count
-    rows = np.arange(n_file, dtype=np.int64) if file_rows is None else np.asarray(file_rows, np.int64)
+    rows = (
+        np.arange(n_file, dtype=np.int64) if file_rows is None else np.asarray(file_rows, np.int64)
+    )
     if rows.size and (np.any(np.diff(rows) <= 0) or rows[0] < 0 or rows[-1] >= n_file):
         raise ValueError("file_rows must be strictly increasing indices into the vertex element")
     extra = {k: np.asarray(v) for k, v in (extra_columns or {}).items()}
@@ -71,7 +86,9 @@ def write_ply_subset(src: str | PathLike, file_rows: np.ndarray | None, out: str
         for e in layout.elements:
             if e.name != "vertex":
                 d = other_data[e.name]
-                np.asarray(d, dtype=[(n, d.dtype[n].newbyteorder("<")) for n in d.dtype.names]).tofile(f)
+                np.asarray(
+                    d, dtype=[(n, d.dtype[n].newbyteorder("<")) for n in d.dtype.names]
+                ).tofile(f)
                 continue
             for start, chunk in iter_vertex_chunks(layout):
                 lo, hi = np.searchsorted(rows, [start, start + len(chunk)])

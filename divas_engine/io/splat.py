@@ -33,8 +33,9 @@ from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 __all__ = ["SPLAT_DTYPE", "read_splat", "write_splat_subset"]
 
 #: One ``.splat`` record.
-SPLAT_DTYPE = np.dtype([("pos", "<f4", (3,)), ("scale", "<f4", (3,)),
-                        ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
+SPLAT_DTYPE = np.dtype(
+    [("pos", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))]
+)
 assert SPLAT_DTYPE.itemsize == 32
 
 _BLOCK = 1 << 20
@@ -48,8 +49,10 @@ def _row_count(path: Path) -> int:
     if size == 0:
         raise DivasInputError(path, "empty scene: the .splat file has 0 bytes")
     if size % SPLAT_DTYPE.itemsize:
-        raise DivasInputError(path, f".splat size {size} is not a multiple of 32 bytes "
-                                    "(truncated or not a .splat file)")
+        raise DivasInputError(
+            path,
+            f".splat size {size} is not a multiple of 32 bytes (truncated or not a .splat file)",
+        )
     return size // SPLAT_DTYPE.itemsize
 
 
@@ -72,22 +75,28 @@ def read_splat(path: str | PathLike) -> SurfelScene:
             sl = slice(start, start + n)
             q = (rows["rot"].astype(np.float32) - 128.0) / 128.0
             s = rows["scale"]
-            ok = (np.isfinite(rows["pos"]).all(1) & np.isfinite(s).all(1)
-                  & (np.abs(q).sum(1) > 0))
-            q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, np.float32(1.0)),
-                                         np.where(ok[:, None], s, np.float32(1.0)))
+            ok = np.isfinite(rows["pos"]).all(1) & np.isfinite(s).all(1) & (np.abs(q).sum(1) > 0)
+            q2, s2 = surfels_from_arrays(
+                np.where(ok[:, None], q, np.float32(1.0)), np.where(ok[:, None], s, np.float32(1.0))
+            )
             means[sl] = rows["pos"]
             quats[sl], scales[sl] = q2, s2
             rgba = rows["rgba"].astype(np.float32)
             opac[sl] = rgba[:, 3] / 255.0
             sh[sl, 0, :] = (rgba[:, :3] / 255.0 - 0.5) / SH_C0
             finite[sl] = ok
-    return scene_from_rows(path, "splat", (means, quats, scales, opac, sh), finite, 0, "3dgs",
-                           invalid_what="NaN/Inf values or zero rotations")
+    return scene_from_rows(
+        path,
+        "splat",
+        (means, quats, scales, opac, sh),
+        finite,
+        0,
+        "3dgs",
+        invalid_what="NaN/Inf values or zero rotations",
+    )
 
 
-def write_splat_subset(source: SourceInfo, file_rows: np.ndarray,
-                       out_path: str | PathLike) -> None:
+def write_splat_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | PathLike) -> None:
     """Copy the 32-byte records ``file_rows`` (in that order) of ``source`` to ``out_path``."""
     path = Path(source.path)
     total = _row_count(path)
@@ -97,4 +106,4 @@ def write_splat_subset(source: SourceInfo, file_rows: np.ndarray,
     mm = np.memmap(path, dtype=SPLAT_DTYPE, mode="r", shape=(total,))
     with open(out_path, "wb") as f:
         for start in range(0, len(rows), _BLOCK):
-            np.asarray(mm[rows[start:start + _BLOCK]]).tofile(f)
+            np.asarray(mm[rows[start : start + _BLOCK]]).tofile(f)

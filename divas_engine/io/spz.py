@@ -72,8 +72,9 @@ _FLAG_ANTIALIASED = 0x1
 _SQRT1_2 = np.float64(np.sqrt(0.5))
 _COLUMNS = ("positions", "alphas", "colors", "scales", "rotations", "sh")
 #: Sign of SH coefficients 1..15 (bands 1-3, 3DGS order) under (x, y, z) -> (x, -y, -z).
-RUB_TO_RDF_SH_SIGNS = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1],
-                               dtype=np.float32)
+RUB_TO_RDF_SH_SIGNS = np.array(
+    [-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], dtype=np.float32
+)
 _OTHERS = np.array([[i for i in range(4) if i != big] for big in range(4)], dtype=np.int64)
 
 
@@ -97,17 +98,26 @@ class _SpzFile:
 
 
 def _widths(version: int, n_sh_dim: int) -> dict[str, int]:
-    return {"positions": 9, "alphas": 1, "colors": 3, "scales": 3,
-            "rotations": 4 if version >= 3 else 3, "sh": n_sh_dim * 3}
+    return {
+        "positions": 9,
+        "alphas": 1,
+        "colors": 3,
+        "scales": 3,
+        "rotations": 4 if version >= 3 else 3,
+        "sh": n_sh_dim * 3,
+    }
 
 
 def _zstd(path: Path):
     try:
         import zstandard
     except ImportError:  # pragma: no cover - depends on the environment
-        raise DivasInputError(path, "SPZ version 4 files are zstd-compressed; reading or "
-                                    "writing them needs the 'zstandard' package "
-                                    "(pip install zstandard)") from None
+        raise DivasInputError(
+            path,
+            "SPZ version 4 files are zstd-compressed; reading or "
+            "writing them needs the 'zstandard' package "
+            "(pip install zstandard)",
+        ) from None
     return zstandard
 
 
@@ -129,14 +139,20 @@ def _parse_gzip(path: Path, data: bytes) -> _SpzFile:
     if magic != SPZ_MAGIC:
         raise DivasInputError(path, f"not an SPZ file (magic 0x{magic:08x}, expected 'NGSP')")
     if version not in (2, 3):
-        raise DivasInputError(path, f"unsupported SPZ version {version} in a gzip container "
-                                    "(supported: 2, 3; version 4 is not gzipped)")
+        raise DivasInputError(
+            path,
+            f"unsupported SPZ version {version} in a gzip container "
+            "(supported: 2, 3; version 4 is not gzipped)",
+        )
     _check_common(path, n, deg)
     widths = _widths(version, _sh_dim(deg))
     need = n * sum(widths.values())
     if len(payload) - 16 < need:
-        raise DivasInputError(path, f"truncated SPZ: {n} points need {need} bytes of "
-                                    f"columns, the payload has {len(payload) - 16}")
+        raise DivasInputError(
+            path,
+            f"truncated SPZ: {n} points need {need} bytes of "
+            f"columns, the payload has {len(payload) - 16}",
+        )
     start = 16
     ext = b""
     if flags & _FLAG_EXTENSIONS:  # records of unknown layout: the columns end the payload
@@ -155,17 +171,24 @@ def _parse_ngsp(path: Path, data: bytes) -> _SpzFile:
         raise DivasInputError(path, "truncated SPZ: shorter than the 32-byte version-4 header")
     magic, version, n, deg, frac, flags, n_streams, toc = struct.unpack_from("<IIIBBBBI", data, 0)
     if version != 4:
-        raise DivasInputError(path, f"unsupported SPZ version {version} with a plain 'NGSP' "
-                                    "header (supported: 4; versions 2-3 are gzipped)")
+        raise DivasInputError(
+            path,
+            f"unsupported SPZ version {version} with a plain 'NGSP' "
+            "header (supported: 4; versions 2-3 are gzipped)",
+        )
     _check_common(path, n, deg)
     widths = _widths(version, _sh_dim(deg))
     present = [c for c in _COLUMNS if widths[c] > 0]
     if n_streams != len(present):
-        raise DivasInputError(path, f"SPZ v4 header lists {n_streams} streams; SH degree "
-                                    f"{deg} needs {len(present)}")
+        raise DivasInputError(
+            path, f"SPZ v4 header lists {n_streams} streams; SH degree {deg} needs {len(present)}"
+        )
     if toc < 32 or toc + 16 * n_streams > len(data):
-        raise DivasInputError(path, f"truncated or corrupt SPZ v4: table of contents at "
-                                    f"{toc} does not fit in {len(data)} bytes")
+        raise DivasInputError(
+            path,
+            f"truncated or corrupt SPZ v4: table of contents at "
+            f"{toc} does not fit in {len(data)} bytes",
+        )
     zstandard = _zstd(path)
     dctx = zstandard.ZstdDecompressor()
     cols, off = {}, toc + 16 * n_streams
@@ -173,18 +196,23 @@ def _parse_ngsp(path: Path, data: bytes) -> _SpzFile:
         csize, usize = struct.unpack_from("<QQ", data, toc + 16 * i)
         want = n * widths[name]
         if usize != want:
-            raise DivasInputError(path, f"SPZ v4 {name} stream holds {usize} bytes; "
-                                        f"{n} points need {want}")
+            raise DivasInputError(
+                path, f"SPZ v4 {name} stream holds {usize} bytes; {n} points need {want}"
+            )
         if off + csize > len(data):
-            raise DivasInputError(path, f"truncated SPZ v4: the {name} stream ends at byte "
-                                        f"{off + csize}, the file has {len(data)}")
+            raise DivasInputError(
+                path,
+                f"truncated SPZ v4: the {name} stream ends at byte "
+                f"{off + csize}, the file has {len(data)}",
+            )
         try:
-            raw = dctx.decompress(data[off:off + csize], max_output_size=want)
+            raw = dctx.decompress(data[off : off + csize], max_output_size=want)
         except zstandard.ZstdError as e:
             raise DivasInputError(path, f"corrupt zstd stream for SPZ {name} ({e})") from None
         if len(raw) != want:
-            raise DivasInputError(path, f"SPZ v4 {name} stream decompressed to {len(raw)} "
-                                        f"bytes, expected {want}")
+            raise DivasInputError(
+                path, f"SPZ v4 {name} stream decompressed to {len(raw)} bytes, expected {want}"
+            )
         cols[name] = np.frombuffer(raw, np.uint8).reshape(n, widths[name])
         off += csize
     cols.setdefault("sh", np.zeros((n, 0), np.uint8))
@@ -200,8 +228,10 @@ def _parse(path: Path) -> _SpzFile:
         return _parse_gzip(path, data)
     if len(data) >= 4 and struct.unpack_from("<I", data, 0)[0] == SPZ_MAGIC:
         return _parse_ngsp(path, data)
-    raise DivasInputError(path, "not an SPZ file: neither a gzip stream (versions 2-3) "
-                                "nor an 'NGSP' header (version 4)")
+    raise DivasInputError(
+        path,
+        "not an SPZ file: neither a gzip stream (versions 2-3) nor an 'NGSP' header (version 4)",
+    )
 
 
 def _decode_rotations(rot: np.ndarray, version: int) -> np.ndarray:
@@ -261,16 +291,16 @@ def read_spz(path: str | PathLike) -> SurfelScene:
         opac[sl] = c["alphas"][sl, 0].astype(np.float32) / 255.0
         sh[sl, 0, :] = (c["colors"][sl].astype(np.float32) / 255.0 - 0.5) / _COLOR_SCALE
         if deg:
-            rest = c["sh"][sl].reshape(m, _sh_dim(f.sh_degree), 3)[:, :k - 1, :]
-            sh[sl, 1:, :] = ((rest.astype(np.float32) - 128.0) / 128.0
-                             * RUB_TO_RDF_SH_SIGNS[:k - 1, None])
+            rest = c["sh"][sl].reshape(m, _sh_dim(f.sh_degree), 3)[:, : k - 1, :]
+            sh[sl, 1:, :] = (
+                (rest.astype(np.float32) - 128.0) / 128.0 * RUB_TO_RDF_SH_SIGNS[: k - 1, None]
+            )
     ok = np.isfinite(means).all(1)  # every byte decodes finite; kept for the contract
     extras = {"spz_version": f.version, "antialiased": bool(f.flags & _FLAG_ANTIALIASED)}
     return scene_from_rows(path, "spz", (means, quats, scales, opac, sh), ok, deg, "3dgs", extras)
 
 
-def write_spz_subset(source: SourceInfo, file_rows: np.ndarray,
-                     out_path: str | PathLike) -> None:
+def write_spz_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | PathLike) -> None:
     """Write points ``file_rows`` (in that order) of ``source`` as an SPZ of the same version.
 
     Every column's bytes for those points are copied unchanged; the header is
@@ -291,7 +321,8 @@ def write_spz_subset(source: SourceInfo, file_rows: np.ndarray,
         zstandard = _zstd(path)
         cctx = zstandard.ZstdCompressor(level=9)
         streams = [cctx.compress(b) for b in cols if b]
-        toc = b"".join(struct.pack("<QQ", len(z), len(b)) for z, b in
-                       zip(streams, [b for b in cols if b]))
+        toc = b"".join(
+            struct.pack("<QQ", len(z), len(b)) for z, b in zip(streams, [b for b in cols if b])
+        )
         out = header + f.extensions + toc + b"".join(streams)
     Path(out_path).write_bytes(out)

@@ -126,8 +126,9 @@ def _frame_camera(path: Path, top: dict, fr: Any, i: int) -> tuple[Camera, bool]
     if "transform_matrix" not in fr:
         raise KeyError("transform_matrix")
     model = fr.get("camera_model", top.get("camera_model"))
-    if (model is not None and str(model).upper() not in _PINHOLE_MODELS) or \
-            fr.get("is_fisheye", top.get("is_fisheye", False)):
+    if (model is not None and str(model).upper() not in _PINHOLE_MODELS) or fr.get(
+        "is_fisheye", top.get("is_fisheye", False)
+    ):
         raise ValueError(f"camera model {model or 'fisheye'!r} is not supported (pinhole only)")
     file_path = str(fr.get("file_path", ""))
     # image size: the frame's own, else the top level's, else the image header
@@ -136,8 +137,11 @@ def _frame_camera(path: Path, top: dict, fr: Any, i: int) -> tuple[Camera, bool]
         img = _find_image(path.parent, file_path) if file_path else None
         size = image_size(img) if img is not None else None
         if size is None:
-            what = (f"image {file_path!r} was not found next to the file" if img is None
-                    else f"image {str(img)!r} could not be read")
+            what = (
+                f"image {file_path!r} was not found next to the file"
+                if img is None
+                else f"image {str(img)!r} could not be read"
+            )
             raise ValueError(f"no 'w'/'h' given and the {what} to take its size from")
         w, h = float(size[0]), float(size[1])
     # focal: each key looked up frame-first; pixels win over angles; one axis may stand for both
@@ -162,8 +166,16 @@ def _frame_camera(path: Path, top: dict, fr: Any, i: int) -> tuple[Camera, bool]
         m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
     distorted = any(float(fr.get(k, top.get(k, 0.0)) or 0.0) != 0.0 for k in _DISTORTION_KEYS)
     wi, hi = int(round(w)), int(round(h))
-    cam = Camera(wi, hi, fx, fy, wi / 2.0 if cx is None else cx, hi / 2.0 if cy is None else cy,
-                 m @ OPENGL_TO_OPENCV, file_path or f"frame_{i:05d}")
+    cam = Camera(
+        wi,
+        hi,
+        fx,
+        fy,
+        wi / 2.0 if cx is None else cx,
+        hi / 2.0 if cy is None else cy,
+        m @ OPENGL_TO_OPENCV,
+        file_path or f"frame_{i:05d}",
+    )
     return cam, distorted
 
 
@@ -172,8 +184,9 @@ def read_transforms_json(path: str | PathLike) -> list[Camera]:
     path = Path(path)
     data = read_json(path, "camera file")
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
-        raise DivasInputError(path, "expected a JSON object with a non-empty 'frames' list "
-                                    "(transforms.json)")
+        raise DivasInputError(
+            path, "expected a JSON object with a non-empty 'frames' list (transforms.json)"
+        )
     cams: list[Camera] = []
     distorted = 0
     for i, fr in enumerate(data["frames"]):
@@ -185,16 +198,27 @@ def read_transforms_json(path: str | PathLike) -> list[Camera]:
         cams.append(cam)
         distorted += dist
     if distorted:
-        warnings.warn(f"{path}: lens distortion of {distorted} frame(s) is ignored; the cameras "
-                      f"are treated as pinhole. Undistort the images for accurate results.",
-                      UserWarning, stacklevel=2)
+        warnings.warn(
+            f"{path}: lens distortion of {distorted} frame(s) is ignored; the cameras "
+            f"are treated as pinhole. Undistort the images for accurate results.",
+            UserWarning,
+            stacklevel=2,
+        )
     return cams
 
 
 # --- writer -------------------------------------------------------------------------
 def _intrinsics(c: Camera) -> dict[str, Any]:
-    return {"camera_angle_x": c.fov_x, "camera_angle_y": c.fov_y, "fl_x": c.fx, "fl_y": c.fy,
-            "cx": c.cx, "cy": c.cy, "w": c.width, "h": c.height}
+    return {
+        "camera_angle_x": c.fov_x,
+        "camera_angle_y": c.fov_y,
+        "fl_x": c.fx,
+        "fl_y": c.fy,
+        "cx": c.cx,
+        "cy": c.cy,
+        "w": c.width,
+        "h": c.height,
+    }
 
 
 def write_transforms_json(path: str | PathLike, cameras: list[Camera]) -> None:
@@ -209,8 +233,10 @@ def write_transforms_json(path: str | PathLike, cameras: list[Camera]) -> None:
     out: dict[str, Any] = dict(intr[0]) if shared else {}
     frames = []
     for i, (c, d) in enumerate(zip(cameras, intr)):
-        fr: dict[str, Any] = {"file_path": c.name or f"frame_{i:05d}",
-                              "transform_matrix": (c.c2w @ OPENGL_TO_OPENCV).tolist()}
+        fr: dict[str, Any] = {
+            "file_path": c.name or f"frame_{i:05d}",
+            "transform_matrix": (c.c2w @ OPENGL_TO_OPENCV).tolist(),
+        }
         if not shared:
             fr.update(d)
         frames.append(fr)

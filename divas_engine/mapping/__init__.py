@@ -7,8 +7,13 @@ chain f¹ ⪰ f² ⪰ f — Morton admission, needle cull, footprint coverage.
 """
 
 from .config import MappingConfig
-from .passes import (MappingResult, SurfelMapper, map_to_surfels, needle_threshold,
-                     surfel_aspects)
+from .passes import MappingResult, SurfelMapper, map_to_surfels, needle_threshold, surfel_aspects
 
-__all__ = ["MappingConfig", "MappingResult", "SurfelMapper", "map_to_surfels",
-           "needle_threshold", "surfel_aspects"]
+__all__ = [
+    "MappingConfig",
+    "MappingResult",
+    "SurfelMapper",
+    "map_to_surfels",
+    "needle_threshold",
+    "surfel_aspects",
+]

@@ -46,8 +46,9 @@ class MappingConfig:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.needle_percentile <= 100.0:
-            raise ValueError(f"MappingConfig.needle_percentile={self.needle_percentile} "
-                             f"outside [0, 100]")
+            raise ValueError(
+                f"MappingConfig.needle_percentile={self.needle_percentile} outside [0, 100]"
+            )
         for k in ("box_sigma", "accept_sigma", "near"):
             if not getattr(self, k) > 0:
                 raise ValueError(f"MappingConfig.{k} must be positive")

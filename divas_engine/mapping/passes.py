@@ -46,8 +46,8 @@ Decisions on points the paper leaves open:
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 import warp as wp
@@ -62,8 +62,7 @@ from ..fusion.views import FusionView
 from ..scene import SurfelScene
 from .config import MappingConfig
 
-__all__ = ["MappingResult", "SurfelMapper", "map_to_surfels", "needle_threshold",
-           "surfel_aspects"]
+__all__ = ["MappingResult", "SurfelMapper", "map_to_surfels", "needle_threshold", "surfel_aspects"]
 
 
 def surfel_aspects(scales: np.ndarray, eps: float) -> np.ndarray:
@@ -117,8 +116,13 @@ class MappingResult:
     seconds: dict[str, float] = field(default_factory=dict)
 
     def counts(self) -> dict[str, int]:
-        return {"pass1": self.n_pass1, "pass2": self.n_pass2, "selected": self.n_selected,
-                "needles": self.n_needles, "scored": self.n_scored}
+        return {
+            "pass1": self.n_pass1,
+            "pass2": self.n_pass2,
+            "selected": self.n_selected,
+            "needles": self.n_needles,
+            "scored": self.n_scored,
+        }
 
 
 class _ViewCache:
@@ -146,8 +150,7 @@ class _ViewCache:
         m = np.asarray(v.mask)
         b = (m.astype(np.float32, copy=False) >= np.float32(tau_m)).astype(np.uint8)
         sat = np.zeros((b.shape[0] + 1, b.shape[1] + 1), dtype=np.int32)
-        np.cumsum(np.cumsum(b, axis=0, dtype=np.int32), axis=1, dtype=np.int32,
-                  out=sat[1:, 1:])
+        np.cumsum(np.cumsum(b, axis=0, dtype=np.int32), axis=1, dtype=np.int32, out=sat[1:, 1:])
         return b.ravel(), sat.ravel()
 
     def _append(self, buf: wp.array, used: int, host: np.ndarray, dtype) -> tuple[wp.array, int]:
@@ -158,19 +161,25 @@ class _ViewCache:
                 wp.copy(grown, buf, count=used)
             buf = grown
         if host.size:
-            wp.copy(buf, wp.array(host, dtype=dtype, device=self.device), dest_offset=used,
-                    count=host.size)
+            wp.copy(
+                buf,
+                wp.array(host, dtype=dtype, device=self.device),
+                dest_offset=used,
+                count=host.size,
+            )
         return buf, need
 
-    def buffers(self, views: Sequence[FusionView], slots: Sequence[int], cfg: MappingConfig
-                ) -> tuple[wp.array, wp.array, wp.array]:
+    def buffers(
+        self, views: Sequence[FusionView], slots: Sequence[int], cfg: MappingConfig
+    ) -> tuple[wp.array, wp.array, wp.array]:
         tau = float(cfg.mask_threshold)
         key = (tuple(id(v) for v in views), tuple(int(s) for s in slots), tau, float(cfg.near))
         if key == self.key and self.views_dev is not None:
             return self.views_dev, self.mbuf, self.sbuf
         live = {id(v): v for v in views}
-        for k in [k for k, e in self.res.items() if k not in live or e[0] is not live[k]
-                  or e[1] != tau]:
+        for k in [
+            k for k, e in self.res.items() if k not in live or e[0] is not live[k] or e[1] != tau
+        ]:
             del self.res[k]
         live_m = sum(e[4] for e in self.res.values())
         if self.mused - live_m > max(live_m, self.min_reclaim):  # reclaim dropped views' space
@@ -187,9 +196,21 @@ class _ViewCache:
         for v, s in zip(views, slots):
             _, _, moff, soff, _, _ = self.res[id(v)]
             c = v.camera
-            structs.append(kcov.make_coverage_view(c.w2c, c.fx, c.fy, c.cx, c.cy, c.width,
-                                                   c.height, c.clip_near(cfg.near), int(s),
-                                                   moff, soff))
+            structs.append(
+                kcov.make_coverage_view(
+                    c.w2c,
+                    c.fx,
+                    c.fy,
+                    c.cx,
+                    c.cy,
+                    c.width,
+                    c.height,
+                    c.clip_near(cfg.near),
+                    int(s),
+                    moff,
+                    soff,
+                )
+            )
         self.views_dev = wp.array(structs, dtype=kcov.CoverageView, device=self.device)
         self.key = key
         return self.views_dev, self.mbuf, self.sbuf
@@ -210,8 +231,13 @@ class SurfelMapper:
         device: Warp device (default: the grid's).
     """
 
-    def __init__(self, scene: SurfelScene, grid: OccupancyGrid,
-                 config: MappingConfig = MappingConfig(), device=None) -> None:
+    def __init__(
+        self,
+        scene: SurfelScene,
+        grid: OccupancyGrid,
+        config: MappingConfig = MappingConfig(),
+        device=None,
+    ) -> None:
         self.device = grid.device if device is None else resolve_device(device)
         if self.device != grid.device:
             raise ValueError(f"SurfelMapper: grid lives on {grid.device}, asked for {self.device}")
@@ -226,8 +252,9 @@ class SurfelMapper:
         self._tu = wp.array(f32(rot[:, :, 0] * sc[:, :1]), dtype=wp.vec3, device=d)
         self._tv = wp.array(f32(rot[:, :, 1] * sc[:, 1:2]), dtype=wp.vec3, device=d)
         codes = surfel_voxel_codes(self._means, grid.geometry, device=d)
-        self._act = kocc.hash_query(grid.hash_keys, grid.hash_vals, grid.hash_shift, codes,
-                                    device=d)
+        self._act = kocc.hash_query(
+            grid.hash_keys, grid.hash_vals, grid.hash_shift, codes, device=d
+        )
         self._act_host = self._act.numpy().copy()
         self._scales = scene.scales  # a reference (other ε only)
         self._aspects = surfel_aspects(scene.scales, config.aspect_eps)
@@ -247,8 +274,11 @@ class SurfelMapper:
         key = (float(cfg.needle_percentile), float(cfg.aspect_eps))
         e = self._needle.get(key)
         if e is None:
-            a = self._aspects if cfg.aspect_eps == self.config.aspect_eps else \
-                surfel_aspects(self._scales, cfg.aspect_eps)
+            a = (
+                self._aspects
+                if cfg.aspect_eps == self.config.aspect_eps
+                else surfel_aspects(self._scales, cfg.aspect_eps)
+            )
             tau, keep = needle_threshold(a, cfg.needle_percentile)
             e = (tau, keep, wp.array(keep.astype(np.uint8), dtype=wp.uint8, device=self.device))
             self._needle[key] = e
@@ -269,15 +299,19 @@ class SurfelMapper:
         return self._aspects
 
     # --- validation ---------------------------------------------------------------
-    def _check(self, fused: FusionResult, views: Sequence[FusionView], slots: Sequence[int]
-               ) -> np.ndarray:
+    def _check(
+        self, fused: FusionResult, views: Sequence[FusionView], slots: Sequence[int]
+    ) -> np.ndarray:
         if fused.vmask is None:
-            raise ValueError("map_to_surfels: the fusion result has no view bitmask "
-                             "(a NeRF result?); the mapping needs the 2DGS GsFusion result")
+            raise ValueError(
+                "map_to_surfels: the fusion result has no view bitmask "
+                "(a NeRF result?); the mapping needs the 2DGS GsFusion result"
+            )
         a = len(self.grid)
         if len(fused.segmented) != a or fused.vmask.shape[0] != a:
-            raise ValueError(f"map_to_surfels: fusion result has {len(fused.segmented)} voxels, "
-                             f"the grid {a}")
+            raise ValueError(
+                f"map_to_surfels: fusion result has {len(fused.segmented)} voxels, the grid {a}"
+            )
         if len(views) != len(slots):
             raise ValueError(f"map_to_surfels: {len(views)} views but {len(slots)} slots")
         bits = 32 * (fused.vmask.shape[1] if fused.vmask.ndim == 2 else 0)
@@ -290,8 +324,13 @@ class SurfelMapper:
         return np.ascontiguousarray(fused.vmask, dtype=np.uint32).reshape(a, -1)
 
     # --- the mapping --------------------------------------------------------------
-    def map(self, fused: FusionResult, views: Sequence[FusionView], slots: Sequence[int],
-            config: MappingConfig | None = None) -> MappingResult:
+    def map(
+        self,
+        fused: FusionResult,
+        views: Sequence[FusionView],
+        slots: Sequence[int],
+        config: MappingConfig | None = None,
+    ) -> MappingResult:
         """Run Passes 1–3 for the fused state ``fused`` and its live ``views``/``slots``."""
         cfg = config or self.config
         d = self.device
@@ -324,24 +363,49 @@ class SurfelMapper:
             vmask = wp.array(vm, dtype=wp.uint32, device=d)
         lap("views")
         if run3:
-            kcov.run_coverage(cand, self._act, vmask, self._means, self._tu, self._tv, vdev, mdev,
-                              sdev, cfg.box_sigma, cfg.accept_sigma, cfg.early_out,
-                              self._kappa, self._scored, device=d, threads=thr)
-        kcov.run_select(self._f2, self._kappa, cfg.surfel_coverage, cfg.coverage_filter,
-                        self._sel, d, thr)
+            kcov.run_coverage(
+                cand,
+                self._act,
+                vmask,
+                self._means,
+                self._tu,
+                self._tv,
+                vdev,
+                mdev,
+                sdev,
+                cfg.box_sigma,
+                cfg.accept_sigma,
+                cfg.early_out,
+                self._kappa,
+                self._scored,
+                device=d,
+                threads=thr,
+            )
+        kcov.run_select(
+            self._f2, self._kappa, cfg.surfel_coverage, cfg.coverage_filter, self._sel, d, thr
+        )
         lap("pass3")
         f1 = self._f1.numpy().astype(bool)
         f2 = self._f2.numpy().astype(bool)
         sel = self._sel.numpy().astype(bool)
         kappa = self._kappa.numpy().copy()
-        per_view = self._scored_per_view(f2, vm, slots) if cfg.coverage_filter else \
-            [0] * len(views)
+        per_view = self._scored_per_view(f2, vm, slots) if cfg.coverage_filter else [0] * len(views)
         lap("readback")
         sec["total"] = time.perf_counter() - t_all
-        return MappingResult(selected=sel, pass1=f1, pass2=f2, kappa=kappa, tau_a=tau_a,
-                             n_pass1=int(f1.sum()), n_pass2=int(f2.sum()),
-                             n_selected=int(sel.sum()), n_needles=int((~keep_h).sum()),
-                             scored_per_view=per_view, n_scored=int(sum(per_view)), seconds=sec)
+        return MappingResult(
+            selected=sel,
+            pass1=f1,
+            pass2=f2,
+            kappa=kappa,
+            tau_a=tau_a,
+            n_pass1=int(f1.sum()),
+            n_pass2=int(f2.sum()),
+            n_selected=int(sel.sum()),
+            n_needles=int((~keep_h).sum()),
+            scored_per_view=per_view,
+            n_scored=int(sum(per_view)),
+            seconds=sec,
+        )
 
     def _scored_per_view(self, f2: np.ndarray, vm: np.ndarray, slots: Sequence[int]) -> list[int]:
         """|a_s| per view: candidates per voxel, then each view's bit (host,
@@ -359,9 +423,9 @@ class SurfelMapper:
             out.append(int(cnt[has].sum()))
         return out
 
-    def view_counts(self, fused: FusionResult, view: FusionView, slot: int,
-                    config: MappingConfig | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def view_counts(
+        self, fused: FusionResult, view: FusionView, slot: int, config: MappingConfig | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Raw ``(total_fp, mask_fp, scored)`` ``[N]`` of one view (eq:cov-atomics), full
         sweeps without early-outs; zero for surfels not in ``a_s``."""
         cfg = config or self.config
@@ -385,15 +449,37 @@ class SurfelMapper:
             cand = kcov.compact(flag, d)
             vdev, mdev, sdev = _ViewCache(d).buffers([view], [slot], cfg)
             if cand.shape[0]:
-                kcov.run_coverage(cand, self._act, wp.array(vm, dtype=wp.uint32, device=d),
-                                  self._means, self._tu, self._tv, vdev, mdev, sdev,
-                                  cfg.box_sigma, cfg.accept_sigma, False, kap, scored, tot, pos,
-                                  device=d, threads=cpu_threads(cfg.threads))
+                kcov.run_coverage(
+                    cand,
+                    self._act,
+                    wp.array(vm, dtype=wp.uint32, device=d),
+                    self._means,
+                    self._tu,
+                    self._tv,
+                    vdev,
+                    mdev,
+                    sdev,
+                    cfg.box_sigma,
+                    cfg.accept_sigma,
+                    False,
+                    kap,
+                    scored,
+                    tot,
+                    pos,
+                    device=d,
+                    threads=cpu_threads(cfg.threads),
+                )
         return tot.numpy(), pos.numpy(), scored.numpy().astype(bool)
 
 
-def map_to_surfels(scene: SurfelScene, grid: OccupancyGrid, fused: FusionResult,
-                   views: Sequence[FusionView], slots: Sequence[int],
-                   config: MappingConfig = MappingConfig(), device=None) -> MappingResult:
+def map_to_surfels(
+    scene: SurfelScene,
+    grid: OccupancyGrid,
+    fused: FusionResult,
+    views: Sequence[FusionView],
+    slots: Sequence[int],
+    config: MappingConfig = MappingConfig(),
+    device=None,
+) -> MappingResult:
     """One-shot mapping (builds a :class:`SurfelMapper`; keep one to re-run per update)."""
     return SurfelMapper(scene, grid, config, device).map(fused, views, slots, config)

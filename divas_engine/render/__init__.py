@@ -11,12 +11,21 @@ from .buffers import DEPTH_CHANNELS, NPZ_CHANNELS, RenderBuffers
 from .config import RenderConfig
 from .protocol import Renderer
 
-__all__ = ["Renderer", "RenderBuffers", "RenderConfig", "make_renderer", "SurfelRenderer",
-           "NerfRenderer", "DEPTH_CHANNELS", "NPZ_CHANNELS"]
+__all__ = [
+    "Renderer",
+    "RenderBuffers",
+    "RenderConfig",
+    "make_renderer",
+    "SurfelRenderer",
+    "NerfRenderer",
+    "DEPTH_CHANNELS",
+    "NPZ_CHANNELS",
+]
 
 
-def make_renderer(scene: SurfelScene | DensityGrid, device=None,
-                  config: RenderConfig | None = None) -> Renderer:
+def make_renderer(
+    scene: SurfelScene | DensityGrid, device=None, config: RenderConfig | None = None
+) -> Renderer:
     """The renderer for ``scene`` on ``device`` (``None``/``"auto"``: CUDA if present, else CPU)."""
     if isinstance(scene, SurfelScene):
         from .surfel_renderer import SurfelRenderer

@@ -59,5 +59,8 @@ class RenderBuffers:
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """Every array channel under its NOTES name (``rgb, alpha, D_min, …, N_samp``)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)
-                if isinstance(getattr(self, f.name), np.ndarray)}
+        return {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if isinstance(getattr(self, f.name), np.ndarray)
+        }

@@ -57,23 +57,38 @@ class RenderConfig:
     threads: int | None = None
     profile: bool = False
 
-    def raster_settings(self, camera: "Camera | None" = None) -> "RasterSettings":
+    def raster_settings(self, camera: Camera | None = None) -> RasterSettings:
         """The surfel rasterizer's settings for ``camera`` (its near: ``clip_near``)."""
         from kernels import RasterSettings
 
-        return RasterSettings(tau_sig=self.tau_sig, tau_cw=self.tau_cw, t_min=self.t_min,
-                              alpha_min=self.alpha_min, alpha_max=self.alpha_max,
-                              lowpass_sigma=self.lowpass_sigma, near=self._near(camera),
-                              tile=self.tile, max_duplicates=self.max_duplicates,
-                              blend=self.blend, threads=self.threads, profile=self.profile)
+        return RasterSettings(
+            tau_sig=self.tau_sig,
+            tau_cw=self.tau_cw,
+            t_min=self.t_min,
+            alpha_min=self.alpha_min,
+            alpha_max=self.alpha_max,
+            lowpass_sigma=self.lowpass_sigma,
+            near=self._near(camera),
+            tile=self.tile,
+            max_duplicates=self.max_duplicates,
+            blend=self.blend,
+            threads=self.threads,
+            profile=self.profile,
+        )
 
-    def march_settings(self, camera: "Camera | None" = None) -> "MarchSettings":
+    def march_settings(self, camera: Camera | None = None) -> MarchSettings:
         """The density-grid ray-marcher's settings for ``camera``."""
         from kernels import MarchSettings
 
-        return MarchSettings(tau_sig=self.tau_sig, tau_cw=self.tau_cw, t_min=self.t_min,
-                             alpha_min=self.alpha_min, near=self._near(camera),
-                             step_scale=self.nerf_step_scale, threads=self.threads)
+        return MarchSettings(
+            tau_sig=self.tau_sig,
+            tau_cw=self.tau_cw,
+            t_min=self.t_min,
+            alpha_min=self.alpha_min,
+            near=self._near(camera),
+            step_scale=self.nerf_step_scale,
+            threads=self.threads,
+        )
 
-    def _near(self, camera: "Camera | None") -> float:
+    def _near(self, camera: Camera | None) -> float:
         return self.near if camera is None else camera.clip_near(self.near)

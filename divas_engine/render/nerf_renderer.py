@@ -36,9 +36,20 @@ class NerfRenderer:
         self._buf = upload_grid(grid.density, grid.aabb, grid.rgb, self.device)
 
     def _run(self, cam: Camera, values: np.ndarray | None):
-        return raymarch_grid(self._buf, cam.c2w, cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
-                             cam.height, self.config.march_settings(cam), values=values,
-                             color=self.config.nerf_color, background=self.config.background)
+        return raymarch_grid(
+            self._buf,
+            cam.c2w,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            self.config.march_settings(cam),
+            values=values,
+            color=self.config.nerf_color,
+            background=self.config.background,
+        )
 
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         cam = camera if scale == 1.0 else camera.scaled(scale)
@@ -46,16 +57,28 @@ class NerfRenderer:
         H, W = cam.height, cam.width
         img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
         d_exp = img(o.d_exp)
-        return RenderBuffers(rgb=o.feat.numpy().reshape(H, W, 3), alpha=img(o.alpha),
-                             D_min=img(o.d_min), D_ref=d_exp.copy(), D_max=img(o.d_max),
-                             D_mw=img(o.d_mw), D_exp=d_exp, D_med=img(o.d_med),
-                             N_samp=img(o.n_samp), camera=cam, kind=self.kind, stats={})
+        return RenderBuffers(
+            rgb=o.feat.numpy().reshape(H, W, 3),
+            alpha=img(o.alpha),
+            D_min=img(o.d_min),
+            D_ref=d_exp.copy(),
+            D_max=img(o.d_max),
+            D_mw=img(o.d_mw),
+            D_exp=d_exp,
+            D_med=img(o.d_med),
+            N_samp=img(o.n_samp),
+            camera=cam,
+            kind=self.kind,
+            stats={},
+        )
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)
         if values.shape[:3] != self.grid_shape or values.ndim not in (3, 4):
-            raise ValueError(f"render_values: expected per-voxel values of shape {self.grid_shape} "
-                             f"or {self.grid_shape}+(C,), got {values.shape}")
+            raise ValueError(
+                f"render_values: expected per-voxel values of shape {self.grid_shape} "
+                f"or {self.grid_shape}+(C,), got {values.shape}"
+            )
         cam = camera if scale == 1.0 else camera.scaled(scale)
         f = self._run(cam, values).feat.numpy()
         H, W = cam.height, cam.width

@@ -38,13 +38,31 @@ class SurfelRenderer:
         self.config = config or RenderConfig()
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
-        self._buf = upload_surfels(scene.means, scene.rotations(), scene.scales, scene.opacities,
-                                   scene.sh, scene.sh_degree, self.device, self.config.alpha_min)
+        self._buf = upload_surfels(
+            scene.means,
+            scene.rotations(),
+            scene.scales,
+            scene.opacities,
+            scene.sh,
+            scene.sh_degree,
+            self.device,
+            self.config.alpha_min,
+        )
 
     def _run(self, cam: Camera, values: np.ndarray | None):
-        return rasterize_surfels(self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
-                                 cam.height, self.config.raster_settings(cam), values=values,
-                                 background=self.config.background)
+        return rasterize_surfels(
+            self._buf,
+            cam.w2c,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            self.config.raster_settings(cam),
+            values=values,
+            background=self.config.background,
+        )
 
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         cam = camera if scale == 1.0 else camera.scaled(scale)
@@ -53,16 +71,28 @@ class SurfelRenderer:
         o = r.out
         img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
         d_med = img(o.d_med)
-        return RenderBuffers(rgb=o.feat.numpy().reshape(H, W, 3), alpha=img(o.alpha),
-                             D_min=img(o.d_min), D_ref=d_med.copy(), D_max=img(o.d_max),
-                             D_mw=img(o.d_mw), D_exp=img(o.d_exp), D_med=d_med,
-                             N_samp=img(o.n_samp), camera=cam, kind=self.kind, stats=r.stats)
+        return RenderBuffers(
+            rgb=o.feat.numpy().reshape(H, W, 3),
+            alpha=img(o.alpha),
+            D_min=img(o.d_min),
+            D_ref=d_med.copy(),
+            D_max=img(o.d_max),
+            D_mw=img(o.d_mw),
+            D_exp=img(o.d_exp),
+            D_med=d_med,
+            N_samp=img(o.n_samp),
+            camera=cam,
+            kind=self.kind,
+            stats=r.stats,
+        )
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)
         if values.ndim not in (1, 2) or values.shape[0] != self.num_primitives:
-            raise ValueError(f"render_values: expected [{self.num_primitives}] or "
-                             f"[{self.num_primitives}, C] values, got {values.shape}")
+            raise ValueError(
+                f"render_values: expected [{self.num_primitives}] or "
+                f"[{self.num_primitives}, C] values, got {values.shape}"
+            )
         cam = camera if scale == 1.0 else camera.scaled(scale)
         r = self._run(cam, values)
         f = r.out.feat.numpy()

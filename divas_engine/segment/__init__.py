@@ -13,18 +13,43 @@ sync 2DGS scheduling).
 
 from .base import MaskSelection, Segmenter, SegResult, select_mask
 from .classic import ClassicConfig, ClassicSegmenter
-from .depth_weighting import (DepthBand, GsBandpassConfig, NerfDepthWeightConfig,
-                              apply_gs_bandpass, apply_nerf_depth_weight, depth_band,
-                              gs_bandpass_weight, nerf_depth_weight)
+from .depth_weighting import (
+    DepthBand,
+    GsBandpassConfig,
+    NerfDepthWeightConfig,
+    apply_gs_bandpass,
+    apply_nerf_depth_weight,
+    depth_band,
+    gs_bandpass_weight,
+    nerf_depth_weight,
+)
 from .flood_fill import FloodFillConfig, FloodFillSegmenter
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
 from .worker import SamWorker, SegmentationJobError
 
-__all__ = ["Segmenter", "SegResult", "MaskSelection", "select_mask",
-           "ClassicConfig", "ClassicSegmenter", "FloodFillConfig", "FloodFillSegmenter",
-           "OracleConfig", "OracleSegmenter", "SamOnnxSegmenter", "SamTorchSegmenter",
-           "NerfDepthWeightConfig", "GsBandpassConfig", "DepthBand", "nerf_depth_weight",
-           "apply_nerf_depth_weight", "depth_band", "gs_bandpass_weight", "apply_gs_bandpass",
-           "SamWorker", "SegmentationJobError"]
+__all__ = [
+    "Segmenter",
+    "SegResult",
+    "MaskSelection",
+    "select_mask",
+    "ClassicConfig",
+    "ClassicSegmenter",
+    "FloodFillConfig",
+    "FloodFillSegmenter",
+    "OracleConfig",
+    "OracleSegmenter",
+    "SamOnnxSegmenter",
+    "SamTorchSegmenter",
+    "NerfDepthWeightConfig",
+    "GsBandpassConfig",
+    "DepthBand",
+    "nerf_depth_weight",
+    "apply_nerf_depth_weight",
+    "depth_band",
+    "gs_bandpass_weight",
+    "apply_gs_bandpass",
+    "SamWorker",
+    "SegmentationJobError",
+]

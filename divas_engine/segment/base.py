@@ -28,13 +28,22 @@ import hashlib
 import threading
 from abc import ABC, abstractmethod
 from collections import OrderedDict
+from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Any, Hashable
+from typing import Any
 
 import numpy as np
 
-__all__ = ["Segmenter", "SegResult", "MaskSelection", "select_mask", "as_rgb_float",
-           "as_depth", "as_prompts", "pixel_index"]
+__all__ = [
+    "Segmenter",
+    "SegResult",
+    "MaskSelection",
+    "select_mask",
+    "as_rgb_float",
+    "as_depth",
+    "as_prompts",
+    "pixel_index",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,8 +73,13 @@ class MaskSelection:
         return self.reason is None
 
 
-def select_mask(masks: np.ndarray, scores: np.ndarray, labels: np.ndarray,
-                min_score: float = 0.5, channel: int = 1) -> MaskSelection:
+def select_mask(
+    masks: np.ndarray,
+    scores: np.ndarray,
+    labels: np.ndarray,
+    min_score: float = 0.5,
+    channel: int = 1,
+) -> MaskSelection:
     """Keep SAM's mid-granularity channel or reject the view (Sec. 3.4).
 
     A view is rejected when its prompts carry no positive label, or when the
@@ -75,8 +89,10 @@ def select_mask(masks: np.ndarray, scores: np.ndarray, labels: np.ndarray,
     scores = np.asarray(scores, dtype=np.float32).reshape(-1)
     masks = np.asarray(masks)
     if masks.ndim != 3 or masks.shape[0] <= channel or scores.shape[0] != masks.shape[0]:
-        raise ValueError(f"select_mask: expected masks [C,H,W] and scores [C] with C > {channel}, "
-                         f"got {masks.shape} and {scores.shape}")
+        raise ValueError(
+            f"select_mask: expected masks [C,H,W] and scores [C] with C > {channel}, "
+            f"got {masks.shape} and {scores.shape}"
+        )
     score = float(scores[channel])
     if not np.any(labels == 1):
         return MaskSelection(None, score, "no positive prompt")
@@ -120,7 +136,9 @@ def as_prompts(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.n
     if not np.all(np.isfinite(p)):
         raise ValueError("prompt points contain NaN/Inf")
     if np.any((lab != 0) & (lab != 1)):
-        raise ValueError(f"prompt labels must be 1 (positive) or 0 (negative), got {np.unique(lab)}")
+        raise ValueError(
+            f"prompt labels must be 1 (positive) or 0 (negative), got {np.unique(lab)}"
+        )
     return p, lab
 
 
@@ -165,11 +183,14 @@ class Segmenter(ABC):
         self._lock = threading.RLock()
 
     # -- public API ---------------------------------------------------------
-    def set_image(self, rgb: np.ndarray, depth: np.ndarray | None = None, *,
-                  view_id: Hashable | None = None) -> None:
+    def set_image(
+        self, rgb: np.ndarray, depth: np.ndarray | None = None, *, view_id: Hashable | None = None
+    ) -> None:
         """Prepare a view; cached per ``view_id`` (or image hash when None)."""
         img = np.asarray(rgb)
-        key: Hashable = ("id", view_id) if view_id is not None else ("hash", _fingerprint(img, depth))
+        key: Hashable = (
+            ("id", view_id) if view_id is not None else ("hash", _fingerprint(img, depth))
+        )
         with self._lock:
             if key in self._cache:
                 self._cache.move_to_end(key)
@@ -195,12 +216,21 @@ class Segmenter(ABC):
         masks = np.asarray(masks, dtype=np.float32)
         scores = np.asarray(scores, dtype=np.float32).reshape(-1)
         if masks.shape != (3, h, w) or scores.shape != (3,):
-            raise RuntimeError(f"{self.name}: produced masks {masks.shape} / scores {scores.shape}, "
-                               f"expected (3, {h}, {w}) / (3,)")
+            raise RuntimeError(
+                f"{self.name}: produced masks {masks.shape} / scores {scores.shape}, "
+                f"expected (3, {h}, {w}) / (3,)"
+            )
         return masks, scores
 
-    def segment(self, rgb: np.ndarray, depth: np.ndarray | None, points: np.ndarray,
-                labels: np.ndarray, *, view_id: Hashable | None = None) -> SegResult:
+    def segment(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray | None,
+        points: np.ndarray,
+        labels: np.ndarray,
+        *,
+        view_id: Hashable | None = None,
+    ) -> SegResult:
         """``set_image`` + ``predict`` as one atomic call (thread-safe)."""
         with self._lock:
             self.set_image(rgb, depth, view_id=view_id)
@@ -221,6 +251,7 @@ class Segmenter(ABC):
         """Per-view state from ``rgb [H,W,3]`` float32 in [0,1] and checked depth."""
 
     @abstractmethod
-    def _predict(self, state: Any, points: np.ndarray,
-                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(
+        self, state: Any, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``masks [3,H,W]`` probabilities and ``scores [3]`` from state and checked prompts."""

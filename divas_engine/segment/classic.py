@@ -52,7 +52,8 @@ colour model can still split an object from a support it rests on. The channel
 score is multiplied by ``closure ** closure_power``, ``closure`` = the fraction of
 the region's outer rim that is a depth edge (a region that leaked over a contact
 into its support is less of a commitment). A channel (of ``edge_fallback``, by
-default channel 1) whose edge-region cut scores below ``edge_min_score`` is recomputed with the plain depth-band labels of step 3
+default channel 1) whose edge-region cut scores below ``edge_min_score`` is recomputed
+with the plain depth-band labels of step 3
 (``hard_factor``) and keeps that cut and its score, so views the band path accepted
 are not lost. Known limit: an object resting on a support at the same depth (no
 jump, weak crease) stays joined to it — the depth channel ties them, colour alone
@@ -68,8 +69,9 @@ one's reuses its cut (no second GrabCut).
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Any, Hashable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -158,8 +160,9 @@ def _disk(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, r: int) ->
     return out.astype(bool)
 
 
-def _components_with(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                     connectivity: int = 8) -> np.ndarray:
+def _components_with(
+    mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, connectivity: int = 8
+) -> np.ndarray:
     """Union of the connected components of ``mask`` that contain a given pixel."""
     n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=connectivity)
     ids = np.unique(lab[rows, cols])
@@ -183,8 +186,9 @@ class ClassicSegmenter(Segmenter):
         f = min(1.0, cfg.work_long_side / max(h, w))
         hh, ww = max(1, int(round(h * f))), max(1, int(round(w * f)))
         small = cv2.resize(rgb, (ww, hh), interpolation=cv2.INTER_AREA) if f < 1 else rgb
-        lab = cv2.cvtColor(np.clip(small * 255 + 0.5, 0, 255).astype(np.uint8),
-                           cv2.COLOR_RGB2Lab).astype(np.float32)
+        lab = cv2.cvtColor(
+            np.clip(small * 255 + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_RGB2Lab
+        ).astype(np.float32)
         flat = lab.reshape(-1, 3)
         centred = flat - flat.mean(axis=0)
         _, vecs = np.linalg.eigh(centred.T @ centred / max(1, len(flat)))
@@ -207,22 +211,30 @@ class ClassicSegmenter(Segmenter):
             jh, jv = de.pair_jumps(np.where(np.isfinite(logd), q, np.nan).astype(np.float32))
             ch, cv = de.pair_creases(q, cfg.focal_frac * ww, cfg.crease_gap)
             edges = (de.pixel_strength(jh, jv), de.pixel_strength(ch, cv))
-        return {"edges": edges, "strength": {}, "lab": lab,
-                "colour2": colour2.astype(np.float32), "logd": logd, "depth": depth,
-                "full": (h, w), "work": (hh, ww)}
+        return {
+            "edges": edges,
+            "strength": {},
+            "lab": lab,
+            "colour2": colour2.astype(np.float32),
+            "logd": logd,
+            "depth": depth,
+            "full": (h, w),
+            "work": (hh, ww),
+        }
 
     # -- per prompt set ------------------------------------------------------------
     def _click_logdepth(self, depth: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         out = np.full(len(rows), np.nan)
         for i, (r, c) in enumerate(zip(rows.tolist(), cols.tolist())):
-            win = depth[max(r - 2, 0):r + 3, max(c - 2, 0):c + 3]
+            win = depth[max(r - 2, 0) : r + 3, max(c - 2, 0) : c + 3]
             win = win[win > 0]
             if win.size:
                 out[i] = np.log(np.median(win))
         return out
 
-    def _predict(self, st: Any, points: np.ndarray,
-                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(
+        self, st: Any, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         h, w = st["full"]
         hh, ww = st["work"]
@@ -277,34 +289,50 @@ class ClassicSegmenter(Segmenter):
                 seeds = pos_disk
             closure = 1.0
             if edge:
-                init, closure = self._edge_labels(st, k, sure_bg, seeds, neg_disk, nearer_neg,
-                                                  pr, pc, nr, nc)
+                init, closure = self._edge_labels(
+                    st, k, sure_bg, seeds, neg_disk, nearer_neg, pr, pc, nr, nc
+                )
             else:
                 init = self._init_labels(inband, sure_bg, seeds, neg_disk, nearer_neg, pr, pc)
             key = init.tobytes()
             if key not in done:
-                done[key] = self._grabcut(feat8, init, pr, pc, nr, nc, cfg.iterations[k],
-                                          cfg.cut_scale[k])
+                done[key] = self._grabcut(
+                    feat8, init, pr, pc, nr, nc, cfg.iterations[k], cfg.cut_scale[k]
+                )
             binary = done[key]
-            score = self._score(binary, feat, pr, pc, nr, nc) * closure ** cfg.closure_power
+            score = self._score(binary, feat, pr, pc, nr, nc) * closure**cfg.closure_power
             if edge and k in cfg.edge_fallback and score < cfg.edge_min_score:  # plain band
                 hf = cfg.hard_factor * cfg.depth_tol[k]
-                init = self._init_labels(inband, np.abs(delta) > hf if delta is not None else
-                                         np.zeros((hh, ww), bool), seeds, neg_disk, nearer_neg,
-                                         pr, pc)
+                init = self._init_labels(
+                    inband,
+                    np.abs(delta) > hf if delta is not None else np.zeros((hh, ww), bool),
+                    seeds,
+                    neg_disk,
+                    nearer_neg,
+                    pr,
+                    pc,
+                )
                 key = init.tobytes()
                 if key not in done:
-                    done[key] = self._grabcut(feat8, init, pr, pc, nr, nc, cfg.iterations[k],
-                                              cfg.cut_scale[k])
+                    done[key] = self._grabcut(
+                        feat8, init, pr, pc, nr, nc, cfg.iterations[k], cfg.cut_scale[k]
+                    )
                 binary = done[key]
                 score = self._score(binary, feat, pr, pc, nr, nc)
             masks[k] = self._soften(binary, (h, w))
             scores[k] = score
         return masks, scores
 
-    def _init_labels(self, inband: np.ndarray, sure_bg: np.ndarray, seeds: np.ndarray,
-                     neg_disk: np.ndarray, nearer_neg: np.ndarray, pr: np.ndarray,
-                     pc: np.ndarray) -> np.ndarray:
+    def _init_labels(
+        self,
+        inband: np.ndarray,
+        sure_bg: np.ndarray,
+        seeds: np.ndarray,
+        neg_disk: np.ndarray,
+        nearer_neg: np.ndarray,
+        pr: np.ndarray,
+        pc: np.ndarray,
+    ) -> np.ndarray:
         """GrabCut's initial label image (module docstring, step 3)."""
         hh, ww = inband.shape
         region = (_components_with(inband, pr, pc) & ~nearer_neg) | seeds
@@ -327,14 +355,25 @@ class ClassicSegmenter(Segmenter):
             jpix, cpix = st["edges"]
             jt = cfg.jump_tol[k]
             kernel = np.ones((2 * cfg.crease_gate_px + 1,) * 2, np.uint8)
-            near_jump = cv2.dilate((jpix > cfg.crease_gate * jt).astype(np.uint8),
-                                   kernel).astype(bool)
+            near_jump = cv2.dilate((jpix > cfg.crease_gate * jt).astype(np.uint8), kernel).astype(
+                bool
+            )
             cache[k] = np.maximum(jpix / jt, np.where(near_jump, 0.0, cpix / cfg.crease_tol[k]))
         return cache[k]
 
-    def _edge_labels(self, st: Any, k: int, sure_bg: np.ndarray, seeds: np.ndarray,
-                     neg_disk: np.ndarray, nearer_neg: np.ndarray, pr: np.ndarray, pc: np.ndarray,
-                     nr: np.ndarray, nc: np.ndarray) -> tuple[np.ndarray, float]:
+    def _edge_labels(
+        self,
+        st: Any,
+        k: int,
+        sure_bg: np.ndarray,
+        seeds: np.ndarray,
+        neg_disk: np.ndarray,
+        nearer_neg: np.ndarray,
+        pr: np.ndarray,
+        pc: np.ndarray,
+        nr: np.ndarray,
+        nc: np.ndarray,
+    ) -> tuple[np.ndarray, float]:
         """GrabCut's initial labels from the depth-edge region (module docstring) and the
         region's closure (fraction of its outer rim on a depth edge)."""
         cfg = self.config
@@ -360,8 +399,17 @@ class ClassicSegmenter(Segmenter):
         gc[neg_disk] = cv2.GC_BGD
         return gc, closure
 
-    def _grabcut(self, feat8: np.ndarray, init: np.ndarray, pr: np.ndarray, pc: np.ndarray,
-                 nr: np.ndarray, nc: np.ndarray, iters: int, scale: float) -> np.ndarray:
+    def _grabcut(
+        self,
+        feat8: np.ndarray,
+        init: np.ndarray,
+        pr: np.ndarray,
+        pc: np.ndarray,
+        nr: np.ndarray,
+        nc: np.ndarray,
+        iters: int,
+        scale: float,
+    ) -> np.ndarray:
         """Seeded GrabCut in an ROI around the probable foreground → binary mask."""
         cfg = self.config
         hh, ww = init.shape
@@ -384,14 +432,22 @@ class ClassicSegmenter(Segmenter):
             cv2.setRNGSeed(cfg.seed)
             bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
             try:
-                cv2.grabCut(np.ascontiguousarray(img), sub, None, bgd, fgd, max(1, int(iters)),
-                            cv2.GC_INIT_WITH_MASK)
+                cv2.grabCut(
+                    np.ascontiguousarray(img),
+                    sub,
+                    None,
+                    bgd,
+                    fgd,
+                    max(1, int(iters)),
+                    cv2.GC_INIT_WITH_MASK,
+                )
                 is_fg = (sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)
             except cv2.error:  # degenerate colour models: keep the initial labelling
                 pass
         if is_fg.shape != (sh, sw):
-            is_fg = cv2.resize(is_fg.astype(np.uint8), (sw, sh),
-                               interpolation=cv2.INTER_NEAREST).astype(bool)
+            is_fg = cv2.resize(
+                is_fg.astype(np.uint8), (sw, sh), interpolation=cv2.INTER_NEAREST
+            ).astype(bool)
         out = np.zeros((hh, ww), bool)
         out[y0:y1, x0:x1] = is_fg
         return _components_with(out, pr, pc)
@@ -410,8 +466,15 @@ class ClassicSegmenter(Segmenter):
             sd = cv2.resize(sd, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(w / ww)
         return sigmoid(sd / np.float32(self.config.softness_px))
 
-    def _score(self, binary: np.ndarray, feat: np.ndarray, pr: np.ndarray, pc: np.ndarray,
-               nr: np.ndarray, nc: np.ndarray) -> float:
+    def _score(
+        self,
+        binary: np.ndarray,
+        feat: np.ndarray,
+        pr: np.ndarray,
+        pc: np.ndarray,
+        nr: np.ndarray,
+        nc: np.ndarray,
+    ) -> float:
         cfg = self.config
         area = binary.mean()
         if area == 0 or area > cfg.max_area_frac:
@@ -419,12 +482,14 @@ class ClassicSegmenter(Segmenter):
         size = min(1.0, area / cfg.min_area_frac)
         k = np.ones((3, 3), np.uint8)
         b8 = binary.astype(np.uint8)
-        ring_in = binary & ~cv2.erode(b8, k, iterations=2, borderType=cv2.BORDER_REPLICATE).astype(bool)
+        ring_in = binary & ~cv2.erode(b8, k, iterations=2, borderType=cv2.BORDER_REPLICATE).astype(
+            bool
+        )
         ring_out = cv2.dilate(b8, k, iterations=2).astype(bool) & ~binary
         if not ring_out.any():
             return 0.0
         fi, fo = feat[ring_in], feat[ring_out]
-        d2 = np.sum((fi.mean(0) - fo.mean(0)) ** 2 / (fi.var(0) + fo.var(0) + cfg.sep_floor ** 2))
+        d2 = np.sum((fi.mean(0) - fo.mean(0)) ** 2 / (fi.var(0) + fo.var(0) + cfg.sep_floor**2))
         sep = d2 / (1.0 + d2)
         cover = binary[pr, pc].mean()
         neg_in = binary[nr, nc].mean() if len(nr) else 0.0

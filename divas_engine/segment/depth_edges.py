@@ -62,13 +62,17 @@ def _shift_steps(q: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.n
     qa = np.moveaxis(q, axis, 0)
     p = np.concatenate([qa[:1], qa[:1], qa, qa[-1:], qa[-1:]], axis=0)  # replicate 2 px
     n = qa.shape[0]
-    a, b = p[2:n + 1], p[3:n + 2]  # q[x], q[x+1] for x = 0 .. n−2
+    a, b = p[2 : n + 1], p[3 : n + 2]  # q[x], q[x+1] for x = 0 .. n−2
     s = b - a
-    gl = p[1:n] - p[0:n - 1]  # q[x−1] − q[x−2]: skips one pixel, so a jump resampled
-    gr = p[4:n + 3] - p[3:n + 2]  # q[x+3] − q[x+2]  into a 2-px ramp is still a jump
+    gl = p[1:n] - p[0 : n - 1]  # q[x−1] − q[x−2]: skips one pixel, so a jump resampled
+    gr = p[4 : n + 3] - p[3 : n + 2]  # q[x+3] − q[x+2]  into a 2-px ramp is still a jump
     lo = np.minimum(a, b)
-    return (np.moveaxis(s, 0, axis), np.moveaxis(gl, 0, axis), np.moveaxis(gr, 0, axis),
-            np.moveaxis(lo, 0, axis))
+    return (
+        np.moveaxis(s, 0, axis),
+        np.moveaxis(gl, 0, axis),
+        np.moveaxis(gr, 0, axis),
+        np.moveaxis(lo, 0, axis),
+    )
 
 
 def pair_jumps(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -131,8 +135,9 @@ def pixel_strength(h_pairs: np.ndarray, v_pairs: np.ndarray) -> np.ndarray:
     return e
 
 
-def regrow(core: np.ndarray, logd: np.ndarray, allowed: np.ndarray, tol: float,
-           steps: int) -> np.ndarray:
+def regrow(
+    core: np.ndarray, logd: np.ndarray, allowed: np.ndarray, tol: float, steps: int
+) -> np.ndarray:
     """Grow ``core`` by up to ``steps`` px into ``allowed`` pixels whose log depth is within
     ``tol`` of the mean log depth of their region neighbours (the barrier's own side)."""
     reg = core.copy()

@@ -34,9 +34,17 @@ import numpy as np
 
 from .base import as_prompts, pixel_index
 
-__all__ = ["NerfDepthWeightConfig", "GsBandpassConfig", "DepthBand", "valid_depth",
-           "nerf_depth_weight", "apply_nerf_depth_weight", "depth_band", "gs_bandpass_weight",
-           "apply_gs_bandpass"]
+__all__ = [
+    "NerfDepthWeightConfig",
+    "GsBandpassConfig",
+    "DepthBand",
+    "valid_depth",
+    "nerf_depth_weight",
+    "apply_nerf_depth_weight",
+    "depth_band",
+    "gs_bandpass_weight",
+    "apply_gs_bandpass",
+]
 
 
 @dataclass(frozen=True)
@@ -88,8 +96,9 @@ class DepthBand:
         return self.d_far - self.d_max
 
 
-def valid_depth(depth: np.ndarray, min_valid_depth: float,
-                valid: np.ndarray | None = None) -> np.ndarray:
+def valid_depth(
+    depth: np.ndarray, min_valid_depth: float, valid: np.ndarray | None = None
+) -> np.ndarray:
     """Finite and ``≥ min_valid_depth`` (and ``valid`` when given)."""
     d = np.asarray(depth)
     ok = np.isfinite(d) & (d >= min_valid_depth)
@@ -98,8 +107,9 @@ def valid_depth(depth: np.ndarray, min_valid_depth: float,
     return ok
 
 
-def nerf_depth_weight(depth: np.ndarray, valid: np.ndarray | None = None,
-                      config: NerfDepthWeightConfig | None = None) -> np.ndarray:
+def nerf_depth_weight(
+    depth: np.ndarray, valid: np.ndarray | None = None, config: NerfDepthWeightConfig | None = None
+) -> np.ndarray:
     """``1 − Ẑ_s`` of eq:nerf-depthweight, ``[H,W]`` float32."""
     cfg = config or NerfDepthWeightConfig()
     d = np.asarray(depth, dtype=np.float64)
@@ -112,8 +122,12 @@ def nerf_depth_weight(depth: np.ndarray, valid: np.ndarray | None = None,
     return weight.astype(np.float32)
 
 
-def apply_nerf_depth_weight(mask: np.ndarray, depth: np.ndarray, valid: np.ndarray | None = None,
-                            config: NerfDepthWeightConfig | None = None) -> np.ndarray:
+def apply_nerf_depth_weight(
+    mask: np.ndarray,
+    depth: np.ndarray,
+    valid: np.ndarray | None = None,
+    config: NerfDepthWeightConfig | None = None,
+) -> np.ndarray:
     """``M̃_s = M_s ⊙ (1 − Ẑ_s)`` (eq:nerf-depthweight)."""
     m = np.asarray(mask, dtype=np.float32)
     if m.shape != np.shape(depth):
@@ -121,9 +135,13 @@ def apply_nerf_depth_weight(mask: np.ndarray, depth: np.ndarray, valid: np.ndarr
     return m * nerf_depth_weight(depth, valid, config)
 
 
-def depth_band(depth: np.ndarray, points: np.ndarray, labels: np.ndarray,
-               valid: np.ndarray | None = None,
-               config: GsBandpassConfig | None = None) -> DepthBand | None:
+def depth_band(
+    depth: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    valid: np.ndarray | None = None,
+    config: GsBandpassConfig | None = None,
+) -> DepthBand | None:
     """``d_min, d_max`` (eq:depthband) and ``d_far = 𝒫₉₈(D_med)``; None without a valid sample."""
     cfg = config or GsBandpassConfig()
     d = np.asarray(depth, dtype=np.float64)
@@ -142,8 +160,12 @@ def depth_band(depth: np.ndarray, points: np.ndarray, labels: np.ndarray,
     return DepthBand(float(samples.min()), float(samples.max()), d_far, samples)
 
 
-def gs_bandpass_weight(depth: np.ndarray, band: DepthBand, valid: np.ndarray | None = None,
-                       config: GsBandpassConfig | None = None) -> np.ndarray:
+def gs_bandpass_weight(
+    depth: np.ndarray,
+    band: DepthBand,
+    valid: np.ndarray | None = None,
+    config: GsBandpassConfig | None = None,
+) -> np.ndarray:
     """``1 − D_band`` of eq:gs-bandpass, ``[H,W]`` float32."""
     cfg = config or GsBandpassConfig()
     d = np.asarray(depth, dtype=np.float64)
@@ -156,9 +178,14 @@ def gs_bandpass_weight(depth: np.ndarray, band: DepthBand, valid: np.ndarray | N
     return np.where(ok, 1.0 - d_band, cfg.invalid_weight).astype(np.float32)
 
 
-def apply_gs_bandpass(mask: np.ndarray, depth: np.ndarray, points: np.ndarray, labels: np.ndarray,
-                      valid: np.ndarray | None = None,
-                      config: GsBandpassConfig | None = None) -> tuple[np.ndarray, DepthBand | None]:
+def apply_gs_bandpass(
+    mask: np.ndarray,
+    depth: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    valid: np.ndarray | None = None,
+    config: GsBandpassConfig | None = None,
+) -> tuple[np.ndarray, DepthBand | None]:
     """``M̃_s = M_s (1 − D_band)`` (eq:gs-bandpass) and the band used.
 
     Without a valid band sample the mask is returned unweighted with band None.

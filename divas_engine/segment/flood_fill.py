@@ -10,8 +10,9 @@ than ``max_area_frac`` of the view, else 0.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Any, Hashable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -57,8 +58,9 @@ class FloodFillSegmenter(Segmenter):
             acc |= m
         return acc[1:-1, 1:-1].astype(bool)
 
-    def _predict(self, img: Any, points: np.ndarray,
-                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(
+        self, img: Any, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         h, w = img.shape[:2]
         masks = np.zeros((3, h, w), np.float32)
         scores = np.zeros(3, np.float32)

@@ -35,14 +35,15 @@ records the seed and every error drawn.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable, Hashable
 from dataclasses import asdict, dataclass
-from typing import Any, Callable, Hashable
+from typing import Any
 
 import cv2
 import numpy as np
 from scipy import ndimage
 
-from .base import SegResult, Segmenter, _fingerprint
+from .base import Segmenter, SegResult, _fingerprint
 from .sam_common import sigmoid
 
 __all__ = ["OracleConfig", "OracleSegmenter"]
@@ -85,16 +86,25 @@ class OracleSegmenter(Segmenter):
 
     name = "oracle"
 
-    def __init__(self, gt_render: Callable[[Hashable], np.ndarray] | None = None,
-                 config: OracleConfig | None = None):
+    def __init__(
+        self,
+        gt_render: Callable[[Hashable], np.ndarray] | None = None,
+        config: OracleConfig | None = None,
+    ):
         super().__init__(cache_size=0)
         self.gt_render = gt_render
         self.config = config or OracleConfig()
         self.last_report: dict[str, Any] = {}
         self._gt: np.ndarray | None = None
 
-    def set_image(self, rgb: np.ndarray, depth: np.ndarray | None = None, *,
-                  view_id: Hashable | None = None, gt: np.ndarray | None = None) -> None:
+    def set_image(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray | None = None,
+        *,
+        view_id: Hashable | None = None,
+        gt: np.ndarray | None = None,
+    ) -> None:
         """Like :meth:`Segmenter.set_image`, plus the view's ground-truth coverage ``gt``."""
         if gt is None:
             if self.gt_render is None or view_id is None:
@@ -104,9 +114,16 @@ class OracleSegmenter(Segmenter):
             self._gt = np.asarray(gt, dtype=np.float32)
             super().set_image(rgb, depth, view_id=view_id)
 
-    def segment(self, rgb: np.ndarray, depth: np.ndarray | None, points: np.ndarray,
-                labels: np.ndarray, *, view_id: Hashable | None = None,
-                gt: np.ndarray | None = None) -> SegResult:
+    def segment(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray | None,
+        points: np.ndarray,
+        labels: np.ndarray,
+        *,
+        view_id: Hashable | None = None,
+        gt: np.ndarray | None = None,
+    ) -> SegResult:
         """``set_image`` (with optional ``gt``) + ``predict``, atomically."""
         with self._lock:
             self.set_image(rgb, depth, view_id=view_id, gt=gt)
@@ -123,8 +140,9 @@ class OracleSegmenter(Segmenter):
         gt = self._gt
         h, w = rgb.shape[:2]
         if gt is None or gt.shape != (h, w):
-            raise ValueError(f"oracle: gt must be [H,W]=({h}, {w}), got "
-                             f"{None if gt is None else gt.shape}")
+            raise ValueError(
+                f"oracle: gt must be [H,W]=({h}, {w}), got {None if gt is None else gt.shape}"
+            )
         key = repr(view_id) if view_id is not None else _fingerprint(gt, depth)
         ss = np.random.SeedSequence([cfg.seed, zlib.crc32(key.encode())])
         rng_drop, rng_bleed, rng_fp = (np.random.default_rng(s) for s in ss.spawn(3))
@@ -149,7 +167,9 @@ class OracleSegmenter(Segmenter):
         self.last_report = rep
         return prob
 
-    def _dropout(self, lo: np.ndarray, obj: np.ndarray, rng: np.random.Generator) -> tuple[int, int]:
+    def _dropout(
+        self, lo: np.ndarray, obj: np.ndarray, rng: np.random.Generator
+    ) -> tuple[int, int]:
         cfg = self.config
         k = cv2.getStructuringElement(cv2.MORPH_CROSS, (cfg.thin_px, cfg.thin_px))
         thin = obj & ~cv2.morphologyEx(obj.astype(np.uint8), cv2.MORPH_OPEN, k).astype(bool)
@@ -161,8 +181,9 @@ class OracleSegmenter(Segmenter):
             lo[np.isin(lab, drop)] = 0.0
         return len(drop), len(parts)
 
-    def _bleed(self, lo: np.ndarray, obj: np.ndarray, dlo: np.ndarray | None,
-               rng: np.random.Generator) -> tuple[float, int]:
+    def _bleed(
+        self, lo: np.ndarray, obj: np.ndarray, dlo: np.ndarray | None, rng: np.random.Generator
+    ) -> tuple[float, int]:
         cfg = self.config
         u, width = rng.random(), rng.uniform(cfg.bleed_min_px, cfg.bleed_max_px)
         if not (u < cfg.bleed_prob) or not obj.any() or obj.all():
@@ -175,8 +196,9 @@ class OracleSegmenter(Segmenter):
         lo[region] = 1.0
         return float(width), int(region.sum())
 
-    def _false_positive(self, lo: np.ndarray, obj: np.ndarray,
-                        rng: np.random.Generator) -> dict[str, float] | None:
+    def _false_positive(
+        self, lo: np.ndarray, obj: np.ndarray, rng: np.random.Generator
+    ) -> dict[str, float] | None:
         cfg = self.config
         u, r, pick = rng.random(), rng.uniform(*cfg.fp_radius_px), rng.random()
         if not u < cfg.fp_prob:
@@ -191,8 +213,9 @@ class OracleSegmenter(Segmenter):
         lo[blob.astype(bool)] = 1.0
         return {"x": cx + 0.5, "y": cy + 0.5, "radius": float(r)}
 
-    def _predict(self, prob: Any, points: np.ndarray,
-                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(
+        self, prob: Any, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         score = cfg.score_nonempty if bool((prob >= 0.5).any()) else cfg.score_empty
         return np.repeat(prob[None], 3, axis=0), np.full(3, score, np.float32)

@@ -27,9 +27,18 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["SAM_PIXEL_MEAN", "SAM_PIXEL_STD", "SAM_IMAGE_SIZE", "preprocess_shape",
-           "resize_antialiased", "resize_longest_side", "normalize_pad", "sam_point_coords",
-           "decoder_prompts", "sigmoid"]
+__all__ = [
+    "SAM_PIXEL_MEAN",
+    "SAM_PIXEL_STD",
+    "SAM_IMAGE_SIZE",
+    "preprocess_shape",
+    "resize_antialiased",
+    "resize_longest_side",
+    "normalize_pad",
+    "sam_point_coords",
+    "decoder_prompts",
+    "sigmoid",
+]
 
 #: SAM's normalisation on the 0..255 scale (segment-anything ``Sam.pixel_mean/std``).
 SAM_PIXEL_MEAN = np.array([123.675, 116.28, 103.53], dtype=np.float32)
@@ -57,8 +66,10 @@ def _triangle_weights(n_in: int, n_out: int) -> sparse.csr_matrix:
     w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
     rows = np.repeat(np.arange(n_out), taps)
     keep = w.reshape(-1) > 0
-    return sparse.csr_matrix((w.reshape(-1)[keep], (rows[keep], np.clip(j, 0, n_in - 1).reshape(-1)[keep])),
-                             shape=(n_out, n_in))
+    return sparse.csr_matrix(
+        (w.reshape(-1)[keep], (rows[keep], np.clip(j, 0, n_in - 1).reshape(-1)[keep])),
+        shape=(n_out, n_in),
+    )
 
 
 def resize_antialiased(img: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
@@ -88,8 +99,9 @@ def normalize_pad(resized255: np.ndarray, size: int = SAM_IMAGE_SIZE) -> np.ndar
     return out
 
 
-def sam_point_coords(points: np.ndarray, orig_hw: tuple[int, int],
-                     long_side: int = SAM_IMAGE_SIZE) -> np.ndarray:
+def sam_point_coords(
+    points: np.ndarray, orig_hw: tuple[int, int], long_side: int = SAM_IMAGE_SIZE
+) -> np.ndarray:
     """Our continuous points ``[P,2]`` → SAM decoder coordinates ``u · s − 0.5`` (module doc)."""
     h, w = orig_hw
     new_h, new_w = preprocess_shape(h, w, long_side)
@@ -97,10 +109,16 @@ def sam_point_coords(points: np.ndarray, orig_hw: tuple[int, int],
     return np.stack([pts[:, 0] * (new_w / w) - 0.5, pts[:, 1] * (new_h / h) - 0.5], axis=1)
 
 
-def decoder_prompts(points: np.ndarray, labels: np.ndarray, orig_hw: tuple[int, int],
-                    long_side: int = SAM_IMAGE_SIZE) -> tuple[np.ndarray, np.ndarray]:
-    """ONNX decoder ``point_coords [1,P+1,2]`` / ``point_labels [1,P+1]`` incl. the padding point."""
-    coords = np.concatenate([sam_point_coords(points, orig_hw, long_side), np.zeros((1, 2))], axis=0)
+def decoder_prompts(
+    points: np.ndarray,
+    labels: np.ndarray,
+    orig_hw: tuple[int, int],
+    long_side: int = SAM_IMAGE_SIZE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """ONNX decoder ``point_coords [1,P+1,2]``, ``point_labels [1,P+1]`` (padding point too)."""
+    coords = np.concatenate(
+        [sam_point_coords(points, orig_hw, long_side), np.zeros((1, 2))], axis=0
+    )
     labs = np.concatenate([np.asarray(labels, dtype=np.float64).reshape(-1), [-1.0]])
     return coords[None].astype(np.float32), labs[None].astype(np.float32)
 

@@ -29,25 +29,43 @@ Prompts go through :func:`.sam_common.decoder_prompts` (``u·s − 0.5`` plus th
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Sequence
 from os import PathLike
 from pathlib import Path
-from typing import Any, Hashable, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..errors import DivasInputError
 from .base import Segmenter
-from .sam_common import (SAM_IMAGE_SIZE, SAM_PIXEL_MEAN, decoder_prompts, normalize_pad,
-                         resize_longest_side, sigmoid)
+from .sam_common import (
+    SAM_IMAGE_SIZE,
+    SAM_PIXEL_MEAN,
+    decoder_prompts,
+    normalize_pad,
+    resize_longest_side,
+    sigmoid,
+)
 
 __all__ = ["SamOnnxSegmenter", "DECODER_INPUTS"]
 
 #: Input names of segment-anything's ONNX decoder export.
-DECODER_INPUTS = ("image_embeddings", "point_coords", "point_labels", "mask_input",
-                  "has_mask_input", "orig_im_size")
+DECODER_INPUTS = (
+    "image_embeddings",
+    "point_coords",
+    "point_labels",
+    "mask_input",
+    "has_mask_input",
+    "orig_im_size",
+)
 
-_ORT_TYPES = {"tensor(float)": np.float32, "tensor(double)": np.float64,
-              "tensor(int64)": np.int64, "tensor(int32)": np.int32, "tensor(uint8)": np.uint8}
+_ORT_TYPES = {
+    "tensor(float)": np.float32,
+    "tensor(double)": np.float64,
+    "tensor(int64)": np.int64,
+    "tensor(int32)": np.int32,
+    "tensor(uint8)": np.uint8,
+}
 
 
 def _open_session(path: Path, providers: Sequence[str] | None, what: str) -> Any:
@@ -58,7 +76,9 @@ def _open_session(path: Path, providers: Sequence[str] | None, what: str) -> Any
     if not path.is_file():
         raise DivasInputError(path, f"SAM {what} model file not found")
     try:
-        return ort.InferenceSession(str(path), providers=list(providers or ["CPUExecutionProvider"]))
+        return ort.InferenceSession(
+            str(path), providers=list(providers or ["CPUExecutionProvider"])
+        )
     except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph types
         raise DivasInputError(path, f"cannot load the SAM {what} as an ONNX model: {exc}") from exc
 
@@ -79,8 +99,13 @@ class SamOnnxSegmenter(Segmenter):
 
     name = "sam-onnx"
 
-    def __init__(self, encoder_path: str | PathLike, decoder_path: str | PathLike,
-                 providers: Sequence[str] | None = None, cache_size: int = 8):
+    def __init__(
+        self,
+        encoder_path: str | PathLike,
+        decoder_path: str | PathLike,
+        providers: Sequence[str] | None = None,
+        cache_size: int = 8,
+    ):
         super().__init__(cache_size)
         self.encoder_path, self.decoder_path = Path(encoder_path), Path(decoder_path)
         self._enc = _open_session(self.encoder_path, providers, "encoder")
@@ -92,61 +117,82 @@ class SamOnnxSegmenter(Segmenter):
     def _inspect_encoder(self) -> None:
         ins = self._enc.get_inputs()
         if len(ins) != 1:
-            raise DivasInputError(self.encoder_path, f"SAM encoder must take one image input, "
-                                  f"has {[i.name for i in ins]}")
+            raise DivasInputError(
+                self.encoder_path,
+                f"SAM encoder must take one image input, has {[i.name for i in ins]}",
+            )
         inp, shape = ins[0], list(ins[0].shape)
         self._enc_input, self._enc_dtype = inp.name, _ORT_TYPES.get(inp.type)
         if len(shape) == 4 and shape[1] == 3:
             self.encoder_layout = "preprocessed"
             self.image_size = _static(shape[2]) or _static(shape[3]) or SAM_IMAGE_SIZE
             if self._enc_dtype not in (np.float32, np.float64):
-                raise DivasInputError(self.encoder_path, f"preprocessed SAM encoder input must be "
-                                      f"float, is {inp.type}")
+                raise DivasInputError(
+                    self.encoder_path,
+                    f"preprocessed SAM encoder input must be float, is {inp.type}",
+                )
         elif len(shape) in (3, 4) and shape[-1] == 3:
             self.encoder_layout = "raw"
             self._raw_hw = (_static(shape[-3]), _static(shape[-2]))
             fixed = [d for d in self._raw_hw if d is not None]
             self.image_size = max(fixed) if fixed else SAM_IMAGE_SIZE
             if self._enc_dtype not in (np.float32, np.float64, np.uint8):
-                raise DivasInputError(self.encoder_path, f"raw SAM encoder input must be float or "
-                                      f"uint8, is {inp.type}")
+                raise DivasInputError(
+                    self.encoder_path,
+                    f"raw SAM encoder input must be float or uint8, is {inp.type}",
+                )
         else:
-            raise DivasInputError(self.encoder_path, f"unrecognised SAM encoder input {inp.name!r} "
-                                  f"{shape}: expected [1,3,1024,1024] (preprocessed) or "
-                                  f"[H,W,3] (preprocessing inside)")
+            raise DivasInputError(
+                self.encoder_path,
+                f"unrecognised SAM encoder input {inp.name!r} "
+                f"{shape}: expected [1,3,1024,1024] (preprocessed) or "
+                f"[H,W,3] (preprocessing inside)",
+            )
         self._enc_rank = len(shape)
         outs = self._enc.get_outputs()
         out = next((o for o in outs if o.name == "image_embeddings"), outs[0])
         if len(out.shape) != 4:
-            raise DivasInputError(self.encoder_path, f"SAM encoder output {out.name!r} has shape "
-                                  f"{out.shape}, expected [1,256,64,64]")
+            raise DivasInputError(
+                self.encoder_path,
+                f"SAM encoder output {out.name!r} has shape {out.shape}, expected [1,256,64,64]",
+            )
         self._enc_output = out.name
 
     def _inspect_decoder(self) -> None:
         ins = {i.name: i for i in self._dec.get_inputs()}
         missing = [n for n in DECODER_INPUTS if n not in ins]
         if missing:
-            raise DivasInputError(self.decoder_path, f"not a SAM ONNX decoder: missing inputs "
-                                  f"{missing} (has {sorted(ins)})")
+            raise DivasInputError(
+                self.decoder_path,
+                f"not a SAM ONNX decoder: missing inputs {missing} (has {sorted(ins)})",
+            )
         extra = sorted(set(ins) - set(DECODER_INPUTS))
         if extra:
             raise DivasInputError(self.decoder_path, f"SAM decoder has unexpected inputs {extra}")
         self._dec_types = {n: _ORT_TYPES.get(ins[n].type, np.float32) for n in DECODER_INPUTS}
         mshape = list(ins["mask_input"].shape)
-        self._mask_input_hw = (_static(mshape[-2]) or 256, _static(mshape[-1]) or 256) \
-            if len(mshape) == 4 else (256, 256)
+        self._mask_input_hw = (
+            (_static(mshape[-2]) or 256, _static(mshape[-1]) or 256)
+            if len(mshape) == 4
+            else (256, 256)
+        )
         outs = self._dec.get_outputs()
         names = [o.name for o in outs]
         if len(outs) < 2:
-            raise DivasInputError(self.decoder_path, f"SAM decoder needs masks and iou_predictions "
-                                  f"outputs, has {names}")
+            raise DivasInputError(
+                self.decoder_path,
+                f"SAM decoder needs masks and iou_predictions outputs, has {names}",
+            )
         self._mask_out = "masks" if "masks" in names else names[0]
         self._iou_out = "iou_predictions" if "iou_predictions" in names else names[1]
         mo = next(o for o in outs if o.name == self._mask_out)
         if len(mo.shape) == 4 and _static(mo.shape[1]) == 1:
-            raise DivasInputError(self.decoder_path, "SAM decoder was exported with "
-                                  "--return-single-mask; DivAS needs the 3 multimask outputs — "
-                                  "re-export without that flag")
+            raise DivasInputError(
+                self.decoder_path,
+                "SAM decoder was exported with "
+                "--return-single-mask; DivAS needs the 3 multimask outputs — "
+                "re-export without that flag",
+            )
 
     # -- Segmenter hooks --------------------------------------------------------
     def preprocess(self, rgb01: np.ndarray) -> np.ndarray:
@@ -171,12 +217,14 @@ class SamOnnxSegmenter(Segmenter):
         emb = self._enc.run([self._enc_output], {self._enc_input: self.preprocess(rgb)})[0]
         emb = np.asarray(emb, dtype=np.float32)
         if emb.ndim != 4 or emb.shape[0] != 1:
-            raise DivasInputError(self.encoder_path, f"SAM encoder produced {emb.shape}, "
-                                  f"expected [1,256,64,64]")
+            raise DivasInputError(
+                self.encoder_path, f"SAM encoder produced {emb.shape}, expected [1,256,64,64]"
+            )
         return emb, rgb.shape[:2]
 
-    def _predict(self, state: Any, points: np.ndarray,
-                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(
+        self, state: Any, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         emb, (h, w) = state
         coords, labs = decoder_prompts(points, labels, (h, w), self.image_size)
         t = self._dec_types
@@ -189,15 +237,23 @@ class SamOnnxSegmenter(Segmenter):
             "orig_im_size": np.array([h, w], t["orig_im_size"]),
         }
         masks, iou = self._dec.run([self._mask_out, self._iou_out], feeds)
-        masks = np.asarray(masks, dtype=np.float32).reshape(-1, h, w) \
-            if np.size(masks) % (h * w) == 0 else np.asarray(masks)
+        masks = (
+            np.asarray(masks, dtype=np.float32).reshape(-1, h, w)
+            if np.size(masks) % (h * w) == 0
+            else np.asarray(masks)
+        )
         iou = np.asarray(iou, dtype=np.float32).reshape(-1)
         if masks.ndim != 3 or masks.shape[1:] != (h, w) or masks.shape[0] != iou.shape[0]:
-            raise DivasInputError(self.decoder_path, f"SAM decoder returned masks "
-                                  f"{np.shape(masks)} / scores {iou.shape} for image {h}x{w}")
+            raise DivasInputError(
+                self.decoder_path,
+                f"SAM decoder returned masks "
+                f"{np.shape(masks)} / scores {iou.shape} for image {h}x{w}",
+            )
         if masks.shape[0] == 4:
             masks, iou = masks[1:], iou[1:]
         elif masks.shape[0] != 3:
-            raise DivasInputError(self.decoder_path, f"SAM decoder returned {masks.shape[0]} "
-                                  f"masks; need the 3-mask multimask output")
+            raise DivasInputError(
+                self.decoder_path,
+                f"SAM decoder returned {masks.shape[0]} masks; need the 3-mask multimask output",
+            )
         return sigmoid(masks), iou

@@ -16,9 +16,10 @@ tensor-level API:
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from os import PathLike
 from pathlib import Path
-from typing import Any, Hashable
+from typing import Any
 
 import numpy as np
 
@@ -36,9 +37,11 @@ def _import_torch() -> Any:
     try:
         import torch
     except ImportError as exc:
-        raise ImportError("SamTorchSegmenter needs the optional package 'torch' "
-                          "(pip install torch); use SamOnnxSegmenter or ClassicSegmenter "
-                          "without it") from exc
+        raise ImportError(
+            "SamTorchSegmenter needs the optional package 'torch' "
+            "(pip install torch); use SamOnnxSegmenter or ClassicSegmenter "
+            "without it"
+        ) from exc
     return torch
 
 
@@ -54,30 +57,42 @@ class SamTorchSegmenter(Segmenter):
 
     name = "sam-torch"
 
-    def __init__(self, checkpoint: str | PathLike, model_type: str = "vit_h",
-                 device: str | None = None, cache_size: int = 8):
+    def __init__(
+        self,
+        checkpoint: str | PathLike,
+        model_type: str = "vit_h",
+        device: str | None = None,
+        cache_size: int = 8,
+    ):
         torch = _import_torch()
         try:
             from segment_anything import SamPredictor, sam_model_registry
         except ImportError as exc:
-            raise ImportError("SamTorchSegmenter needs the optional package 'segment-anything' "
-                              "(pip install segment-anything torchvision)") from exc
+            raise ImportError(
+                "SamTorchSegmenter needs the optional package 'segment-anything' "
+                "(pip install segment-anything torchvision)"
+            ) from exc
         path = Path(checkpoint)
         if model_type not in sam_model_registry:
-            raise DivasInputError(path, f"unknown SAM model type {model_type!r}; expected one of "
-                                  f"{sorted(sam_model_registry)}")
+            raise DivasInputError(
+                path,
+                f"unknown SAM model type {model_type!r}; expected one of "
+                f"{sorted(sam_model_registry)}",
+            )
         if not path.is_file():
             raise DivasInputError(path, "SAM checkpoint file not found")
         try:
             model = sam_model_registry[model_type](checkpoint=str(path))
         except Exception as exc:  # bad pickle, wrong state dict for the type, ...
-            raise DivasInputError(path, f"cannot load a {model_type} SAM checkpoint: {exc}") from exc
+            raise DivasInputError(
+                path, f"cannot load a {model_type} SAM checkpoint: {exc}"
+            ) from exc
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
         model.to(device=dev).eval()
         self._init_from_predictor(SamPredictor(model), cache_size)
 
     @classmethod
-    def from_predictor(cls, predictor: Any, cache_size: int = 8) -> "SamTorchSegmenter":
+    def from_predictor(cls, predictor: Any, cache_size: int = 8) -> SamTorchSegmenter:
         """Wrap an existing ``SamPredictor``-like object (custom builds, tests)."""
         _import_torch()
         self = cls.__new__(cls)
@@ -99,11 +114,15 @@ class SamTorchSegmenter(Segmenter):
         with torch.no_grad():
             self.predictor.set_torch_image(img.to(self._device()), tuple(rgb.shape[:2]))
         p = self.predictor
-        return {"features": p.features, "original_size": tuple(p.original_size),
-                "input_size": tuple(p.input_size)}
+        return {
+            "features": p.features,
+            "original_size": tuple(p.original_size),
+            "input_size": tuple(p.input_size),
+        }
 
-    def _predict(self, state: Any, points: np.ndarray,
-                 labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _predict(
+        self, state: Any, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         torch = _import_torch()
         p = self.predictor
         p.features = state["features"]  # restore the cached view (cheap when unchanged)
@@ -111,8 +130,9 @@ class SamTorchSegmenter(Segmenter):
         p.is_image_set = True
         h, w = state["original_size"]
         dev = self._device()
-        coords = torch.as_tensor(sam_point_coords(points, (h, w), self.image_size)[None],
-                                 dtype=torch.float32, device=dev)
+        coords = torch.as_tensor(
+            sam_point_coords(points, (h, w), self.image_size)[None], dtype=torch.float32, device=dev
+        )
         labs = torch.as_tensor(labels[None], dtype=torch.int64, device=dev)
         with torch.no_grad():
             masks, iou, _ = p.predict_torch(coords, labs, multimask_output=True, return_logits=True)

@@ -26,12 +26,13 @@ from __future__ import annotations
 
 import hashlib
 import threading
+from collections.abc import Hashable
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, Hashable
+from typing import Any
 
 import numpy as np
 
-from .base import SegResult, Segmenter, as_prompts
+from .base import Segmenter, SegResult, as_prompts
 
 __all__ = ["SamWorker", "SegmentationJobError", "SYNC_PENDING"]
 
@@ -42,13 +43,19 @@ SYNC_PENDING = 3
 class SegmentationJobError(RuntimeError):
     """A segmentation job failed; ``view_id``, the ``cause`` and the other views' ``results``."""
 
-    def __init__(self, view_id: Hashable, cause: BaseException,
-                 results: dict[Hashable, SegResult], failures: dict[Hashable, BaseException]):
+    def __init__(
+        self,
+        view_id: Hashable,
+        cause: BaseException,
+        results: dict[Hashable, SegResult],
+        failures: dict[Hashable, BaseException],
+    ):
         self.view_id, self.cause = view_id, cause
         self.results, self.failures = results, failures
         more = f" (and {len(failures) - 1} more failed view(s))" if len(failures) > 1 else ""
-        super().__init__(f"segmentation of view {view_id!r} failed: "
-                         f"{type(cause).__name__}: {cause}{more}")
+        super().__init__(
+            f"segmentation of view {view_id!r} failed: {type(cause).__name__}: {cause}{more}"
+        )
 
 
 def _prompt_key(points: np.ndarray, labels: np.ndarray) -> str:
@@ -65,13 +72,17 @@ class SamWorker:
         sync_pending: pending count that makes :meth:`should_sync` true (3).
     """
 
-    def __init__(self, segmenter: Segmenter, *, asynchronous: bool = True,
-                 sync_pending: int = SYNC_PENDING):
+    def __init__(
+        self, segmenter: Segmenter, *, asynchronous: bool = True, sync_pending: int = SYNC_PENDING
+    ):
         self.segmenter = segmenter
         self.asynchronous = bool(asynchronous)
         self.sync_pending = int(sync_pending)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="divas-sam") \
-            if self.asynchronous else None
+        self._pool = (
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="divas-sam")
+            if self.asynchronous
+            else None
+        )
         self._pending: dict[Hashable, tuple[str, Future]] = {}
         self._cache: dict[Hashable, tuple[str, SegResult]] = {}
         self._lock = threading.Lock()
@@ -79,8 +90,14 @@ class SamWorker:
         self.runs = 0  # segmenter calls actually made (cache hits excluded)
 
     # -- API -----------------------------------------------------------------------
-    def submit(self, view_id: Hashable, rgb: np.ndarray, depth: np.ndarray | None,
-               points: np.ndarray, labels: np.ndarray) -> None:
+    def submit(
+        self,
+        view_id: Hashable,
+        rgb: np.ndarray,
+        depth: np.ndarray | None,
+        points: np.ndarray,
+        labels: np.ndarray,
+    ) -> None:
         """Queue (or, synchronous, run) SAM on one view with its prompts."""
         if self._closed:
             raise RuntimeError("SamWorker is closed")
@@ -99,8 +116,12 @@ class SamWorker:
                 self._pending[view_id] = (key, fut)
                 return
         if self._pool is not None:
-            args = (np.array(rgb, copy=True), None if depth is None else np.array(depth, copy=True),
-                    np.array(points, copy=True), np.array(labels, copy=True))
+            args = (
+                np.array(rgb, copy=True),
+                None if depth is None else np.array(depth, copy=True),
+                np.array(points, copy=True),
+                np.array(labels, copy=True),
+            )
             fut = self._pool.submit(self._run, view_id, *args)
         else:
             try:
@@ -147,8 +168,9 @@ class SamWorker:
                 self._cache[view_id] = (key, res)
         if failures:
             first = next(iter(failures))
-            raise SegmentationJobError(first, failures[first], results, failures) \
-                from failures[first]
+            raise SegmentationJobError(first, failures[first], results, failures) from failures[
+                first
+            ]
         return results
 
     def result(self, view_id: Hashable) -> SegResult | None:
@@ -172,14 +194,20 @@ class SamWorker:
         with self._lock:
             self._pending.clear()
 
-    def __enter__(self) -> "SamWorker":
+    def __enter__(self) -> SamWorker:
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
     # -- internals -------------------------------------------------------------------
-    def _run(self, view_id: Hashable, rgb: np.ndarray, depth: np.ndarray | None,
-             points: np.ndarray, labels: np.ndarray) -> SegResult:
+    def _run(
+        self,
+        view_id: Hashable,
+        rgb: np.ndarray,
+        depth: np.ndarray | None,
+        points: np.ndarray,
+        labels: np.ndarray,
+    ) -> SegResult:
         self.runs += 1
         return self.segmenter.segment(rgb, depth, points, labels, view_id=view_id)

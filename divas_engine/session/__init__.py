@@ -10,15 +10,55 @@
 
 from .config import SessionConfig, config_from_dict, config_to_dict
 from .labels_io import LABEL_PROPERTY, file_label_values, write_labelled_ply
-from .prompts import (AnchorPrompt, Click, Prompts, ResolvedAnchor, find_training_camera,
-                      load_prompts, parse_prompts, resolve_anchors)
-from .session import (AcceptResult, AnchorClick, AnchorView, MaskPreview, ObjectRecord, Overlay,
-                      Session, SessionView, anchor_plan, scene_kind)
+from .prompts import (
+    AnchorPrompt,
+    Click,
+    Prompts,
+    ResolvedAnchor,
+    find_training_camera,
+    load_prompts,
+    parse_prompts,
+    resolve_anchors,
+)
+from .session import (
+    AcceptResult,
+    AnchorClick,
+    AnchorView,
+    MaskPreview,
+    ObjectRecord,
+    Overlay,
+    Session,
+    SessionView,
+    anchor_plan,
+    scene_kind,
+)
 from .timing import Timings, memory_report
 
-__all__ = ["Session", "SessionConfig", "SessionView", "AnchorView", "AnchorClick", "MaskPreview",
-           "AcceptResult", "Overlay", "ObjectRecord", "anchor_plan", "scene_kind",
-           "config_to_dict", "config_from_dict", "Prompts", "AnchorPrompt", "Click",
-           "ResolvedAnchor", "parse_prompts", "load_prompts", "resolve_anchors",
-           "find_training_camera", "write_labelled_ply", "file_label_values", "LABEL_PROPERTY",
-           "Timings", "memory_report"]
+__all__ = [
+    "Session",
+    "SessionConfig",
+    "SessionView",
+    "AnchorView",
+    "AnchorClick",
+    "MaskPreview",
+    "AcceptResult",
+    "Overlay",
+    "ObjectRecord",
+    "anchor_plan",
+    "scene_kind",
+    "config_to_dict",
+    "config_from_dict",
+    "Prompts",
+    "AnchorPrompt",
+    "Click",
+    "ResolvedAnchor",
+    "parse_prompts",
+    "load_prompts",
+    "resolve_anchors",
+    "find_training_camera",
+    "write_labelled_ply",
+    "file_label_values",
+    "LABEL_PROPERTY",
+    "Timings",
+    "memory_report",
+]

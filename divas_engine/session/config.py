@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..fusion.config import GridConfig, GsFusionConfig, NERF_PRESETS
+from ..fusion.config import NERF_PRESETS, GridConfig, GsFusionConfig
 from ..mapping.config import MappingConfig
 from ..render.config import RenderConfig
 from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
@@ -89,11 +89,14 @@ class SessionConfig:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.render_scale) and self.render_scale > 0):
-            raise ValueError(f"SessionConfig.render_scale must be positive, "
-                             f"got {self.render_scale}")
+            raise ValueError(
+                f"SessionConfig.render_scale must be positive, got {self.render_scale}"
+            )
         if self.nerf_preset is not None and self.nerf_preset not in NERF_PRESETS:
-            raise ValueError(f"SessionConfig.nerf_preset must be one of {sorted(NERF_PRESETS)} "
-                             f"or None, got {self.nerf_preset!r}")
+            raise ValueError(
+                f"SessionConfig.nerf_preset must be one of {sorted(NERF_PRESETS)} "
+                f"or None, got {self.nerf_preset!r}"
+            )
         if self.sync_pending < 1:
             raise ValueError("SessionConfig.sync_pending must be ≥ 1")
         if self.autosave is not None:
@@ -103,7 +106,7 @@ class SessionConfig:
         return config_to_dict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "SessionConfig":
+    def from_dict(cls, d: dict[str, Any]) -> SessionConfig:
         return config_from_dict(cls, d)
 
 

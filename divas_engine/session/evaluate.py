@@ -15,8 +15,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -38,24 +38,53 @@ class MaskScores:
     per_camera: list[dict] = field(default_factory=list)
 
     @classmethod
-    def from_scene_scores(cls, s: SceneScores) -> "MaskScores":
+    def from_scene_scores(cls, s: SceneScores) -> MaskScores:
         """The report view of :class:`~divas_engine.evaluation.metrics.SceneScores`."""
-        rows = [{"camera": v.camera, "iou": v.iou, "precision": v.precision,
-                 "recall": v.recall, "pred_pixels": v.pred_pixels, "gt_pixels": v.gt_pixels}
-                for v in s.views]
+        rows = [
+            {
+                "camera": v.camera,
+                "iou": v.iou,
+                "precision": v.precision,
+                "recall": v.recall,
+                "pred_pixels": v.pred_pixels,
+                "gt_pixels": v.gt_pixels,
+            }
+            for v in s.views
+        ]
         return cls(s.iou, s.precision, s.recall, s.pooled_iou, rows)
 
     def as_dict(self) -> dict:
-        return {"iou": self.iou, "precision": self.precision, "recall": self.recall,
-                "pooled_iou": self.pooled_iou, "per_camera": self.per_camera}
+        return {
+            "iou": self.iou,
+            "precision": self.precision,
+            "recall": self.recall,
+            "pooled_iou": self.pooled_iou,
+            "per_camera": self.per_camera,
+        }
 
 
-def render_iou(scene: Scene, cameras: Sequence[Camera], selection: np.ndarray,
-               gt: np.ndarray, *, scale: float = 1.0, device=None, renderer=None,
-               pred_threshold: float = 0.1, gt_threshold: float = 0.5) -> MaskScores:
+def render_iou(
+    scene: Scene,
+    cameras: Sequence[Camera],
+    selection: np.ndarray,
+    gt: np.ndarray,
+    *,
+    scale: float = 1.0,
+    device=None,
+    renderer=None,
+    pred_threshold: float = 0.1,
+    gt_threshold: float = 0.5,
+) -> MaskScores:
     """NOTES "Evaluation" masks of ``selection`` vs ``gt`` at ``cameras``
     (:func:`divas_engine.evaluation.metrics.evaluate_selection`)."""
     cfg = EvalConfig(pred_threshold=pred_threshold, gt_threshold=gt_threshold, scale=scale)
-    s = evaluate_selection(scene, list(cameras), np.asarray(selection, bool),
-                           np.asarray(gt, bool), config=cfg, renderer=renderer, device=device)
+    s = evaluate_selection(
+        scene,
+        list(cameras),
+        np.asarray(selection, bool),
+        np.asarray(gt, bool),
+        config=cfg,
+        renderer=renderer,
+        device=device,
+    )
     return MaskScores.from_scene_scores(s)

@@ -67,8 +67,9 @@ def write_labelled_ply(scene: SurfelScene, labels: np.ndarray, out: str | PathLi
     try:
         src = scene.source
         if src is not None and src.format == "ply":
-            write_ply_subset(src.path, None, tmp,
-                             extra_columns={LABEL_PROPERTY: file_label_values(scene, lab)})
+            write_ply_subset(
+                src.path, None, tmp, extra_columns={LABEL_PROPERTY: file_label_values(scene, lab)}
+            )
         else:
             base = decoded_rows(scene)
             rows = np.empty(len(base), np.dtype(base.dtype.descr + [(LABEL_PROPERTY, "<i4")]))

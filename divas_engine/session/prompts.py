@@ -31,17 +31,27 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..io.json_file import read_json
 
-__all__ = ["PROMPTS_VERSION", "Click", "AnchorPrompt", "Prompts", "ResolvedAnchor",
-           "parse_prompts", "load_prompts", "resolve_anchors", "find_training_camera"]
+__all__ = [
+    "PROMPTS_VERSION",
+    "Click",
+    "AnchorPrompt",
+    "Prompts",
+    "ResolvedAnchor",
+    "parse_prompts",
+    "load_prompts",
+    "resolve_anchors",
+    "find_training_camera",
+]
 
 PROMPTS_VERSION = 1
 _TOP_KEYS = {"version", "anchors", "centroid_prompts"}
@@ -85,9 +95,14 @@ class Prompts:
     source: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"version": PROMPTS_VERSION, "anchors": [a.to_dict() for a in self.anchors],
-                "centroid_prompts": {f"{a}:{c}": [p.to_dict() for p in pts]
-                                     for (a, c), pts in self.centroid_prompts.items()}}
+        return {
+            "version": PROMPTS_VERSION,
+            "anchors": [a.to_dict() for a in self.anchors],
+            "centroid_prompts": {
+                f"{a}:{c}": [p.to_dict() for p in pts]
+                for (a, c), pts in self.centroid_prompts.items()
+            },
+        }
 
     def write(self, path: str | PathLike) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=1))
@@ -106,8 +121,7 @@ def _number(v: Any) -> bool:
 
 def _parse_click(d: Any, where: str, src: str | None) -> Click:
     if not isinstance(d, dict):
-        raise _fail(src, where, f"must be an object like {{\"xy\": [x, y]}}, "
-                                f"got {type(d).__name__}")
+        raise _fail(src, where, f'must be an object like {{"xy": [x, y]}}, got {type(d).__name__}')
     unknown = set(d) - _CLICK_KEYS
     if unknown:
         raise _fail(src, where, f"unknown keys {sorted(unknown)} (allowed: xy, positive)")
@@ -134,12 +148,19 @@ def _parse_anchor(d: Any, i: int, src: str | None) -> AnchorPrompt:
         raise _fail(src, where, f"must be an object, got {type(d).__name__}")
     unknown = set(d) - set(_ANCHOR_KINDS) - {"clicks"}
     if unknown:
-        raise _fail(src, where, f"unknown keys {sorted(unknown)} (allowed: camera, "
-                                "training_camera, fibonacci, clicks)")
+        raise _fail(
+            src,
+            where,
+            f"unknown keys {sorted(unknown)} (allowed: camera, training_camera, fibonacci, clicks)",
+        )
     kinds = [k for k in _ANCHOR_KINDS if k in d]
     if len(kinds) != 1:
-        raise _fail(src, where, "needs exactly one of 'camera', 'training_camera', 'fibonacci'"
-                                f" (got {kinds or 'none'})")
+        raise _fail(
+            src,
+            where,
+            "needs exactly one of 'camera', 'training_camera', 'fibonacci'"
+            f" (got {kinds or 'none'})",
+        )
     kind = kinds[0]
     v = d[kind]
     if kind == "camera":
@@ -171,12 +192,16 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
     """Check and parse a prompts document (already decoded JSON)."""
     src = None if source is None else str(source)
     if not isinstance(doc, dict):
-        raise DivasInputError(src, f"prompts file must hold a JSON object, "
-                                   f"got {type(doc).__name__}")
+        raise DivasInputError(
+            src, f"prompts file must hold a JSON object, got {type(doc).__name__}"
+        )
     unknown = set(doc) - _TOP_KEYS
     if unknown:
-        raise DivasInputError(src, f"unknown top-level keys {sorted(unknown)} "
-                                   "(allowed: version, anchors, centroid_prompts)")
+        raise DivasInputError(
+            src,
+            f"unknown top-level keys {sorted(unknown)} "
+            "(allowed: version, anchors, centroid_prompts)",
+        )
     if doc.get("version") != PROMPTS_VERSION:
         raise _fail(src, "version", f"must be {PROMPTS_VERSION}, got {doc.get('version')!r}")
     anchors_doc = doc.get("anchors")
@@ -185,22 +210,24 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
     anchors = tuple(_parse_anchor(a, i, src) for i, a in enumerate(anchors_doc))
     cp_doc = doc.get("centroid_prompts", {})
     if not isinstance(cp_doc, dict):
-        raise _fail(src, "centroid_prompts", "must be an object keyed \"anchor:click\"")
+        raise _fail(src, "centroid_prompts", 'must be an object keyed "anchor:click"')
     cps: dict[tuple[int, int], tuple[Click, ...]] = {}
     for key, pts in cp_doc.items():
         where = f"centroid_prompts[{key!r}]"
         parts = key.split(":")
         if len(parts) != 2 or not all(p.isdigit() for p in parts):
-            raise _fail(src, where, "key must be \"anchor:click\" with two non-negative integers")
+            raise _fail(src, where, 'key must be "anchor:click" with two non-negative integers')
         a, c = int(parts[0]), int(parts[1])
         if a >= len(anchors):
             raise _fail(src, where, f"anchor {a} does not exist ({len(anchors)} anchors)")
         if c >= len(anchors[a].clicks):
-            raise _fail(src, where, f"anchor {a} has no click {c} "
-                                    f"({len(anchors[a].clicks)} clicks)")
+            raise _fail(
+                src, where, f"anchor {a} has no click {c} ({len(anchors[a].clicks)} clicks)"
+            )
         if not anchors[a].clicks[c].positive:
-            raise _fail(src, where, f"click {c} of anchor {a} is negative and spawns no "
-                                    "centroid view")
+            raise _fail(
+                src, where, f"click {c} of anchor {a} is negative and spawns no centroid view"
+            )
         cps[(a, c)] = _parse_clicks(pts, where, src)
     return Prompts(anchors, cps, src)
 
@@ -227,20 +254,22 @@ class ResolvedAnchor:
     """A prompts-file anchor turned into a camera (full resolution)."""
 
     camera: Camera
-    source: str          # "camera" | "training" | "fibonacci"
-    index: int           # training-camera / Fibonacci index, -1 for explicit cameras
+    source: str  # "camera" | "training" | "fibonacci"
+    index: int  # training-camera / Fibonacci index, -1 for explicit cameras
     prompt: AnchorPrompt
 
 
 def _check_in_image(cam: Camera, xy: tuple[float, float], where: str, src: str | None) -> None:
     x, y = xy
     if not (0.0 <= x < cam.width and 0.0 <= y < cam.height):
-        raise _fail(src, where, f"point ({x:g}, {y:g}) is outside the {cam.width}x{cam.height} "
-                                "image")
+        raise _fail(
+            src, where, f"point ({x:g}, {y:g}) is outside the {cam.width}x{cam.height} image"
+        )
 
 
-def resolve_anchors(prompts: Prompts, cameras: list[Camera],
-                    fibonacci: Callable[[], list[Camera]] | None = None) -> list[ResolvedAnchor]:
+def resolve_anchors(
+    prompts: Prompts, cameras: list[Camera], fibonacci: Callable[[], list[Camera]] | None = None
+) -> list[ResolvedAnchor]:
     """Anchor cameras of ``prompts``; checks names, indices and that every click is in its image.
 
     ``fibonacci``: returns the N Fibonacci candidate cameras (called once, on demand).
@@ -254,13 +283,19 @@ def resolve_anchors(prompts: Prompts, cameras: list[Camera],
             cam, source, idx = a.value, "camera", -1
         elif a.kind == "training_camera":
             if not cameras:
-                raise _fail(src, f"{where}.training_camera", "the scene has no training cameras "
-                                                             "(pass --cameras)")
+                raise _fail(
+                    src,
+                    f"{where}.training_camera",
+                    "the scene has no training cameras (pass --cameras)",
+                )
             j = find_training_camera(cameras, a.value)
             if j is None:
                 sample = ", ".join(c.name for c in cameras[:5])
-                raise _fail(src, f"{where}.training_camera",
-                            f"no training camera named {a.value!r} (have e.g. {sample})")
+                raise _fail(
+                    src,
+                    f"{where}.training_camera",
+                    f"no training camera named {a.value!r} (have e.g. {sample})",
+                )
             cam, source, idx = cameras[j], "training", j
         else:
             if fib is None:
@@ -268,8 +303,9 @@ def resolve_anchors(prompts: Prompts, cameras: list[Camera],
                     raise _fail(src, f"{where}.fibonacci", "Fibonacci anchors are not available")
                 fib = fibonacci()
             if a.value >= len(fib):
-                raise _fail(src, f"{where}.fibonacci", f"index {a.value} out of range "
-                                                       f"0..{len(fib) - 1}")
+                raise _fail(
+                    src, f"{where}.fibonacci", f"index {a.value} out of range 0..{len(fib) - 1}"
+                )
             cam, source, idx = fib[a.value], "fibonacci", a.value
         for k, c in enumerate(a.clicks):
             _check_in_image(cam, c.xy, f"{where}.clicks[{k}].xy", src)

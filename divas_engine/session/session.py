@@ -43,13 +43,15 @@ Decisions not in the paper:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import threading
 import time
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
-from typing import Any, Hashable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +60,7 @@ from ..errors import DivasInputError
 from ..render import make_renderer
 from ..render.buffers import RenderBuffers
 from ..scene import DensityGrid, Scene, SurfelScene
-from ..segment.base import MaskSelection, SegResult, Segmenter, select_mask
+from ..segment.base import MaskSelection, Segmenter, SegResult, select_mask
 from ..segment.depth_weighting import DepthBand, apply_gs_bandpass, apply_nerf_depth_weight
 from ..segment.worker import SamWorker, SegmentationJobError
 from ..views import Anchor, AnchorPlan, plan_anchors, scene_frame
@@ -67,8 +69,18 @@ from .config import SessionConfig
 from .store import SESSION_FORMAT, SESSION_VERSION, load_state, save_state
 from .timing import Timings, memory_report
 
-__all__ = ["Session", "SessionView", "AnchorView", "AnchorClick", "MaskPreview", "AcceptResult",
-           "Overlay", "ObjectRecord", "anchor_plan", "scene_kind"]
+__all__ = [
+    "Session",
+    "SessionView",
+    "AnchorView",
+    "AnchorClick",
+    "MaskPreview",
+    "AcceptResult",
+    "Overlay",
+    "ObjectRecord",
+    "anchor_plan",
+    "scene_kind",
+]
 
 
 def scene_kind(scene: Scene) -> str:
@@ -79,13 +91,20 @@ def scene_kind(scene: Scene) -> str:
     raise TypeError(f"unsupported scene type {type(scene).__name__}")
 
 
-def anchor_plan(scene: Scene, cameras: Sequence[Camera] | None,
-                config: SessionConfig | None = None) -> AnchorPlan:
+def anchor_plan(
+    scene: Scene, cameras: Sequence[Camera] | None, config: SessionConfig | None = None
+) -> AnchorPlan:
     """The anchor plan of a scene (Sec. 3.2): what :meth:`Session.open` offers by default."""
     cfg = config or SessionConfig()
     fr = scene_frame(scene)
-    return plan_anchors(fr.center, fr.radius, list(cameras or []), kind=scene_kind(scene),
-                        config=cfg.view, all_views=cfg.all_views)
+    return plan_anchors(
+        fr.center,
+        fr.radius,
+        list(cameras or []),
+        kind=scene_kind(scene),
+        config=cfg.view,
+        all_views=cfg.all_views,
+    )
 
 
 def _scene_fingerprint(scene: Scene) -> str:
@@ -130,7 +149,7 @@ class AnchorView(_RenderedOnDemand):
     source: str
     source_index: int
     _buffers: RenderBuffers | None = None
-    _session: "Session | None" = None
+    _session: Session | None = None
 
 
 @dataclass(eq=False)
@@ -141,14 +160,18 @@ class AnchorClick:
     index: int
     xy: tuple[float, float]
     positive: bool
-    point: np.ndarray | None = None     # back-projected 3D point
-    view_id: str | None = None          # centroid view it spawned (positive clicks)
+    point: np.ndarray | None = None  # back-projected 3D point
+    view_id: str | None = None  # centroid view it spawned (positive clicks)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"anchor": self.anchor, "index": self.index, "xy": list(self.xy),
-                "positive": self.positive,
-                "point": None if self.point is None else self.point.tolist(),
-                "view": self.view_id}
+        return {
+            "anchor": self.anchor,
+            "index": self.index,
+            "xy": list(self.xy),
+            "positive": self.positive,
+            "point": None if self.point is None else self.point.tolist(),
+            "view": self.view_id,
+        }
 
 
 @dataclass(eq=False)
@@ -214,7 +237,7 @@ class SessionView(_RenderedOnDemand):
     fusion_view: Any = None
     timings: dict = field(default_factory=dict)
     _buffers: RenderBuffers | None = None
-    _session: "Session | None" = None
+    _session: Session | None = None
 
     @property
     def camera(self) -> Camera:
@@ -227,16 +250,27 @@ class SessionView(_RenderedOnDemand):
 
     def to_dict(self, mask_key: str | None) -> dict[str, Any]:
         c = self.centroid
-        return {"id": self.id, "anchor": self.anchor, "click": self.click,
-                "status": self.status, "reason": self.reason,
-                "score": None if not np.isfinite(self.score) else float(self.score),
-                "camera": c.camera.to_dict(), "d_cam": c.d_cam, "target": c.target.tolist(),
-                "xy": list(c.click), "depth": c.depth,
-                "box": None if c.box is None else list(c.box), "strategy": c.strategy,
-                "r_init": c.r_init, "neighbours": c.neighbours,
-                "points": None if self.points is None else self.points.tolist(),
-                "labels": None if self.labels is None else self.labels.tolist(),
-                "mask": mask_key, "fusion_id": self.fusion_id}
+        return {
+            "id": self.id,
+            "anchor": self.anchor,
+            "click": self.click,
+            "status": self.status,
+            "reason": self.reason,
+            "score": None if not np.isfinite(self.score) else float(self.score),
+            "camera": c.camera.to_dict(),
+            "d_cam": c.d_cam,
+            "target": c.target.tolist(),
+            "xy": list(c.click),
+            "depth": c.depth,
+            "box": None if c.box is None else list(c.box),
+            "strategy": c.strategy,
+            "r_init": c.r_init,
+            "neighbours": c.neighbours,
+            "points": None if self.points is None else self.points.tolist(),
+            "labels": None if self.labels is None else self.labels.tolist(),
+            "mask": mask_key,
+            "fusion_id": self.fusion_id,
+        }
 
 
 @dataclass(eq=False)
@@ -313,8 +347,9 @@ class _TimedSegmenter:
 
 def _as_prompt_arrays(points, labels) -> tuple[np.ndarray, np.ndarray]:
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2) if np.size(points) else np.zeros((0, 2))
-    lab = np.asarray(labels, dtype=np.int64).reshape(-1) if np.size(labels) else \
-        np.zeros(0, np.int64)
+    lab = (
+        np.asarray(labels, dtype=np.int64).reshape(-1) if np.size(labels) else np.zeros(0, np.int64)
+    )
     if len(p) != len(lab):
         raise DivasInputError(None, f"{len(p)} prompt points but {len(lab)} labels")
     if np.any((lab != 0) & (lab != 1)):
@@ -331,10 +366,19 @@ class Session:
     Create with :meth:`open` (fresh) or :meth:`load` (saved session, replayed).
     """
 
-    def __init__(self, scene: Scene, cameras: Sequence[Camera] | None, config: SessionConfig,
-                 segmenter: Segmenter | None, device, anchors: list[tuple[Camera, str, int]],
-                 forward_facing: bool, *, gt_values: np.ndarray | None = None,
-                 renderer=None) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        cameras: Sequence[Camera] | None,
+        config: SessionConfig,
+        segmenter: Segmenter | None,
+        device,
+        anchors: list[tuple[Camera, str, int]],
+        forward_facing: bool,
+        *,
+        gt_values: np.ndarray | None = None,
+        renderer=None,
+    ) -> None:
         from kernels import resolve_device
 
         self.scene = scene
@@ -347,8 +391,11 @@ class Session:
         self.updates: list[dict[str, Any]] = []
         self.segmenter = segmenter
         self._render_lock = threading.RLock()
-        self.renderer = renderer if renderer is not None else make_renderer(
-            scene, device=self.device, config=config.render)
+        self.renderer = (
+            renderer
+            if renderer is not None
+            else make_renderer(scene, device=self.device, config=config.render)
+        )
         self._seg = None if segmenter is None else _TimedSegmenter(segmenter, self.timings)
         self._gt_values = None
         if gt_values is not None:
@@ -356,15 +403,17 @@ class Session:
         s = config.render_scale
         self.anchors: list[AnchorView] = [
             AnchorView(i, cam if s == 1.0 else cam.scaled(s), cam, src, idx, None, self)
-            for i, (cam, src, idx) in enumerate(anchors)]
+            for i, (cam, src, idx) in enumerate(anchors)
+        ]
         # representation adapters
         self._planner = None
         self._mapper = None
         if self.kind == "2dgs":
             from ..fusion import GridConfig, GsFusion, build_occupancy
 
-            gcfg = config.grid or (GridConfig.forward_facing() if self.forward_facing
-                                   else GridConfig())
+            gcfg = config.grid or (
+                GridConfig.forward_facing() if self.forward_facing else GridConfig()
+            )
             self.grid_config = gcfg
             self.grid = build_occupancy(scene, gcfg, self.device)
             self.fusion = GsFusion(self.grid, config.gs_fusion, self.device)
@@ -391,11 +440,19 @@ class Session:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def open(cls, scene: Scene, cameras: Sequence[Camera] | None = None,
-             config: SessionConfig | None = None, segmenter: Segmenter | None = None,
-             device=None, *, anchors: Sequence[Any] | None = None,
-             gt_values: np.ndarray | None = None, render_anchors: bool = True,
-             renderer=None) -> "Session":
+    def open(
+        cls,
+        scene: Scene,
+        cameras: Sequence[Camera] | None = None,
+        config: SessionConfig | None = None,
+        segmenter: Segmenter | None = None,
+        device=None,
+        *,
+        anchors: Sequence[Any] | None = None,
+        gt_values: np.ndarray | None = None,
+        render_anchors: bool = True,
+        renderer=None,
+    ) -> Session:
         """Start a session.
 
         Args:
@@ -420,8 +477,17 @@ class Session:
             items = [(a.camera, a.source, a.index) for a in plan.anchors]
         else:
             items = [cls._anchor_item(a) for a in anchors]
-        s = cls(scene, cameras, cfg, segmenter, device, items, plan.forward_facing,
-                gt_values=gt_values, renderer=renderer)
+        s = cls(
+            scene,
+            cameras,
+            cfg,
+            segmenter,
+            device,
+            items,
+            plan.forward_facing,
+            gt_values=gt_values,
+            renderer=renderer,
+        )
         s.plan = plan
         if render_anchors:
             for a in s.anchors:
@@ -444,8 +510,9 @@ class Session:
         v = np.asarray(values, dtype=np.float32)
         shape = (len(self.scene),) if self.kind == "2dgs" else self.scene.density.shape
         if v.shape != shape:
-            raise DivasInputError(None, f"ground-truth labels have shape {v.shape}, the scene "
-                                        f"needs {shape}")
+            raise DivasInputError(
+                None, f"ground-truth labels have shape {v.shape}, the scene needs {shape}"
+            )
         self._gt_values = v
         from ..segment.oracle import OracleSegmenter
 
@@ -475,8 +542,13 @@ class Session:
         sel = self._selection if selection is None else selection
         return np.asarray(sel, dtype=np.float32)
 
-    def overlay(self, target: "SessionView | Camera", selection: np.ndarray | None = None, *,
-                full_camera: bool = True) -> Overlay:
+    def overlay(
+        self,
+        target: SessionView | Camera,
+        selection: np.ndarray | None = None,
+        *,
+        full_camera: bool = True,
+    ) -> Overlay:
         """The selection recoloured over a view (a session view, or any camera — scaled to
         the render scale when ``full_camera``)."""
         cfg = self.config
@@ -489,8 +561,9 @@ class Session:
             cov = self._render_values(cam, self.indicator(selection))
             a = (np.clip(cov, 0.0, 1.0) * np.float32(cfg.overlay_alpha))[..., None]
             img = rgb * (1.0 - a) + np.asarray(cfg.overlay_color, np.float32) * a
-        return Overlay(cam, cov.astype(np.float32), cov >= cfg.overlay_threshold,
-                       img.astype(np.float32), vid)
+        return Overlay(
+            cam, cov.astype(np.float32), cov >= cfg.overlay_threshold, img.astype(np.float32), vid
+        )
 
     # ------------------------------------------------------------------ state access
     @property
@@ -513,7 +586,7 @@ class Session:
         except KeyError:
             raise KeyError(f"no view {view_id!r} in this session") from None
 
-    def _resolve(self, view: "SessionView | str") -> SessionView:
+    def _resolve(self, view: SessionView | str) -> SessionView:
         v = self.view(view) if isinstance(view, str) else view
         if v.object_index != self.current.index:
             raise ValueError(f"view {v.id} belongs to a finished object")
@@ -523,14 +596,12 @@ class Session:
         """Committed labels, plus the current object's selection as the next label."""
         out = self.labels.copy()
         if include_current and self._selection.any():
-            take = self._selection if self.config.overwrite_labels else \
-                self._selection & (out == 0)
+            take = self._selection if self.config.overwrite_labels else self._selection & (out == 0)
             out[take] = self.current.label
         return out
 
     # ------------------------------------------------------------------ clicks and prompts
-    def add_anchor(self, camera: Camera, source: str = "camera", index: int = -1
-                   ) -> AnchorView:
+    def add_anchor(self, camera: Camera, source: str = "camera", index: int = -1) -> AnchorView:
         """Offer one more anchor — manual anchor selection (paper Sec. 1 and the
         limitations: when the Fibonacci views do not expose an off-centre or occluded
         target, the user picks a training camera or the current viewport).
@@ -546,8 +617,15 @@ class Session:
         """
         if not isinstance(camera, Camera):
             raise TypeError(f"add_anchor: expected a Camera, got {type(camera).__name__}")
-        a = AnchorView(len(self.anchors), self.working_camera(camera), camera, str(source),
-                       int(index), None, self)
+        a = AnchorView(
+            len(self.anchors),
+            self.working_camera(camera),
+            camera,
+            str(source),
+            int(index),
+            None,
+            self,
+        )
         self.anchors.append(a)
         self._autosave()
         return a
@@ -562,7 +640,7 @@ class Session:
         depth = b.D_med if self.kind == "2dgs" else b.D_mw
         return click_point(anchor.camera, xy, depth, b.alpha, self.config.view.min_alpha_click)
 
-    def click(self, anchor_index: int, xy, positive: bool = True) -> "SessionView | AnchorClick":
+    def click(self, anchor_index: int, xy, positive: bool = True) -> SessionView | AnchorClick:
         """A click on an anchor (pixels of the anchor render).
 
         Positive: spawns, renders and returns the centroid view (Sec. 3.3). Negative:
@@ -590,16 +668,22 @@ class Session:
                     if self._planner is None:
                         from ..views import GsCentroidPlanner
 
-                        self._planner = GsCentroidPlanner(self.scene, self.renderer,
-                                                          self.config.view)
+                        self._planner = GsCentroidPlanner(
+                            self.scene, self.renderer, self.config.view
+                        )
                     cv = self._planner.centroid_view(anchor.camera, xy, anchor.buffers, name=vid)
                 else:
                     from ..views import nerf_centroid_view
 
-                    cv = nerf_centroid_view(anchor.camera, xy, anchor.buffers,
-                                            zoom=self.config.nerf_zoom,
-                                            forward_facing=self.forward_facing,
-                                            config=self.config.view, name=vid)
+                    cv = nerf_centroid_view(
+                        anchor.camera,
+                        xy,
+                        anchor.buffers,
+                        zoom=self.config.nerf_zoom,
+                        forward_facing=self.forward_facing,
+                        config=self.config.view,
+                        name=vid,
+                    )
             t1 = time.perf_counter()
         except DivasInputError as e:
             raise DivasInputError(None, f"anchor {anchor.index}: {e.problem}") from None
@@ -611,15 +695,18 @@ class Session:
         self._views[vid] = view
         return view
 
-    def default_prompts(self, view: "SessionView | str") -> tuple[np.ndarray, np.ndarray]:
+    def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
         """The click's 3D point projected into the view (positive) plus the anchor's
         visible negative clicks (negative)."""
         v = self.view(view) if isinstance(view, str) else view
         cam = v.camera
         uv, _ = cam.project(v.centroid.target[None])
         pts, labs = [uv[0]], [1]
-        negs = [c for c in self.objects[v.object_index].clicks.get(v.anchor, [])
-                if not c.positive and c.point is not None]
+        negs = [
+            c
+            for c in self.objects[v.object_index].clicks.get(v.anchor, [])
+            if not c.positive and c.point is not None
+        ]
         if negs:
             d_ref = v.buffers.D_ref
             puv, z = cam.project(np.stack([c.point for c in negs]))
@@ -632,22 +719,27 @@ class Session:
                     labs.append(0)
         return np.asarray(pts, np.float64), np.asarray(labs, np.int64)
 
-    def _prompt_set(self, v: SessionView, points, labels, include_default: bool
-                    ) -> tuple[np.ndarray, np.ndarray]:
+    def _prompt_set(
+        self, v: SessionView, points, labels, include_default: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
         p, lab = _as_prompt_arrays(points, labels)
         cam = v.camera
         bad = ~((p[:, 0] >= 0) & (p[:, 0] < cam.width) & (p[:, 1] >= 0) & (p[:, 1] < cam.height))
         if bad.any():
             x, y = p[np.flatnonzero(bad)[0]]
-            raise DivasInputError(None, f"view {v.id}: prompt point ({x:g}, {y:g}) is outside "
-                                        f"the {cam.width}x{cam.height} image")
+            raise DivasInputError(
+                None,
+                f"view {v.id}: prompt point ({x:g}, {y:g}) is outside "
+                f"the {cam.width}x{cam.height} image",
+            )
         if include_default:
             dp, dl = self.default_prompts(v)
             p, lab = np.concatenate([dp, p]), np.concatenate([dl, lab])
         return p, lab
 
-    def _mask_from(self, v: SessionView, res: SegResult, p: np.ndarray, lab: np.ndarray,
-                   seconds: float = 0.0) -> MaskPreview:
+    def _mask_from(
+        self, v: SessionView, res: SegResult, p: np.ndarray, lab: np.ndarray, seconds: float = 0.0
+    ) -> MaskPreview:
         cfg = self.config
         sel = select_mask(res.masks, res.scores, lab, cfg.min_score, cfg.mask_channel)
         weighted, band, reason = None, None, sel.reason
@@ -660,16 +752,18 @@ class Session:
             weighted = np.clip(weighted, 0.0, 1.0).astype(np.float32)
             if int(np.count_nonzero(weighted >= 0.5)) < cfg.min_mask_pixels:
                 reason = "empty mask after depth weighting"
-        return MaskPreview(v.id, p, lab, res.masks, res.scores, sel, weighted, band, reason,
-                           seconds)
+        return MaskPreview(
+            v.id, p, lab, res.masks, res.scores, sel, weighted, band, reason, seconds
+        )
 
     def _require_segmenter(self) -> _TimedSegmenter:
         if self._seg is None:
             raise DivasInputError(None, "this session has no segmenter (pass one to open/load)")
         return self._seg
 
-    def prompt(self, view: "SessionView | str", points=(), labels=(), *,
-               include_default: bool = True) -> MaskPreview:
+    def prompt(
+        self, view: SessionView | str, points=(), labels=(), *, include_default: bool = True
+    ) -> MaskPreview:
         """Mask preview for a prompt set (default prompts + ``points``), synchronous."""
         v = self._resolve(view)
         if v.status in ("fused", "pending"):
@@ -685,15 +779,17 @@ class Session:
 
     # ------------------------------------------------------------------ accept / sync
     def _end_of_group(self, v: SessionView) -> bool:
-        return not any(o.anchor == v.anchor and o.status == "open" and o is not v
-                       for o in self.current.views)
+        return not any(
+            o.anchor == v.anchor and o.status == "open" and o is not v for o in self.current.views
+        )
 
     def next_view(self) -> SessionView | None:
         """The first open (not yet accepted) centroid view of the current object."""
         return next((v for v in self.current.views if v.status == "open"), None)
 
-    def accept(self, view: "SessionView | str", points=None, labels=None, *,
-               include_default: bool = True) -> AcceptResult:
+    def accept(
+        self, view: SessionView | str, points=None, labels=None, *, include_default: bool = True
+    ) -> AcceptResult:
         """Accept a view (Sec. 3.4–3.7): fuse its mask (NeRF: at the group sync).
 
         ``points``/``labels``: the prompt set (default: the last previewed set, else the
@@ -704,8 +800,12 @@ class Session:
         if v.status in ("fused", "pending"):
             raise ValueError(f"view {v.id} is already accepted ({v.status}); undo it first")
         if points is not None or labels is not None:
-            p, lab = self._prompt_set(v, points if points is not None else (),
-                                      labels if labels is not None else (), include_default)
+            p, lab = self._prompt_set(
+                v,
+                points if points is not None else (),
+                labels if labels is not None else (),
+                include_default,
+            )
         elif v.points is not None:
             p, lab = v.points, v.labels
         else:
@@ -716,8 +816,11 @@ class Session:
         n_seg = len(self.timings.calls("segmenter"))
         if self.kind == "2dgs" or not self.config.nerf_async:
             prev = v.preview
-            same = prev is not None and np.array_equal(prev.points, p) and \
-                np.array_equal(prev.labels, lab)
+            same = (
+                prev is not None
+                and np.array_equal(prev.points, p)
+                and np.array_equal(prev.labels, lab)
+            )
             if not same:
                 prev = self.prompt(v, p, lab, include_default=False)
             result = self._fuse_group([(v, prev)], view=v)
@@ -726,20 +829,30 @@ class Session:
             if self._end_of_group(v) or len(self._pending) >= self.config.sync_pending:
                 result = self.sync(view=v)
             else:
-                result = AcceptResult(v, v.status, None, [], [], len(self._pending), False,
-                                      self._selection)
+                result = AcceptResult(
+                    v, v.status, None, [], [], len(self._pending), False, self._selection
+                )
         seg_calls = self.timings.calls("segmenter")[n_seg:]
         result.timings.setdefault("segmenter_s", float(sum(seg_calls)))
         result.timings["update_s"] = time.perf_counter() - t0
-        self.updates.append({"view": v.id, "status": v.status, "reason": v.reason,
-                             "synced": result.synced, **v.timings, **result.timings})
+        self.updates.append(
+            {
+                "view": v.id,
+                "status": v.status,
+                "reason": v.reason,
+                "synced": result.synced,
+                **v.timings,
+                **result.timings,
+            }
+        )
         self._autosave()
         return result
 
     def _accept_async(self, v: SessionView, p: np.ndarray, lab: np.ndarray) -> None:
         if self._worker is None:
-            self._worker = SamWorker(self._require_segmenter(), asynchronous=True,
-                                     sync_pending=self.config.sync_pending)
+            self._worker = SamWorker(
+                self._require_segmenter(), asynchronous=True, sync_pending=self.config.sync_pending
+            )
         b = v.buffers
         self._worker.submit(v.id, b.rgb, b.D_ref, p, lab)
         v.status = "pending"
@@ -748,9 +861,16 @@ class Session:
     def sync(self, view: SessionView | None = None) -> AcceptResult:
         """Collect every pending NeRF mask and fuse them together (no-op when none)."""
         if not self._pending:
-            return AcceptResult(view, None if view is None else view.status,
-                                None if view is None else view.reason, [], [], 0, False,
-                                self._selection)
+            return AcceptResult(
+                view,
+                None if view is None else view.status,
+                None if view is None else view.reason,
+                [],
+                [],
+                0,
+                False,
+                self._selection,
+            )
         group, self._pending = self._pending, []
         t0 = time.perf_counter()
         results: dict[Hashable, SegResult] = {}
@@ -767,8 +887,9 @@ class Session:
                 res = self._worker.result(v.id)
             if res is None:
                 cause = failures.get(v.id)
-                items.append((v, f"segmentation failed: {cause}" if cause else
-                              "segmentation result missing"))
+                items.append(
+                    (v, f"segmentation failed: {cause}" if cause else "segmentation result missing")
+                )
                 continue
             prev = self._mask_from(v, res, v.points, v.labels)
             v.preview = prev
@@ -789,8 +910,16 @@ class Session:
                 rejected.append((v.id, reason))
                 continue
             b = v.buffers
-            fv = FusionView(v.camera, prev.mask, b.D_min, b.D_ref, b.D_max, b.N_samp,
-                            float(v.centroid.d_cam), v.id)
+            fv = FusionView(
+                v.camera,
+                prev.mask,
+                b.D_min,
+                b.D_ref,
+                b.D_max,
+                b.N_samp,
+                float(v.centroid.d_cam),
+                v.id,
+            )
             t = time.perf_counter()
             try:
                 fid = self.fusion.add_view(fv)
@@ -816,9 +945,20 @@ class Session:
                 nov = self.overlay(nxt)
             timings["overlay_s"] = time.perf_counter() - t
         timings["fuse_s"] = sum(timings.values())
-        return AcceptResult(view, None if view is None else view.status,
-                            None if view is None else view.reason, fused, rejected,
-                            len(self._pending), True, self._selection, ov, nxt, nov, timings)
+        return AcceptResult(
+            view,
+            None if view is None else view.status,
+            None if view is None else view.reason,
+            fused,
+            rejected,
+            len(self._pending),
+            True,
+            self._selection,
+            ov,
+            nxt,
+            nov,
+            timings,
+        )
 
     # ------------------------------------------------------------------ selection
     def _live_views(self) -> list[SessionView]:
@@ -844,8 +984,12 @@ class Session:
 
         if self._mapper is None:
             self._mapper = SurfelMapper(self.scene, self.grid, self.config.mapping, self.device)
-        res = self._mapper.map(fused, [v.fusion_view for v in live],
-                               [int(v.fusion_id) for v in live], self.config.mapping)
+        res = self._mapper.map(
+            fused,
+            [v.fusion_view for v in live],
+            [int(v.fusion_id) for v in live],
+            self.config.mapping,
+        )
         self.last_mapping = res
         return np.asarray(res.selected, dtype=bool)
 
@@ -894,10 +1038,8 @@ class Session:
     def _drain_worker(self) -> None:
         self._pending = []
         if self._worker is not None:
-            try:
+            with contextlib.suppress(SegmentationJobError):
                 self._worker.sync()
-            except SegmentationJobError:
-                pass
 
     def finish_object(self, name: str | None = None) -> ObjectRecord:
         """Commit the current selection as the next label and start a new object."""
@@ -956,8 +1098,9 @@ class Session:
             safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in o.name)
             p = out / f"{o.label:02d}_{safe}{ext}"
             export_selection(self.scene, sel, p)
-            files["objects"].append({"name": o.name, "label": o.label, "path": str(p),
-                                     "count": int(sel.sum())})
+            files["objects"].append(
+                {"name": o.name, "label": o.label, "path": str(p), "count": int(sel.sum())}
+            )
         labels = self.label_set()
         if self.kind == "2dgs":
             files["labelled"] = str(write_labelled_ply(self.scene, labels, out / "labelled.ply"))
@@ -978,38 +1121,61 @@ class Session:
     def counts(self) -> dict[str, Any]:
         views = [v for o in self.objects for v in o.views]
         st = [v.status for v in views]
-        return {"primitives": int(len(self.scene)), "anchors": len(self.anchors),
-                "centroid_views": len(views), "accepted": st.count("fused"),
-                "rejected": st.count("rejected"), "pending": st.count("pending"),
-                "open": st.count("open"), "objects": len(self.object_selections()),
-                "selected": int(self._selection.sum()),
-                "labelled": int((self.label_set() > 0).sum()),
-                "active_voxels": int(len(self.grid)),
-                "segmented_voxels": int(self.fusion.result().segmented.sum())
-                if self._live_views() else 0}
+        return {
+            "primitives": int(len(self.scene)),
+            "anchors": len(self.anchors),
+            "centroid_views": len(views),
+            "accepted": st.count("fused"),
+            "rejected": st.count("rejected"),
+            "pending": st.count("pending"),
+            "open": st.count("open"),
+            "objects": len(self.object_selections()),
+            "selected": int(self._selection.sum()),
+            "labelled": int((self.label_set() > 0).sum()),
+            "active_voxels": int(len(self.grid)),
+            "segmented_voxels": int(self.fusion.result().segmented.sum())
+            if self._live_views()
+            else 0,
+        }
 
     def report(self) -> dict[str, Any]:
         """Timings, counts, views (with rejection reasons), memory, config, seed."""
         views = []
         for o in self.objects:
             for v in o.views:
-                views.append({"id": v.id, "object": o.name, "anchor": v.anchor, "click": v.click,
-                              "status": v.status, "reason": v.reason,
-                              "score": None if not np.isfinite(v.score) else float(v.score),
-                              "strategy": v.centroid.strategy, "d_cam": float(v.centroid.d_cam),
-                              "prompts": None if v.points is None else int(len(v.points))})
+                views.append(
+                    {
+                        "id": v.id,
+                        "object": o.name,
+                        "anchor": v.anchor,
+                        "click": v.click,
+                        "status": v.status,
+                        "reason": v.reason,
+                        "score": None if not np.isfinite(v.score) else float(v.score),
+                        "strategy": v.centroid.strategy,
+                        "d_cam": float(v.centroid.d_cam),
+                        "prompts": None if v.points is None else int(len(v.points)),
+                    }
+                )
         summ = self.timings.summary()
-        return {"kind": self.kind, "seed": self.config.seed, "device": str(self.device),
-                "forward_facing": self.forward_facing,
-                "segmenter": getattr(self.segmenter, "name", type(self.segmenter).__name__),
-                "config": self.config.to_dict(),
-                "grid": (self.grid.report.as_dict() if hasattr(self.grid.report, "as_dict")
-                         else None),
-                "timings": summ, "updates": self.updates, "counts": self.counts(),
-                "views": views,
-                "objects": [{"name": o.name, "label": o.label,
-                             "count": int(s.sum())} for o, s in self.object_selections()],
-                "memory": memory_report()}
+        return {
+            "kind": self.kind,
+            "seed": self.config.seed,
+            "device": str(self.device),
+            "forward_facing": self.forward_facing,
+            "segmenter": getattr(self.segmenter, "name", type(self.segmenter).__name__),
+            "config": self.config.to_dict(),
+            "grid": (self.grid.report.as_dict() if hasattr(self.grid.report, "as_dict") else None),
+            "timings": summ,
+            "updates": self.updates,
+            "counts": self.counts(),
+            "views": views,
+            "objects": [
+                {"name": o.name, "label": o.label, "count": int(s.sum())}
+                for o, s in self.object_selections()
+            ],
+            "memory": memory_report(),
+        }
 
     # ------------------------------------------------------------------ persistence
     def _state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -1023,22 +1189,38 @@ class Session:
                     key = f"mask_{len(arrays)}"
                     arrays[key] = v.mask.astype(np.float32)
                 vdocs.append(v.to_dict(key))
-            objs.append({"index": o.index, "label": o.label, "name": o.name,
-                         "finished": o.finished, "accept_order": list(o.accept_order),
-                         "clicks": {str(a): [c.to_dict() for c in cs]
-                                    for a, cs in o.clicks.items()},
-                         "views": vdocs})
+            objs.append(
+                {
+                    "index": o.index,
+                    "label": o.label,
+                    "name": o.name,
+                    "finished": o.finished,
+                    "accept_order": list(o.accept_order),
+                    "clicks": {str(a): [c.to_dict() for c in cs] for a, cs in o.clicks.items()},
+                    "views": vdocs,
+                }
+            )
         arrays["labels"] = self.label_set(include_current=False)
         arrays["selection"] = self._selection
-        doc = {"format": SESSION_FORMAT, "version": SESSION_VERSION,
-               "scene": {"kind": self.kind, "count": int(len(self.scene)),
-                         "fingerprint": _scene_fingerprint(self.scene),
-                         "path": None if getattr(self.scene, "source", None) is None
-                         else str(self.scene.source.path)},
-               "config": self.config.to_dict(), "forward_facing": self.forward_facing,
-               "anchors": [{"camera": a.full_camera.to_dict(), "source": a.source,
-                            "index": a.source_index} for a in self.anchors],
-               "objects": objs}
+        doc = {
+            "format": SESSION_FORMAT,
+            "version": SESSION_VERSION,
+            "scene": {
+                "kind": self.kind,
+                "count": int(len(self.scene)),
+                "fingerprint": _scene_fingerprint(self.scene),
+                "path": None
+                if getattr(self.scene, "source", None) is None
+                else str(self.scene.source.path),
+            },
+            "config": self.config.to_dict(),
+            "forward_facing": self.forward_facing,
+            "anchors": [
+                {"camera": a.full_camera.to_dict(), "source": a.source, "index": a.source_index}
+                for a in self.anchors
+            ],
+            "objects": objs,
+        }
         return doc, arrays
 
     def save(self, path: str | PathLike) -> Path:
@@ -1051,10 +1233,17 @@ class Session:
             self.save(self.config.autosave)
 
     @classmethod
-    def load(cls, path: str | PathLike, scene: Scene, segmenter: Segmenter | None = None,
-             device=None, *, cameras: Sequence[Camera] | None = None,
-             gt_values: np.ndarray | None = None, autosave: str | None | bool = False
-             ) -> "Session":
+    def load(
+        cls,
+        path: str | PathLike,
+        scene: Scene,
+        segmenter: Segmenter | None = None,
+        device=None,
+        *,
+        cameras: Sequence[Camera] | None = None,
+        gt_values: np.ndarray | None = None,
+        autosave: str | None | bool = False,
+    ) -> Session:
         """Rebuild a saved session on ``scene`` by replaying it (stored poses re-rendered,
         stored masks fused, mapping re-run); NeRF views still pending when it was saved are
         re-submitted to ``segmenter``. ``replay_matches`` tells whether the replayed labels
@@ -1068,15 +1257,28 @@ class Session:
         config = replace(config, autosave=None)
         sd = doc["scene"]
         if sd["kind"] != scene_kind(scene) or sd["count"] != len(scene):
-            raise DivasInputError(path, f"session was saved on a {sd['kind']} scene of "
-                                        f"{sd['count']} primitives, not this one")
+            raise DivasInputError(
+                path,
+                f"session was saved on a {sd['kind']} scene of "
+                f"{sd['count']} primitives, not this one",
+            )
         if sd.get("fingerprint") and sd["fingerprint"] != _scene_fingerprint(scene):
-            raise DivasInputError(path, "session was saved on a different scene "
-                                        "(fingerprint mismatch)")
-        anchors = [(Camera.from_dict(a["camera"]), a["source"], int(a["index"]))
-                   for a in doc["anchors"]]
-        s = cls(scene, cameras, config, segmenter, device, anchors, bool(doc["forward_facing"]),
-                gt_values=gt_values)
+            raise DivasInputError(
+                path, "session was saved on a different scene (fingerprint mismatch)"
+            )
+        anchors = [
+            (Camera.from_dict(a["camera"]), a["source"], int(a["index"])) for a in doc["anchors"]
+        ]
+        s = cls(
+            scene,
+            cameras,
+            config,
+            segmenter,
+            device,
+            anchors,
+            bool(doc["forward_facing"]),
+            gt_values=gt_values,
+        )
         s.plan = None
         s.objects = []
         for od in doc["objects"]:
@@ -1088,31 +1290,48 @@ class Session:
             k = len(s.objects)
             s.objects.append(ObjectRecord(k, k + 1, f"object_{k + 1}"))
         saved = arrays.get("labels")
-        s.replay_matches = bool(saved is not None and np.array_equal(saved, s.labels)
-                                and np.array_equal(arrays.get("selection"), s._selection))
-        s.config = replace(s.config, autosave=None if final_autosave is None
-                           else str(final_autosave))
+        s.replay_matches = bool(
+            saved is not None
+            and np.array_equal(saved, s.labels)
+            and np.array_equal(arrays.get("selection"), s._selection)
+        )
+        s.config = replace(
+            s.config, autosave=None if final_autosave is None else str(final_autosave)
+        )
         return s
 
     def _restore_object(self, od: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         obj = ObjectRecord(int(od["index"]), int(od["label"]), str(od["name"]))
         self.objects.append(obj)
         for a, cs in od["clicks"].items():
-            obj.clicks[int(a)] = [AnchorClick(int(c["anchor"]), int(c["index"]),
-                                              (float(c["xy"][0]), float(c["xy"][1])),
-                                              bool(c["positive"]),
-                                              None if c["point"] is None
-                                              else np.asarray(c["point"], np.float64), c["view"])
-                                  for c in cs]
+            obj.clicks[int(a)] = [
+                AnchorClick(
+                    int(c["anchor"]),
+                    int(c["index"]),
+                    (float(c["xy"][0]), float(c["xy"][1])),
+                    bool(c["positive"]),
+                    None if c["point"] is None else np.asarray(c["point"], np.float64),
+                    c["view"],
+                )
+                for c in cs
+            ]
         pending = []
         for vd in od["views"]:
             cam = Camera.from_dict(vd["camera"])
-            cv = CentroidView(cam, float(vd["d_cam"]), np.asarray(vd["target"], np.float64),
-                              (float(vd["xy"][0]), float(vd["xy"][1])), float(vd["depth"]),
-                              None if vd["box"] is None else tuple(vd["box"]), vd["strategy"],
-                              float(vd["r_init"]), int(vd["neighbours"]))
-            v = SessionView(vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv,
-                            _session=self)
+            cv = CentroidView(
+                cam,
+                float(vd["d_cam"]),
+                np.asarray(vd["target"], np.float64),
+                (float(vd["xy"][0]), float(vd["xy"][1])),
+                float(vd["depth"]),
+                None if vd["box"] is None else tuple(vd["box"]),
+                vd["strategy"],
+                float(vd["r_init"]),
+                int(vd["neighbours"]),
+            )
+            v = SessionView(
+                vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv, _session=self
+            )
             v.status, v.reason = vd["status"], vd["reason"]
             v.score = float("nan") if vd["score"] is None else float(vd["score"])
             if vd["points"] is not None:
@@ -1125,8 +1344,9 @@ class Session:
 
                 mask = arrays[vd["mask"]]
                 b = v.buffers
-                fv = FusionView(cam, mask, b.D_min, b.D_ref, b.D_max, b.N_samp,
-                                float(cv.d_cam), v.id)
+                fv = FusionView(
+                    cam, mask, b.D_min, b.D_ref, b.D_max, b.N_samp, float(cv.d_cam), v.id
+                )
                 with self.timings.measure("kernel"):
                     v.fusion_id = self.fusion.add_view(fv, int(vd["fusion_id"]))
                 v.mask, v.fusion_view = mask, fv
@@ -1148,7 +1368,7 @@ class Session:
         if self._worker is not None:
             self._worker.close()
 
-    def __enter__(self) -> "Session":
+    def __enter__(self) -> Session:
         return self
 
     def __exit__(self, *exc: Any) -> None:

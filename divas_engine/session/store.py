@@ -20,8 +20,14 @@ import numpy as np
 from ..errors import DivasInputError
 from ..io.json_file import read_json
 
-__all__ = ["SESSION_FORMAT", "SESSION_VERSION", "arrays_path", "save_state", "load_state",
-           "atomic_write_bytes"]
+__all__ = [
+    "SESSION_FORMAT",
+    "SESSION_VERSION",
+    "arrays_path",
+    "save_state",
+    "load_state",
+    "atomic_write_bytes",
+]
 
 SESSION_FORMAT = "divas-session"
 SESSION_VERSION = 1
@@ -58,8 +64,11 @@ def save_state(path: str | PathLike, doc: dict[str, Any], arrays: dict[str, np.n
     ap = arrays_path(path)
     atomic_write_bytes(ap, blob)
     doc = dict(doc)
-    doc["arrays"] = {"file": ap.name, "sha256": hashlib.sha256(blob).hexdigest(),
-                     "keys": sorted(arrays)}
+    doc["arrays"] = {
+        "file": ap.name,
+        "sha256": hashlib.sha256(blob).hexdigest(),
+        "keys": sorted(arrays),
+    }
     atomic_write_bytes(path, json.dumps(doc, indent=1).encode())
     return path
 

@@ -7,8 +7,9 @@ import sys
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any, Iterator
+from typing import Any
 
 __all__ = ["Timings", "memory_report"]
 
@@ -53,9 +54,13 @@ class Timings:
             items = {k: list(v) for k, v in self._calls.items()}
         out = {}
         for k, v in sorted(items.items()):
-            out[k] = {"calls": len(v), "total_s": float(sum(v)),
-                      "mean_s": float(sum(v) / len(v)) if v else 0.0,
-                      "max_s": float(max(v)) if v else 0.0, "per_call_s": v}
+            out[k] = {
+                "calls": len(v),
+                "total_s": float(sum(v)),
+                "mean_s": float(sum(v) / len(v)) if v else 0.0,
+                "max_s": float(max(v)) if v else 0.0,
+                "per_call_s": v,
+            }
         return out
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..scene import DensityGrid, SurfelScene
-from .builder import (BuiltScene, SceneSpec, build_surfels, choose_clicks, notes_grid_params)
+from .builder import BuiltScene, SceneSpec, build_surfels, choose_clicks, notes_grid_params
 from .grid import voxelize
 from .scenes import SCENE_BUILDERS, bounding_radius
 from .surfaces import Surface
@@ -76,8 +76,14 @@ class SyntheticScene:
 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        paths = [out / "scene.ply", out / "cameras.json", out / "test_cameras.json",
-                 out / "labels.npy", out / "surface_ids.npy", out / "scene.json"]
+        paths = [
+            out / "scene.ply",
+            out / "cameras.json",
+            out / "test_cameras.json",
+            out / "labels.npy",
+            out / "surface_ids.npy",
+            out / "scene.json",
+        ]
         write_surfel_ply(paths[0], self.scene)
         write_cameras_json(paths[1], self.cameras)
         write_cameras_json(paths[2], self.test_cameras)
@@ -86,9 +92,12 @@ class SyntheticScene:
         paths[5].write_text(json.dumps(_jsonable(self.metadata), indent=1))
         if self.grid is not None:
             paths += [out / "grid.npz", out / "grid_labels.npy"]
-            np.savez_compressed(paths[6], density=self.grid.density.astype(np.float32),
-                                rgb=self.grid.rgb.astype(np.float32),
-                                aabb=self.grid.aabb.astype(np.float64))
+            np.savez_compressed(
+                paths[6],
+                density=self.grid.density.astype(np.float32),
+                rgb=self.grid.rgb.astype(np.float32),
+                aabb=self.grid.aabb.astype(np.float64),
+            )
             np.save(paths[7], self.grid_labels.astype(bool))
         return paths
 
@@ -109,8 +118,15 @@ def _jsonable(o):
     return o
 
 
-def generate_scene(name: str, out_dir: str | Path | None = None, *, size: int = 50_000,
-                   seed: int = 0, sh_degree: int = 1, grid_resolution: int = 128) -> SyntheticScene:
+def generate_scene(
+    name: str,
+    out_dir: str | Path | None = None,
+    *,
+    size: int = 50_000,
+    seed: int = 0,
+    sh_degree: int = 1,
+    grid_resolution: int = 128,
+) -> SyntheticScene:
     """Generate the named synthetic scene; write its files when ``out_dir`` is given.
 
     Args:
@@ -146,21 +162,46 @@ def generate_scene(name: str, out_dir: str | Path | None = None, *, size: int = 
         pad = 0.02 * float((hi - lo).max())
         fl = built.floaters
         grid, grid_labels = voxelize(
-            spec.surfaces, np.stack([lo - pad, hi + pad]), grid_resolution,
-            zlib.crc32(f"{name}:{seed}".encode()), floater_points=built.points64[fl],
-            floater_opacity=built.scene.opacities[fl], floater_rgb=built.scene.base_colors()[fl])
-        meta["grid"] = {"shape_dhw": list(grid.density.shape), "aabb": grid.aabb.tolist(),
-                        "voxel_size": grid.extras["voxel_size"],
-                        "sigma_max": grid.extras["sigma_max"],
-                        "shell_half_width": grid.extras["shell_half_width"],
-                        "label_voxels": int(grid_labels.sum()),
-                        "rib_radius_voxels": spec.extra["rib_radius"] / grid.extras["voxel_size"]}
+            spec.surfaces,
+            np.stack([lo - pad, hi + pad]),
+            grid_resolution,
+            zlib.crc32(f"{name}:{seed}".encode()),
+            floater_points=built.points64[fl],
+            floater_opacity=built.scene.opacities[fl],
+            floater_rgb=built.scene.base_colors()[fl],
+        )
+        meta["grid"] = {
+            "shape_dhw": list(grid.density.shape),
+            "aabb": grid.aabb.tolist(),
+            "voxel_size": grid.extras["voxel_size"],
+            "sigma_max": grid.extras["sigma_max"],
+            "shell_half_width": grid.extras["shell_half_width"],
+            "label_voxels": int(grid_labels.sum()),
+            "rib_radius_voxels": spec.extra["rib_radius"] / grid.extras["voxel_size"],
+        }
     t4 = time.perf_counter()
-    out = SyntheticScene(name, seed, size, built.scene, built.labels, built.surface_ids,
-                         built.needles, built.floaters, spec.surfaces, spec.cameras,
-                         spec.test_cameras, meta, grid, grid_labels,
-                         timings={"layout": t1 - t0, "surfels": t2 - t1, "clicks": t3 - t2,
-                                  "metadata+grid": t4 - t3})
+    out = SyntheticScene(
+        name,
+        seed,
+        size,
+        built.scene,
+        built.labels,
+        built.surface_ids,
+        built.needles,
+        built.floaters,
+        spec.surfaces,
+        spec.cameras,
+        spec.test_cameras,
+        meta,
+        grid,
+        grid_labels,
+        timings={
+            "layout": t1 - t0,
+            "surfels": t2 - t1,
+            "clicks": t3 - t2,
+            "metadata+grid": t4 - t3,
+        },
+    )
     if out_dir is not None:
         t5 = time.perf_counter()
         out.write(out_dir)
@@ -168,8 +209,9 @@ def generate_scene(name: str, out_dir: str | Path | None = None, *, size: int = 
     return out
 
 
-def _metadata(spec: SceneSpec, built: BuiltScene, size: int, seed: int, sh_degree: int,
-              clicks: list[dict]) -> dict:
+def _metadata(
+    spec: SceneSpec, built: BuiltScene, size: int, seed: int, sh_degree: int, clicks: list[dict]
+) -> dict:
     surfaces = spec.surfaces
     tgt = [s for s in surfaces if s.target]
     bg_near = [s for s in surfaces if s.share is None]  # the dome is not "the scene"
@@ -180,29 +222,53 @@ def _metadata(spec: SceneSpec, built: BuiltScene, size: int, seed: int, sh_degre
     surf_meta = []
     for j, s in enumerate(surfaces):
         d = s.describe()
-        d.update({"count": int(built.counts[j]), "density": s.density, "share": s.share,
-                  "spacing": float(built.spacing[j])})
+        d.update(
+            {
+                "count": int(built.counts[j]),
+                "density": s.density,
+                "share": s.share,
+                "spacing": float(built.spacing[j]),
+            }
+        )
         surf_meta.append(d)
     meta = {
-        "version": 1, "generator": "divas_engine.synthetic", "name": spec.name, "seed": seed,
-        "size": size, "sh_degree": sh_degree, "up": [0.0, 0.0, 1.0],
+        "version": 1,
+        "generator": "divas_engine.synthetic",
+        "name": spec.name,
+        "seed": seed,
+        "size": size,
+        "sh_degree": sh_degree,
+        "up": [0.0, 0.0, 1.0],
         "forward_facing": spec.forward_facing,
-        "center": spec.center.tolist(), "radius": float(radius),
-        "target": {"description": spec.target_description,
-                   "surfaces": [s.name for s in tgt], "center": t_center.tolist(),
-                   "radius": float(t_radius)},
-        "counts": {"total": len(built.scene), "surface": int((~built.floaters).sum()),
-                   "floaters": int(built.floaters.sum()), "needles": int(built.needles.sum()),
-                   "target": int(built.labels.sum()),
-                   "background": int((~built.labels).sum()),
-                   "train_cameras": len(spec.cameras), "test_cameras": len(spec.test_cameras)},
+        "center": spec.center.tolist(),
+        "radius": float(radius),
+        "target": {
+            "description": spec.target_description,
+            "surfaces": [s.name for s in tgt],
+            "center": t_center.tolist(),
+            "radius": float(t_radius),
+        },
+        "counts": {
+            "total": len(built.scene),
+            "surface": int((~built.floaters).sum()),
+            "floaters": int(built.floaters.sum()),
+            "needles": int(built.needles.sum()),
+            "target": int(built.labels.sum()),
+            "background": int((~built.labels).sum()),
+            "train_cameras": len(spec.cameras),
+            "test_cameras": len(spec.test_cameras),
+        },
         "base_spacing": built.base_spacing,
         "occupancy_notes": occ,
         "clicks": clicks,
         "surfaces": surf_meta,
-        "files": {"ply": "scene.ply", "cameras": "cameras.json",
-                  "test_cameras": "test_cameras.json", "labels": "labels.npy",
-                  "surface_ids": "surface_ids.npy"},
+        "files": {
+            "ply": "scene.ply",
+            "cameras": "cameras.json",
+            "test_cameras": "test_cameras.json",
+            "labels": "labels.npy",
+            "surface_ids": "surface_ids.npy",
+        },
     }
     extra = dict(spec.extra)
     if spec.name == "ribs":

@@ -44,8 +44,16 @@ from ..scene import SH_C0, SurfelScene, sh_coeff_count
 from .surfaces import Surface, min_distance
 from .texture import surface_colors
 
-__all__ = ["SceneSpec", "BuiltScene", "build_surfels", "allocate_counts", "notes_grid_params",
-           "visibility", "segments_clear", "rng_for"]
+__all__ = [
+    "SceneSpec",
+    "BuiltScene",
+    "build_surfels",
+    "allocate_counts",
+    "notes_grid_params",
+    "visibility",
+    "segments_clear",
+    "rng_for",
+]
 
 SCALE_FACTOR = 0.7
 
@@ -79,14 +87,14 @@ class SceneSpec:
 @dataclass
 class BuiltScene:
     scene: SurfelScene
-    labels: np.ndarray        # [N] bool
-    surface_ids: np.ndarray   # [N] int32, −1 for floaters
-    needles: np.ndarray       # [N] bool
-    floaters: np.ndarray      # [N] bool
-    points64: np.ndarray      # [N,3] float64 centres (exactly on the surfaces)
-    normals64: np.ndarray     # [N,3] float64 analytic normals (floaters: rotation col 2)
-    counts: np.ndarray        # [S] surfels per surface
-    spacing: np.ndarray       # [S] sample spacing per surface
+    labels: np.ndarray  # [N] bool
+    surface_ids: np.ndarray  # [N] int32, −1 for floaters
+    needles: np.ndarray  # [N] bool
+    floaters: np.ndarray  # [N] bool
+    points64: np.ndarray  # [N,3] float64 centres (exactly on the surfaces)
+    normals64: np.ndarray  # [N,3] float64 analytic normals (floaters: rotation col 2)
+    counts: np.ndarray  # [S] surfels per surface
+    spacing: np.ndarray  # [S] sample spacing per surface
     base_spacing: float
 
 
@@ -108,8 +116,9 @@ def allocate_counts(surfaces: list[Surface], n: int) -> np.ndarray:
     return counts
 
 
-def surfel_scales(rng: np.random.Generator, n: int, spacing: float,
-                  rc: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def surfel_scales(
+    rng: np.random.Generator, n: int, spacing: float, rc: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(s_u, s_v, rotate)``: scales along t_u (curvature direction) and t_v, and
     whether the tangent frame may be randomly rotated (gently curved patch)."""
     base = SCALE_FACTOR * spacing
@@ -127,8 +136,9 @@ def surfel_scales(rng: np.random.Generator, n: int, spacing: float,
     return su, sv, rotate
 
 
-def _rotations(normals: np.ndarray, tangents: np.ndarray, rotate: np.ndarray,
-               rng: np.random.Generator) -> np.ndarray:
+def _rotations(
+    normals: np.ndarray, tangents: np.ndarray, rotate: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
     n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     t = tangents - n * np.sum(tangents * n, axis=1, keepdims=True)
     t /= np.linalg.norm(t, axis=1, keepdims=True)
@@ -148,10 +158,16 @@ def _random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
     return q
 
 
-def sample_floaters(rng: np.random.Generator, cams: list[Camera], n: int,
-                    surfaces: list[Surface], margin: float, center: np.ndarray,
-                    focus: tuple[np.ndarray, float] | None = None,
-                    depth_frac: tuple[float, float] = (0.15, 0.85)) -> np.ndarray:
+def sample_floaters(
+    rng: np.random.Generator,
+    cams: list[Camera],
+    n: int,
+    surfaces: list[Surface],
+    margin: float,
+    center: np.ndarray,
+    focus: tuple[np.ndarray, float] | None = None,
+    depth_frac: tuple[float, float] = (0.15, 0.85),
+) -> np.ndarray:
     """``[n,3]`` points in free space inside random training-camera frusta.
 
     Depth is a fraction of the camera's planar depth of ``center`` (or of the
@@ -169,9 +185,12 @@ def sample_floaters(rng: np.random.Generator, cams: list[Camera], n: int,
         ref = center if focus is None else focus[0]
         pc = np.einsum("mji,mj->mi", R[k], ref - T[k])  # camera coords of the reference
         zc = pc[:, 2]
-        fx = np.array([cams[i].fx for i in k]); fy = np.array([cams[i].fy for i in k])
-        cx = np.array([cams[i].cx for i in k]); cy = np.array([cams[i].cy for i in k])
-        w = np.array([cams[i].width for i in k]); h = np.array([cams[i].height for i in k])
+        fx = np.array([cams[i].fx for i in k])
+        fy = np.array([cams[i].fy for i in k])
+        cx = np.array([cams[i].cx for i in k])
+        cy = np.array([cams[i].cy for i in k])
+        w = np.array([cams[i].width for i in k])
+        h = np.array([cams[i].height for i in k])
         if focus is None:
             u, v = rng.random(m) * w, rng.random(m) * h
         else:
@@ -199,8 +218,11 @@ def build_surfels(spec: SceneSpec, size: int, seed: int, sh_degree: int = 1) -> 
     areas = np.array([s.area() for s in surfaces])
     spacing = np.sqrt(areas / np.maximum(counts, 1))
     dens = [j for j, s in enumerate(surfaces) if s.share is None]
-    base_spacing = float(math.sqrt(sum(surfaces[j].density * areas[j] for j in dens)
-                                   / max(1, sum(counts[j] for j in dens))))
+    base_spacing = float(
+        math.sqrt(
+            sum(surfaces[j].density * areas[j] for j in dens) / max(1, sum(counts[j] for j in dens))
+        )
+    )
 
     pts, nrms, rots, su_all, sv_all, sid = [], [], [], [], [], []
     for j, s in enumerate(surfaces):
@@ -236,8 +258,18 @@ def build_surfels(spec: SceneSpec, size: int, seed: int, sh_degree: int = 1) -> 
     margin = 3.0 * base_spacing
     fl = [sample_floaters(rng, spec.cameras, n_float, surfaces, margin, spec.center)]
     if n_focus:
-        fl.append(sample_floaters(rng, spec.cameras, n_focus, surfaces, margin, spec.center,
-                                  focus=spec.focus, depth_frac=(0.3, 0.8)))
+        fl.append(
+            sample_floaters(
+                rng,
+                spec.cameras,
+                n_focus,
+                surfaces,
+                margin,
+                spec.center,
+                focus=spec.focus,
+                depth_frac=(0.3, 0.8),
+            )
+        )
     fpts = np.concatenate(fl)
     nf = len(fpts)
     fq = _random_rotations(rng, nf)
@@ -276,10 +308,27 @@ def build_surfels(spec: SceneSpec, size: int, seed: int, sh_degree: int = 1) -> 
         sh[:, 1:] = rng.normal(0.0, 0.04, (len(all_pts), k - 1, 3))
 
     perm = rng_for(seed, spec.name, "order").permutation(len(all_pts))
-    scene = SurfelScene(all_pts[perm].astype(np.float32), quats[perm], scales[perm], opac[perm],
-                        sh[perm], sh_degree, "2dgs")
-    return BuiltScene(scene, labels[perm], surface_ids[perm], needles[perm], floaters[perm],
-                      all_pts[perm], all_nrm[perm], counts, spacing, base_spacing)
+    scene = SurfelScene(
+        all_pts[perm].astype(np.float32),
+        quats[perm],
+        scales[perm],
+        opac[perm],
+        sh[perm],
+        sh_degree,
+        "2dgs",
+    )
+    return BuiltScene(
+        scene,
+        labels[perm],
+        surface_ids[perm],
+        needles[perm],
+        floaters[perm],
+        all_pts[perm],
+        all_nrm[perm],
+        counts,
+        spacing,
+        base_spacing,
+    )
 
 
 def notes_grid_params(means: np.ndarray, scales: np.ndarray, forward_facing: bool) -> dict:
@@ -293,14 +342,28 @@ def notes_grid_params(means: np.ndarray, scales: np.ndarray, forward_facing: boo
 
     cfg = GridConfig.forward_facing() if forward_facing else GridConfig()
     geo = grid_geometry(means, scales, cfg)
-    return {"c_scene": geo.center.tolist(), "r_fg": geo.r_fg, "b": geo.half_extent,
-            "s_bar": geo.s_bar, "h_v": geo.voxel_size, "g": geo.resolution,
-            "g_max": cfg.g_max, "capped": geo.capped}
+    return {
+        "c_scene": geo.center.tolist(),
+        "r_fg": geo.r_fg,
+        "b": geo.half_extent,
+        "s_bar": geo.s_bar,
+        "h_v": geo.voxel_size,
+        "g": geo.resolution,
+        "g_max": cfg.g_max,
+        "capped": geo.capped,
+    }
 
 
-def visibility(points: np.ndarray, normals: np.ndarray, cams: list[Camera],
-               surfaces: list[Surface], *, steps: int = 256, min_cos: float = 0.2,
-               border: float = 16.0) -> np.ndarray:
+def visibility(
+    points: np.ndarray,
+    normals: np.ndarray,
+    cams: list[Camera],
+    surfaces: list[Surface],
+    *,
+    steps: int = 256,
+    min_cos: float = 0.2,
+    border: float = 16.0,
+) -> np.ndarray:
     """``[P, K]`` bool: point p is seen by camera k — in the image (``border`` px in),
     in front, facing it (cos ≥ ``min_cos``) and no surface crosses the segment
     (:func:`segments_clear`; samples within a few steps of p, on its own surface,
@@ -310,8 +373,13 @@ def visibility(points: np.ndarray, normals: np.ndarray, cams: list[Camera],
     pairs_p, pairs_k = [], []
     for k, cam in enumerate(cams):
         uv, z = cam.project(points)
-        inimg = ((z > 0) & (uv[:, 0] >= border) & (uv[:, 0] <= cam.width - border)
-                 & (uv[:, 1] >= border) & (uv[:, 1] <= cam.height - border))
+        inimg = (
+            (z > 0)
+            & (uv[:, 0] >= border)
+            & (uv[:, 0] <= cam.width - border)
+            & (uv[:, 1] >= border)
+            & (uv[:, 1] <= cam.height - border)
+        )
         v = cam.center - points
         cosang = np.sum(v * normals, axis=1) / np.linalg.norm(v, axis=1)
         ok = np.flatnonzero(inimg & (cosang >= min_cos))
@@ -323,14 +391,25 @@ def visibility(points: np.ndarray, normals: np.ndarray, cams: list[Camera],
     centers = np.stack([c.center for c in cams])
     v = centers[kk] - points[pp]
     cosang = np.sum(v * normals[pp], axis=1) / np.linalg.norm(v, axis=1)
-    clear = segments_clear(points[pp], centers[kk], surfaces, steps=steps,
-                           start_skip_steps=3.0 / np.maximum(cosang, min_cos))
+    clear = segments_clear(
+        points[pp],
+        centers[kk],
+        surfaces,
+        steps=steps,
+        start_skip_steps=3.0 / np.maximum(cosang, min_cos),
+    )
     vis[pp[clear], kk[clear]] = True
     return vis
 
 
-def segments_clear(starts: np.ndarray, ends: np.ndarray, surfaces: list[Surface], *,
-                   steps: int = 256, start_skip_steps: np.ndarray | float = 0.0) -> np.ndarray:
+def segments_clear(
+    starts: np.ndarray,
+    ends: np.ndarray,
+    surfaces: list[Surface],
+    *,
+    steps: int = 256,
+    start_skip_steps: np.ndarray | float = 0.0,
+) -> np.ndarray:
     """``[M]`` bool: no surface crosses the segment ``starts[i] → ends[i]``.
 
     Samples every ``L/steps``; a sample closer than 0.6 step to a surface blocks,
@@ -354,8 +433,14 @@ def segments_clear(starts: np.ndarray, ends: np.ndarray, surfaces: list[Surface]
     return ~blocked
 
 
-def choose_clicks(seed: int, spec: SceneSpec, built: BuiltScene, k: int = 4,
-                  n_candidates: int = 160, n_cams: int = 12) -> list[dict]:
+def choose_clicks(
+    seed: int,
+    spec: SceneSpec,
+    built: BuiltScene,
+    k: int = 4,
+    n_candidates: int = 160,
+    n_cams: int = 12,
+) -> list[dict]:
     """A few target points that scripted demos can click: well visible, spread out."""
     rng = rng_for(seed, spec.name, "clicks")
     tgt = np.flatnonzero(built.labels & ~built.needles)
@@ -377,7 +462,13 @@ def choose_clicks(seed: int, spec: SceneSpec, built: BuiltScene, k: int = 4,
     out = []
     for i, row in zip(idx, full):
         s = spec.surfaces[built.surface_ids[i]]
-        out.append({"xyz": built.points64[i].tolist(), "normal": built.normals64[i].tolist(),
-                    "surface": s.name, "part": s.part,
-                    "visible_in": [cams[j].name for j in np.flatnonzero(row)]})
+        out.append(
+            {
+                "xyz": built.points64[i].tolist(),
+                "normal": built.normals64[i].tolist(),
+                "surface": s.name,
+                "part": s.part,
+                "visible_in": [cams[j].name for j in np.flatnonzero(row)],
+            }
+        )
     return out

@@ -25,11 +25,17 @@ from .texture import surface_colors
 __all__ = ["voxelize"]
 
 
-def voxelize(surfaces: list[Surface], aabb: np.ndarray, resolution: int, noise_seed: int, *,
-             floater_points: np.ndarray | None = None,
-             floater_opacity: np.ndarray | None = None,
-             floater_rgb: np.ndarray | None = None,
-             sigma_voxels: float = 8.0) -> tuple[DensityGrid, np.ndarray]:
+def voxelize(
+    surfaces: list[Surface],
+    aabb: np.ndarray,
+    resolution: int,
+    noise_seed: int,
+    *,
+    floater_points: np.ndarray | None = None,
+    floater_opacity: np.ndarray | None = None,
+    floater_rgb: np.ndarray | None = None,
+    sigma_voxels: float = 8.0,
+) -> tuple[DensityGrid, np.ndarray]:
     """Density grid ``[D,H,W]`` over ``aabb`` with ``resolution`` cells on its longest
     side (cubic cells; the box max is moved out to a whole number of cells).
 
@@ -95,7 +101,6 @@ def voxelize(surfaces: list[Surface], aabb: np.ndarray, resolution: int, noise_s
 
     aabb_out = np.stack([lo, hi]).astype(np.float64)
     grid = DensityGrid(density, aabb_out, rgb)
-    grid.extras.update({"sigma_max": sig_max, "voxel_size": vox,
-                        "shell_half_width": [w_in, w_out]})
+    grid.extras.update({"sigma_max": sig_max, "voxel_size": vox, "shell_half_width": [w_in, w_out]})
     assert math.isclose(grid.voxel_size[0], vox, rel_tol=1e-9)
     return grid, labels

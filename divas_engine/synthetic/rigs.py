@@ -24,14 +24,26 @@ class Intrinsics:
         self.width, self.height, self.fx = int(width), int(height), float(fx)
 
     def camera(self, eye, target, name: str) -> Camera:
-        return Camera.look_at(eye, target, UP, width=self.width, height=self.height, fx=self.fx,
-                              name=name)
+        return Camera.look_at(
+            eye, target, UP, width=self.width, height=self.height, fx=self.fx, name=name
+        )
 
 
-def forward_facing_rig(rng: np.random.Generator, intr: Intrinsics, *, center, look_at,
-                       rows: int, cols: int, step: tuple[float, float], jitter: float,
-                       aim_jitter: float, prefix: str, offset: tuple[float, float] = (0.0, 0.0),
-                       depth_offset: float = 0.0) -> list[Camera]:
+def forward_facing_rig(
+    rng: np.random.Generator,
+    intr: Intrinsics,
+    *,
+    center,
+    look_at,
+    rows: int,
+    cols: int,
+    step: tuple[float, float],
+    jitter: float,
+    aim_jitter: float,
+    prefix: str,
+    offset: tuple[float, float] = (0.0, 0.0),
+    depth_offset: float = 0.0,
+) -> list[Camera]:
     """A jittered planar grid of cameras facing ``look_at`` (LLFF-like).
 
     The grid plane is perpendicular to the horizontal viewing direction through
@@ -58,11 +70,21 @@ def forward_facing_rig(rng: np.random.Generator, intr: Intrinsics, *, center, lo
     return cams
 
 
-def ring_rig(rng: np.random.Generator, intr: Intrinsics, *, center, radius: float,
-             elevations_deg: list[float], counts: list[int], prefix: str,
-             az_range_deg: tuple[float, float] = (0.0, 360.0), az_offset: float = 0.0,
-             radius_jitter: float = 0.0, angle_jitter_deg: float = 0.0,
-             aim_jitter: float = 0.0) -> list[Camera]:
+def ring_rig(
+    rng: np.random.Generator,
+    intr: Intrinsics,
+    *,
+    center,
+    radius: float,
+    elevations_deg: list[float],
+    counts: list[int],
+    prefix: str,
+    az_range_deg: tuple[float, float] = (0.0, 360.0),
+    az_offset: float = 0.0,
+    radius_jitter: float = 0.0,
+    angle_jitter_deg: float = 0.0,
+    aim_jitter: float = 0.0,
+) -> list[Camera]:
     """Cameras on horizontal rings around ``center`` looking at it.
 
     ``az_offset`` shifts each ring by that fraction of its azimuth step (0.5 puts
@@ -83,8 +105,9 @@ def ring_rig(rng: np.random.Generator, intr: Intrinsics, *, center, radius: floa
             aa = math.radians(a + angle_jitter_deg * rng.uniform(-1, 1))
             ee = math.radians(elev + angle_jitter_deg * rng.uniform(-1, 1))
             rr = radius * (1.0 + radius_jitter * rng.uniform(-1, 1))
-            eye = center + rr * np.array([math.cos(ee) * math.cos(aa), math.cos(ee) * math.sin(aa),
-                                          math.sin(ee)])
+            eye = center + rr * np.array(
+                [math.cos(ee) * math.cos(aa), math.cos(ee) * math.sin(aa), math.sin(ee)]
+            )
             tgt = center + aim_jitter * rng.uniform(-1, 1, 3)
             cams.append(intr.camera(eye, tgt, f"{prefix}{len(cams):03d}"))
     return cams

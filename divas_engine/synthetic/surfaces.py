@@ -27,8 +27,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Frame", "Surface", "Samples", "Rect", "Disc", "Cylinder", "Sphere", "Torus", "box",
-           "min_distance"]
+__all__ = [
+    "Frame",
+    "Surface",
+    "Samples",
+    "Rect",
+    "Disc",
+    "Cylinder",
+    "Sphere",
+    "Torus",
+    "box",
+    "min_distance",
+]
 
 TWO_PI = 2.0 * math.pi
 
@@ -41,7 +51,7 @@ class Frame:
     origin: np.ndarray
 
     @staticmethod
-    def make(origin, z_axis=(0.0, 0.0, 1.0), x_hint=(1.0, 0.0, 0.0)) -> "Frame":
+    def make(origin, z_axis=(0.0, 0.0, 1.0), x_hint=(1.0, 0.0, 0.0)) -> Frame:
         """Frame whose local +z is ``z_axis`` and local +x is ``x_hint`` made orthogonal to it."""
         z = np.asarray(z_axis, np.float64)
         z = z / np.linalg.norm(z)
@@ -68,9 +78,9 @@ class Frame:
 class Samples:
     """World-space samples of one surface (float64)."""
 
-    points: np.ndarray     # [n,3]
-    normals: np.ndarray    # [n,3] unit
-    tangents: np.ndarray   # [n,3] unit, ⟂ normal: direction of strongest curvature
+    points: np.ndarray  # [n,3]
+    normals: np.ndarray  # [n,3] unit
+    tangents: np.ndarray  # [n,3] unit, ⟂ normal: direction of strongest curvature
     curvature_radius: float  # along ``tangents`` (inf for flat patches)
 
 
@@ -92,9 +102,19 @@ class Surface:
 
     type_name = "surface"
 
-    def __init__(self, name: str, frame: Frame, *, target: bool = False, palette: str = "stone",
-                 tex_scale: float = 0.25, density: float = 1.0, share: float | None = None,
-                 part: str | None = None, solid: bool = False):
+    def __init__(
+        self,
+        name: str,
+        frame: Frame,
+        *,
+        target: bool = False,
+        palette: str = "stone",
+        tex_scale: float = 0.25,
+        density: float = 1.0,
+        share: float | None = None,
+        part: str | None = None,
+        solid: bool = False,
+    ):
         self.name = name
         self.frame = frame
         self.target = bool(target)
@@ -145,17 +165,26 @@ class Surface:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self._local_bounds()
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])], np.float64)
+        corners = np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])],
+            np.float64,
+        )
         w = self.frame.to_world(corners)
         return w.min(0), w.max(0)
 
     def describe(self) -> dict:
-        return {"name": self.name, "type": self.type_name, "part": self.part,
-                "target": self.target, "solid": self.solid, "area": self.area(),
-                "palette": self.palette,
-                "origin": self.frame.origin.tolist(), "axes": self.frame.R.T.tolist(),
-                "params": self.params()}
+        return {
+            "name": self.name,
+            "type": self.type_name,
+            "part": self.part,
+            "target": self.target,
+            "solid": self.solid,
+            "area": self.area(),
+            "palette": self.palette,
+            "origin": self.frame.origin.tolist(),
+            "axes": self.frame.R.T.tolist(),
+            "params": self.params(),
+        }
 
 
 def _random_tangent(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -206,7 +235,7 @@ class Disc(Surface):
         self.r_out, self.r_in = float(r_out), float(r_in)
 
     def area(self):
-        return math.pi * (self.r_out ** 2 - self.r_in ** 2)
+        return math.pi * (self.r_out**2 - self.r_in**2)
 
     def params(self):
         return {"r_out": self.r_out, "r_in": self.r_in}
@@ -217,7 +246,7 @@ class Disc(Surface):
 
     def _sample_local(self, rng, n):
         u = rng.random((n, 2))
-        rho = np.sqrt(self.r_in ** 2 + u[:, 0] * (self.r_out ** 2 - self.r_in ** 2))
+        rho = np.sqrt(self.r_in**2 + u[:, 0] * (self.r_out**2 - self.r_in**2))
         a = u[:, 1] * TWO_PI
         p = np.stack([rho * np.cos(a), rho * np.sin(a), np.zeros(n)], 1)
         return p, np.tile([0.0, 0.0, 1.0], (n, 1)), _random_tangent(rng, n), math.inf
@@ -242,8 +271,20 @@ class Cylinder(Surface):
 
     type_name = "cylinder"
 
-    def __init__(self, name, frame, r: float, z0: float, z1: float, th0: float = 0.0,
-                 th1: float = TWO_PI, *, inward: bool = False, leaf: bool = False, **kw):
+    def __init__(
+        self,
+        name,
+        frame,
+        r: float,
+        z0: float,
+        z1: float,
+        th0: float = 0.0,
+        th1: float = TWO_PI,
+        *,
+        inward: bool = False,
+        leaf: bool = False,
+        **kw,
+    ):
         super().__init__(name, frame, **kw)
         self.r, self.z0, self.z1 = float(r), float(z0), float(z1)
         self.th0, self.th1 = float(th0), float(th1)
@@ -255,8 +296,15 @@ class Cylinder(Surface):
         return a * 2.0 / math.pi if self.leaf else a
 
     def params(self):
-        return {"r": self.r, "z0": self.z0, "z1": self.z1, "th0": self.th0, "th1": self.th1,
-                "inward": self.inward, "leaf": self.leaf}
+        return {
+            "r": self.r,
+            "z0": self.z0,
+            "z1": self.z1,
+            "th0": self.th0,
+            "th1": self.th1,
+            "inward": self.inward,
+            "leaf": self.leaf,
+        }
 
     def _local_bounds(self):
         if self.full:
@@ -314,8 +362,7 @@ class Cylinder(Surface):
     def _inside_local(self, q):
         if not self.full:
             return np.zeros(len(q), bool)
-        return ((np.hypot(q[:, 0], q[:, 1]) < self.r) & (q[:, 2] >= self.z0)
-                & (q[:, 2] <= self.z1))
+        return (np.hypot(q[:, 0], q[:, 1]) < self.r) & (q[:, 2] >= self.z0) & (q[:, 2] <= self.z1)
 
 
 class Sphere(Surface):
@@ -324,13 +371,22 @@ class Sphere(Surface):
 
     type_name = "sphere"
 
-    def __init__(self, name, frame, r: float, pol0: float = 0.0, pol1: float = math.pi, *,
-                 inward: bool = False, **kw):
+    def __init__(
+        self,
+        name,
+        frame,
+        r: float,
+        pol0: float = 0.0,
+        pol1: float = math.pi,
+        *,
+        inward: bool = False,
+        **kw,
+    ):
         super().__init__(name, frame, **kw)
         self.r, self.pol0, self.pol1, self.inward = float(r), float(pol0), float(pol1), bool(inward)
 
     def area(self):
-        return TWO_PI * self.r ** 2 * (math.cos(self.pol0) - math.cos(self.pol1))
+        return TWO_PI * self.r**2 * (math.cos(self.pol0) - math.cos(self.pol1))
 
     def params(self):
         return {"r": self.r, "pol0": self.pol0, "pol1": self.pol1, "inward": self.inward}
@@ -360,8 +416,9 @@ class Sphere(Surface):
         rxy = np.hypot(q[:, 0], q[:, 1])
         d_out = np.full(len(q), np.inf)
         for pe in (self.pol0, self.pol1):
-            d_out = np.minimum(d_out, np.hypot(rxy - self.r * math.sin(pe),
-                                               q[:, 2] - self.r * math.cos(pe)))
+            d_out = np.minimum(
+                d_out, np.hypot(rxy - self.r * math.sin(pe), q[:, 2] - self.r * math.cos(pe))
+            )
         inside = (pol >= self.pol0 - 1e-12) & (pol <= self.pol1 + 1e-12)
         return np.where(inside, d_in, d_out)
 
@@ -383,8 +440,9 @@ class Torus(Surface):
 
     type_name = "torus"
 
-    def __init__(self, name, frame, R: float, r: float, psi0: float = 0.0, psi1: float = TWO_PI,
-                 **kw):
+    def __init__(
+        self, name, frame, R: float, r: float, psi0: float = 0.0, psi1: float = TWO_PI, **kw
+    ):
         super().__init__(name, frame, **kw)
         self.R, self.r, self.psi0, self.psi1 = float(R), float(r), float(psi0), float(psi1)
         if self.r >= self.R:
@@ -403,8 +461,10 @@ class Torus(Surface):
             return np.array([-e, -e, -self.r]), np.array([e, e, self.r])
         psi = np.linspace(self.psi0, self.psi1, 257)
         cx, cy = self.R * np.cos(psi), self.R * np.sin(psi)
-        return (np.array([cx.min() - self.r, cy.min() - self.r, -self.r]),
-                np.array([cx.max() + self.r, cy.max() + self.r, self.r]))
+        return (
+            np.array([cx.min() - self.r, cy.min() - self.r, -self.r]),
+            np.array([cx.max() + self.r, cy.max() + self.r, self.r]),
+        )
 
     def _sample_local(self, rng, n):
         u = rng.random((n, 2))
@@ -449,8 +509,9 @@ class Torus(Surface):
 
     def _inside_local(self, q):
         rho = np.hypot(q[:, 0], q[:, 1])
-        return ((np.hypot(rho - self.R, q[:, 2]) < self.r)
-                & _in_arc(np.arctan2(q[:, 1], q[:, 0]), self.psi0, self.psi1))
+        return (np.hypot(rho - self.R, q[:, 2]) < self.r) & _in_arc(
+            np.arctan2(q[:, 1], q[:, 0]), self.psi0, self.psi1
+        )
 
 
 def box(name: str, center, half, *, bottom: bool = False, top: bool = True, **kw) -> list[Rect]:
@@ -461,10 +522,15 @@ def box(name: str, center, half, *, bottom: bool = False, top: bool = True, **kw
     c = np.asarray(center, np.float64)
     hx, hy, hz = (float(v) for v in half)
     faces = []
-    spec = [("+x", (1, 0, 0), (0, 1, 0), hy, hz, hx), ("-x", (-1, 0, 0), (0, -1, 0), hy, hz, hx),
-            ("+y", (0, 1, 0), (-1, 0, 0), hx, hz, hy), ("-y", (0, -1, 0), (1, 0, 0), hx, hz, hy),
-            ("+z", (0, 0, 1), (1, 0, 0), hx, hy, hz), ("-z", (0, 0, -1), (1, 0, 0), hx, hy, hz)]
-    for tag, nrm, xh, a, b, off in spec:
+    spec = [
+        ("+x", (1, 0, 0), (0, 1, 0), hy, hz, hx),
+        ("-x", (-1, 0, 0), (0, -1, 0), hy, hz, hx),
+        ("+y", (0, 1, 0), (-1, 0, 0), hx, hz, hy),
+        ("-y", (0, -1, 0), (1, 0, 0), hx, hz, hy),
+        ("+z", (0, 0, 1), (1, 0, 0), hx, hy, hz),
+        ("-z", (0, 0, -1), (1, 0, 0), hx, hy, hz),
+    ]
+    for tag, nrm, xh, _a, _b, off in spec:
         if tag == "+z" and not top or tag == "-z" and not bottom:
             continue
         nrm = np.asarray(nrm, np.float64)
@@ -478,8 +544,9 @@ def box(name: str, center, half, *, bottom: bool = False, top: bool = True, **kw
     return faces
 
 
-def min_distance(surfaces: list[Surface], points: np.ndarray, cutoff: float,
-                 skip: set[int] | None = None) -> np.ndarray:
+def min_distance(
+    surfaces: list[Surface], points: np.ndarray, cutoff: float, skip: set[int] | None = None
+) -> np.ndarray:
     """``min(cutoff, distance to the nearest surface)`` per point.
 
     Only points inside a surface's AABB grown by ``cutoff`` are evaluated for it,

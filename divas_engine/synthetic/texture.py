@@ -40,8 +40,9 @@ def _mix01(h: np.ndarray) -> np.ndarray:
     return (h >> np.uint64(40)).astype(np.float32) * np.float32(1.0 / (1 << 24))
 
 
-def value_noise(points: np.ndarray, seed: int, *, octaves: int = 4, scale: float = 0.25,
-                gain: float = 0.5) -> np.ndarray:
+def value_noise(
+    points: np.ndarray, seed: int, *, octaves: int = 4, scale: float = 0.25, gain: float = 0.5
+) -> np.ndarray:
     """Fractal 3D value noise in [0,1] at world ``points`` ``[N,3]``.
 
     ``scale`` is the world size of one lattice cell of the first octave; each
@@ -52,13 +53,14 @@ def value_noise(points: np.ndarray, seed: int, *, octaves: int = 4, scale: float
     amp, norm = 1.0, 0.0
     with np.errstate(over="ignore"):
         for o in range(octaves):
-            q = p / (scale / 2 ** o) + 17.31 * (o + 1)
+            q = p / (scale / 2**o) + 17.31 * (o + 1)
             i = np.floor(q)
             f = (q - i).astype(np.float32)
             u = f * f * (3.0 - 2.0 * f)
             i = i.astype(np.int64)
-            s = np.uint64((((seed * 131 + o) & 0xFFFFFFFFFFFF) * 0xD6E8FEB86659FD93)
-                          & 0xFFFFFFFFFFFFFFFF)
+            s = np.uint64(
+                (((seed * 131 + o) & 0xFFFFFFFFFFFF) * 0xD6E8FEB86659FD93) & 0xFFFFFFFFFFFFFFFF
+            )
             # per-axis hashed lattice terms for the two corners along each axis
             hx = [(i[:, 0] + d).astype(np.uint64) * _C[0] ^ s for d in (0, 1)]
             hy = [(i[:, 1] + d).astype(np.uint64) * _C[1] for d in (0, 1)]

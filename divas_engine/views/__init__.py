@@ -9,8 +9,15 @@
 * :class:`ViewConfig` — every constant, with its paper symbol.
 """
 
-from .anchors import (Anchor, AnchorPlan, gs_anchor_radii, plan_anchors, representative_camera,
-                      scene_frame, training_anchor)
+from .anchors import (
+    Anchor,
+    AnchorPlan,
+    gs_anchor_radii,
+    plan_anchors,
+    representative_camera,
+    scene_frame,
+    training_anchor,
+)
 from .centroid_common import CentroidView, ProbeRecord, build_pose, click_point
 from .centroid_gs import GsCentroidPlanner, central_patch, occluded_fraction
 from .centroid_nerf import nerf_centroid_view
@@ -19,8 +26,27 @@ from .fibonacci import fibonacci_sphere, up_frame
 from .ranking import Ranking, rank_directions
 from .up_direction import UpEstimate, estimate_up
 
-__all__ = ["Anchor", "AnchorPlan", "plan_anchors", "training_anchor", "gs_anchor_radii",
-           "representative_camera", "scene_frame", "CentroidView", "ProbeRecord", "build_pose",
-           "click_point", "GsCentroidPlanner", "central_patch", "occluded_fraction",
-           "nerf_centroid_view", "ViewConfig", "fibonacci_sphere", "up_frame", "Ranking",
-           "rank_directions", "UpEstimate", "estimate_up"]
+__all__ = [
+    "Anchor",
+    "AnchorPlan",
+    "plan_anchors",
+    "training_anchor",
+    "gs_anchor_radii",
+    "representative_camera",
+    "scene_frame",
+    "CentroidView",
+    "ProbeRecord",
+    "build_pose",
+    "click_point",
+    "GsCentroidPlanner",
+    "central_patch",
+    "occluded_fraction",
+    "nerf_centroid_view",
+    "ViewConfig",
+    "fibonacci_sphere",
+    "up_frame",
+    "Ranking",
+    "rank_directions",
+    "UpEstimate",
+    "estimate_up",
+]

@@ -43,8 +43,15 @@ from .fibonacci import fibonacci_sphere, up_frame
 from .ranking import Ranking, rank_directions
 from .up_direction import UpEstimate, estimate_up
 
-__all__ = ["Anchor", "AnchorPlan", "plan_anchors", "training_anchor", "gs_anchor_radii",
-           "representative_camera", "scene_frame"]
+__all__ = [
+    "Anchor",
+    "AnchorPlan",
+    "plan_anchors",
+    "training_anchor",
+    "gs_anchor_radii",
+    "representative_camera",
+    "scene_frame",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,10 +77,15 @@ class Anchor:
     radius: float
 
     def to_dict(self) -> dict[str, Any]:
-        return {"camera": self.camera.to_dict(), "direction": self.direction.tolist(),
-                "score": None if math.isnan(self.score) else float(self.score),
-                "unsupported": bool(self.unsupported), "source": self.source,
-                "index": int(self.index), "radius": float(self.radius)}
+        return {
+            "camera": self.camera.to_dict(),
+            "direction": self.direction.tolist(),
+            "score": None if math.isnan(self.score) else float(self.score),
+            "unsupported": bool(self.unsupported),
+            "source": self.source,
+            "index": int(self.index),
+            "radius": float(self.radius),
+        }
 
 
 @dataclass(eq=False)
@@ -102,11 +114,16 @@ class AnchorPlan:
     info: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"version": 1, "kind": self.kind, "center": self.center.tolist(),
-                "up": self.up.tolist(), "forward_facing": self.forward_facing,
-                "camera_free": self.camera_free,
-                "anchors": [a.to_dict() for a in self.anchors],
-                "candidates": [a.to_dict() for a in self.candidates]}
+        return {
+            "version": 1,
+            "kind": self.kind,
+            "center": self.center.tolist(),
+            "up": self.up.tolist(),
+            "forward_facing": self.forward_facing,
+            "camera_free": self.camera_free,
+            "anchors": [a.to_dict() for a in self.anchors],
+            "candidates": [a.to_dict() for a in self.candidates],
+        }
 
 
 def scene_frame(scene: Scene) -> RobustFrame:
@@ -127,8 +144,9 @@ def representative_camera(cameras: list[Camera]) -> Camera:
     return cameras[order[len(order) // 2]]
 
 
-def gs_anchor_radii(dirs: np.ndarray, center: np.ndarray, cam_centres: np.ndarray,
-                    config: ViewConfig | None = None):
+def gs_anchor_radii(
+    dirs: np.ndarray, center: np.ndarray, cam_centres: np.ndarray, config: ViewConfig | None = None
+):
     """eq:gs-radius per world direction.
 
     Returns ``(r, r_knn, r_cap, unsupported)``, each ``[N]``; ``r_cap`` is +inf and
@@ -155,9 +173,18 @@ def gs_anchor_radii(dirs: np.ndarray, center: np.ndarray, cam_centres: np.ndarra
 
 
 def _look(center, direction, radius, up, intr: Camera, name: str) -> Camera:
-    return Camera.look_at(center + radius * direction, center, up, width=intr.width,
-                          height=intr.height, fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy,
-                          name=name)
+    return Camera.look_at(
+        center + radius * direction,
+        center,
+        up,
+        width=intr.width,
+        height=intr.height,
+        fx=intr.fx,
+        fy=intr.fy,
+        cx=intr.cx,
+        cy=intr.cy,
+        name=name,
+    )
 
 
 def training_anchor(cameras: list[Camera], key: int | str, center: np.ndarray) -> Anchor:
@@ -191,9 +218,16 @@ def _spread_training(cameras: list[Camera], k: int) -> list[int]:
     return chosen
 
 
-def plan_anchors(center: np.ndarray, r_fg: float, cameras: list[Camera] | None, *,
-                 kind: str = "2dgs", config: ViewConfig | None = None,
-                 all_views: bool = False, up: np.ndarray | None = None) -> AnchorPlan:
+def plan_anchors(
+    center: np.ndarray,
+    r_fg: float,
+    cameras: list[Camera] | None,
+    *,
+    kind: str = "2dgs",
+    config: ViewConfig | None = None,
+    all_views: bool = False,
+    up: np.ndarray | None = None,
+) -> AnchorPlan:
     """Anchor views of a scene (module docstring).
 
     Args:
@@ -214,8 +248,14 @@ def plan_anchors(center: np.ndarray, r_fg: float, cameras: list[Camera] | None, 
         up_v = np.asarray(cfg.fallback_up if up is None else up, dtype=np.float64)
         forward_facing = False
         front = None
-        intr = Camera(cfg.fallback_width, cfg.fallback_height, cfg.fallback_fx, cfg.fallback_fx,
-                      cfg.fallback_width / 2.0, cfg.fallback_height / 2.0)
+        intr = Camera(
+            cfg.fallback_width,
+            cfg.fallback_height,
+            cfg.fallback_fx,
+            cfg.fallback_fx,
+            cfg.fallback_width / 2.0,
+            cfg.fallback_height / 2.0,
+        )
     else:
         est = estimate_up(cameras, cfg)
         up_v = est.up if up is None else np.asarray(up, dtype=np.float64)
@@ -238,19 +278,43 @@ def plan_anchors(center: np.ndarray, r_fg: float, cameras: list[Camera] | None, 
             radii = np.full(n, float(np.median(np.linalg.norm(cc - center, axis=1))))
         else:
             radii, r_knn, r_cap, unsupported = gs_anchor_radii(dirs, center, cc, cfg)
-            info.update(r_knn=r_knn.tolist(), r_cap=[None if not np.isfinite(x) else float(x)
-                                                     for x in r_cap])
-    candidates = [Anchor(_look(center, dirs[i], radii[i], up_v, intr, f"fib_{i:02d}"), dirs[i],
-                         float(ranking.score[i]), bool(unsupported[i]), "fibonacci", i,
-                         float(radii[i])) for i in range(n)]
+            info.update(
+                r_knn=r_knn.tolist(),
+                r_cap=[None if not np.isfinite(x) else float(x) for x in r_cap],
+            )
+    candidates = [
+        Anchor(
+            _look(center, dirs[i], radii[i], up_v, intr, f"fib_{i:02d}"),
+            dirs[i],
+            float(ranking.score[i]),
+            bool(unsupported[i]),
+            "fibonacci",
+            i,
+            float(radii[i]),
+        )
+        for i in range(n)
+    ]
     ranked = [candidates[i] for i in ranking.order]
     if forward_facing and not camera_free:
-        anchors = [training_anchor(cameras, i, center) for i in _spread_training(cameras, cfg.top_k)]
+        anchors = [
+            training_anchor(cameras, i, center) for i in _spread_training(cameras, cfg.top_k)
+        ]
         if all_views:
             anchors += ranked
     elif all_views:
         anchors = ranked
     else:
-        anchors = [a for a in ranked if not a.unsupported][:cfg.top_k]
-    return AnchorPlan(anchors, candidates, ranking, center, up_v, frame, forward_facing,
-                      camera_free, kind, est, info)
+        anchors = [a for a in ranked if not a.unsupported][: cfg.top_k]
+    return AnchorPlan(
+        anchors,
+        candidates,
+        ranking,
+        center,
+        up_v,
+        frame,
+        forward_facing,
+        camera_free,
+        kind,
+        est,
+        info,
+    )

@@ -62,16 +62,26 @@ class CentroidView:
     probes: list[ProbeRecord] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"camera": self.camera.to_dict(), "d_cam": self.d_cam,
-                "target": self.target.tolist(), "click": list(self.click), "depth": self.depth,
-                "box": None if self.box is None else list(self.box), "strategy": self.strategy,
-                "r_init": self.r_init, "neighbours": self.neighbours,
-                "probes": [{k: (None if isinstance(v, float) and v != v else v)
-                            for k, v in p.__dict__.items()} for p in self.probes]}
+        return {
+            "camera": self.camera.to_dict(),
+            "d_cam": self.d_cam,
+            "target": self.target.tolist(),
+            "click": list(self.click),
+            "depth": self.depth,
+            "box": None if self.box is None else list(self.box),
+            "strategy": self.strategy,
+            "r_init": self.r_init,
+            "neighbours": self.neighbours,
+            "probes": [
+                {k: (None if isinstance(v, float) and v != v else v) for k, v in p.__dict__.items()}
+                for p in self.probes
+            ],
+        }
 
 
-def click_point(anchor: Camera, click, depth_map: np.ndarray, alpha: np.ndarray,
-                min_alpha: float) -> tuple[float, np.ndarray]:
+def click_point(
+    anchor: Camera, click, depth_map: np.ndarray, alpha: np.ndarray, min_alpha: float
+) -> tuple[float, np.ndarray]:
     """Planar depth at a click and its back-projection.
 
     ``depth_map``/``alpha`` are ``[H,W]`` at the anchor's resolution; the click is a
@@ -84,24 +94,45 @@ def click_point(anchor: Camera, click, depth_map: np.ndarray, alpha: np.ndarray,
     x, y = float(click[0]), float(click[1])
     h, w = depth_map.shape
     if (h, w) != (anchor.height, anchor.width):
-        raise ValueError(f"depth map {depth_map.shape} does not match anchor "
-                         f"{anchor.width}x{anchor.height}")
+        raise ValueError(
+            f"depth map {depth_map.shape} does not match anchor {anchor.width}x{anchor.height}"
+        )
     name = anchor.name or "view"
     if not (0.0 <= x < w and 0.0 <= y < h):
         raise DivasInputError(None, f"click at ({x:g}, {y:g}) is outside anchor {name} ({w}x{h})")
     j, i = int(x), int(y)
     z = float(depth_map[i, j])
     if not np.isfinite(z) or z <= 0.0 or float(alpha[i, j]) < min_alpha:
-        raise DivasInputError(None, f"no surface under the click at ({x:g}, {y:g}) in anchor {name}")
+        raise DivasInputError(
+            None, f"no surface under the click at ({x:g}, {y:g}) in anchor {name}"
+        )
     return z, anchor.unproject(np.array([[x, y]]), np.array([z]))[0]
 
 
-def build_pose(anchor: Camera, target: np.ndarray, view_dir: np.ndarray, radius: float,
-               name: str = "", near_fraction: float = 0.0) -> Camera:
+def build_pose(
+    anchor: Camera,
+    target: np.ndarray,
+    view_dir: np.ndarray,
+    radius: float,
+    name: str = "",
+    near_fraction: float = 0.0,
+) -> Camera:
     """BuildPose: anchor intrinsics, centre ``target − radius·view_dir``, looking at
     ``target`` (it projects to the principal point), image-up = the anchor's up; its own
     near clip ``Camera.near = near_fraction · radius`` (``ViewConfig.near_fraction``)."""
-    eye = np.asarray(target, dtype=np.float64) - float(radius) * np.asarray(view_dir, dtype=np.float64)
-    return Camera.look_at(eye, target, anchor.up, width=anchor.width, height=anchor.height,
-                          fx=anchor.fx, fy=anchor.fy, cx=anchor.cx, cy=anchor.cy, name=name,
-                          near=float(near_fraction) * float(radius))
+    eye = np.asarray(target, dtype=np.float64) - float(radius) * np.asarray(
+        view_dir, dtype=np.float64
+    )
+    return Camera.look_at(
+        eye,
+        target,
+        anchor.up,
+        width=anchor.width,
+        height=anchor.height,
+        fx=anchor.fx,
+        fy=anchor.fy,
+        cx=anchor.cx,
+        cy=anchor.cy,
+        name=name,
+        near=float(near_fraction) * float(radius),
+    )

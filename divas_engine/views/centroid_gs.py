@@ -84,8 +84,9 @@ class GsCentroidPlanner:
     def neighbourhood(self, x_w: np.ndarray, radius: float) -> np.ndarray:
         """Surfel indices of eq:neigh (opaque centres within ``radius`` of ``x_w``)."""
         tree = self.tree
-        idx = np.asarray(tree.query_ball_point(np.asarray(x_w, dtype=np.float64), radius),
-                         dtype=np.int64)
+        idx = np.asarray(
+            tree.query_ball_point(np.asarray(x_w, dtype=np.float64), radius), dtype=np.int64
+        )
         if idx.size:
             d = np.linalg.norm(tree.data[idx] - x_w, axis=1)
             idx = idx[d < radius]  # strict, as eq:neigh
@@ -95,8 +96,9 @@ class GsCentroidPlanner:
         cfg = self.config
         return max(cfg.probe_scale, cfg.probe_min_size / cam.width, cfg.probe_min_size / cam.height)
 
-    def centroid_view(self, anchor: Camera, click, buffers: RenderBuffers | None = None, *,
-                      name: str = "") -> CentroidView:
+    def centroid_view(
+        self, anchor: Camera, click, buffers: RenderBuffers | None = None, *, name: str = ""
+    ) -> CentroidView:
         """alg:centroid-gs for one click (continuous pixel point) on ``anchor``.
 
         ``buffers``: the anchor's full-resolution render (rendered here when None).
@@ -139,8 +141,9 @@ class GsCentroidPlanner:
             d_med = self.renderer.render(cam, scale=s).D_med
             o, valid = occluded_fraction(d_med, 0.0, cfg.f_fill)  # validity only
             if valid == 0:
-                probes.append(ProbeRecord(float(r_k), float("nan"), float("nan"), 0,
-                                          float("nan"), False))
+                probes.append(
+                    ProbeRecord(float(r_k), float("nan"), float("nan"), 0, float("nan"), False)
+                )
                 continue
             zc = cam.world_to_camera(mu)[:, 2] if len(mu) else np.empty(0)
             zc = zc[zc > 0]
@@ -156,6 +159,15 @@ class GsCentroidPlanner:
                 r_star, accepted = float(r_k), True
                 break
         cam = build_pose(anchor, x_w, v, r_star, name, cfg.near_fraction)
-        return CentroidView(cam, r_star, x_w, (float(click[0]), float(click[1])), z, box,
-                            f"{s1}+{'probe' if accepted else 'fallback'}", float(r_init),
-                            int(len(nb)), probes)
+        return CentroidView(
+            cam,
+            r_star,
+            x_w,
+            (float(click[0]), float(click[1])),
+            z,
+            box,
+            f"{s1}+{'probe' if accepted else 'fallback'}",
+            float(r_init),
+            int(len(nb)),
+            probes,
+        )

@@ -17,9 +17,16 @@ from .config import ViewConfig
 __all__ = ["nerf_centroid_view"]
 
 
-def nerf_centroid_view(anchor: Camera, click, buffers: RenderBuffers, *,
-                       zoom: float | None = None, forward_facing: bool = False,
-                       config: ViewConfig | None = None, name: str = "") -> CentroidView:
+def nerf_centroid_view(
+    anchor: Camera,
+    click,
+    buffers: RenderBuffers,
+    *,
+    zoom: float | None = None,
+    forward_facing: bool = False,
+    config: ViewConfig | None = None,
+    name: str = "",
+) -> CentroidView:
     """alg:centroid_view for one click.
 
     Args:
@@ -41,5 +48,6 @@ def nerf_centroid_view(anchor: Camera, click, buffers: RenderBuffers, *,
     view_dir = (x_w - p) / dist
     d_cam = float(np.linalg.norm(x_w - p_new))
     cam = build_pose(anchor, x_w, view_dir, d_cam, name, cfg.near_fraction)
-    return CentroidView(cam, d_cam, x_w, (float(click[0]), float(click[1])), z, None,
-                        "nerf-zoom", dist)
+    return CentroidView(
+        cam, d_cam, x_w, (float(click[0]), float(click[1])), z, None, "nerf-zoom", dist
+    )

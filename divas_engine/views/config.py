@@ -103,5 +103,6 @@ class ViewConfig:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.near_fraction < 1.0:
-            raise ValueError(f"ViewConfig.near_fraction must be in [0, 1), "
-                             f"got {self.near_fraction}")
+            raise ValueError(
+                f"ViewConfig.near_fraction must be in [0, 1), got {self.near_fraction}"
+            )

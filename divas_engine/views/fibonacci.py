@@ -27,8 +27,9 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     i = np.arange(n, dtype=np.float64)
     theta = 2.0 * math.pi * i / GOLDEN_RATIO
     polar = np.arccos(np.clip(1.0 - 2.0 * (i + 0.5) / n, -1.0, 1.0))
-    return np.stack([np.sin(polar) * np.cos(theta), np.sin(polar) * np.sin(theta),
-                     np.cos(polar)], axis=1)
+    return np.stack(
+        [np.sin(polar) * np.cos(theta), np.sin(polar) * np.sin(theta), np.cos(polar)], axis=1
+    )
 
 
 def up_frame(up: np.ndarray, front: np.ndarray | None = None) -> np.ndarray:

@@ -32,7 +32,9 @@ def fresh_file(addon):
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
-        pytest.fail(f"shared test data not found at {SHARED_DATA} (the repo must sit beside shared/)")
+        pytest.fail(
+            f"shared test data not found at {SHARED_DATA} (the repo must sit beside shared/)"
+        )
     return SHARED_DATA
 
 

@@ -42,10 +42,12 @@ def _engine_mask(scene, obj, sel):
 
 @pytest.mark.parametrize("which", ["ribs", "lod3", "guitar", "biker_spz"])
 def test_export_matches_engine(ribs, shared_data, tmp_path, which):
-    path = {"ribs": ribs / "scene.ply",
-            "lod3": shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply",
-            "guitar": shared_data / "playcanvas-splats" / "guitar.compressed.ply",
-            "biker_spz": shared_data / "playcanvas-splats" / "biker.spz"}[which]
+    path = {
+        "ribs": ribs / "scene.ply",
+        "lod3": shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply",
+        "guitar": shared_data / "playcanvas-splats" / "guitar.compressed.ply",
+        "biker_spz": shared_data / "playcanvas-splats" / "biker.spz",
+    }[which]
     obj = _import(bpy.ops.divas.import_splats, path)
     sel = _select(obj)
     suffix = ".spz" if which == "biker_spz" else ".ply"
@@ -53,10 +55,14 @@ def test_export_matches_engine(ribs, shared_data, tmp_path, which):
     assert bpy.ops.divas.export_selection(filepath=str(out), write_labels=True) == {"FINISHED"}
     scene = load_scene(path)
     ref = tmp_path / f"engine{suffix}"
-    res = export_selection(scene, _engine_mask(scene, obj, sel), ref, labels_path=tmp_path / "ref_labels.npy")
+    res = export_selection(
+        scene, _engine_mask(scene, obj, sel), ref, labels_path=tmp_path / "ref_labels.npy"
+    )
     assert res.count == sel.sum()
     assert out.read_bytes() == ref.read_bytes()
-    np.testing.assert_array_equal(np.load(tmp_path / "ours_labels.npy"), np.load(tmp_path / "ref_labels.npy"))
+    np.testing.assert_array_equal(
+        np.load(tmp_path / "ours_labels.npy"), np.load(tmp_path / "ref_labels.npy")
+    )
 
 
 def test_export_density_grid(ribs, tmp_path):
@@ -152,12 +158,23 @@ def test_bridge_round_trip_types():
     obj = bridge.new_point_cloud_object("t", np.zeros((7, 3)), bpy.context.scene.collection)
     geom = obj.data
     rng = np.random.default_rng(0)
-    arrays = {"f": rng.random(7).astype(np.float32), "i": rng.integers(-9, 9, 7).astype(np.int32),
-              "b": rng.random(7) < 0.5, "v": rng.random((7, 3)).astype(np.float32),
-              "c": rng.random((7, 4)).astype(np.float32), "f2": rng.random((7, 2)).astype(np.float32)}
+    arrays = {
+        "f": rng.random(7).astype(np.float32),
+        "i": rng.integers(-9, 9, 7).astype(np.int32),
+        "b": rng.random(7) < 0.5,
+        "v": rng.random((7, 3)).astype(np.float32),
+        "c": rng.random((7, 4)).astype(np.float32),
+        "f2": rng.random((7, 2)).astype(np.float32),
+    }
     bridge.write_attributes(geom, arrays)
-    types = {"f": "FLOAT", "i": "INT", "b": "BOOLEAN", "v": "FLOAT_VECTOR", "c": "FLOAT_COLOR",
-             "f2": "FLOAT2"}
+    types = {
+        "f": "FLOAT",
+        "i": "INT",
+        "b": "BOOLEAN",
+        "v": "FLOAT_VECTOR",
+        "c": "FLOAT_COLOR",
+        "f2": "FLOAT2",
+    }
     for k, v in arrays.items():
         assert geom.attributes[k].data_type == types[k]
         np.testing.assert_array_equal(bridge.read_attribute(geom, k), v)

@@ -66,10 +66,13 @@ def test_addon_uses_relative_imports_only():
 
 
 def _fake_wheels(tmp: Path) -> list[str]:
-    names = ["divas-0.1.0-py3-none-any.whl", "tqdm-4.70.1-py3-none-any.whl",
-             "scipy-1.17.1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
-             "scipy-1.17.1-cp313-cp313-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
-             "scipy-1.17.1-cp311-cp311-win_amd64.whl"]
+    names = [
+        "divas-0.1.0-py3-none-any.whl",
+        "tqdm-4.70.1-py3-none-any.whl",
+        "scipy-1.17.1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
+        "scipy-1.17.1-cp313-cp313-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
+        "scipy-1.17.1-cp311-cp311-win_amd64.whl",
+    ]
     for n in names:
         with zipfile.ZipFile(tmp / n, "w") as z:
             z.writestr("placeholder.txt", n)
@@ -84,8 +87,12 @@ def test_manifest_rewrite_and_fallback_zip(tmp_path):
     shutil.copytree(ADDON, stage, ignore=shutil.ignore_patterns("__pycache__"))
     (stage / "wheels").mkdir()
     names = _fake_wheels(stage / "wheels")
-    mod.write_manifest(ADDON / "blender_manifest.toml", stage / "blender_manifest.toml",
-                       [f"./wheels/{n}" for n in names], ["linux-x64", "windows-x64"])
+    mod.write_manifest(
+        ADDON / "blender_manifest.toml",
+        stage / "blender_manifest.toml",
+        [f"./wheels/{n}" for n in names],
+        ["linux-x64", "windows-x64"],
+    )
     m = tomllib.loads((stage / "blender_manifest.toml").read_text())
     _check_manifest(m)
     assert m["wheels"] == [f"./wheels/{n}" for n in names]
@@ -105,13 +112,28 @@ def test_manifest_rewrite_and_fallback_zip(tmp_path):
     assert res.returncode == 0, res.stdout + res.stderr
 
 
-@pytest.mark.skipif(os.environ.get("DIVAS_BUILD_EXTENSION") != "1" and not os.environ.get("CI"),
-                    reason="downloads ~265 MB of wheels (pip's cache reused): runs in CI, "
-                           "or locally with DIVAS_BUILD_EXTENSION=1")
+@pytest.mark.skipif(
+    os.environ.get("DIVAS_BUILD_EXTENSION") != "1" and not os.environ.get("CI"),
+    reason="downloads ~265 MB of wheels (pip's cache reused): runs in CI, "
+    "or locally with DIVAS_BUILD_EXTENSION=1",
+)
 def test_build_linux_cp311(tmp_path):
     out = tmp_path / "dist"
-    res = subprocess.run([sys.executable, str(SCRIPT), "--platforms", "linux-x64", "--python", "311",
-                          "--out", str(out)], capture_output=True, text=True, cwd=REPO)
+    res = subprocess.run(
+        [
+            sys.executable,
+            str(SCRIPT),
+            "--platforms",
+            "linux-x64",
+            "--python",
+            "311",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     zips = sorted(out.glob("divas-*.zip"))
     assert [z.name for z in zips] == ["divas-0.1.0-linux_x64.zip"]

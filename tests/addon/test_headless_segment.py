@@ -42,25 +42,62 @@ def scene_dir(tmp_path_factory):
 
 
 def _run(*args, timeout=120):
-    return subprocess.run([sys.executable, str(SCRIPT), "--", *map(str, args)], cwd=REPO,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), "--", *map(str, args)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def test_headless_matches_divas_segment(scene_dir, tmp_path):
     from divas_engine.cli.segment import segment_scene
 
-    common = dict(cameras_path=scene_dir / "cameras.json", segmenter="oracle",
-                  gt_labels=scene_dir / "labels.npy", scale=0.5, device="cpu", seed=2)
+    common = dict(
+        cameras_path=scene_dir / "cameras.json",
+        segmenter="oracle",
+        gt_labels=scene_dir / "labels.npy",
+        scale=0.5,
+        device="cpu",
+        seed=2,
+    )
     ref_dir = tmp_path / "engine"
-    report_ref, _ = segment_scene(scene_dir / "scene.ply", scene_dir / "prompts.json",
-                                  out=ref_dir / "sel.ply", labels_out=ref_dir / "labels.npy",
-                                  progress=False, **common)
+    report_ref, _ = segment_scene(
+        scene_dir / "scene.ply",
+        scene_dir / "prompts.json",
+        out=ref_dir / "sel.ply",
+        labels_out=ref_dir / "labels.npy",
+        progress=False,
+        **common,
+    )
     ours = tmp_path / "blender"
-    r = _run("--scene", scene_dir / "scene.ply", "--cameras", scene_dir / "cameras.json",
-             "--prompts", scene_dir / "prompts.json", "--out", ours / "sel.ply",
-             "--labels-out", ours / "labels.npy", "--segmenter", "oracle", "--gt-labels",
-             scene_dir / "labels.npy", "--scale", "0.5", "--device", "cpu", "--seed", "2",
-             "--report", ours / "report.json", "--session", ours / "session.json")
+    r = _run(
+        "--scene",
+        scene_dir / "scene.ply",
+        "--cameras",
+        scene_dir / "cameras.json",
+        "--prompts",
+        scene_dir / "prompts.json",
+        "--out",
+        ours / "sel.ply",
+        "--labels-out",
+        ours / "labels.npy",
+        "--segmenter",
+        "oracle",
+        "--gt-labels",
+        scene_dir / "labels.npy",
+        "--scale",
+        "0.5",
+        "--device",
+        "cpu",
+        "--seed",
+        "2",
+        "--report",
+        ours / "report.json",
+        "--session",
+        ours / "session.json",
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     assert "centroid views fused" in r.stdout
     labels, ref_labels = np.load(ours / "labels.npy"), np.load(ref_dir / "labels.npy")
@@ -78,14 +115,34 @@ def test_headless_matches_divas_segment(scene_dir, tmp_path):
 
 
 def test_headless_bad_inputs_exit_nonzero(scene_dir, tmp_path):
-    r = _run("--scene", scene_dir / "scene.ply", "--prompts", tmp_path / "missing.json",
-             "--out", tmp_path / "o.ply", "--device", "cpu")
+    r = _run(
+        "--scene",
+        scene_dir / "scene.ply",
+        "--prompts",
+        tmp_path / "missing.json",
+        "--out",
+        tmp_path / "o.ply",
+        "--device",
+        "cpu",
+    )
     assert r.returncode == 1
     err = r.stderr.strip().splitlines()[-1]
     assert err.startswith("error:") and "missing.json" in err and "Traceback" not in r.stderr
-    r = _run("--scene", scene_dir / "scene.ply", "--prompts", scene_dir / "prompts.json",
-             "--out", tmp_path / "o.ply", "--segmenter", "oracle", "--device", "cpu")
-    assert r.returncode == 1 and "oracle segmenter needs" in r.stderr and "Traceback" not in r.stderr
+    r = _run(
+        "--scene",
+        scene_dir / "scene.ply",
+        "--prompts",
+        scene_dir / "prompts.json",
+        "--out",
+        tmp_path / "o.ply",
+        "--segmenter",
+        "oracle",
+        "--device",
+        "cpu",
+    )
+    assert (
+        r.returncode == 1 and "oracle segmenter needs" in r.stderr and "Traceback" not in r.stderr
+    )
     assert not (tmp_path / "o.ply").exists()
     r = _run("--scene", scene_dir / "scene.ply")  # --prompts and --out are required
     assert r.returncode == 2 and "required" in r.stderr
@@ -93,6 +150,8 @@ def test_headless_bad_inputs_exit_nonzero(scene_dir, tmp_path):
 
 def test_script_argv():
     mod = _script_module()
-    assert mod.script_argv(["blender", "-b", "--python", "s.py", "--", "--scene", "a"]) == \
-        ["--scene", "a"]
+    assert mod.script_argv(["blender", "-b", "--python", "s.py", "--", "--scene", "a"]) == [
+        "--scene",
+        "a",
+    ]
     assert mod.script_argv(["s.py", "--scene", "a"]) == ["--scene", "a"]

@@ -36,18 +36,38 @@ def _check_all(objs, cams, seed=0):
         err = np.abs(got - cam.project(pts)[0]).max()
         assert err < 0.5, f"{obj.name}: {err:.4f} px"
         back = camera_objects.engine_camera(scene, obj)
-        np.testing.assert_allclose([back.fx, back.fy, back.cx, back.cy],
-                                   [cam.fx, cam.fy, cam.cx, cam.cy], rtol=1e-5, atol=1e-3)
+        np.testing.assert_allclose(
+            [back.fx, back.fy, back.cx, back.cy],
+            [cam.fx, cam.fy, cam.cx, cam.cy],
+            rtol=1e-5,
+            atol=1e-3,
+        )
         assert (back.width, back.height) == (cam.width, cam.height)
 
 
 def _varied_cameras() -> list[Camera]:
     rng = np.random.default_rng(3)
-    specs = [(640, 480, 500, 500, 320, 240), (800, 600, 700, 650, 390.5, 310.25),
-             (480, 640, 450, 530, 250, 300), (1024, 256, 900, 800, 500, 140)]
-    return [Camera.look_at(rng.normal(size=3) * 5, rng.normal(size=3) * 0.2, [0, 0, 1], width=w,
-                           height=h, fx=fx, fy=fy, cx=cx, cy=cy, name=f"img_{i:02d}.png")
-            for i, (w, h, fx, fy, cx, cy) in enumerate(specs)]
+    specs = [
+        (640, 480, 500, 500, 320, 240),
+        (800, 600, 700, 650, 390.5, 310.25),
+        (480, 640, 450, 530, 250, 300),
+        (1024, 256, 900, 800, 500, 140),
+    ]
+    return [
+        Camera.look_at(
+            rng.normal(size=3) * 5,
+            rng.normal(size=3) * 0.2,
+            [0, 0, 1],
+            width=w,
+            height=h,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            name=f"img_{i:02d}.png",
+        )
+        for i, (w, h, fx, fy, cx, cy) in enumerate(specs)
+    ]
 
 
 def _imported():

@@ -19,8 +19,12 @@ from blender_addon import bridge, display, source
 from divas_engine import load_scene
 from divas_engine.geometry import quat_to_rotmat
 from divas_engine.io.ply import write_surfel_ply
-from divas_engine.point_attributes import (decoded_columns, display_radius, grid_point_table,
-                                           surfel_point_table)
+from divas_engine.point_attributes import (
+    decoded_columns,
+    display_radius,
+    grid_point_table,
+    surfel_point_table,
+)
 from divas_engine.scene import SurfelScene
 
 
@@ -35,12 +39,16 @@ def _check_engine_columns(obj, scene):
     geom = obj.data
     assert len(geom.points) == len(scene)
     np.testing.assert_array_equal(bridge.read_attribute(geom, "position"), scene.means)
-    np.testing.assert_array_equal(bridge.read_attribute(geom, "divas_index"), scene.source.kept_rows)
+    np.testing.assert_array_equal(
+        bridge.read_attribute(geom, "divas_index"), scene.source.kept_rows
+    )
     np.testing.assert_array_equal(bridge.read_attribute(geom, "divas_opacity"), scene.opacities)
     color = bridge.read_attribute(geom, "divas_color")
     np.testing.assert_array_equal(color[:, :3], scene.base_colors().astype(np.float32))
     np.testing.assert_array_equal(color[:, 3], scene.opacities)
-    np.testing.assert_array_equal(bridge.read_attribute(geom, "divas_radius"), display_radius(scene.scales))
+    np.testing.assert_array_equal(
+        bridge.read_attribute(geom, "divas_radius"), display_radius(scene.scales)
+    )
     assert geom.attributes["divas_color"].data_type == "FLOAT_COLOR"
     assert geom.attributes["divas_index"].data_type == "INT"
 
@@ -75,7 +83,9 @@ def test_import_synthetic_2dgs(ribs):
 
 
 def test_import_without_display(ribs):
-    assert bpy.ops.divas.import_splats(filepath=str(ribs / "scene.ply"), display=False) == {"FINISHED"}
+    assert bpy.ops.divas.import_splats(filepath=str(ribs / "scene.ply"), display=False) == {
+        "FINISHED"
+    }
     assert len(bpy.context.active_object.modifiers) == 0
 
 
@@ -116,8 +126,9 @@ def test_import_real_spz(shared_data):
         np.testing.assert_array_equal(bridge.read_attribute(obj.data, name), values, err_msg=name)
     _check_engine_columns(obj, scene)
     # decoded columns reproduce the engine's surfels (stored space → activated)
-    np.testing.assert_allclose(np.exp(bridge.read_attribute(obj.data, "scale_1")), scene.scales[:, 1],
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        np.exp(bridge.read_attribute(obj.data, "scale_1")), scene.scales[:, 1], rtol=1e-5
+    )
     q = np.stack([bridge.read_attribute(obj.data, f"rot_{i}") for i in range(4)], 1)
     np.testing.assert_allclose(quat_to_rotmat(q), scene.rotations(), atol=1e-6)
 
@@ -125,10 +136,25 @@ def test_import_real_spz(shared_data):
 def test_reserved_property_names_are_prefixed(tmp_path):
     rng = np.random.default_rng(1)
     n = 300
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("f_dc_0", "<f4"), ("f_dc_1", "<f4"),
-              ("f_dc_2", "<f4"), ("opacity", "<f4"), ("scale_0", "<f4"), ("scale_1", "<f4"),
-              ("rot_0", "<f4"), ("rot_1", "<f4"), ("rot_2", "<f4"), ("rot_3", "<f4"),
-              ("radius", "<f4"), ("label", "<u4"), ("flag", "u1"), ("weight", "<f8")]
+    fields = [
+        ("x", "<f4"),
+        ("y", "<f4"),
+        ("z", "<f4"),
+        ("f_dc_0", "<f4"),
+        ("f_dc_1", "<f4"),
+        ("f_dc_2", "<f4"),
+        ("opacity", "<f4"),
+        ("scale_0", "<f4"),
+        ("scale_1", "<f4"),
+        ("rot_0", "<f4"),
+        ("rot_1", "<f4"),
+        ("rot_2", "<f4"),
+        ("rot_3", "<f4"),
+        ("radius", "<f4"),
+        ("label", "<u4"),
+        ("flag", "u1"),
+        ("weight", "<f8"),
+    ]
     rows = np.zeros(n, fields)
     for f, _ in fields:
         rows[f] = rng.uniform(-1, 1, n) if f not in ("label", "flag") else rng.integers(0, 200, n)
@@ -139,9 +165,13 @@ def test_reserved_property_names_are_prefixed(tmp_path):
     obj = _import(path)
     geom = obj.data
     np.testing.assert_array_equal(bridge.read_attribute(geom, "ply_radius"), rows["radius"])
-    np.testing.assert_array_equal(bridge.read_attribute(geom, "label").view(np.uint32), rows["label"])
+    np.testing.assert_array_equal(
+        bridge.read_attribute(geom, "label").view(np.uint32), rows["label"]
+    )
     np.testing.assert_array_equal(bridge.read_attribute(geom, "flag"), rows["flag"])
-    np.testing.assert_array_equal(bridge.read_attribute(geom, "weight"), rows["weight"].astype(np.float32))
+    np.testing.assert_array_equal(
+        bridge.read_attribute(geom, "weight"), rows["weight"].astype(np.float32)
+    )
 
 
 def test_import_density_grid(ribs):
@@ -164,7 +194,9 @@ def test_import_density_grid(ribs):
     assert list(obj["divas_grid_shape"]) == list(grid.density.shape)
 
 
-@pytest.mark.parametrize("case", ["missing", "garbage", "truncated", "grid_as_splats", "splats_as_grid"])
+@pytest.mark.parametrize(
+    "case", ["missing", "garbage", "truncated", "grid_as_splats", "splats_as_grid"]
+)
 def test_bad_input_is_reported_by_name(ribs, tmp_path, case):
     op = bpy.ops.divas.import_splats
     if case == "missing":
@@ -207,10 +239,14 @@ def test_import_one_million_splats_timing(tmp_path, capsys):
     rng = np.random.default_rng(0)
     q = rng.normal(size=(n, 4)).astype(np.float32)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    scene = SurfelScene(rng.normal(size=(n, 3)).astype(np.float32), q,
-                        rng.uniform(0.001, 0.02, (n, 2)).astype(np.float32),
-                        rng.uniform(0.05, 0.95, n).astype(np.float32),
-                        rng.normal(size=(n, 4, 3)).astype(np.float32) * 0.3, 1)
+    scene = SurfelScene(
+        rng.normal(size=(n, 3)).astype(np.float32),
+        q,
+        rng.uniform(0.001, 0.02, (n, 2)).astype(np.float32),
+        rng.uniform(0.05, 0.95, n).astype(np.float32),
+        rng.normal(size=(n, 4, 3)).astype(np.float32) * 0.3,
+        1,
+    )
     path = tmp_path / "million.ply"
     write_surfel_ply(path, scene)
     t0 = time.perf_counter()
@@ -218,9 +254,14 @@ def test_import_one_million_splats_timing(tmp_path, capsys):
     dt = time.perf_counter() - t0
     assert len(obj.data.points) == n
     with capsys.disabled():
-        print(f"\n[import] 1,000,000 splats, {len(bridge.attribute_names(obj.data))} attributes: {dt:.2f} s")
+        print(
+            f"\n[import] 1,000,000 splats, {len(bridge.attribute_names(obj.data))} attributes: "
+            f"{dt:.2f} s"
+        )
     table_cols = surfel_point_table(load_scene(path)).columns
-    np.testing.assert_array_equal(bridge.read_attribute(obj.data, "f_rest_8"), table_cols["f_rest_8"])
+    np.testing.assert_array_equal(
+        bridge.read_attribute(obj.data, "f_rest_8"), table_cols["f_rest_8"]
+    )
 
 
 def test_import_from_edit_mode(ribs):

@@ -12,8 +12,16 @@ import numpy as np
 import pytest
 
 from blender_addon import bridge, session_registry
-from blender_addon.modal_logic import (HEADER_TEXT, Key, KeyKind, StepKind, Target, decide, plan,
-                                       target_from_props)
+from blender_addon.modal_logic import (
+    HEADER_TEXT,
+    Key,
+    KeyKind,
+    StepKind,
+    Target,
+    decide,
+    plan,
+    target_from_props,
+)
 from blender_addon.operators.segment_modal import DIVAS_OT_segment_modal, ModalController
 from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
 
@@ -21,25 +29,28 @@ SCALE = 0.5
 
 
 # ----------------------------------------------------------------------------- pure logic
-@pytest.mark.parametrize("event, expect", [
-    (("LEFTMOUSE", "PRESS", False, True), Key(KeyKind.CLICK, True)),
-    (("LEFTMOUSE", "PRESS", True, True), Key(KeyKind.CLICK, False)),
-    (("RIGHTMOUSE", "PRESS", False, True), Key(KeyKind.CLICK, False)),
-    (("LEFTMOUSE", "RELEASE", False, True), Key(KeyKind.IGNORE)),
-    (("LEFTMOUSE", "DOUBLE_CLICK", False, True), Key(KeyKind.CLICK, True)),
-    (("LEFTMOUSE", "CLICK_DRAG", False, True), Key(KeyKind.IGNORE)),
-    (("LEFTMOUSE", "PRESS", False, False), Key(KeyKind.PASS)),   # over the sidebar / header
-    (("RET", "PRESS", False, True), Key(KeyKind.ACCEPT)),
-    (("NUMPAD_ENTER", "PRESS", False, False), Key(KeyKind.ACCEPT)),
-    (("RET", "RELEASE", False, True), Key(KeyKind.IGNORE)),
-    (("BACK_SPACE", "PRESS", False, True), Key(KeyKind.UNDO)),
-    (("ESC", "PRESS", False, True), Key(KeyKind.EXIT)),
-    (("MIDDLEMOUSE", "PRESS", False, True), Key(KeyKind.PASS)),
-    (("WHEELUPMOUSE", "PRESS", False, True), Key(KeyKind.PASS)),
-    (("MOUSEMOVE", "NOTHING", False, True), Key(KeyKind.PASS)),
-    (("A", "PRESS", False, True), Key(KeyKind.PASS)),
-    (("A", "RELEASE", False, True), Key(KeyKind.PASS)),
-])
+@pytest.mark.parametrize(
+    "event, expect",
+    [
+        (("LEFTMOUSE", "PRESS", False, True), Key(KeyKind.CLICK, True)),
+        (("LEFTMOUSE", "PRESS", True, True), Key(KeyKind.CLICK, False)),
+        (("RIGHTMOUSE", "PRESS", False, True), Key(KeyKind.CLICK, False)),
+        (("LEFTMOUSE", "RELEASE", False, True), Key(KeyKind.IGNORE)),
+        (("LEFTMOUSE", "DOUBLE_CLICK", False, True), Key(KeyKind.CLICK, True)),
+        (("LEFTMOUSE", "CLICK_DRAG", False, True), Key(KeyKind.IGNORE)),
+        (("LEFTMOUSE", "PRESS", False, False), Key(KeyKind.PASS)),  # over the sidebar / header
+        (("RET", "PRESS", False, True), Key(KeyKind.ACCEPT)),
+        (("NUMPAD_ENTER", "PRESS", False, False), Key(KeyKind.ACCEPT)),
+        (("RET", "RELEASE", False, True), Key(KeyKind.IGNORE)),
+        (("BACK_SPACE", "PRESS", False, True), Key(KeyKind.UNDO)),
+        (("ESC", "PRESS", False, True), Key(KeyKind.EXIT)),
+        (("MIDDLEMOUSE", "PRESS", False, True), Key(KeyKind.PASS)),
+        (("WHEELUPMOUSE", "PRESS", False, True), Key(KeyKind.PASS)),
+        (("MOUSEMOVE", "NOTHING", False, True), Key(KeyKind.PASS)),
+        (("A", "PRESS", False, True), Key(KeyKind.PASS)),
+        (("A", "RELEASE", False, True), Key(KeyKind.PASS)),
+    ],
+)
 def test_decide(event, expect):
     t, v, shift, inside = event
     assert decide(t, v, shift=shift, in_region=inside) == expect
@@ -50,24 +61,27 @@ NONE = Target()
 POS, NEG = Key(KeyKind.CLICK, True), Key(KeyKind.CLICK, False)
 
 
-@pytest.mark.parametrize("key, target, xy, kind", [
-    (POS, ANCHOR, (3.0, 4.0), StepKind.SPAWN),
-    (NEG, ANCHOR, (3.0, 4.0), StepKind.ANCHOR_NEGATIVE),
-    (POS, OPEN, (3.0, 4.0), StepKind.PROMPT),
-    (NEG, OPEN, (3.0, 4.0), StepKind.PROMPT),
-    (POS, Target(2, "v", "rejected"), (3.0, 4.0), StepKind.PROMPT),  # re-prompt a rejected view
-    (POS, FUSED, (3.0, 4.0), StepKind.MESSAGE),
-    (POS, ANCHOR, None, StepKind.MESSAGE),      # outside the camera frame
-    (POS, NONE, (3.0, 4.0), StepKind.MESSAGE),  # not a DivAS camera
-    (Key(KeyKind.ACCEPT), OPEN, None, StepKind.ACCEPT),
-    (Key(KeyKind.ACCEPT), FUSED, None, StepKind.MESSAGE),
-    (Key(KeyKind.ACCEPT), ANCHOR, None, StepKind.MESSAGE),
-    (Key(KeyKind.ACCEPT), NONE, None, StepKind.MESSAGE),
-    (Key(KeyKind.UNDO), NONE, None, StepKind.UNDO),
-    (Key(KeyKind.EXIT), OPEN, None, StepKind.EXIT),
-    (Key(KeyKind.PASS), OPEN, None, StepKind.PASS),
-    (Key(KeyKind.IGNORE), OPEN, None, StepKind.NOTHING),
-])
+@pytest.mark.parametrize(
+    "key, target, xy, kind",
+    [
+        (POS, ANCHOR, (3.0, 4.0), StepKind.SPAWN),
+        (NEG, ANCHOR, (3.0, 4.0), StepKind.ANCHOR_NEGATIVE),
+        (POS, OPEN, (3.0, 4.0), StepKind.PROMPT),
+        (NEG, OPEN, (3.0, 4.0), StepKind.PROMPT),
+        (POS, Target(2, "v", "rejected"), (3.0, 4.0), StepKind.PROMPT),  # re-prompt a rejected view
+        (POS, FUSED, (3.0, 4.0), StepKind.MESSAGE),
+        (POS, ANCHOR, None, StepKind.MESSAGE),  # outside the camera frame
+        (POS, NONE, (3.0, 4.0), StepKind.MESSAGE),  # not a DivAS camera
+        (Key(KeyKind.ACCEPT), OPEN, None, StepKind.ACCEPT),
+        (Key(KeyKind.ACCEPT), FUSED, None, StepKind.MESSAGE),
+        (Key(KeyKind.ACCEPT), ANCHOR, None, StepKind.MESSAGE),
+        (Key(KeyKind.ACCEPT), NONE, None, StepKind.MESSAGE),
+        (Key(KeyKind.UNDO), NONE, None, StepKind.UNDO),
+        (Key(KeyKind.EXIT), OPEN, None, StepKind.EXIT),
+        (Key(KeyKind.PASS), OPEN, None, StepKind.PASS),
+        (Key(KeyKind.IGNORE), OPEN, None, StepKind.NOTHING),
+    ],
+)
 def test_plan(key, target, xy, kind):
     step = plan(key, target, xy)
     assert step.kind is kind
@@ -80,8 +94,9 @@ def test_plan(key, target, xy, kind):
 def test_target_from_props():
     assert target_from_props({}) == NONE
     assert target_from_props({"divas_anchor": 3}) == Target(3)
-    assert target_from_props({"divas_anchor": 3, "divas_view": "v"}, lambda v: "fused") == \
-        Target(3, "v", "fused")
+    assert target_from_props({"divas_anchor": 3, "divas_view": "v"}, lambda v: "fused") == Target(
+        3, "v", "fused"
+    )
     assert target_from_props({"divas_anchor": 3, "divas_view": "gone"}, lambda v: None) == NONE
 
 
@@ -110,11 +125,17 @@ class _Harness:
         region = SimpleNamespace(type="WINDOW", x=10, y=20, width=800, height=600)
         # the sidebar drawn over the main region's right edge (Region Overlap)
         sidebar = SimpleNamespace(type="UI", x=610, y=20, width=200, height=600)
-        area = SimpleNamespace(regions=[region, sidebar], header_text_set=self.headers.append,
-                               tag_redraw=lambda: None)
-        self.ctl = ModalController(obj.name, lambda kind, msg: self.reports.append((kind, msg)),
-                                   region=region, rv3d=object(), area=area,
-                                   pixel_fn=self._pixel)
+        area = SimpleNamespace(
+            regions=[region, sidebar], header_text_set=self.headers.append, tag_redraw=lambda: None
+        )
+        self.ctl = ModalController(
+            obj.name,
+            lambda kind, msg: self.reports.append((kind, msg)),
+            region=region,
+            rv3d=object(),
+            area=area,
+            pixel_fn=self._pixel,
+        )
         self.op = SimpleNamespace(_ctl=self.ctl)
 
     def _pixel(self, region, rv3d, scene, cam, mouse):
@@ -134,8 +155,9 @@ def _start(scene_dir):
     obj = bpy.context.active_object
     bpy.context.scene.divas.render_scale = SCALE
     bpy.context.scene.divas.autosave = False
-    assert bpy.ops.divas.start_session(segmenter="oracle", device="cpu",
-                                       gt_labels=str(out / "labels.npy")) == {"FINISHED"}
+    assert bpy.ops.divas.start_session(
+        segmenter="oracle", device="cpu", gt_labels=str(out / "labels.npy")
+    ) == {"FINISHED"}
     return obj, session_registry.get(obj)
 
 
@@ -194,8 +216,9 @@ def test_modal_click_prompt_accept_undo_exit(scene_dir):
     # Enter → fused; divas_selected is the session selection on the points
     assert h.send(_event("RET")) == {"RUNNING_MODAL"}
     assert v.status == "fused" and s.selection.sum() > 100
-    mapped = scene_selection(s.scene, bridge.read_attribute(obj.data, INDEX),
-                             bridge.read_attribute(obj.data, SELECTED))
+    mapped = scene_selection(
+        s.scene, bridge.read_attribute(obj.data, INDEX), bridge.read_attribute(obj.data, SELECTED)
+    )
     np.testing.assert_array_equal(mapped, s.selection)
     assert v.labels.tolist() == [1, 0, 0]  # the previewed prompt set was the one fused
     assert scene.camera == anchor_cam  # no other open view: back on the anchor

@@ -8,8 +8,14 @@ import bpy
 import blender_addon
 from blender_addon.preferences import DivasSettings, get_preferences, get_settings
 
-OPERATORS = ("import_splats", "import_density_grid", "import_cameras", "export_selection",
-             "extract_selection", "activate_camera")
+OPERATORS = (
+    "import_splats",
+    "import_density_grid",
+    "import_cameras",
+    "export_selection",
+    "extract_selection",
+    "activate_camera",
+)
 
 
 def _registered() -> list[bool]:
@@ -29,7 +35,9 @@ def test_classes_registered_and_named():
 
 def test_preferences_keyed_by_package():
     prefs = get_preferences()
-    assert prefs is not None and type(prefs).bl_idname == blender_addon.__package__ == "blender_addon"
+    assert (
+        prefs is not None and type(prefs).bl_idname == blender_addon.__package__ == "blender_addon"
+    )
     assert get_settings() == DivasSettings()
     prefs.device, prefs.segmenter = "cuda", "sam_onnx"
     prefs.sam_encoder_path = "/models/enc.onnx"

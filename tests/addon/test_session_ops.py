@@ -18,8 +18,12 @@ from blender_addon.camera_objects import apply_render_settings
 from blender_addon.modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP
 from blender_addon.overlays import image_name
 from blender_addon.properties import session_config
-from blender_addon.session_actions import (LABEL_ATTRIBUTE, VIEWS_COLLECTION, autosave_path,
-                                           point_values)
+from blender_addon.session_actions import (
+    LABEL_ATTRIBUTE,
+    VIEWS_COLLECTION,
+    autosave_path,
+    point_values,
+)
 from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
 from divas_engine.session import SessionConfig
 
@@ -38,7 +42,9 @@ def scene_dir(tmp_path_factory):
 
 def _start(scene_dir, tmp_path=None, **kw):
     out, _ = scene_dir
-    assert bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"), display=True) == {"FINISHED"}
+    assert bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"), display=True) == {
+        "FINISHED"
+    }
     obj = bpy.context.active_object
     bpy.context.scene.divas.render_scale = SCALE
     kw.setdefault("device", "cpu")
@@ -86,8 +92,11 @@ def _projection_error(scene, cam_obj, engine_cam, rng) -> float:
 
 def _selection_matches(obj, live) -> None:
     geom = obj.data
-    mapped = scene_selection(live.session.scene, bridge.read_attribute(geom, INDEX),
-                             bridge.read_attribute(geom, SELECTED))
+    mapped = scene_selection(
+        live.session.scene,
+        bridge.read_attribute(geom, INDEX),
+        bridge.read_attribute(geom, SELECTED),
+    )
     np.testing.assert_array_equal(mapped, live.session.selection)
 
 
@@ -104,20 +113,27 @@ def test_start_session_cameras_images_projection(scene_dir):
     # the first anchor is the scene camera, with its own render size
     assert bpy.context.scene.camera == cams[0]
     r = bpy.context.scene.render
-    assert (r.resolution_x, r.resolution_y) == (s.anchors[0].camera.width, s.anchors[0].camera.height)
+    assert (r.resolution_x, r.resolution_y) == (
+        s.anchors[0].camera.width,
+        s.anchors[0].camera.height,
+    )
     rng = np.random.default_rng(0)
     for i, (cam, a) in enumerate(zip(cams, s.anchors)):
         assert cam[OWNER_PROP] == obj.name and cam[ANCHOR_PROP] == i and cam.parent == obj
         assert tuple(cam["divas_resolution"]) == (a.camera.width, a.camera.height)
         assert cam.data.show_background_images and len(cam.data.background_images) == 1
         bg = cam.data.background_images[0]
-        assert bg.image.name == image_name(cam) and tuple(bg.image.size) == (a.camera.width,
-                                                                            a.camera.height)
+        assert bg.image.name == image_name(cam) and tuple(bg.image.size) == (
+            a.camera.width,
+            a.camera.height,
+        )
         assert bg.frame_method == "STRETCH"
         np.testing.assert_allclose(_image_rgb(bg.image), np.clip(a.rgb, 0, 1), atol=1.0 / 254)
         assert _projection_error(bpy.context.scene, cam, a.camera, rng) < 0.5
     # a centroid view's camera is exact too
-    assert bpy.ops.divas.session_click(anchor=1, xy="%r %r" % _click_xy(live, 1, sc)) == {"FINISHED"}
+    assert bpy.ops.divas.session_click(
+        anchor=1, xy="{!r} {!r}".format(*_click_xy(live, 1, sc))
+    ) == {"FINISHED"}
     v = s.views[-1]
     vcam = bpy.context.scene.camera
     assert vcam[VIEW_PROP] == v.id and vcam.name in coll.objects and vcam.parent == obj
@@ -137,7 +153,11 @@ def test_scene_settings_defaults_are_the_engine_defaults():
     props.see_through_gap, props.surfel_coverage, props.gamma = 2.0, 0.3, 1.7
     props.preset, props.render_scale = "FORWARD", 0.3
     cfg = session_config(props, autosave="/tmp/x.json")
-    assert (cfg.gs_fusion.gamma_st, cfg.mapping.surfel_coverage, cfg.gs_fusion.gamma) == (2.0, 0.3, 1.7)
+    assert (cfg.gs_fusion.gamma_st, cfg.mapping.surfel_coverage, cfg.gs_fusion.gamma) == (
+        2.0,
+        0.3,
+        1.7,
+    )
     assert cfg.render_scale == 0.3 and cfg.grid.g_max == 512 and cfg.nerf_preset == "llff"
     assert cfg.autosave == "/tmp/x.json"
 
@@ -147,7 +167,9 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
     obj, live = _oracle(scene_dir, tmp_path)
     s = live.session
     auto = tmp_path / "session.json"
-    assert bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc)) == {"FINISHED"}
+    assert bpy.ops.divas.session_click(
+        anchor=0, xy="{!r} {!r}".format(*_click_xy(live, 0, sc))
+    ) == {"FINISHED"}
     v0 = s.views[0]
     assert bpy.context.scene.camera.name == live.view_cameras[v0.id]
     assert not auto.exists()
@@ -156,15 +178,18 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
     assert v0.status == "fused" and s.selection.sum() > 100
     _selection_matches(obj, live)
     labels = bridge.read_attribute(obj.data, LABEL_ATTRIBUTE)
-    np.testing.assert_array_equal(labels, bridge.read_attribute(obj.data, SELECTED).astype(np.int32))
+    np.testing.assert_array_equal(
+        labels, bridge.read_attribute(obj.data, SELECTED).astype(np.int32)
+    )
     assert auto.is_file()  # autosaved after the accept
     assert {"kernel_s", "mapping_s", "update_s"} <= set(live.last_update)
     # back on the anchor (no other open view), showing the selection
     assert bpy.context.scene.camera.name == live.anchor_cameras[0]
     sel0 = s.selection.copy()
     # a second view, with an extra negative point given as JSON
-    assert bpy.ops.divas.session_click(anchor=1, xy="%r %r" % _click_xy(live, 1, sc, 1),
-                                       preview=False) == {"FINISHED"}
+    assert bpy.ops.divas.session_click(
+        anchor=1, xy="{!r} {!r}".format(*_click_xy(live, 1, sc, 1)), preview=False
+    ) == {"FINISHED"}
     v1 = s.views[1]
     assert v1.preview is None
     assert bpy.ops.divas.session_accept(view=v1.id, points="[[1.5, 1.5, false]]") == {"FINISHED"}
@@ -178,10 +203,13 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
     # finish object: label 1 on the points, selection cleared, the open view's camera gone
     assert bpy.ops.divas.session_finish_object(name="skull") == {"FINISHED"}
     labels = bridge.read_attribute(obj.data, LABEL_ATTRIBUTE)
-    np.testing.assert_array_equal(labels == 1, point_values(s.scene, bridge.read_attribute(
-        obj.data, INDEX), sel0))
+    np.testing.assert_array_equal(
+        labels == 1, point_values(s.scene, bridge.read_attribute(obj.data, INDEX), sel0)
+    )
     assert not bridge.read_attribute(obj.data, SELECTED).any()
-    assert v1.id not in live.view_cameras and bpy.data.objects.get(f"{obj.name} View {v1.id}") is None
+    assert (
+        v1.id not in live.view_cameras and bpy.data.objects.get(f"{obj.name} View {v1.id}") is None
+    )
     # multi-object export: one PLY per finished object + the labelled PLY
     exp = tmp_path / "objects"
     assert bpy.ops.divas.export_objects(directory=str(exp)) == {"FINISHED"}
@@ -207,9 +235,9 @@ def test_autosave_path_follows_the_blend(tmp_path):
 def test_resume_session(scene_dir, tmp_path):
     out, sc = scene_dir
     obj, live = _oracle(scene_dir, tmp_path)
-    bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc))
+    bpy.ops.divas.session_click(anchor=0, xy="{!r} {!r}".format(*_click_xy(live, 0, sc)))
     bpy.ops.divas.session_accept()
-    bpy.ops.divas.session_click(anchor=2, xy="%r %r" % _click_xy(live, 2, sc, 2))
+    bpy.ops.divas.session_click(anchor=2, xy="{!r} {!r}".format(*_click_xy(live, 2, sc, 2)))
     sel = live.session.selection.copy()
     n_anchors = len(live.session.anchors)
     # a new file: the session is closed and forgotten
@@ -217,9 +245,12 @@ def test_resume_session(scene_dir, tmp_path):
     assert session_registry.all_sessions() == []
     bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"))
     obj = bpy.context.active_object
-    assert bpy.ops.divas.resume_session(filepath=str(tmp_path / "session.json"),
-                                        segmenter="oracle", device="cpu",
-                                        gt_labels=str(out / "labels.npy")) == {"FINISHED"}
+    assert bpy.ops.divas.resume_session(
+        filepath=str(tmp_path / "session.json"),
+        segmenter="oracle",
+        device="cpu",
+        gt_labels=str(out / "labels.npy"),
+    ) == {"FINISHED"}
     live = session_registry.get(obj)
     assert live.session.replay_matches and np.array_equal(live.session.selection, sel)
     assert len(live.anchor_cameras) == n_anchors
@@ -233,15 +264,16 @@ def test_export_and_extract_after_session(scene_dir, tmp_path):
     out, sc = scene_dir
     obj, live = _oracle(scene_dir)
     for i in range(2):
-        bpy.ops.divas.session_click(anchor=i, xy="%r %r" % _click_xy(live, i, sc, i))
+        bpy.ops.divas.session_click(anchor=i, xy="{!r} {!r}".format(*_click_xy(live, i, sc, i)))
         bpy.ops.divas.session_accept()
     ours, ref = tmp_path / "ours.ply", tmp_path / "engine.ply"
     assert bpy.ops.divas.export_selection(filepath=str(ours), write_labels=True) == {"FINISHED"}
     res = live.session.export(ref, labels_path=tmp_path / "engine_labels.npy")
     assert res.count == live.session.selection.sum() > 0
     assert ours.read_bytes() == ref.read_bytes()
-    np.testing.assert_array_equal(np.load(tmp_path / "ours_labels.npy"),
-                                  np.load(tmp_path / "engine_labels.npy"))
+    np.testing.assert_array_equal(
+        np.load(tmp_path / "ours_labels.npy"), np.load(tmp_path / "engine_labels.npy")
+    )
     assert bpy.ops.divas.extract_selection() == {"FINISHED"}
     new = bpy.context.active_object
     assert new != obj and len(new.data.points) == res.count
@@ -301,16 +333,24 @@ def test_panel_draws_session(scene_dir):
     out, sc = scene_dir
     panel_cls = bpy.types.DIVAS_PT_main
     obj, live = _start(scene_dir)
-    bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc))
+    bpy.ops.divas.session_click(anchor=0, xy="{!r} {!r}".format(*_click_xy(live, 0, sc)))
     log = []
     panel_cls.draw(type("P", (), {"layout": _Layout(log)})(), bpy.context)
     ops = {v for k, v in log if k == "operator"}
-    assert {"divas.start_session", "divas.segment_modal", "divas.session_accept",
-            "divas.session_undo", "divas.session_reset", "divas.session_finish_object",
-            "divas.session_add_anchor", "divas.extract_selection", "divas.export_selection", "divas.resume_session"} <= ops
+    assert {
+        "divas.start_session",
+        "divas.segment_modal",
+        "divas.session_accept",
+        "divas.session_undo",
+        "divas.session_reset",
+        "divas.session_finish_object",
+        "divas.session_add_anchor",
+        "divas.extract_selection",
+        "divas.export_selection",
+        "divas.resume_session",
+    } <= ops
     props = {v for k, v in log if k == "prop"}
-    assert {"device", "segmenter", "preset", "see_through_gap", "surfel_coverage",
-            "gamma"} <= props
+    assert {"device", "segmenter", "preset", "see_through_gap", "surfel_coverage", "gamma"} <= props
     labels = " ".join(v for k, v in log if k == "label")
     assert "2DGS" in labels and "anchors" in labels and "Total:" in labels
 
@@ -318,7 +358,7 @@ def test_panel_draws_session(scene_dir):
 def test_restart_replaces_the_session_and_its_cameras(scene_dir):
     out, sc = scene_dir
     obj, live = _start(scene_dir)
-    bpy.ops.divas.session_click(anchor=0, xy="%r %r" % _click_xy(live, 0, sc))
+    bpy.ops.divas.session_click(anchor=0, xy="{!r} {!r}".format(*_click_xy(live, 0, sc)))
     coll = bpy.data.collections[VIEWS_COLLECTION]
     assert len(coll.objects) == len(live.session.anchors) + 1
     bpy.context.view_layer.objects.active = obj
@@ -352,7 +392,9 @@ def test_add_camera_as_anchor(scene_dir):
     assert _projection_error(bpy.context.scene, cam, a.camera, np.random.default_rng(1)) < 0.5
     # the new anchor is clickable like the planned ones
     sel0 = s.selection.copy()
-    assert bpy.ops.divas.session_click(anchor=n0, xy="%r %r" % _click_xy(live, n0, sc)) == {"FINISHED"}
+    assert bpy.ops.divas.session_click(
+        anchor=n0, xy="{!r} {!r}".format(*_click_xy(live, n0, sc))
+    ) == {"FINISHED"}
     assert bpy.ops.divas.session_accept() == {"FINISHED"}
     assert s.views[-1].anchor == n0 and s.selection.sum() > sel0.sum()
     # a moved object: a free world-space camera is converted into the scene frame

@@ -31,19 +31,39 @@ def _setup(cam: Camera):
     obj = camera_objects.create_camera_object(cam, scene.collection)
     camera_objects.apply_render_settings(scene, obj)
     r = scene.render
-    proj = obj.calc_matrix_camera(bpy.context.evaluated_depsgraph_get(), x=r.resolution_x,
-                                  y=r.resolution_y, scale_x=r.pixel_aspect_x, scale_y=r.pixel_aspect_y)
+    proj = obj.calc_matrix_camera(
+        bpy.context.evaluated_depsgraph_get(),
+        x=r.resolution_x,
+        y=r.resolution_y,
+        scale_x=r.pixel_aspect_x,
+        scale_y=r.pixel_aspect_y,
+    )
     return scene, obj, proj @ obj.matrix_world.normalized().inverted()
 
 
-@pytest.mark.parametrize("spec", [(640, 480, 500, 500, 320, 240), (800, 600, 700, 650, 390.5, 310.25),
-                                  (480, 640, 450, 530, 250, 300)])
+@pytest.mark.parametrize(
+    "spec",
+    [
+        (640, 480, 500, 500, 320, 240),
+        (800, 600, 700, 650, 390.5, 310.25),
+        (480, 640, 450, 530, 250, 300),
+    ],
+)
 @pytest.mark.parametrize("letterbox", [False, True])
 def test_click_lands_on_projected_pixel(spec, letterbox):
     w, h, fx, fy, cx, cy = spec
     rng = np.random.default_rng(0)
-    cam = Camera.look_at(rng.normal(size=3) * 4, np.zeros(3), [0, 0, 1], width=w, height=h,
-                         fx=fx, fy=fy, cx=cx, cy=cy)
+    cam = Camera.look_at(
+        rng.normal(size=3) * 4,
+        np.zeros(3),
+        [0, 0, 1],
+        width=w,
+        height=h,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+    )
     scene, obj, pm = _setup(cam)
     disp_w, disp_h = w * scene.render.pixel_aspect_x, h * scene.render.pixel_aspect_y
     if letterbox:  # region twice as wide as the frame, frame centred: squeeze NDC x by half
@@ -55,8 +75,9 @@ def test_click_lands_on_projected_pixel(spec, letterbox):
     frame = camera_frame_in_region(region, rv3d, scene, obj)
     x0 = region.width / 4 if letterbox else 0.0
     x1 = 3 * region.width / 4 if letterbox else region.width
-    np.testing.assert_allclose(frame, [(x1, region.height), (x1, 0), (x0, 0), (x0, region.height)],
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        frame, [(x1, region.height), (x1, 0), (x0, 0), (x0, region.height)], atol=1e-3
+    )
     # a 3D point's region position, clicked at that region pixel, gives its camera pixel
     uv = rng.uniform([0.05 * w, 0.05 * h], [0.95 * w, 0.95 * h], (30, 2))
     pts = cam.unproject(uv, rng.uniform(1.0, 10.0, 30))
