@@ -1,4 +1,8 @@
-"""Shared test fixtures: paths to the read-only third-party scenes in ``../shared/data``."""
+"""Shared test fixtures: the real third-party captures committed in ``tests/data``.
+
+``tests/data/README.md`` gives each file's source, license and SHA-256; the repository
+needs nothing beside it to run its tests.
+"""
 
 from __future__ import annotations
 
@@ -7,13 +11,12 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+REAL_DATA = REPO / "tests" / "data"
 
 
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    if not SHARED_DATA.is_dir():
-        pytest.fail(
-            f"shared test data not found at {SHARED_DATA} (the repo must sit beside shared/)"
-        )
-    return SHARED_DATA
+def real_data() -> Path:
+    """Folder of the real captures (``tests/data``)."""
+    if not REAL_DATA.is_dir():
+        pytest.fail(f"test data not found at {REAL_DATA}: the checkout is incomplete")
+    return REAL_DATA

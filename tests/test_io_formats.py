@@ -1,6 +1,6 @@
 """Decoders and subset writers for compressed PLY, ``.splat`` and ``.spz``.
 
-Real data (read-only, described in ``shared/data/README.md``):
+Real data (read-only, described in ``tests/data/README.md``):
 
 * ``playcanvas-splats/biker.compressed.ply`` (152,746 Gaussians, 597 chunks),
   ``guitar.compressed.ply`` (90,854, 355 chunks) and ``biker.spz`` (SPZ
@@ -37,7 +37,7 @@ from divas_engine.io.splat import read_splat, write_splat_subset
 from divas_engine.io.spz import read_spz, write_spz_subset
 from divas_engine.scene import SH_C0
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = Path(__file__).resolve().parent / "data"
 PC = DATA / "playcanvas-splats"
 BIKER_CPLY = PC / "biker.compressed.ply"
 GUITAR_CPLY = PC / "guitar.compressed.ply"

@@ -1,6 +1,6 @@
 """Standard 2DGS/3DGS PLY loading, exact subset export, density grids and bad input.
 
-Real files: ``shared/data/gaussiansplats3d-lod/*.ply`` from mkkellogg/GaussianSplats3D
+Real files: ``tests/data/gaussiansplats3d-lod/*.ply`` from mkkellogg/GaussianSplats3D
 (pull request 477 @ e154f37, MIT), standard binary 3DGS PLYs with SH degree 3.
 """
 
@@ -115,8 +115,8 @@ def test_3dgs_flattened_to_two_largest_axes(tmp_path):
 
 
 @pytest.mark.parametrize("name,count", sorted(LOD_FILES.items()))
-def test_real_3dgs_ply_matches_plyfile(shared_data, name, count):
-    path = shared_data / "gaussiansplats3d-lod" / name
+def test_real_3dgs_ply_matches_plyfile(real_data, name, count):
+    path = real_data / "gaussiansplats3d-lod" / name
     s = load_scene(path)
     raw = plyfile.PlyData.read(str(path))["vertex"].data
     assert len(raw) == count and s.source.num_rows == count
@@ -227,8 +227,8 @@ def test_bad_ply_input_names_file_and_problem(tmp_path, case, needle):
     assert str(p) in str(ei.value) and needle in str(ei.value)
 
 
-def test_export_is_exact_subset_of_original_ply(tmp_path, shared_data):
-    src = shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply"
+def test_export_is_exact_subset_of_original_ply(tmp_path, real_data):
+    src = real_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply"
     s = load_scene(src)
     sel = np.zeros(len(s), bool)
     sel[::3] = True
@@ -317,8 +317,8 @@ def _divas(*args):
     )
 
 
-def test_info_cli_json_and_clean_errors(tmp_path, shared_data):
-    r = _divas("info", shared_data / "gaussiansplats3d-lod" / "lod2_tile_0.ply", "--json")
+def test_info_cli_json_and_clean_errors(tmp_path, real_data):
+    r = _divas("info", real_data / "gaussiansplats3d-lod" / "lod2_tile_0.ply", "--json")
     assert r.returncode == 0, r.stderr
     info = json.loads(r.stdout)
     assert info["kind"] == "3dgs" and info["count"] == 6831 and info["sh_degree"] == 3
@@ -328,7 +328,7 @@ def test_info_cli_json_and_clean_errors(tmp_path, shared_data):
     assert info["camera_count"] == 0
     r = _divas("info", _grid(tmp_path), "--json")
     assert r.returncode == 0 and json.loads(r.stdout)["kind"] == "nerf_grid"
-    text = _divas("info", shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply")
+    text = _divas("info", real_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply")
     assert text.returncode == 0 and "sh_degree: 3" in text.stdout
     bad = tmp_path / "bad.ply"
     bad.write_bytes(

@@ -11,7 +11,6 @@ bpy = pytest.importorskip("bpy")
 import addon_utils  # noqa: E402  (ships with bpy)
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED_DATA = REPO.parent / "shared" / "data"
 ADDON = "blender_addon"
 
 
@@ -27,15 +26,6 @@ def addon():
 def fresh_file(addon):
     bpy.ops.wm.read_homefile(app_template="")
     yield
-
-
-@pytest.fixture(scope="session")
-def shared_data() -> Path:
-    if not SHARED_DATA.is_dir():
-        pytest.fail(
-            f"shared test data not found at {SHARED_DATA} (the repo must sit beside shared/)"
-        )
-    return SHARED_DATA
 
 
 @pytest.fixture(scope="session")

@@ -41,12 +41,12 @@ def _engine_mask(scene, obj, sel):
 
 
 @pytest.mark.parametrize("which", ["ribs", "lod3", "guitar", "biker_spz"])
-def test_export_matches_engine(ribs, shared_data, tmp_path, which):
+def test_export_matches_engine(ribs, real_data, tmp_path, which):
     path = {
         "ribs": ribs / "scene.ply",
-        "lod3": shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply",
-        "guitar": shared_data / "playcanvas-splats" / "guitar.compressed.ply",
-        "biker_spz": shared_data / "playcanvas-splats" / "biker.spz",
+        "lod3": real_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply",
+        "guitar": real_data / "playcanvas-splats" / "guitar.compressed.ply",
+        "biker_spz": real_data / "playcanvas-splats" / "biker.spz",
     }[which]
     obj = _import(bpy.ops.divas.import_splats, path)
     sel = _select(obj)

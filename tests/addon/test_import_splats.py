@@ -3,7 +3,7 @@ attribute round-trips exactly; bad files are reported by name.
 
 Real scenes: ``gaussiansplats3d-lod/lod3_tile_0.ply`` (mkkellogg/GaussianSplats3D, MIT) and
 ``playcanvas-splats/guitar.compressed.ply`` / ``biker.spz`` (playcanvas/engine, MIT), see
-``shared/data/README.md``.
+``tests/data/README.md``.
 """
 
 from __future__ import annotations
@@ -89,8 +89,8 @@ def test_import_without_display(ribs):
     assert len(bpy.context.active_object.modifiers) == 0
 
 
-def test_import_real_3dgs_ply(shared_data):
-    path = shared_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply"
+def test_import_real_3dgs_ply(real_data):
+    path = real_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply"
     obj = _import(path)
     scene = load_scene(path)
     assert len(obj.data.points) == 1971
@@ -100,8 +100,8 @@ def test_import_real_3dgs_ply(shared_data):
     assert len([n for n in bridge.attribute_names(obj.data) if n.startswith("f_rest_")]) == 45
 
 
-def test_import_real_compressed_ply(shared_data):
-    path = shared_data / "playcanvas-splats" / "guitar.compressed.ply"
+def test_import_real_compressed_ply(real_data):
+    path = real_data / "playcanvas-splats" / "guitar.compressed.ply"
     obj = _import(path)
     scene = load_scene(path)
     geom = obj.data
@@ -118,8 +118,8 @@ def test_import_real_compressed_ply(shared_data):
     assert source.source_of(obj).format == "compressed_ply"
 
 
-def test_import_real_spz(shared_data):
-    path = shared_data / "playcanvas-splats" / "biker.spz"
+def test_import_real_spz(real_data):
+    path = real_data / "playcanvas-splats" / "biker.spz"
     obj = _import(path)
     scene = load_scene(path)
     for name, values in decoded_columns(scene).items():
