@@ -70,6 +70,10 @@ class SurfelScene:
         sh_degree: 0..3.
         kind: ``"2dgs"`` (native surfels) or ``"3dgs"`` (flattened Gaussians).
         source: the file it came from (None for generated scenes).
+        extras: format-specific facts of the source (e.g. the SPZ version).
+        scale_n: ``[N]`` for 3DGS input, the standard deviation s_3 along the normal
+            (rotation column 2) that the flattening dropped — the Gaussian is
+            ``(quats, scales, scale_n)`` exactly; None for native 2DGS surfels.
     """
 
     means: np.ndarray
@@ -81,9 +85,12 @@ class SurfelScene:
     kind: Literal["2dgs", "3dgs"] = "2dgs"
     source: SourceInfo | None = None
     extras: dict = field(default_factory=dict)
+    scale_n: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.means)
+        if self.scale_n is not None and self.scale_n.shape != (n,):
+            raise ValueError(f"SurfelScene.scale_n has shape {self.scale_n.shape}, expected {(n,)}")
         for name, shape in (
             ("means", (n, 3)),
             ("quats", (n, 4)),
@@ -124,6 +131,7 @@ class SurfelScene:
             self.kind,
             src,
             dict(self.extras),
+            None if self.scale_n is None else self.scale_n[keep],
         )
 
 

@@ -64,6 +64,7 @@ def _check_surfel(scene, i, quat_wxyz, scales3, tol=1e-5):
     order = sorted(range(3), key=lambda a: -scales3[a])
     s = [scales3[a] for a in order]
     assert scene.scales[i] == pytest.approx([s[0], s[1]], rel=1e-5)
+    assert scene.scale_n[i] == pytest.approx(s[2], rel=1e-5)  # the dropped axis, kept
     if s[1] > s[2] * 1.001:  # the dropped axis is unambiguous
         normal = _quat_to_mat(*quat_wxyz)[:, order[2]]
         assert abs(float(np.dot(scene.normals()[i], normal))) > 1 - tol
@@ -566,6 +567,7 @@ def test_splat_synthetic(tmp_path):
     np.testing.assert_array_equal(s.source.kept_rows, [0, 3])
     np.testing.assert_allclose(s.means, [[1, 2, 3], [-4, 5.5, 0.25]])
     np.testing.assert_allclose(s.scales, [[0.2, 0.1], [0.3, 0.02]], rtol=1e-6)
+    np.testing.assert_allclose(s.scale_n, [0.05, 0.01], rtol=1e-6)  # the dropped axis
     np.testing.assert_allclose(s.opacities, [64 / 255, 1.0], atol=1e-7)
     np.testing.assert_allclose(
         s.sh[0, 0], [(255 / 255 - 0.5) / SH_C0, -0.5 / SH_C0, (128 / 255 - 0.5) / SH_C0], atol=1e-5

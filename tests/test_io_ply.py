@@ -128,6 +128,9 @@ def test_real_3dgs_ply_matches_plyfile(real_data, name, count):
         keep
     ]
     assert np.allclose(s.scales[:, 0], smax, rtol=1e-5)
+    # the dropped normal-axis scale s_3 is kept: the Gaussian stays whole
+    smin = np.exp(np.stack([raw[f"scale_{i}"] for i in range(3)], 1).astype(np.float64)).min(1)
+    assert s.scale_n is not None and np.allclose(s.scale_n, smin[keep], rtol=1e-5)
     assert s.source.dropped_nonfinite == count - len(s)
 
 

@@ -314,6 +314,7 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
     means = np.empty((total, 3), np.float32)
     quats = np.empty((total, 4), np.float32)
     scales = np.empty((total, 2), np.float32)
+    scale_n = np.empty(total, np.float32)
     opac = np.empty(total, np.float32)
     sh = np.empty((total, k, 3), np.float32)
     finite = np.empty(total, bool)
@@ -329,9 +330,9 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
         )
         with np.errstate(over="ignore", invalid="ignore"):
             s_act = np.exp(np.clip(f["log_scale"], -80.0, 80.0)).astype(np.float32)
-        q2, s2 = surfels_from_arrays(
-            f["quat"].astype(np.float32), np.where(ok[:, None], s_act, np.float32(1.0))
-        )
+        s_act = np.where(ok[:, None], s_act, np.float32(1.0))
+        q2, s2 = surfels_from_arrays(f["quat"].astype(np.float32), s_act)
+        scale_n[sl] = s_act.min(1)
         means[sl] = f["pos"]
         quats[sl], scales[sl] = q2, s2
         opac[sl] = f["alpha"]
@@ -342,7 +343,13 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
         finite[sl] = ok
 
     return scene_from_rows(
-        path, "compressed_ply", (means, quats, scales, opac, sh), finite, deg, "3dgs"
+        path,
+        "compressed_ply",
+        (means, quats, scales, opac, sh),
+        finite,
+        deg,
+        "3dgs",
+        scale_n=scale_n,
     )
 
 

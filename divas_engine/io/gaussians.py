@@ -71,10 +71,12 @@ def scene_from_rows(
     kind: str,
     extras: dict | None = None,
     invalid_what: str = "NaN/Inf values",
+    scale_n: np.ndarray | None = None,
 ) -> SurfelScene:
     """The scene of every decoder: drop the rows where ``valid`` is False, count them.
 
-    ``arrays`` = ``(means, quats, scales, opacities, sh)`` over all file rows, in file order.
+    ``arrays`` = ``(means, quats, scales, opacities, sh)`` over all file rows, in file order;
+    ``scale_n`` the dropped normal-axis scale of 3DGS rows (:attr:`SurfelScene.scale_n`).
 
     Raises:
         DivasInputError: no valid row is left.
@@ -86,8 +88,9 @@ def scene_from_rows(
         raise DivasInputError(path, f"empty scene: all {total} rows hold {invalid_what}")
     if n_bad:
         arrays = tuple(a[kept] for a in arrays)
+        scale_n = None if scale_n is None else scale_n[kept]
     src = SourceInfo(path, fmt, total, kept.astype(np.int64), n_bad)
-    return SurfelScene(*arrays, sh_degree, kind, src, dict(extras or {}))
+    return SurfelScene(*arrays, sh_degree, kind, src, dict(extras or {}), scale_n)
 
 
 def check_file_rows(path, file_rows: np.ndarray, n: int) -> np.ndarray:

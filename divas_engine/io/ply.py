@@ -192,6 +192,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     means = np.empty((total, 3), np.float32)
     quats = np.empty((total, 4), np.float32)
     scales = np.empty((total, 2), np.float32)
+    scale_n = np.empty(total, np.float32) if kind == "3dgs" else None
     opac = np.empty(total, np.float32)
     sh = np.empty((total, k, 3), np.float32)
     finite = np.empty(total, bool)
@@ -222,9 +223,10 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
         with np.errstate(over="ignore", invalid="ignore"):
             s_act = np.exp(np.clip(s, -80.0, 80.0)).astype(np.float32)
         ok &= np.linalg.norm(q, axis=1) > 0
-        q2, s2 = surfels_from_arrays(
-            np.where(ok[:, None], q, 1.0), np.where(ok[:, None], s_act, 1.0)
-        )
+        s_act = np.where(ok[:, None], s_act, np.float32(1.0))
+        q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, 1.0), s_act)
+        if scale_n is not None:
+            scale_n[sl] = s_act.min(1)
         means[sl], quats[sl], scales[sl], opac[sl], sh[sl], finite[sl] = (
             m,
             q2,
@@ -234,7 +236,9 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
             ok,
         )
 
-    return scene_from_rows(path, "ply", (means, quats, scales, opac, sh), finite, deg, kind)
+    return scene_from_rows(
+        path, "ply", (means, quats, scales, opac, sh), finite, deg, kind, scale_n=scale_n
+    )
 
 
 def write_surfel_ply(path: str | PathLike, scene: SurfelScene) -> None:

@@ -63,6 +63,7 @@ def read_splat(path: str | PathLike) -> SurfelScene:
     means = np.empty((total, 3), np.float32)
     quats = np.empty((total, 4), np.float32)
     scales = np.empty((total, 2), np.float32)
+    scale_n = np.empty(total, np.float32)
     opac = np.empty(total, np.float32)
     sh = np.empty((total, 1, 3), np.float32)
     finite = np.empty(total, bool)
@@ -76,9 +77,9 @@ def read_splat(path: str | PathLike) -> SurfelScene:
             q = (rows["rot"].astype(np.float32) - 128.0) / 128.0
             s = rows["scale"]
             ok = np.isfinite(rows["pos"]).all(1) & np.isfinite(s).all(1) & (np.abs(q).sum(1) > 0)
-            q2, s2 = surfels_from_arrays(
-                np.where(ok[:, None], q, np.float32(1.0)), np.where(ok[:, None], s, np.float32(1.0))
-            )
+            s = np.where(ok[:, None], s, np.float32(1.0))
+            q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, np.float32(1.0)), s)
+            scale_n[sl] = s.min(1)
             means[sl] = rows["pos"]
             quats[sl], scales[sl] = q2, s2
             rgba = rows["rgba"].astype(np.float32)
@@ -93,6 +94,7 @@ def read_splat(path: str | PathLike) -> SurfelScene:
         0,
         "3dgs",
         invalid_what="NaN/Inf values or zero rotations",
+        scale_n=scale_n,
     )
 
 

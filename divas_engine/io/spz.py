@@ -271,6 +271,7 @@ def read_spz(path: str | PathLike) -> SurfelScene:
     means = np.empty((n, 3), np.float32)
     quats = np.empty((n, 4), np.float32)
     scales = np.empty((n, 2), np.float32)
+    scale_n = np.empty(n, np.float32)
     opac = np.empty(n, np.float32)
     sh = np.empty((n, k, 3), np.float32)
     for start in range(0, n, CHUNK_ROWS):
@@ -288,6 +289,7 @@ def read_spz(path: str | PathLike) -> SurfelScene:
         s3 = np.exp(c["scales"][sl].astype(np.float32) / 16.0 - 10.0)
         means[sl] = pos
         quats[sl], scales[sl] = surfels_from_arrays(q, s3)
+        scale_n[sl] = s3.min(1)
         opac[sl] = c["alphas"][sl, 0].astype(np.float32) / 255.0
         sh[sl, 0, :] = (c["colors"][sl].astype(np.float32) / 255.0 - 0.5) / _COLOR_SCALE
         if deg:
@@ -297,7 +299,9 @@ def read_spz(path: str | PathLike) -> SurfelScene:
             )
     ok = np.isfinite(means).all(1)  # every byte decodes finite; kept for the contract
     extras = {"spz_version": f.version, "antialiased": bool(f.flags & _FLAG_ANTIALIASED)}
-    return scene_from_rows(path, "spz", (means, quats, scales, opac, sh), ok, deg, "3dgs", extras)
+    return scene_from_rows(
+        path, "spz", (means, quats, scales, opac, sh), ok, deg, "3dgs", extras, scale_n=scale_n
+    )
 
 
 def write_spz_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | PathLike) -> None:

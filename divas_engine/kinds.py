@@ -1,0 +1,44 @@
+"""The engine's fixed vocabularies as enums: scene kinds and view statuses.
+
+Both are :class:`enum.StrEnum`, so a member equals its string value and serialises to
+it: session files, reports and prompts files keep the strings they always had.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+__all__ = ["SceneKind", "ViewStatus"]
+
+
+class SceneKind(StrEnum):
+    """What a scene is made of.
+
+    ``GS2D`` native 2DGS surfels; ``GS3D`` trained 3D Gaussians (loaded flattened to
+    surfels, NOTES "Conventions", with the dropped axis kept in ``SurfelScene.scale_n``);
+    ``NERF`` a density grid. A session on either Gaussian kind runs the surfel path of
+    the paper (its kind is ``GS2D``); ``NERF`` runs the density-grid path.
+    """
+
+    GS2D = "2dgs"
+    GS3D = "3dgs"
+    NERF = "nerf"
+
+
+class ViewStatus(StrEnum):
+    """Where a centroid view is in the loop (paper Sec. 3.3-3.5).
+
+    ``OPEN`` spawned, awaiting accept; ``PENDING`` accepted, its 2D segmentation still
+    running (NeRF background worker); ``FUSED`` accepted and fused into the grid;
+    ``REJECTED`` accept refused (the segmenter's score below the threshold).
+    """
+
+    OPEN = "open"
+    PENDING = "pending"
+    FUSED = "fused"
+    REJECTED = "rejected"
+
+    @property
+    def accepted(self) -> bool:
+        """Accepted by the user (fused, or fusing once its mask arrives)."""
+        return self in (ViewStatus.FUSED, ViewStatus.PENDING)
