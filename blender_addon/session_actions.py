@@ -342,7 +342,7 @@ def _check_segmenter(settings: StartSettings) -> None:
 
 def _engine_inputs(context, obj, settings: StartSettings):
     from divas_engine.cli.segment import build_segmenter, load_gt
-    from kernels import resolve_device
+    from divas_kernels import resolve_device
 
     ref = source.source_of(obj)
     if ref is None:

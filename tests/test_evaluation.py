@@ -25,8 +25,8 @@ from divas_engine.evaluation.baselines import ContributionVoter
 from divas_engine.evaluation.pipeline import CachingRenderer, variant_config
 from divas_engine.render import RenderConfig, make_renderer
 from divas_engine.scene import DensityGrid, SurfelScene
-from kernels import RasterSettings, resolve_device, upload_surfels
-from kernels.contrib import accumulate_contributions
+from divas_kernels import RasterSettings, resolve_device, upload_surfels
+from divas_kernels.contrib import accumulate_contributions
 
 from .reference_render import random_surfel_scene, surfel_hits
 from .stub_segmenters import ConstantSegmenter

@@ -16,8 +16,8 @@ from divas_engine.fusion.config import GridConfig, GsFusionConfig
 from divas_engine.fusion.gs_fusion import GsFusion, fuse_views_gs
 from divas_engine.fusion.occupancy import build_occupancy
 from divas_engine.fusion.state import FusionCapacityError
-from kernels.fusion_common import depth_gradient_factor
-from kernels.integral_image import integral_images, integral_images_numpy
+from divas_kernels.fusion_common import depth_gradient_factor
+from divas_kernels.integral_image import integral_images, integral_images_numpy
 from tests import fusion_reference as ref
 from tests.fusion_cases import (
     axis_camera,

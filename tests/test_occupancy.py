@@ -18,7 +18,7 @@ from divas_engine.fusion.occupancy import (
     voxel_codes_numpy,
 )
 from divas_engine.scene import DensityGrid, SurfelScene
-from kernels import occupancy as kocc
+from divas_kernels import occupancy as kocc
 
 DEV = "cpu"
 

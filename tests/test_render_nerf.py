@@ -11,7 +11,7 @@ import warp as wp
 from divas_engine.camera import Camera
 from divas_engine.render import RenderConfig, Renderer, make_renderer
 from divas_engine.scene import DensityGrid
-from kernels import raymarch_grid, upload_grid
+from divas_kernels import raymarch_grid, upload_grid
 
 from .reference_render import random_density_grid, reference_nerf
 

@@ -149,7 +149,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from kernels import resolve_device
+    from divas_kernels import resolve_device
 
     from ..evaluation.metrics import EvalConfig
     from ..evaluation.suite import SuiteConfig, evaluate_suite, markdown_table

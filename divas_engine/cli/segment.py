@@ -206,7 +206,7 @@ def load_gt(path: Path, scene) -> np.ndarray:
 
 
 def _device(name: str):
-    from kernels import resolve_device
+    from divas_kernels import resolve_device
 
     try:
         return resolve_device(name)

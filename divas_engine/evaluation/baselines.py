@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from kernels import resolve_device, upload_surfels
-from kernels.contrib import accumulate_contributions
+from divas_kernels import resolve_device, upload_surfels
+from divas_kernels.contrib import accumulate_contributions
 
 from ..camera import Camera
 from ..render import RenderConfig, make_renderer

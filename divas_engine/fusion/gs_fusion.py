@@ -49,8 +49,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from kernels.fusion_common import ViewData
-from kernels.fusion_gs import GsParams, gs_fuse_view
+from divas_kernels.fusion_common import ViewData
+from divas_kernels.fusion_gs import GsParams, gs_fuse_view
 
 from .config import GsFusionConfig
 from .occupancy import OccupancyGrid

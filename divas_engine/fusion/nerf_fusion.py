@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from kernels.fusion_common import ViewData
-from kernels.fusion_nerf import NerfParams, nerf_fuse_view
+from divas_kernels.fusion_common import ViewData
+from divas_kernels.fusion_nerf import NerfParams, nerf_fuse_view
 
 from .config import NerfFusionConfig
 from .nerf_occupancy import NerfOccupancy

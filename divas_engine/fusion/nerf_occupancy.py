@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import warp as wp
 
-from kernels.fusion_nerf import NerfGridGeom
+from divas_kernels.fusion_nerf import NerfGridGeom
 
 from ..scene import DensityGrid
 from .config import NerfFusionConfig

@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import warp as wp
 
-from kernels import occupancy as kocc
+from divas_kernels import occupancy as kocc
 
 from ..scene import SurfelScene
 from ..scene_stats import robust_frame

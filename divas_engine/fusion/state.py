@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from kernels.fusion_accum import Records, apply_records, compact_contributions, readout
-from kernels.fusion_common import QSCALE, ViewData
+from divas_kernels.fusion_accum import Records, apply_records, compact_contributions, readout
+from divas_kernels.fusion_common import QSCALE, ViewData
 
 from .views import FusionView, upload_view
 

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from kernels.fusion_common import ViewData, depth_gradient_factor
-from kernels.integral_image import integral_images
+from divas_kernels.fusion_common import ViewData, depth_gradient_factor
+from divas_kernels.integral_image import integral_images
 
 from ..camera import Camera
 

@@ -52,9 +52,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from kernels import coverage as kcov
-from kernels import occupancy as kocc
-from kernels._launch import cpu_threads, resolve_device
+from divas_kernels import coverage as kcov
+from divas_kernels import occupancy as kocc
+from divas_kernels._launch import cpu_threads, resolve_device
 
 from ..fusion.occupancy import OccupancyGrid, surfel_voxel_codes
 from ..fusion.state import FusionResult

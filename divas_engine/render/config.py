@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from kernels import MarchSettings, RasterSettings
+    from divas_kernels import MarchSettings, RasterSettings
 
     from ..camera import Camera
 
@@ -59,7 +59,7 @@ class RenderConfig:
 
     def raster_settings(self, camera: Camera | None = None) -> RasterSettings:
         """The surfel rasterizer's settings for ``camera`` (its near: ``clip_near``)."""
-        from kernels import RasterSettings
+        from divas_kernels import RasterSettings
 
         return RasterSettings(
             tau_sig=self.tau_sig,
@@ -78,7 +78,7 @@ class RenderConfig:
 
     def march_settings(self, camera: Camera | None = None) -> MarchSettings:
         """The density-grid ray-marcher's settings for ``camera``."""
-        from kernels import MarchSettings
+        from divas_kernels import MarchSettings
 
         return MarchSettings(
             tau_sig=self.tau_sig,

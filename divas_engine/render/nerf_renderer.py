@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kernels import raymarch_grid, resolve_device, upload_grid
+from divas_kernels import raymarch_grid, resolve_device, upload_grid
 
 from ..camera import Camera
 from ..scene import DensityGrid

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kernels import rasterize_surfels, resolve_device, upload_surfels
+from divas_kernels import rasterize_surfels, resolve_device, upload_surfels
 
 from ..camera import Camera
 from ..scene import SurfelScene

@@ -379,7 +379,7 @@ class Session:
         gt_values: np.ndarray | None = None,
         renderer=None,
     ) -> None:
-        from kernels import resolve_device
+        from divas_kernels import resolve_device
 
         self.scene = scene
         self.kind = scene_kind(scene)
