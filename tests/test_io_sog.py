@@ -537,3 +537,11 @@ def test_encoder_check_catches_a_lossy_round_trip(monkeypatch):
     monkeypatch.setattr(sog_subset.cv2, "imdecode", lambda *a: np.full((4, 4, 4), 255, np.uint8))
     with pytest.raises(RuntimeError, match="losslessly"):
         sog_subset.encode_webp_lossless(img, "x.webp")
+
+
+def test_session_names_sog_exports_in_the_input_layout(tmp_path):
+    from divas_engine.session.session import _surfel_ext
+
+    files = _synthetic(20, 2, 0)
+    assert _surfel_ext(load_scene(_save(files, tmp_path / "a.sog"))) == ".sog"
+    assert _surfel_ext(load_scene(_save(files, tmp_path / "a"))) == ""  # a folder
