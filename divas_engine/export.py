@@ -2,7 +2,9 @@
 
 * Surfel scenes: the selected primitives as a subset of the *original* file —
   standard PLY rows are copied byte-for-byte (every property, order, type);
-  ``.splat``/``.spz``/compressed PLY are written in their own format.
+  ``.splat``/``.spz``/compressed PLY are written in their own format; SOG as SOG
+  (bundled ``.sog`` or a ``meta.json`` folder, the source's codebooks and texels
+  kept, :mod:`.io.sog_subset`).
 * ``labels.npy``: bool per *input* primitive (file row order; rows dropped on
   load for NaN/Inf are False).
 * Density grids: a masked ``.npz`` (density zeroed outside the selection, plus
@@ -100,6 +102,10 @@ def export_selection(
             from .io.spz import write_spz_subset
 
             write_spz_subset(src, rows, out_path)
+        elif fmt == "sog":
+            from .io.sog_subset import write_sog_subset
+
+            out_path = write_sog_subset(src, rows, out_path)
         else:
             raise DivasInputError(src.path, f"cannot export scenes read from format {fmt!r}")
     lp = None

@@ -12,7 +12,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "info", help="describe a scene file (counts, bounds, robust centre, SH, scales)"
     )
     p.add_argument(
-        "path", type=Path, help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz grid"
+        "path",
+        type=Path,
+        help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz, SOG (.sog, folder or its "
+        "meta.json) or .npz grid",
     )
     p.add_argument(
         "--cameras",

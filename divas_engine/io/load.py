@@ -1,8 +1,9 @@
 """``load_scene``: one entry point that recognises every supported scene file.
 
 Formats: 2DGS/3DGS PLY, PlayCanvas/SuperSplat compressed PLY, antimatter15
-``.splat``, Niantic ``.spz``, NeRF density grid ``.npz``. Detection looks at the
-file's magic bytes first and its suffix second, so a misnamed file still loads.
+``.splat``, Niantic ``.spz``, PlayCanvas SOG (``.sog`` bundle, or a folder / its
+``meta.json``), NeRF density grid ``.npz``. Detection looks at the file's magic
+bytes first and its suffix second, so a misnamed file still loads.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from ..scene import Scene
 
 __all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
 
-SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "npz")
+SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "sog", "npz")
 
 
 def detect_format(path: str | PathLike) -> str:
@@ -23,6 +24,8 @@ def detect_format(path: str | PathLike) -> str:
     path = Path(path)
     if not path.exists():
         raise DivasInputError(path, "file does not exist")
+    if path.is_dir() and (path / "meta.json").is_file():
+        return "sog"
     if path.is_dir():
         raise DivasInputError(path, "is a directory, expected a scene file")
     with open(path, "rb") as f:
@@ -35,15 +38,19 @@ def detect_format(path: str | PathLike) -> str:
         from .ply import read_ply_header
 
         return "compressed_ply" if is_compressed_ply(read_ply_header(path)) else "ply"
+    if suffix in (".json", ".sog"):
+        return "sog"
     if head.startswith(b"PK"):
-        return "npz"
+        from .sog import is_sog_zip
+
+        return "sog" if is_sog_zip(path) else "npz"
     if head.startswith(b"\x1f\x8b") or head.startswith(b"NGSP") or suffix == ".spz":
         return "spz"
     if suffix == ".splat":
         return "splat"
     if suffix == ".ply":
         raise DivasInputError(path, "not a PLY file (missing 'ply' magic line)")
-    raise DivasInputError(path, "unknown scene format: expected .ply, .splat, .spz or .npz")
+    raise DivasInputError(path, "unknown scene format: expected .ply, .splat, .spz, .sog or .npz")
 
 
 def load_scene(path: str | PathLike, *, fmt: str | None = None) -> Scene:
@@ -72,6 +79,10 @@ def load_scene(path: str | PathLike, *, fmt: str | None = None) -> Scene:
         from .spz import read_spz
 
         return read_spz(path)
+    if fmt == "sog":
+        from .sog import read_sog
+
+        return read_sog(path)
     if fmt == "npz":
         from .density_grid import read_density_grid
 

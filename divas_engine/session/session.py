@@ -1379,4 +1379,6 @@ def _surfel_ext(scene: SurfelScene) -> str:
     src = scene.source
     if src is None or src.format in ("ply", "compressed_ply"):
         return ".ply"
+    if src.format == "sog":  # a .sog bundle, or a folder for an unbundled input
+        return ".sog" if scene.extras.get("sog_bundled") else ""
     return {"splat": ".splat", "spz": ".spz"}.get(src.format, ".ply")

@@ -1,0 +1,276 @@
+"""Write a row subset of a SOG scene back as SOG, in the source's own layout.
+
+Rule: the kept Gaussians decode bit-identically. Nothing is re-quantised: the
+source's ``meta.json`` is kept (means ``mins``/``maxs``, codebooks, original-layout
+ranges, ``model``, ``asset``) and each kept Gaussian's texels are copied, in the
+source's texel order, to the texels ``0..n-1`` of new images. Only these change:
+
+* the count (v2 ``count``; original layout: ``shape[0]`` of every attribute) and
+  the image size, chosen as splat-transform does (``W = ceil(sqrt(n) / 4) * 4``,
+  ``H = ceil(n / W / 4) * 4``; trailing texels zero);
+* the SH palette is cut to the entries the kept rows use (in ascending source
+  entry order), the labels renumbered to match, v2 ``shN.count`` set to that;
+* the file names become the standard ``means_l.webp`` … ``shN_labels.webp``;
+* alpha of the images whose alpha means nothing (means, scales, SH labels and
+  palette) is written 255.
+
+Format rules reproduced only approximately, and why:
+
+* **Bounds.** ``means.mins/maxs`` (and the original layout's ranges) stay the
+  source's, so they bound the subset but are not its tight min/max as a fresh
+  splat-transform encode would write them; re-fitting them would re-quantise
+  every position.
+* **Spatial (Morton) order.** The kept texels keep the source's order: a
+  subsequence of the source's Morton order, not a Morton sort over the subset's
+  own extents. Readers do not depend on the order.
+* **RGB under alpha 0.** libwebp's lossless encoder, as OpenCV drives it, has no
+  "exact" switch: it may rewrite the RGB of texels whose alpha is 0 (to whatever
+  compresses best). Only ``sh0`` carries meaning there (alpha = opacity byte), so
+  the colour of a Gaussian whose opacity byte is 0 is not kept (v2: an invisible
+  Gaussian; original layout: the lowest opacity step). Every other byte is: each
+  image is decoded again after encoding and compared.
+
+Outputs are written atomically: ``.sog`` to a temporary file in the same folder,
+then ``os.replace``; a folder is built beside the target, then swapped in. A
+failure leaves any previous output intact. The output may not be the input.
+(This module has its own small atomic-write helpers; a shared one can replace them.)
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import json
+import math
+import os
+import shutil
+import tempfile
+import uuid
+import zipfile
+from os import PathLike
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import DivasInputError
+from ..scene import SourceInfo
+from .gaussians import check_file_rows
+from .sog import read_sog_texels
+from .sog_container import PER_GAUSSIAN, SH_COEFFS, decode_rgba
+
+__all__ = ["write_sog_subset", "sog_texture_size", "encode_webp_lossless"]
+
+#: roles whose alpha channel holds data (quats: the largest-component tag, sh0: opacity).
+_ALPHA_ROLES = ("quats", "sh0")
+_ATTR_FILES = {
+    "means": ("means_l", "means_u"),
+    "quats": ("quats",),
+    "scales": ("scales",),
+    "sh0": ("sh0",),
+    "shN": ("shN_centroids", "shN_labels"),
+}
+
+
+def sog_texture_size(n: int) -> tuple[int, int]:
+    """``(W, H)`` of the per-Gaussian images for ``n`` Gaussians, as splat-transform sizes them."""
+    w = math.ceil(math.sqrt(n) / 4) * 4
+    return w, math.ceil(n / w / 4) * 4
+
+
+def encode_webp_lossless(rgba: np.ndarray, what: str) -> bytes:
+    """Lossless WebP bytes of ``[H,W,4]`` RGBA (OpenCV, quality > 100), checked by decoding:
+    alpha everywhere and RGB wherever alpha > 0 must come back unchanged.
+
+    Raises:
+        RuntimeError: OpenCV cannot encode WebP, or the decoded pixels differ.
+    """
+    ok, buf = cv2.imencode(".webp", rgba[..., [2, 1, 0, 3]], [cv2.IMWRITE_WEBP_QUALITY, 101])
+    data = buf.tobytes() if ok else b""
+    back = decode_rgba(data, what, rgba.shape[1::-1]) if ok else None
+    seen = rgba[..., 3] > 0
+    if back is None or not (
+        np.array_equal(back[..., 3], rgba[..., 3]) and np.array_equal(back[seen], rgba[seen])
+    ):
+        raise RuntimeError(f"{what}: OpenCV's WebP encoder did not store the texels losslessly")
+    return data
+
+
+def _output_target(out: Path, source_bundled: bool) -> tuple[bool, Path]:
+    """``(bundled, target)``: ``.sog`` → bundle; ``meta.json`` or a folder → unbundled."""
+    if out.suffix.lower() == ".sog":
+        return True, out
+    if out.name.lower() == "meta.json":
+        return False, out.parent
+    if out.is_dir():
+        return False, out
+    return source_bundled, out
+
+
+def _check_target(bundled: bool, target: Path, source: Path, source_bundled: bool) -> None:
+    src = source.resolve() if source_bundled else source.parent.resolve()
+    if target.resolve() == src:
+        raise DivasInputError(target, "refusing to overwrite the input scene with the export")
+    if bundled:
+        if target.is_dir():
+            raise DivasInputError(target, "is a folder; a bundled SOG export needs a file path")
+        return
+    if target.exists() and not target.is_dir():
+        raise DivasInputError(target, "exists and is not a folder (unbundled SOG export)")
+    if target.is_dir():
+        foreign = [
+            p.name
+            for p in target.iterdir()
+            if not (
+                p.is_file() and (p.name == "meta.json" or p.suffix.lower() in (".webp", ".png"))
+            )
+        ]
+        if foreign:
+            raise DivasInputError(
+                target,
+                "refusing to replace a folder that holds more than a SOG scene "
+                f"({', '.join(sorted(foreign)[:3])})",
+            )
+
+
+def _gaussian_images(tex: dict, rows: np.ndarray, size: tuple[int, int]) -> dict[str, np.ndarray]:
+    w, h = size
+    out = {}
+    for role in PER_GAUSSIAN:
+        if role not in tex:
+            continue
+        img = np.zeros((w * h, 4), np.uint8)
+        img[: len(rows)] = tex[role][rows]
+        if role not in _ALPHA_ROLES:
+            img[: len(rows), 3] = 255
+        out[role] = img.reshape(h, w, 4)
+    return out
+
+
+def _cut_palette(
+    layout, labels_img: np.ndarray, palette: np.ndarray, n: int
+) -> tuple[np.ndarray, int]:
+    """Keep the palette entries the first ``n`` labels use; relabel ``labels_img`` in place."""
+    coeffs = SH_COEFFS[layout.sh_bands]
+    flat = labels_img.reshape(-1, 4)
+    label = flat[:n, 0].astype(np.int64) + 256 * flat[:n, 1].astype(np.int64)
+    used, new = np.unique(label, return_inverse=True)
+    flat[:n, 0], flat[:n, 1], flat[:n, 2] = new & 255, new >> 8, 0
+    k = len(used)
+    rows = math.ceil(k / 64)
+    entries = np.zeros((rows * 64, coeffs, 4), np.uint8)
+    entries[:k] = palette.reshape(-1, coeffs, 4)[used]
+    entries[:k, :, 3] = 255
+    return entries.reshape(rows, 64 * coeffs, 4), k
+
+
+def _meta_for(meta: dict, layout, n: int, palette_count: int | None) -> dict:
+    out = copy.deepcopy(meta)
+    for attr, roles in _ATTR_FILES.items():
+        if attr in out and all(r in layout.files for r in roles):
+            out[attr]["files"] = [f"{r}.webp" for r in roles]
+    if layout.sh_bands == 0:
+        out.pop("shN", None)
+    if layout.version == 2:
+        was = out.get("asset", {}).get("generator") if isinstance(out.get("asset"), dict) else None
+        out["asset"] = {"generator": "DivAS subset export" + (f" of {was}" if was else "")}
+        out["count"] = n
+        if palette_count is not None:
+            out["shN"]["count"] = palette_count
+    else:
+        for attr in _ATTR_FILES:
+            shape = out.get(attr, {}).get("shape")
+            if isinstance(shape, list) and shape:
+                shape[0] = n
+    return out
+
+
+def _umask_mode(mode: int) -> int:
+    """``mode`` less the process umask (temp files are created 0600 / 0700)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mode & ~mask
+
+
+def _write_bytes_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, _umask_mode(0o666))
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _write_folder_atomic(target: Path, files: dict[str, bytes]) -> None:
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    old = None
+    try:
+        tmp.chmod(_umask_mode(0o777))
+        for name, data in files.items():
+            (tmp / name).write_bytes(data)
+        if target.exists():
+            old = target.with_name(f".{target.name}.old-{uuid.uuid4().hex[:8]}")
+            os.replace(target, old)
+        try:
+            os.replace(tmp, target)
+        except BaseException:
+            if old is not None:
+                os.replace(old, target)
+                old = None
+            raise
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def write_sog_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | PathLike) -> Path:
+    """Write Gaussians ``file_rows`` (in that order) of the SOG ``source`` to ``out_path``.
+
+    ``out_path`` ending in ``.sog`` gives a bundle; ``…/meta.json`` or an existing
+    folder gives an unbundled folder; any other path the source's own layout.
+
+    Returns:
+        the written ``.sog`` file, or the ``meta.json`` of the written folder.
+
+    Raises:
+        DivasInputError: the output is the input, or a folder holding other files; the
+        source is unreadable or changed since it was loaded.
+    """
+    out = Path(out_path)
+    cont, meta, layout, tex = read_sog_texels(source.path)
+    if layout.count != source.num_rows:
+        raise DivasInputError(
+            cont.path, f"holds {layout.count} Gaussians, {source.num_rows} when it was loaded"
+        )
+    rows = check_file_rows(cont.path, file_rows, layout.count)
+    if rows.size == 0:
+        raise ValueError("nothing to write: file_rows is empty")
+    bundled, target = _output_target(out, cont.bundled)
+    _check_target(bundled, target, cont.path, cont.bundled)
+    images = _gaussian_images(tex, rows, sog_texture_size(len(rows)))
+    palette_count = None
+    if layout.sh_bands:
+        images["shN_centroids"], palette_count = _cut_palette(
+            layout, images["shN_labels"], tex["shN_centroids"], len(rows)
+        )
+    files = {"meta.json": json.dumps(_meta_for(meta, layout, len(rows), palette_count)).encode()}
+    for role, img in images.items():
+        files[f"{role}.webp"] = encode_webp_lossless(img, f"{target}: {role}.webp")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if bundled:
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+            for name, data in files.items():
+                zf.writestr(name, data)
+        _write_bytes_atomic(target, buf.getvalue())
+        return target
+    _write_folder_atomic(target, files)
+    return target / "meta.json"
