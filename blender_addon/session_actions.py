@@ -36,9 +36,11 @@ import numpy as np
 from divas_engine.blender_convention import camera_from_blender
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
+from divas_engine.evaluation.ground_truth import load_ground_truth
 from divas_engine.io.cameras import load_cameras
-from divas_engine.point_attributes import INDEX, SELECTED
-from divas_engine.scene import DensityGrid
+from divas_engine.kinds import ViewStatus
+from divas_engine.point_attributes import INDEX, SELECTED, point_values
+from divas_engine.segment import SegmenterSettings, SegmenterSetupError, build_segmenter
 from divas_engine.session import Session, SessionConfig, SessionView, anchor_plan, load_prompts
 from divas_engine.session.prompts import resolve_anchors
 
@@ -70,7 +72,6 @@ __all__ = [
     "reset",
     "finish_object",
     "write_selection",
-    "point_values",
     "activate_camera",
     "camera_target",
     "report_exception",
@@ -83,12 +84,12 @@ LABEL_ATTRIBUTE = "divas_label"
 #: failures reported as one line (anything else is reported with its type, the traceback
 #: going to the console).
 SESSION_ERRORS = (*USER_ERRORS, ImportError, RuntimeError)
-#: engine segmenter names (``divas segment --segmenter``) by preference value.
-_SEGMENTER_NAMES = {
-    "classic": "classic",
-    "sam_onnx": "sam-onnx",
-    "sam_torch": "sam-torch",
-    "oracle": "oracle",
+#: where the add-on's user sets what a segmenter needs (``SegmenterSetupError.requires``).
+_WHERE = {
+    "ground_truth": "Ground Truth .npy",
+    "sam_encoder": "set in the DivAS add-on preferences",
+    "sam_decoder": "set in the DivAS add-on preferences",
+    "sam_checkpoint": "set in the DivAS add-on preferences",
 }
 
 
@@ -99,7 +100,8 @@ class StartSettings:
     Attributes:
         config: the engine session config (:func:`.properties.session_config`).
         device: ``auto`` / ``cpu`` / ``cuda``.
-        segmenter: ``classic`` / ``sam_onnx`` / ``sam_torch`` / ``oracle`` (evaluation).
+        segmenter: ``classic`` / ``sam_onnx`` / ``sam_torch`` / ``oracle`` (evaluation):
+            a :class:`~divas_engine.segment.SegmenterKind` name.
         sam_*: model files of the SAM segmenters.
         cameras_path: training cameras; None → ``cameras.json`` beside the scene file,
             else the cameras in the "DivAS Cameras" collection, else none.
@@ -141,29 +143,20 @@ def autosave_path(obj) -> Path:
 
 
 # ----------------------------------------------------------------------------- points
-def point_values(scene, index: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Per-point values of per-primitive ``values`` (``[N]``, NeRF ``[D,H,W]``) for points
-    whose ``divas_index`` is ``index`` (file rows / flat voxel indices) — the inverse of
-    :func:`divas_engine.point_attributes.scene_selection`."""
-    index = np.asarray(index, np.int64)
-    if isinstance(scene, DensityGrid):
-        return np.asarray(values).reshape(-1)[index]
-    kept = scene.source.kept_rows if scene.source is not None else np.arange(len(scene))
-    pos = np.minimum(np.searchsorted(kept, index), len(kept) - 1)
-    if index.size and np.any(kept[pos] != index):
-        raise DivasInputError(None, "the object's points are not rows of the session's scene")
-    return np.asarray(values)[pos]
-
-
 def write_selection(obj, live: LiveSession) -> None:
     """``divas_selected`` and ``divas_label`` of ``obj``'s points from the session."""
     s = live.session
     geom = obj.data
     index = bridge.read_attribute(geom, INDEX)
-    bridge.write_attribute(geom, SELECTED, point_values(s.scene, index, s.selection).astype(bool))
-    bridge.write_attribute(
-        geom, LABEL_ATTRIBUTE, point_values(s.scene, index, s.label_set()).astype(np.int32)
-    )
+    try:
+        selected = point_values(s.scene, index, s.selection).astype(bool)
+        labels = point_values(s.scene, index, s.label_set()).astype(np.int32)
+    except ValueError:
+        raise DivasInputError(
+            None, "the object's points are not rows of the session's scene"
+        ) from None
+    bridge.write_attribute(geom, SELECTED, selected)
+    bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)
     geom.update_tag()
 
 
@@ -270,7 +263,7 @@ def _show_anchor(context, live: LiveSession, i: int, *, activate: bool = True) -
 
 def _view_image(live: LiveSession, v: SessionView) -> np.ndarray:
     prev = v.preview
-    if v.status == "fused":
+    if v.status == ViewStatus.FUSED:
         return live.session.overlay(v).image
     if prev is None:
         pts, labs = live.session.default_prompts(v)
@@ -321,27 +314,25 @@ def _training_camera_objects() -> list:
     return [] if coll is None else [o for o in coll.objects if o.type == "CAMERA"]
 
 
-def _check_segmenter(settings: StartSettings) -> None:
-    """The engine's checks, worded for the UI (where the model paths are preferences)."""
-    name = settings.segmenter
-    if name == "oracle" and settings.gt_labels is None:
-        raise DivasInputError(
-            None, "the oracle segmenter needs ground-truth labels (Ground Truth .npy)"
-        )
-    if name == "sam_onnx" and (settings.sam_encoder is None or settings.sam_decoder is None):
-        raise DivasInputError(
-            None,
-            "SAM (ONNX) needs the encoder and decoder .onnx files: set "
-            "them in the DivAS add-on preferences",
-        )
-    if name == "sam_torch" and settings.sam_checkpoint is None:
-        raise DivasInputError(
-            None, "SAM (PyTorch) needs a checkpoint: set it in the DivAS add-on preferences"
-        )
+def _segmenter(settings: StartSettings):
+    """The engine's segmenter (built first: a missing model file fails before the load)."""
+    seg_settings = SegmenterSettings(
+        settings.segmenter,
+        seed=settings.config.seed,
+        sam_encoder=settings.sam_encoder,
+        sam_decoder=settings.sam_decoder,
+        sam_checkpoint=settings.sam_checkpoint,
+        sam_model_type=settings.sam_model_type,
+        device=settings.device,
+    )
+    try:
+        return build_segmenter(seg_settings, has_ground_truth=settings.gt_labels is not None)
+    except SegmenterSetupError as e:
+        where = dict.fromkeys(_WHERE[r] for r in e.requires)
+        raise DivasInputError(None, f"{e.problem} ({'; '.join(where)})") from None
 
 
 def _engine_inputs(context, obj, settings: StartSettings):
-    from divas_engine.cli.segment import build_segmenter, load_gt
     from divas_kernels import resolve_device
 
     ref = source.source_of(obj)
@@ -351,20 +342,10 @@ def _engine_inputs(context, obj, settings: StartSettings):
             f"{getattr(obj, 'name', None)!r} is not a DivAS-imported "
             "point cloud (import splats or a density grid first)",
         )
-    _check_segmenter(settings)
+    seg = _segmenter(settings)
     scene = source.load_source_scene(ref)
     cameras = _training_cameras(context, ref, settings.cameras_path)
-    gt = load_gt(settings.gt_labels, scene) if settings.gt_labels is not None else None
-    seg = build_segmenter(
-        _SEGMENTER_NAMES.get(settings.segmenter, settings.segmenter),
-        seed=settings.config.seed,
-        sam_encoder=settings.sam_encoder,
-        sam_decoder=settings.sam_decoder,
-        sam_checkpoint=settings.sam_checkpoint,
-        sam_model_type=settings.sam_model_type,
-        gt_available=gt is not None,
-        device=settings.device,
-    )
+    gt = load_ground_truth(settings.gt_labels, scene) if settings.gt_labels is not None else None
     try:
         device = resolve_device(settings.device)
     except RuntimeError as e:
@@ -522,9 +503,9 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
 def full_to_session_xy(live: LiveSession, anchor: int, xy) -> tuple[float, float]:
     """A full-camera pixel of anchor ``anchor`` in its rendered image (as ``divas segment``
     converts the prompts file)."""
-    a = live.session.anchors[anchor]
-    sx, sy = a.camera.width / a.full_camera.width, a.camera.height / a.full_camera.height
-    return xy[0] * sx, xy[1] * sy
+    a = live.session.anchor(anchor)
+    x, y = a.full_camera.pixels_to(a.camera, (float(xy[0]), float(xy[1])))
+    return float(x), float(y)
 
 
 def click(
@@ -533,8 +514,6 @@ def click(
     """A click on anchor ``anchor``: positive spawns (and shows) the centroid view with
     its default-prompt preview; negative becomes a negative prompt of the anchor's views."""
     s = live.session
-    if not 0 <= int(anchor) < len(s.anchors):
-        raise DivasInputError(None, f"anchor {anchor} does not exist ({len(s.anchors)} anchors)")
     t0 = time.perf_counter()
     res = s.click(int(anchor), (float(xy[0]), float(xy[1])), positive=positive)
     if not positive:
@@ -612,7 +591,7 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
         for vid in res.fused:  # views fused at this sync (NeRF: the whole group)
             if vid != v.id and vid in live.view_cameras:
                 _show_view(context, obj, live, s.view(vid), activate=False)
-    if v.status == "rejected":
+    if v.status == ViewStatus.REJECTED:
         _show_view(context, obj, live, v)  # stay: more prompts, then Enter again
         return res
     if res.overlay is not None:

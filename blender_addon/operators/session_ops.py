@@ -99,10 +99,6 @@ class DIVAS_OT_session_click(_SessionOperator, bpy.types.Operator):
         try:
             xy = _parse_xy(self.xy) if self.xy else (self.x, self.y)
             if self.full_resolution:
-                if not 0 <= self.anchor < len(live.session.anchors):
-                    raise ValueError(
-                        f"anchor {self.anchor} does not exist ({len(live.session.anchors)} anchors)"
-                    )
                 xy = full_to_session_xy(live, self.anchor, xy)
             res = click(context, obj, live, self.anchor, xy, self.positive, preview=self.preview)
         except Exception as e:  # noqa: BLE001
