@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from divas_engine.cli.demo import demo_prompts
 from divas_engine.cli.segment import segment_scene
+from divas_engine.evaluation import demo_prompts
 from divas_engine.synthetic import generate_scene
 
 COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "overlay_s", "update_s")

@@ -19,6 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+from divas_engine.kinds import ViewStatus
+
 __all__ = [
     "Key",
     "KeyKind",
@@ -112,7 +114,7 @@ class Target:
 
     anchor: int | None = None
     view_id: str | None = None
-    status: str | None = None
+    status: ViewStatus | str | None = None
 
     @property
     def is_view(self) -> bool:
@@ -128,7 +130,7 @@ def target_from_props(props: dict, status_of=None) -> Target:
     view's session status, or None when the session no longer has it)."""
     vid = props.get(VIEW_PROP)
     if vid:
-        status = status_of(str(vid)) if status_of is not None else "open"
+        status = status_of(str(vid)) if status_of is not None else ViewStatus.OPEN
         if status is None:
             return Target()
         return Target(int(props.get(ANCHOR_PROP, -1)), str(vid), status)
@@ -159,8 +161,9 @@ class Step:
     message: str = ""
 
 
-#: a view in these states takes no more prompts until it is undone (a rejected one does).
-_ACCEPTED = ("fused", "pending")
+def _is_accepted(target: Target) -> bool:
+    """An accepted view takes no more prompts until it is undone (a rejected one does)."""
+    return target.status is not None and ViewStatus(target.status).accepted
 
 
 def _accepted(target: Target) -> str:
@@ -184,7 +187,7 @@ def plan(key: Key, target: Target, xy: tuple[float, float] | None = None) -> Ste
         return Step(StepKind.UNDO)
     if k is KeyKind.ACCEPT:
         if target.is_view:
-            if target.status in _ACCEPTED:
+            if _is_accepted(target):
                 return Step(StepKind.MESSAGE, message=_accepted(target))
             return Step(StepKind.ACCEPT, target.anchor, target.view_id)
         if target.is_anchor:
@@ -202,6 +205,6 @@ def plan(key: Key, target: Target, xy: tuple[float, float] | None = None) -> Ste
     if target.is_anchor:
         kind = StepKind.SPAWN if key.positive else StepKind.ANCHOR_NEGATIVE
         return Step(kind, target.anchor, None, xy, key.positive)
-    if target.status in _ACCEPTED:
+    if _is_accepted(target):
         return Step(StepKind.MESSAGE, message=_accepted(target))
     return Step(StepKind.PROMPT, target.anchor, target.view_id, xy, key.positive)

@@ -141,7 +141,8 @@ def run(args: argparse.Namespace) -> dict:
     addon = enable_addon()
     if str(REPO) not in sys.path:
         sys.path.insert(0, str(REPO))
-    from divas_engine.cli.segment import load_gt, write_report
+    from divas_engine.cli.segment import write_report
+    from divas_engine.evaluation.ground_truth import load_ground_truth
     from divas_engine.session import load_prompts
     from divas_engine.session.evaluate import surfel_scores
 
@@ -288,7 +289,7 @@ def run(args: argparse.Namespace) -> dict:
     if session.kind == "nerf":
         report["preset"] = session.preset
     if args.gt_labels is not None:
-        gt = load_gt(args.gt_labels, session.scene)
+        gt = load_ground_truth(args.gt_labels, session.scene)
         report["evaluation"] = {
             "surfels" if session.kind == "2dgs" else "voxels": surfel_scores(session.selection, gt)
         }

@@ -128,6 +128,13 @@ class Camera:
             self.near,
         )
 
+    def pixels_to(self, other: Camera, xy) -> np.ndarray:
+        """Pixels ``xy [..., 2]`` of this camera's image in ``other``'s image of the same
+        view (``other`` is this camera resized, e.g. the full camera's render at a scale,
+        :meth:`scaled`): ``(x·w'/w, y·h'/h)``, exact with pixel centres at +0.5."""
+        sx, sy = other.width / self.width, other.height / self.height
+        return np.asarray(xy, np.float64) * (sx, sy)
+
     def with_pose(self, c2w: np.ndarray, name: str | None = None) -> Camera:
         return Camera(
             self.width,

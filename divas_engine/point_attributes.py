@@ -48,6 +48,7 @@ __all__ = [
     "display_radius",
     "decoded_columns",
     "scene_selection",
+    "point_values",
 ]
 
 INDEX = "divas_index"
@@ -238,3 +239,26 @@ def scene_selection(
     mask = np.zeros(len(scene), bool)
     mask[pos] = True
     return mask
+
+
+def point_values(scene: SurfelScene | DensityGrid, index: np.ndarray, values: np.ndarray):
+    """Per-point values of per-primitive ``values`` for a host's points whose
+    ``divas_index`` is ``index`` — the inverse of :func:`scene_selection`.
+
+    Surfel scenes: ``values [len(scene)]`` over the scene's primitives (``index`` holds
+    file rows). Density grids: ``values [D,H,W]`` (``index`` holds flat voxel indices).
+    Returns ``[len(index)]``: the value at each point, in ``index``'s order. Raises
+    ``ValueError`` when an index is not part of ``scene`` (the points came from another
+    file).
+    """
+    index = np.asarray(index, dtype=np.int64)
+    values = np.asarray(values)
+    if isinstance(scene, DensityGrid):
+        if index.size and (index.min() < 0 or index.max() >= scene.density.size):
+            raise ValueError("voxel index outside the density grid")
+        return values.reshape(-1)[index]
+    kept = scene.source.kept_rows if scene.source is not None else np.arange(len(scene))
+    pos = np.minimum(np.searchsorted(kept, index), len(kept) - 1)
+    if index.size and np.any(kept[pos] != index):
+        raise ValueError("point index is not a primitive of this scene")
+    return values[pos]

@@ -90,6 +90,20 @@ def test_scaled_keeps_half_pixel_centres():
     np.testing.assert_allclose(half.project(p)[0], [[0.5, 0.5]], atol=1e-9)
 
 
+def test_pixels_to_maps_full_pixels_onto_the_render():
+    cam = Camera(641, 479, 500, 510, 317.0, 245.5, name="c")
+    small = cam.scaled(0.37)  # rounded size: the scale per axis is w'/w, h'/h
+    assert (small.width, small.height) == (237, 177)
+    uv = np.array([[10.25, 20.5], [600.0, 400.75], [0.0, 0.0]])
+    pts = cam.unproject(uv, np.array([2.0, 3.0, 1.5]))
+    np.testing.assert_allclose(cam.pixels_to(small, uv), small.project(pts)[0], atol=1e-9)
+    np.testing.assert_array_equal(
+        cam.pixels_to(small, (10.25, 20.5)), [10.25 * (237 / 641), 20.5 * (177 / 479)]
+    )
+    np.testing.assert_allclose(small.pixels_to(cam, cam.pixels_to(small, uv)), uv, atol=1e-12)
+    assert cam.pixels_to(small, np.zeros((0, 2))).shape == (0, 2)
+
+
 def test_look_at_target_at_principal_point():
     cam = Camera.look_at(
         [3, -2, 1], [0.5, 0.2, -0.1], [0, 0, 1], width=800, height=600, fx=700, cx=390.0, cy=310.0

@@ -13,6 +13,7 @@ from divas_engine.point_attributes import (
     decoded_columns,
     display_radius,
     grid_point_table,
+    point_values,
     scene_selection,
     surfel_point_table,
 )
@@ -92,3 +93,41 @@ def test_grid_table_and_selection():
     assert mask.shape == dens.shape and mask[1, 2, 3] and mask.sum() == 1
     with pytest.raises(ValueError, match="no voxel"):
         grid_point_table(DensityGrid(dens * 1e-9, grid.aabb), 0.01)
+
+
+def test_point_values_invert_scene_selection_on_file_rows():
+    s = _scene(10)
+    kept = np.array([0, 1, 2, 4, 5, 6, 8, 9, 10, 11])
+    s.source = SourceInfo("x.ply", "ply", 12, kept)
+    labels = np.arange(10, 20)  # per primitive; primitive k is file row kept[k]
+    index = np.array([11, 4, 0, 4])  # a host's points, any order, repeats allowed
+    np.testing.assert_array_equal(point_values(s, index, labels), [19, 13, 10, 13])
+    # inverse of scene_selection: per-point selection → primitives → per-point again
+    rng = np.random.default_rng(1)
+    index = rng.permutation(kept)
+    selected = rng.random(len(index)) < 0.5
+    mask = scene_selection(s, index, selected)
+    np.testing.assert_array_equal(point_values(s, index, mask), selected)
+    assert point_values(s, np.array([], np.int64), labels).shape == (0,)
+    for bad in ([3], [12], [-1]):
+        with pytest.raises(ValueError, match="not a primitive"):
+            point_values(s, np.array(bad), labels)
+
+
+def test_point_values_without_source_and_on_grids():
+    s = _scene(5)
+    s.source = None
+    np.testing.assert_array_equal(point_values(s, np.array([4, 0]), np.arange(5) * 2), [8, 0])
+    dens = np.ones((2, 3, 4), np.float32)
+    grid = DensityGrid(dens, np.array([[0, 0, 0], [4, 3, 2]], float))
+    values = np.arange(24).reshape(2, 3, 4)
+    flat = np.array([np.ravel_multi_index((1, 2, 3), dens.shape), 0])
+    np.testing.assert_array_equal(point_values(grid, flat, values), [values[1, 2, 3], 0])
+    keep = np.zeros(dens.shape, bool)
+    keep[1, 0, 2] = True
+    index = np.arange(24)
+    np.testing.assert_array_equal(
+        scene_selection(grid, index, point_values(grid, index, keep)), keep
+    )
+    with pytest.raises(ValueError, match="outside the density grid"):
+        point_values(grid, np.array([24]), values)

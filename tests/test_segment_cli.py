@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import divas_engine.cli as cli
-from divas_engine.cli.demo import demo_prompts
+from divas_engine.evaluation import demo_prompts
 from divas_engine.io.ply import read_ply_header
 from divas_engine.session import AnchorPrompt, Click, Prompts
 from divas_engine.synthetic import generate_scene
@@ -137,6 +137,19 @@ def test_segment_nerf_grid(scene_dir, tmp_path):
 def _write_prompts(path, prompts):
     prompts.write(path)
     return path
+
+
+def test_segment_names_missing_segmenter_inputs_by_flag(scene_dir, tmp_path, capsys):
+    """The engine's setup error, worded with this command's flags."""
+    out, _ = scene_dir
+    base = ["segment", str(out / "scene.ply"), "--prompts", str(out / "prompts.json")]
+    base += ["--out", str(tmp_path / "x.ply"), "--no-progress"]
+    assert cli.main(base + ["--segmenter", "sam-onnx", "--sam-decoder", "d.onnx"]) == 2
+    err = capsys.readouterr().err
+    assert "--segmenter sam-onnx needs --sam-encoder and --sam-decoder" in err
+    assert cli.main(base + ["--segmenter", "sam-torch"]) == 2
+    assert "--segmenter sam-torch needs --sam-checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "x.ply").exists()
 
 
 def test_segment_bad_inputs(scene_dir, tmp_path, capsys):

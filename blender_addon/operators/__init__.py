@@ -1,4 +1,5 @@
-"""One operator per module (the session's EXEC steps share :mod:`.session_ops`);
+"""One operator per module, named after its ``bl_idname`` (``divas.<verb_noun>`` in
+``<verb_noun>.py``; the session-step operators share :mod:`.session_base`);
 :data:`CLASSES` is registered in order, unregistered in reverse."""
 
 from __future__ import annotations
@@ -11,8 +12,15 @@ from . import (
     import_cameras,
     import_density_grid,
     import_splats,
+    resume_session,
     segment_modal,
-    session_ops,
+    session_accept,
+    session_add_anchor,
+    session_click,
+    session_finish_object,
+    session_reset,
+    session_sync,
+    session_undo,
     start_session,
 )
 
@@ -25,7 +33,14 @@ CLASSES = (
     activate_camera.DIVAS_OT_activate_camera,
     start_session.DIVAS_OT_start_session,
     segment_modal.DIVAS_OT_segment_modal,
-    *session_ops.CLASSES,
+    session_click.DIVAS_OT_session_click,
+    session_add_anchor.DIVAS_OT_session_add_anchor,
+    session_accept.DIVAS_OT_session_accept,
+    session_sync.DIVAS_OT_session_sync,
+    session_undo.DIVAS_OT_session_undo,
+    session_reset.DIVAS_OT_session_reset,
+    session_finish_object.DIVAS_OT_session_finish_object,
+    resume_session.DIVAS_OT_resume_session,
     export_objects.DIVAS_OT_export_objects,
 )
 

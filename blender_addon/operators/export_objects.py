@@ -12,11 +12,11 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from ..session_actions import report_exception
-from .session_ops import _live, _SessionOperator
+from ..reporting import report_exception
+from .session_base import SessionOperator, live_session
 
 
-class DIVAS_OT_export_objects(_SessionOperator, bpy.types.Operator):
+class DIVAS_OT_export_objects(SessionOperator, bpy.types.Operator):
     """Write each finished object to its own file and the labelled scene (divas_label)"""
 
     bl_idname = "divas.export_objects"
@@ -33,7 +33,7 @@ class DIVAS_OT_export_objects(_SessionOperator, bpy.types.Operator):
         if not self.directory:
             self.report({"ERROR"}, "No output folder given")
             return {"CANCELLED"}
-        _obj, live = _live(context)
+        _obj, live = live_session(context)
         try:
             files = live.session.export_objects(Path(bpy.path.abspath(self.directory)))
         except Exception as e:  # noqa: BLE001 - one readable report line, details to the console

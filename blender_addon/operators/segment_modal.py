@@ -14,17 +14,12 @@ from collections.abc import Callable
 
 import bpy
 
+from divas_engine.kinds import ViewStatus
+
 from .. import session_registry
 from ..modal_logic import HEADER_TEXT, KeyKind, Step, StepKind, decide, plan
-from ..session_actions import (
-    accept,
-    activate_camera,
-    add_prompt,
-    camera_target,
-    click,
-    report_exception,
-    undo,
-)
+from ..reporting import report_exception
+from ..session_actions import accept, activate_camera, add_prompt, camera_target, click, undo
 from ..view3d import click_to_camera_pixel
 
 __all__ = ["DIVAS_OT_segment_modal", "ModalController"]
@@ -130,7 +125,7 @@ class ModalController:
                 add_prompt(context, obj, live, step.view_id, step.xy, step.positive)
             elif k is StepKind.ACCEPT:
                 res = accept(context, obj, live, step.view_id)
-                if res.view.status == "rejected":
+                if res.view.status == ViewStatus.REJECTED:
                     self.report(
                         {"WARNING"},
                         f"View rejected: {res.view.reason}; add points and press Enter again",

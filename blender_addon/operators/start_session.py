@@ -10,7 +10,8 @@ from bpy.props import EnumProperty, StringProperty
 from .. import source
 from ..preferences import SEGMENTERS, get_settings
 from ..properties import scene_settings, session_config
-from ..session_actions import StartSettings, autosave_path, report_exception, start
+from ..reporting import report_exception
+from ..session_actions import StartSettings, autosave_path, start
 
 _FROM_PREFS = ("PREFERENCES", "From Preferences", "Use the add-on preferences")
 SEGMENTER_ITEMS = (

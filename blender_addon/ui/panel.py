@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import bpy
 
+from divas_engine.kinds import SceneKind
+
 from .. import session_registry, source
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import get_preferences
@@ -103,7 +105,7 @@ def _draw_session(layout, live) -> None:
     row.operator("divas.session_reset", text="Reset", icon="X")
     row.operator("divas.session_finish_object", text="Finish Object", icon="FORWARD")
     layout.operator("divas.export_objects", icon="EXPORT")
-    if live.kind == "nerf" and c["pending"]:
+    if live.kind == SceneKind.NERF and c["pending"]:
         col.operator("divas.session_sync", icon="FILE_REFRESH")
 
 

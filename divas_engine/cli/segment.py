@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 
-SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")
+SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -134,75 +134,24 @@ def _progress(iterable=None, *, total=None, desc: str, enabled: bool):
     )
 
 
-def build_segmenter(
-    name: str,
-    *,
-    seed: int = 0,
-    sam_encoder: Path | None = None,
-    sam_decoder: Path | None = None,
-    sam_checkpoint: Path | None = None,
-    sam_model_type: str = "vit_h",
-    gt_available: bool = False,
-    device: str = "auto",
-):
-    """The segmenter named on the command line (errors as :class:`DivasInputError`)."""
-    from ..segment import ClassicConfig, ClassicSegmenter, OracleConfig, OracleSegmenter
-
-    if name == "classic":
-        return ClassicSegmenter(ClassicConfig(seed=seed))
-    if name == "oracle":
-        if not gt_available:
-            raise DivasInputError(None, "--segmenter oracle needs --gt-labels")
-        return OracleSegmenter(config=OracleConfig(seed=seed))
-    if name == "sam-onnx":
-        if sam_encoder is None or sam_decoder is None:
-            raise DivasInputError(
-                None, "--segmenter sam-onnx needs --sam-encoder and --sam-decoder"
-            )
-        from ..segment import SamOnnxSegmenter
-
-        return SamOnnxSegmenter(sam_encoder, sam_decoder)
-    if name == "sam-torch":
-        if sam_checkpoint is None:
-            raise DivasInputError(None, "--segmenter sam-torch needs --sam-checkpoint")
-        from ..segment import SamTorchSegmenter
-
-        try:
-            return SamTorchSegmenter(
-                sam_checkpoint, sam_model_type, device=None if device == "auto" else device
-            )
-        except ImportError as e:
-            raise DivasInputError(None, str(e)) from None
-    raise DivasInputError(None, f"unknown segmenter {name!r}")
+#: the flag that sets each of a segmenter's requirements (:class:`SegmenterSetupError`).
+_FLAGS = {
+    "ground_truth": "--gt-labels",
+    "sam_encoder": "--sam-encoder",
+    "sam_decoder": "--sam-decoder",
+    "sam_checkpoint": "--sam-checkpoint",
+}
 
 
-def load_gt(path: Path, scene) -> np.ndarray:
-    """Ground truth in scene order: per surfel (given per input row or per surfel) / grid."""
-    from ..scene import SurfelScene
+def _segmenter(settings, *, has_ground_truth: bool):
+    """The engine's segmenter; what it lacks is named by this command's flags."""
+    from ..segment import SegmenterSetupError, build_segmenter
 
     try:
-        g = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as e:
-        raise DivasInputError(path, f"cannot read ground-truth labels ({e})") from None
-    if g.dtype != bool and not (np.issubdtype(g.dtype, np.integer) and np.isin(g, (0, 1)).all()):
-        raise DivasInputError(path, f"ground-truth labels must be bool (or 0/1), got {g.dtype}")
-    g = g.astype(bool)
-    if isinstance(scene, SurfelScene):
-        src = scene.source
-        if g.shape == (len(scene),):
-            return g
-        if src is not None and g.shape == (src.num_rows,):
-            return g[src.kept_rows]
-        raise DivasInputError(
-            path,
-            f"ground-truth labels have shape {g.shape}; the scene has "
-            f"{len(scene)} surfels" + (f" ({src.num_rows} input rows)" if src else ""),
-        )
-    if g.shape != scene.density.shape:
-        raise DivasInputError(
-            path, f"ground-truth grid has shape {g.shape}, the density grid {scene.density.shape}"
-        )
-    return g
+        return build_segmenter(settings, has_ground_truth=has_ground_truth)
+    except SegmenterSetupError as e:
+        flags = " and ".join(_FLAGS[r] for r in e.requires)
+        raise DivasInputError(None, f"--segmenter {e.kind} needs {flags}") from None
 
 
 def _device(name: str):
@@ -241,9 +190,11 @@ def segment_scene(
     ``prompts_path`` may also be a parsed :class:`~divas_engine.session.Prompts`. The
     session is closed unless ``keep_session``.
     """
+    from ..evaluation.ground_truth import load_ground_truth
     from ..evaluation.metrics import surfel_scores
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
+    from ..segment import SegmenterSettings
     from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
     from ..session.prompts import resolve_anchors
 
@@ -256,16 +207,18 @@ def segment_scene(
     if cameras_path is None and (Path(scene_path).parent / "cameras.json").is_file():
         cameras_path = Path(scene_path).parent / "cameras.json"
     cameras = load_cameras(cameras_path) if cameras_path is not None else []
-    gt = load_gt(gt_labels, scene) if gt_labels is not None else None
-    seg = build_segmenter(
-        segmenter,
-        seed=seed,
-        sam_encoder=sam_encoder,
-        sam_decoder=sam_decoder,
-        sam_checkpoint=sam_checkpoint,
-        sam_model_type=sam_model_type,
-        gt_available=gt is not None,
-        device=device,
+    gt = load_ground_truth(gt_labels, scene) if gt_labels is not None else None
+    seg = _segmenter(
+        SegmenterSettings(
+            segmenter,
+            seed=seed,
+            sam_encoder=sam_encoder,
+            sam_decoder=sam_decoder,
+            sam_checkpoint=sam_checkpoint,
+            sam_model_type=sam_model_type,
+            device=device,
+        ),
+        has_ground_truth=gt is not None,
     )
     if mask_channel not in (0, 1, 2):
         raise DivasInputError(None, f"--mask-channel must be 0, 1 or 2, got {mask_channel}")
@@ -301,17 +254,19 @@ def segment_scene(
         bar = _progress(total=n_clicks, desc="centroid views", enabled=progress)
         for i, r in enumerate(resolved):
             a = session.anchors[i]
-            sx, sy = a.camera.width / a.full_camera.width, a.camera.height / a.full_camera.height
             for k, c in enumerate(r.prompt.clicks):
                 try:
-                    v = session.click(i, (c.xy[0] * sx, c.xy[1] * sy), positive=c.positive)
+                    xy = a.full_camera.pixels_to(a.camera, c.xy)
+                    v = session.click(i, (float(xy[0]), float(xy[1])), positive=c.positive)
                 except DivasInputError as e:
                     raise DivasInputError(
                         prompts.source, f"anchors[{i}].clicks[{k}]: {e.problem}"
                     ) from None
                 if c.positive:
                     extra = prompts.extra_points(i, k)
-                    pts = np.array([[p.xy[0] * sx, p.xy[1] * sy] for p in extra]).reshape(-1, 2)
+                    pts = a.full_camera.pixels_to(
+                        a.camera, np.array([p.xy for p in extra]).reshape(-1, 2)
+                    )
                     labs = np.array([1 if p.positive else 0 for p in extra], np.int64)
                     spawned.append((v, pts, labs))
                 bar.update(1)
@@ -453,4 +408,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_parser", "run", "segment_scene", "build_segmenter", "load_gt", "write_report"]
+__all__ = ["add_parser", "run", "segment_scene", "write_report"]

@@ -9,6 +9,9 @@
 * :mod:`.pipeline` — scripted :class:`~divas_engine.session.Session` runs on the
   synthetic scenes (and the ablation variants).
 * :mod:`.suite` — the ``divas eval`` table.
+* :mod:`.ground_truth` — ground-truth labels from ``.npy`` in scene order (the oracle's
+  target, the 3D scores' reference).
+* :mod:`.demo_prompts` — the ``divas demo`` clicks from a synthetic scene's metadata.
 """
 
 from .baselines import (
@@ -20,6 +23,8 @@ from .baselines import (
     centre_vote,
     contribution_vote,
 )
+from .demo_prompts import demo_prompts
+from .ground_truth import load_ground_truth
 from .metrics import (
     EvalConfig,
     SceneScores,
@@ -55,4 +60,6 @@ __all__ = [
     "ScriptedUser",
     "UserBudget",
     "UserLog",
+    "demo_prompts",
+    "load_ground_truth",
 ]

@@ -8,7 +8,7 @@ Two protocols per scene (one object):
   (:class:`~.scripted_user.ScriptedUser`) looks at each anchor with the overlay of the
   running selection and clicks the largest uncovered region of its target, accepting
   each centroid view before looking again, within a :class:`~.scripted_user.UserBudget`;
-* ``"clicks"`` — the metadata clicks of :func:`divas_engine.cli.demo.demo_prompts` (the
+* ``"clicks"`` — the metadata clicks of :func:`~.demo_prompts.demo_prompts` (the
   ``divas demo`` protocol): each metadata click point goes on training cameras that see
   it, spread over the rig; clicks on the same camera share an anchor; every click spawns
   its centroid view (Sec. 3.3) whose default prompt is the click's 3D point projected
@@ -48,8 +48,10 @@ from ..camera import Camera
 from ..fusion.config import GsFusionConfig
 from ..scene import Scene
 from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
+from ..segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
 from ..session import Session, SessionConfig
 from .baselines import MaskView
+from .demo_prompts import demo_prompts
 from .scripted_user import ScriptedUser, UserLog
 
 __all__ = [
@@ -94,8 +96,7 @@ def scripted_anchors(
     metadata: dict, cameras: Sequence[Camera]
 ) -> list[tuple[Camera, str, int, list[tuple[float, float]]]]:
     """``(camera, "training", index, clicks)`` per anchor, from the scene metadata
-    (the ``divas demo`` protocol, :func:`~divas_engine.cli.demo.demo_prompts`)."""
-    from ..cli.demo import demo_prompts
+    (the ``divas demo`` protocol, :func:`~.demo_prompts.demo_prompts`)."""
     from ..session.prompts import resolve_anchors
 
     prompts = demo_prompts(metadata, list(cameras))
@@ -183,13 +184,10 @@ class CachingRenderer:
 
 def make_segmenter(name: str, seed: int = 0):
     """A fresh segmenter: ``"oracle"`` (SAM-like oracle, NOTES) or ``"classic"``."""
-    from ..segment import ClassicConfig, ClassicSegmenter, OracleConfig, OracleSegmenter
-
-    if name == "oracle":
-        return OracleSegmenter(config=OracleConfig(seed=seed))
-    if name == "classic":
-        return ClassicSegmenter(ClassicConfig(seed=seed))
-    raise ValueError(f"unknown segmenter {name!r} (oracle, classic)")
+    if name not in ("oracle", "classic"):
+        raise ValueError(f"unknown segmenter {name!r} (oracle, classic)")
+    settings = SegmenterSettings(SegmenterKind(name), seed=seed)
+    return build_segmenter(settings, has_ground_truth=True)  # the session's labels
 
 
 @dataclass(eq=False)
@@ -279,10 +277,9 @@ def run_session(
             spawned = []
             for i, (_, _, _, clicks) in enumerate(anchors):
                 a = s.anchors[i]
-                sx = a.camera.width / a.full_camera.width
-                sy = a.camera.height / a.full_camera.height
                 for xy in clicks:
-                    spawned.append(s.click(i, (xy[0] * sx, xy[1] * sy)))
+                    x, y = a.full_camera.pixels_to(a.camera, xy)
+                    spawned.append(s.click(i, (float(x), float(y))))
             for v in spawned:
                 s.accept(v)
         s.sync()

@@ -6,6 +6,9 @@
 * :class:`FloodFillSegmenter` — colour flood-fill baseline (comparison only).
 * :class:`OracleSegmenter` — ground truth with SAM-like errors (evaluation only).
 
+:func:`build_segmenter` (:mod:`.factory`) builds one of the first four from
+:class:`SegmenterSettings`, for the CLI and the add-on alike.
+
 Plus :func:`select_mask` (channel 1 or rejection), the depth weighting of
 eq:nerf-depthweight / eq:gs-bandpass, and :class:`SamWorker` (async NeRF /
 sync 2DGS scheduling).
@@ -23,6 +26,7 @@ from .depth_weighting import (
     gs_bandpass_weight,
     nerf_depth_weight,
 )
+from .factory import SegmenterKind, SegmenterSettings, SegmenterSetupError, build_segmenter
 from .flood_fill import FloodFillConfig, FloodFillSegmenter
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
@@ -52,4 +56,8 @@ __all__ = [
     "apply_gs_bandpass",
     "SamWorker",
     "SegmentationJobError",
+    "SegmenterKind",
+    "SegmenterSettings",
+    "SegmenterSetupError",
+    "build_segmenter",
 ]

@@ -630,7 +630,8 @@ class Session:
         self._autosave()
         return a
 
-    def _anchor(self, i: int) -> AnchorView:
+    def anchor(self, i: int) -> AnchorView:
+        """Anchor ``i`` (:class:`DivasInputError` naming the range when there is none)."""
         if not 0 <= int(i) < len(self.anchors):
             raise DivasInputError(None, f"anchor {i} does not exist ({len(self.anchors)} anchors)")
         return self.anchors[int(i)]
@@ -650,7 +651,7 @@ class Session:
         Raises:
             DivasInputError: outside the image, or no surface under the click.
         """
-        anchor = self._anchor(anchor_index)
+        anchor = self.anchor(anchor_index)
         xy = (float(xy[0]), float(xy[1]))
         obj = self.current
         clicks = obj.clicks.setdefault(anchor.index, [])

@@ -27,7 +27,7 @@ def _script_module():
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    from divas_engine.cli.demo import demo_prompts
+    from divas_engine.evaluation import demo_prompts
     from divas_engine.synthetic import generate_scene
 
     out = tmp_path_factory.mktemp("ribs_headless")

@@ -18,13 +18,8 @@ from blender_addon.camera_objects import apply_render_settings
 from blender_addon.modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP
 from blender_addon.overlays import image_name
 from blender_addon.properties import session_config
-from blender_addon.session_actions import (
-    LABEL_ATTRIBUTE,
-    VIEWS_COLLECTION,
-    autosave_path,
-    point_values,
-)
-from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
+from blender_addon.session_actions import LABEL_ATTRIBUTE, VIEWS_COLLECTION, autosave_path
+from divas_engine.point_attributes import INDEX, SELECTED, point_values, scene_selection
 from divas_engine.session import SessionConfig
 
 SCALE = 0.5
@@ -302,6 +297,35 @@ def test_errors_are_one_line_reports(scene_dir, tmp_path):
         bpy.ops.divas.session_accept(points="[oops")
     with pytest.raises(RuntimeError, match="no saved DivAS session"):
         bpy.ops.divas.resume_session(filepath=str(tmp_path / "missing.json"), device="cpu")
+
+
+def test_segmenter_errors_come_from_the_engine_and_say_where(scene_dir):
+    """The engine's setup error, with where the add-on's user sets what is missing."""
+    out, _ = scene_dir
+    bpy.ops.divas.import_splats(filepath=str(out / "scene.ply"))
+    bpy.context.scene.divas.autosave = False
+    msg = r"SAM \(ONNX\) segmenter needs the encoder and decoder.*add-on preferences"
+    with pytest.raises(RuntimeError, match=msg):
+        bpy.ops.divas.start_session(segmenter="sam_onnx", device="cpu")
+    with pytest.raises(RuntimeError, match=r"SAM \(PyTorch\).*add-on preferences"):
+        bpy.ops.divas.start_session(segmenter="sam_torch", device="cpu")
+    assert session_registry.get(bpy.context.active_object) is None
+
+
+def test_full_resolution_click_uses_the_engine_range_and_scale(scene_dir):
+    obj, live = _start(scene_dir)
+    a = live.session.anchors[0]
+    with pytest.raises(RuntimeError, match="anchor 99 does not exist"):
+        bpy.ops.divas.session_click(anchor=99, xy="5 3", full_resolution=True)
+    x, y = a.full_camera.width * 0.5 + 0.25, a.full_camera.height * 0.5 + 0.25
+    assert bpy.ops.divas.session_click(anchor=0, xy=f"{x!r} {y!r}", full_resolution=True) == {
+        "FINISHED"
+    }
+    click = live.session.current.clicks[0][-1]
+    assert click.xy == (
+        x * (a.camera.width / a.full_camera.width),
+        y * (a.camera.height / a.full_camera.height),
+    )
 
 
 class _Layout:

@@ -1,0 +1,79 @@
+"""Accept View: fuse a centroid view's mask into the 3D selection.
+
+``points`` replace the points added on the view, as JSON ``[[x, y, positive], ...]`` in
+rendered-image pixels, or full-camera pixels with ``full_resolution`` (the prompts
+file's); JSON keeps them double precision (RNA floats are single).
+"""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+from bpy.props import BoolProperty, StringProperty
+
+from divas_engine.kinds import ViewStatus
+
+from ..reporting import report_exception
+from ..session_actions import accept, full_to_session_xy
+from .session_base import SessionOperator, live_session
+
+
+def _parse_points(text: str):
+    try:
+        doc = json.loads(text)
+        pts = [(float(p[0]), float(p[1])) for p in doc]
+        labs = [int(bool(p[2])) if len(p) > 2 else 1 for p in doc]
+    except (ValueError, TypeError, IndexError, KeyError) as e:
+        raise ValueError(
+            f"points must be JSON [[x, y, positive], ...], got {text!r} ({e})"
+        ) from None
+    return pts, labs
+
+
+class DIVAS_OT_session_accept(SessionOperator, bpy.types.Operator):
+    """Accept a centroid view: fuse its mask into the 3D selection and recolour the splats"""
+
+    bl_idname = "divas.session_accept"
+    bl_label = "Accept View"
+    bl_options = {"REGISTER"}
+
+    view: StringProperty(
+        name="View",
+        default="",
+        description="View id (default: the scene camera's view, else the next open one)",
+    )
+    points: StringProperty(
+        name="Prompt Points",
+        default="",
+        description="JSON [[x, y, positive], ...] replacing the points "
+        "added on the view (its default prompt stays)",
+    )
+    full_resolution: BoolProperty(name="Full-Resolution Pixels", default=False)
+
+    def execute(self, context):
+        obj, live = live_session(context)
+        try:
+            pts = labs = None
+            if self.points:
+                pts, labs = _parse_points(self.points)
+                if self.full_resolution and pts:
+                    a = live.session.view(self.view).anchor if self.view else None
+                    if a is None:
+                        raise ValueError("full_resolution points need the view id")
+                    pts = [full_to_session_xy(live, a, p) for p in pts]
+            res = accept(context, obj, live, self.view or None, pts, labs)
+        except Exception as e:  # noqa: BLE001
+            return report_exception(self, e)
+        v = res.view
+        if v.status == ViewStatus.REJECTED:
+            self.report({"WARNING"}, f"View {v.id} rejected: {v.reason}")
+        elif v.status == ViewStatus.PENDING:
+            self.report({"INFO"}, f"View {v.id} pending ({res.pending} masks queued)")
+        else:
+            self.report(
+                {"INFO"},
+                f"View {v.id} fused: {int(live.session.selection.sum()):,} "
+                f"selected ({res.timings.get('update_s', 0.0):.2f} s)",
+            )
+        return {"FINISHED"}

@@ -1,0 +1,66 @@
+"""Click Anchor: a positive click spawns a centroid view, a negative one adds a negative
+prompt.
+
+Coordinates are rendered-image pixels of the anchor (the session's), or full-camera
+pixels with ``full_resolution`` (the prompts file's). RNA floats are single precision,
+so ``xy`` also takes decimal text, for clicks that must be bit-identical to
+``divas segment`` (the headless script passes them so).
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+
+from ..reporting import report_exception
+from ..session_actions import click, full_to_session_xy
+from .session_base import SessionOperator, live_session
+
+
+def _parse_xy(text: str) -> tuple[float, float]:
+    parts = text.replace(",", " ").split()
+    if len(parts) != 2:
+        raise ValueError(f"xy must be two numbers 'x y', got {text!r}")
+    return float(parts[0]), float(parts[1])
+
+
+class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
+    """Click on an anchor: positive spawns a centroid view, negative adds a negative prompt"""
+
+    bl_idname = "divas.session_click"
+    bl_label = "Click Anchor"
+    bl_options = {"REGISTER"}
+
+    anchor: IntProperty(name="Anchor", default=0, min=0)
+    x: FloatProperty(name="X", default=0.0)
+    y: FloatProperty(name="Y", default=0.0)
+    xy: StringProperty(
+        name="XY (exact)",
+        default="",
+        description="'x y' as decimal text (double precision); overrides X/Y",
+    )
+    positive: BoolProperty(name="Positive", default=True)
+    full_resolution: BoolProperty(
+        name="Full-Resolution Pixels",
+        default=False,
+        description="X/Y are pixels of the full camera (the prompts "
+        "file's), not of the rendered image",
+    )
+    preview: BoolProperty(
+        name="Preview",
+        default=True,
+        description="Segment the default prompt at once (the mask preview)",
+    )
+
+    def execute(self, context):
+        obj, live = live_session(context)
+        try:
+            xy = _parse_xy(self.xy) if self.xy else (self.x, self.y)
+            if self.full_resolution:
+                xy = full_to_session_xy(live, self.anchor, xy)
+            res = click(context, obj, live, self.anchor, xy, self.positive, preview=self.preview)
+        except Exception as e:  # noqa: BLE001
+            return report_exception(self, e)
+        what = f"spawned view {res.id}" if self.positive else "negative prompt recorded"
+        self.report({"INFO"}, f"Anchor {self.anchor}: {what}")
+        return {"FINISHED"}

@@ -1,0 +1,64 @@
+"""The DivAS session steps on Blender data: the work behind the session operators and
+the click-to-segment modal (which share every function here).
+
+Each step makes one engine call on the object's live
+:class:`~divas_engine.session.Session` (:mod:`..session_registry`) and then updates
+what Blender shows. By responsibility:
+
+* :mod:`.start` — start a session on an imported object, or resume its saved one (the
+  engine's inputs: scene, training cameras, ground truth, segmenter, device);
+* :mod:`.loop_steps` — the loop: add an anchor, click, add a prompt, accept, sync, undo,
+  reset, finish the object;
+* :mod:`.view_cameras` — a camera per anchor and centroid view in "DivAS Views", with
+  the view's render, mask preview and prompt points (or the selection overlay) as its
+  background image;
+* :mod:`.points` — ``divas_selected`` / ``divas_label`` on the object's points after
+  every change of the selection, so the display material recolours the splats live.
+
+Pixel coordinates are in rendered-image pixels (the camera × render scale) unless a
+function says otherwise.
+"""
+
+from __future__ import annotations
+
+from ..reporting import SESSION_ERRORS, report_exception
+from .loop_steps import (
+    accept,
+    add_anchor,
+    add_prompt,
+    click,
+    finish_object,
+    full_to_session_xy,
+    refresh_preview,
+    reset,
+    sync,
+    undo,
+)
+from .points import LABEL_ATTRIBUTE, write_selection
+from .start import StartSettings, autosave_path, resume, start
+from .view_cameras import VIEWS_COLLECTION, activate_camera, camera_target, scene_camera_of
+
+__all__ = [
+    "StartSettings",
+    "VIEWS_COLLECTION",
+    "LABEL_ATTRIBUTE",
+    "SESSION_ERRORS",
+    "autosave_path",
+    "start",
+    "resume",
+    "add_anchor",
+    "click",
+    "add_prompt",
+    "refresh_preview",
+    "accept",
+    "sync",
+    "undo",
+    "reset",
+    "finish_object",
+    "write_selection",
+    "activate_camera",
+    "camera_target",
+    "scene_camera_of",
+    "report_exception",
+    "full_to_session_xy",
+]

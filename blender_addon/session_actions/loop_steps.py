@@ -1,0 +1,217 @@
+"""The steps of the interactive loop on a live session: add an anchor, click, add a
+prompt point, accept, sync, undo, reset, finish the object.
+
+Each makes one engine call on the session and then updates what Blender shows: the
+cameras' images (:mod:`.view_cameras`) and the points' selection (:mod:`.points`). Pixel
+coordinates are rendered-image pixels (the camera × render scale) unless a function
+says otherwise.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from divas_engine.errors import DivasInputError
+from divas_engine.kinds import ViewStatus
+
+from ..session_registry import LiveSession
+from .points import write_selection
+from .start import training_camera_objects
+from .view_cameras import (
+    camera_target,
+    make_anchor_camera,
+    prune_view_cameras,
+    scene_camera_of,
+    show_anchor,
+    show_view,
+)
+
+__all__ = [
+    "full_to_session_xy",
+    "add_anchor",
+    "click",
+    "add_prompt",
+    "refresh_preview",
+    "accept",
+    "sync",
+    "undo",
+    "reset",
+    "finish_object",
+]
+
+
+def full_to_session_xy(live: LiveSession, anchor: int, xy) -> tuple[float, float]:
+    """A full-camera pixel of anchor ``anchor`` in its rendered image (as ``divas segment``
+    converts the prompts file)."""
+    a = live.session.anchor(anchor)
+    x, y = a.full_camera.pixels_to(a.camera, (float(xy[0]), float(xy[1])))
+    return float(x), float(y)
+
+
+def add_anchor(context, obj, live: LiveSession, cam_obj) -> int:
+    """Manual anchor selection: ``cam_obj`` (a training camera, or any camera the user
+    placed, e.g. aligned to the viewport with Ctrl+Alt+Numpad 0) becomes the session's
+    next anchor, with its own anchor camera; returns its index."""
+    if cam_obj is None or cam_obj.type != "CAMERA":
+        raise DivasInputError(None, "select a camera object to add as an anchor")
+    if cam_obj.name in live.anchor_cameras or cam_obj.name in live.view_cameras.values():
+        raise DivasInputError(
+            None, f"{cam_obj.name!r} is already one of this session's anchor or view cameras"
+        )
+    training = [o.name for o in training_camera_objects()]
+    source_name, index = (
+        ("training", training.index(cam_obj.name)) if cam_obj.name in training else ("camera", -1)
+    )
+    t0 = time.perf_counter()
+    cam = scene_camera_of(obj, cam_obj, context.scene)
+    a = live.session.add_anchor(cam, source_name, index)
+    make_anchor_camera(context, obj, live, a.index, with_selection=True)
+    show_anchor(context, live, a.index)
+    live.record(
+        {"what": f"anchor {a.index} from {cam_obj.name}", "update_s": time.perf_counter() - t0}
+    )
+    return a.index
+
+
+def click(
+    context, obj, live: LiveSession, anchor: int, xy, positive: bool = True, *, preview: bool = True
+):
+    """A click on anchor ``anchor``: positive spawns (and shows) the centroid view with
+    its default-prompt preview; negative becomes a negative prompt of the anchor's views."""
+    s = live.session
+    t0 = time.perf_counter()
+    res = s.click(int(anchor), (float(xy[0]), float(xy[1])), positive=positive)
+    if not positive:
+        show_anchor(context, live, int(anchor), activate=False)
+        live.record(
+            {"what": f"negative click on anchor {anchor}", "update_s": time.perf_counter() - t0}
+        )
+        return res
+    timings = dict(res.timings)
+    if preview:
+        timings["preview_s"] = s.prompt(res).seconds
+    show_view(context, obj, live, res)
+    live.record({"what": f"view {res.id}", **timings, "update_s": time.perf_counter() - t0})
+    return res
+
+
+def add_prompt(context, obj, live: LiveSession, view_id: str, xy, positive: bool = True):
+    """One more prompt point on an open centroid view; refreshes its mask preview."""
+    extras = live.extra_prompts.setdefault(view_id, [])
+    extras.append((float(xy[0]), float(xy[1]), int(bool(positive))))
+    try:
+        return refresh_preview(context, obj, live, view_id)
+    except BaseException:
+        extras.pop()
+        raise
+
+
+def refresh_preview(context, obj, live: LiveSession, view_id: str):
+    """Segment the view's default prompt plus its added points; show the mask preview."""
+    s = live.session
+    v = s.view(view_id)
+    pts, labs = _extras(live, view_id)
+    prev = s.prompt(v, pts, labs)
+    show_view(context, obj, live, v)
+    live.record({"what": f"preview {v.id}", "segmenter_s": prev.seconds, "update_s": prev.seconds})
+    return prev
+
+
+def _extras(live: LiveSession, view_id: str) -> tuple[np.ndarray, np.ndarray]:
+    e = live.extra_prompts.get(view_id, [])
+    return (
+        np.array([(x, y) for x, y, _ in e], np.float64).reshape(-1, 2),
+        np.array([lab for _, _, lab in e], np.int64),
+    )
+
+
+def accept(context, obj, live: LiveSession, view_id: str | None = None, points=None, labels=None):
+    """Accept a centroid view (default: the scene camera's, else the next open one):
+    fuse + map, recolour the points, show the selection on the next view (or back on the
+    anchor). ``points``/``labels`` replace the view's added prompt points."""
+    s = live.session
+    if not view_id:
+        cam = context.scene.camera
+        t = camera_target(live, cam)
+        view_id = t.view_id if t.is_view else None
+    if not view_id:
+        nxt = s.next_view()
+        if nxt is None:
+            raise DivasInputError(
+                None, "no open view to accept: click the object on an anchor first"
+            )
+        view_id = nxt.id
+    v = s.view(view_id)
+    if points is not None:
+        p = np.asarray(points, np.float64).reshape(-1, 2)
+        lab = np.asarray(labels if labels is not None else np.ones(len(p)), np.int64)
+        res = s.accept(v, p, lab)  # as given (the view's default prompt is added)
+        live.extra_prompts[v.id] = [(float(x), float(y), int(b)) for (x, y), b in zip(p, lab)]
+    else:
+        pts, labs = _extras(live, v.id)
+        res = s.accept(v, pts, labs) if len(pts) else s.accept(v)
+    live.record({"what": f"accept {v.id} ({v.status})", **res.timings})
+    if res.synced:
+        write_selection(obj, live)
+        for vid in res.fused:  # views fused at this sync (NeRF: the whole group)
+            if vid != v.id and vid in live.view_cameras:
+                show_view(context, obj, live, s.view(vid), activate=False)
+    if v.status == ViewStatus.REJECTED:
+        show_view(context, obj, live, v)  # stay: more prompts, then Enter again
+        return res
+    if res.overlay is not None:
+        show_view(context, obj, live, v, res.overlay.image, activate=False)
+    if res.next_view is not None and res.next_overlay is not None:
+        show_view(context, obj, live, res.next_view, res.next_overlay.image)
+    else:
+        show_anchor(context, live, v.anchor)
+    return res
+
+
+def sync(context, obj, live: LiveSession):
+    """Fuse every pending NeRF mask now (no-op for 2DGS or when none is pending)."""
+    res = live.session.sync()
+    if res.synced:
+        write_selection(obj, live)
+        for vid in res.fused:
+            if vid in live.view_cameras:
+                show_view(context, obj, live, live.session.view(vid), activate=False)
+        live.record({"what": "sync", **res.timings})
+    return res
+
+
+def undo(context, obj, live: LiveSession):
+    """Undo the last accepted view (exact); it is shown again, open, with its preview."""
+    t0 = time.perf_counter()
+    v = live.session.undo()
+    if v is None:
+        return None
+    write_selection(obj, live)
+    show_view(context, obj, live, v)
+    live.record({"what": f"undo {v.id}", "update_s": time.perf_counter() - t0})
+    return v
+
+
+def reset(context, obj, live: LiveSession, *, all_objects: bool = False) -> None:
+    """Drop the current object's views and selection (``all_objects``: every label too)."""
+    t0 = time.perf_counter()
+    live.session.reset(all_objects=all_objects)
+    prune_view_cameras(live)
+    write_selection(obj, live)
+    for i in range(len(live.anchor_cameras)):
+        show_anchor(context, live, i, activate=i == 0)
+    live.record({"what": "reset", "update_s": time.perf_counter() - t0})
+
+
+def finish_object(context, obj, live: LiveSession, name: str | None = None):
+    """Commit the selection as the next label (``divas_label``) and start a new object."""
+    t0 = time.perf_counter()
+    rec = live.session.finish_object(name or None)
+    prune_view_cameras(live)
+    write_selection(obj, live)
+    for i in range(len(live.anchor_cameras)):  # the selection is empty now: plain renders
+        show_anchor(context, live, i, activate=False)
+    live.record({"what": f"finish {rec.name}", "update_s": time.perf_counter() - t0})
+    return rec

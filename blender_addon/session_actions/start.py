@@ -1,0 +1,235 @@
+"""Starting a session on an imported object, or resuming its saved one.
+
+Both gather the engine's inputs (the object's scene file, training cameras, ground
+truth, the segmenter of :func:`divas_engine.segment.build_segmenter`, the device), build
+the engine session, make the anchor cameras (:mod:`.view_cameras`) and register the
+:class:`~..session_registry.LiveSession`.
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import bpy
+
+from divas_engine.errors import DivasInputError
+from divas_engine.evaluation.ground_truth import load_ground_truth
+from divas_engine.io.cameras import load_cameras
+from divas_engine.point_attributes import SELECTED
+from divas_engine.segment import SegmenterSettings, SegmenterSetupError, build_segmenter
+from divas_engine.session import Session, SessionConfig, anchor_plan, load_prompts
+from divas_engine.session.prompts import resolve_anchors
+
+from .. import session_registry, source
+from ..camera_objects import engine_camera
+from ..importers import TRAINING_CAMERAS
+from ..session_registry import LiveSession
+from .points import write_selection
+from .view_cameras import (
+    activate_camera,
+    make_anchor_cameras,
+    remove_cameras_of,
+    show_anchor,
+    show_view,
+)
+
+__all__ = [
+    "StartSettings",
+    "autosave_path",
+    "training_camera_objects",
+    "start",
+    "resume",
+]
+
+#: where the add-on's user sets what a segmenter needs (``SegmenterSetupError.requires``).
+_WHERE = {
+    "ground_truth": "Ground Truth .npy",
+    "sam_encoder": "set in the DivAS add-on preferences",
+    "sam_decoder": "set in the DivAS add-on preferences",
+    "sam_checkpoint": "set in the DivAS add-on preferences",
+}
+
+
+@dataclass(frozen=True)
+class StartSettings:
+    """How to start (or resume) a session.
+
+    Attributes:
+        config: the engine session config (:func:`..properties.session_config`).
+        device: ``auto`` / ``cpu`` / ``cuda``.
+        segmenter: ``classic`` / ``sam_onnx`` / ``sam_torch`` / ``oracle`` (evaluation):
+            a :class:`~divas_engine.segment.SegmenterKind` name.
+        sam_*: model files of the SAM segmenters.
+        cameras_path: training cameras; None → ``cameras.json`` beside the scene file,
+            else the cameras in the "DivAS Cameras" collection, else none.
+        prompts_path: take the anchors of this prompts file instead of the planned ones.
+        gt_labels: ground truth ``.npy`` (the oracle's target).
+    """
+
+    config: SessionConfig
+    device: str = "cpu"
+    segmenter: str = "classic"
+    sam_encoder: Path | None = None
+    sam_decoder: Path | None = None
+    sam_checkpoint: Path | None = None
+    sam_model_type: str = "vit_h"
+    cameras_path: Path | None = None
+    prompts_path: Path | None = None
+    gt_labels: Path | None = None
+
+
+def autosave_path(obj) -> Path:
+    """``<blend>_divas_session.json`` beside the saved .blend, else in a temp folder."""
+    if bpy.data.filepath:
+        blend = Path(bpy.path.abspath(bpy.data.filepath))
+        return blend.with_name(f"{blend.stem}_divas_session.json")
+    safe = re.sub(r"[^A-Za-z0-9_-]+", "_", obj.name)
+    return Path(tempfile.gettempdir()) / "divas" / f"{safe}_divas_session.json"
+
+
+def training_camera_objects() -> list:
+    """The camera objects of the training-camera collection, in its order."""
+    coll = bpy.data.collections.get(TRAINING_CAMERAS)
+    return [] if coll is None else [o for o in coll.objects if o.type == "CAMERA"]
+
+
+def _training_cameras(context, ref: source.SourceRef, path: Path | None):
+    if path is None and (ref.path.parent / "cameras.json").is_file():
+        path = ref.path.parent / "cameras.json"
+    if path is not None:
+        return load_cameras(path)
+    return [engine_camera(context.scene, o) for o in training_camera_objects()]
+
+
+def _segmenter(settings: StartSettings):
+    """The engine's segmenter (built first: a missing model file fails before the load)."""
+    seg_settings = SegmenterSettings(
+        settings.segmenter,
+        seed=settings.config.seed,
+        sam_encoder=settings.sam_encoder,
+        sam_decoder=settings.sam_decoder,
+        sam_checkpoint=settings.sam_checkpoint,
+        sam_model_type=settings.sam_model_type,
+        device=settings.device,
+    )
+    try:
+        return build_segmenter(seg_settings, has_ground_truth=settings.gt_labels is not None)
+    except SegmenterSetupError as e:
+        where = dict.fromkeys(_WHERE[r] for r in e.requires)
+        raise DivasInputError(None, f"{e.problem} ({'; '.join(where)})") from None
+
+
+def _engine_inputs(context, obj, settings: StartSettings):
+    from divas_kernels import resolve_device
+
+    ref = source.source_of(obj)
+    if ref is None:
+        raise DivasInputError(
+            None,
+            f"{getattr(obj, 'name', None)!r} is not a DivAS-imported "
+            "point cloud (import splats or a density grid first)",
+        )
+    seg = _segmenter(settings)
+    scene = source.load_source_scene(ref)
+    cameras = _training_cameras(context, ref, settings.cameras_path)
+    gt = load_ground_truth(settings.gt_labels, scene) if settings.gt_labels is not None else None
+    try:
+        device = resolve_device(settings.device)
+    except RuntimeError as e:
+        raise DivasInputError(None, str(e)) from None
+    return scene, cameras, gt, seg, device
+
+
+def start(context, obj, settings: StartSettings) -> LiveSession:
+    """Load the object's scene, build the session (occupancy grid, anchor renders) and the
+    anchor cameras; the first anchor becomes the scene camera."""
+    wm = context.window_manager
+    t0 = time.perf_counter()
+    wm.progress_begin(0, 100)
+    try:
+        scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
+        wm.progress_update(10)
+        config = settings.config
+        anchors = None
+        if settings.prompts_path is not None:
+            prompts = load_prompts(settings.prompts_path)
+            resolved = resolve_anchors(
+                prompts,
+                cameras,
+                lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates],
+            )
+            anchors = [(r.camera, r.source, r.index) for r in resolved]
+        session = Session.open(
+            scene, cameras, config, seg, device, anchors=anchors, gt_values=gt, render_anchors=False
+        )
+        wm.progress_update(40)
+        try:
+            n = len(session.anchors)
+            for k, a in enumerate(session.anchors):
+                _ = a.buffers
+                wm.progress_update(40 + int(50 * (k + 1) / max(n, 1)))
+            live = LiveSession(
+                session,
+                obj.name,
+                autosave=None if config.autosave is None else Path(config.autosave),
+                segmenter=settings.segmenter,
+            )
+            session_registry.drop(obj)  # a restart: the old session and its cameras go
+            remove_cameras_of(obj.name)
+            make_anchor_cameras(context, obj, live)
+        except BaseException:
+            remove_cameras_of(obj.name)
+            session.close()
+            raise
+        if obj.data.attributes.get(SELECTED) is not None:
+            write_selection(obj, live)  # a restart clears the old selection
+        session_registry.put(obj, live)
+        live.open_s = time.perf_counter() - t0
+        live.record({"what": "start", "update_s": live.open_s})
+        if live.anchor_cameras:
+            activate_camera(context, bpy.data.objects[live.anchor_cameras[0]])
+        return live
+    finally:
+        wm.progress_end()
+
+
+def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
+    """Reload a saved session (replayed by the engine) onto ``obj``: anchor and view
+    cameras, the selection; it keeps autosaving to ``path``."""
+    wm = context.window_manager
+    t0 = time.perf_counter()
+    wm.progress_begin(0, 100)
+    try:
+        path = Path(path)
+        if not path.is_file():
+            raise DivasInputError(path, "no saved DivAS session here")
+        scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
+        wm.progress_update(20)
+        session = Session.load(
+            path, scene, seg, device, cameras=cameras, gt_values=gt, autosave=str(path)
+        )
+        wm.progress_update(70)
+        try:
+            live = LiveSession(session, obj.name, autosave=path, segmenter=settings.segmenter)
+            session_registry.drop(obj)
+            remove_cameras_of(obj.name)
+            make_anchor_cameras(context, obj, live)
+            for v in session.views:
+                show_view(context, obj, live, v, activate=False)
+            write_selection(obj, live)
+        except BaseException:
+            remove_cameras_of(obj.name)
+            session.close()
+            raise
+        session_registry.put(obj, live)
+        live.open_s = time.perf_counter() - t0
+        live.record({"what": "resume", "update_s": live.open_s})
+        if live.anchor_cameras:
+            show_anchor(context, live, 0)  # with the selection (the others: when shown)
+        return live
+    finally:
+        wm.progress_end()
