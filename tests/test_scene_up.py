@@ -44,13 +44,18 @@ def _floor_and_box(up: np.ndarray, seed: int = 0, floor_half: float = 2.0):
 
 
 def _standing_figure(up: np.ndarray, seed: int = 0):
-    """A standing 'figure' without a floor: a 0.5 × 0.3 × 1.8 column, two 'soles' at
-    its bottom are the only flat contact (what the biker capture looks like)."""
+    """A standing 'figure' without a floor: a round column (radius 0.2) with a domed top,
+    1.8 tall, whose only flat contact is its flat bottom (the soles), in the frame whose
+    +z is ``up`` (what the biker capture looks like). A column with broad flat sides
+    would be a slab lying on them as much as a figure standing: not this case."""
     rng = np.random.default_rng(seed)
-    body = rng.uniform([-0.25, -0.15, 0.0], [0.25, 0.15, 1.8], (6000, 3))
-    R = _rot_to(up)
-    pts = body @ R.T
-    w = np.full(len(pts), 0.8)
+    n = 8000
+    t = rng.uniform(0, 2 * math.pi, n)
+    rad = np.sqrt(rng.uniform(0, 1, n))
+    x, y = 0.2 * rad * np.cos(t), 0.2 * rad * np.sin(t)
+    z = rng.uniform(0, 1, n) * (1.8 - 0.3 * rad**2)  # dome: lower at the rim
+    pts = np.c_[x, y, z] @ _rot_to(up).T
+    w = np.full(n, 0.8)
     c = np.median(pts, 0)
     return pts, w, c, float(np.percentile(np.linalg.norm(pts - c, axis=1), 99))
 

@@ -29,8 +29,10 @@ from the scene itself, first rule that applies:
    to that axis: files are axis-aligned far more often than not (an editor such as
    SuperSplat levels them, a converter puts the floor on an axis), and the contact
    band of a capture — its underside, the part its cameras saw least — is itself only
-   good to a few degrees (measured on the shared captures: the biker's soles 3–7°,
-   the guitar stand's feet 6–9° from the level its leg bars show, over 8 seeds).
+   good to a few degrees (measured on the shared captures over 8 seeds: the biker's
+   soles 4.8–8.3° from the upright the body shows, the guitar stand's feet 3.7–4.5°
+   from the level its leg bars show, the LOD tiles 0.5°, the SOG playbot 0.2° and
+   logo 1.2–2.1°).
    Confidence 0.5 + 0.5 · sharpness: two cues agree (a one-sided contact plane and
    the convention or the axis alignment), weighted by how planar the contact is.
 3. ``convention`` — ``convention_up`` (COLMAP-trained captures: −y); confidence 0.3.
