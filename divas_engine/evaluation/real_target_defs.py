@@ -29,7 +29,9 @@ class TargetDef:
         rule: the :mod:`.target_rules` tree.
         anchors: hand-placed anchors of the oracle run: ``(azimuth°, elevation°)`` in
             the capture's up frame (:func:`.real_targets.capture_frame`), framed on the
-            whole capture, and the clicks on the target in that anchor's pixels.
+            whole capture, and the clicks on the target in that anchor's pixels (640 ×
+            480), placed by eye on renders with the target overlaid, spread over the
+            target as a user would (a click on every part a centroid view should show).
     """
 
     name: str
@@ -190,7 +192,7 @@ _GUITAR = TargetDef(
     "not the guitar).",
     GUITAR_RULE,
     anchors=(
-        ((20.0, 15.0), ((265.0, 335.0), (325.0, 170.0))),
+        ((20.0, 15.0), ((265.0, 335.0), (325.0, 170.0), (324.0, 92.0))),
         ((110.0, 20.0), ((288.0, 340.0),)),
         ((200.0, 25.0), ((275.0, 340.0),)),
     ),
@@ -203,7 +205,7 @@ _NECK = TargetDef(
     "bout; looked at from 4 sides and above: whole fretboard, headstock and six tuners; "
     "the body keeps its horns.",
     _NECK_RULE,
-    anchors=(((20.0, 15.0), ((325.0, 170.0),)),),
+    anchors=(((20.0, 15.0), ((325.0, 170.0), (324.0, 92.0))),),
 )
 _STAND = TargetDef(
     "stand",
@@ -214,7 +216,10 @@ _STAND = TargetDef(
     "apex and both hooks; the removed haze renders as a brown smear on the floor and "
     "between the uprights, not as stand.",
     _STAND_RULE,
-    anchors=(((200.0, 20.0), ((292.0, 400.0), (345.0, 392.0))),),
+    anchors=(
+        ((200.0, 20.0), ((292.0, 400.0), (345.0, 392.0))),
+        ((110.0, 20.0), ((325.0, 320.0), (310.0, 396.0))),
+    ),
 )
 
 GUITAR_UP_NOTE = (
@@ -237,8 +242,8 @@ _PLANTS = TargetDef(
     "base; the rest is the flat grass-and-purple-flower ground with nothing standing.",
     {"halfspace": {"normal": [0.0, 0.0, 1.0], "offset": 0.75}},
     anchors=(
-        ((30.0, 30.0), ((320.0, 200.0),)),
-        ((210.0, 45.0), ((320.0, 240.0),)),
+        ((30.0, 30.0), ((160.0, 240.0), (320.0, 200.0), (480.0, 220.0), (320.0, 330.0))),
+        ((210.0, 45.0), ((200.0, 250.0), (440.0, 250.0), (320.0, 330.0))),
     ),
 )
 
