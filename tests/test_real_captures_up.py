@@ -106,3 +106,25 @@ def test_cli_reports_the_up_and_takes_an_override(tmp_path):
     assert doc["scene_up"]["source"] == "override" and doc["up"] == [0.0, 0.0, 1.0]
     r = _cli("anchors", str(scene), "--no-render", "--up", "0,0,0", "--out", str(tmp_path))
     assert r.returncode != 0 and "--up" in r.stderr
+
+
+def test_segment_up_override_reaches_the_planned_anchors(tmp_path):
+    from divas_engine.cli.segment import segment_scene
+
+    prompts = tmp_path / "prompts.json"
+    prompts.write_text(
+        json.dumps({"version": 1, "anchors": [{"fibonacci": 0, "clicks": [{"xy": [320, 240]}]}]})
+    )
+    scene = DATA / CAPTURES["lod3"].path
+    cams = {}
+    for up in (None, (0.0, 0.0, -1.0)):
+        _, s = segment_scene(
+            scene, prompts, scale=0.25, device="cpu", progress=False, keep_session=True, up=up
+        )
+        try:
+            cams[up] = s.anchors[0].full_camera
+        finally:
+            s.close()
+    for up, want in ((None, [0, 0, 1.0]), ((0.0, 0.0, -1.0), [0, 0, -1.0])):
+        cam = cams[up]  # estimated: +z; then the override -z
+        assert cam.up @ np.array(want) > 0.3 and abs(cam.right @ np.array(want)) < 1e-9

@@ -51,7 +51,7 @@ from ..scene import DensityGrid, Scene, SurfelScene
 from ..scene_stats import RobustFrame, robust_frame
 from .config import ViewConfig
 from .fibonacci import fibonacci_sphere, up_frame
-from .framing import SceneLayout, framed_camera, layout_from_points
+from .framing import SceneLayout, framed_camera, layout_from_points, look_from
 from .ground import scene_points, spherical_cap
 from .ranking import Ranking, rank_directions
 from .up_direction import SceneUp, UpEstimate, estimate_up
@@ -245,18 +245,7 @@ def gs_anchor_radii(
 
 
 def _look(center, direction, radius, up, intr: Camera, name: str) -> Camera:
-    return Camera.look_at(
-        center + radius * direction,
-        center,
-        up,
-        width=intr.width,
-        height=intr.height,
-        fx=intr.fx,
-        fy=intr.fy,
-        cx=intr.cx,
-        cy=intr.cy,
-        name=name,
-    )
+    return look_from(center + radius * direction, center, up, intr, name)
 
 
 def training_anchor(cameras: list[Camera], key: int | str, center: np.ndarray) -> Anchor:

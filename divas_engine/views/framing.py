@@ -41,6 +41,7 @@ __all__ = [
     "projected_extent",
     "view_fill",
     "framed_camera",
+    "look_from",
 ]
 
 _CENTRING_ROUNDS = 3
@@ -139,7 +140,9 @@ def view_fill(camera: Camera, layout: SceneLayout, q: float) -> tuple[float, flo
     )
 
 
-def _look(eye, target, up, intr: Camera, name: str) -> Camera:
+def look_from(eye, target, up, intr: Camera, name: str = "") -> Camera:
+    """A camera with ``intr``'s intrinsics at ``eye`` looking at ``target``, image-up =
+    ``up`` (no roll); straight along the up axis the roll comes from the frame's x."""
     fwd = np.asarray(target, np.float64) - np.asarray(eye, np.float64)
     fwd /= np.linalg.norm(fwd)
     u = np.asarray(up, np.float64)
@@ -183,7 +186,7 @@ def framed_camera(
     pts, w = layout.points, layout.weights
 
     def fill_at(t: np.ndarray, r: float) -> float:
-        cam = _look(t + r * d, t, up, intr, name)
+        cam = look_from(t + r * d, t, up, intr, name)
         _, z = cam.project(pts)
         if weighted_quantiles(z, w, (q,))[0] < cfg.frame_min_depth * r:
             return math.inf  # too close: inside the content, or a strong perspective
@@ -200,9 +203,9 @@ def framed_camera(
             else:
                 hi = mid
         r = math.exp(hi)
-        cam = _look(target + r * d, target, up, intr, name)
+        cam = look_from(target + r * d, target, up, intr, name)
         u0, u1, v0, v1, _ = projected_extent(cam, pts, w, q)
         du, dv = 0.5 * (u0 + u1) - cam.cx, 0.5 * (v0 + v1) - cam.cy
         # shift the look-at point in the image plane at the target's depth r
         target = target + (du / cam.fx) * r * cam.right + (dv / cam.fy) * r * cam.c2w[:3, 1]
-    return _look(target + r * d, target, up, intr, name)
+    return look_from(target + r * d, target, up, intr, name)
