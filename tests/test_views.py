@@ -224,7 +224,10 @@ def test_plan_anchors_camera_free():
     c = np.array([1.0, 2.0, 3.0])
     plan = plan_anchors(c, 2.0, None)
     assert plan.camera_free and len(plan.anchors) == 5
-    np.testing.assert_allclose(plan.up, [0, 0, 1.0])
+    # without a scene layout: the capture convention (COLMAP-trained: -y), ViewConfig.up wins
+    np.testing.assert_allclose(plan.up, [0, -1.0, 0])
+    plan_z = plan_anchors(c, 2.0, None, config=ViewConfig(up=(0, 0, 2.0)))
+    np.testing.assert_allclose(plan_z.up, [0, 0, 1.0])
     for a in plan.candidates:
         assert a.radius == pytest.approx(5.0) and not a.unsupported
         assert (a.camera.width, a.camera.height, a.camera.fx) == (640, 480, 600.0)

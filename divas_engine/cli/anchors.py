@@ -2,7 +2,9 @@
 
 Writes ``DIR/anchors.json`` (the :class:`~divas_engine.views.AnchorPlan`: each
 anchor's camera in the ``Camera.to_dict`` schema, direction, score, unsupported,
-source) and one PNG render per offered anchor (``DIR/NN_<name>.png``).
+source; ``scene_up`` when camera-free: the up, its source, confidence and reason) and
+one PNG render per offered anchor (``DIR/NN_<name>.png``). Prints the up and its
+confidence.
 """
 
 from __future__ import annotations
@@ -39,7 +41,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--up",
         default=None,
         metavar="X,Y,Z",
-        help="scene up direction (default: estimated from the cameras; +z camera-free)",
+        help="scene up direction (default: estimated — from the training cameras, else "
+        "from a ground plane of the scene, else the capture convention -y)",
     )
     p.add_argument("--scale", type=float, default=1.0, help="render scale of the PNGs (default 1)")
     p.add_argument("--no-render", action="store_true", help="write anchors.json only")
@@ -53,7 +56,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _parse_up(text: str | None) -> np.ndarray | None:
+def parse_up(text: str | None) -> np.ndarray | None:
     if text is None:
         return None
     try:
@@ -63,6 +66,16 @@ def _parse_up(text: str | None) -> np.ndarray | None:
     if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
         raise DivasInputError(None, f"--up must be three numbers X,Y,Z, not all zero; got {text!r}")
     return v / np.linalg.norm(v)
+
+
+def up_line(plan, given: bool = False) -> str:
+    """``up: [x, y, z] (source, confidence c): reason`` of an anchor plan (``given``:
+    the up came from ``--up``)."""
+    v = "[" + ", ".join(f"{x:.3g}" for x in plan.up) + "]"
+    su = plan.scene_up
+    if su is not None:
+        return f"up: {v} ({su.source}, confidence {su.confidence:.2f}): {su.reason}"
+    return f"up: {v} ({'given (--up)' if given else 'training cameras'})"
 
 
 def make_renderer(scene, device):
@@ -85,11 +98,11 @@ def run(args: argparse.Namespace) -> int:
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
     from ..scene import SurfelScene
-    from ..views import plan_anchors, scene_frame
+    from ..views import plan_scene_anchors, scene_frame
 
     if args.scale <= 0:
         raise DivasInputError(None, f"--scale must be positive, got {args.scale}")
-    up = _parse_up(args.up)
+    up = parse_up(args.up)
     scene = load_scene(args.scene)
     cams_path = args.cameras
     if cams_path is None and (args.scene.parent / "cameras.json").is_file():
@@ -97,9 +110,7 @@ def run(args: argparse.Namespace) -> int:
     cameras = load_cameras(cams_path) if cams_path is not None else []
     frame = scene_frame(scene)
     kind = "2dgs" if isinstance(scene, SurfelScene) else "nerf"
-    plan = plan_anchors(
-        frame.center, frame.radius, cameras, kind=kind, all_views=args.all_views, up=up
-    )
+    plan = plan_scene_anchors(scene, cameras, kind=kind, all_views=args.all_views, up=up)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     doc = plan.to_dict()
@@ -123,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         cv2.imwrite(str(out / name), img[..., ::-1])
         entry["image"] = name
     (out / "anchors.json").write_text(json.dumps(doc, indent=1))
+    print(up_line(plan, given=up is not None))
     print(
         f"{len(plan.anchors)} anchors ({'camera-free' if plan.camera_free else len(cameras)} "
         f"{'' if plan.camera_free else 'training cameras, '}"
@@ -131,4 +143,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_parser", "run", "make_renderer"]
+__all__ = ["add_parser", "run", "make_renderer", "up_line", "parse_up"]

@@ -1,4 +1,10 @@
-"""``divas info PATH [--cameras C] [--json]``: what is in a scene file."""
+"""``divas info PATH [--cameras C] [--up X,Y,Z] [--json]``: what is in a scene file.
+
+Besides counts and statistics it reports the scene up and where it came from
+(``up``, ``up_source``, ``up_confidence``, ``up_reason``): the training cameras when
+there are any, else a ground plane of the scene or the capture convention
+(:func:`~divas_engine.views.estimate_scene_up`), or ``--up``.
+"""
 
 from __future__ import annotations
 
@@ -23,6 +29,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="camera file/folder (default: cameras.json beside the scene, if any)",
     )
+    p.add_argument(
+        "--up",
+        default=None,
+        metavar="X,Y,Z",
+        help="scene up to report instead of the estimate (as `divas anchors --up`)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -39,10 +51,39 @@ def _cameras_info(path: Path) -> dict:
     }
 
 
+def _up_info(scene, cameras_path: Path | None, up) -> dict:
+    """``up``, ``up_source``, ``up_confidence`` (None with cameras), ``up_reason``."""
+    import numpy as np
+
+    from ..io.cameras import load_cameras
+    from ..views import estimate_scene_up, estimate_up, scene_frame, scene_points
+
+    if cameras_path is not None and up is None:
+        est = estimate_up(load_cameras(cameras_path))
+        kind = "forward-facing" if est.forward_facing else "360°"
+        return {
+            "up": est.up.tolist(),
+            "up_source": "cameras",
+            "up_confidence": None,
+            "up_reason": f"training cameras ({kind})",
+        }
+    fr = scene_frame(scene)
+    pts, w = scene_points(scene)
+    su = estimate_scene_up(pts, w, fr.center, fr.radius, up=None if up is None else np.asarray(up))
+    return {
+        "up": su.up.tolist(),
+        "up_source": str(su.source),
+        "up_confidence": su.confidence,
+        "up_reason": su.reason,
+    }
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io.load import load_scene
     from ..scene_stats import scene_summary
+    from .anchors import parse_up
 
+    up = parse_up(args.up)
     scene = load_scene(args.path)
     info = scene_summary(scene)
     cams = args.cameras
@@ -52,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         info.update(_cameras_info(cams))
     else:
         info["camera_count"] = 0
+    info.update(_up_info(scene, cams, up))
     if args.json:
         print(json.dumps(info))
         return 0

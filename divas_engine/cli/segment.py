@@ -30,12 +30,14 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import DivasInputError
+from .anchors import parse_up
 
 SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
 
@@ -116,6 +118,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="segmenter channel kept (default 1, the paper's mid granularity)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the segmenter (default 0)")
+    p.add_argument(
+        "--up",
+        default=None,
+        metavar="X,Y,Z",
+        help="scene up for the planned (fibonacci) anchors (default: estimated)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -184,6 +192,7 @@ def segment_scene(
     progress: bool = True,
     keep_session: bool = False,
     mask_channel: int = 1,
+    up: Sequence[float] | None = None,
 ) -> tuple[dict[str, Any], Any]:
     """The whole ``divas segment`` pipeline; returns ``(report, session)``.
 
@@ -197,6 +206,7 @@ def segment_scene(
     from ..segment import SegmenterSettings
     from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
     from ..session.prompts import resolve_anchors
+    from ..views import ViewConfig
 
     t_start = time.perf_counter()
     if not (scale > 0 and np.isfinite(scale)):
@@ -223,6 +233,7 @@ def segment_scene(
     if mask_channel not in (0, 1, 2):
         raise DivasInputError(None, f"--mask-channel must be 0, 1 or 2, got {mask_channel}")
     config = SessionConfig(
+        view=ViewConfig(up=None if up is None else tuple(float(x) for x in up)),
         render_scale=float(scale),
         nerf_preset=preset,
         seed=int(seed),
@@ -382,6 +393,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             progress=not args.no_progress,
             mask_channel=args.mask_channel,
+            up=parse_up(args.up),
         )
     except DivasInputError as e:
         if args.report is not None and getattr(e, "report", None) is not None:

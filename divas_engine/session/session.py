@@ -63,7 +63,7 @@ from ..scene import DensityGrid, Scene, SurfelScene
 from ..segment.base import MaskSelection, Segmenter, SegResult, select_mask
 from ..segment.depth_weighting import DepthBand, apply_gs_bandpass, apply_nerf_depth_weight
 from ..segment.worker import SamWorker, SegmentationJobError
-from ..views import Anchor, AnchorPlan, plan_anchors, scene_frame
+from ..views import Anchor, AnchorPlan, plan_scene_anchors
 from ..views.centroid_common import CentroidView, click_point
 from .config import SessionConfig
 from .store import SESSION_FORMAT, SESSION_VERSION, load_state, save_state
@@ -96,14 +96,8 @@ def anchor_plan(
 ) -> AnchorPlan:
     """The anchor plan of a scene (Sec. 3.2): what :meth:`Session.open` offers by default."""
     cfg = config or SessionConfig()
-    fr = scene_frame(scene)
-    return plan_anchors(
-        fr.center,
-        fr.radius,
-        list(cameras or []),
-        kind=scene_kind(scene),
-        config=cfg.view,
-        all_views=cfg.all_views,
+    return plan_scene_anchors(
+        scene, list(cameras or []), kind=scene_kind(scene), config=cfg.view, all_views=cfg.all_views
     )
 
 

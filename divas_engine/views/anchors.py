@@ -17,14 +17,25 @@ Capture types (decided from the cameras, :mod:`.up_direction`):
   default list is K training cameras spread over the rig (farthest-point order from
   the camera nearest the rig's mean centre), any other training camera can be added
   with :func:`training_anchor`; ``all_views`` appends the ranked Fibonacci pool.
-* no training cameras (camera-free, e.g. the shared real scenes): Fibonacci
-  candidates at ``fallback_radius_factor · r_fg`` with the fallback intrinsics
-  (640×480, f = 600) and ``fallback_up`` (+z by default — the synthetic scenes' and
-  Blender's convention; real COLMAP captures are often −y: pass the scene's up). The
-  "front" axis is then the world axis least aligned with up. Nothing is unsupported.
+* no training cameras (camera-free, e.g. the shared real scenes; not in the paper,
+  issue 17) — :func:`plan_scene_anchors`: the up is estimated from the scene itself
+  (a ground plane, else the capture convention; :mod:`.up_direction`) unless given,
+  and every candidate is framed on the robust foreground (:mod:`.framing`: it fills
+  ``frame_fill`` of the frame, centred, no roll), with the fallback intrinsics
+  (640×480, f = 600). With a ground the candidates are a Fibonacci lattice of the
+  zone between ``ground_min_elevation_deg`` (10°) and ``ground_max_elevation_deg``
+  (60°) above the horizon (equal-area, golden-angle): no anchor looks from below the
+  ground, and none straight down the up axis, where a standing figure shows only the
+  top of its head. The "front" axis is the world axis least
+  aligned with up. Nothing is unsupported. :meth:`AnchorPlan.frame_direction` frames
+  a user-chosen direction the same way (manual "add anchor").
+  :func:`plan_anchors` without a layout keeps the plain fallback: anchors at
+  ``fallback_radius_factor · r_fg`` around ``c_scene`` with up ``up`` /
+  ``ViewConfig.up`` / ``convention_up``.
 
-Anchor cameras use the intrinsics of the median-fx training camera, sit at
-``c_scene + r_i d_i``, look at ``c_scene`` and keep image-up = scene up.
+Anchor cameras with training cameras use the intrinsics of the median-fx training
+camera, sit at ``c_scene + r_i d_i``, look at ``c_scene`` and keep image-up = scene up
+(``ViewConfig.up`` overrides the estimated up).
 """
 
 from __future__ import annotations
@@ -40,17 +51,21 @@ from ..scene import DensityGrid, Scene, SurfelScene
 from ..scene_stats import RobustFrame, robust_frame
 from .config import ViewConfig
 from .fibonacci import fibonacci_sphere, up_frame
+from .framing import SceneLayout, framed_camera, layout_from_points, look_from
+from .ground import scene_points, spherical_cap
 from .ranking import Ranking, rank_directions
-from .up_direction import UpEstimate, estimate_up
+from .up_direction import SceneUp, UpEstimate, estimate_up
 
 __all__ = [
     "Anchor",
     "AnchorPlan",
     "plan_anchors",
+    "plan_scene_anchors",
     "training_anchor",
     "gs_anchor_radii",
     "representative_camera",
     "scene_frame",
+    "scene_layout",
 ]
 
 
@@ -99,6 +114,9 @@ class AnchorPlan:
         center: ``c_scene``; up: scene up; frame: ``[3,3]`` up-aligned axes (columns).
         forward_facing, camera_free: capture type.
         up_estimate: the :class:`UpEstimate` (None when camera-free).
+        layout: camera-free plans of a scene: the :class:`~.framing.SceneLayout` the
+            anchors are framed on (its ``up`` is the :class:`~.up_direction.SceneUp`).
+        intrinsics: the camera whose intrinsics the anchors use.
     """
 
     anchors: list[Anchor]
@@ -112,6 +130,37 @@ class AnchorPlan:
     kind: str
     up_estimate: UpEstimate | None = None
     info: dict = field(default_factory=dict)
+    layout: SceneLayout | None = None
+    intrinsics: Camera | None = None
+
+    @property
+    def scene_up(self) -> SceneUp | None:
+        """How the up of a camera-free scene plan was found (None otherwise)."""
+        return None if self.layout is None else self.layout.up
+
+    def frame_direction(
+        self, direction: np.ndarray, name: str = "manual", config: ViewConfig | None = None
+    ) -> Camera:
+        """A camera for a user-chosen world direction (from the object towards the
+        camera), framed like this plan's anchors — the manual "add anchor" path.
+
+        Camera-free plans of a scene: :func:`~.framing.framed_camera`, the direction
+        raised to ``ground_min_elevation_deg`` above the horizon when the scene has a
+        ground. Otherwise: at the median candidate radius around ``center``, looking
+        at it, image-up = the plan's up.
+        """
+        cfg = config or ViewConfig()
+        d = np.asarray(direction, np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise ValueError(f"frame_direction: bad direction {direction!r}")
+        d = d / np.linalg.norm(d)
+        intr = self.intrinsics or self.candidates[0].camera
+        if self.layout is None:
+            r = float(np.median([a.radius for a in self.candidates]))
+            return _look(self.center, d, r, self.up, intr, name)
+        if self.layout.floor is not None:
+            d = _raise_above(d, self.up, cfg.ground_min_elevation_deg)
+        return framed_camera(self.layout, d, intr, cfg, name)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -119,11 +168,24 @@ class AnchorPlan:
             "kind": self.kind,
             "center": self.center.tolist(),
             "up": self.up.tolist(),
+            "scene_up": None if self.scene_up is None else self.scene_up.to_dict(),
             "forward_facing": self.forward_facing,
             "camera_free": self.camera_free,
             "anchors": [a.to_dict() for a in self.anchors],
             "candidates": [a.to_dict() for a in self.candidates],
         }
+
+
+def _raise_above(d: np.ndarray, up: np.ndarray, min_elevation_deg: float) -> np.ndarray:
+    """``d`` with its elevation above the plane ⟂ ``up`` raised to ≥ the minimum."""
+    s_min = math.sin(math.radians(min_elevation_deg))
+    if d @ up >= s_min:
+        return d
+    horiz = d - (d @ up) * up
+    if np.linalg.norm(horiz) < 1e-9:
+        horiz = up_frame(up)[:, 0]
+    horiz /= np.linalg.norm(horiz)
+    return math.cos(math.asin(s_min)) * horiz + s_min * up
 
 
 def scene_frame(scene: Scene) -> RobustFrame:
@@ -136,6 +198,16 @@ def scene_frame(scene: Scene) -> RobustFrame:
         centres = scene.aabb[0] + (idx + 0.5) * scene.voxel_size
         return robust_frame(centres, scene.density[occ])
     raise TypeError(f"scene_frame: unsupported scene type {type(scene).__name__}")
+
+
+def scene_layout(
+    scene: Scene, config: ViewConfig | None = None, up: np.ndarray | None = None
+) -> SceneLayout:
+    """The :class:`~.framing.SceneLayout` of a scene around :func:`scene_frame`: its up
+    (``up`` / ``config.up`` / estimated) and robust foreground."""
+    fr = scene_frame(scene)
+    pts, w = scene_points(scene)
+    return layout_from_points(pts, w, fr.center, fr.radius, config, up)
 
 
 def representative_camera(cameras: list[Camera]) -> Camera:
@@ -173,18 +245,7 @@ def gs_anchor_radii(
 
 
 def _look(center, direction, radius, up, intr: Camera, name: str) -> Camera:
-    return Camera.look_at(
-        center + radius * direction,
-        center,
-        up,
-        width=intr.width,
-        height=intr.height,
-        fx=intr.fx,
-        fy=intr.fy,
-        cx=intr.cx,
-        cy=intr.cy,
-        name=name,
-    )
+    return look_from(center + radius * direction, center, up, intr, name)
 
 
 def training_anchor(cameras: list[Camera], key: int | str, center: np.ndarray) -> Anchor:
@@ -227,15 +288,19 @@ def plan_anchors(
     config: ViewConfig | None = None,
     all_views: bool = False,
     up: np.ndarray | None = None,
+    layout: SceneLayout | None = None,
 ) -> AnchorPlan:
     """Anchor views of a scene (module docstring).
 
     Args:
         center, r_fg: ``c_scene`` and ``r_fg`` (:func:`scene_frame`).
-        cameras: training cameras, or None/[] for the camera-free fallback.
+        cameras: training cameras, or None/[] for the camera-free path.
         kind: ``"2dgs"`` (adaptive radius) or ``"nerf"`` (global radius).
         all_views: offer every Fibonacci candidate (ranked, unsupported included).
-        up: override the scene up (default: estimated; ``fallback_up`` camera-free).
+        up: override the scene up (default: ``config.up``, else estimated from the
+            cameras; camera-free: the layout's up, else ``convention_up``).
+        layout: camera-free: frame the anchors on this :class:`~.framing.SceneLayout`
+            (its up wins over ``up``; build it with the override instead).
     """
     cfg = config or ViewConfig()
     if kind not in ("2dgs", "nerf"):
@@ -244,8 +309,13 @@ def plan_anchors(
     cameras = list(cameras or [])
     camera_free = not cameras
     est = None
+    if up is None and cfg.up is not None:
+        up = np.asarray(cfg.up, dtype=np.float64)
     if camera_free:
-        up_v = np.asarray(cfg.fallback_up if up is None else up, dtype=np.float64)
+        if layout is not None:
+            up_v = layout.up.up
+        else:
+            up_v = np.asarray(cfg.convention_up if up is None else up, dtype=np.float64)
         forward_facing = False
         front = None
         intr = Camera(
@@ -257,6 +327,7 @@ def plan_anchors(
             cfg.fallback_height / 2.0,
         )
     else:
+        layout = None
         est = estimate_up(cameras, cfg)
         up_v = est.up if up is None else np.asarray(up, dtype=np.float64)
         forward_facing = est.forward_facing
@@ -264,27 +335,40 @@ def plan_anchors(
         intr = representative_camera(cameras)
     up_v = up_v / np.linalg.norm(up_v)
     frame = up_frame(up_v, front)
-    local = fibonacci_sphere(cfg.n_fibonacci)
+    if layout is not None and layout.floor is not None:
+        local = spherical_cap(
+            np.array([0.0, 0.0, 1.0]),
+            90.0 - cfg.ground_min_elevation_deg,
+            cfg.n_fibonacci,
+            90.0 - cfg.ground_max_elevation_deg,
+        )
+    else:
+        local = fibonacci_sphere(cfg.n_fibonacci)
     dirs = local @ frame.T
     ranking = rank_directions(local, cfg)
     n = len(dirs)
     unsupported = np.zeros(n, dtype=bool)
     info: dict = {}
-    if camera_free:
-        radii = np.full(n, cfg.fallback_radius_factor * float(r_fg))
+    if camera_free and layout is not None:
+        cams = [framed_camera(layout, dirs[i], intr, cfg, f"fib_{i:02d}") for i in range(n)]
+        radii = np.array([np.linalg.norm(c.center - layout.center) for c in cams])
     else:
-        cc = np.stack([c.center for c in cameras])
-        if kind == "nerf":
-            radii = np.full(n, float(np.median(np.linalg.norm(cc - center, axis=1))))
+        if camera_free:
+            radii = np.full(n, cfg.fallback_radius_factor * float(r_fg))
         else:
-            radii, r_knn, r_cap, unsupported = gs_anchor_radii(dirs, center, cc, cfg)
-            info.update(
-                r_knn=r_knn.tolist(),
-                r_cap=[None if not np.isfinite(x) else float(x) for x in r_cap],
-            )
+            cc = np.stack([c.center for c in cameras])
+            if kind == "nerf":
+                radii = np.full(n, float(np.median(np.linalg.norm(cc - center, axis=1))))
+            else:
+                radii, r_knn, r_cap, unsupported = gs_anchor_radii(dirs, center, cc, cfg)
+                info.update(
+                    r_knn=r_knn.tolist(),
+                    r_cap=[None if not np.isfinite(x) else float(x) for x in r_cap],
+                )
+        cams = [_look(center, dirs[i], radii[i], up_v, intr, f"fib_{i:02d}") for i in range(n)]
     candidates = [
         Anchor(
-            _look(center, dirs[i], radii[i], up_v, intr, f"fib_{i:02d}"),
+            cams[i],
             dirs[i],
             float(ranking.score[i]),
             bool(unsupported[i]),
@@ -317,4 +401,33 @@ def plan_anchors(
         kind,
         est,
         info,
+        layout,
+        intr,
+    )
+
+
+def plan_scene_anchors(
+    scene: Scene,
+    cameras: list[Camera] | None,
+    *,
+    kind: str = "2dgs",
+    config: ViewConfig | None = None,
+    all_views: bool = False,
+    up: np.ndarray | None = None,
+) -> AnchorPlan:
+    """:func:`plan_anchors` of a scene: with training cameras the paper's plan around
+    :func:`scene_frame`; without them the up is estimated from the scene (or ``up`` /
+    ``config.up``) and the anchors are framed on its robust foreground."""
+    cfg = config or ViewConfig()
+    fr = scene_frame(scene)
+    layout = None if cameras else scene_layout(scene, cfg, up)
+    return plan_anchors(
+        fr.center,
+        fr.radius,
+        cameras,
+        kind=kind,
+        config=cfg,
+        all_views=all_views,
+        up=up,
+        layout=layout,
     )

@@ -5,6 +5,7 @@ Every number the view code uses lives here, with its paper symbol.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 __all__ = ["ViewConfig"]
@@ -31,10 +32,48 @@ class ViewConfig:
             captures) only when it lies within this angle of the mean up …
         plane_flatness: … and the plane is well defined: smallest / middle singular
             value of the centred camera centres ≤ this.
-        fallback_radius_factor: camera-free scenes: anchors at this × r_fg from c_scene (2.5).
+        fallback_radius_factor: camera-free anchors of a plan built without the scene
+            (centre and r_fg only): at this × r_fg from c_scene (2.5).
         fallback_width, fallback_height, fallback_fx: camera-free intrinsics (640×480, 600).
-        fallback_up: camera-free scene up (+z; override per scene, e.g. (0,-1,0) for
-            COLMAP-style captures).
+
+    Scene up without cameras (not in the paper; :mod:`.ground`, :mod:`.up_direction`):
+        up: the user's scene up (``--up``); overrides every estimate. None: estimated.
+        convention_up: the capture pipeline's convention, used when no ground plane is
+            found: (0, −1, 0), COLMAP-trained 3DGS/2DGS in OpenCV coordinates (what
+            SuperSplat, PlayCanvas and most trainers keep).
+        ground_points: Gaussians (centres within r_fg, opacity-weighted) sampled for the
+            ground search (20000, seeded; 8000 left the furry PlayCanvas logo's estimate
+            seed-dependent, 1–22°).
+        ground_directions: coarse candidate normals, a Fibonacci sphere (1500 ≈ 5°).
+        ground_floor_quantile: the support plane of a direction n sits at this quantile
+            of the heights p·n — the fraction allowed below it (floaters, 0.005).
+        ground_band: half-thickness of the contact band around that plane, × r_fg (0.03;
+            1.5 % put the logo's fuzzy bottom 18° off and the guitar stand's 9°, 4 %
+            the biker's soles 13°: swept over the 8 shared captures × 8 seeds).
+        ground_min_support: a ground's band holds at least this opacity fraction (0.005).
+        ground_min_sharpness: … and its band weight drops by at least this fraction when
+            the normal tilts 15° (a plane, not a round bottom; 0.25).
+        ground_convention_deg: a ground within this angle of ``convention_up`` refines it
+            (30°; COLMAP's frame is the first camera's, a few degrees off level).
+        ground_axis_deg, ground_min_coverage: a ground elsewhere is taken only when the
+            file was visibly re-oriented: its normal within ``ground_axis_deg`` (5°) of a
+            world axis and its band covering ≥ ``ground_min_coverage`` (0.6) of the
+            content's footprint on it (a floor under everything: a tile, a room).
+        ground_snap_deg: a ground normal this close to a world axis becomes that axis
+            (10°; :mod:`.up_direction` says why).
+        ground_min_elevation_deg, ground_max_elevation_deg: with a ground, candidate
+            anchor directions lie between these elevations above the horizon (10°, 60°).
+
+    Framing of camera-free anchors (:mod:`.framing`):
+        frame_fill: the robust foreground extent fills this fraction of the frame along
+            its tighter image side (0.65; the target band is 50–80 %).
+        frame_quantile: the robust extent of a view spans the opacity-weighted
+            [q, 1 − q] quantiles of the projected foreground (0.02).
+        frame_points: foreground Gaussians sampled for framing (4000, seeded).
+        frame_min_depth: perspective guard: the near end of the robust foreground (its
+            weighted ``frame_quantile`` of depth) stays at ≥ this × the distance to the
+            look-at point (0.5: nothing in the robust extent is magnified more than 2×
+            relative to the object's centre).
 
     Centroid views (Sec. 3.3, App. C.3):
         zoom_forward_facing, zoom_360: λ of alg:centroid_view (NeRF), 0.67 / 0.47.
@@ -82,7 +121,24 @@ class ViewConfig:
     fallback_width: int = 640
     fallback_height: int = 480
     fallback_fx: float = 600.0
-    fallback_up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    up: tuple[float, float, float] | None = None
+    convention_up: tuple[float, float, float] = (0.0, -1.0, 0.0)
+    ground_points: int = 20000
+    ground_directions: int = 1500
+    ground_floor_quantile: float = 0.005
+    ground_band: float = 0.03
+    ground_min_support: float = 0.005
+    ground_min_sharpness: float = 0.25
+    ground_convention_deg: float = 30.0
+    ground_axis_deg: float = 5.0
+    ground_min_coverage: float = 0.6
+    ground_snap_deg: float = 10.0
+    ground_min_elevation_deg: float = 10.0
+    ground_max_elevation_deg: float = 60.0
+    frame_fill: float = 0.65
+    frame_quantile: float = 0.02
+    frame_points: int = 4000
+    frame_min_depth: float = 0.5
     # centroid views
     zoom_forward_facing: float = 0.67
     zoom_360: float = 0.47
@@ -102,6 +158,15 @@ class ViewConfig:
     near_fraction: float = 0.05
 
     def __post_init__(self) -> None:
+        for name in ("up", "convention_up"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if len(v) != 3 or not all(math.isfinite(float(x)) for x in v) or not any(v):
+                raise ValueError(f"ViewConfig.{name} must be three finite numbers, not all 0")
+            object.__setattr__(self, name, tuple(float(x) for x in v))
+        if not 0.0 < self.frame_fill < 1.0:
+            raise ValueError(f"ViewConfig.frame_fill must be in (0, 1), got {self.frame_fill}")
         if not 0.0 <= self.near_fraction < 1.0:
             raise ValueError(
                 f"ViewConfig.near_fraction must be in [0, 1), got {self.near_fraction}"

@@ -1,0 +1,157 @@
+"""Baseline of the current pipeline on the real-capture targets (issues 15 and 16).
+
+For every target of ``tests/data/targets`` (ground truth made by rule,
+:mod:`divas_engine.evaluation.real_targets`): one scripted session on the capture with
+the target's hand-placed anchors and clicks (protocol ``clicks`` of
+:func:`~divas_engine.evaluation.pipeline.run_session`: every click spawns its centroid
+view, every view is accepted), once with the SAM-like oracle (NOTES "Evaluation") and
+once with the classic segmenter on the same clicks; scored at the target's test views
+(:func:`~divas_engine.evaluation.real_targets.evaluation_cameras`) with
+:class:`~divas_engine.evaluation.metrics.ViewEvaluator` — the NOTES protocol: predicted
+mask = rendered selection indicator ≥ 0.1, ground truth = rendered labels ≥ 0.5.
+
+    python benchmarks/bench_real_captures.py [--targets biker/helmet,guitar/neck]
+        [--segmenters oracle,classic] [--scale 1] [--eval-scale 1] [--seed 0]
+        [--device cpu] [--json OUT.json] [--export DIR]
+
+``--export DIR`` also writes, per target, ``DIR/<capture>_<target>/prompts.json`` and
+``gt.npy`` (bool per file row) so the same run can be made with the CLI:
+``divas segment SCENE --prompts prompts.json --segmenter oracle --gt-labels gt.npy``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from divas_engine.evaluation.metrics import EvalConfig, ViewEvaluator  # noqa: E402
+from divas_engine.evaluation.pipeline import make_segmenter, run_session  # noqa: E402
+from divas_engine.evaluation.real_target_defs import CAPTURES  # noqa: E402
+from divas_engine.evaluation.real_targets import (  # noqa: E402
+    evaluation_cameras,
+    oracle_anchors,
+    read_targets,
+    target_scene_labels,
+)
+from divas_engine.io.load import load_scene  # noqa: E402
+from divas_engine.session import SessionConfig  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
+
+
+def _export(out: Path, cap: str, name: str, doc: dict, anchors) -> None:
+    d = out / f"{cap}_{name}"
+    d.mkdir(parents=True, exist_ok=True)
+    np.save(d / "gt.npy", doc["targets"][name]["labels"])
+    prompts = {
+        "version": 1,
+        "anchors": [
+            {"camera": cam.to_dict(), "clicks": [{"xy": list(c)} for c in clicks]}
+            for cam, _, _, clicks in anchors
+        ],
+    }
+    (d / "prompts.json").write_text(json.dumps(prompts, indent=1))
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    wanted = None if not args.targets else set(args.targets.split(","))
+    segs = args.segmenters.split(",")
+    rows = []
+    for cap, c in CAPTURES.items():
+        names = [t.name for t in c.targets if wanted is None or f"{cap}/{t.name}" in wanted]
+        if not names:
+            continue
+        scene = load_scene(DATA / c.path)
+        doc = read_targets(DATA / "targets" / cap)
+        for name in names:
+            labels = target_scene_labels(scene, doc, name)
+            anchors = oracle_anchors(scene, c.true_up, doc["targets"][name]["anchors"])
+            cams = evaluation_cameras(scene, labels, c.true_up, device=args.device)
+            if args.export:
+                _export(args.export, cap, name, doc, anchors)
+            ev = ViewEvaluator(
+                scene, cams, labels, config=EvalConfig(scale=args.eval_scale), device=args.device
+            )
+            for seg in segs:
+                t0 = time.perf_counter()
+                out = run_session(
+                    scene,
+                    [],
+                    labels,
+                    anchors,
+                    segmenter=make_segmenter(seg, args.seed),
+                    config=SessionConfig(render_scale=args.scale, seed=args.seed),
+                    device=args.device,
+                )
+                t_session = time.perf_counter() - t0
+                sc = ev.score({"sel": out.selection})["sel"]
+                row = {
+                    "target": f"{cap}/{name}",
+                    "segmenter": seg,
+                    "gaussians": int(labels.sum()),
+                    "clicks": sum(len(a[3]) for a in anchors),
+                    "fused": sum(1 for _, st, _ in out.statuses if st == "fused"),
+                    "test_views": len(cams),
+                    "image_iou": sc.iou,
+                    "pooled_iou": sc.pooled_iou,
+                    "precision": sc.precision,
+                    "recall": sc.recall,
+                    "gaussian_iou": sc.primitives["iou"],
+                    "gaussian_recall": sc.primitives["recall"],
+                    "gaussian_precision": sc.primitives["precision"],
+                    "session_s": t_session,
+                }
+                rows.append(row)
+                print(
+                    f"{row['target']:20s} {seg:8s} views {len(cams):2d} fused {row['fused']}/"
+                    f"{row['clicks']}  image IoU {sc.iou:.3f} (pooled {sc.pooled_iou:.3f}, "
+                    f"P {sc.precision:.3f} R {sc.recall:.3f})  Gaussian IoU "
+                    f"{row['gaussian_iou']:.3f} R {row['gaussian_recall']:.3f} "
+                    f"P {row['gaussian_precision']:.3f}  session {t_session:.1f} s",
+                    flush=True,
+                )
+    return rows
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--targets", default="", help="capture/target,… (default: all)")
+    p.add_argument("--segmenters", default="oracle,classic")
+    p.add_argument("--scale", type=float, default=1.0, help="session render scale (default 1)")
+    p.add_argument("--eval-scale", type=float, default=1.0, help="test-view scale (default 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--export", type=Path, default=None)
+    args = p.parse_args()
+    cpu = platform.processor() or platform.machine()
+    print(
+        f"# bench_real_captures {datetime.date.today()} {cpu} ({os.cpu_count()} CPUs), "
+        f"device {args.device}, session scale {args.scale}, "
+        f"test views at scale {args.eval_scale}, seed {args.seed}"
+    )
+    rows = run(args)
+    for seg in args.segmenters.split(","):
+        r = [x for x in rows if x["segmenter"] == seg]
+        if r:
+            print(
+                f"mean {seg:8s} image IoU {np.mean([x['image_iou'] for x in r]):.3f}  "
+                f"Gaussian IoU {np.mean([x['gaussian_iou'] for x in r]):.3f} over {len(r)} targets"
+            )
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
