@@ -253,6 +253,18 @@ LOD_UP_NOTE = (
     "flower carpet; the estimator's ground is 0.5° from +z."
 )
 
+PLAYBOT_UP_NOTE = (
+    "-y: renders around -y show the robot upright (head over body, feet towards its "
+    "square patch of rocky ground with grass, which lies below it); the estimator's "
+    "ground is 0.2° from -y."
+)
+
+LOGO_UP_NOTE = (
+    "-y: the logo stands like a sign, its symbol and colour gradient upright in renders "
+    "around -y; no ground, so the estimate is the COLMAP convention, 1-2° from the "
+    "logo's own axis before snapping."
+)
+
 CAPTURES: dict[str, CaptureDef] = {
     c.name: c
     for c in (
@@ -286,5 +298,11 @@ CAPTURES: dict[str, CaptureDef] = {
         ),
         CaptureDef("lod2", "gaussiansplats3d-lod/lod2_tile_0.ply", (0.0, 0.0, 1.0), LOD_UP_NOTE),
         CaptureDef("lod3", "gaussiansplats3d-lod/lod3_tile_0.ply", (0.0, 0.0, 1.0), LOD_UP_NOTE),
+        CaptureDef(
+            "playbot", "playcanvas-sog/playbot_lod3/meta.json", (0.0, -1.0, 0.0), PLAYBOT_UP_NOTE
+        ),
+        CaptureDef(
+            "logo", "playcanvas-sog/playcanvas-logo/meta.json", (0.0, -1.0, 0.0), LOGO_UP_NOTE
+        ),
     )
 }
