@@ -15,11 +15,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
 from .geometry import quat_to_rotmat
+from .kinds import SceneKind
 
 __all__ = ["SourceInfo", "SurfelScene", "DensityGrid", "Scene", "SH_C0", "sh_coeff_count"]
 
@@ -68,7 +68,7 @@ class SurfelScene:
         opacities: ``[N]`` opacity α_i in (0, 1) (``sigmoid`` of the stored logit).
         sh: ``[N,K,3]`` SH coefficients, ``K=(sh_degree+1)^2``; ``sh[:,0]`` is DC.
         sh_degree: 0..3.
-        kind: ``"2dgs"`` (native surfels) or ``"3dgs"`` (flattened Gaussians).
+        kind: :attr:`SceneKind.GS2D` (native surfels) or ``GS3D`` (flattened Gaussians).
         source: the file it came from (None for generated scenes).
         extras: format-specific facts of the source (e.g. the SPZ version).
         scale_n: ``[N]`` for 3DGS input, the standard deviation s_3 along the normal
@@ -82,12 +82,13 @@ class SurfelScene:
     opacities: np.ndarray
     sh: np.ndarray
     sh_degree: int
-    kind: Literal["2dgs", "3dgs"] = "2dgs"
+    kind: SceneKind = SceneKind.GS2D
     source: SourceInfo | None = None
     extras: dict = field(default_factory=dict)
     scale_n: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        self.kind = SceneKind(self.kind)
         n = len(self.means)
         if self.scale_n is not None and self.scale_n.shape != (n,):
             raise ValueError(f"SurfelScene.scale_n has shape {self.scale_n.shape}, expected {(n,)}")

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import SceneKind
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -109,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         cams_path = args.scene.parent / "cameras.json"
     cameras = load_cameras(cams_path) if cams_path is not None else []
     frame = scene_frame(scene)
-    kind = "2dgs" if isinstance(scene, SurfelScene) else "nerf"
+    kind = SceneKind.GS2D if isinstance(scene, SurfelScene) else SceneKind.NERF
     plan = plan_scene_anchors(scene, cameras, kind=kind, all_views=args.all_views, up=up)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)

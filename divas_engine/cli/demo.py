@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import ViewStatus
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -65,8 +66,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..evaluation.demo_prompts import demo_prompts
     from ..evaluation.metrics import EvalConfig, evaluate_selection
+    from ..evaluation.render_scores import MaskScores
     from ..io.cameras import load_cameras
-    from ..session.evaluate import MaskScores
     from ..synthetic import MIN_SIZE, generate_scene
     from .segment import segment_scene, write_report
 
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         f"views fused, {c['selected']} surfels selected → {out / 'segmented.ply'}"
     )
     for v in report["views"]:
-        if v["status"] == "rejected":
+        if v["status"] == ViewStatus.REJECTED:
             print(f"  rejected {v['id']}: {v['reason']}")
     e3 = report["evaluation"]["surfels"]
     print(f"3D: precision {e3['precision']:.3f}, recall {e3['recall']:.3f}, IoU {e3['iou']:.3f}")

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import SceneKind, ViewStatus
 from .anchors import parse_up
 
 SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
@@ -293,7 +294,7 @@ def segment_scene(
         if out is not None:
             if not sel.any():
                 reasons = "; ".join(
-                    f"{v.id}: {v.reason}" for v, _, _ in spawned if v.status == "rejected"
+                    f"{v.id}: {v.reason}" for v, _, _ in spawned if v.status == ViewStatus.REJECTED
                 )
                 error = "the selection is empty; nothing to write" + (
                     f" (rejected views: {reasons})" if reasons else ""
@@ -333,11 +334,11 @@ def segment_scene(
             **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
             "outputs": outputs,
         }
-        if session.kind == "nerf":
+        if session.kind == SceneKind.NERF:
             report["preset"] = session.preset
         if gt is not None:
             report["evaluation"] = {
-                "surfels" if session.kind == "2dgs" else "voxels": surfel_scores(sel, gt)
+                "surfels" if session.kind == SceneKind.GS2D else "voxels": surfel_scores(sel, gt)
             }
         if segmenter == "oracle":
             from dataclasses import asdict
@@ -405,11 +406,11 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{c['accepted']} of {c['centroid_views']} centroid views fused "
         f"({c['rejected']} rejected); {c['selected']} "
-        f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
+        f"{'surfels' if report['kind'] == SceneKind.GS2D else 'voxels'} selected → {args.out} "
         f"({report['timings']['T_pipe_s']:.1f} s)"
     )
     for v in report["views"]:
-        if v["status"] == "rejected":
+        if v["status"] == ViewStatus.REJECTED:
             print(f"  rejected {v['id']}: {v['reason']}")
     if "evaluation" in report:
         e = next(iter(report["evaluation"].values()))

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..fusion.config import GsFusionConfig
+from ..kinds import SceneKind, ViewStatus
 from ..scene import Scene
 from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
 from ..segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
@@ -286,7 +287,7 @@ def run_session(
         views, weighted, statuses = [], [], []
         for v in spawned:
             statuses.append((v.id, v.status, v.reason))
-            if v.status != "fused":
+            if v.status != ViewStatus.FUSED:
                 continue
             b = v.buffers
             raw = v.preview.selection.mask
@@ -294,7 +295,7 @@ def run_session(
             weighted.append(MaskView(v.camera, v.mask, b.D_med))
         sel = s.selection.copy()
         p1 = p2 = None
-        if s.kind == "2dgs":
+        if s.kind == SceneKind.GS2D:
             m = s.last_mapping if views else None  # no fused view: empty chain
             p1 = np.zeros_like(sel) if m is None else m.pass1.copy()
             p2 = np.zeros_like(sel) if m is None else m.pass2.copy()

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ..kinds import SceneKind, ViewStatus
 from ..session import SessionConfig
 from .baselines import CentreVoteConfig, ContributionVoteConfig, ContributionVoter, centre_vote
 from .metrics import EvalConfig, ViewEvaluator
@@ -191,7 +192,7 @@ def evaluate_scene(
                 renderer=cached,
                 user=_user(config, sc.labels),
             )
-            fused = sum(1 for _, st, _ in out.statuses if st == "fused")
+            fused = sum(1 for _, st, _ in out.statuses if st == ViewStatus.FUSED)
             selections[f"{seg}/{var}"] = out.selection
             extras[f"{seg}/{var}"] = {
                 "views_fused": fused,
@@ -236,7 +237,9 @@ def evaluate_scene(
     for seg in config.segmenters:
         for m, label in METHODS.items():
             k = f"{seg}/{m}"
-            rows.append(_row(name, "2dgs", seg, m, label, scores[k], extras[k], config.seed))
+            rows.append(
+                _row(name, SceneKind.GS2D, seg, m, label, scores[k], extras[k], config.seed)
+            )
     if config.nerf and sc.grid is not None:
         rows += _nerf_rows(name, sc, anchors, config, device, say)
     return rows
@@ -307,7 +310,7 @@ def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict
                 renderer=renderer,
                 user=_user(config, labels),
             )
-            fused = sum(1 for _, st, _ in out.statuses if st == "fused")
+            fused = sum(1 for _, st, _ in out.statuses if st == ViewStatus.FUSED)
             sels[f"{seg}/{key}"] = out.selection
             extras[f"{seg}/{key}"] = {
                 "views_fused": fused,
@@ -324,7 +327,16 @@ def _nerf_rows(name, sc, anchors, config: SuiteConfig, device, say) -> list[dict
     scores = ev.score(sels)
     say(f"  nerf scored {len(sels)} selections ({time.perf_counter() - t:.1f} s)")
     return [
-        _row(name, "nerf", seg, m, label, scores[f"{seg}/{m}"], extras[f"{seg}/{m}"], config.seed)
+        _row(
+            name,
+            SceneKind.NERF,
+            seg,
+            m,
+            label,
+            scores[f"{seg}/{m}"],
+            extras[f"{seg}/{m}"],
+            config.seed,
+        )
         for seg in config.segmenters
         for m, label in NERF_METHODS.items()
     ]
@@ -425,7 +437,7 @@ def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
     """The issue's targets, evaluated on the oracle rows averaged over the seeds: DivAS
     full mean IoU ≥ 0.90 over the surfel suite; DivAS full ≥ both baselines on every
     scene (and, listed, in how many seeds); removing the thin path lowers the ribs IoU."""
-    o = [r for r in rows if r["segmenter"] == "oracle" and r["kind"] == "2dgs"]
+    o = [r for r in rows if r["segmenter"] == "oracle" and r["kind"] == SceneKind.GS2D]
     if not o:
         return {}
     by = {(r["scene"], r["method"]): r["iou"] for r in scene_means(o)}
@@ -468,7 +480,7 @@ def markdown_table(result: dict[str, Any]) -> str:
         "|---|" + ("---:|" if multi else "") + "---|---|---:|---:|---:|---:|---:|",
     ]
     for r in result["rows"]:
-        sc = r["scene"] + (" (NeRF grid)" if r["kind"] == "nerf" else "")
+        sc = r["scene"] + (" (NeRF grid)" if r["kind"] == SceneKind.NERF else "")
         lines.append(
             f"| {sc} | "
             + (f"{r.get('seed')} | " if multi else "")
@@ -485,7 +497,7 @@ def markdown_table(result: dict[str, Any]) -> str:
             "|---|---|---|---:|---:|---:|---:|---:|",
         ]
         for r in result["scene_means"]:
-            sc = r["scene"] + (" (NeRF grid)" if r["kind"] == "nerf" else "")
+            sc = r["scene"] + (" (NeRF grid)" if r["kind"] == SceneKind.NERF else "")
             lines.append(
                 f"| {sc} | {r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
                 f"{_f(r['iou_min'])}–{_f(r['iou_max'])} | {_f(r['accuracy'])} | "

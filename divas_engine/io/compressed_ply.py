@@ -51,6 +51,7 @@ import numpy as np
 import plyfile
 
 from ..errors import DivasInputError
+from ..kinds import SceneKind
 from ..scene import SH_C0, SourceInfo, SurfelScene, sh_coeff_count
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS, PlyLayout, read_ply_header, write_ply_rows
@@ -348,7 +349,7 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
         (means, quats, scales, opac, sh),
         finite,
         deg,
-        "3dgs",
+        SceneKind.GS3D,
         scale_n=scale_n,
     )
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
+from ..kinds import SceneKind
 from ..scene import SourceInfo, SurfelScene
 
 __all__ = [
@@ -68,7 +69,7 @@ def scene_from_rows(
     arrays: tuple[np.ndarray, ...],
     valid: np.ndarray,
     sh_degree: int,
-    kind: str,
+    kind: SceneKind,
     extras: dict | None = None,
     invalid_what: str = "NaN/Inf values",
     scale_n: np.ndarray | None = None,

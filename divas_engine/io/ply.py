@@ -23,6 +23,7 @@ import plyfile
 
 from ..errors import DivasInputError
 from ..geometry import normalize_quats
+from ..kinds import SceneKind
 from ..scene import SurfelScene, sh_coeff_count
 from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
 
@@ -181,10 +182,10 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     missing = [p for p in _REQUIRED if p not in names]
     if missing:
         raise DivasInputError(path, f"missing required Gaussian properties {missing}")
-    kind = "3dgs" if "scale_2" in names else "2dgs"
+    kind = SceneKind.GS3D if "scale_2" in names else SceneKind.GS2D
     deg = _sh_layout(path, names)
     k = sh_coeff_count(deg)
-    n_scale = 3 if kind == "3dgs" else 2
+    n_scale = 3 if kind == SceneKind.GS3D else 2
     total = layout.vertex.count
     if total == 0:
         raise DivasInputError(path, "empty scene: the PLY has 0 vertices")
@@ -192,7 +193,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     means = np.empty((total, 3), np.float32)
     quats = np.empty((total, 4), np.float32)
     scales = np.empty((total, 2), np.float32)
-    scale_n = np.empty(total, np.float32) if kind == "3dgs" else None
+    scale_n = np.empty(total, np.float32) if kind == SceneKind.GS3D else None
     opac = np.empty(total, np.float32)
     sh = np.empty((total, k, 3), np.float32)
     finite = np.empty(total, bool)

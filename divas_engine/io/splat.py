@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import SceneKind
 from ..scene import SH_C0, SourceInfo, SurfelScene
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 
@@ -92,7 +93,7 @@ def read_splat(path: str | PathLike) -> SurfelScene:
         (means, quats, scales, opac, sh),
         finite,
         0,
-        "3dgs",
+        SceneKind.GS3D,
         invalid_what="NaN/Inf values or zero rotations",
         scale_n=scale_n,
     )

@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import SceneKind
 from ..scene import SourceInfo, SurfelScene
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS
@@ -300,7 +301,14 @@ def read_spz(path: str | PathLike) -> SurfelScene:
     ok = np.isfinite(means).all(1)  # every byte decodes finite; kept for the contract
     extras = {"spz_version": f.version, "antialiased": bool(f.flags & _FLAG_ANTIALIASED)}
     return scene_from_rows(
-        path, "spz", (means, quats, scales, opac, sh), ok, deg, "3dgs", extras, scale_n=scale_n
+        path,
+        "spz",
+        (means, quats, scales, opac, sh),
+        ok,
+        deg,
+        SceneKind.GS3D,
+        extras,
+        scale_n=scale_n,
     )
 
 

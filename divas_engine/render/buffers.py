@@ -7,6 +7,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..camera import Camera
+from ..kinds import SceneKind
 
 __all__ = ["RenderBuffers", "DEPTH_CHANNELS", "NPZ_CHANNELS"]
 
@@ -36,7 +37,7 @@ class RenderBuffers:
         N_samp: ``[H,W]`` int32 elements with ``α ≥ 1/255`` traversed up to and including
             the ``D_med`` primitive (2DGS) or the ``D_max`` sample (NeRF); no anchor → all.
         camera: the camera actually rendered (after ``scale``).
-        kind: ``"2dgs"`` or ``"nerf"``.
+        kind: :class:`~divas_engine.kinds.SceneKind` ``GS2D`` or ``NERF``.
         stats: renderer counters (visible primitives, pairs, …).
     """
 
@@ -50,7 +51,7 @@ class RenderBuffers:
     D_med: np.ndarray
     N_samp: np.ndarray
     camera: Camera
-    kind: str = "2dgs"
+    kind: SceneKind = SceneKind.GS2D
     stats: dict | None = None
 
     @property

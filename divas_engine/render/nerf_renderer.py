@@ -8,6 +8,7 @@ import numpy as np
 from divas_kernels import raymarch_grid, resolve_device, upload_grid
 
 from ..camera import Camera
+from ..kinds import SceneKind
 from ..scene import DensityGrid
 from .buffers import RenderBuffers
 from .config import RenderConfig
@@ -27,7 +28,7 @@ class NerfRenderer:
     Without an RGB grid the colour is ``config.nerf_color``.
     """
 
-    kind = "nerf"
+    kind = SceneKind.NERF
 
     def __init__(self, grid: DensityGrid, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()

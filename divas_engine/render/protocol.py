@@ -8,6 +8,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..camera import Camera
+from ..kinds import SceneKind
 from .buffers import RenderBuffers
 from .config import RenderConfig
 
@@ -21,12 +22,12 @@ class Renderer(Protocol):
     Attributes:
         device: the Warp device the scene lives on (chosen once, at construction).
         config: the :class:`RenderConfig` in use.
-        kind: ``"2dgs"`` or ``"nerf"``.
+        kind: :class:`~divas_engine.kinds.SceneKind` ``GS2D`` or ``NERF``.
     """
 
     device: Any
     config: RenderConfig
-    kind: str
+    kind: SceneKind
 
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         """RGB and depth tuple of ``camera`` (resized by ``scale``)."""

@@ -8,6 +8,7 @@ import numpy as np
 from divas_kernels import rasterize_surfels, resolve_device, upload_surfels
 
 from ..camera import Camera
+from ..kinds import SceneKind
 from ..scene import SurfelScene
 from .buffers import RenderBuffers
 from .config import RenderConfig
@@ -32,7 +33,7 @@ class SurfelRenderer:
     * ``N_samp`` with no ``D_med`` counts every traversed contributing surfel.
     """
 
-    kind = "2dgs"
+    kind = SceneKind.GS2D
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()

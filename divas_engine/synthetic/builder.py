@@ -40,6 +40,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..geometry import quat_to_rotmat, rotmat_to_quat
+from ..kinds import SceneKind
 from ..scene import SH_C0, SurfelScene, sh_coeff_count
 from .surfaces import Surface, min_distance
 from .texture import surface_colors
@@ -315,7 +316,7 @@ def build_surfels(spec: SceneSpec, size: int, seed: int, sh_degree: int = 1) -> 
         opac[perm],
         sh[perm],
         sh_degree,
-        "2dgs",
+        SceneKind.GS2D,
     )
     return BuiltScene(
         scene,

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera
+from ..kinds import SceneKind
 from ..scene import DensityGrid, Scene, SurfelScene
 from ..scene_stats import RobustFrame, robust_frame
 from .config import ViewConfig
@@ -284,7 +285,7 @@ def plan_anchors(
     r_fg: float,
     cameras: list[Camera] | None,
     *,
-    kind: str = "2dgs",
+    kind: SceneKind = SceneKind.GS2D,
     config: ViewConfig | None = None,
     all_views: bool = False,
     up: np.ndarray | None = None,
@@ -295,7 +296,7 @@ def plan_anchors(
     Args:
         center, r_fg: ``c_scene`` and ``r_fg`` (:func:`scene_frame`).
         cameras: training cameras, or None/[] for the camera-free path.
-        kind: ``"2dgs"`` (adaptive radius) or ``"nerf"`` (global radius).
+        kind: ``SceneKind.GS2D`` (adaptive radius) or ``NERF`` (global radius).
         all_views: offer every Fibonacci candidate (ranked, unsupported included).
         up: override the scene up (default: ``config.up``, else estimated from the
             cameras; camera-free: the layout's up, else ``convention_up``).
@@ -303,7 +304,7 @@ def plan_anchors(
             (its up wins over ``up``; build it with the override instead).
     """
     cfg = config or ViewConfig()
-    if kind not in ("2dgs", "nerf"):
+    if kind not in (SceneKind.GS2D, SceneKind.NERF):
         raise ValueError(f"plan_anchors: kind must be '2dgs' or 'nerf', got {kind!r}")
     center = np.asarray(center, dtype=np.float64)
     cameras = list(cameras or [])
@@ -357,7 +358,7 @@ def plan_anchors(
             radii = np.full(n, cfg.fallback_radius_factor * float(r_fg))
         else:
             cc = np.stack([c.center for c in cameras])
-            if kind == "nerf":
+            if kind == SceneKind.NERF:
                 radii = np.full(n, float(np.median(np.linalg.norm(cc - center, axis=1))))
             else:
                 radii, r_knn, r_cap, unsupported = gs_anchor_radii(dirs, center, cc, cfg)
@@ -410,7 +411,7 @@ def plan_scene_anchors(
     scene: Scene,
     cameras: list[Camera] | None,
     *,
-    kind: str = "2dgs",
+    kind: SceneKind = SceneKind.GS2D,
     config: ViewConfig | None = None,
     all_views: bool = False,
     up: np.ndarray | None = None,
