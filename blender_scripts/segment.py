@@ -142,9 +142,9 @@ def run(args: argparse.Namespace) -> dict:
     if str(REPO) not in sys.path:
         sys.path.insert(0, str(REPO))
     from divas_engine.cli.segment import write_report
+    from divas_engine.evaluation import surfel_scores
     from divas_engine.evaluation.ground_truth import load_ground_truth
     from divas_engine.session import load_prompts
-    from divas_engine.session.evaluate import surfel_scores
 
     registry = importlib.import_module(f"{addon.__name__}.session_registry")
     properties = importlib.import_module(f"{addon.__name__}.properties")

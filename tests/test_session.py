@@ -57,6 +57,21 @@ def _open(ribs, tmp_path=None, **cfg):
     )
 
 
+def _open_grid(ribs, n_anchors, segmenter=None):
+    """A NeRF-grid session on the ribs grid with the first ``n_anchors`` anchors."""
+    sc, _, anchors, _, _ = ribs
+    return Session.open(
+        sc.grid,
+        sc.cameras,
+        SessionConfig(render_scale=SCALE),
+        segmenter or OracleSegmenter(),
+        "cpu",
+        anchors=anchors[:n_anchors],
+        gt_values=sc.grid_labels,
+        render_anchors=False,
+    )
+
+
 def test_click_accept_undo_reset_save_replay(ribs, tmp_path):
     sc, scene, anchors, clicks, _ = ribs
     auto = tmp_path / "auto" / "session.json"
@@ -291,16 +306,7 @@ def test_nerf_async_groups_and_replay(ribs, tmp_path):
     sc, _, anchors, clicks, _ = ribs
     grid = sc.grid
     seg = _ThreadRecorder()
-    s = Session.open(
-        grid,
-        sc.cameras,
-        SessionConfig(render_scale=SCALE),
-        seg,
-        "cpu",
-        anchors=anchors[:2],
-        gt_values=sc.grid_labels,
-        render_anchors=False,
-    )
+    s = _open_grid(ribs, 2, seg)
     assert s.kind == "nerf" and s.preset == "llff"
     views = [s.click(i % 2, _click_xy(s, i % 2, clicks[i])) for i in range(4)]
     assert [v.id for v in views] == ["o0:a0:c0", "o0:a1:c0", "o0:a0:c1", "o0:a1:c1"]
@@ -330,16 +336,7 @@ def test_nerf_async_groups_and_replay(ribs, tmp_path):
 
 def test_nerf_pending_views_resubmitted_on_load(ribs, tmp_path):
     sc, _, anchors, clicks, _ = ribs
-    s = Session.open(
-        sc.grid,
-        sc.cameras,
-        SessionConfig(render_scale=SCALE),
-        OracleSegmenter(),
-        "cpu",
-        anchors=anchors[:1],
-        gt_values=sc.grid_labels,
-        render_anchors=False,
-    )
+    s = _open_grid(ribs, 1)
     v0 = s.click(0, _click_xy(s, 0, clicks[0]))
     s.click(0, _click_xy(s, 0, clicks[2]))
     s.accept(v0)
@@ -355,8 +352,88 @@ def test_nerf_pending_views_resubmitted_on_load(ribs, tmp_path):
     s2.close()
 
 
+def _capped_add_view(fusion, capacity: list[int]):
+    """``fusion.add_view`` with at most ``capacity[0]`` live views (a tiny bitmask)."""
+    from divas_engine.fusion import FusionCapacityError
+
+    add = fusion.add_view
+
+    def add_view(view, view_id=None):
+        if len(fusion.view_ids) >= capacity[0]:
+            raise FusionCapacityError(f"capacity {capacity[0]} views: all in use")
+        return add(view, view_id)
+
+    return add_view
+
+
+def test_capacity_error_mid_group_keeps_state_consistent(ribs, monkeypatch):
+    """Issue 13 item 9: a FusionCapacityError partway through a fused NeRF group keeps the
+    views fused before it (and selects them); the rest go back to open, undo works and a
+    retry fuses them."""
+    sc, _, anchors, clicks, _ = ribs
+
+    def open_four():
+        s = _open_grid(ribs, 2)
+        return s, [s.click(i % 2, _click_xy(s, i % 2, clicks[i])) for i in range(4)]
+
+    # reference selections: view 0 alone, views 0-2 together
+    ref, rv = open_four()
+    ref.accept(rv[0])
+    sel_0 = ref.sync().selection.copy()
+    ref.accept(rv[1])
+    r = ref.accept(rv[2])
+    assert r.fused == [rv[1].id, rv[2].id]
+    sel_012 = ref.selection.copy()
+    ref.close()
+    assert sel_0.any() and sel_012.sum() > sel_0.sum()
+
+    s, v = open_four()
+    capacity = [1]
+    monkeypatch.setattr(s.fusion, "add_view", _capped_add_view(s.fusion, capacity))
+    s.accept(v[0])
+    s.accept(v[1])
+    with pytest.raises(DivasInputError, match="capacity 1 views"):
+        s.accept(v[2])  # group sync of views 0, 1, 2: view 1 does not fit
+    assert [x.status for x in v] == ["fused", "open", "open", "open"]
+    assert s.current.accept_order == [v[0].id] and s.fusion.view_ids == [v[0].fusion_id]
+    c = s.counts()
+    assert c["accepted"] == 1 and c["pending"] == 0 and c["open"] == 3
+    assert np.array_equal(s.selection, sel_0)  # the fused view is selected
+    # undo works on the consistent state
+    assert s.undo() is v[0] and v[0].status == "open" and not s.selection.any()
+    assert s.undo() is None
+    # retry with room: the same group fuses to the reference selection
+    capacity[0] = 8
+    s.accept(v[0])
+    s.accept(v[1])
+    r = s.accept(v[2])
+    assert r.synced and r.fused == [v[0].id, v[1].id, v[2].id]
+    assert np.array_equal(s.selection, sel_012)
+    assert [s.undo() for _ in range(4)] == [v[2], v[1], v[0], None]
+    s.close()
+
+
+def test_capacity_error_of_the_view_bitmask_leaves_the_view_open(ribs):
+    """A surfel session with a one-view bitmask: the second accept is refused with one
+    clear error; the first view stays fused and selected, the second is open again."""
+    from divas_engine.fusion import GsFusionConfig
+
+    sc, _, _, clicks, _ = ribs
+    s = _open(ribs, gs_fusion=GsFusionConfig(max_views=1))
+    v0 = s.click(0, _click_xy(s, 0, clicks[0]))
+    v1 = s.click(1, _click_xy(s, 1, clicks[1]))
+    sel0 = s.accept(v0).selection.copy()
+    with pytest.raises(DivasInputError, match="bitmask holds 1 views"):
+        s.accept(v1)
+    assert (v0.status, v1.status) == ("fused", "open")
+    assert s.current.accept_order == [v0.id] and np.array_equal(s.selection, sel0)
+    assert s.undo() is v0 and not s.selection.any()
+    assert s.accept(v1).fused == [v1.id]
+    s.close()
+
+
 def test_render_iou_protocol(ribs):
-    from divas_engine.session.evaluate import render_iou, surfel_scores
+    from divas_engine.evaluation import render_iou, surfel_scores
 
     sc = ribs[0]
     cams = sc.test_cameras[:2]

@@ -2,6 +2,7 @@
 
 * :mod:`.metrics` — rendered-mask IoU / pixel accuracy per test view and per scene,
   per-primitive precision / recall (:class:`ViewEvaluator`).
+* :mod:`.render_scores` — those scores in the report format of ``divas demo``.
 * :mod:`.baselines` — peer baselines fed the same accepted view masks: centre-projection
   voting and FlashSplat-style contribution-weighted voting.
 * :mod:`.scripted_user` — the simulated user of the paper's interactive protocol
@@ -37,6 +38,7 @@ from .metrics import (
     segmented_grid,
     surfel_scores,
 )
+from .render_scores import MaskScores, render_iou
 from .scripted_user import ScriptedUser, UserBudget, UserLog
 
 __all__ = [
@@ -50,6 +52,8 @@ __all__ = [
     "predicted_masks",
     "segmented_grid",
     "surfel_scores",
+    "MaskScores",
+    "render_iou",
     "BaselineResult",
     "CentreVoteConfig",
     "ContributionVoteConfig",

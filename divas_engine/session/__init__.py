@@ -1,8 +1,15 @@
 """Interactive DivAS sessions (paper Sec. 3, the whole loop) and the headless prompts file.
 
-* :class:`Session` — open / click / prompt / accept / undo / reset / finish_object /
-  export / save / load (replay). 2DGS runs SAM synchronously, NeRF asynchronously with
-  group synchronisation (Sec. 3.4), both with overlay propagation (Sec. 3.7).
+* :class:`Session` (:mod:`.session`) — open / click / prompt / accept / sync / undo /
+  reset / finish_object / export / load (replay). 2DGS runs SAM synchronously, NeRF
+  asynchronously with group synchronisation (Sec. 3.4), both with overlay propagation
+  (Sec. 3.7). Its state, rendering, queries and outputs are :class:`~.core.SessionCore`.
+* :mod:`.backends` — one :class:`~.backends.SessionBackend` per scene representation
+  (surfels, density grids), picked from the scene by a registry: everything the loop
+  does differently per representation.
+* :mod:`.records` — anchors, clicks, views, previews, overlays, accept results, objects;
+  :mod:`.masks` — prompt sets and mask previews; :mod:`.persistence` — save / replay
+  (file layer :mod:`.store`); :mod:`.report` — counts and the run report.
 * :class:`SessionConfig` — the loop's constants plus the sub-configs it hands down.
 * :mod:`.prompts` — the NOTES "Headless prompts file" (version 1): parse, check, resolve.
 * :func:`write_labelled_ply` — the scene with an extra ``divas_label`` column.
@@ -20,18 +27,16 @@ from .prompts import (
     parse_prompts,
     resolve_anchors,
 )
-from .session import (
+from .records import (
     AcceptResult,
     AnchorClick,
     AnchorView,
     MaskPreview,
     ObjectRecord,
     Overlay,
-    Session,
     SessionView,
-    anchor_plan,
-    scene_kind,
 )
+from .session import Session, anchor_plan, scene_kind
 from .timing import Timings, memory_report
 
 __all__ = [

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..io.ply import surfel_rows, write_ply_rows
 from ..io.ply_subset import write_ply_subset
+from ..kinds import SceneKind
 from ..scene import SurfelScene
 
 __all__ = ["LABEL_PROPERTY", "file_label_values", "write_labelled_ply", "decoded_rows"]
@@ -51,7 +52,7 @@ def decoded_rows(scene: SurfelScene) -> np.ndarray:
     2DGS scenes: the 2DGS trainer layout; 3DGS scenes: the 3DGS layout with the
     dropped normal axis written as a flat ``scale_2``.
     """
-    return surfel_rows(scene, flat_axis=_FLAT_AXIS if scene.kind == "3dgs" else None)
+    return surfel_rows(scene, flat_axis=_FLAT_AXIS if scene.kind == SceneKind.GS3D else None)
 
 
 def write_labelled_ply(scene: SurfelScene, labels: np.ndarray, out: str | PathLike) -> Path:

@@ -1,16 +1,12 @@
-"""Rendered-mask evaluation of a session's selection, in the report format of
-``divas demo`` (``evaluation.render``) — a thin adapter over
-:mod:`divas_engine.evaluation.metrics`, the one implementation of the NOTES
-"Evaluation" protocol (paper App. D):
+"""Rendered-mask scores of a selection in the report format of ``divas demo``
+(``evaluation.render``) — a thin adapter over :mod:`.metrics`, the one implementation
+of the NOTES "Evaluation" protocol (paper App. D):
 
 * Surfels: predicted mask = render of the per-surfel foreground indicator with normal
   alpha blending, ≥ 0.1; ground truth = render of the ground-truth labels, ≥ 0.5.
 * NeRF grids: predicted mask = accumulated opacity of the *segmented density* (density
   zeroed outside the selection) ≥ 0.5; ground truth = the same for the ground-truth
   label grid.
-
-:func:`surfel_scores` is :func:`divas_engine.evaluation.metrics.surfel_scores`
-(re-exported for existing callers).
 """
 
 from __future__ import annotations
@@ -21,10 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import Camera
-from ..evaluation.metrics import EvalConfig, SceneScores, evaluate_selection, surfel_scores
 from ..scene import Scene
+from .metrics import EvalConfig, SceneScores, evaluate_selection
 
-__all__ = ["MaskScores", "render_iou", "surfel_scores"]
+__all__ = ["MaskScores", "render_iou"]
 
 
 @dataclass
@@ -76,7 +72,7 @@ def render_iou(
     gt_threshold: float = 0.5,
 ) -> MaskScores:
     """NOTES "Evaluation" masks of ``selection`` vs ``gt`` at ``cameras``
-    (:func:`divas_engine.evaluation.metrics.evaluate_selection`)."""
+    (:func:`.metrics.evaluate_selection`)."""
     cfg = EvalConfig(pred_threshold=pred_threshold, gt_threshold=gt_threshold, scale=scale)
     s = evaluate_selection(
         scene,

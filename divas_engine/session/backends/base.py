@@ -1,0 +1,121 @@
+"""What a session does differently per scene representation.
+
+:class:`~divas_engine.session.Session` runs the same loop on every scene (paper Sec. 3:
+click → centroid view → mask → fuse → selection); a :class:`SessionBackend` supplies the
+steps that depend on what the scene is made of. A backend is built once per session,
+from the scene, and owns the representation's occupancy grid and fusion state.
+
+A new representation: subclass :class:`SessionBackend`, set ``scene_type`` and ``kind``,
+implement the abstract methods and decorate the class with
+:func:`~divas_engine.session.backends.register_backend`; the loop does not change.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from os import PathLike
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from ...camera import Camera
+from ...kinds import SceneKind
+from ...render.buffers import RenderBuffers
+from ...scene import Scene
+from ...segment.depth_weighting import DepthBand
+from ...views.centroid_common import CentroidView
+
+if TYPE_CHECKING:
+    from ...fusion import FusionResult
+    from ..config import SessionConfig
+    from ..records import SessionView
+
+__all__ = ["SessionBackend"]
+
+
+class SessionBackend(ABC):
+    """The representation-specific half of a session.
+
+    Class attributes:
+        scene_type: the scene class this backend serves (the registry matches scenes
+            with ``isinstance``).
+        kind: the session's kind, recorded in reports and saved sessions and used for
+            anchor planning (Sec. 3.2).
+
+    Attributes (set by ``__init__``):
+        grid: the occupancy grid of the active voxels (``len(grid)`` active voxels,
+            ``grid.report`` build statistics).
+        fusion: the incremental, exactly undoable fusion state over ``grid``
+            (:class:`~divas_engine.fusion.state.IncrementalFusion`).
+    """
+
+    scene_type: ClassVar[type]
+    kind: ClassVar[SceneKind]
+
+    grid: Any
+    fusion: Any
+
+    def __init__(
+        self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer
+    ) -> None:
+        self.scene = scene
+        self.config = config
+        self.forward_facing = bool(forward_facing)
+        self.device = device
+        self.renderer = renderer
+
+    # ---------------------------------------------------------------- scene facts
+    @staticmethod
+    @abstractmethod
+    def fingerprint_array(scene: Scene) -> np.ndarray:
+        """The array that identifies the scene in a saved session (hashed)."""
+
+    @property
+    @abstractmethod
+    def selection_shape(self) -> tuple[int, ...]:
+        """Shape of a selection, of the label set and of ground-truth values."""
+
+    # ---------------------------------------------------------------- clicks and views
+    @abstractmethod
+    def click_depth(self, buffers: RenderBuffers) -> np.ndarray:
+        """The depth map a click on an anchor render is back-projected with."""
+
+    @abstractmethod
+    def centroid_view(
+        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers, name: str
+    ) -> CentroidView:
+        """The centroid view a positive click spawns (Sec. 3.3)."""
+
+    # ---------------------------------------------------------------- masks and fusion
+    @abstractmethod
+    def depth_weight(
+        self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, DepthBand | None]:
+        """The depth-weighted mask M̃ of a selected SAM mask (Sec. 3.4) and its band."""
+
+    @property
+    @abstractmethod
+    def asynchronous(self) -> bool:
+        """Accepted views are segmented by the background worker and fused in groups
+        (Sec. 3.4 "Execution scheduling"), rather than one by one at accept."""
+
+    @abstractmethod
+    def selection(self, fused: FusionResult, live: Sequence[SessionView]) -> np.ndarray:
+        """The selection (bool, :attr:`selection_shape`) of the fused live views."""
+
+    # ---------------------------------------------------------------- export
+    @abstractmethod
+    def object_suffix(self) -> str:
+        """File suffix of one exported object (the input's own format)."""
+
+    @abstractmethod
+    def write_label_set(self, labels: np.ndarray, out_dir: Path) -> Path:
+        """Write the integer label set into ``out_dir``; returns the file."""
+
+    def write_labelled(self, labels: np.ndarray, path: str | PathLike) -> Path:
+        """The scene with its labels as a column, where the representation has one."""
+        from ...errors import DivasInputError
+
+        raise DivasInputError(path, f"a labelled scene file is not available for {self.kind}")

@@ -1,0 +1,128 @@
+"""Session backend of surfel scenes (2DGS, and 3DGS loaded flattened to surfels).
+
+Occupancy from the surfels (App. A), the 2DGS centroid-view planner (Sec. 3.3), the
+depth band-pass (eq:gs-bandpass), synchronous fusion with the view bitmask (eq:vmask)
+and the voxel-to-surfel mapping (Sec. 3.6); exports are surfel files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from os import PathLike
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ...camera import Camera
+from ...kinds import SceneKind
+from ...render.buffers import RenderBuffers
+from ...scene import Scene, SurfelScene
+from ...segment.depth_weighting import DepthBand, apply_gs_bandpass
+from ...views.centroid_common import CentroidView
+from .base import SessionBackend
+from .registry import register_backend
+
+if TYPE_CHECKING:
+    from ...fusion import FusionResult
+    from ..config import SessionConfig
+    from ..records import SessionView
+
+__all__ = ["SurfelBackend"]
+
+
+@register_backend
+class SurfelBackend(SessionBackend):
+    """Surfel scenes: the 2DGS path of the paper (the session kind is ``GS2D`` for both
+    Gaussian kinds).
+
+    Attributes:
+        grid_config: the occupancy config in use (``SessionConfig.grid``, else
+            ``g_max`` 512 forward-facing / 1024 otherwise, NOTES "Occupancy").
+        last_mapping: the latest voxel-to-surfel :class:`~divas_engine.mapping.MappingResult`.
+    """
+
+    scene_type = SurfelScene
+    kind = SceneKind.GS2D
+
+    def __init__(
+        self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer
+    ) -> None:
+        from ...fusion import GridConfig, GsFusion, build_occupancy
+
+        super().__init__(
+            scene, config, forward_facing=forward_facing, device=device, renderer=renderer
+        )
+        self.grid_config = config.grid or (
+            GridConfig.forward_facing() if self.forward_facing else GridConfig()
+        )
+        self.grid = build_occupancy(scene, self.grid_config, device)
+        self.fusion = GsFusion(self.grid, config.gs_fusion, device)
+        self.last_mapping = None
+        self._planner = None
+        self._mapper = None
+
+    @staticmethod
+    def fingerprint_array(scene: Scene) -> np.ndarray:
+        return scene.means
+
+    @property
+    def selection_shape(self) -> tuple[int, ...]:
+        return (len(self.scene),)
+
+    def click_depth(self, buffers: RenderBuffers) -> np.ndarray:
+        return buffers.D_med
+
+    def centroid_view(
+        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers, name: str
+    ) -> CentroidView:
+        if self._planner is None:
+            from ...views import GsCentroidPlanner
+
+            self._planner = GsCentroidPlanner(self.scene, self.renderer, self.config.view)
+        return self._planner.centroid_view(camera, xy, buffers, name=name)
+
+    def depth_weight(
+        self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, DepthBand | None]:
+        return apply_gs_bandpass(mask, buffers.D_ref, points, labels, config=self.config.bandpass)
+
+    @property
+    def asynchronous(self) -> bool:
+        return False
+
+    def selection(self, fused: FusionResult, live: Sequence[SessionView]) -> np.ndarray:
+        from ...mapping import SurfelMapper
+
+        if self._mapper is None:
+            self._mapper = SurfelMapper(self.scene, self.grid, self.config.mapping, self.device)
+        res = self._mapper.map(
+            fused,
+            [v.fusion_view for v in live],
+            [int(v.fusion_id) for v in live],
+            self.config.mapping,
+        )
+        self.last_mapping = res
+        return np.asarray(res.selected, dtype=bool)
+
+    def object_suffix(self) -> str:
+        return export_suffix(self.scene)
+
+    def write_label_set(self, labels: np.ndarray, out_dir: Path) -> Path:
+        return self.write_labelled(labels, out_dir / "labelled.ply")
+
+    def write_labelled(self, labels: np.ndarray, path: str | PathLike) -> Path:
+        from ..labels_io import write_labelled_ply
+
+        return write_labelled_ply(self.scene, labels, path)
+
+
+def export_suffix(scene: SurfelScene) -> str:
+    """The file suffix of an export in the input's own format ("" for an unbundled SOG
+    folder)."""
+    src = scene.source
+    if src is None or src.format in ("ply", "compressed_ply"):
+        return ".ply"
+    if src.format == "sog":  # a .sog bundle, or a folder for an unbundled input
+        return ".sog" if scene.extras.get("sog_bundled") else ""
+    return {"splat": ".splat", "spz": ".spz"}.get(src.format, ".ply")

@@ -1,0 +1,224 @@
+"""A session as a saved document and back (the file layer is :mod:`.store`).
+
+:func:`session_state` turns a :class:`~divas_engine.session.Session` into the JSON
+document plus the arrays (the accepted, depth-weighted masks, the labels and the
+selection); :func:`load_session` rebuilds a session from them by *replaying* it: the
+stored camera poses are re-rendered and the stored masks fused in their slots, so the
+replayed labels equal the saved ones without running SAM again. Views that were still
+pending (NeRF) are re-submitted to the segmenter.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import replace
+from os import PathLike
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import DivasInputError
+from ..kinds import ViewStatus
+from ..scene import Scene
+from ..segment.base import Segmenter
+from ..views.centroid_common import CentroidView
+from .backends import backend_class_for
+from .config import SessionConfig
+from .records import AnchorClick, ObjectRecord, SessionView
+from .store import SESSION_FORMAT, SESSION_VERSION, load_state
+
+if TYPE_CHECKING:
+    from .session import Session
+
+__all__ = ["scene_fingerprint", "session_state", "load_session", "restore_object"]
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """Hash of the array that identifies ``scene`` (its backend's ``fingerprint_array``)."""
+    h = hashlib.blake2b(digest_size=16)
+    a = np.ascontiguousarray(backend_class_for(scene).fingerprint_array(scene))
+    h.update(f"{a.dtype.str}{a.shape}".encode())
+    h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def session_state(session: Session) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The saved document and arrays of ``session``."""
+    arrays: dict[str, np.ndarray] = {}
+    objs = []
+    for o in session.objects:
+        vdocs = []
+        for v in o.views:
+            key = None
+            if v.status == ViewStatus.FUSED and v.mask is not None:
+                key = f"mask_{len(arrays)}"
+                arrays[key] = v.mask.astype(np.float32)
+            vdocs.append(v.to_dict(key))
+        objs.append(
+            {
+                "index": o.index,
+                "label": o.label,
+                "name": o.name,
+                "finished": o.finished,
+                "accept_order": list(o.accept_order),
+                "clicks": {str(a): [c.to_dict() for c in cs] for a, cs in o.clicks.items()},
+                "views": vdocs,
+            }
+        )
+    arrays["labels"] = session.label_set(include_current=False)
+    arrays["selection"] = session.selection
+    scene = session.scene
+    doc = {
+        "format": SESSION_FORMAT,
+        "version": SESSION_VERSION,
+        "scene": {
+            "kind": session.kind,
+            "count": int(len(scene)),
+            "fingerprint": scene_fingerprint(scene),
+            "path": None if getattr(scene, "source", None) is None else str(scene.source.path),
+        },
+        "config": session.config.to_dict(),
+        "forward_facing": session.forward_facing,
+        "anchors": [
+            {"camera": a.full_camera.to_dict(), "source": a.source, "index": a.source_index}
+            for a in session.anchors
+        ],
+        "objects": objs,
+    }
+    return doc, arrays
+
+
+def load_session(
+    session_cls: type[Session],
+    path: str | PathLike,
+    scene: Scene,
+    segmenter: Segmenter | None = None,
+    device=None,
+    *,
+    cameras: Sequence[Camera] | None = None,
+    gt_values: np.ndarray | None = None,
+    autosave: str | None | bool = False,
+) -> Session:
+    """``Session.load``: rebuild a saved session on ``scene`` by replaying it (stored poses
+    re-rendered, stored masks fused, mapping re-run); NeRF views still pending when it was
+    saved are re-submitted to ``segmenter``. ``replay_matches`` tells whether the replayed
+    labels equal the saved ones. ``autosave``: False keeps it off while loading and after;
+    a path (or None) overrides the saved config's."""
+    doc, arrays = load_state(path)
+    config = SessionConfig.from_dict(doc["config"])
+    final_autosave = config.autosave if autosave is False else autosave
+    config = replace(config, autosave=None)
+    sd = doc["scene"]
+    if sd["kind"] != backend_class_for(scene).kind or sd["count"] != len(scene):
+        raise DivasInputError(
+            path,
+            f"session was saved on a {sd['kind']} scene of {sd['count']} primitives, not this one",
+        )
+    if sd.get("fingerprint") and sd["fingerprint"] != scene_fingerprint(scene):
+        raise DivasInputError(path, "session was saved on a different scene (fingerprint mismatch)")
+    anchors = [
+        (Camera.from_dict(a["camera"]), a["source"], int(a["index"])) for a in doc["anchors"]
+    ]
+    s = session_cls(
+        scene,
+        cameras,
+        config,
+        segmenter,
+        device,
+        anchors,
+        bool(doc["forward_facing"]),
+        gt_values=gt_values,
+    )
+    s.plan = None
+    s.objects = []
+    for od in doc["objects"]:
+        restore_object(s, od, arrays, path)
+        if od["finished"]:
+            s.finish_object(od["name"])
+            s.objects.pop()  # finish_object opened the next one; the doc lists it
+    if not s.objects or s.objects[-1].finished:
+        k = len(s.objects)
+        s.objects.append(ObjectRecord(k, k + 1, f"object_{k + 1}"))
+    saved = arrays.get("labels")
+    s.replay_matches = bool(
+        saved is not None
+        and np.array_equal(saved, s.labels)
+        and np.array_equal(arrays.get("selection"), s.selection)
+    )
+    s.config = replace(s.config, autosave=None if final_autosave is None else str(final_autosave))
+    return s
+
+
+def _view_status(value: Any, path: str | PathLike | None) -> ViewStatus:
+    try:
+        return ViewStatus(value)
+    except ValueError:
+        raise DivasInputError(path, f"unknown view status {value!r} in the session") from None
+
+
+def restore_object(
+    session: Session,
+    od: dict[str, Any],
+    arrays: dict[str, np.ndarray],
+    path: str | PathLike | None = None,
+) -> None:
+    """Append one saved object to ``session``: its clicks and views, the fused masks
+    fused again in their slots, the pending views re-submitted and synchronised."""
+    obj = ObjectRecord(int(od["index"]), int(od["label"]), str(od["name"]))
+    session.objects.append(obj)
+    for a, cs in od["clicks"].items():
+        obj.clicks[int(a)] = [
+            AnchorClick(
+                int(c["anchor"]),
+                int(c["index"]),
+                (float(c["xy"][0]), float(c["xy"][1])),
+                bool(c["positive"]),
+                None if c["point"] is None else np.asarray(c["point"], np.float64),
+                c["view"],
+            )
+            for c in cs
+        ]
+    pending = []
+    for vd in od["views"]:
+        cam = Camera.from_dict(vd["camera"])
+        cv = CentroidView(
+            cam,
+            float(vd["d_cam"]),
+            np.asarray(vd["target"], np.float64),
+            (float(vd["xy"][0]), float(vd["xy"][1])),
+            float(vd["depth"]),
+            None if vd["box"] is None else tuple(vd["box"]),
+            vd["strategy"],
+            float(vd["r_init"]),
+            int(vd["neighbours"]),
+        )
+        v = SessionView(
+            vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv, _session=session
+        )
+        v.status, v.reason = _view_status(vd["status"], path), vd["reason"]
+        v.score = float("nan") if vd["score"] is None else float(vd["score"])
+        if vd["points"] is not None:
+            v.points = np.asarray(vd["points"], np.float64).reshape(-1, 2)
+            v.labels = np.asarray(vd["labels"], np.int64)
+        obj.views.append(v)
+        session._views[v.id] = v
+        if v.status == ViewStatus.FUSED:
+            from ..fusion import FusionView
+
+            mask = arrays[vd["mask"]]
+            b = v.buffers
+            fv = FusionView(cam, mask, b.D_min, b.D_ref, b.D_max, b.N_samp, float(cv.d_cam), v.id)
+            with session.timings.measure("kernel"):
+                v.fusion_id = session.fusion.add_view(fv, int(vd["fusion_id"]))
+            v.mask, v.fusion_view = mask, fv
+        elif v.status == ViewStatus.PENDING:
+            pending.append(v)
+    obj.accept_order = list(od["accept_order"])
+    if session._live_views():
+        session._update_selection()
+    for v in pending:
+        session._accept_async(v, v.points, v.labels)
+    if pending:
+        session.sync()

@@ -1,0 +1,250 @@
+"""The records of an interactive session: anchors, clicks, centroid views, previews,
+overlays, accept results and objects (the loop itself is :mod:`.session`).
+
+Views render their camera on first use through the session that made them
+(:class:`_RenderedOnDemand`); everything else is plain data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..camera import Camera
+from ..kinds import ViewStatus
+from ..render.buffers import RenderBuffers
+from ..segment.base import MaskSelection
+from ..segment.depth_weighting import DepthBand
+from ..views.centroid_common import CentroidView
+
+if TYPE_CHECKING:
+    from .session import Session
+
+__all__ = [
+    "AnchorView",
+    "AnchorClick",
+    "MaskPreview",
+    "SessionView",
+    "Overlay",
+    "AcceptResult",
+    "ObjectRecord",
+]
+
+
+class _RenderedOnDemand:
+    """``buffers``/``rgb`` of a view's ``camera``, rendered by its session on first use
+    (the dataclass provides ``camera``, ``_buffers`` and ``_session``)."""
+
+    @property
+    def buffers(self) -> RenderBuffers:
+        if self._buffers is None:
+            assert self._session is not None
+            self._buffers = self._session._render(self.camera)
+        return self._buffers
+
+    @property
+    def rgb(self) -> np.ndarray:
+        return self.buffers.rgb
+
+
+@dataclass(eq=False)
+class AnchorView(_RenderedOnDemand):
+    """An anchor offered to the user.
+
+    Attributes:
+        index: position in :attr:`Session.anchors`.
+        camera: the rendered (working-resolution) camera; full_camera: as given.
+        source: ``"fibonacci"``, ``"training"`` or ``"camera"``; source_index: its index.
+    """
+
+    index: int
+    camera: Camera
+    full_camera: Camera
+    source: str
+    source_index: int
+    _buffers: RenderBuffers | None = None
+    _session: Session | None = None
+
+
+@dataclass(eq=False)
+class AnchorClick:
+    """One click on an anchor (numbered per anchor and object, in click order)."""
+
+    anchor: int
+    index: int
+    xy: tuple[float, float]
+    positive: bool
+    point: np.ndarray | None = None  # back-projected 3D point
+    view_id: str | None = None  # centroid view it spawned (positive clicks)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "anchor": self.anchor,
+            "index": self.index,
+            "xy": list(self.xy),
+            "positive": self.positive,
+            "point": None if self.point is None else self.point.tolist(),
+            "view": self.view_id,
+        }
+
+
+@dataclass(eq=False)
+class MaskPreview:
+    """SAM output for one prompt set on a view, after channel selection and depth weighting.
+
+    Attributes:
+        masks, scores: the segmenter's ``[3,H,W]`` probabilities and ``[3]`` scores.
+        selection: :func:`~divas_engine.segment.select_mask` outcome.
+        mask: the depth-weighted mask M̃ (None when rejected by ``select_mask``).
+        band: the 2DGS depth band (eq:depthband), None for NeRF.
+        reason: why the view would be rejected, None when it would be fused.
+    """
+
+    view_id: str
+    points: np.ndarray
+    labels: np.ndarray
+    masks: np.ndarray
+    scores: np.ndarray
+    selection: MaskSelection
+    mask: np.ndarray | None
+    band: DepthBand | None
+    reason: str | None
+    seconds: float = 0.0
+
+    @property
+    def accepted(self) -> bool:
+        return self.reason is None
+
+    @property
+    def score(self) -> float:
+        return self.selection.score
+
+
+@dataclass(eq=False)
+class SessionView(_RenderedOnDemand):
+    """A centroid view of the session.
+
+    Attributes:
+        id: ``"o<object>:a<anchor>:c<click>"``.
+        centroid: the :class:`~divas_engine.views.CentroidView` (camera, d_cam, target,
+            anchor box …).
+        status: a :class:`~divas_engine.kinds.ViewStatus` — ``"open"`` (spawned),
+            ``"pending"`` (NeRF: accepted, SAM running), ``"fused"`` or ``"rejected"``.
+        points, labels: the prompt set of the last preview / accept.
+        mask: the depth-weighted mask that was fused.
+        fusion_id: the fusion slot (2DGS: view-bitmask bit).
+    """
+
+    id: str
+    object_index: int
+    anchor: int
+    click: int
+    centroid: CentroidView
+    status: ViewStatus = ViewStatus.OPEN
+    reason: str | None = None
+    score: float = float("nan")
+    points: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    preview: MaskPreview | None = None
+    mask: np.ndarray | None = None
+    fusion_id: int | None = None
+    fusion_view: Any = None
+    timings: dict = field(default_factory=dict)
+    _buffers: RenderBuffers | None = None
+    _session: Session | None = None
+
+    @property
+    def camera(self) -> Camera:
+        return self.centroid.camera
+
+    @property
+    def box(self) -> tuple[float, float, float, float] | None:
+        """Strategy-1 box on the anchor view (2DGS), None otherwise."""
+        return self.centroid.box
+
+    def to_dict(self, mask_key: str | None) -> dict[str, Any]:
+        c = self.centroid
+        return {
+            "id": self.id,
+            "anchor": self.anchor,
+            "click": self.click,
+            "status": self.status,
+            "reason": self.reason,
+            "score": None if not np.isfinite(self.score) else float(self.score),
+            "camera": c.camera.to_dict(),
+            "d_cam": c.d_cam,
+            "target": c.target.tolist(),
+            "xy": list(c.click),
+            "depth": c.depth,
+            "box": None if c.box is None else list(c.box),
+            "strategy": c.strategy,
+            "r_init": c.r_init,
+            "neighbours": c.neighbours,
+            "points": None if self.points is None else self.points.tolist(),
+            "labels": None if self.labels is None else self.labels.tolist(),
+            "mask": mask_key,
+            "fusion_id": self.fusion_id,
+        }
+
+
+@dataclass(eq=False)
+class Overlay:
+    """The selection rendered over one view.
+
+    Attributes:
+        coverage: ``[H,W]`` composited selection indicator (render_values).
+        mask: ``coverage ≥ overlay_threshold``.
+        image: ``[H,W,3]`` float32 RGB with the selection recoloured.
+    """
+
+    camera: Camera
+    coverage: np.ndarray
+    mask: np.ndarray
+    image: np.ndarray
+    view_id: str | None = None
+
+
+@dataclass(eq=False)
+class AcceptResult:
+    """What one :meth:`Session.accept` (or :meth:`Session.sync`) did.
+
+    Attributes:
+        view: the accepted view (None for a bare sync).
+        status: the view's status afterwards.
+        reason: rejection reason of that view.
+        fused, rejected: view ids fused / rejected by this call (NeRF: the whole group).
+        pending: masks still pending (NeRF).
+        synced: a fusion (and propagation) happened in this call.
+        selection: the current selection (per-surfel bool, NeRF ``[D,H,W]`` bool).
+        overlay, next_view, next_overlay: propagation feedback (Sec. 3.7).
+        timings: seconds of this update by stage.
+    """
+
+    view: SessionView | None
+    status: ViewStatus | None
+    reason: str | None
+    fused: list[str]
+    rejected: list[tuple[str, str]]
+    pending: int
+    synced: bool
+    selection: np.ndarray
+    overlay: Overlay | None = None
+    next_view: SessionView | None = None
+    next_overlay: Overlay | None = None
+    timings: dict = field(default_factory=dict)
+
+
+@dataclass(eq=False)
+class ObjectRecord:
+    """One object of a multi-object session."""
+
+    index: int
+    label: int
+    name: str
+    views: list[SessionView] = field(default_factory=list)
+    clicks: dict[int, list[AnchorClick]] = field(default_factory=dict)
+    accept_order: list[str] = field(default_factory=list)
+    finished: bool = False
+    selection: np.ndarray | None = None
