@@ -540,8 +540,8 @@ def test_encoder_check_catches_a_lossy_round_trip(monkeypatch):
 
 
 def test_session_names_sog_exports_in_the_input_layout(tmp_path):
-    from divas_engine.session.session import _surfel_ext
+    from divas_engine.session.backends.surfels import export_suffix as suffix
 
     files = _synthetic(20, 2, 0)
-    assert _surfel_ext(load_scene(_save(files, tmp_path / "a.sog"))) == ".sog"
-    assert _surfel_ext(load_scene(_save(files, tmp_path / "a"))) == ""  # a folder
+    assert suffix(load_scene(_save(files, tmp_path / "a.sog"))) == ".sog"
+    assert suffix(load_scene(_save(files, tmp_path / "a"))) == ""  # a folder
