@@ -34,6 +34,7 @@ __all__ = [
     "neighbour_radius",
     "grow",
     "shrink",
+    "points_under_mask",
 ]
 
 
@@ -211,3 +212,32 @@ def shrink(points: np.ndarray, selected: np.ndarray, radius: float, steps: int =
             break
         sel[targets[hit]] = False
     return sel
+
+
+def points_under_mask(
+    points: np.ndarray,
+    camera,
+    mask: np.ndarray,
+    depth: np.ndarray,
+    *,
+    threshold: float = 0.5,
+    rel_tol: float = 0.03,
+) -> np.ndarray:
+    """Points a 2D mask covers *on the visible surface*: projected into ``camera``
+    (engine :class:`~divas_engine.camera.Camera`, same frame as ``points``) onto a pixel
+    whose mask is ≥ ``threshold`` and whose rendered depth ``depth`` (``[H,W]``, planar,
+    0 = none) is within ``rel_tol`` of the point's depth — the mask preview of a view
+    shown on the splats in 3D."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    m, d = np.asarray(mask), np.asarray(depth)
+    uv, z = camera.project(p)
+    h, w = m.shape
+    with np.errstate(invalid="ignore"):
+        ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    idx = np.flatnonzero(ok)
+    u, v = uv[idx, 0].astype(np.int64), uv[idx, 1].astype(np.int64)
+    dz = d[v, u]
+    hit = (m[v, u] >= threshold) & (dz > 0) & (np.abs(z[idx] - dz) <= rel_tol * dz)
+    out = np.zeros(len(p), bool)
+    out[idx[hit]] = True
+    return out

@@ -17,6 +17,7 @@ from divas_engine.selection_tools import (
     in_range,
     in_sphere,
     neighbour_radius,
+    points_under_mask,
     project_to_region,
     shrink,
 )
@@ -133,3 +134,26 @@ def test_in_range():
     assert in_range(v, 0.4, None).tolist() == [False, True, True, False]
     assert in_range(v, None, 0.5).tolist() == [True, True, False, False]
     assert in_range(v, 0.2, 0.8).tolist() == [False, True, False, False]
+
+
+def test_points_under_mask_keep_the_visible_surface():
+    from divas_engine.camera import Camera
+
+    cam = Camera(8, 4, 4.0, 4.0, 4.0, 2.0)  # at the origin, looking down +z
+    mask = np.zeros((4, 8))
+    mask[:, :4] = 1.0  # the left half
+    depth = np.full((4, 8), 2.0)
+    depth[0, 0] = 0.0  # no surface at pixel (0, 0)
+    pts = np.array(
+        [
+            [-0.5, 0.0, 2.0],  # left half, on the surface → in
+            [0.5, 0.0, 2.0],  # right half → out
+            [-1.0, 0.0, 4.0],  # left half but far behind the surface → out
+            [-0.51, 0.0, 2.05],  # within 3 % of the depth → in
+            [-1.9, -0.9, 2.0],  # pixel (0.2, 0.2): no surface there → out
+            [0.0, 0.0, -2.0],  # behind the camera → out
+            [-9.0, 0.0, 2.0],  # outside the image → out
+        ]
+    )
+    got = points_under_mask(pts, cam, mask, depth)
+    assert got.tolist() == [True, False, False, True, False, False, False]

@@ -1,5 +1,5 @@
 """Click Anchor: a positive click spawns a centroid view, a negative one adds a negative
-prompt.
+prompt (one undo step).
 
 Coordinates are rendered-image pixels of the anchor (the session's), or full-camera
 pixels with ``full_resolution`` (the prompts file's). RNA floats are single precision,
@@ -13,15 +13,28 @@ import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
 from ..reporting import report_exception
-from ..session_actions import click, full_to_session_xy
+from ..session_actions import click, full_to_session_xy, run_step
 from .session_base import SessionOperator, live_session
 
 
 def _parse_xy(text: str) -> tuple[float, float]:
     parts = text.replace(",", " ").split()
     if len(parts) != 2:
-        raise ValueError(f"xy must be two numbers 'x y', got {text!r}")
+        raise ValueError(f"XY needs two numbers 'x y' (got {text!r}): type e.g. '120.5 80'")
     return float(parts[0]), float(parts[1])
+
+
+def click_message(anchor: int, positive: bool) -> str:
+    """What a click did and what to do next."""
+    if positive:
+        return (
+            f"Opened a close-up view of the object from anchor {anchor}: if the blue mask "
+            "misses parts, click them; press Enter to add the view (Ctrl+Z takes the click back)"
+        )
+    return (
+        f"Marked that spot on anchor {anchor} as not part of the object: "
+        "the views of this anchor will leave it out"
+    )
 
 
 class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
@@ -29,7 +42,7 @@ class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
 
     bl_idname = "divas.session_click"
     bl_label = "Click Anchor"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO"}
 
     anchor: IntProperty(name="Anchor", default=0, min=0)
     x: FloatProperty(name="X", default=0.0)
@@ -54,13 +67,25 @@ class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
 
     def execute(self, context):
         obj, live = live_session(context)
+        what = f"{'Click' if self.positive else 'Negative click'} on anchor {self.anchor}"
         try:
             xy = _parse_xy(self.xy) if self.xy else (self.x, self.y)
             if self.full_resolution:
                 xy = full_to_session_xy(live, self.anchor, xy)
-            res = click(context, obj, live, self.anchor, xy, self.positive, preview=self.preview)
+            run_step(
+                obj,
+                live,
+                what,
+                click,
+                context,
+                obj,
+                live,
+                self.anchor,
+                xy,
+                self.positive,
+                preview=self.preview,
+            )
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
-        what = f"spawned view {res.id}" if self.positive else "negative prompt recorded"
-        self.report({"INFO"}, f"Anchor {self.anchor}: {what}")
+        self.report({"INFO"}, click_message(self.anchor, self.positive))
         return {"FINISHED"}
