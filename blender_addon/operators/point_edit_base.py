@@ -22,7 +22,7 @@ MODE_ITEMS = (
 
 
 def mode_property(default: str = "SET"):
-    return EnumProperty(name="Mode", items=MODE_ITEMS, default=default)
+    return EnumProperty(name="Mode", items=MODE_ITEMS, default=default, options={"SKIP_SAVE"})
 
 
 class PointEditOperator:

@@ -66,14 +66,21 @@ class DIVAS_OT_select_region(PointEditOperator, bpy.types.Operator):
     bl_label = "Select Splats in Region"
     bl_options = {"REGISTER", "UNDO"}
 
-    shape: EnumProperty(name="Shape", items=SHAPES, default="BOX")
+    shape: EnumProperty(options={"SKIP_SAVE"}, name="Shape", items=SHAPES, default="BOX")
     points: StringProperty(
-        name="Points", default="", description="JSON [[x, y], ...] in region pixels"
+        options={"SKIP_SAVE"},
+        name="Points",
+        default="",
+        description="JSON [[x, y], ...] in region pixels",
     )
     radius: FloatProperty(name="Radius", default=25.0, min=0.0, subtype="PIXEL")
     mode: mode_property()
-    perspective_matrix: FloatVectorProperty(name="View", size=16, default=_IDENTITY)
-    region_size: IntVectorProperty(name="Region Size", size=2, default=(0, 0), min=0)
+    perspective_matrix: FloatVectorProperty(
+        options={"SKIP_SAVE"}, name="View", size=16, default=_IDENTITY
+    )
+    region_size: IntVectorProperty(
+        options={"SKIP_SAVE"}, name="Region Size", size=2, default=(0, 0), min=0
+    )
 
     def execute(self, context):
         try:

@@ -58,17 +58,21 @@ class DIVAS_OT_session_accept(SessionOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     view: StringProperty(
+        options={"SKIP_SAVE"},
         name="View",
         default="",
         description="View id (default: the scene camera's view, else the next open one)",
     )
     points: StringProperty(
+        options={"SKIP_SAVE"},
         name="Prompt Points",
         default="",
         description="JSON [[x, y, positive], ...] replacing the points "
         "added on the view (its default prompt stays)",
     )
-    full_resolution: BoolProperty(name="Full-Resolution Pixels", default=False)
+    full_resolution: BoolProperty(
+        options={"SKIP_SAVE"}, name="Full-Resolution Pixels", default=False
+    )
 
     def execute(self, context):
         obj, live = live_session(context)

@@ -20,6 +20,7 @@ class DIVAS_OT_session_add_anchor(SessionOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     camera: StringProperty(
+        options={"SKIP_SAVE"},
         name="Camera",
         default="",
         description="Camera object (default: the active object when it is "

@@ -44,22 +44,25 @@ class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
     bl_label = "Click Anchor"
     bl_options = {"REGISTER", "UNDO"}
 
-    anchor: IntProperty(name="Anchor", default=0, min=0)
-    x: FloatProperty(name="X", default=0.0)
-    y: FloatProperty(name="Y", default=0.0)
+    anchor: IntProperty(options={"SKIP_SAVE"}, name="Anchor", default=0, min=0)
+    x: FloatProperty(options={"SKIP_SAVE"}, name="X", default=0.0)
+    y: FloatProperty(options={"SKIP_SAVE"}, name="Y", default=0.0)
     xy: StringProperty(
+        options={"SKIP_SAVE"},
         name="XY (exact)",
         default="",
         description="'x y' as decimal text (double precision); overrides X/Y",
     )
-    positive: BoolProperty(name="Positive", default=True)
+    positive: BoolProperty(options={"SKIP_SAVE"}, name="Positive", default=True)
     full_resolution: BoolProperty(
+        options={"SKIP_SAVE"},
         name="Full-Resolution Pixels",
         default=False,
         description="X/Y are pixels of the full camera (the prompts "
         "file's), not of the rendered image",
     )
     preview: BoolProperty(
+        options={"SKIP_SAVE"},
         name="Preview",
         default=True,
         description="Segment the default prompt at once (the mask preview)",

@@ -18,7 +18,12 @@ class DIVAS_OT_session_finish_object(SessionOperator, bpy.types.Operator):
     bl_label = "Finish Object"
     bl_options = {"REGISTER", "UNDO"}
 
-    name: StringProperty(name="Name", default="", description="Object name (default object_<k>)")
+    name: StringProperty(
+        options={"SKIP_SAVE"},
+        name="Name",
+        default="",
+        description="Object name (default object_<k>)",
+    )
 
     def execute(self, context):
         obj, live = live_session(context)

@@ -19,7 +19,10 @@ class DIVAS_OT_session_reset(SessionOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     all_objects: BoolProperty(
-        name="All Objects", default=False, description="Also drop every finished object's label"
+        options={"SKIP_SAVE"},
+        name="All Objects",
+        default=False,
+        description="Also drop every finished object's label",
     )
 
     def execute(self, context):

@@ -44,11 +44,17 @@ class DIVAS_OT_session_viewport_click(SessionOperator, bpy.types.Operator):
     bl_label = "Click in View"
     bl_options = {"REGISTER", "UNDO"}
 
-    view_matrix: FloatVectorProperty(name="View Matrix", size=16, default=_IDENTITY)
-    window_matrix: FloatVectorProperty(name="Window Matrix", size=16, default=_IDENTITY)
-    region_size: IntVectorProperty(name="Region Size", size=2, default=(0, 0), min=0)
-    mouse: IntVectorProperty(name="Region Pixel", size=2, default=(0, 0))
-    positive: BoolProperty(name="Positive", default=True)
+    view_matrix: FloatVectorProperty(
+        options={"SKIP_SAVE"}, name="View Matrix", size=16, default=_IDENTITY
+    )
+    window_matrix: FloatVectorProperty(
+        options={"SKIP_SAVE"}, name="Window Matrix", size=16, default=_IDENTITY
+    )
+    region_size: IntVectorProperty(
+        options={"SKIP_SAVE"}, name="Region Size", size=2, default=(0, 0), min=0
+    )
+    mouse: IntVectorProperty(options={"SKIP_SAVE"}, name="Region Pixel", size=2, default=(0, 0))
+    positive: BoolProperty(options={"SKIP_SAVE"}, name="Positive", default=True)
 
     def execute(self, context):
         obj, live = live_session(context)

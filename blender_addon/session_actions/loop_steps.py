@@ -131,8 +131,8 @@ def viewport_click(
     if index is None:
         index = s.add_anchor(cam, "viewport", -1).index
         make_anchor_camera(context, obj, live, index)
-    a = s.anchors[index]
-    xy = a.full_camera.pixels_to(a.camera, region_click_pixel(mouse, region_size))
+    a = s.anchors[index]  # its camera: the region's, resized (anchor resolution, scale)
+    xy = cam.pixels_to(a.camera, region_click_pixel(mouse, region_size))
     return index, click(context, obj, live, index, (float(xy[0]), float(xy[1])), positive)
 
 

@@ -17,7 +17,6 @@ import bpy
 from divas_engine.errors import DivasInputError
 from divas_engine.evaluation.ground_truth import load_ground_truth
 from divas_engine.io.cameras import load_cameras
-from divas_engine.point_attributes import SELECTED
 from divas_engine.segment import SegmenterSettings, SegmenterSetupError, build_segmenter
 from divas_engine.session import Session, SessionConfig, anchor_plan, load_prompts
 from divas_engine.session.prompts import resolve_anchors
@@ -185,8 +184,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
             remove_cameras_of(obj)
             session.close()
             raise
-        if obj.data.attributes.get(SELECTED) is not None:
-            write_selection(obj, live)  # a restart clears the old selection
+        write_selection(obj, live)  # defined from the start (a restart clears the old one)
         session_registry.put(obj, live)
         obj[STEP_PROP] = session.history.current.id
         live.open_s = time.perf_counter() - t0
