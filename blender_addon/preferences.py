@@ -51,7 +51,7 @@ SAM_MODEL_TYPES = (
 
 
 #: default long side of an anchor image, pixels (the issue asks for ≥ 640).
-ANCHOR_RESOLUTION = 800
+ANCHOR_RESOLUTION = 640
 
 
 @dataclass(frozen=True)

@@ -158,26 +158,33 @@ def in_range(values: np.ndarray, low: float | None = None, high: float | None = 
 def neighbour_radius(points: np.ndarray, *, factor: float = 2.0, sample: int = 20000) -> float:
     """A neighbourhood radius for grow / shrink: ``factor`` × the median distance from a
     point to its nearest other point (a seeded sample of at most ``sample`` points)."""
-    from scipy.spatial import cKDTree
-
     p = np.asarray(points, np.float64).reshape(-1, 3)
     if len(p) < 2:
         return 0.0
     rng = np.random.default_rng(0)
     q = p if len(p) <= sample else p[rng.choice(len(p), sample, replace=False)]
-    d, _ = cKDTree(p).query(q, k=2)
+    d, _ = _tree(p).query(q, k=2, workers=-1)
     nn = d[:, 1]
     nn = nn[nn > 0]
     return float(factor * np.median(nn)) if len(nn) else 0.0
 
 
-def _near(points: np.ndarray, sources: np.ndarray, targets: np.ndarray, radius: float):
-    """Mask over ``targets`` (indices): within ``radius`` of any ``sources`` point."""
+def _tree(points: np.ndarray):
+    """A k-d tree built for speed (unbalanced, uncompacted: ~2–3× faster to build, the
+    queries barely slower)."""
     from scipy.spatial import cKDTree
 
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
+def _near(points: np.ndarray, sources: np.ndarray, targets: np.ndarray, radius: float):
+    """Mask over ``targets`` (indices): within ``radius`` of any ``sources`` point (one
+    nearest-neighbour query per target, bounded by ``radius``)."""
     if len(sources) == 0 or len(targets) == 0 or radius <= 0:
         return np.zeros(len(targets), bool)
-    d, _ = cKDTree(points[sources]).query(points[targets], k=1, distance_upper_bound=radius)
+    d, _ = _tree(points[sources]).query(
+        points[targets], k=1, distance_upper_bound=radius, workers=-1
+    )
     return d <= radius
 
 

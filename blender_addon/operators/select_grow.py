@@ -3,12 +3,26 @@
 from __future__ import annotations
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty
 
 from divas_engine.selection_tools import grow, neighbour_radius, shrink
 
 from .. import point_edits
 from .point_edit_base import PointEditOperator
+
+#: the automatic radius of the last object (its k-d tree costs ~2 s at 1M splats).
+_radius_cache: dict[tuple, float] = {}
+
+
+def auto_radius(geom, pts) -> float:
+    """:func:`~divas_engine.selection_tools.neighbour_radius` of the points, cached while
+    they do not change."""
+    key = (geom.name, len(pts), float(pts.sum(dtype=np.float64)))
+    if key not in _radius_cache:
+        _radius_cache.clear()
+        _radius_cache[key] = neighbour_radius(pts)
+    return _radius_cache[key]
 
 
 class DIVAS_OT_select_grow(PointEditOperator, bpy.types.Operator):
@@ -32,7 +46,7 @@ class DIVAS_OT_select_grow(PointEditOperator, bpy.types.Operator):
     def execute(self, context):
         def select(t):
             pts, ok = point_edits.positions(t), point_edits.visible(t)
-            r = self.radius or neighbour_radius(pts[ok])
+            r = self.radius or auto_radius(t.geom, pts)
             fn = shrink if self.shrink else grow
             new = fn(pts, point_edits.selected(t), r, self.steps, allowed=ok)
             return point_edits.set_selection(t, new)

@@ -29,7 +29,7 @@ def addon():
 
 @pytest.fixture(autouse=True)
 def fresh_file(addon, tmp_path_factory, monkeypatch):
-    from blender_addon.preferences import get_preferences
+    from blender_addon.preferences import ANCHOR_RESOLUTION, get_preferences
     from blender_addon.session_actions import files
 
     sessions = tmp_path_factory.mktemp("user_sessions")
@@ -41,7 +41,7 @@ def fresh_file(addon, tmp_path_factory, monkeypatch):
     prefs = get_preferences()
     prefs.anchor_resolution, prefs.resume_on_open = 0, False
     yield
-    prefs.anchor_resolution, prefs.resume_on_open = 800, True
+    prefs.anchor_resolution, prefs.resume_on_open = ANCHOR_RESOLUTION, True
 
 
 @pytest.fixture(scope="session")
