@@ -105,9 +105,10 @@ def point_sizes(t: EditTarget) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- writing
-def set_selection(t: EditTarget, new: np.ndarray) -> int:
-    """Make the points' selection ``new`` (through the session when there is one);
-    returns how many points are selected."""
+def set_selection(t: EditTarget, new: np.ndarray, *, autosave: bool = True) -> int:
+    """Make the points' selection ``new`` (through the session when there is one; its
+    autosave skipped with ``autosave=False``, e.g. mid brush stroke); returns how many
+    points are selected."""
     new = np.asarray(new, bool)
     if t.live is None:
         bridge.write_attribute(t.geom, SELECTED, new)
@@ -116,17 +117,19 @@ def set_selection(t: EditTarget, new: np.ndarray) -> int:
     s = t.live.session
     index = bridge.read_attribute(t.geom, INDEX)
     within = scene_selection(s.scene, index, np.ones(len(index), bool))
-    s.apply_selection(scene_selection(s.scene, index, new), within=within)
+    s.apply_selection(scene_selection(s.scene, index, new), within=within, autosave=autosave)
     write_selection(t.obj, t.live)
     return int(selected(t).sum())
 
 
-def apply_region(t: EditTarget, region: np.ndarray, mode: SelectMode | str) -> int:
+def apply_region(
+    t: EditTarget, region: np.ndarray, mode: SelectMode | str, *, autosave: bool = True
+) -> int:
     """Combine a tool's region with the selection in ``mode``; hidden points never
     change. Returns how many points are selected."""
     cur, ok = selected(t), visible(t)
     new = np.where(ok, combine(cur, np.asarray(region, bool) & ok, mode), cur)
-    return set_selection(t, new)
+    return set_selection(t, new, autosave=autosave)
 
 
 def _engine_mask(t: EditTarget, points_mask: np.ndarray) -> np.ndarray:

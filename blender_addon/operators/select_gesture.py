@@ -17,7 +17,7 @@ from divas_engine.selection_tools import RegionView
 from .. import draw, point_edits
 from ..modal_logic import Gesture
 from ..reporting import report_exception
-from ..session_actions import commit
+from ..session_actions import commit, rollback
 from .point_edit_base import PointEditOperator
 from .select_region import SHAPES, region_mask
 
@@ -50,12 +50,23 @@ class DIVAS_OT_select_gesture(PointEditOperator, bpy.types.Operator):
             self._target = point_edits.edit_target(context)
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
+        self._initial = point_edits.selected(self._target)  # back to it if cancelled
         self._handle = draw.add_gesture_handler(self._gesture)
         area.header_text_set(
             "Drag to select · Shift: extend · Ctrl: subtract · Shift+Ctrl: intersect · Esc: cancel"
         )
         context.window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}
+
+    def _undo_stroke(self) -> None:
+        """A cancelled brush stroke leaves the selection as it was."""
+        if not self._stroke:
+            return
+        t = self._target
+        if t.live is not None:
+            rollback(t.obj, t.live)
+        else:
+            point_edits.set_selection(t, self._initial)
 
     def _finish(self, result: set[str]) -> set[str]:
         draw.remove_handler(self._handle)
@@ -71,6 +82,7 @@ class DIVAS_OT_select_gesture(PointEditOperator, bpy.types.Operator):
         if act.kind == "pass":
             return {"PASS_THROUGH"}
         if act.kind == "cancel":
+            self._undo_stroke()
             return self._finish({"CANCELLED"})
         if act.kind != "apply":
             return {"RUNNING_MODAL"}
@@ -79,16 +91,19 @@ class DIVAS_OT_select_gesture(PointEditOperator, bpy.types.Operator):
             if act.points:
                 view = RegionView(np.array(self._rv3d.perspective_matrix), r.width, r.height)
                 pts = np.asarray(act.points, np.float64)
-                point_edits.apply_region(
-                    t, region_mask(t, view, act.shape, pts, act.radius), act.mode
-                )
+                region = region_mask(t, view, act.shape, pts, act.radius)
+                point_edits.apply_region(t, region, act.mode, autosave=False)
                 self._stroke = True
             if act.final and self._stroke:
                 what = f"{act.shape.title()} select"
                 if t.live is not None:
                     commit(t.obj, t.live, what)
+                    save = t.live.session.config.autosave
+                    if save:
+                        t.live.session.save(save)
                 bpy.ops.ed.undo_push(message=f"DivAS: {what}")
         except Exception as e:  # noqa: BLE001
             report_exception(self, e)
+            self._undo_stroke()
             return self._finish({"CANCELLED"})
         return self._finish({"FINISHED"}) if act.final else {"RUNNING_MODAL"}

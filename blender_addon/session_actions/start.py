@@ -128,8 +128,8 @@ def _engine_inputs(context, obj, settings: StartSettings):
     if ref is None:
         raise DivasInputError(
             None,
-            f"{getattr(obj, 'name', None)!r} is not a DivAS-imported "
-            "point cloud (import splats or a density grid first)",
+            f"{getattr(obj, 'name', None)!r} is not a point cloud imported with DivAS: "
+            "import the splats (or a density grid) with File › Import first",
         )
     seg = _segmenter(settings)
     scene = source.load_source_scene(ref)
@@ -138,7 +138,9 @@ def _engine_inputs(context, obj, settings: StartSettings):
     try:
         device = resolve_device(settings.device)
     except RuntimeError as e:
-        raise DivasInputError(None, str(e)) from None
+        raise DivasInputError(
+            None, f"{e}: choose the CPU device in the DivAS preferences and start again"
+        ) from None
     return scene, cameras, gt, seg, device
 
 

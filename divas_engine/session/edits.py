@@ -157,11 +157,12 @@ class SelectionEditing:
             raise DivasInputError(None, f"{what}: a mask of shape {shape} is needed, got {m.shape}")
         return m.astype(bool, copy=False)
 
-    def apply_selection(self: SessionCore, new, within=None) -> np.ndarray:
+    def apply_selection(self: SessionCore, new, within=None, *, autosave: bool = True):
         """Make the current selection ``new`` by hand (a manual edit, composed with the
         semantic selection as in the module docstring); ``within``: only these primitives
-        change (e.g. the ones a host shows). Deleted ones stay unselected. Returns the
-        new selection."""
+        change (e.g. the ones a host shows). Deleted ones stay unselected. ``autosave``:
+        False while a brush stroke is still going (the host saves at its end). Returns
+        the new selection."""
         new = self._check_mask(new, "apply_selection")
         old = self._selection
         if within is not None:
@@ -171,7 +172,8 @@ class SelectionEditing:
         k = self.current.index
         self.edits = self.edits.with_object(k, _delta(self.edits.of(k), old, new))
         self._selection = compose(self._semantic, self.edits, k)
-        self._autosave()
+        if autosave:
+            self._autosave()
         return self._selection
 
     def delete_primitives(self: SessionCore, mask) -> int:

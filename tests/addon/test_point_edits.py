@@ -233,3 +233,63 @@ def test_manual_edits_compose_with_the_session_and_reach_its_exports(ribs, tmp_p
         bridge.read_attribute(bpy.data.objects[name].data, LABEL_ATTRIBUTE),
         np.ones(len(s.scene) - n_sel, np.int32),
     )
+
+
+def test_gesture_modal_box_brush_cancel(grid_ply):
+    """The drawing modal driven with stand-in events (headless has no 3D view): a Shift
+    box extends, a Ctrl brush stroke subtracts while dragging and is one undo step, an
+    Esc mid-stroke puts the selection back."""
+    from types import SimpleNamespace
+
+    from blender_addon.modal_logic import Gesture
+    from blender_addon.operators.select_gesture import DIVAS_OT_select_gesture as Op
+
+    name = _import(grid_ply)
+    reports = []
+
+    def harness(shape, radius=25.0):
+        t = point_edits.edit_target(bpy.context)
+        return SimpleNamespace(
+            _region=SimpleNamespace(x=0, y=0, width=200, height=100),
+            _rv3d=SimpleNamespace(perspective_matrix=VIEW),
+            _area=SimpleNamespace(header_text_set=lambda *_: None, tag_redraw=lambda: None),
+            _gesture=Gesture(shape, radius),
+            _stroke=False,
+            _target=t,
+            _initial=point_edits.selected(t),
+            _handle=None,
+            report=lambda *a: reports.append(a),
+        )
+
+    def send(h, type_, value, x, y, shift=False, ctrl=False):
+        h._finish = lambda r: Op._finish(h, r)  # the operator's own methods on the stand-in
+        h._undo_stroke = lambda: Op._undo_stroke(h)
+        ev = SimpleNamespace(type=type_, value=value, mouse_x=x, mouse_y=y, shift=shift, ctrl=ctrl)
+        return Op.modal(h, bpy.context, ev)
+
+    h = harness("BOX")
+    assert send(h, "LEFTMOUSE", "PRESS", 50, 25) == {"RUNNING_MODAL"}
+    send(h, "MOUSEMOVE", "NOTHING", 110, 55)
+    assert send(h, "LEFTMOUSE", "RELEASE", 110, 55) == {"FINISHED"}
+    assert _sel(name) == [6, 7, 11, 12]
+    h = harness("BOX")
+    send(h, "LEFTMOUSE", "PRESS", 0, 0, shift=True)
+    send(h, "MOUSEMOVE", "NOTHING", 200, 15)
+    send(h, "LEFTMOUSE", "RELEASE", 200, 15)
+    assert _sel(name) == [0, 1, 2, 3, 4, 6, 7, 11, 12]  # extended by the bottom row
+    # a brush stroke (Ctrl: subtract) over (60, 30) then (100, 30), radius 5 px
+    h = harness("CIRCLE", 5.0)
+    send(h, "LEFTMOUSE", "PRESS", 60, 30, ctrl=True)
+    assert _sel(name) == [0, 1, 2, 3, 4, 7, 11, 12]  # 6 gone while dragging
+    send(h, "MOUSEMOVE", "NOTHING", 100, 30)
+    assert send(h, "LEFTMOUSE", "RELEASE", 100, 30) == {"FINISHED"}
+    assert _sel(name) == [0, 1, 2, 3, 4, 11, 12]
+    bpy.ops.ed.undo()  # the whole stroke is one step
+    assert _sel(name) == [0, 1, 2, 3, 4, 6, 7, 11, 12]
+    # Esc mid-stroke: back to the selection before the stroke
+    h = harness("CIRCLE", 5.0)
+    send(h, "LEFTMOUSE", "PRESS", 20, 10, ctrl=True)
+    assert 0 not in _sel(name)
+    assert send(h, "ESC", "PRESS", 20, 10) == {"CANCELLED"}
+    assert _sel(name) == [0, 1, 2, 3, 4, 6, 7, 11, 12]
+    assert reports == []
