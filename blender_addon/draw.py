@@ -70,7 +70,13 @@ def pixel_items(context) -> list:
             if frame is None:
                 return []
             show_render = _prefs(context)[0]
-            return overlays.camera_items(live, target, frame, show_render=show_render)
+            key = ("camera", live.key, live.version, _generation[0], cam.name, show_render)
+            return _cached(
+                key + (np.round(frame, 3).tobytes(),),
+                lambda lv=live, t=target, f=frame, r=show_render: overlays.camera_items(
+                    lv, t, f, show_render=r
+                ),
+            )
     return []
 
 
@@ -129,7 +135,8 @@ def _texture(item: overlays.ImageQuad):
             buf = gpu.types.Buffer("FLOAT", data.size, data.tolist())
         return gpu.types.GPUTexture((w, h), format="RGBA32F", data=buf)
 
-    return _cached(("texture", *item.key, item.rgba.shape), make)
+    # keyed by the cached item's own array: alive (so its id is unique) while cached
+    return _cached(("texture", id(item.rgba)), make)
 
 
 def _draw_pixel() -> None:

@@ -109,6 +109,9 @@ def set_selection(t: EditTarget, new: np.ndarray, *, autosave: bool = True) -> i
     """Make the points' selection ``new`` (through the session when there is one; its
     autosave skipped with ``autosave=False``, e.g. mid brush stroke); returns how many
     points are selected."""
+    from . import draw
+
+    draw.touch()  # the selection tint is drawn from the points' attribute
     new = np.asarray(new, bool)
     if t.live is None:
         bridge.write_attribute(t.geom, SELECTED, new)

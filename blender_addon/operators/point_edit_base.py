@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from bpy.props import EnumProperty
 
-from .. import point_edits, session_registry, source
+from .. import draw, point_edits, session_registry, source
 from ..reporting import report_exception
 
 __all__ = ["MODE_ITEMS", "PointEditOperator", "mode_property"]
@@ -45,6 +45,7 @@ class PointEditOperator:
             n = point_edits.as_step(t, what, fn, t, *args)
         except Exception as e:  # noqa: BLE001 - one readable report line
             return report_exception(self, e)
+        draw.touch()  # points deleted, hidden or reselected: redraw the feedback
         if done:
             self.report({"INFO"}, done.format(n=n if not isinstance(n, int) else f"{n:,}"))
         return {"FINISHED"}

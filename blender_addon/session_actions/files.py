@@ -83,8 +83,9 @@ def recovery_path(key: str) -> Path:
     return user_sessions_dir() / f"{key}.json"
 
 
-def saved_session_path(obj) -> Path | None:
-    """The session file to resume ``obj`` from (module docstring), or None."""
+def saved_session_path(obj, *, search: bool = True) -> Path | None:
+    """The session file to resume ``obj`` from (module docstring), or None; ``search``:
+    also look beside the .blend for a sidecar of another name (the panel skips it)."""
     key = obj.get(KEY_PROP) if obj is not None else None
     if not key:
         return None
@@ -93,10 +94,14 @@ def saved_session_path(obj) -> Path | None:
         own = sidecar_path(blend, key)
         if own.is_file():
             return own
-        near = sorted(
-            blend.parent.glob(f"*{SIDECAR_SUFFIX}/{key}.json"),
-            key=lambda p: p.stat().st_mtime,
-            reverse=True,
+        near = (
+            []
+            if not search
+            else sorted(
+                blend.parent.glob(f"*{SIDECAR_SUFFIX}/{key}.json"),
+                key=lambda p: p.stat().st_mtime,
+                reverse=True,
+            )
         )
         if near:
             return near[0]

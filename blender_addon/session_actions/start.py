@@ -144,6 +144,12 @@ def _engine_inputs(context, obj, settings: StartSettings):
     return scene, cameras, gt, seg, device
 
 
+def _follow_undo_steps(context, session: Session) -> None:
+    """Keep at least as many session steps as Blender keeps undo steps."""
+    steps = int(getattr(context.preferences.edit, "undo_steps", 32))
+    session.history.limit = max(session.history.limit, steps + 2)
+
+
 def start(context, obj, settings: StartSettings) -> LiveSession:
     """Load the object's scene, build the session (occupancy grid, anchor renders) and the
     anchor cameras; the first anchor becomes the scene camera."""
@@ -188,6 +194,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
             raise
         write_selection(obj, live)  # defined from the start (a restart clears the old one)
         session_registry.put(obj, live)
+        _follow_undo_steps(context, session)
         obj[STEP_PROP] = session.history.current.id
         live.open_s = time.perf_counter() - t0
         live.record({"what": "start", "update_s": live.open_s})
@@ -233,6 +240,7 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
             session.close()
             raise
         session_registry.put(obj, live)
+        _follow_undo_steps(context, session)
         obj[STEP_PROP] = session.history.current.id
         live.open_s = time.perf_counter() - t0
         live.record({"what": "resume", "update_s": live.open_s})

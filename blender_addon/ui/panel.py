@@ -12,6 +12,7 @@ from .. import session_registry, source
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import get_preferences
 from ..properties import scene_settings
+from ..reporting import rejection_message
 from ..selection import selected_count
 from ..session_actions import saved_session_path
 
@@ -76,6 +77,13 @@ def _draw_settings(layout, context, ref) -> None:
     box.prop(props, "autosave")
 
 
+def _wrap(text: str, width: int = 48) -> list[str]:
+    """``text`` in lines of at most ``width`` characters (panel labels do not wrap)."""
+    import textwrap
+
+    return textwrap.wrap(text, width) or [""]
+
+
 def _draw_history(layout, live) -> None:
     h = live.session.history
     row = layout.row(align=True)
@@ -103,6 +111,13 @@ def _draw_session(layout, live) -> None:
         f"object {len(live.session.objects)}"
     )
     col.label(text=f"{c['active_voxels']:,} active voxels · {c['segmented_voxels']:,} segmented")
+    rejected = [v for v in live.session.views if v.status == "rejected"]
+    if rejected:
+        sub = box.column(align=True)
+        sub.alert = True
+        sub.label(text=f"{len(rejected)} view(s) not added. Last one:", icon="ERROR")
+        for line in _wrap(rejection_message(rejected[-1].reason, rejected[-1].score)):
+            sub.label(text=line)
     last = live.last_update
     if last:
         sub = box.column(align=True)
@@ -182,7 +197,7 @@ class DIVAS_PT_main(bpy.types.Panel):
                 icon="PLAY",
             )
             row.operator("divas.resume_session", text="", icon="RECOVER_LAST")
-            if live is None and saved_session_path(obj) is not None:
+            if live is None and saved_session_path(obj, search=False) is not None:
                 box = layout.box()
                 box.label(text="This object has a saved DivAS session", icon="FILE_TICK")
                 box.operator("divas.resume_session", text="Resume Session", icon="RECOVER_LAST")

@@ -386,6 +386,17 @@ def test_panel_draws_session(scene_dir):
         "divas.extract_selection",
         "divas.export_selection",
         "divas.resume_session",
+        "ed.undo",
+        "ed.redo",
+        "divas.select_gesture",
+        "divas.select_sphere",
+        "divas.select_all",
+        "divas.select_grow",
+        "divas.select_by_attribute",
+        "divas.delete_selected",
+        "divas.hide_selected",
+        "divas.reveal_hidden",
+        "divas.separate_selected",
     } <= ops
     props = {v for k, v in log if k == "prop"}
     assert {"device", "segmenter", "preset", "see_through_gap", "surfel_coverage", "gamma"} <= props
