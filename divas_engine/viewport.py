@@ -136,6 +136,12 @@ def camera_pixel_to_region(uv, frame_corners, image_size: tuple[int, int]) -> np
     return p[:, :2] / p[:, 2:3]
 
 
+#: Blender camera axes (−z forward, y up) ↔ OpenCV axes, right-multiplied on a
+#: camera-to-world matrix (the same matrix as ``blender_convention.BLENDER_TO_OPENCV``;
+#: a sibling layer, so not imported).
+BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
 class OrthographicViewError(ValueError):
     """The 3D view is orthographic: it has no pinhole camera to click through."""
 
@@ -148,7 +154,6 @@ def camera_from_region(view_matrix, window_matrix, region_size: tuple[int, int],
         OrthographicViewError: the view is orthographic.
         ValueError: a singular view matrix or an empty region.
     """
-    from .blender_convention import BLENDER_TO_OPENCV
     from .camera import Camera
 
     vm = np.asarray(view_matrix, np.float64).reshape(4, 4)
@@ -179,8 +184,6 @@ def camera_from_region(view_matrix, window_matrix, region_size: tuple[int, int],
 def region_matrices(camera, near: float = 0.01, far: float = 1000.0):
     """``(view_matrix, window_matrix)`` of a 3D-view region of the camera's image size
     that shows exactly ``camera`` (the inverse of :func:`camera_from_region`)."""
-    from .blender_convention import BLENDER_TO_OPENCV
-
     vm = np.linalg.inv(camera.c2w @ BLENDER_TO_OPENCV)
     w, h = camera.width, camera.height
     p = np.zeros((4, 4))
