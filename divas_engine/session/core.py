@@ -29,6 +29,7 @@ from ..segment.worker import SamWorker
 from ..views import AnchorPlan
 from .backends import SessionBackend, backend_class_for
 from .config import SessionConfig
+from .edits import EditLayer, compose
 from .masks import TimedSegmenter
 from .persistence import session_state
 from .records import AnchorView, ObjectRecord, Overlay, SessionView
@@ -96,11 +97,12 @@ class SessionCore:
         self._gt_values = None
         if gt_values is not None:
             self.set_ground_truth(gt_values)
-        s = config.render_scale
-        self.anchors: list[AnchorView] = [
-            AnchorView(i, cam if s == 1.0 else cam.scaled(s), cam, src, idx, None, self)
-            for i, (cam, src, idx) in enumerate(anchors)
-        ]
+        self.anchors: list[AnchorView] = []
+        for cam, src, idx in anchors:
+            full = self._anchor_full_camera(cam)
+            self.anchors.append(
+                AnchorView(len(self.anchors), self.working_camera(full), full, src, idx, None, self)
+            )
         self._worker: SamWorker | None = None
         self._pending: list[SessionView] = []
         self._views: dict[str, SessionView] = {}
@@ -108,6 +110,9 @@ class SessionCore:
         shape = self.backend.selection_shape
         self.labels = np.zeros(shape, np.int32)
         self._selection = np.zeros(shape, bool)
+        self._semantic = np.zeros(shape, bool)  # before manual edits (:mod:`.edits`)
+        self.edits = EditLayer()
+        self._history = None  # :attr:`Session.history`, made on first use
         self.replay_matches: bool | None = None
         self.plan: AnchorPlan | None = None
         self._closed = False
@@ -183,6 +188,15 @@ class SessionCore:
         """``camera`` at the session's render scale."""
         s = self.config.render_scale
         return camera if s == 1.0 else camera.scaled(s)
+
+    def _anchor_full_camera(self, camera: Camera) -> Camera:
+        """An anchor's full camera: ``camera`` resized so its render's long side is
+        ``config.anchor_long_side`` (unchanged when that is 0)."""
+        long_side = int(self.config.anchor_long_side)
+        if long_side <= 0:
+            return camera
+        s = self.config.render_scale
+        return camera.scaled(long_side / (s * max(camera.width, camera.height)))
 
     def indicator(self, selection: np.ndarray | None = None) -> np.ndarray:
         """Float per-primitive indicator of a selection (current by default)."""
@@ -265,12 +279,17 @@ class SessionCore:
         t = time.perf_counter()
         live = self._live_views()
         if not live:
-            self._selection = np.zeros_like(self._selection)
+            self._set_semantic(np.zeros_like(self._selection))
             return 0.0
-        self._selection = self.backend.selection(self.fusion.result(), live)
+        self._set_semantic(self.backend.selection(self.fusion.result(), live))
         dt = time.perf_counter() - t
         self.timings.add("mapping", dt)
         return dt
+
+    def _set_semantic(self, semantic: np.ndarray) -> None:
+        """The fused selection ``S``; the selection is ``S`` with the manual edits."""
+        self._semantic = semantic
+        self._selection = compose(semantic, self.edits, self.current.index)
 
     # ------------------------------------------------------------------ anchors
     def add_anchor(self, camera: Camera, source: str = "camera", index: int = -1) -> AnchorView:
@@ -289,10 +308,11 @@ class SessionCore:
         """
         if not isinstance(camera, Camera):
             raise TypeError(f"add_anchor: expected a Camera, got {type(camera).__name__}")
+        full = self._anchor_full_camera(camera)
         a = AnchorView(
             len(self.anchors),
-            self.working_camera(camera),
-            camera,
+            self.working_camera(full),
+            full,
             str(source),
             int(index),
             None,

@@ -69,6 +69,8 @@ from ..views.centroid_common import click_point
 from .backends import backend_class_for
 from .config import SessionConfig
 from .core import SessionCore
+from .edits import SelectionEditing
+from .history import SessionHistory
 from .masks import TimedSegmenter, default_prompts, mask_preview, prompt_set
 from .persistence import load_session
 from .records import AcceptResult, AnchorClick, AnchorView, MaskPreview, ObjectRecord, SessionView
@@ -93,12 +95,23 @@ def anchor_plan(
     )
 
 
-class Session(SessionCore):
+class Session(SelectionEditing, SessionCore):
     """One interactive segmentation session over a scene (module docstring): the loop
     steps, over the state, rendering and outputs of :class:`~.core.SessionCore`.
 
     Create with :meth:`open` (fresh) or :meth:`load` (saved session, replayed).
+    Manual edits of the selection: :class:`~.edits.SelectionEditing`; undo / redo of any
+    step: :attr:`history`.
     """
+
+    @property
+    def history(self) -> SessionHistory:
+        """The undo / redo history of this session (:mod:`.history`); made on first use,
+        with the current state as its first step. Steps are recorded by the caller
+        (:meth:`SessionHistory.record`), once per user-level step."""
+        if self._history is None:
+            self._history = SessionHistory(self)
+        return self._history
 
     @classmethod
     def open(
@@ -471,11 +484,14 @@ class Session(SessionCore):
                 for v in o.views:
                     self._views.pop(v.id, None)
             self.objects = [ObjectRecord(0, 1, "object_1")]
-            self.labels[...] = 0
+            self.labels = np.zeros_like(self.labels)
+            for k in list(self.edits.objects):
+                self.edits = self.edits.with_object(k, None)
         else:
             cur = self.current
             self.objects[-1] = ObjectRecord(cur.index, cur.label, f"object_{cur.label}")
-        self._selection = np.zeros_like(self._selection)
+            self.edits = self.edits.with_object(cur.index, None)
+        self._set_semantic(np.zeros_like(self._selection))
         self._autosave()
 
     def _drain_worker(self) -> None:
@@ -493,7 +509,7 @@ class Session(SessionCore):
             cur.name = str(name)
         cur.selection = self._selection.copy()
         take = cur.selection if self.config.overwrite_labels else cur.selection & (self.labels == 0)
-        self.labels[take] = cur.label
+        self.labels = np.where(take, cur.label, self.labels).astype(self.labels.dtype)
         cur.finished = True
         # open views of the finished object are dropped from the id table
         for v in cur.views:
@@ -501,9 +517,9 @@ class Session(SessionCore):
                 self._views.pop(v.id, None)
         cur.views = [v for v in cur.views if v.status != ViewStatus.OPEN]
         self.fusion.reset()
-        self._selection = np.zeros_like(self._selection)
         k = len(self.objects)
         self.objects.append(ObjectRecord(k, k + 1, f"object_{k + 1}"))
+        self._set_semantic(np.zeros_like(self._selection))
         self._autosave()
         return cur
 
