@@ -20,12 +20,13 @@ Choices where the paper is silent:
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from .fusion_common import ViewData, centre_pixel, footprint, pixel_depths, pixel_ray, project
 from .integral_image import sat_sum_i32
 
-__all__ = ["NerfGridGeom", "NerfParams", "nerf_fuse_view"]
+__all__ = ["NerfGridGeom", "NerfParams", "make_nerf_grid_geom", "nerf_fuse_view"]
 
 
 @wp.struct
@@ -40,6 +41,22 @@ class NerfGridGeom:
     nx: int
     ny: int
     dx: float
+
+
+def make_nerf_grid_geom(
+    origin: np.ndarray, cell: np.ndarray, shape_xyz: tuple[int, int, int], dx: float
+) -> NerfGridGeom:
+    """:class:`NerfGridGeom` of a lattice (``origin`` = AABB min, ``cell`` edges, float64)."""
+    origin = np.asarray(origin, dtype=np.float64)
+    cell = np.asarray(cell, dtype=np.float64)
+    g = NerfGridGeom()
+    g.origin = wp.vec3(*origin.astype(np.float32))
+    g.cell = wp.vec3(*cell.astype(np.float32))
+    g.origin_d = wp.vec3d(*origin)
+    g.cell_d = wp.vec3d(*cell)
+    g.nx, g.ny = int(shape_xyz[0]), int(shape_xyz[1])
+    g.dx = float(dx)
+    return g
 
 
 @wp.struct

@@ -46,10 +46,13 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from . import render_defaults as RD
 from ._launch import cpu_threads, launch_split
 from .composite import ANCHOR_MED, BlendParams, PixelOut, PixState
 from .sh import eval_sh
 from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, splat_plane_rows
+from .tile_binning import tile_bands
+from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
 wp.set_module_options({"enable_backward": False})
@@ -60,8 +63,8 @@ __all__ = [
     "SurfelBuffers",
     "upload_surfels",
     "rasterize_surfels",
-    "tile_bands",
     "make_raster_camera",
+    "project_splats",
 ]
 
 
@@ -84,16 +87,16 @@ class RasterSettings:
         profile: synchronise after each stage and record stage seconds in ``stats``.
     """
 
-    tau_sig: float = 0.05
-    tau_cw: float = 0.75
-    t_min: float = 1e-4
-    alpha_min: float = 1.0 / 255.0
-    alpha_max: float = 0.99
-    lowpass_sigma: float = float(np.sqrt(0.5))
-    near: float = 0.01
-    tile: int = 16
-    max_duplicates: int = 1 << 25
-    blend: str = "auto"
+    tau_sig: float = RD.TAU_SIG
+    tau_cw: float = RD.TAU_CW
+    t_min: float = RD.T_MIN
+    alpha_min: float = RD.ALPHA_MIN
+    alpha_max: float = RD.ALPHA_MAX
+    lowpass_sigma: float = RD.LOWPASS_SIGMA
+    near: float = RD.NEAR
+    tile: int = RD.TILE
+    max_duplicates: int = RD.MAX_DUPLICATES
+    blend: str = RD.BLEND
     threads: int | None = None
     profile: bool = False
 
@@ -146,7 +149,7 @@ def upload_surfels(
     sh: np.ndarray,
     sh_degree: int,
     device,
-    alpha_min: float = 1.0 / 255.0,
+    alpha_min: float = RD.ALPHA_MIN,
 ) -> SurfelBuffers:
     """Copy a surfel scene to ``device``. ``rotations`` ``[N,3,3]`` (columns t_u, t_v, n)."""
     n = len(means)
@@ -273,89 +276,6 @@ def preprocess_kernel(
         colors[i, 2] = col[2]
 
 
-@wp.func
-def band_tiles(sp: Splat, tile: int, band_lo: int, band_hi: int):
-    """Tile rectangle of ``sp`` clipped to tile rows ``[band_lo, band_hi)``; empty → tx0 > tx1."""
-    tx0 = sp.x0 // tile
-    tx1 = sp.x1 // tile
-    ty0 = wp.max(sp.y0 // tile, band_lo)
-    ty1 = wp.min(sp.y1 // tile, band_hi - 1)
-    if sp.x0 > sp.x1 or ty0 > ty1:
-        tx0 = 1
-        tx1 = 0
-    return tx0, tx1, ty0, ty1
-
-
-@wp.kernel
-def count_kernel(
-    splats: wp.array(dtype=Splat),
-    order: wp.array(dtype=wp.int32),
-    tile: int,
-    band_lo: int,
-    band_hi: int,
-    counts: wp.array(dtype=wp.int32),
-    base: int,
-    stride: int,
-):
-    """Tiles touched in the band by the ``j``-th surfel in depth order."""
-    j = base + wp.tid() * stride
-    tx0, tx1, ty0, ty1 = band_tiles(splats[order[j]], tile, band_lo, band_hi)
-    n = int(0)
-    if tx0 <= tx1:
-        n = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
-    counts[j] = wp.int32(n)
-
-
-@wp.kernel
-def duplicate_kernel(
-    splats: wp.array(dtype=Splat),
-    order: wp.array(dtype=wp.int32),
-    tile: int,
-    band_lo: int,
-    band_hi: int,
-    tiles_x: int,
-    incl: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=wp.int32),
-    vals: wp.array(dtype=wp.int32),
-    base: int,
-    stride: int,
-):
-    """Emit one (band-local tile id, surfel) pair per touched tile, in depth order."""
-    j = base + wp.tid() * stride
-    i = order[j]
-    tx0, tx1, ty0, ty1 = band_tiles(splats[i], tile, band_lo, band_hi)
-    o = int(incl[j]) - int(counts[j])  # exclusive offset
-    if tx0 <= tx1:
-        for ty in range(ty0, ty1 + 1):
-            for tx in range(tx0, tx1 + 1):
-                keys[o] = wp.int32((ty - band_lo) * tiles_x + tx)
-                vals[o] = i
-                o += 1
-
-
-@wp.kernel
-def ranges_kernel(
-    keys: wp.array(dtype=wp.int32),
-    n: int,
-    rstart: wp.array(dtype=wp.int32),
-    rend: wp.array(dtype=wp.int32),
-    base: int,
-    stride: int,
-):
-    """``[rstart[t], rend[t])``: the sorted pairs of tile ``t``."""
-    e = base + wp.tid() * stride
-    k = keys[e]
-    if e == 0:
-        rstart[k] = wp.int32(0)
-    elif keys[e - 1] != k:
-        rstart[k] = wp.int32(e)
-    if e == n - 1:
-        rend[k] = wp.int32(n)
-    elif keys[e + 1] != k:
-        rend[k] = wp.int32(e + 1)
-
-
 # --------------------------------------------------------------------------- wrapper
 @dataclass
 class RasterOutput:
@@ -390,6 +310,63 @@ def alloc_pixel_out(P: int, C: int, bg: np.ndarray, device) -> PixelOut:
     return out
 
 
+def check_view(who: str, W: int, H: int, s: RasterSettings, dev) -> tuple[str, int, int]:
+    """Validate an image size and settings; ``(blend mode, tile, CPU threads)``."""
+    T = int(s.tile)
+    if W <= 0 or H <= 0:
+        raise ValueError(f"{who}: empty image {W}x{H}")
+    if T <= 0 or T > 64:
+        raise ValueError(f"{who}: tile size {T} outside 1..64")
+    mode = s.blend if s.blend != "auto" else ("pixel" if dev.is_cuda else "tile")
+    if mode not in ("pixel", "tile"):
+        raise ValueError(f"{who}: blend mode {s.blend!r} is not auto/pixel/tile")
+    return mode, T, (1 if dev.is_cuda else cpu_threads(s.threads))
+
+
+def project_splats(
+    buf: SurfelBuffers,
+    cam: RasterCamera,
+    inv_var: float,
+    colors: wp.array | None,
+    threads: int,
+) -> tuple[wp.array, wp.array, wp.array]:
+    """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
+    into ``colors`` when given) and sort by centre depth (stable: ties keep index order).
+
+    Returns ``(splats [N], keys [2N], order [2N])``: ``order[:N]`` is the depth order,
+    culled surfels last (key +inf). Shared by every pass over the view's tiles.
+    """
+    n = len(buf)
+    dev = buf.device
+    splats = wp.empty(n, dtype=Splat, device=dev)
+    keys = wp.empty(2 * n, dtype=float, device=dev)
+    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    with_color = 0 if colors is None else 1
+    launch_split(
+        preprocess_kernel,
+        n,
+        [
+            buf.means,
+            buf.tu,
+            buf.tv,
+            buf.opacity,
+            buf.rho_cut,
+            buf.sh,
+            buf.sh_degree,
+            with_color,
+            cam,
+            inv_var,
+            splats,
+            keys,
+            order,
+            colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
+        ],
+        dev,
+        threads,
+    )
+    return splats, keys, order
+
+
 def rasterize_surfels(
     buf: SurfelBuffers,
     w2c: np.ndarray,
@@ -414,217 +391,51 @@ def rasterize_surfels(
     s = settings or RasterSettings()
     dev = buf.device
     n = len(buf)
-    W, H, T = int(width), int(height), int(s.tile)
-    if W <= 0 or H <= 0:
-        raise ValueError(f"rasterize_surfels: empty image {W}x{H}")
-    if T <= 0 or T > 64:
-        raise ValueError(f"rasterize_surfels: tile size {T} outside 1..64")
-    mode = s.blend if s.blend != "auto" else ("pixel" if dev.is_cuda else "tile")
-    if mode not in ("pixel", "tile"):
-        raise ValueError(f"rasterize_surfels: blend mode {s.blend!r} is not auto/pixel/tile")
-    threads = cpu_threads(s.threads)
+    W, H = int(width), int(height)
+    mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     cam = make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
     with wp.ScopedDevice(dev):
         if values is None:
-            C, with_color, bg = 3, 1, np.asarray(background, dtype=np.float32).reshape(3)
+            C, bg = 3, np.asarray(background, dtype=np.float32).reshape(3)
             feat = wp.empty((max(n, 1), 3), dtype=float)
         else:
             v = np.asarray(values, dtype=np.float32)
             v = v.reshape(len(v), -1) if v.ndim > 1 else v.reshape(-1, 1)
             if v.shape[0] != n:
                 raise ValueError(f"rasterize_surfels: values has {v.shape[0]} rows for {n} surfels")
-            C, with_color, bg = v.shape[1], 0, np.zeros(v.shape[1], np.float32)
+            C, bg = v.shape[1], np.zeros(v.shape[1], np.float32)
             feat = wp.array(np.ascontiguousarray(v), dtype=float)
         out = alloc_pixel_out(P, C, bg, dev)
+        sink = BlendSink()
+        sink.feat, sink.out = feat, out
         stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode}
         tiles_x, tiles_y = -(-W // T), -(-H // T)
-        if n == 0:
-            _blend_empty(out, P, cam, s, T, tiles_x, tiles_y, feat, mode, threads, dev)
+        states = wp.empty(P, dtype=PixState) if mode == "tile" else None
+        bp = blend_params(s)
+        alpha_max = float(s.alpha_max)
+        if n == 0:  # every pixel gets the empty tuple and the background
+            z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32)
+            one = wp.empty(1, dtype=wp.int32)
+            nt = tiles_x * tiles_y
+            args = (wp.empty(1, dtype=Splat), one, z, z, cam, inv_var, alpha_max, bp, T, tiles_x)
+            launch_walk(mode, sink, *args, 0, nt, states, dev, threads, "chunk")
             return RasterOutput(out, W, H, stats)
         tm = _Timer(s.profile, stats)
-        splats = wp.empty(n, dtype=Splat)
-        keys = wp.empty(2 * n, dtype=float)
-        order = wp.empty(2 * n, dtype=wp.int32)
-        launch_split(
-            preprocess_kernel,
-            n,
-            [
-                buf.means,
-                buf.tu,
-                buf.tv,
-                buf.opacity,
-                buf.rho_cut,
-                buf.sh,
-                buf.sh_degree,
-                with_color,
-                cam,
-                inv_var,
-                splats,
-                keys,
-                order,
-                feat if with_color else wp.empty((1, 3), dtype=float),
-            ],
-            dev,
-            threads,
+        splats, keys, order = project_splats(
+            buf, cam, inv_var, feat if values is None else None, threads
         )
         tm.lap("preprocess")
         wp.utils.radix_sort_pairs(keys, order, n)
         tm.lap("depth_sort")
-        states = wp.empty(P, dtype=PixState) if mode == "tile" else None
-        bp = blend_params(s)
-        for lo, nt, dvals, rstart, rend, _ in tile_bands(
-            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm
-        ):
-            _blend(
-                mode,
-                splats,
-                dvals,
-                rstart,
-                rend,
-                feat,
-                cam,
-                inv_var,
-                s,
-                bp,
-                T,
-                tiles_x,
-                lo,
-                nt,
-                states,
-                out,
-                dev,
-                threads,
-            )
+        bands = tile_bands(
+            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
+        )
+        for lo, nt, dvals, rstart, rend, _ in bands:
+            args = (splats, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
+            launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "chunk")
             tm.lap("blend")
         if s.profile:  # a device → host copy of the sort keys: only when profiling
             stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
     return RasterOutput(out, W, H, stats)
-
-
-def tile_bands(
-    splats: wp.array,
-    order: wp.array,
-    n: int,
-    T: int,
-    tiles_x: int,
-    tiles_y: int,
-    max_duplicates: int,
-    stats: dict,
-    dev,
-    threads: int,
-    tm: _Timer | None = None,
-):
-    """Bin depth-sorted splats into tiles, one band of tile rows at a time.
-
-    Per band: count the tiles each splat touches, scan, split the band in two while it
-    holds more than ``max_duplicates`` (splat, tile) pairs (bounded memory), duplicate
-    keys, sort them by tile (stable, so depth order survives) and find each tile's range.
-    Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
-    used by the contribution pass (``kernels.contrib``) so both see the same binning.
-    """
-    lap = tm.lap if tm is not None else (lambda _stage: None)
-    counts = wp.empty(n, dtype=wp.int32)
-    incl = wp.empty(n, dtype=wp.int32)
-    bands = [(0, tiles_y)]
-    while bands:
-        lo, hi = bands.pop(0)
-        launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
-        wp.utils.array_scan(counts, incl, inclusive=True)
-        total = int(incl[n - 1 : n].numpy()[0])
-        lap("count")
-        if total > max_duplicates and hi - lo > 1:
-            mid = (lo + hi) // 2
-            bands[:0] = [(lo, mid), (mid, hi)]
-            continue
-        stats["pairs"] += total
-        stats["bands"] += 1
-        nt = (hi - lo) * tiles_x
-        rstart = wp.zeros(nt, dtype=wp.int32)
-        rend = wp.zeros(nt, dtype=wp.int32)
-        if total > 0:
-            dkeys = wp.empty(2 * total, dtype=wp.int32)
-            dvals = wp.empty(2 * total, dtype=wp.int32)
-            launch_split(
-                duplicate_kernel,
-                n,
-                [splats, order, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
-                dev,
-                threads,
-            )
-            lap("duplicate")
-            wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
-            lap("tile_sort")
-            launch_split(ranges_kernel, total, [dkeys, total, rstart, rend], dev, threads)
-        else:
-            dvals = wp.empty(1, dtype=wp.int32)
-        yield lo, nt, dvals, rstart, rend, total
-
-
-def _blend(
-    mode,
-    splats,
-    vals,
-    rstart,
-    rend,
-    feat,
-    cam,
-    inv_var,
-    s,
-    bp,
-    T,
-    tiles_x,
-    band_lo,
-    nt,
-    states,
-    out,
-    dev,
-    threads,
-) -> None:
-    from .rasterize_blend import blend_pixel_kernel, blend_tile_kernel
-
-    common = [
-        splats,
-        vals,
-        rstart,
-        rend,
-        feat,
-        cam,
-        inv_var,
-        float(s.alpha_max),
-        bp,
-        T,
-        tiles_x,
-        band_lo,
-    ]
-    if mode == "pixel":
-        launch_split(blend_pixel_kernel, nt * T * T, common + [out], dev, threads)
-    else:
-        launch_split(blend_tile_kernel, nt, common + [states, out], dev, threads, mode="interleave")
-
-
-def _blend_empty(out, P, cam, s, T, tiles_x, tiles_y, feat, mode, threads, dev) -> None:
-    """No surfels: every pixel gets the empty tuple and the background."""
-    z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32, device=dev)
-    splats = wp.empty(1, dtype=Splat, device=dev)
-    _blend(
-        mode,
-        splats,
-        wp.empty(1, dtype=wp.int32, device=dev),
-        z,
-        z,
-        feat,
-        cam,
-        1.0 / float(s.lowpass_sigma) ** 2,
-        s,
-        blend_params(s),
-        T,
-        tiles_x,
-        0,
-        tiles_x * tiles_y,
-        wp.empty(P, dtype=PixState, device=dev) if mode == "tile" else None,
-        out,
-        dev,
-        threads,
-    )
