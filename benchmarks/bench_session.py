@@ -35,7 +35,7 @@ from divas_engine.io.cameras import load_cameras
 from divas_engine.io.load import load_scene
 from divas_engine.synthetic import generate_scene
 
-COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "overlay_s", "update_s")
+COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "update_s")
 CACHE = Path(os.environ.get("DIVAS_BENCH_CACHE", tempfile.gettempdir())) / "divas_bench_scenes"
 
 

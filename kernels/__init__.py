@@ -49,6 +49,8 @@ from .rasterize import (
     RasterOutput,
     RasterSettings,
     SurfelBuffers,
+    ViewBinning,
+    binning_key,
     rasterize_surfels,
     upload_surfels,
 )
@@ -70,6 +72,8 @@ __all__: list[str] = [
     "RasterOutput",
     "RasterSettings",
     "SurfelBuffers",
+    "ViewBinning",
+    "binning_key",
     "rasterize_surfels",
     "upload_surfels",
     "GridBuffers",

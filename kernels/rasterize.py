@@ -65,6 +65,7 @@ __all__ = [
     "rasterize_surfels",
     "make_raster_camera",
     "project_splats",
+    "ViewBinning",
 ]
 
 
@@ -291,6 +292,7 @@ class RasterOutput:
     width: int
     height: int
     stats: dict
+    binning: ViewBinning | None = None
 
 
 def blend_params(s: RasterSettings, anchor: int = ANCHOR_MED) -> BlendParams:
@@ -367,6 +369,47 @@ def project_splats(
     return splats, keys, order
 
 
+@dataclass(eq=False)
+class ViewBinning:
+    """Projection, culling, depth order and tile binning of one view, reusable by every
+    later pass over the same camera, settings and scene (issue 20: the RGB/depth render
+    and the value renders of a camera share them; the results are bit-identical, the
+    same kernels running on the same inputs).
+
+    Attributes:
+        key: what the binning depends on (scene buffers, camera, settings).
+        splats, keys, order: :func:`project_splats` output, ``order[:N]`` depth-sorted.
+        bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
+            fits in one band, else None (each pass re-bins band by band: bounded memory).
+        colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
+        stats: pairs and bands.
+    """
+
+    key: tuple
+    cam: RasterCamera
+    splats: wp.array
+    keys: wp.array
+    order: wp.array
+    bands: list | None
+    colors: wp.array | None
+    stats: dict
+
+    @property
+    def nbytes(self) -> int:
+        arrs = [self.splats, self.keys, self.order, self.colors]
+        for b in self.bands or ():
+            arrs += [b[2], b[3], b[4]]
+        return sum(a.capacity for a in arrs if a is not None)
+
+
+def binning_key(buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings) -> tuple:
+    """What a :class:`ViewBinning` depends on (the blend-only settings excluded)."""
+    w = np.ascontiguousarray(w2c, dtype=np.float64).tobytes()
+    geo = (float(fx), float(fy), float(cx), float(cy), int(W), int(H))
+    cfg = (float(s.near), float(s.lowpass_sigma), int(s.tile), int(s.max_duplicates))
+    return (id(buf), w, geo, cfg)
+
+
 def rasterize_surfels(
     buf: SurfelBuffers,
     w2c: np.ndarray,
@@ -379,12 +422,21 @@ def rasterize_surfels(
     settings: RasterSettings | None = None,
     values: np.ndarray | None = None,
     background: np.ndarray | tuple = (0.0, 0.0, 0.0),
+    *,
+    features: bool = True,
+    binning: ViewBinning | None = None,
+    keep_binning: bool = False,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
     Args:
         values: ``None`` → composite SH colours over ``background``; else ``[N]`` or
             ``[N, C]`` per-surfel values composited with the same weights (no background).
+        features: False (with ``values`` None) → the depth tuple only: no SH colours, no
+            feature compositing (``feat`` is ``[P, 0]``); the depths are the same.
+        binning: a :class:`ViewBinning` of an earlier pass; used when its key matches
+            this view (and, for an RGB render, it holds the colours), else ignored.
+        keep_binning: return this view's binning in ``RasterOutput.binning``.
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -393,13 +445,22 @@ def rasterize_surfels(
     n = len(buf)
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
-    cam = make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+    rgb = values is None and features
+    key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s)
+    if binning is not None and (binning.key != key or (rgb and binning.colors is None)):
+        binning = None
+    cam = (
+        binning.cam
+        if binning is not None
+        else make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+    )
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
     with wp.ScopedDevice(dev):
         if values is None:
-            C, bg = 3, np.asarray(background, dtype=np.float32).reshape(3)
-            feat = wp.empty((max(n, 1), 3), dtype=float)
+            C = 3 if features else 0
+            bg = np.asarray(background, dtype=np.float32).reshape(3)[:C]
+            feat = wp.empty((max(n, 1), C), dtype=float)
         else:
             v = np.asarray(values, dtype=np.float32)
             v = v.reshape(len(v), -1) if v.ndim > 1 else v.reshape(-1, 1)
@@ -409,13 +470,14 @@ def rasterize_surfels(
             feat = wp.array(np.ascontiguousarray(v), dtype=float)
         out = alloc_pixel_out(P, C, bg, dev)
         sink = BlendSink()
-        sink.feat, sink.out = feat, out
+        sink.out = out
         stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode}
         tiles_x, tiles_y = -(-W // T), -(-H // T)
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
         alpha_max = float(s.alpha_max)
         if n == 0:  # every pixel gets the empty tuple and the background
+            sink.feat = feat
             z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32)
             one = wp.empty(1, dtype=wp.int32)
             nt = tiles_x * tiles_y
@@ -423,19 +485,42 @@ def rasterize_surfels(
             launch_walk(mode, sink, *args, 0, nt, states, dev, threads, "chunk")
             return RasterOutput(out, W, H, stats)
         tm = _Timer(s.profile, stats)
-        splats, keys, order = project_splats(
-            buf, cam, inv_var, feat if values is None else None, threads
-        )
-        tm.lap("preprocess")
-        wp.utils.radix_sort_pairs(keys, order, n)
-        tm.lap("depth_sort")
-        bands = tile_bands(
-            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
-        )
-        for lo, nt, dvals, rstart, rend, _ in bands:
+        if binning is None:
+            splats, keys, order = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
+            tm.lap("preprocess")
+            wp.utils.radix_sort_pairs(keys, order, n)
+            tm.lap("depth_sort")
+            binning = ViewBinning(key, cam, splats, keys, order, None, feat if rgb else None, {})
+            bands = tile_bands(
+                splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
+            )
+            kept: list | None = []
+        else:
+            splats, keys = binning.splats, binning.keys
+            if rgb:
+                feat = binning.colors
+            if binning.bands is not None:
+                bands = iter(binning.bands)
+                stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
+            else:
+                bands = tile_bands(
+                    splats, binning.order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev,
+                    threads, tm.lap,
+                )  # fmt: skip
+            kept = None
+        sink.feat = feat
+        for band in bands:
+            lo, nt, dvals, rstart, rend, _ = band
+            if kept is not None:
+                kept.append(band)
             args = (splats, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
             launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "chunk")
             tm.lap("blend")
+        if kept is not None:  # a fresh binning: keep its bands when there is one
+            binning.bands = kept if len(kept) == 1 else None
+            binning.stats = {"pairs": stats["pairs"], "bands": stats["bands"]}
         if s.profile:  # a device → host copy of the sort keys: only when profiling
             stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
-    return RasterOutput(out, W, H, stats)
+    res = RasterOutput(out, W, H, stats)
+    res.binning = binning if keep_binning else None
+    return res

@@ -212,6 +212,20 @@ class SessionCore:
             cam, cov.astype(np.float32), cov >= cfg.overlay_threshold, img.astype(np.float32), vid
         )
 
+    def _lazy_overlays(self, view: SessionView | None):
+        """``(overlay of view, next open view, its overlay)`` for the current selection,
+        each overlay a callable rendered on first read (issue 20: an accept renders
+        nothing the user does not look at). The selection is captured now, so a later
+        accept does not change what these show."""
+        sel = self._selection
+        ov = nov = None
+        if view is not None and view.status == ViewStatus.FUSED:
+            ov = lambda: self.overlay(view, sel)  # noqa: E731
+        nxt = self.next_view()
+        if nxt is not None:
+            nov = lambda: self.overlay(nxt, sel)  # noqa: E731
+        return ov, nxt, nov
+
     # ------------------------------------------------------------------ state access
     @property
     def current(self) -> ObjectRecord:
