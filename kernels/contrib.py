@@ -35,7 +35,14 @@ import warp as wp
 
 from ._launch import launch_split
 from .composite import PixState
-from .rasterize import RasterSettings, SurfelBuffers, blend_params, check_view, project_splats
+from .rasterize import (
+    RasterSettings,
+    SurfelBuffers,
+    blend_params,
+    check_view,
+    count_visible,
+    project_splats,
+)
 from .splat import make_raster_camera
 from .tile_binning import tile_bands
 from .tile_walk import ContribSink, launch_walk
@@ -114,11 +121,12 @@ def accumulate_contributions(
         sink.a0 = rows0 = wp.zeros((threads, n), dtype=float)
         splats, keys, order = project_splats(buf, cam, inv_var, None, threads)
         wp.utils.radix_sort_pairs(keys, order, n)
+        n_vis = count_visible(keys, n)
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
         tiles_x, tiles_y = -(-W // T), -(-H // T)
         for lo, nt, dvals, rstart, rend, total in tile_bands(
-            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
+            splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
         ):
             if total == 0:
                 continue

@@ -325,6 +325,30 @@ def check_view(who: str, W: int, H: int, s: RasterSettings, dev) -> tuple[str, i
     return mode, T, (1 if dev.is_cuda else cpu_threads(s.threads))
 
 
+@wp.kernel
+def _visible_kernel(keys: wp.array(dtype=float), n: int, out: wp.array(dtype=int)):
+    """Binary search of the sorted ``keys[:n]``: the first culled key (``BIG``)."""
+    lo = int(0)
+    hi = n
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if keys[mid] < 0.5 * BIG:
+            lo = mid + 1
+        else:
+            hi = mid
+    out[0] = lo
+
+
+def count_visible(keys: wp.array, n: int) -> int:
+    """Surfels left after culling: the length of the visible prefix of the depth order
+    (culled surfels sort last with key ``BIG``). Binning only this prefix gives the same
+    (tile, surfel) pairs at a fraction of the cost when most surfels are off-screen —
+    zoomed centroid views and probes (issue 20)."""
+    out = wp.zeros(1, dtype=int, device=keys.device)
+    wp.launch(_visible_kernel, dim=1, inputs=[keys, int(n), out], device=keys.device)
+    return int(out.numpy()[0])
+
+
 def project_splats(
     buf: SurfelBuffers,
     cam: RasterCamera,
@@ -379,6 +403,7 @@ class ViewBinning:
     Attributes:
         key: what the binning depends on (scene buffers, camera, settings).
         splats, keys, order: :func:`project_splats` output, ``order[:N]`` depth-sorted.
+        n_visible: :func:`count_visible` of the sorted keys.
         bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
             fits in one band, else None (each pass re-bins band by band: bounded memory).
         colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
@@ -390,6 +415,7 @@ class ViewBinning:
     splats: wp.array
     keys: wp.array
     order: wp.array
+    n_visible: int
     bands: list | None
     colors: wp.array | None
     stats: dict
@@ -489,11 +515,15 @@ def rasterize_surfels(
             splats, keys, order = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
             tm.lap("preprocess")
             wp.utils.radix_sort_pairs(keys, order, n)
+            n_vis = count_visible(keys, n)
             tm.lap("depth_sort")
-            binning = ViewBinning(key, cam, splats, keys, order, None, feat if rgb else None, {})
-            bands = tile_bands(
-                splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
+            binning = ViewBinning(
+                key, cam, splats, keys, order, n_vis, None, feat if rgb else None, {}
             )
+            bands = tile_bands(
+                splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads,
+                tm.lap,
+            )  # fmt: skip
             kept: list | None = []
         else:
             splats, keys = binning.splats, binning.keys
@@ -504,8 +534,8 @@ def rasterize_surfels(
                 stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
             else:
                 bands = tile_bands(
-                    splats, binning.order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev,
-                    threads, tm.lap,
+                    splats, binning.order, binning.n_visible, T, tiles_x, tiles_y,
+                    s.max_duplicates, stats, dev, threads, tm.lap,
                 )  # fmt: skip
             kept = None
         sink.feat = feat

@@ -125,16 +125,22 @@ def tile_bands(
     keys, sort them by tile (stable, so depth order survives) and find each tile's range.
     Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
     used by the contribution pass (``kernels.contrib``) so both see the same binning.
+
+    ``n``: the splats to bin, ``order[:n]`` — the visible prefix of the depth order
+    (:func:`kernels.rasterize.count_visible`; culled splats touch no tile, so leaving
+    them out changes no pair).
     """
     lap = lap or (lambda _stage: None)
-    counts = wp.empty(n, dtype=wp.int32)
-    incl = wp.empty(n, dtype=wp.int32)
+    counts = wp.empty(max(n, 1), dtype=wp.int32)
+    incl = wp.empty(max(n, 1), dtype=wp.int32)
     bands = [(0, tiles_y)]
     while bands:
         lo, hi = bands.pop(0)
-        launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
-        wp.utils.array_scan(counts, incl, inclusive=True)
-        total = int(incl[n - 1 : n].numpy()[0])
+        total = 0
+        if n > 0:
+            launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
+            wp.utils.array_scan(counts, incl, inclusive=True)
+            total = int(incl[n - 1 : n].numpy()[0])
         lap("count")
         if total > max_duplicates and hi - lo > 1:
             mid = (lo + hi) // 2

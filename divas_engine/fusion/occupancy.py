@@ -300,12 +300,18 @@ def surfel_voxel_codes(
 
 
 def build_occupancy(
-    scene: SurfelScene, config: GridConfig = GridConfig(), device=None
+    scene: SurfelScene,
+    config: GridConfig = GridConfig(),
+    device=None,
+    geometry: GridGeometry | None = None,
 ) -> OccupancyGrid:
-    """Build the active-voxel list of ``scene`` on ``device`` (App. B, four passes)."""
+    """Build the active-voxel list of ``scene`` on ``device`` (App. B, four passes).
+
+    ``geometry``: ``grid_geometry(scene.means, scene.scales, config)`` when already known
+    (the session computes it at open, to fail early, and builds the rest later)."""
     device = resolve_device(device)
     t0 = time.perf_counter()
-    geo = grid_geometry(scene.means, scene.scales, config)
+    geo = geometry or grid_geometry(scene.means, scene.scales, config)
     mem = {"cur": 0, "peak": 0}
 
     def track(nbytes: int) -> None:

@@ -155,6 +155,7 @@ class Session(SessionCore):
         s.plan = plan
         if render_anchors and s.anchors:
             _ = s.anchors[0].buffers
+        s.backend.warm_up()
         return s
 
     @staticmethod

@@ -2,11 +2,12 @@
 
 Strategy 1 (physical neighbourhood): z = D_med at the click, x_w its
 back-projection, R_phys = p_f z tan(FOV_x/2) (eq:Rphys); N = opaque surfels
-(α > α_min) within R_phys of x_w (eq:neigh), found by one vectorised distance pass
-over the opaque centres (float64, kept per planner). A k-d tree was used before:
-building it took longer on a 1M-surfel scene (≈1.5 s) than a hundred brute-force
-queries (≈15 ms each), and one session makes a handful (issue 20); the set is the
-same (``‖c − x_w‖ < R_phys`` with the same NumPy norm). |N| < 5 → r_init = z p_f and no
+(α > α_min) within R_phys of x_w (eq:neigh), found by a distance pass over the
+opaque centres whose x lies within R_phys of x_w's (centres kept sorted by x, float64,
+per planner). A k-d tree was used before: building it took longer on a 1M-surfel scene
+(≈1.5 s) than many such queries, and one session makes a handful (issue 20); the set
+is the same (``‖c − x_w‖ < R_phys`` with the same NumPy norm; the x slab is widened by
+a relative 1e-9 so no rounding of that norm can fall outside it). |N| < 5 → r_init = z p_f and no
 box; else R_lat = P90 of the offsets perpendicular to the view direction
 (eq:Rlat), r_init = R_lat / (f_fill tan(FOV_x/2)) (eq:Rinit) and the anchor box is
 the projected bounding box of N.
@@ -73,7 +74,7 @@ class GsCentroidPlanner:
         renderer: a 2DGS renderer of the same scene (``render(camera, scale)``).
         config: :class:`ViewConfig`.
 
-    The float64 opaque surfel centres are gathered on first use and kept.
+    The float64 opaque surfel centres, sorted by x, are gathered on first use and kept.
     """
 
     def __init__(self, scene: SurfelScene, renderer, config: ViewConfig | None = None):
@@ -85,8 +86,10 @@ class GsCentroidPlanner:
 
     def _opaque_centres(self) -> tuple[np.ndarray, np.ndarray]:
         if self._centres is None:
-            self._opaque = np.flatnonzero(self.scene.opacities > self.config.alpha_min)
-            self._centres = np.asarray(self.scene.means[self._opaque], dtype=np.float64)
+            opaque = np.flatnonzero(self.scene.opacities > self.config.alpha_min)
+            c = np.asarray(self.scene.means[opaque], dtype=np.float64)
+            by_x = np.argsort(c[:, 0], kind="stable")
+            self._opaque, self._centres = opaque[by_x], np.ascontiguousarray(c[by_x])
         return self._opaque, self._centres
 
     def neighbourhood(self, x_w: np.ndarray, radius: float) -> np.ndarray:
@@ -94,8 +97,11 @@ class GsCentroidPlanner:
         ascending."""
         opaque, c = self._opaque_centres()
         x = np.asarray(x_w, dtype=np.float64)
-        d = np.linalg.norm(c - x, axis=1)
-        return opaque[d < radius]
+        slab = abs(float(radius)) * (1.0 + 1e-9) + 1e-300
+        lo = np.searchsorted(c[:, 0], x[0] - slab, side="left")
+        hi = np.searchsorted(c[:, 0], x[0] + slab, side="right")
+        d = np.linalg.norm(c[lo:hi] - x, axis=1)
+        return np.sort(opaque[lo:hi][d < radius])
 
     def probe_scale(self, cam: Camera) -> float:
         cfg = self.config
