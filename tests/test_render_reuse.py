@@ -107,6 +107,15 @@ def test_accept_overlays_are_lazy_and_show_the_accepted_selection(tmp_path):
     nxt = r0.next_overlay
     ref1 = s.renderer.render_values(views[1].camera, r0.selection.astype(np.float32))
     assert np.array_equal(nxt.coverage, ref1.astype(np.float32))
+    # the anchor's overlay takes the anchor's existing render (no second RGB render)
+    n = len(s.timings.calls("render"))
+    ova = s.overlay(a.camera, full_camera=False)
+    assert len(s.timings.calls("render")) == n
+    fresh = s.renderer.render(a.camera).rgb
+    cov = ova.coverage
+    al = (np.clip(cov, 0.0, 1.0) * np.float32(s.config.overlay_alpha))[..., None]
+    col = np.asarray(s.config.overlay_color, np.float32)
+    assert np.array_equal(ova.image, (fresh * (1.0 - al) + col * al).astype(np.float32))
     s.close()
 
 

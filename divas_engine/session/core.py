@@ -203,7 +203,9 @@ class SessionCore:
             cam, rgb, vid = target.camera, target.buffers.rgb, target.id
         else:
             cam = self.working_camera(target) if full_camera else target
-            rgb, vid = self._render(cam).rgb, None
+            # an anchor's own camera: its render is already there (issue 20)
+            done = next((a._buffers for a in self.anchors if a.camera is cam), None)
+            rgb, vid = (done.rgb if done is not None else self._render(cam).rgb), None
         with self.timings.measure("overlay"):
             cov = self._render_values(cam, self.indicator(selection))
             a = (np.clip(cov, 0.0, 1.0) * np.float32(cfg.overlay_alpha))[..., None]
