@@ -35,11 +35,11 @@ def _same(a, b):
 
 
 @pytest.mark.parametrize("max_duplicates", [1 << 25, 300])  # one band / several bands
-def test_value_renders_reusing_the_binning_are_bit_identical(case, max_duplicates):
+def test_value_renders_reusing_the_binning_are_bit_identical(case, max_duplicates, device):
     sc, cams = case
     cfg = RenderConfig(max_duplicates=max_duplicates)
-    cached = SurfelRenderer(sc, device="cpu", config=cfg)
-    fresh = SurfelRenderer(sc, device="cpu", config=cfg)
+    cached = SurfelRenderer(sc, device=device, config=cfg)
+    fresh = SurfelRenderer(sc, device=device, config=cfg)
     fresh.binning_cache = 0
     v = np.random.default_rng(0).random((len(sc), 2), dtype=np.float32)
     for cam in cams:  # RGB first: its binning (and colours) kept
@@ -52,9 +52,9 @@ def test_value_renders_reusing_the_binning_are_bit_identical(case, max_duplicate
         _same(cached.render(cam, scale=0.5), fresh.render(cam, scale=0.5))
 
 
-def test_depth_only_render_has_the_same_depths(case):
+def test_depth_only_render_has_the_same_depths(case, device):
     sc, cams = case
-    r = SurfelRenderer(sc, device="cpu")
+    r = SurfelRenderer(sc, device=device)
     for cam in cams:
         full, depth = r.render(cam, scale=0.4), r.render_depth(cam, scale=0.4)
         for k in ("alpha", "D_min", "D_ref", "D_max", "D_mw", "D_exp", "D_med", "N_samp"):
