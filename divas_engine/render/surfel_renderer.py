@@ -42,8 +42,9 @@ class SurfelRenderer:
 
     #: views whose binning is kept (a click's view and the next one: their overlays)
     binning_cache: int = 2
-    #: a binning larger than this is not kept (bytes; huge scenes)
-    binning_cache_bytes: int = 1 << 30
+    #: device memory the kept binnings may hold together (≈ 130 bytes per surfel each:
+    #: 2 views of a 2M-surfel scene, 1 of a 4M one, none above)
+    binning_cache_bytes: int = 512 << 20
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
@@ -85,10 +86,13 @@ class SurfelRenderer:
         )
         b = r.binning
         if b is not None:
-            self._binnings = [x for x in self._binnings if x is not b and x.key != b.key]
-            if b.nbytes <= self.binning_cache_bytes:
-                self._binnings.insert(0, b)
-            del self._binnings[self.binning_cache :]
+            kept = [b] + [x for x in self._binnings if x is not b and x.key != b.key]
+            self._binnings, total = [], 0
+            for x in kept[: self.binning_cache]:
+                total += x.nbytes
+                if total > self.binning_cache_bytes:
+                    break
+                self._binnings.append(x)
             r.binning = None
         return r
 
