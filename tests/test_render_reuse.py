@@ -45,7 +45,7 @@ def test_value_renders_reusing_the_binning_are_bit_identical(case, max_duplicate
     for cam in cams:  # RGB first: its binning (and colours) kept
         _same(cached.render(cam), fresh.render(cam))
     assert len(cached._binnings) == cached.binning_cache and not fresh._binnings
-    for cam in cams[::-1]:  # hits for the last two cameras, a miss for the first
+    for cam in cams[::-1]:  # cache hits (then RGB after values, scaled: misses)
         assert np.array_equal(cached.render_values(cam, v), fresh.render_values(cam, v))
         assert np.array_equal(cached.render_values(cam, v[:, 0]), fresh.render_values(cam, v[:, 0]))
         _same(cached.render(cam), fresh.render(cam))  # RGB after a value render

@@ -40,8 +40,9 @@ class SurfelRenderer:
 
     kind = SceneKind.GS2D
 
-    #: views whose binning is kept (a click's view and the next one: their overlays)
-    binning_cache: int = 2
+    #: views whose binning is kept (the anchor on screen, the current and the next view:
+    #: their overlays); probe renders (``render_depth``) keep none
+    binning_cache: int = 3
     #: device memory the kept binnings may hold together (≈ 130 bytes per surfel each:
     #: 2 views of a 2M-surfel scene, 1 of a 4M one, none above)
     binning_cache_bytes: int = 512 << 20
@@ -62,7 +63,9 @@ class SurfelRenderer:
             self.config.alpha_min,
         )
 
-    def _run(self, cam: Camera, values: np.ndarray | None, features: bool = True):
+    def _run(
+        self, cam: Camera, values: np.ndarray | None, features: bool = True, keep: bool = True
+    ):
         settings = self.config.raster_settings(cam)
         key = binning_key(
             self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, settings
@@ -82,7 +85,7 @@ class SurfelRenderer:
             background=self.config.background,
             features=features,
             binning=hit,
-            keep_binning=self.binning_cache > 0,
+            keep_binning=keep and self.binning_cache > 0,
         )
         b = r.binning
         if b is not None:
@@ -122,7 +125,7 @@ class SurfelRenderer:
         """The depth tuple only (probes): ``rgb`` is zeros, no SH colours are evaluated
         and nothing is composited but the depths, which equal :meth:`render`'s."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
-        o = self._run(cam, None, features=False).out
+        o = self._run(cam, None, features=False, keep=False).out
         H, W = cam.height, cam.width
         img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
         d_med = img(o.d_med)
