@@ -217,7 +217,9 @@ class SessionCore:
             cam, rgb, vid = target.camera, target.buffers.rgb, target.id
         else:
             cam = self.working_camera(target) if full_camera else target
-            rgb, vid = self._render(cam).rgb, None
+            # an anchor's own camera: its render is already there (issue 20)
+            done = next((a._buffers for a in self.anchors if a.camera is cam), None)
+            rgb, vid = (done.rgb if done is not None else self._render(cam).rgb), None
         with self.timings.measure("overlay"):
             cov = self._render_values(cam, self.indicator(selection))
             a = (np.clip(cov, 0.0, 1.0) * np.float32(cfg.overlay_alpha))[..., None]
@@ -225,6 +227,20 @@ class SessionCore:
         return Overlay(
             cam, cov.astype(np.float32), cov >= cfg.overlay_threshold, img.astype(np.float32), vid
         )
+
+    def _lazy_overlays(self, view: SessionView | None):
+        """``(overlay of view, next open view, its overlay)`` for the current selection,
+        each overlay a callable rendered on first read (issue 20: an accept renders
+        nothing the user does not look at). The selection is captured now, so a later
+        accept does not change what these show."""
+        sel = self._selection
+        ov = nov = None
+        if view is not None and view.status == ViewStatus.FUSED:
+            ov = lambda: self.overlay(view, sel)  # noqa: E731
+        nxt = self.next_view()
+        if nxt is not None:
+            nov = lambda: self.overlay(nxt, sel)  # noqa: E731
+        return ov, nxt, nov
 
     # ------------------------------------------------------------------ state access
     @property

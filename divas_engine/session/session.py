@@ -139,7 +139,10 @@ class Session(SelectionEditing, SessionCore):
                 ``(camera, source, index)`` tuple (full-resolution cameras).
             gt_values: evaluation only — ground-truth per surfel ``[N]`` (NeRF ``[D,H,W]``);
                 wired into an :class:`OracleSegmenter` that has no ``gt_render``.
-            render_anchors: render every anchor now (else on first use).
+            render_anchors: render the first anchor now — what the user looks at first;
+                the others render on first use (``AnchorView.buffers``), so opening a
+                session does no work the first anchor does not need (issue 20). False:
+                none now.
         """
         cfg = config or SessionConfig()
         if segmenter is None:
@@ -163,9 +166,9 @@ class Session(SelectionEditing, SessionCore):
             renderer=renderer,
         )
         s.plan = plan
-        if render_anchors:
-            for a in s.anchors:
-                _ = a.buffers
+        if render_anchors and s.anchors:
+            _ = s.anchors[0].buffers
+        s.backend.warm_up()
         return s
 
     @staticmethod
@@ -426,13 +429,8 @@ class Session(SelectionEditing, SessionCore):
         ov = nov = nxt = None
         if fused:
             timings["mapping_s"] = self._update_selection()
-            t = time.perf_counter()
-            if view is not None and view.status == ViewStatus.FUSED:
-                ov = self.overlay(view)
-            nxt = self.next_view()
-            if nxt is not None:
-                nov = self.overlay(nxt)
-            timings["overlay_s"] = time.perf_counter() - t
+            # overlays of this selection, rendered when first read (AcceptResult.overlay)
+            ov, nxt, nov = self._lazy_overlays(view)
         timings["fuse_s"] = sum(timings.values())
         return AcceptResult(
             view,
