@@ -35,7 +35,10 @@ def cpu_threads(requested: int | None = None) -> int:
 
 
 def resolve_device(device: Any = None) -> wp.context.Device:
-    """A Warp device from ``None``/``"auto"`` (CUDA when present, else CPU), a name or a device."""
+    """A Warp device from ``None``/``"auto"`` (CUDA when present, else CPU), a name or a device.
+
+    Warp is quiet (no per-module "load" lines between the CLI's progress bars)."""
+    wp.config.quiet = True
     wp.init()
     if device is None or device == "auto":
         return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")

@@ -50,7 +50,8 @@ class Graph3DConfig:
             at least this volume ratio (1.5); none → the medium itself.
 
     Scores and mask:
-        score_phi: conductance φ at which the score is 0.5 (0.08); score = 1/(1+(φ/φ₀)²).
+        score_contrast: boundary contrast c₀ at which the score is 0.5 (0.35); score =
+            1/(1+(c/c₀)²) (:mod:`.cut` step 4).
         ambiguity_ratio: another sweep minimum within this φ ratio of the best and at a
             different size makes the cut ambiguous (1.3): the score is scaled by
             ``ambiguity_penalty`` (0.6).
@@ -78,7 +79,7 @@ class Graph3DConfig:
     support_min_share: float = 0.02
     support_min_width: float = 6.0
     min_granularity_ratio: float = 1.5
-    score_phi: float = 0.08
+    score_contrast: float = 0.35
     ambiguity_ratio: float = 1.3
     ambiguity_penalty: float = 0.6
     low_res: int = 256

@@ -19,9 +19,13 @@
    least φ; small and large are the best *local* minima of φ (over a ± ``ratio`` window
    of log volume) at least ``min_granularity_ratio`` smaller / larger; none → the
    medium one. So the three are nested.
-4. **Score**: ``1 / (1 + (φ / φ₀)²)`` — a clean boundary scores near 1 — times
-   ``ambiguity_penalty`` when another local minimum of a different size is nearly as
-   good (the click does not say which object is meant).
+4. **Score**: boundary contrast ``c`` = mean affinity of the cut edges / mean affinity
+   inside the region (edges to supporting planes and the rim left out): a real boundary
+   (contact, colour or normal change) has ``c ≪ 1``, a cut through a continuing surface
+   ``c ≈ 1``. ``score = 1 / (1 + (c / c₀)²)``, times ``1 − rim share`` (a region cut by
+   the rim of the examined region is not an object yet), times ``ambiguity_penalty``
+   when another local minimum of φ of a different size is nearly as good (the click does
+   not say which object is meant).
 """
 
 from __future__ import annotations
@@ -43,12 +47,14 @@ _LOG_BINS = 256
 
 @dataclass(frozen=True, eq=False)
 class Granularity:
-    """One nested region: ``nodes`` bool ``[V]``, its conductance ``phi``, ``score``."""
+    """One nested region: ``nodes`` bool ``[V]``, its conductance ``phi``, ``score``,
+    ``volume`` and boundary ``contrast`` (cut-edge over inside-edge mean affinity)."""
 
     nodes: np.ndarray
     phi: float
     score: float
     volume: float
+    contrast: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,8 +130,11 @@ def sweep_cut(
     positive: np.ndarray,
     sinks: np.ndarray,
     config: Graph3DConfig,
+    planes: np.ndarray | None = None,
 ) -> CutResult:
-    """Steps 1–4 of the module docstring. ``positive``/``sinks``: bool ``[V]``."""
+    """Steps 1–4 of the module docstring. ``positive``/``sinks``/``planes``: bool ``[V]``
+    (``planes``: the sinks that are supporting surfaces, a subset of ``sinks``)."""
+    planes = np.zeros(len(graph), bool) if planes is None else planes
     x, _, deg = walk_potential(graph, positive, sinks, config)
     v = len(graph)
     # positives first, then by potential; sinks last (never in a region)
@@ -156,14 +165,29 @@ def sweep_cut(
     for k in (small, best, large):
         nodes = np.zeros(v, bool)
         nodes[order[: k + 1]] = True
-        s = 1.0 / (1.0 + (phi[k] / config.score_phi) ** 2)
+        c = _contrast(graph, nodes, planes)
+        s = 1.0 / (1.0 + (c / config.score_contrast) ** 2)
+        s *= 1.0 - min(1.0, _rim_cut(graph, nodes) / max(float(cut[k]), 1e-300))
         if ambiguous:
             s *= config.ambiguity_penalty
-        levels.append(Granularity(nodes, float(phi[k]), float(s), float(vol[k])))
-    rim_w = _rim_cut(graph, levels[1].nodes)
-    share = rim_w / max(float(cut[best]), 1e-300)
+        levels.append(Granularity(nodes, float(phi[k]), float(s), float(vol[k]), c))
+    share = _rim_cut(graph, levels[1].nodes) / max(float(cut[best]), 1e-300)
     alt = None if rival_k is None else float(vol[rival_k] / max(vol[best], 1e-300))
     return CutResult(tuple(levels), x, float(min(share, 1.0)), bool(ambiguous), alt)
+
+
+def _contrast(graph: VoxelGraph, nodes: np.ndarray, planes: np.ndarray) -> float:
+    """Mean affinity of the region's cut edges (those to a supporting plane left out:
+    the plane's sinks are set, not found) over the mean affinity inside it; 0 when
+    nothing is cut but planes and the rim."""
+    e, w = graph.edges, graph.weights
+    a, b = nodes[e[:, 0]], nodes[e[:, 1]]
+    inside = a & b
+    other = np.where(a, e[:, 1], e[:, 0])
+    cut = (a ^ b) & ~planes[other] & ~graph.rim[other]
+    if not cut.any() or not inside.any():
+        return 0.0
+    return float(np.mean(w[cut]) / max(float(np.mean(w[inside])), 1e-300))
 
 
 def _rim_cut(graph: VoxelGraph, nodes: np.ndarray) -> float:

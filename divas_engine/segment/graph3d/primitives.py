@@ -9,10 +9,10 @@ One :class:`ScenePrimitives` per scene, built once when the segmenter is bound:
 * density grids: the occupied cells (opacity ``1 − exp(−σ h) ≥ 1/255``), their RGB
   grid colour (or grey), the normal ``−∇σ`` with confidence from its magnitude.
 
-It also finds the scene's supporting planes once (the shared
-:func:`~divas_engine.views.ground.ground_candidates`, kept when support and sharpness
-pass the ground thresholds of :class:`~divas_engine.views.ViewConfig`), and turns a
-per-primitive array into what the renderer's ``render_values`` takes.
+It also finds the scene's ground plane once — the one the shared
+:func:`~divas_engine.views.up_direction.estimate_scene_up` takes as the scene's up (a
+one-sided dense plane elsewhere, such as the top of a box, is not a ground) — and turns
+a per-primitive array into what the renderer's ``render_values`` takes.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ import numpy as np
 from ...scene import DensityGrid, Scene, SurfelScene
 from ...scene_stats import robust_frame
 from ...views.config import ViewConfig
-from ...views.ground import GroundPlane, ground_candidates, scene_points
+from ...views.ground import GroundPlane, scene_points
+from ...views.up_direction import UpSource, estimate_scene_up
 
 __all__ = ["ScenePrimitives"]
 
@@ -48,7 +49,7 @@ class ScenePrimitives:
             confidence in [0,1]; mass: ``[M]`` float32 opacity.
         index: ``[M]`` int64 primitive index in the scene (surfel row, or flat cell index).
         center, radius: the robust frame ``c_scene``, ``r_fg`` (eq:scene-norm).
-        grounds: supporting planes found in the scene.
+        grounds: the scene's ground plane (none, or one: the up's).
         scene: the scene.
     """
 
@@ -121,11 +122,8 @@ class ScenePrimitives:
         # the shared ground search on a lighter sample than the anchor planner's (the
         # floor / table plane is dense; 1500 directions × 20k points take seconds)
         cfg = replace(ViewConfig(), ground_points=6000, ground_directions=500)
-        grounds = tuple(
-            g
-            for g in ground_candidates(p, w, frame.center, frame.radius, cfg)
-            if g.support >= cfg.ground_min_support and g.sharpness >= cfg.ground_min_sharpness
-        )
+        up = estimate_scene_up(p, w, frame.center, frame.radius, cfg)
+        grounds = () if up.ground is None or up.source != UpSource.GROUND else (up.ground,)
         return cls(
             pts, lab, normals, kappa, mass, index, frame.center, float(frame.radius), grounds, scene
         )

@@ -222,9 +222,9 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             sinks = graph.rim.copy()
             nn = graph.node_of_points(seeds.negative)
             sinks[nn[nn >= 0]] = True
-            sinks |= support_nodes(graph, prims, pos, cfg)
-            sinks &= ~pos
-            res = sweep_cut(graph, pos, sinks, cfg)
+            planes = support_nodes(graph, prims, pos, cfg) & ~pos
+            sinks = (sinks | planes) & ~pos
+            res = sweep_cut(graph, pos, sinks, cfg, planes)
             if res.rim_share > cfg.rim_share and grows < cfg.region_max_grows:
                 radius *= cfg.region_grow
                 grows += 1
