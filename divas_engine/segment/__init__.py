@@ -32,10 +32,10 @@ from .depth_weighting import (
 from .factory import SegmenterKind, SegmenterSettings, SegmenterSetupError, build_segmenter
 from .flood_fill import FloodFillConfig, FloodFillSegmenter
 from .graph3d import Graph3DConfig, Graph3DSegmenter
-from .scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
+from .scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
 from .worker import SamWorker, SegmentationJobError
 
 __all__ = [
