@@ -18,6 +18,10 @@ from typing import Any, Literal
 
 import warp as wp
 
+# Quiet Warp, set once before anything initialises it: no banner and no per-module
+# "load" lines between the CLI's progress bars (errors and warnings still print).
+wp.config.quiet = True
+
 __all__ = ["resolve_device", "launch_split", "cpu_threads", "ensure_loaded"]
 
 _POOL: ThreadPoolExecutor | None = None
@@ -35,10 +39,7 @@ def cpu_threads(requested: int | None = None) -> int:
 
 
 def resolve_device(device: Any = None) -> wp.context.Device:
-    """A Warp device from ``None``/``"auto"`` (CUDA when present, else CPU), a name or a device.
-
-    Warp is quiet (no per-module "load" lines between the CLI's progress bars)."""
-    wp.config.quiet = True
+    """A Warp device from ``None``/``"auto"`` (CUDA when present, else CPU), a name or a device."""
     wp.init()
     if device is None or device == "auto":
         return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")

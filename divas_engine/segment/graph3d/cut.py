@@ -1,10 +1,11 @@
 """Seeded random walk and sweep cut on the local voxel graph: three nested regions.
 
 1. **Random walk with a leak** (Grady 2006, with the prior of Grady 2005): the positive
-   seed voxels hold ``x = 1``; sinks hold ``x = 0`` — the negative seeds, the rim of
-   the region (its outside) and voxels of a supporting plane (a floor or table found by
-   :func:`~divas_engine.views.ground.ground_candidates`, unless a positive seed is on
-   it); every free voxel leaks ``λ · deg`` to 0. Then ``(L_UU + λ D_U) x_U = W_UF 1``
+   seed voxels hold ``x = 1``; sinks hold ``x = 0`` — the negative seeds and the rim of
+   the region (its outside); every free voxel leaks ``λ · deg`` to 0. Supporting
+   surfaces (:mod:`.supports`: the ground, a table top) leave the graph first, as
+   Golovinskiy & Funkhouser remove the ground plane: their edges are dropped, so an
+   object on a table is an island of its own. Then ``(L_UU + λ D_U) x_U = W_UF 1``
    (SPD; conjugate gradients with a Jacobi preconditioner). ``x_i`` is the probability
    that a walk from voxel ``i`` reaches a positive seed first: it stays high across
    strong edges and drops across weak ones (a contact, a colour or normal change).
@@ -30,7 +31,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
@@ -90,24 +91,30 @@ def _laplacian(graph: VoxelGraph) -> tuple[sparse.csr_matrix, np.ndarray]:
 def walk_potential(
     graph: VoxelGraph, positive: np.ndarray, sinks: np.ndarray, config: Graph3DConfig
 ) -> tuple[np.ndarray, sparse.csr_matrix, np.ndarray]:
-    """Walk potential ``x [V]`` (step 1), the affinity matrix and the degrees."""
+    """Walk potential ``x [V]`` (step 1), the affinity matrix and the degrees.
+
+    Solved for the escape probability ``u = 1 − x``:
+    ``(L_UU + λ D_U) u = λ deg_U + W_U,sinks 1``, so that inside an island (no sink
+    reachable, ``u = O(λ)``) the tolerance is relative to ``u`` and its ordering —
+    graph distance from the seeds — survives. Voxels with no edge are sinks."""
     wmat, deg = _laplacian(graph)
     v = len(graph)
-    x = np.zeros(v)
-    x[positive] = 1.0
-    free = ~(positive | sinks)
+    u = np.ones(v)
+    u[positive] = 0.0
+    free = ~(positive | sinks) & (deg > 0)
     fi = np.flatnonzero(free)
     if len(fi) == 0:
-        return x, wmat, deg
+        return 1.0 - u, wmat, deg
     w_uu = wmat[fi][:, fi]
-    b = np.asarray(wmat[fi][:, np.flatnonzero(positive)].sum(axis=1)).ravel()
-    diag = deg[fi] * (1.0 + config.leak) + 1e-12
+    to_sinks = np.flatnonzero(~positive & ~free)
+    b = config.leak * deg[fi] + np.asarray(wmat[fi][:, to_sinks].sum(axis=1)).ravel()
+    diag = deg[fi] * (1.0 + config.leak)
     a = sparse.diags(diag) - w_uu
     pre = LinearOperator(a.shape, matvec=lambda r: r / diag, dtype=np.float64)
     x0 = np.clip(b / diag, 0.0, 1.0)
     sol, _ = cg(a, b, x0=x0, rtol=config.cg_tol, maxiter=config.cg_maxiter, M=pre)
-    x[fi] = np.clip(sol, 0.0, 1.0)
-    return x, wmat, deg
+    u[fi] = np.clip(sol, 0.0, 1.0)
+    return 1.0 - u, wmat, deg
 
 
 def _prefix_cuts(order: np.ndarray, graph: VoxelGraph, deg: np.ndarray) -> np.ndarray:
@@ -135,14 +142,18 @@ def sweep_cut(
     """Steps 1–4 of the module docstring. ``positive``/``sinks``/``planes``: bool ``[V]``
     (``planes``: the sinks that are supporting surfaces, a subset of ``sinks``)."""
     planes = np.zeros(len(graph), bool) if planes is None else planes
+    total = 2.0 * float(graph.weights.sum())  # the complement keeps the supports' volume
+    if planes.any():  # supports leave the graph (Golovinskiy & Funkhouser remove the ground)
+        e = graph.edges
+        w = np.where(planes[e[:, 0]] | planes[e[:, 1]], 0.0, graph.weights)
+        graph = replace(graph, weights=w)
     x, _, deg = walk_potential(graph, positive, sinks, config)
     v = len(graph)
     # positives first, then by potential; sinks last (never in a region)
-    key = np.where(positive, 2.0, np.where(sinks, -1.0, x))
+    key = np.where(positive, 2.0, np.where(sinks | (deg <= 0), -1.0, x))
     order = np.argsort(-key, kind="stable")
     cut = _prefix_cuts(order, graph, deg)
     vol = np.cumsum(deg[order])
-    total = float(vol[-1]) if v else 0.0
     k_min = int(positive.sum())
     k_max = int(np.count_nonzero((~sinks) & ((x > 1e-9) | positive)))
     ks = np.arange(v)

@@ -219,10 +219,11 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             pos[pn[pn >= 0]] = True
             if not pos.any():
                 return self._empty(prims, "no scene content at the click", radius, grows, t0)
-            sinks = graph.rim.copy()
+            neg = np.zeros(len(graph), bool)
             nn = graph.node_of_points(seeds.negative)
-            sinks[nn[nn >= 0]] = True
-            planes = support_nodes(graph, prims, pos, cfg) & ~pos
+            neg[nn[nn >= 0]] = True
+            sinks = graph.rim | neg
+            planes = support_nodes(graph, prims, pos, cfg, neg) & ~pos
             sinks = (sinks | planes) & ~pos
             res = sweep_cut(graph, pos, sinks, cfg, planes)
             if res.rim_share > cfg.rim_share and grows < cfg.region_max_grows:

@@ -35,9 +35,15 @@ __all__ = ["support_nodes"]
 
 
 def support_nodes(
-    graph: VoxelGraph, prims: ScenePrimitives, positive: np.ndarray, config: Graph3DConfig
+    graph: VoxelGraph,
+    prims: ScenePrimitives,
+    positive: np.ndarray,
+    config: Graph3DConfig,
+    negative: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Bool ``[V]``: voxels of a supporting surface (module docstring)."""
+    """Bool ``[V]``: voxels of a supporting surface (module docstring). A connected
+    part of them that holds a negative seed stays in the graph: the user's negative
+    click must be able to push back what touches it."""
     out = np.zeros(len(graph), bool)
     if len(graph) == 0:
         return out
@@ -51,6 +57,10 @@ def support_nodes(
         out |= inband & (along | (graph.kappa < 0.3))
     if prims.grounds:
         out |= _local_supports(graph, prims.grounds[0].normal, positive, config)
+    if negative is not None and (out & negative).any():
+        for part in _components(graph, out):
+            if negative[part].any():
+                out[part] = False
     return out
 
 
