@@ -56,12 +56,15 @@ class SceneBinding:
         camera_of: the camera of a view id passed to ``segment`` / ``set_image``.
         clicks_of: the :class:`ObjectClicks` of the object a view id belongs to (None:
             only the view's own prompts are used).
+        up: the scene up the session planned with (training cameras or estimated), or
+            None.
     """
 
     scene: Scene
     render_values: Callable[[Camera, np.ndarray], np.ndarray]
     camera_of: Callable[[Hashable], Camera]
     clicks_of: Callable[[Hashable], ObjectClicks] | None = None
+    up: Callable[[], np.ndarray | None] | None = None
 
 
 class SceneAwareSegmenter(Segmenter):

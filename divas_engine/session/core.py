@@ -175,7 +175,11 @@ class SessionCore:
         if isinstance(segmenter, SceneAwareSegmenter):
             segmenter.bind_scene(
                 SceneBinding(
-                    self.scene, self._render_values, self._view_camera, self._object_clicks
+                    self.scene,
+                    self._render_values,
+                    self._view_camera,
+                    self._object_clicks,
+                    lambda: None if self.plan is None else self.plan.up,
                 )
             )
 

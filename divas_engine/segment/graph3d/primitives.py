@@ -25,7 +25,7 @@ import numpy as np
 from ...scene import DensityGrid, Scene, SurfelScene
 from ...scene_stats import robust_frame
 from ...views.config import ViewConfig
-from ...views.ground import GroundPlane, scene_points
+from ...views.ground import GroundPlane, ground_candidates, scene_points
 from ...views.up_direction import UpSource, estimate_scene_up
 
 __all__ = ["ScenePrimitives"]
@@ -50,6 +50,7 @@ class ScenePrimitives:
         index: ``[M]`` int64 primitive index in the scene (surfel row, or flat cell index).
         center, radius: the robust frame ``c_scene``, ``r_fg`` (eq:scene-norm).
         grounds: the scene's ground plane (none, or one: the up's).
+        up: the scene up (None when unknown: no local supports then).
         scene: the scene.
     """
 
@@ -64,14 +65,21 @@ class ScenePrimitives:
     grounds: tuple[GroundPlane, ...]
     scene: Scene
 
+    up: np.ndarray | None = None
+
     @classmethod
-    def from_scene(cls, scene: Scene, min_opacity: float = 0.0) -> ScenePrimitives:
+    def from_scene(
+        cls, scene: Scene, min_opacity: float = 0.0, up: np.ndarray | None = None
+    ) -> ScenePrimitives:
+        """Features of ``scene``; ``up``: the scene up the session planned its anchors
+        with (training cameras, or estimated), else estimated here."""
         if isinstance(scene, SurfelScene):
             out = cls._from_surfels(scene, min_opacity)
         elif isinstance(scene, DensityGrid):
             out = cls._from_grid(scene, max(min_opacity, 1.0 / 255.0))
         else:
             raise TypeError(f"3D graph segmenter: unsupported scene {type(scene).__name__}")
+        out._find_ground(up)
         return out
 
     @classmethod
@@ -117,16 +125,35 @@ class ScenePrimitives:
 
     @classmethod
     def _finish(cls, scene, pts, lab, normals, kappa, mass, index) -> ScenePrimitives:
-        p, w = scene_points(scene)
-        frame = robust_frame(p)
+        frame = robust_frame(scene_points(scene)[0])
+        return cls(
+            pts, lab, normals, kappa, mass, index, frame.center, float(frame.radius), (), scene
+        )
+
+    def _find_ground(self, up: np.ndarray | None) -> None:
+        """The ground plane and up: with a known ``up``, the strongest supporting plane
+        within ``ground_convention_deg`` of it; else the shared scene-up estimate's ground
+        (a one-sided dense plane elsewhere, such as the top of a box, is not a ground)."""
+        p, w = scene_points(self.scene)
         # the shared ground search on a lighter sample than the anchor planner's (the
         # floor / table plane is dense; 1500 directions × 20k points take seconds)
         cfg = replace(ViewConfig(), ground_points=6000, ground_directions=500)
-        up = estimate_scene_up(p, w, frame.center, frame.radius, cfg)
-        grounds = () if up.ground is None or up.source != UpSource.GROUND else (up.ground,)
-        return cls(
-            pts, lab, normals, kappa, mass, index, frame.center, float(frame.radius), grounds, scene
-        )
+        if up is None:
+            est = estimate_scene_up(p, w, self.center, self.radius, cfg)
+            self.grounds = () if est.source != UpSource.GROUND else (est.ground,)
+            self.up = None if not self.grounds else np.asarray(est.up, np.float64)
+            return
+        u = np.asarray(up, np.float64) / np.linalg.norm(up)
+        cos = np.cos(np.radians(cfg.ground_convention_deg))
+        cands = [
+            g
+            for g in ground_candidates(p, w, self.center, self.radius, cfg)
+            if g.support >= cfg.ground_min_support
+            and g.sharpness >= cfg.ground_min_sharpness
+            and float(g.normal @ u) >= cos
+        ]
+        self.grounds = (max(cands, key=lambda g: g.support),) if cands else ()
+        self.up = u
 
     def __len__(self) -> int:
         return len(self.points)

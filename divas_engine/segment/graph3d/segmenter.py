@@ -126,7 +126,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             raise RuntimeError(f"{self.name}: bind_scene() first (the session does it)")
         with self._prims_lock:
             if self.prims is None:
-                self.prims = ScenePrimitives.from_scene(self.binding.scene, self.config.min_opacity)
+                up = None if self.binding.up is None else self.binding.up()
+                self.prims = ScenePrimitives.from_scene(
+                    self.binding.scene, self.config.min_opacity, up
+                )
             return self.prims
 
     # ------------------------------------------------------------------ Segmenter hooks

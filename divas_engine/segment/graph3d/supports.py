@@ -55,8 +55,8 @@ def support_nodes(
             continue  # the user clicked the plane itself
         along = np.abs(graph.normal @ g.normal) >= cos_min
         out |= inband & (along | (graph.kappa < 0.3))
-    if prims.grounds:
-        out |= _local_supports(graph, prims.grounds[0].normal, positive, config)
+    if prims.up is not None:
+        out |= _local_supports(graph, prims.up, positive, config)
     if negative is not None and (out & negative).any():
         for part in _components(graph, out):
             if negative[part].any():
