@@ -2,10 +2,10 @@
 
 1. **Random walk with a leak** (Grady 2006, with the prior of Grady 2005): the positive
    seed voxels hold ``x = 1``; sinks hold ``x = 0`` — the negative seeds and the rim of
-   the region (its outside); every free voxel leaks ``λ · deg`` to 0. Supporting
-   surfaces (:mod:`.supports`: the ground, a table top) leave the graph first, as
-   Golovinskiy & Funkhouser remove the ground plane: their edges are dropped, so an
-   object on a table is an island of its own. Then ``(L_UU + λ D_U) x_U = W_UF 1``
+   the region (its outside) and the supporting surfaces (:mod:`.supports`: the ground,
+   a table top); every free voxel leaks ``λ · deg`` to 0. For the sweep the supports
+   then leave the graph, as Golovinskiy & Funkhouser remove the ground plane: their
+   edges are dropped, so an object on a table is an island of its own. Then ``(L_UU + λ D_U) x_U = W_UF 1``
    (SPD; conjugate gradients with a Jacobi preconditioner). ``x_i`` is the probability
    that a walk from voxel ``i`` reaches a positive seed first: it stays high across
    strong edges and drops across weak ones (a contact, a colour or normal change).
@@ -143,11 +143,16 @@ def sweep_cut(
     (``planes``: the sinks that are supporting surfaces, a subset of ``sinks``)."""
     planes = np.zeros(len(graph), bool) if planes is None else planes
     total = 2.0 * float(graph.weights.sum())  # the complement keeps the supports' volume
-    if planes.any():  # supports leave the graph (Golovinskiy & Funkhouser remove the ground)
+    # the walk drains into the supports (a post standing on a base loses potential along
+    # it); the sweep does not see them (Golovinskiy & Funkhouser remove the ground), so
+    # a ball's contact ring with the floor costs nothing
+    x, _, _ = walk_potential(graph, positive, sinks | planes, config)
+    if planes.any():
         e = graph.edges
         w = np.where(planes[e[:, 0]] | planes[e[:, 1]], 0.0, graph.weights)
         graph = replace(graph, weights=w)
-    x, _, deg = walk_potential(graph, positive, sinks, config)
+    deg = _laplacian(graph)[1]
+    sinks = sinks | planes
     v = len(graph)
     # positives first, then by potential; sinks last (never in a region)
     key = np.where(positive, 2.0, np.where(sinks | (deg <= 0), -1.0, x))
