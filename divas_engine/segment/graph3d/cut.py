@@ -5,8 +5,9 @@
    the region (its outside) and the supporting surfaces (:mod:`.supports`: the ground,
    a table top); every free voxel leaks ``λ · deg`` to 0. For the sweep the supports
    then leave the graph, as Golovinskiy & Funkhouser remove the ground plane: their
-   edges are dropped, so an object on a table is an island of its own. Then ``(L_UU + λ D_U) x_U = W_UF 1``
-   (SPD; conjugate gradients with a Jacobi preconditioner). ``x_i`` is the probability
+   edges are dropped, so an object on a table is an island of its own. The walk solves
+   ``(L_UU + λ D_U) x_U = W_UF 1`` (SPD; conjugate gradients with a Jacobi
+   preconditioner). ``x_i`` is the probability
    that a walk from voxel ``i`` reaches a positive seed first: it stays high across
    strong edges and drops across weak ones (a contact, a colour or normal change).
 2. **Sweep cut** (the local-partitioning idea of Andersen, Chung & Lang 2006): sort the
