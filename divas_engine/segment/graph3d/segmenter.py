@@ -45,7 +45,7 @@ from ..scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
 from .config import Graph3DConfig
 from .cut import CutResult, sweep_cut
 from .primitives import ScenePrimitives
-from .supports import support_nodes
+from .supports import support_nodes, support_primitives
 from .voxel_graph import VoxelGraph, build_voxel_graph
 
 __all__ = ["Graph3DSegmenter", "RegionCut", "Seeds"]
@@ -235,8 +235,9 @@ class Graph3DSegmenter(SceneAwareSegmenter):
                 continue
             break
         sel = np.zeros((3, len(prims)), bool)
+        on_support = support_primitives(graph, prims, planes, cfg)
         for k, lev in enumerate(res.levels):
-            sel[k, graph.prim] = lev.nodes[graph.voxel_of]
+            sel[k, graph.prim] = lev.nodes[graph.voxel_of] & ~on_support
         scores = np.array([lev.score for lev in res.levels], np.float32)
         msg = self._advice(res, scores[1], len(seeds.negative))
         return RegionCut(

@@ -31,7 +31,7 @@ from .config import Graph3DConfig
 from .primitives import ScenePrimitives
 from .voxel_graph import VoxelGraph
 
-__all__ = ["support_nodes"]
+__all__ = ["support_nodes", "support_primitives"]
 
 
 def support_nodes(
@@ -128,3 +128,36 @@ def _is_plane(points: np.ndarray, up: np.ndarray, h: float, width: float) -> boo
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disc = yy * yy + xx * xx <= r * r
     return bool(binary_erosion(img, structure=disc).any())
+
+
+def support_primitives(
+    graph: VoxelGraph, prims: ScenePrimitives, planes: np.ndarray, config: Graph3DConfig
+) -> np.ndarray:
+    """Bool ``[P]`` over the region's primitives: those of a voxel *next to* a support
+    that belong to the support themselves — facing along the up and within one voxel of
+    the adjacent support voxels' mean height. A voxel where a pot stands on a table
+    holds both; the cut keeps the voxel, this drops its table surfels."""
+    out = np.zeros(len(graph.prim), bool)
+    if prims.up is None or not planes.any():
+        return out
+    up = prims.up
+    e = graph.edges
+    height = graph.centroid @ up
+    level_sum = np.zeros(len(graph))
+    count = np.zeros(len(graph))
+    for a, b in ((e[:, 0], e[:, 1]), (e[:, 1], e[:, 0])):
+        m = planes[b] & ~planes[a]
+        np.add.at(level_sum, a[m], height[b[m]])
+        np.add.at(count, a[m], 1.0)
+    touching = count > 0
+    if not touching.any():
+        return out
+    level = level_sum / np.maximum(count, 1.0)
+    v = graph.voxel_of
+    cand = touching[v]
+    idx = graph.prim[cand]
+    cos_min = np.cos(np.radians(config.ground_normal_deg))
+    along = np.abs(prims.normals[idx].astype(np.float64) @ up) >= cos_min
+    near = np.abs(prims.points[idx].astype(np.float64) @ up - level[v[cand]]) <= graph.h
+    out[np.flatnonzero(cand)[along & near]] = True
+    return out
