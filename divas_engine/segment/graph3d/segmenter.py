@@ -51,6 +51,7 @@ from .voxel_graph import VoxelGraph, build_voxel_graph
 __all__ = ["Graph3DSegmenter", "RegionCut", "Seeds"]
 
 _CUT_CACHE = 8
+_SAME_CLICK_PX = 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,8 +171,19 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     # ------------------------------------------------------------------ steps
     def seeds(self, state: _ViewState, points: np.ndarray, labels: np.ndarray) -> tuple[Seeds, int]:
         """Step 1: the 3D seeds of a prompt set on a view (and how many prompt points
-        had no surface under them)."""
+        had no surface under them). A prompt point within ``_SAME_CLICK_PX`` of a known 3D
+        click's projection is that click (the session's default prompt is the click's
+        point projected): its exact 3D point is used, not the view's depth there, which
+        at a silhouette or behind a floater can be another surface."""
         pos, neg, missed = [], [], 0
+        oc = ObjectClicks.empty()
+        if self.binding is not None and self.binding.clicks_of is not None:
+            oc = self.binding.clicks_of(state.view_id) or oc
+        if len(points) and len(oc.points):
+            uv, zc = state.camera.project(np.asarray(oc.points, np.float64))
+            d = np.linalg.norm(points[:, None, :] - uv[None], axis=2)
+            known = np.any((d <= _SAME_CLICK_PX) & (zc[None] > 0), axis=1)
+            points, labels = points[~known], labels[~known]
         if len(points) and state.depth is not None:
             hgt, wid = state.depth.shape
             cols = np.clip(np.floor(points[:, 0]).astype(np.int64), 0, wid - 1)
@@ -184,8 +196,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
                 lab = labels[ok]
                 pos.append(xyz[lab == 1])
                 neg.append(xyz[lab == 0])
-        if self.binding is not None and self.binding.clicks_of is not None:
-            oc = self.binding.clicks_of(state.view_id) or ObjectClicks.empty()
+        if len(oc.points):
             pos.append(np.asarray(oc.points)[oc.positive])
             neg.append(np.asarray(oc.points)[~oc.positive])
         p = np.concatenate(pos) if pos else np.zeros((0, 3))
