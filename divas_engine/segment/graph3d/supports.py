@@ -133,31 +133,22 @@ def _is_plane(points: np.ndarray, up: np.ndarray, h: float, width: float) -> boo
 def support_primitives(
     graph: VoxelGraph, prims: ScenePrimitives, planes: np.ndarray, config: Graph3DConfig
 ) -> np.ndarray:
-    """Bool ``[P]`` over the region's primitives: those of a voxel *next to* a support
-    that belong to the support themselves — facing along the up and within one voxel of
-    the adjacent support voxels' mean height. A voxel where a pot stands on a table
-    holds both; the cut keeps the voxel, this drops its table surfels."""
+    """Bool ``[P]`` over the region's primitives: those that belong to a support
+    although their voxel was kept — facing along the up and within one voxel of the
+    height of a support voxel. A voxel where a pot stands on a table holds both; the cut
+    keeps the voxel, this drops its table surfels (the up-facing ring a render shows)."""
     out = np.zeros(len(graph.prim), bool)
     if prims.up is None or not planes.any():
         return out
     up = prims.up
-    e = graph.edges
-    height = graph.centroid @ up
-    level_sum = np.zeros(len(graph))
-    count = np.zeros(len(graph))
-    for a, b in ((e[:, 0], e[:, 1]), (e[:, 1], e[:, 0])):
-        m = planes[b] & ~planes[a]
-        np.add.at(level_sum, a[m], height[b[m]])
-        np.add.at(count, a[m], 1.0)
-    touching = count > 0
-    if not touching.any():
-        return out
-    level = level_sum / np.maximum(count, 1.0)
-    v = graph.voxel_of
-    cand = touching[v]
-    idx = graph.prim[cand]
+    h = graph.h
+    levels = np.unique(np.round((graph.centroid[planes] @ up) / h))
+    idx = graph.prim
+    height = prims.points[idx].astype(np.float64) @ up / h
+    j = np.clip(np.searchsorted(levels, height), 1, len(levels) - 1) if len(levels) > 1 else 0
+    near = np.abs(height - levels[j]) <= 1.0
+    if len(levels) > 1:
+        near |= np.abs(height - levels[j - 1]) <= 1.0
     cos_min = np.cos(np.radians(config.ground_normal_deg))
     along = np.abs(prims.normals[idx].astype(np.float64) @ up) >= cos_min
-    near = np.abs(prims.points[idx].astype(np.float64) @ up - level[v[cand]]) <= graph.h
-    out[np.flatnonzero(cand)[along & near]] = True
-    return out
+    return near & along
