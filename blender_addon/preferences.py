@@ -35,6 +35,7 @@ DEVICES = (
     ("cuda", "CUDA", "Run the kernels on the first CUDA GPU (needs an NVIDIA driver)"),
 )
 SEGMENTERS = (
+    ("graph3d", "3D graph", "Weight-free 3D cut over the scene's own splats (no model files)"),
     ("classic", "Classic", "Weight-free GrabCut on colour + depth (no model files)"),
     ("sam_onnx", "SAM (ONNX)", "SAM / MobileSAM encoder + decoder .onnx files via onnxruntime"),
     (
@@ -57,7 +58,7 @@ ANCHOR_RESOLUTION = 640
 @dataclass(frozen=True)
 class DivasSettings:
     device: str = "cpu"
-    segmenter: str = "classic"
+    segmenter: str = "graph3d"
     sam_encoder_path: str = ""
     sam_decoder_path: str = ""
     sam_checkpoint_path: str = ""
@@ -69,7 +70,7 @@ class DIVAS_AddonPreferences(AddonPreferences):
     bl_idname = ADDON_ID
 
     device: EnumProperty(name="Device", items=DEVICES, default="cpu")
-    segmenter: EnumProperty(name="Segmenter", items=SEGMENTERS, default="classic")
+    segmenter: EnumProperty(name="Segmenter", items=SEGMENTERS, default="graph3d")
     sam_encoder_path: StringProperty(name="SAM Encoder (.onnx)", subtype="FILE_PATH")
     sam_decoder_path: StringProperty(name="SAM Decoder (.onnx)", subtype="FILE_PATH")
     sam_checkpoint_path: StringProperty(name="SAM Checkpoint (.pth)", subtype="FILE_PATH")

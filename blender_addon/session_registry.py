@@ -69,7 +69,7 @@ class LiveSession:
     view_cameras: dict[str, str] = field(default_factory=dict)
     extra_prompts: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
     autosave: Path | None = None
-    segmenter: str = "classic"
+    segmenter: str = "graph3d"
     open_s: float = 0.0
     last_update: dict[str, Any] = field(default_factory=dict)
     key: str = ""

@@ -87,6 +87,7 @@ class SessionCore:
             else make_renderer(scene, device=self.device, config=config.render)
         )
         self._seg = None if segmenter is None else TimedSegmenter(segmenter, self.timings)
+        self._bind_segmenter(segmenter)
         self.backend: SessionBackend = backend_cls(
             scene,
             config,
@@ -170,6 +171,37 @@ class SessionCore:
 
         if isinstance(self.segmenter, OracleSegmenter) and self.segmenter.gt_render is None:
             self.segmenter.gt_render = self._gt_render
+
+    def _bind_segmenter(self, segmenter: Segmenter | None) -> None:
+        """A scene-aware segmenter (issue 16) gets the scene, the renderer, the camera of
+        a view id and the 3D clicks of the view's object, once."""
+        from ..segment.scene_aware import SceneAwareSegmenter, SceneBinding
+
+        if isinstance(segmenter, SceneAwareSegmenter):
+            segmenter.bind_scene(
+                SceneBinding(
+                    self.scene,
+                    self._render_values,
+                    self._view_camera,
+                    self._object_clicks,
+                    lambda: None if self.plan is None else self.plan.up,
+                )
+            )
+
+    def _view_camera(self, view_id: Hashable) -> Camera:
+        return self._views[str(view_id)].camera
+
+    def _object_clicks(self, view_id: Hashable):
+        from ..segment.scene_aware import ObjectClicks
+
+        obj = self.objects[self._views[str(view_id)].object_index]
+        clicks = [c for cs in obj.clicks.values() for c in cs if c.point is not None]
+        if not clicks:
+            return ObjectClicks.empty()
+        return ObjectClicks(
+            np.stack([np.asarray(c.point, np.float64) for c in clicks]),
+            np.array([bool(c.positive) for c in clicks]),
+        )
 
     def _gt_render(self, view_id: Hashable) -> np.ndarray:
         cam = self._views[str(view_id)].camera

@@ -132,7 +132,7 @@ class Session(SelectionEditing, SessionCore):
         Args:
             scene: a :class:`SurfelScene` (2DGS/3DGS) or :class:`DensityGrid` (NeRF).
             cameras: training cameras (anchor planning, capture type); may be empty.
-            segmenter: the 2D mask source (default: :class:`ClassicSegmenter`).
+            segmenter: the mask source (default: the weight-free :class:`Graph3DSegmenter`).
             device: Warp device (None/"auto": CUDA when present).
             anchors: the anchors to offer instead of the planned ones — each an
                 :class:`~divas_engine.views.Anchor`, a :class:`Camera`, or a
@@ -146,9 +146,9 @@ class Session(SelectionEditing, SessionCore):
         """
         cfg = config or SessionConfig()
         if segmenter is None:
-            from ..segment import ClassicSegmenter
+            from ..segment import Graph3DSegmenter
 
-            segmenter = ClassicSegmenter()
+            segmenter = Graph3DSegmenter()
         plan = anchor_plan(scene, cameras, cfg)
         if anchors is None:
             items = [(a.camera, a.source, a.index) for a in plan.anchors]
