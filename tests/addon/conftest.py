@@ -41,6 +41,9 @@ def fresh_file(addon, tmp_path_factory, monkeypatch):
     prefs = get_preferences()
     prefs.anchor_resolution, prefs.resume_on_open = 0, False
     yield
+    # fetched again: a test that unregisters and registers the add-on frees the struct the
+    # reference above points to (writing through it crashed Blender now and then)
+    prefs = get_preferences()
     prefs.anchor_resolution, prefs.resume_on_open = ANCHOR_RESOLUTION, True
 
 
