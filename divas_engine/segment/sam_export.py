@@ -6,10 +6,10 @@ writes runs without them (onnxruntime only). Steps of :func:`convert_checkpoint`
 1. :func:`.sam_models.load_sam_model` — tensors-only load, type checked;
 2. :func:`export_onnx_pair` — the *decoder* through the family's own
    ``SamOnnxModel`` as its ``scripts/export_onnx_model.py`` does (multimask output,
-   opset 17, dynamic point count), its padding crop kept dynamic
-   (:func:`_dynamic_crop`: the 1.0 release's freezes at the dummy's aspect); the *encoder* in one of the two layouts
-   :class:`.sam_onnx.SamOnnxSegmenter` reads (:class:`EncoderLayout`) — segment-anything
-   ships no encoder export, so the two wrappers here are this project's;
+   opset 17, dynamic point count), its padding crop kept dynamic (:func:`_dynamic_crop`:
+   the 1.0 release's freezes at the dummy's aspect); the *encoder* in one of the two
+   layouts :class:`.sam_onnx.SamOnnxSegmenter` reads (:class:`EncoderLayout`) —
+   segment-anything ships no encoder export, so the two wrappers here are this project's;
 3. :func:`check_onnx_pair` — one prediction on a fixed synthetic picture through
    the ONNX pair (``SamOnnxSegmenter``) and through the PyTorch model
    (``SamTorchSegmenter`` over the family's ``SamPredictor``); the export is refused
@@ -199,7 +199,11 @@ def export_onnx_pair(
     with tempfile.TemporaryDirectory(dir=out, prefix=".sam-export-") as tmp_s:
         tmp = Path(tmp_s)
         # decoder: segment-anything's SamOnnxModel, as its export script calls it
+        # eval() first: the exporter puts the wrapper back in its own mode afterwards, and a
+        # new module is in training mode — which would leave the model training (TinyViT's
+        # BatchNorm and attention-bias cache behave differently then)
         dec = _dynamic_crop(torch, onnx_utils.SamOnnxModel)(model, return_single_mask=False)
+        dec.eval()
         dummy = {
             "image_embeddings": torch.randn(1, model.prompt_encoder.embed_dim, *emb_hw),
             "point_coords": torch.randint(0, size, (1, 5, 2), dtype=torch.float),
@@ -240,6 +244,7 @@ def export_onnx_pair(
             )
         nbytes = sum(p.numel() * p.element_size() for p in model.image_encoder.parameters())
         _finish_encoder(raw_dir / enc_path.name, tmp / enc_path.name, nbytes)
+        model.eval()
         for f in sorted(tmp.glob(f"{enc_path.name}.data")):  # weights first, then graphs
             _replace(f, out / f.name)
         _replace(tmp / dec_path.name, dec_path)
@@ -329,27 +334,40 @@ def convert_checkpoint(
     """Checkpoint → checked ONNX pair in ``out_dir`` (module docstring).
 
     Raises:
-        DivasInputError: bad checkpoint, or the ONNX pair disagrees with the model (the
-            files are then removed).
+        DivasInputError: bad checkpoint, or the ONNX pair disagrees with the model (nothing
+            is written then; files already in ``out_dir`` are kept).
         ImportError: the ``torch`` extra (or MobileSAM's package) is missing.
     """
     path = Path(checkpoint)
     t = SamModelType.parse(model_type, path)
     model = load_sam_model(path, t)
-    stem = path.stem if path.stem else t.value
-    enc, dec = export_onnx_pair(model, out_dir, layout=layout, stem=stem)
-    result = check_onnx_pair(model, enc, dec) if check else None
-    if result is not None and not result.ok:
-        for f in (enc, dec, enc.with_name(enc.name + ".data")):
-            f.unlink(missing_ok=True)
-        raise DivasInputError(
-            path,
-            f"the exported ONNX pair disagrees with the PyTorch model (score difference "
-            f"{result.max_score_diff:.4f}, channel-1 mask IoU {result.mask_iou:.4f}); "
-            "nothing was kept",
-        )
-    export = SamExport(enc, dec, t.value, EncoderLayout(layout).value, str(path.resolve()), result)
-    _write_meta(Path(out_dir) / _META, export, _source_key(path, t))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = path.stem or t.value
+    # exported and checked in a temporary folder: only a pair that passed replaces files
+    with tempfile.TemporaryDirectory(dir=out, prefix=".sam-convert-") as tmp_s:
+        enc, dec = export_onnx_pair(model, tmp_s, layout=layout, stem=stem)
+        result = check_onnx_pair(model, enc, dec) if check else None
+        if result is not None and not result.ok:
+            raise DivasInputError(
+                path,
+                f"the exported ONNX pair disagrees with the PyTorch model (score difference "
+                f"{result.max_score_diff:.4f}, channel-1 mask IoU {result.mask_iou:.4f}); "
+                "nothing was written",
+            )
+        for f in sorted(Path(tmp_s).glob(f"{enc.name}.data")):
+            _replace(f, out / f.name)
+        _replace(dec, out / dec.name)
+        _replace(enc, out / enc.name)
+    export = SamExport(
+        out / enc.name,
+        out / dec.name,
+        t.value,
+        EncoderLayout(layout).value,
+        str(path.resolve()),
+        result,
+    )
+    _write_meta(out / _META, export, _source_key(path, t))
     return export
 
 
@@ -414,7 +432,9 @@ def _read_cached(folder: Path, key: dict[str, Any]) -> SamExport | None:
         key["model_type"],
         str(doc.get("layout")),
         key["checkpoint"],
-        None if chk is None else PairCheck(**{**chk, "image_hw": tuple(chk["image_hw"])}),
+        None
+        if chk is None
+        else PairCheck(**{k: tuple(v) if isinstance(v, list) else v for k, v in chk.items()}),
     )
 
 

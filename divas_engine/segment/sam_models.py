@@ -173,18 +173,17 @@ def load_sam_model(checkpoint: str | PathLike, model_type: SamModelType | str) -
     found = guess_model_type(state)
     if found is None:
         raise DivasInputError(path, "not a SAM checkpoint (no image_encoder weights)")
-    if found != t.value:
+    model = build_sam_model(t)
+    expected = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+    got = {k: tuple(v.shape) for k, v in state.items()}
+    if expected != got:  # another model type (or another model altogether)
         raise DivasInputError(
             path,
             f"this checkpoint holds a {found} image encoder, not {t.value}: pass the "
-            "matching --model-type",
+            "matching --model-type"
+            if found != t.value
+            else f"weights do not fit the {t.value} model ({len(set(expected) ^ set(got))} "
+            "keys differ)",
         )
-    model = build_sam_model(t)
-    try:
-        model.load_state_dict(state, strict=True)
-    except RuntimeError as exc:  # missing/unexpected keys, size mismatches
-        first = str(exc).splitlines()[:3]
-        raise DivasInputError(
-            path, f"weights do not fit the {t.value} model: {' '.join(first)}"
-        ) from exc
+    model.load_state_dict(state, strict=True)
     return model.eval()
