@@ -77,7 +77,9 @@ def tiny_sam(seed: int = 0, iou_bias: float = 0.0):
     return sam.eval()
 
 
-def reference_predict(sam, rgb8: np.ndarray, points: np.ndarray, labels: np.ndarray):
+def reference_predict(
+    sam, rgb8: np.ndarray, points: np.ndarray, labels: np.ndarray, package="segment_anything"
+):
     """segment-anything's ``SamPredictor`` on the same image and clicks.
 
     Independent of DivAS's preprocessing: the image is resized by PyTorch's
@@ -86,13 +88,14 @@ def reference_predict(sam, rgb8: np.ndarray, points: np.ndarray, labels: np.ndar
     the clicks go through ``predict`` → ``ResizeLongestSide.apply_coords``. DivAS's
     continuous point ``u`` is SAM's pixel index ``u − 0.5/s`` (``sam_common`` docstring).
 
+    ``package``: the family's package (``mobile_sam`` for MobileSAM).
+
     Returns logits ``[3,H,W]``, scores ``[3]``, the image embedding ``[1,256,64,64]``.
     """
     import torch
     import torch.nn.functional as F
 
-    sa = sam_package()
-    pred = sa.SamPredictor(sam)
+    pred = sam_package(package).SamPredictor(sam)
     h, w = rgb8.shape[:2]
     new_h, new_w = pred.transform.get_preprocess_shape(h, w, sam.image_encoder.img_size)
     img = torch.from_numpy(rgb8.astype(np.float32).transpose(2, 0, 1))[None]

@@ -158,3 +158,48 @@ def test_sam_export_cli_errors(tiny_ckpt, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "torch", None)
     assert cli.main(argv) == 2
     assert "optional package 'torch'" in capsys.readouterr().err
+
+
+def test_addon_preferences_use_a_checkpoint_converted_once(
+    tiny_ckpt, tiny_is_vit_b, tmp_path, monkeypatch
+):
+    """The add-on's preferences take a checkpoint for SAM (ONNX): the engine converts it
+    once into the cache folder, the active-model line says which model is used."""
+    from types import SimpleNamespace
+
+    prefs_mod = pytest.importorskip("blender_addon.preferences")
+    from divas_engine.segment import sam_export as se
+
+    monkeypatch.setattr(prefs_mod, "sam_cache_dir", lambda: tmp_path / "cache")
+    path, _ = tiny_ckpt
+    prefs = SimpleNamespace(
+        segmenter="sam_onnx",
+        sam_encoder_path="",
+        sam_decoder_path="",
+        sam_checkpoint_path=str(path),
+        sam_model_type="vit_b",
+    )
+    assert prefs_mod.active_model(prefs).endswith("converted to ONNX at the next Start")
+    settings = prefs_mod.DivasSettings(
+        segmenter="sam_onnx", sam_checkpoint_path=str(path), sam_model_type="vit_b"
+    )
+    s = prefs_mod.with_converted_checkpoint(settings)
+    assert s.sam_encoder_path.startswith(str(tmp_path / "cache")) and s.sam_decoder_path
+    assert SamOnnxSegmenter(s.sam_encoder_path, s.sam_decoder_path).encoder_layout
+    assert prefs_mod.active_model(prefs) == "sam_tiny.pth (vit_b), converted to ONNX"
+    calls = []
+    monkeypatch.setattr(se, "convert_checkpoint", lambda *a, **k: calls.append(a))
+    assert prefs_mod.with_converted_checkpoint(settings) == s and not calls  # cached
+    prefs.sam_encoder_path, prefs.sam_decoder_path = "/m/enc.onnx", "/m/dec.onnx"
+    assert prefs_mod.active_model(prefs) == "ONNX pair enc.onnx + dec.onnx"
+    paired = prefs_mod.DivasSettings(
+        segmenter="sam_onnx",
+        sam_encoder_path="/m/e.onnx",
+        sam_decoder_path="/m/d.onnx",
+        sam_checkpoint_path=str(path),
+    )
+    assert prefs_mod.with_converted_checkpoint(paired) == paired  # a set pair wins
+    prefs.sam_encoder_path = ""
+    prefs.sam_checkpoint_path = str(tmp_path / "other.pth")
+    monkeypatch.setattr(se, "torch_available", lambda: False)
+    assert "needs torch" in prefs_mod.active_model(prefs)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import importlib.util
 import json
 import os
 import shutil
@@ -52,6 +53,8 @@ __all__ = [
     "check_onnx_pair",
     "convert_checkpoint",
     "cached_conversion",
+    "find_cached_conversion",
+    "torch_available",
     "check_image",
 ]
 
@@ -394,6 +397,24 @@ def _write_meta(path: Path, export: SamExport, key: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def _cache_folder(path: Path, t: SamModelType, cache_root: str | PathLike) -> Path:
+    key = _source_key(path, t)
+    digest = hashlib.blake2b(json.dumps(key, sort_keys=True).encode(), digest_size=8).hexdigest()
+    return Path(cache_root) / f"{path.stem}-{t.value}-{digest}"
+
+
+def find_cached_conversion(
+    checkpoint: str | PathLike, model_type: SamModelType | str, cache_root: str | PathLike
+) -> SamExport | None:
+    """The cached pair of ``checkpoint`` if it was converted already, else None (no work)."""
+    path = Path(checkpoint)
+    try:
+        t = SamModelType.parse(model_type, path)
+        return _read_cached(_cache_folder(path, t, cache_root), _source_key(path, t))
+    except (OSError, DivasInputError):
+        return None
+
+
 def cached_conversion(
     checkpoint: str | PathLike, model_type: SamModelType | str, cache_root: str | PathLike
 ) -> SamExport:
@@ -406,10 +427,8 @@ def cached_conversion(
     t = SamModelType.parse(model_type, path)
     if not path.is_file():
         raise DivasInputError(path, "SAM checkpoint file not found")
-    key = _source_key(path, t)
-    digest = hashlib.blake2b(json.dumps(key, sort_keys=True).encode(), digest_size=8).hexdigest()
-    folder = Path(cache_root) / f"{path.stem}-{t.value}-{digest}"
-    cached = _read_cached(folder, key)
+    folder = _cache_folder(path, t, cache_root)
+    cached = _read_cached(folder, _source_key(path, t))
     if cached is not None:
         return cached
     if folder.exists():
@@ -436,6 +455,11 @@ def _read_cached(folder: Path, key: dict[str, Any]) -> SamExport | None:
         if chk is None
         else PairCheck(**{k: tuple(v) if isinstance(v, list) else v for k, v in chk.items()}),
     )
+
+
+def torch_available() -> bool:
+    """Whether ``torch`` is installed (without importing it)."""
+    return importlib.util.find_spec("torch") is not None
 
 
 def official_checkpoint_name(model_type: SamModelType | str) -> str:
