@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEMO   ?= demo_out
 
-.PHONY: demo test test-sam test-sam-full lint bench clean extension
+.PHONY: demo test test-sam test-sam-full test-engine test-kernels test-addon test-cuda lint bench clean extension
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,11 @@ test-sam-full:
 	$(SAMFULL)/bin/python -m pip install -q torch==2.14.1 torchvision==0.29.1
 	$(SAMFULL)/bin/python -m pip install -q -e ".[test]" segment-anything==1.0 onnx timm mobilesam-mirror
 	DIVAS_TEST_FULL_SAM=1 $(SAMFULL)/bin/python -m pytest -q tests/test_sam_full.py
+
+# One tier at a time for quick local loops (markers in pyproject.toml, assigned in tests/conftest.py)
+test-engine test-kernels test-addon test-cuda: $(PY)
+	$(PY) -m pip install -q -e ".[test]"
+	$(PY) -m pytest -q -m $(subst test-,,$@)
 
 # Style: ruff lint and format check (configured in pyproject.toml)
 lint: $(PY)
