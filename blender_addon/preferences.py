@@ -156,8 +156,9 @@ def active_model(prefs) -> str:
 
     enc, dec = prefs.sam_encoder_path, prefs.sam_decoder_path
     ckpt = bpy.path.abspath(prefs.sam_checkpoint_path) if prefs.sam_checkpoint_path else ""
-    if prefs.segmenter == "classic":
-        return "classic (no model files)"
+    if prefs.segmenter not in ("sam_onnx", "sam_torch"):
+        names = {key: name for key, name, _ in SEGMENTERS}
+        return f"{names.get(prefs.segmenter, prefs.segmenter)} (no model files)"
     if prefs.segmenter == "sam_torch":
         return f"{Path(ckpt).name} ({prefs.sam_model_type}) via PyTorch" if ckpt else "none"
     if enc and dec:

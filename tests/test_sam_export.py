@@ -203,3 +203,14 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
     prefs.sam_checkpoint_path = str(tmp_path / "other.pth")
     monkeypatch.setattr(se, "torch_available", lambda: False)
     assert "needs torch" in prefs_mod.active_model(prefs)
+
+
+def test_addon_active_model_names_weight_free_segmenters():
+    from types import SimpleNamespace
+
+    prefs_mod = pytest.importorskip("blender_addon.preferences")
+    for key, name, _ in prefs_mod.SEGMENTERS:
+        if key.startswith("sam"):
+            continue
+        prefs = SimpleNamespace(segmenter=key, sam_checkpoint_path="/x.pth")
+        assert prefs_mod.active_model(prefs) == f"{name} (no model files)"
