@@ -212,5 +212,7 @@ def test_addon_active_model_names_weight_free_segmenters():
     for key, name, _ in prefs_mod.SEGMENTERS:
         if key.startswith("sam"):
             continue
-        prefs = SimpleNamespace(segmenter=key, sam_checkpoint_path="/x.pth")
+        prefs = SimpleNamespace(
+            segmenter=key, sam_encoder_path="", sam_decoder_path="", sam_checkpoint_path="/x.pth"
+        )
         assert prefs_mod.active_model(prefs) == f"{name} (no model files)"
