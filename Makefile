@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEMO   ?= demo_out
 
-.PHONY: demo test test-engine test-kernels test-addon test-cuda lint bench clean extension
+.PHONY: demo test test-sam test-sam-full test-engine test-kernels test-addon test-cuda lint bench clean extension
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,20 @@ test: $(PY)
 	$(PY) -m pip install -q -e ".[test]"
 	$(MAKE) --no-print-directory lint
 	$(PY) -m pytest -q
+
+# SAM with real model graphs (random weights, nothing downloaded): the torch extra, CPU wheel
+test-sam: $(PY)
+	$(PY) -m pip install -q -e ".[test,torch]"
+	$(PY) -m pytest -q tests/test_sam_real_graphs.py tests/test_sam_export.py tests/test_segmenters.py
+
+# Full-size ViT-B and MobileSAM (needs timm, so a working torchvision: PyPI's pairs with
+# torch 2.14.1's CUDA build, ~5.5 GB, in its own venv). Minutes of CPU, ~7 GB peak. Not in CI.
+SAMFULL := $(VENV)-sam-full
+test-sam-full:
+	test -x $(SAMFULL)/bin/python || $(PYTHON) -m venv $(SAMFULL)
+	$(SAMFULL)/bin/python -m pip install -q torch==2.14.1 torchvision==0.29.1
+	$(SAMFULL)/bin/python -m pip install -q -e ".[test]" segment-anything==1.0 onnx timm mobilesam-mirror
+	DIVAS_TEST_FULL_SAM=1 $(SAMFULL)/bin/python -m pytest -q tests/test_sam_full.py
 
 # One tier at a time for quick local loops (markers in pyproject.toml, assigned in tests/conftest.py)
 test-engine test-kernels test-addon test-cuda: $(PY)

@@ -2,6 +2,10 @@
 anchor images are, whether saved sessions resume when a .blend opens, and what is drawn
 over the viewport.
 
+SAM (ONNX) takes an encoder/decoder pair, or an official checkpoint (``.pth``) that the
+engine converts once into a pair (:func:`divas_engine.segment.sam_export.cached_conversion`,
+needs torch in Blender's Python) cached in the extension's user folder; a set pair wins.
+
 Stored by Blender under the add-on's package name (``__package__``: ``bl_ext.<repo>.divas``
 when installed as an extension). :func:`get_settings` turns them into a frozen
 :class:`DivasSettings` the rest of the add-on reads, with the defaults when the
@@ -10,7 +14,8 @@ preferences are not registered (e.g. the add-on registered by hand in a test).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
@@ -48,6 +53,7 @@ SAM_MODEL_TYPES = (
     ("vit_h", "ViT-H", "sam_vit_h_4b8939.pth"),
     ("vit_l", "ViT-L", "sam_vit_l_0b3195.pth"),
     ("vit_b", "ViT-B", "sam_vit_b_01ec64.pth"),
+    ("mobile_sam", "MobileSAM", "mobile_sam.pt"),
 )
 
 
@@ -129,9 +135,42 @@ class DIVAS_AddonPreferences(AddonPreferences):
         box.prop(self, "sam_encoder_path")
         box.prop(self, "sam_decoder_path")
         box = layout.box()
-        box.label(text="SAM via PyTorch")
+        box.label(text="SAM Checkpoint (PyTorch, or converted once for ONNX)")
         box.prop(self, "sam_checkpoint_path")
         box.prop(self, "sam_model_type")
+        layout.label(text=f"Active model: {active_model(self)}", icon="INFO")
+
+
+def sam_cache_dir() -> Path:
+    """Where converted checkpoints live: the extension's user folder (Blender's datafiles
+    when the add-on is not installed as an extension)."""
+    try:
+        return Path(bpy.utils.extension_path_user(ADDON_ID, path="sam_onnx", create=True))
+    except ValueError:  # not an extension (registered by hand, tests)
+        return Path(bpy.utils.user_resource("DATAFILES", path="divas/sam_onnx", create=True))
+
+
+def active_model(prefs) -> str:
+    """One line naming the model a session started now would use."""
+    from divas_engine.segment.sam_export import find_cached_conversion, torch_available
+
+    enc, dec = prefs.sam_encoder_path, prefs.sam_decoder_path
+    ckpt = bpy.path.abspath(prefs.sam_checkpoint_path) if prefs.sam_checkpoint_path else ""
+    if prefs.segmenter not in ("sam_onnx", "sam_torch"):
+        names = {key: name for key, name, _ in SEGMENTERS}
+        return f"{names.get(prefs.segmenter, prefs.segmenter)} (no model files)"
+    if prefs.segmenter == "sam_torch":
+        return f"{Path(ckpt).name} ({prefs.sam_model_type}) via PyTorch" if ckpt else "none"
+    if enc and dec:
+        return f"ONNX pair {Path(enc).name} + {Path(dec).name}"
+    if not ckpt:
+        return "none: set an ONNX pair or a checkpoint"
+    done = find_cached_conversion(ckpt, prefs.sam_model_type, sam_cache_dir())
+    if done is not None:
+        return f"{Path(ckpt).name} ({prefs.sam_model_type}), converted to ONNX"
+    if not torch_available():
+        return f"{Path(ckpt).name}: converting needs torch in Blender's Python; set an ONNX pair"
+    return f"{Path(ckpt).name} ({prefs.sam_model_type}), converted to ONNX at the next Start"
 
 
 def get_preferences(context=None) -> DIVAS_AddonPreferences | None:
@@ -144,7 +183,7 @@ def get_settings(context=None) -> DivasSettings:
     prefs = get_preferences(context)
     if prefs is None:
         return DivasSettings()
-    return DivasSettings(
+    settings = DivasSettings(
         prefs.device,
         prefs.segmenter,
         bpy.path.abspath(prefs.sam_encoder_path),
@@ -153,3 +192,22 @@ def get_settings(context=None) -> DivasSettings:
         prefs.sam_model_type,
         int(prefs.anchor_resolution),
     )
+    return with_converted_checkpoint(settings)
+
+
+def with_converted_checkpoint(settings: DivasSettings) -> DivasSettings:
+    """SAM (ONNX) with a checkpoint and no pair: the engine's cached conversion of it (the
+    first time this converts, minutes on a CPU; raises a clear error without torch)."""
+    s = settings
+    if s.segmenter != "sam_onnx" or (s.sam_encoder_path and s.sam_decoder_path):
+        return s
+    if not s.sam_checkpoint_path:
+        return s
+    from divas_engine.errors import DivasInputError
+    from divas_engine.segment.sam_export import cached_conversion
+
+    try:
+        pair = cached_conversion(s.sam_checkpoint_path, s.sam_model_type, sam_cache_dir())
+    except ImportError as e:
+        raise DivasInputError(s.sam_checkpoint_path, f"cannot convert to ONNX: {e}") from None
+    return replace(s, sam_encoder_path=str(pair.encoder), sam_decoder_path=str(pair.decoder))

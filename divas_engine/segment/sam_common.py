@@ -24,6 +24,8 @@ The padding point added when there is no box is ``(0, 0)`` with label ``−1``.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy import sparse
 
@@ -37,6 +39,7 @@ __all__ = [
     "normalize_pad",
     "sam_point_coords",
     "decoder_prompts",
+    "upscale_low_res_masks",
     "sigmoid",
 ]
 
@@ -121,6 +124,51 @@ def decoder_prompts(
     )
     labs = np.concatenate([np.asarray(labels, dtype=np.float64).reshape(-1), [-1.0]])
     return coords[None].astype(np.float32), labs[None].astype(np.float32)
+
+
+def _linear_weights(n_in: int, n_out: int) -> np.ndarray:
+    """``[n_out, n_in]`` bilinear weights, half-pixel centres, no antialiasing.
+
+    PyTorch's ``F.interpolate(mode="bilinear", align_corners=False)`` rule: source
+    ``(i + 0.5)·n_in/n_out − 0.5`` clamped at 0, the upper neighbour clamped at the edge.
+    """
+    src = np.maximum((np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5, 0.0)
+    i0 = np.minimum(np.floor(src).astype(np.int64), n_in - 1)
+    i1 = np.minimum(i0 + 1, n_in - 1)
+    lam = src - i0
+    w = np.zeros((n_out, n_in))
+    rows = np.arange(n_out)
+    w[rows, i0] = 1.0 - lam
+    w[rows, i1] += lam  # i1 == i0 at the last row: the weights still sum to 1
+    return w
+
+
+@lru_cache(maxsize=16)
+def _upscale_matrices(
+    orig_hw: tuple[int, int], low_hw: tuple[int, int], long_side: int
+) -> tuple[np.ndarray, np.ndarray]:
+    h, w = orig_hw
+    new_h, new_w = preprocess_shape(h, w, long_side)
+    a = _linear_weights(new_h, h) @ _linear_weights(low_hw[0], long_side)[:new_h]
+    b = _linear_weights(new_w, w) @ _linear_weights(low_hw[1], long_side)[:new_w]
+    return a.astype(np.float32), np.ascontiguousarray(b.T, dtype=np.float32)
+
+
+def upscale_low_res_masks(
+    low_res: np.ndarray, orig_hw: tuple[int, int], long_side: int = SAM_IMAGE_SIZE
+) -> np.ndarray:
+    """Decoder logits ``[C,h,w]`` (``low_res_masks``, 256²) → ``[C,H,W]`` at the image size.
+
+    SAM's ``postprocess_masks``: bilinear up to ``S×S``, crop the padding away (keep the
+    resized ``new_h × new_w``), bilinear to ``H×W`` — here as one ``[H,h]`` and one
+    ``[W,w]`` matrix, so ``masks = A · low · Bᵀ``. Used instead of the decoder's own
+    ``masks`` output: segment-anything 1.0's ``SamOnnxModel`` casts the crop size to a
+    Python int, which the exporter freezes at the export dummy's size (1500×2250), so
+    every decoder exported with that release crops wrongly for other aspect ratios.
+    """
+    low = np.asarray(low_res, dtype=np.float32)
+    a, bt = _upscale_matrices(tuple(orig_hw), low.shape[-2:], int(long_side))
+    return np.matmul(a, low @ bt)
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:

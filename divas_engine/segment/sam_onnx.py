@@ -19,7 +19,10 @@ The output named ``image_embeddings`` (else the first output) is the embedding,
 Decoder — inputs ``image_embeddings [1,256,64,64]``, ``point_coords [1,P,2]``,
 ``point_labels [1,P]``, ``mask_input [1,1,256,256]``, ``has_mask_input [1]``,
 ``orig_im_size [2]`` (H, W); outputs ``masks`` (logits at the original size),
-``iou_predictions``, ``low_res_masks``. Exported *without*
+``iou_predictions``, ``low_res_masks``. When ``low_res_masks`` is there we upscale it
+ourselves (:func:`.sam_common.upscale_low_res_masks`, SAM's ``postprocess_masks``)
+rather than trust ``masks``: every decoder exported with segment-anything 1.0 (PyPI)
+crops the padding at the export dummy's aspect ratio whatever the image. Exported *without*
 ``--return-single-mask`` it returns 4 masks: index 0 is the single-mask token and
 1..3 the multimask output, which we keep (SamPredictor's ``multimask_output``
 slice). A 3-channel output is taken as is; a single-mask export is refused.
@@ -45,6 +48,7 @@ from .sam_common import (
     normalize_pad,
     resize_longest_side,
     sigmoid,
+    upscale_low_res_masks,
 )
 
 __all__ = ["SamOnnxSegmenter", "DECODER_INPUTS"]
@@ -185,6 +189,7 @@ class SamOnnxSegmenter(Segmenter):
             )
         self._mask_out = "masks" if "masks" in names else names[0]
         self._iou_out = "iou_predictions" if "iou_predictions" in names else names[1]
+        self._low_res_out = "low_res_masks" if "low_res_masks" in names else None
         mo = next(o for o in outs if o.name == self._mask_out)
         if len(mo.shape) == 4 and _static(mo.shape[1]) == 1:
             raise DivasInputError(
@@ -236,7 +241,12 @@ class SamOnnxSegmenter(Segmenter):
             "has_mask_input": np.zeros((1,), t["has_mask_input"]),
             "orig_im_size": np.array([h, w], t["orig_im_size"]),
         }
-        masks, iou = self._dec.run([self._mask_out, self._iou_out], feeds)
+        if self._low_res_out is not None:  # upscaled here: see upscale_low_res_masks
+            low, iou = self._dec.run([self._low_res_out, self._iou_out], feeds)
+            low = np.asarray(low, dtype=np.float32)
+            masks = upscale_low_res_masks(low.reshape(-1, *low.shape[-2:]), (h, w), self.image_size)
+        else:
+            masks, iou = self._dec.run([self._mask_out, self._iou_out], feeds)
         masks = (
             np.asarray(masks, dtype=np.float32).reshape(-1, h, w)
             if np.size(masks) % (h * w) == 0

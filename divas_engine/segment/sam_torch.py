@@ -1,7 +1,10 @@
-"""SAM through the ``segment-anything`` package (optional: needs ``torch`` + ``segment-anything``).
+"""SAM through its own PyTorch package (optional: the ``torch`` extra).
 
-Both packages are imported lazily, only when this segmenter is built; a clear
-error names what is missing. Preprocessing and prompt mapping are *ours*
+``torch`` and the family's package (``segment-anything``; MobileSAM's ``mobile_sam``)
+are imported lazily, only when this segmenter is built, through
+:mod:`.sam_upstream` (no torchvision needed); a clear error names what is missing.
+The checkpoint is read by :func:`.sam_models.load_sam_model` (tensors only, its type
+checked). Preprocessing and prompt mapping are *ours*
 (:mod:`.sam_common`, shared with the ONNX back end), handed to the predictor's
 tensor-level API:
 
@@ -23,34 +26,27 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DivasInputError
 from .base import Segmenter
 from .sam_common import resize_longest_side, sam_point_coords, sigmoid
+from .sam_models import FAMILIES, SamModelType, import_torch, load_sam_model
+from .sam_upstream import sam_package
 
 __all__ = ["SamTorchSegmenter", "SAM_MODEL_TYPES"]
 
-#: ``segment_anything.sam_model_registry`` keys.
-SAM_MODEL_TYPES = ("vit_h", "vit_l", "vit_b", "default")
+#: ``model_type`` values (``default`` is ``vit_h``, as in ``sam_model_registry``).
+SAM_MODEL_TYPES = (*(t.value for t in SamModelType), "default")
 
 
 def _import_torch() -> Any:
-    try:
-        import torch
-    except ImportError as exc:
-        raise ImportError(
-            "SamTorchSegmenter needs the optional package 'torch' "
-            "(pip install torch); use SamOnnxSegmenter or ClassicSegmenter "
-            "without it"
-        ) from exc
-    return torch
+    return import_torch("SamTorchSegmenter")
 
 
 class SamTorchSegmenter(Segmenter):
-    """SAM via segment-anything's ``SamPredictor`` (module docstring).
+    """SAM via the family's own ``SamPredictor`` (module docstring).
 
     Args:
-        checkpoint: ``sam_vit_*.pth`` file.
-        model_type: ``vit_h``, ``vit_l`` or ``vit_b``.
+        checkpoint: official checkpoint (``sam_vit_*.pth``, ``mobile_sam.pt``).
+        model_type: ``vit_h``, ``vit_l``, ``vit_b`` or ``mobile_sam``.
         device: torch device (default: CUDA when available, else CPU).
         cache_size: views whose embeddings are kept.
     """
@@ -65,31 +61,18 @@ class SamTorchSegmenter(Segmenter):
         cache_size: int = 8,
     ):
         torch = _import_torch()
+        t = SamModelType.parse(model_type, Path(checkpoint))
         try:
-            from segment_anything import SamPredictor, sam_model_registry
+            predictor_cls = sam_package(FAMILIES[t].package).SamPredictor
         except ImportError as exc:
             raise ImportError(
-                "SamTorchSegmenter needs the optional package 'segment-anything' "
-                "(pip install segment-anything torchvision)"
+                f"SamTorchSegmenter ({t.value}) needs the optional package "
+                f"{FAMILIES[t].package.replace('_', '-')!r} ({FAMILIES[t].install}): {exc}"
             ) from exc
-        path = Path(checkpoint)
-        if model_type not in sam_model_registry:
-            raise DivasInputError(
-                path,
-                f"unknown SAM model type {model_type!r}; expected one of "
-                f"{sorted(sam_model_registry)}",
-            )
-        if not path.is_file():
-            raise DivasInputError(path, "SAM checkpoint file not found")
-        try:
-            model = sam_model_registry[model_type](checkpoint=str(path))
-        except Exception as exc:  # bad pickle, wrong state dict for the type, ...
-            raise DivasInputError(
-                path, f"cannot load a {model_type} SAM checkpoint: {exc}"
-            ) from exc
+        model = load_sam_model(checkpoint, t)
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
         model.to(device=dev).eval()
-        self._init_from_predictor(SamPredictor(model), cache_size)
+        self._init_from_predictor(predictor_cls(model), cache_size)
 
     @classmethod
     def from_predictor(cls, predictor: Any, cache_size: int = 8) -> SamTorchSegmenter:
