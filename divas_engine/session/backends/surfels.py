@@ -40,6 +40,9 @@ class SurfelBackend(SessionBackend):
         grid_config: the occupancy config in use (``SessionConfig.grid``, else
             ``g_max`` 512 forward-facing / 1024 otherwise, NOTES "Occupancy").
         last_mapping: the latest voxel-to-surfel :class:`~divas_engine.mapping.MappingResult`.
+        last_completion: on 3DGS scenes with ``config.mapping.completion.enabled``, the
+            latest :class:`~divas_engine.mapping.completion.CompletionResult` (beyond the
+            paper, issue 15); else None.
     """
 
     scene_type = SurfelScene
@@ -59,8 +62,10 @@ class SurfelBackend(SessionBackend):
         self.grid = build_occupancy(scene, self.grid_config, device)
         self.fusion = GsFusion(self.grid, config.gs_fusion, device)
         self.last_mapping = None
+        self.last_completion = None
         self._planner = None
         self._mapper = None
+        self._completion = None
 
     @staticmethod
     def fingerprint_array(scene: Scene) -> np.ndarray:
@@ -103,7 +108,35 @@ class SurfelBackend(SessionBackend):
             self.config.mapping,
         )
         self.last_mapping = res
-        return np.asarray(res.selected, dtype=bool)
+        sel = np.asarray(res.selected, dtype=bool)
+        comp = self.config.mapping.completion
+        if self.scene.kind != SceneKind.GS3D or not comp.enabled:
+            self.last_completion = None
+            return sel  # 2DGS: the paper's three passes exactly
+        return self._complete(sel, fused, live)
+
+    def _complete(
+        self, sel: np.ndarray, fused: FusionResult, live: Sequence[SessionView]
+    ) -> np.ndarray:
+        """Completion of a 3DGS-derived scene (beyond the paper, issue 15): the live views'
+        records are added/removed incrementally, then the selection is completed."""
+        from ...mapping.completion import VolumetricCompletion
+
+        comp = self.config.mapping.completion
+        if self._completion is None or self._completion.config != comp:
+            self._completion = VolumetricCompletion(
+                self.scene,
+                self.grid,
+                self._mapper.active_index,
+                comp,
+                device=self.device,
+                render_config=self.config.render,
+            )
+        t_views = self._completion.sync([(int(v.fusion_id), v.fusion_view) for v in live])
+        res = self._completion.complete(sel, fused.segmented)
+        res.seconds["views"] = t_views
+        self.last_completion = res
+        return res.selected
 
     def object_suffix(self) -> str:
         return export_suffix(self.scene)
