@@ -11,7 +11,7 @@ from divas_engine.camera import Camera
 from divas_engine.fusion import GridConfig, build_occupancy
 from divas_engine.fusion.views import FusionView
 from divas_engine.kinds import SceneKind
-from divas_engine.mapping import CompletionConfig, MappingConfig
+from divas_engine.mapping import CompletionConfig, MappingConfig, SurfelMapper
 from divas_engine.mapping.completion import VolumetricCompletion
 from divas_engine.render import make_renderer
 from divas_engine.scene import SurfelScene
@@ -105,16 +105,7 @@ def _views(scene, labels, dirs):
 def ball():
     scene, labels, parts = _ball_scene()
     grid = build_occupancy(scene, GridConfig(), CPU)
-    from divas_engine.fusion.occupancy import surfel_voxel_codes
-    from divas_kernels import occupancy as kocc
-    import warp as wp
-
-    codes = surfel_voxel_codes(
-        wp.array(scene.means, dtype=wp.vec3, device=CPU), grid.geometry, device=CPU
-    )
-    act = kocc.hash_query(
-        grid.hash_keys, grid.hash_vals, grid.hash_shift, codes, device=CPU
-    ).numpy()
+    act = SurfelMapper(scene, grid, device=CPU).active_index
     views = _views(scene, labels, [(0, 0, -1), (1, 0, -0.3), (-1, 0.2, -0.3), (0, 1, -0.5)])
     return scene, labels, parts, grid, act, views
 
