@@ -71,6 +71,7 @@ METHODS = {
     "divas_paper": "DivAS w/o completion (paper passes)",
     "centre_vote": "(a) centre-projection vote",
     "contrib_vote": "(b) contribution vote (FlashSplat-style)",
+    "truth": "the ground truth itself (the metrics' ceiling)",
 }
 
 
@@ -116,6 +117,7 @@ def run(args: argparse.Namespace) -> list[dict]:
                     "divas_paper": out.mapped,
                     "centre_vote": centre_vote(scene, mviews, renderer=renderer).selected,
                     "contrib_vote": voter.vote(mviews).selected,
+                    "truth": labels,
                 }
                 scores = ev.score(sels)
                 fids = fid.score(sels)

@@ -38,7 +38,7 @@ from ..camera import Camera
 from ..render import make_renderer
 from ..scene import SurfelScene
 
-__all__ = ["weighted_iou", "psnr", "FidelityEvaluator"]
+__all__ = ["weighted_iou", "psnr", "FidelityEvaluator", "rendered_report"]
 
 
 def weighted_iou(selection: np.ndarray, gt: np.ndarray, weights: np.ndarray) -> float:
@@ -156,3 +156,37 @@ class FidelityEvaluator:
                 "psnr_ceiling": self.psnr_ceiling,
             }
         return out
+
+
+def rendered_report(
+    scene: SurfelScene,
+    selections: Mapping[str, np.ndarray],
+    labels: np.ndarray,
+    up,
+    *,
+    device=None,
+    renderer=None,
+) -> dict:
+    """The ``--gt-labels`` report of ``divas segment`` on surfel scenes: per named
+    selection the NOTES image IoU (mean over views) and this module's metrics at
+    camera-free test views framed on the ground truth
+    (:func:`~divas_engine.evaluation.real_targets.evaluation_cameras`: 8 azimuths ×
+    20°/45° around ``up``, views where the object is mostly hidden left out)."""
+    from .metrics import ViewEvaluator
+    from .real_targets import evaluation_cameras
+
+    lab = np.asarray(labels, bool)
+    if not lab.any():
+        return {"test_views": 0}
+    cams = evaluation_cameras(scene, lab, up, device=device)
+    if not cams:
+        return {"test_views": 0}
+    r = renderer or make_renderer(scene, device=device)
+    ev = ViewEvaluator(scene, cams, lab, renderer=r, device=device)
+    fe = FidelityEvaluator(scene, cams, lab, gt_masks=ev.gt_masks, renderer=r, device=device)
+    iou = ev.score(selections)
+    fid = fe.score(selections)
+    out: dict = {"test_views": len(cams), "up": [float(x) for x in np.asarray(up, float)]}
+    for k in selections:
+        out[k] = {"image_iou": iou[k].iou, "pooled_iou": iou[k].pooled_iou, **fid[k]}
+    return out

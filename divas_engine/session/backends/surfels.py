@@ -66,6 +66,7 @@ class SurfelBackend(SessionBackend):
         self._planner = None
         self._mapper = None
         self._completion = None
+        self._evidence: dict[int, tuple] = {}
 
     @staticmethod
     def fingerprint_array(scene: Scene) -> np.ndarray:
@@ -137,6 +138,23 @@ class SurfelBackend(SessionBackend):
         res.seconds["views"] = t_views
         self.last_completion = res
         return res.selected
+
+    def _evidence_view(self, v: SessionView):
+        """The view the completion reads: the fused view with the segmenter's own mask
+        (what the user accepted) in place of the depth-weighted M̃ — the band-pass
+        (eq:gs-bandpass) zeroes the object's parts outside the clicked depth band, which
+        the completion would read as background; cached per fused view so the
+        completion's records are made once."""
+        from dataclasses import replace
+
+        fv = v.fusion_view
+        hit = self._evidence.get(int(v.fusion_id))
+        if hit is not None and hit[0] is fv:
+            return hit[1]
+        raw = None if v.preview is None else v.preview.selection.mask
+        ev = fv if raw is None else replace(fv, mask=np.asarray(raw, np.float32))
+        self._evidence[int(v.fusion_id)] = (fv, ev)
+        return ev
 
     def object_suffix(self) -> str:
         return export_suffix(self.scene)
