@@ -136,15 +136,15 @@ class _CoarseCells:
                     nb.append(np.where(hit, i, self.n).astype(np.int32))
         self.neighbours = np.stack(nb, axis=1) if nb else np.zeros((0, 27), np.int32)
 
-    def dilate(self, voxels: np.ndarray) -> np.ndarray:
-        """``[C+1] bool`` cells within one cell of a cell holding a voxel of ``voxels``
-        (bool ``[A]``); the last entry (sentinel) is False."""
-        mark = np.zeros(self.n + 1, bool)
-        mark[self.of_voxel[voxels]] = True
-        mark[self.n] = False
-        out = np.zeros(self.n + 1, bool)
-        out[: self.n] = mark[self.neighbours].any(axis=1)
-        return out
+    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> None:
+        """Set in ``near`` (``[C+1] bool``, the last entry the always-False sentinel) the
+        cells within one cell of a cell holding one of the active voxels ``voxels``
+        (indices): ``O(|voxels| + 27 · cells touched)``."""
+        if len(voxels) == 0:
+            return
+        cells = np.unique(self.of_voxel[voxels])
+        near[self.neighbours[cells].ravel()] = True
+        near[self.n] = False
 
 
 class VolumetricCompletion:
@@ -327,32 +327,37 @@ class VolumetricCompletion:
                 f"expected ({self.n},) / ({self.a},)"
             )
         # solid fill: grow from the segmented voxels through consistent, never
-        # inconsistent voxels, one neighbourhood per round
+        # inconsistent voxels, one neighbourhood per round (only the new voxels' cells
+        # are dilated each round)
         cand = (self.n_cons > 0) & (self.n_incons == 0) & ~seg
         cur = seg.copy()
+        near_cells = np.zeros(self.cells.n + 1, bool)
+        self.cells.dilate_into(near_cells, np.flatnonzero(seg))
         rounds = 0
-        near_cells = self.cells.dilate(cur)
         for _ in range(cfg.fill_rounds):
-            new = cand & ~cur & near_cells[self.cells.of_voxel]
-            if not new.any():
+            new = np.flatnonzero(cand & ~cur & near_cells[self.cells.of_voxel])
+            if len(new) == 0:
                 break
-            cur |= new
+            cur[new] = True
             rounds += 1
-            near_cells = self.cells.dilate(cur)
+            self.cells.dilate_into(near_cells, new)
         filled = cur & ~seg
+        # Gaussian level, evaluated on the neighbourhood's Gaussians only
         near = near_cells[self.cells.of_gauss]
-        q1, q0 = self.q1, self.q0
-        a1 = q1.astype(np.float64)
-        a0 = q0.astype(np.float64)
+        idx = np.flatnonzero(near & ~sel)
+        a1 = self.q1[idx].astype(np.float64)
+        a0 = self.q0[idx].astype(np.float64)
         seen = (a1 + a0) >= cfg.min_weight * QSCALE
         positive = seen & (a1 - a0 > cfg.gamma * np.hypot(a1, a0))
         negative = seen & ~positive
-        act = self.active_index
-        in_voxels = np.zeros(self.n, bool)
+        act = self.active_index[idx]
+        in_voxels = np.zeros(len(idx), bool)
         ok = act >= 0
         in_voxels[ok] = cur[act[ok]]  # centre voxel segmented or filled
-        contrib_add = near & positive & ~sel
-        fill_add = in_voxels & ~negative & ~sel & ~contrib_add
+        contrib_add = np.zeros(self.n, bool)
+        fill_add = np.zeros(self.n, bool)
+        contrib_add[idx[positive]] = True
+        fill_add[idx[in_voxels & ~negative & ~positive]] = True
         out = sel | contrib_add | fill_add
         return CompletionResult(
             selected=out,
