@@ -181,3 +181,60 @@ def test_config_and_switch():
     cfg = SessionConfig(mapping=MappingConfig(completion=CompletionConfig(enabled=False)))
     back = SessionConfig.from_dict(cfg.to_dict())
     assert back.mapping.completion == CompletionConfig(enabled=False)
+
+
+def test_session_completes_3dgs_only(ball):
+    """Through the session: on the 3DGS ball the completion runs (the hidden interior is
+    added, the floater stays out), the paper's selection is kept as the mapping's; on
+    the same Gaussians marked 2DGS the paper's passes alone decide, exactly."""
+    from dataclasses import replace
+
+    from divas_engine.segment.oracle import OracleConfig, OracleSegmenter
+    from divas_engine.session import Session, SessionConfig
+
+    scene, labels, parts, *_ = ball
+    cam = Camera.look_at(
+        np.array([0.0, 0.0, -4.0]), np.zeros(3), np.array([0, 1.0, 0]), width=96, height=96, fx=80.0
+    )
+    cam2 = Camera.look_at(
+        np.array([3.0, 1.0, -2.5]), np.zeros(3), np.array([0, 1.0, 0]), width=96, height=96, fx=80.0
+    )
+    out = {}
+    for kind in (SceneKind.GS3D, SceneKind.GS2D):
+        sc = replace(scene, kind=kind)
+        seg = OracleSegmenter(
+            config=OracleConfig(bleed_prob=0.0, dropout_prob=0.0, fp_prob=0.0, seed=0)
+        )
+        s = Session.open(
+            sc,
+            [],
+            SessionConfig(seed=0),
+            seg,
+            CPU,
+            anchors=[(cam, "camera", -1), (cam2, "camera", -1)],
+            gt_values=labels.astype(np.float32),
+            render_anchors=False,
+        )
+        for i in (0, 1):
+            v = s.click(i, (48.0, 48.0))
+            s.accept(v)
+        out[kind] = (s.selection.copy(), s.last_mapping.selected.copy(), s.backend.last_completion)
+        if kind == SceneKind.GS3D:  # undo the second view: the completion follows exactly
+            one = VolumetricCompletion(
+                sc, s.grid, s.backend._mapper.active_index, CompletionConfig(), device=CPU
+            )
+            s.undo()
+            v0 = s.views[0]
+            one.add_view(int(v0.fusion_id), s.backend._evidence_view(v0))
+            assert np.array_equal(one.q1, s.backend._completion.q1)
+            assert np.array_equal(one.n_incons, s.backend._completion.n_incons)
+        s.close()
+    sel3, mapped3, comp3 = out[SceneKind.GS3D]
+    sel2, mapped2, comp2 = out[SceneKind.GS2D]
+    assert comp2 is None and np.array_equal(sel2, mapped2)
+    assert comp3 is not None and np.array_equal(mapped3, mapped2)
+    assert (sel3 >= mapped3).all()
+    interior = np.zeros_like(labels)
+    interior[parts["interior"]] = True
+    assert sel3[interior].mean() > 0.9 > mapped3[interior].mean()
+    assert not sel3[parts["floater"]].any()

@@ -381,13 +381,21 @@ def _rendered_scores(session, sel: np.ndarray, gt: np.ndarray, dev) -> dict[str,
     views around the ground truth (:func:`~divas_engine.evaluation.fidelity.rendered_report`);
     on 3DGS scenes also of the selection without the completion."""
     from ..evaluation.fidelity import rendered_report
-    from ..views import anchor_plan
+    from ..session import anchor_plan
 
     sels = {"selection": sel}
     if getattr(session.backend, "last_completion", None) is not None:
         sels["without_completion"] = session.last_mapping.selected
     up = anchor_plan(session.scene, session.cameras, session.config).up
-    return rendered_report(session.scene, sels, gt, up, device=dev, renderer=session.renderer)
+    return rendered_report(
+        session.scene,
+        sels,
+        gt,
+        up,
+        scale=session.config.render_scale,
+        device=dev,
+        renderer=session.renderer,
+    )
 
 
 def write_report(path: Path, report: dict[str, Any]) -> None:

@@ -164,6 +164,7 @@ def rendered_report(
     labels: np.ndarray,
     up,
     *,
+    scale: float = 1.0,
     device=None,
     renderer=None,
 ) -> dict:
@@ -171,8 +172,9 @@ def rendered_report(
     selection the NOTES image IoU (mean over views) and this module's metrics at
     camera-free test views framed on the ground truth
     (:func:`~divas_engine.evaluation.real_targets.evaluation_cameras`: 8 azimuths ×
-    20°/45° around ``up``, views where the object is mostly hidden left out)."""
-    from .metrics import ViewEvaluator
+    20°/45° around ``up``, views where the object is mostly hidden left out), rendered at
+    ``scale`` of their 640 × 480."""
+    from .metrics import EvalConfig, ViewEvaluator
     from .real_targets import evaluation_cameras
 
     lab = np.asarray(labels, bool)
@@ -182,8 +184,10 @@ def rendered_report(
     if not cams:
         return {"test_views": 0}
     r = renderer or make_renderer(scene, device=device)
-    ev = ViewEvaluator(scene, cams, lab, renderer=r, device=device)
-    fe = FidelityEvaluator(scene, cams, lab, gt_masks=ev.gt_masks, renderer=r, device=device)
+    ev = ViewEvaluator(scene, cams, lab, config=EvalConfig(scale=scale), renderer=r, device=device)
+    fe = FidelityEvaluator(
+        scene, cams, lab, gt_masks=ev.gt_masks, scale=scale, renderer=r, device=device
+    )
     iou = ev.score(selections)
     fid = fe.score(selections)
     out: dict = {"test_views": len(cams), "up": [float(x) for x in np.asarray(up, float)]}

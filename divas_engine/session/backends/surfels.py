@@ -133,7 +133,7 @@ class SurfelBackend(SessionBackend):
                 device=self.device,
                 render_config=self.config.render,
             )
-        t_views = self._completion.sync([(int(v.fusion_id), v.fusion_view) for v in live])
+        t_views = self._completion.sync([(int(v.fusion_id), self._evidence_view(v)) for v in live])
         res = self._completion.complete(sel, fused.segmented)
         res.seconds["views"] = t_views
         self.last_completion = res
@@ -152,7 +152,7 @@ class SurfelBackend(SessionBackend):
         if hit is not None and hit[0] is fv:
             return hit[1]
         raw = None if v.preview is None else v.preview.selection.mask
-        ev = fv if raw is None else replace(fv, mask=np.asarray(raw, np.float32))
+        ev = fv if raw is None else replace(fv, mask=np.array(raw, np.float32))  # a copy
         self._evidence[int(v.fusion_id)] = (fv, ev)
         return ev
 
