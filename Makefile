@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEMO   ?= demo_out
 
-.PHONY: demo test lint bench clean extension
+.PHONY: demo test test-engine test-kernels test-addon test-cuda lint bench clean extension
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,11 @@ test: $(PY)
 	$(PY) -m pip install -q -e ".[test]"
 	$(MAKE) --no-print-directory lint
 	$(PY) -m pytest -q
+
+# One tier at a time for quick local loops (markers in pyproject.toml, assigned in tests/conftest.py)
+test-engine test-kernels test-addon test-cuda: $(PY)
+	$(PY) -m pip install -q -e ".[test]"
+	$(PY) -m pytest -q -m $(subst test-,,$@)
 
 # Style: ruff lint and format check (configured in pyproject.toml)
 lint: $(PY)

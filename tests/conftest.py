@@ -20,3 +20,45 @@ def real_data() -> Path:
     if not REAL_DATA.is_dir():
         pytest.fail(f"test data not found at {REAL_DATA}: the checkout is incomplete")
     return REAL_DATA
+
+
+def _devices() -> list:
+    """Every Warp device the kernel tests run on: the CPU always, CUDA when present
+    (those cases carry the ``cuda`` marker)."""
+    import warp as wp
+
+    devs: list = ["cpu"]
+    if wp.get_cuda_device_count() > 0:
+        devs.append(pytest.param("cuda:0", marks=pytest.mark.cuda))
+    return devs
+
+
+@pytest.fixture(scope="session", params=_devices())
+def device(request) -> str:
+    """The Warp device of a kernel test, parametrised over :func:`_devices`."""
+    return request.param
+
+
+# Test tiers by folder and file (``make test-engine`` etc.): the add-on tests need the
+# ``bpy`` module; the kernel tests exercise the Warp kernels against NumPy references.
+KERNEL_TESTS = {
+    "test_fusion_gs.py",
+    "test_fusion_incremental.py",
+    "test_fusion_nerf.py",
+    "test_fusion_ribs.py",
+    "test_mapping.py",
+    "test_occupancy.py",
+    "test_render_nerf.py",
+    "test_render_surfel.py",
+}
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    for item in items:
+        path = Path(str(item.fspath))
+        if "addon" in path.parts:
+            item.add_marker(pytest.mark.addon)
+        elif path.name in KERNEL_TESTS:
+            item.add_marker(pytest.mark.kernels)
+        else:
+            item.add_marker(pytest.mark.engine)

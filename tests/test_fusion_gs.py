@@ -29,7 +29,6 @@ from tests.fusion_cases import (
     sphere_floor_scene,
 )
 
-DEV = "cpu"
 CFG = GsFusionConfig()
 THICK = GsFusionConfig(rho_thin=10.0)  # thin path off (active density 1 < 10)
 H = 0.2  # voxel edge of the constructed cases; voxel at (0,0,4) covers a 7×7 footprint
@@ -45,8 +44,8 @@ def f32_above(x: float) -> float:
 
 
 @pytest.fixture(scope="module")
-def sphere_case():
-    grid = build_occupancy(sphere_floor_scene(), GridConfig(), device=DEV)
+def sphere_case(device):
+    grid = build_occupancy(sphere_floor_scene(), GridConfig(), device=device)
     return grid, random_views(6)
 
 
@@ -78,18 +77,18 @@ def test_early_out_is_exact(sphere_case):
         assert np.array_equal(arr, b.accumulators()[k]), k
 
 
-def test_integral_images_and_depth_gradient():
+def test_integral_images_and_depth_gradient(device):
     rng = np.random.default_rng(5)
     n = rng.integers(0, 300, (37, 53)).astype(np.int32)
     m = rng.random((37, 53)).astype(np.float32)
     sats = integral_images(
-        wp.array(n, dtype=wp.int32, device=DEV), wp.array(m, dtype=float, device=DEV), 0.5
+        wp.array(n, dtype=wp.int32, device=device), wp.array(m, dtype=float, device=device), 0.5
     )
     for got, exp in zip(sats, integral_images_numpy(n, m, 0.5)):
         assert np.array_equal(got.numpy(), exp)
     v = random_views(1, seed=9)[0]
     pdg = depth_gradient_factor(
-        *(wp.array(a, dtype=float, device=DEV) for a in (v.d_min, v.d_ref, v.d_max)), 400.0, 1e-6
+        *(wp.array(a, dtype=float, device=device) for a in (v.d_min, v.d_ref, v.d_max)), 400.0, 1e-6
     ).numpy()
     assert np.allclose(pdg, ref.depth_gradient(v, 400.0, 1e-6), atol=2e-6)
 

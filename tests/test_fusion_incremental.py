@@ -12,8 +12,6 @@ from divas_engine.fusion.nerf_fusion import NerfFusion
 from divas_engine.fusion.occupancy import build_occupancy
 from tests.fusion_cases import nerf_case, random_views, sphere_floor_scene
 
-DEV = "cpu"
-
 
 def _random_session(make, views, rng, steps=14):
     f = make()
@@ -40,8 +38,8 @@ def _assert_same(inc, full):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_gs_incremental_equals_full_refuse(seed):
-    grid = build_occupancy(sphere_floor_scene(), GridConfig(), device=DEV)
+def test_gs_incremental_equals_full_refuse(seed, device):
+    grid = build_occupancy(sphere_floor_scene(), GridConfig(), device=device)
     views = random_views(5, seed=10 + seed)
     rng = np.random.default_rng(seed)
     inc, live = _random_session(lambda: GsFusion(grid, GsFusionConfig()), views, rng)

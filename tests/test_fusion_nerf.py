@@ -17,7 +17,6 @@ from divas_engine.scene import DensityGrid
 from tests import fusion_reference as ref
 from tests.fusion_cases import axis_camera, const_view, nerf_case
 
-DEV = "cpu"
 LLFF = nerf_preset("llff")
 X0 = np.array([0.0, 0.0, 4.0])
 
@@ -30,11 +29,11 @@ def f32_above(x: float) -> float:
     return float(np.nextafter(np.float32(x), np.float32(np.inf)))
 
 
-def nerf_contrib(xc, h, view, cfg, rho=20.0):
+def nerf_contrib(xc, h, view, cfg, rho=20.0, device=None):
     """(num, den, kind) of one cell of edge ``h`` centred at ``xc`` with density ``rho``."""
     xc = np.asarray(xc, float)
     g = DensityGrid(np.full((1, 1, 1), rho, np.float32), np.stack([xc - h / 2, xc + h / 2]))
-    occ = build_nerf_occupancy(g, cfg, DEV)
+    occ = build_nerf_occupancy(g, cfg, device)
     assert len(occ) == 1
     num, den, kind = NerfFusion(occ, cfg).contributions(view)
     return float(num[0]), float(den[0]), int(kind[0])
@@ -65,18 +64,18 @@ def test_early_out_is_exact():
         assert np.array_equal(arr, b.accumulators()[k]), k
 
 
-def test_depth_tolerance_with_per_sample_bonus():
+def test_depth_tolerance_with_per_sample_bonus(device):
     cam = axis_camera()
     h = 0.02
     for n, bonus in ((5, 1.0), (100, 10.0)):  # b = min(β n, b_max) = 1, then capped at 10
         tau = (LLFF.gamma + bonus) * h
         for s, kind in ((0.99, 1), (-0.99, 1), (1.01, 0), (-1.01, 0)):
             v = const_view(cam, 4.0 + s * tau, dmin=3.0, dmax=5.0, n=n)
-            assert nerf_contrib(X0, h, v, LLFF)[2] == kind, (n, s)
+            assert nerf_contrib(X0, h, v, LLFF, device=device)[2] == kind, (n, s)
 
 
 @pytest.mark.parametrize("off_axis", [False, True])
-def test_spatial_tolerance_with_depth_range(off_axis):
+def test_spatial_tolerance_with_depth_range(off_axis, device):
     """δ to the clamped band must be ≤ Δx π_dg + λ_range (d_max − d_min), in ray depths."""
     h, width = 0.02, 1.0
     tau = h + LLFF.lambda_range * width
@@ -92,13 +91,13 @@ def test_spatial_tolerance_with_depth_range(off_axis):
     for k, kind in ((0.99, 1), (1.01, 0)):
         hi = t0 - k * tau
         v = const_view(cam, cos * t0, dmin=cos * (hi - width), dmax=cos * hi)
-        assert nerf_contrib(xc, h, v, LLFF)[2] == kind, k
+        assert nerf_contrib(xc, h, v, LLFF, device=device)[2] == kind, k
 
 
-def test_depth_weight():
+def test_depth_weight(device):
     cam = axis_camera()
     num, den, kind = nerf_contrib(
-        X0, 0.02, const_view(cam, 4.0, dmin=3.9, dmax=4.3, mask=0.7), LLFF
+        X0, 0.02, const_view(cam, 4.0, dmin=3.9, dmax=4.3, mask=0.7), LLFF, device=device
     )
     w = math.exp(-(((4.0 - 4.1) / 0.2) ** 2))
     assert (
@@ -112,29 +111,38 @@ def _thin_view(cam, centre_mask=0.3, mask=0.9, dexp=4.0, n=0):
     return const_view(cam, dexp, mask=m, n=n)
 
 
-def test_thin_eligibility_mask_and_density():
+def test_thin_eligibility_mask_and_density(device):
     cam = axis_camera()
     h = 0.2  # 7×7 footprint
-    assert nerf_contrib(X0, h, _thin_view(cam, f32_above(0.1)), LLFF, rho=50.0)[2] == 2
-    assert nerf_contrib(X0, h, _thin_view(cam, 0.1), LLFF, rho=50.0)[2] == 0  # m > 0.1
     assert (
-        nerf_contrib(X0, h, _thin_view(cam, 0.3), LLFF, rho=f32_below(50.0))[2] == 0
+        nerf_contrib(X0, h, _thin_view(cam, f32_above(0.1)), LLFF, rho=50.0, device=device)[2] == 2
+    )
+    assert (
+        nerf_contrib(X0, h, _thin_view(cam, 0.1), LLFF, rho=50.0, device=device)[2] == 0
+    )  # m > 0.1
+    assert (
+        nerf_contrib(X0, h, _thin_view(cam, 0.3), LLFF, rho=f32_below(50.0), device=device)[2] == 0
     )  # ρ ≥ ρ_thin
 
 
-def test_thin_doubled_base_multiplier():
+def test_thin_doubled_base_multiplier(device):
     cam = axis_camera()
     cfg = replace(LLFF, gamma=0.5)
     h = 0.2  # thick τ_depth = 0.5·0.2 = 0.1; thin (2γ + b)Δx = 0.2 with n = 0
     for s, kind in ((0.99, 2), (1.01, 0)):
         v = _thin_view(cam, centre_mask=0.9, dexp=4.0 + s * 0.2)
-        assert nerf_contrib(X0, h, v, cfg, rho=60.0)[2] == kind, s
+        assert nerf_contrib(X0, h, v, cfg, rho=60.0, device=device)[2] == kind, s
     v = _thin_view(cam, centre_mask=0.9, dexp=4.0 + 0.99 * 0.2, n=3)  # b = 0.6 relaxes further
-    assert nerf_contrib(X0, h, replace(v, d_ref=v.d_ref + np.float32(0.1)), cfg, rho=60.0)[2] == 2
+    assert (
+        nerf_contrib(
+            X0, h, replace(v, d_ref=v.d_ref + np.float32(0.1)), cfg, rho=60.0, device=device
+        )[2]
+        == 2
+    )
 
 
 @pytest.mark.parametrize("early_out", [True, False])
-def test_thin_coverage_over_footprint(early_out):
+def test_thin_coverage_over_footprint(early_out, device):
     cam = axis_camera()
     cfg = replace(LLFF, early_out=early_out)
     pix = [(y, x) for y in range(17, 24) for x in range(17, 24) if (y, x) != (20, 20)]
@@ -142,4 +150,6 @@ def test_thin_coverage_over_footprint(early_out):
         m = np.full((41, 41), 0.3, np.float32)
         for p in pix[:k]:
             m[p] = 0.9
-        assert nerf_contrib(X0, 0.2, _thin_view(cam, 0.3, m), cfg, rho=60.0)[2] == kind, k
+        assert (
+            nerf_contrib(X0, 0.2, _thin_view(cam, 0.3, m), cfg, rho=60.0, device=device)[2] == kind
+        ), k

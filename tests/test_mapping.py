@@ -15,8 +15,6 @@ from divas_engine.scene import SurfelScene
 from tests.fusion_cases import random_views, sphere_floor_scene
 from tests.mapping_reference import map_reference
 
-DEV = "cpu"
-
 
 # --------------------------------------------------------------------------- helpers
 def _scene(means, scales, quats=None, opac=0.8) -> SurfelScene:
@@ -62,7 +60,7 @@ def _random_rotations(rng, n):
     return q
 
 
-def _random_case(seed: int):
+def _random_case(seed: int, device):
     """Surfels on a unit sphere (random orientations, anisotropic, 1 % needles, a few
     NaN / outside-AABB), a synthetic fusion state and 3 views with smooth masks."""
     rng = np.random.default_rng(seed)
@@ -75,7 +73,7 @@ def _random_case(seed: int):
     s = np.exp(rng.normal(np.log(0.05), 0.4, (n, 2)))
     s[15:60, 0] *= rng.uniform(5, 60, 45)  # needles
     sc = _scene(p, s, _random_rotations(rng, n))
-    grid = build_occupancy(sc, GridConfig(g_max=64), device=DEV)
+    grid = build_occupancy(sc, GridConfig(g_max=64), device=device)
     a = len(grid)
     seg = rng.random(a) < 0.7
     vm = rng.integers(0, 2**32, (a, 2), dtype=np.uint64).astype(np.uint32)
@@ -122,9 +120,9 @@ def _compare(res, ref, mapper=None, fused=None, views=(), slots=()):
 
 # --------------------------------------------------------------------------- reference
 @pytest.mark.parametrize("seed", [0, 1])
-def test_matches_numpy_reference_random(seed):
-    sc, grid, fused, views, slots = _random_case(seed)
-    mapper = SurfelMapper(sc, grid, device=DEV)
+def test_matches_numpy_reference_random(seed, device):
+    sc, grid, fused, views, slots = _random_case(seed, device=device)
+    mapper = SurfelMapper(sc, grid, device=device)
     res = mapper.map(fused, views, slots)
     ref = map_reference(
         sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, views, slots
@@ -139,10 +137,10 @@ def test_matches_numpy_reference_random(seed):
     assert res.n_pass1 >= res.n_pass2 >= res.n_selected
 
 
-def test_matches_reference_with_real_fusion():
+def test_matches_reference_with_real_fusion(device):
     """GsFusion state and slots (view ids) fed straight in; a view undone mid-way."""
     sc = sphere_floor_scene(4000, seed=3, scale=0.03)
-    grid = build_occupancy(sc, GridConfig(g_max=64), device=DEV)
+    grid = build_occupancy(sc, GridConfig(g_max=64), device=device)
     views = random_views(4, seed=5)
     fusion = GsFusion(grid)
     ids = [fusion.add_view(v) for v in views]
@@ -150,7 +148,7 @@ def test_matches_reference_with_real_fusion():
     live = [views[i] for i in (0, 2, 3)]
     slots = [ids[i] for i in (0, 2, 3)]
     fused = fusion.result()
-    mapper = SurfelMapper(sc, grid, device=DEV)
+    mapper = SurfelMapper(sc, grid, device=device)
     res = mapper.map(fused, live, slots)
     ref = map_reference(
         sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, live, slots
@@ -159,9 +157,9 @@ def test_matches_reference_with_real_fusion():
     _compare(res, ref, mapper, fused, live, slots)
 
 
-def test_early_out_is_exact_and_rerun_is_stable():
-    sc, grid, fused, views, slots = _random_case(2)
-    mapper = SurfelMapper(sc, grid, device=DEV)
+def test_early_out_is_exact_and_rerun_is_stable(device):
+    sc, grid, fused, views, slots = _random_case(2, device=device)
+    mapper = SurfelMapper(sc, grid, device=device)
     a = mapper.map(fused, views, slots)
     b = mapper.map(fused, views, slots, MappingConfig(early_out=False))
     assert np.array_equal(a.kappa, b.kappa) and np.array_equal(a.selected, b.selected)
@@ -170,15 +168,15 @@ def test_early_out_is_exact_and_rerun_is_stable():
     seg2[::3] = False
     f2 = _fused(seg2, fused.vmask_raw)
     c = mapper.map(f2, views[:2], slots[:2])
-    d = map_to_surfels(sc, grid, f2, views[:2], slots[:2], device=DEV)
+    d = map_to_surfels(sc, grid, f2, views[:2], slots[:2], device=device)
     assert np.array_equal(c.selected, d.selected) and np.array_equal(c.kappa, d.kappa)
     e = mapper.map(fused, views, slots)
     assert np.array_equal(e.selected, a.selected) and np.array_equal(e.kappa, a.kappa)
 
 
-def test_ablation_switches():
-    sc, grid, fused, views, slots = _random_case(0)
-    mapper = SurfelMapper(sc, grid, device=DEV)
+def test_ablation_switches(device):
+    sc, grid, fused, views, slots = _random_case(0, device=device)
+    mapper = SurfelMapper(sc, grid, device=device)
     r = mapper.map(fused, views, slots, MappingConfig(needle_filter=False, coverage_filter=False))
     assert np.array_equal(r.pass2, r.pass1) and np.array_equal(r.selected, r.pass1)
     r = mapper.map(fused, views, slots, MappingConfig(coverage_filter=False))
@@ -189,15 +187,15 @@ def test_ablation_switches():
 
 
 # --------------------------------------------------------------------------- Pass 1
-def _hand_grid(codes, center=(0.0, 0.0, 0.0), half=1.0, g=8):
+def _hand_grid(codes, center=(0.0, 0.0, 0.0), half=1.0, g=8, device=None):
     geo = GridGeometry(
         np.asarray(center, dtype=np.float64), half, 2 * half / g, g, half, 0.01, False
     )
     codes = np.asarray(codes, dtype=np.int64)
-    return OccupancyGrid.from_codes(geo, codes, np.ones(len(codes)), device=DEV)
+    return OccupancyGrid.from_codes(geo, codes, np.ones(len(codes)), device=device)
 
 
-def test_pass1_admits_exactly_segmented_voxels():
+def test_pass1_admits_exactly_segmented_voxels(device):
     h = 0.25  # g = 8 over [-1, 1)³
     vc = lambda i, j, k: [-1 + (i + 0.5) * h, -1 + (j + 0.5) * h, -1 + (k + 0.5) * h]  # noqa
     seg_vox, bg_vox = (1, 2, 3), (4, 4, 4)
@@ -212,11 +210,11 @@ def test_pass1_admits_exactly_segmented_voxels():
         np.add(vc(*seg_vox), 0.12),
     ]  # 7: same voxel, off-centre → in
     codes = morton_encode(np.array([seg_vox, bg_vox, (0, 2, 3)]))
-    grid = _hand_grid(codes)
+    grid = _hand_grid(codes, device=device)
     sc = _scene(means, np.full((len(means), 2), 0.01))
     gc = grid.codes.numpy()  # the fusion state is in active-index (ascending code) order
     fused = _fused(gc != codes[1], np.zeros((3, 2), np.uint32))
-    res = map_to_surfels(sc, grid, fused, [], [], device=DEV)
+    res = map_to_surfels(sc, grid, fused, [], [], device=device)
     assert res.pass1.tolist() == [True, False, False, False, False, False, True, True]
     assert voxel_codes_numpy(sc.means, grid.geometry.center, 1.0, h, 8)[6] == codes[2]
     assert np.array_equal(res.pass2, res.pass1)  # aspect 1 everywhere: no needle
@@ -224,28 +222,28 @@ def test_pass1_admits_exactly_segmented_voxels():
 
 
 # --------------------------------------------------------------------------- Pass 2
-def test_pass2_culls_exactly_top_percent_of_all_surfels():
+def test_pass2_culls_exactly_top_percent_of_all_surfels(device):
     rng = np.random.default_rng(0)
     k = rng.permutation(np.arange(1, 201))  # aspects 1 … 200, shuffled
     n = len(k)
     means = np.zeros((n, 3)) + 0.05
     scales = np.c_[k * 0.01, np.full(n, 0.01)]
-    grid = _hand_grid(morton_encode(np.array([[4, 4, 4]])))
+    grid = _hand_grid(morton_encode(np.array([[4, 4, 4]])), device=device)
     sc = _scene(means, scales)
-    res = map_to_surfels(sc, grid, _fused([True], np.zeros((1, 2))), [], [], device=DEV)
+    res = map_to_surfels(sc, grid, _fused([True], np.zeros((1, 2))), [], [], device=device)
     assert res.pass1.all()
     assert res.tau_a == pytest.approx(198.01, rel=1e-5)  # P99 of 1 … 200 (linear)
     assert set(np.nonzero(~res.pass2)[0]) == set(np.nonzero(k >= 199)[0])
     assert res.n_needles == 2 and res.n_pass2 == 198
 
 
-def test_pass2_threshold_is_over_all_surfels_not_admitted_ones():
+def test_pass2_threshold_is_over_all_surfels_not_admitted_ones(device):
     k = np.arange(1, 101)  # aspects 1 … 100; only 1 … 50 are admitted by Pass 1
     means = np.where((k <= 50)[:, None], 0.05, -0.55) * np.ones((100, 3))
-    grid = _hand_grid(morton_encode(np.array([[4, 4, 4], [1, 1, 1]])))
+    grid = _hand_grid(morton_encode(np.array([[4, 4, 4], [1, 1, 1]])), device=device)
     sc = _scene(means, np.c_[k * 0.01, np.full(100, 0.01)])
     seg = grid.codes.numpy() == morton_encode(np.array([[4, 4, 4]]))[0]
-    res = map_to_surfels(sc, grid, _fused(seg, np.zeros((2, 2))), [], [], device=DEV)
+    res = map_to_surfels(sc, grid, _fused(seg, np.zeros((2, 2))), [], [], device=device)
     assert res.tau_a == pytest.approx(99.01, rel=1e-5)
     assert res.n_pass1 == 50 and res.n_pass2 == 50  # P99 of the admitted would cull #50
     assert res.n_needles == 1
@@ -264,7 +262,7 @@ def _px(x, y):
     return [(x - 20) / F, (y - 20) / F, 1.0]
 
 
-def _pass3_case():
+def _pass3_case(device):
     """P (10,10) on the mask, Q (30,10) off it, C (10,30) on the view-0 mask but its voxel
     lacks bit 0, D (30,30) partly covered in both views, N (20,20) a 45° needle.
     All surfels face the camera; a 3.4 × 1.6 px (1σ) surfel has a 7 × 3 box."""
@@ -283,7 +281,7 @@ def _pass3_case():
     geo_center = (0.0, 0.0, 1.0)
     codes = voxel_codes_numpy(sc.means, np.array(geo_center), 1.0, 0.25, 8)
     assert len(set(codes[:4].tolist())) == 4 and codes[4] == codes[3]
-    grid = _hand_grid(np.unique(codes), center=geo_center)
+    grid = _hand_grid(np.unique(codes), center=geo_center, device=device)
     gc = grid.codes.numpy()
     vm = np.full((len(gc), 1), 0b1001, np.uint32)  # bits 0 and 3
     vm[gc == codes[2]] = 0b1000  # C: only view 1 (slot 3) voted
@@ -291,10 +289,10 @@ def _pass3_case():
     return sc, grid, fused, views, slots
 
 
-def test_pass3_hand_case():
-    sc, grid, fused, views, slots = _pass3_case()
+def test_pass3_hand_case(device):
+    sc, grid, fused, views, slots = _pass3_case(device=device)
     cfg = MappingConfig(needle_filter=False)  # 5 surfels: P99 would cull the needle N
-    mapper = SurfelMapper(sc, grid, cfg, device=DEV)
+    mapper = SurfelMapper(sc, grid, cfg, device=device)
     res = mapper.map(fused, views, slots)
     assert res.pass2.all()
     P, Q, C, D, N = range(5)
@@ -325,7 +323,7 @@ def test_pass3_hand_case():
     assert np.array_equal(ref["kappa"], res.kappa) and np.array_equal(ref["selected"], res.selected)
 
 
-def test_pass3_box_is_one_sigma_and_threshold_is_tau_kappa():
+def test_pass3_box_is_one_sigma_and_threshold_is_tau_kappa(device):
     """An axis-aligned 3.4 × 1.6 px surfel visits 7 × 3 pixels (not the 3σ box); with the
     mask covering 10 of them κ = 10/21 < ½ → culled, τ_κ = 0.45 keeps it."""
     cam = _axis_cam()
@@ -336,10 +334,11 @@ def test_pass3_box_is_one_sigma_and_threshold_is_tau_kappa():
     grid = _hand_grid(
         np.unique(voxel_codes_numpy(sc.means, np.array([0, 0, 1.0]), 1.0, 0.25, 8)),
         center=(0, 0, 1.0),
+        device=device,
     )
     fused = _fused([True], [[1]])
     v = _view(cam, mask.astype(np.float32))
-    mapper = SurfelMapper(sc, grid, device=DEV)
+    mapper = SurfelMapper(sc, grid, device=device)
     tot, pos, _ = mapper.view_counts(fused, v, 0)
     assert (tot[0], pos[0]) == (21, 10)
     r = mapper.map(fused, [v], [0])
@@ -351,10 +350,12 @@ def test_pass3_box_is_one_sigma_and_threshold_is_tau_kappa():
     assert mapper.map(fused, [_view(cam, np.full((40, 40), 0.4999))], [0]).kappa[0] == 0.0
 
 
-def test_pass3_behind_camera_and_offscreen_not_counted():
+def test_pass3_behind_camera_and_offscreen_not_counted(device):
     cam = _axis_cam()
     sc = _scene([[0, 0, -1.0], [5.0, 0, 1.0], [0, 0, 0.005]], np.full((3, 2), 0.02))
-    grid = _hand_grid(np.unique(voxel_codes_numpy(sc.means, np.zeros(3), 8.0, 2.0, 8)), half=8.0)
+    grid = _hand_grid(
+        np.unique(voxel_codes_numpy(sc.means, np.zeros(3), 8.0, 2.0, 8)), half=8.0, device=device
+    )
     fused = _fused(np.ones(len(grid), bool), np.ones((len(grid), 1)))
     res = map_to_surfels(
         sc,
@@ -363,14 +364,14 @@ def test_pass3_behind_camera_and_offscreen_not_counted():
         [_view(cam, np.ones((40, 40)))],
         [0],
         MappingConfig(needle_filter=False),
-        device=DEV,
+        device=device,
     )
     assert res.pass2.all() and not res.selected.any() and (res.kappa == 0).all()
 
 
-def test_input_validation():
-    sc, grid, fused, views, slots = _random_case(0)
-    mapper = SurfelMapper(sc, grid, device=DEV)
+def test_input_validation(device):
+    sc, grid, fused, views, slots = _random_case(0, device=device)
+    mapper = SurfelMapper(sc, grid, device=device)
     with pytest.raises(ValueError, match="slots"):
         mapper.map(fused, views, slots[:2])
     with pytest.raises(ValueError, match="outside the bitmask"):
@@ -387,49 +388,53 @@ def test_input_validation():
         MappingConfig(needle_percentile=101)
 
 
-def test_view_cache_add_drop_reclaim(monkeypatch):
+def test_view_cache_add_drop_reclaim(monkeypatch, device):
     """Per-update calls with views added, undone and re-added (device mask buffers are
     appended and reclaimed) give the same result as a fresh mapper."""
     from divas_engine.mapping import passes
 
     monkeypatch.setattr(passes._ViewCache, "min_reclaim", 1)
-    sc, grid, fused, views, slots = _random_case(1)
+    sc, grid, fused, views, slots = _random_case(1, device=device)
     extra = [_view(v.camera, 1.0 - v.mask) for v in views]  # new objects, other masks
     pool = views + extra
-    mapper = SurfelMapper(sc, grid, device=DEV)
+    mapper = SurfelMapper(sc, grid, device=device)
     rng = np.random.default_rng(0)
     for _ in range(8):
         k = int(rng.integers(1, 4))
         pick = sorted(rng.choice(len(pool), k, replace=False).tolist())
         vs, ss = [pool[i] for i in pick], [i * 5 for i in pick]
         got = mapper.map(fused, vs, ss)
-        want = SurfelMapper(sc, grid, device=DEV).map(fused, vs, ss)
+        want = SurfelMapper(sc, grid, device=device).map(fused, vs, ss)
         assert np.array_equal(got.kappa, want.kappa) and np.array_equal(got.selected, want.selected)
     got = mapper.map(fused, pool[:2], [0, 5], MappingConfig(mask_threshold=0.7))
-    want = SurfelMapper(sc, grid, device=DEV).map(
+    want = SurfelMapper(sc, grid, device=device).map(
         fused, pool[:2], [0, 5], MappingConfig(mask_threshold=0.7)
     )
     assert np.array_equal(got.kappa, want.kappa)
 
 
-def test_pass3_uses_the_view_cameras_own_near_clip():
+def test_pass3_uses_the_view_cameras_own_near_clip(device):
     """Pass 3 scores a surfel in a view only beyond that view's near plane — the camera's
     own ``near`` when it is larger than ``MappingConfig.near`` (what the renderer drew)."""
     cam = _axis_cam()
     sc = _scene([[0, 0, 0.5], [0, 0, 2.0]], np.full((2, 2), 0.005))
-    grid = _hand_grid(np.unique(voxel_codes_numpy(sc.means, np.zeros(3), 8.0, 2.0, 8)), half=8.0)
+    grid = _hand_grid(
+        np.unique(voxel_codes_numpy(sc.means, np.zeros(3), 8.0, 2.0, 8)), half=8.0, device=device
+    )
     fused = _fused(np.ones(len(grid), bool), np.ones((len(grid), 1)))
     cfg = MappingConfig(needle_filter=False)
     full = np.ones((40, 40))
-    plain = map_to_surfels(sc, grid, fused, [_view(cam, full)], [0], cfg, device=DEV)
+    plain = map_to_surfels(sc, grid, fused, [_view(cam, full)], [0], cfg, device=device)
     assert plain.selected.tolist() == [True, True]
     clipped_views = [_view(cam.with_near(1.0), full)]
-    clipped = map_to_surfels(sc, grid, fused, clipped_views, [0], cfg, device=DEV)
+    clipped = map_to_surfels(sc, grid, fused, clipped_views, [0], cfg, device=device)
     assert clipped.selected.tolist() == [False, True] and clipped.kappa[0] == 0.0
     ref = map_reference(
         sc, grid.geometry, grid.codes.numpy(), fused.segmented, fused.vmask, clipped_views, [0], cfg
     )
     assert np.array_equal(ref["selected"], clipped.selected)
     # a camera near below the config's changes nothing
-    low = map_to_surfels(sc, grid, fused, [_view(cam.with_near(1e-4), full)], [0], cfg, device=DEV)
+    low = map_to_surfels(
+        sc, grid, fused, [_view(cam.with_near(1e-4), full)], [0], cfg, device=device
+    )
     assert np.array_equal(low.kappa, plain.kappa)

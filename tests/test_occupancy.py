@@ -20,8 +20,6 @@ from divas_engine.fusion.occupancy import (
 from divas_engine.scene import DensityGrid, SurfelScene
 from divas_kernels import occupancy as kocc
 
-DEV = "cpu"
-
 
 def _bitwise_encode(i: int, j: int, k: int) -> int:
     c = 0
@@ -44,7 +42,7 @@ def _morton_kernel(
     back[t] = kocc.morton_decode3(c)
 
 
-def test_morton_roundtrip_matches_bitwise_reference():
+def test_morton_roundtrip_matches_bitwise_reference(device):
     rng = np.random.default_rng(0)
     ijk = np.r_[
         rng.integers(0, 1 << 21, (300, 3)),
@@ -56,10 +54,10 @@ def test_morton_roundtrip_matches_bitwise_reference():
     assert np.array_equal(codes, ref)
     assert np.array_equal(morton.morton_decode(codes), ijk)
     assert codes[ijk.max(1) < 1024].max() < 2**30  # 10 bits per axis → 30-bit codes
-    a = wp.array(ijk.astype(np.int32), dtype=wp.vec3i, device=DEV)
-    c = wp.empty(len(ijk), dtype=wp.int64, device=DEV)
-    b = wp.empty(len(ijk), dtype=wp.vec3i, device=DEV)
-    wp.launch(_morton_kernel, len(ijk), [a, c, b], device=DEV)
+    a = wp.array(ijk.astype(np.int32), dtype=wp.vec3i, device=device)
+    c = wp.empty(len(ijk), dtype=wp.int64, device=device)
+    b = wp.empty(len(ijk), dtype=wp.vec3i, device=device)
+    wp.launch(_morton_kernel, len(ijk), [a, c, b], device=device)
     assert np.array_equal(c.numpy(), ref)
     assert np.array_equal(b.numpy(), ijk)
     with pytest.raises(ValueError):
@@ -126,12 +124,12 @@ def _random_scene(n=30000, seed=2):
     return _scene(means, rng.uniform(0.001, 0.01, (n, 2)), rng.uniform(0.05, 1.0, n))
 
 
-def test_active_set_matches_numpy_reference():
+def test_active_set_matches_numpy_reference(device):
     s = _random_scene()
-    grid = build_occupancy(s, GridConfig(), device=DEV)
+    grid = build_occupancy(s, GridConfig(), device=device)
     geo = grid.geometry
     codes = voxel_codes_numpy(s.means, geo.center, geo.half_extent, geo.voxel_size, geo.resolution)
-    assert np.array_equal(surfel_voxel_codes(s.means, geo, device=DEV).numpy(), codes)
+    assert np.array_equal(surfel_voxel_codes(s.means, geo, device=device).numpy(), codes)
     assert (codes[-30:-20] == -1).all() and (codes[-20:] == -1).sum() >= 15  # NaN and far floaters
     keep = codes >= 0
     u, inv = np.unique(codes[keep], return_inverse=True)
@@ -157,13 +155,13 @@ def test_active_set_matches_numpy_reference():
     assert np.array_equal(sai, exp)
 
 
-def test_memory_scales_with_active_voxels():
+def test_memory_scales_with_active_voxels(device):
     rng = np.random.default_rng(3)
     # a few thousand tiny surfels on a sphere: g = 1024 (a dense float grid would be 4 GiB)
     p = rng.normal(size=(4000, 3))
     p /= np.linalg.norm(p, axis=1, keepdims=True)
     s = _scene(p, np.full((4000, 2), 1e-5), np.full(4000, 0.9))
-    grid = build_occupancy(s, GridConfig(), device=DEV)
+    grid = build_occupancy(s, GridConfig(), device=device)
     r = grid.report
     assert r.g == 1024 and r.n_active > 3000
     assert r.resident_bytes <= 64 * r.n_active + 1024
@@ -171,14 +169,14 @@ def test_memory_scales_with_active_voxels():
     assert r.build_time_s > 0
 
 
-def test_empty_and_degenerate_scenes():
+def test_empty_and_degenerate_scenes(device):
     with pytest.raises(ValueError):
-        build_occupancy(_scene(np.full((3, 3), np.nan), np.ones((3, 2)), np.ones(3)), device=DEV)
+        build_occupancy(_scene(np.full((3, 3), np.nan), np.ones((3, 2)), np.ones(3)), device=device)
     g = build_occupancy(
         _scene(
             np.random.default_rng(0).normal(size=(50, 3)), np.full((50, 2), 1e-3), np.full(50, 0.1)
         ),
-        device=DEV,
+        device=device,
     )
     assert len(g) == 0 and g.report.n_active == 0
 
@@ -212,12 +210,12 @@ def test_nerf_presets_hold_the_paper_table():
         nerf_preset("blender")
 
 
-def test_nerf_occupancy_active_cells():
+def test_nerf_occupancy_active_cells(device):
     rng = np.random.default_rng(4)
     dens = rng.exponential(4.0, (6, 5, 7)).astype(np.float32)
     g = DensityGrid(dens, np.array([[0, 0, 0], [7, 5, 3.0]]))
     cfg = nerf_preset("mip360")
-    occ = build_nerf_occupancy(g, cfg, device=DEV)
+    occ = build_nerf_occupancy(g, cfg, device=device)
     lin = np.flatnonzero(dens.ravel() >= cfg.rho_thresh)
     assert np.array_equal(occ.index.numpy(), lin)
     assert np.array_equal(occ.density.numpy(), dens.ravel()[lin])

@@ -193,6 +193,7 @@ def test_render_values(grid):
         r.render_values(cam, np.ones((3, 3, 3)))
 
 
+@pytest.mark.cuda
 @pytest.mark.skipif(wp.get_cuda_device_count() == 0, reason="no CUDA device")
 def test_cuda_matches_reference(grid):
     for cam in CAMS:

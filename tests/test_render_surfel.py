@@ -332,6 +332,7 @@ def test_protocol_factory_and_scale(random_case):
     }
 
 
+@pytest.mark.cuda
 @pytest.mark.skipif(wp.get_cuda_device_count() == 0, reason="no CUDA device")
 def test_cuda_matches_reference(random_case):
     sc, cam, ref = random_case

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import SceneKind
 from ..scene import SurfelScene
 from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
 from .ply import CHUNK_ROWS
@@ -191,7 +192,7 @@ def read_sog(path: str | PathLike) -> SurfelScene:
         (means, quats, scales, opac, sh),
         valid,
         deg,
-        "3dgs",
+        SceneKind.GS3D,
         extras,
         invalid_what="non-finite values or invalid quaternion tags",
         scale_n=scale_n,
