@@ -20,8 +20,11 @@ the result stays 3D-consistent and floaters away from the object stay out:
 * **solid fill** of voxels the views never voted for: per fused view a voxel is
   *consistent* when its centre projects onto a mask-positive pixel and lies on the
   visible surface there (``|z − D_med| ≤ m h_v``) or hidden behind it by at most the
-  object's depth (``depth_factor`` × the mask's world extent: the diameter of the disc
-  of the mask's area at that depth), and *inconsistent* when
+  depth a solid of that silhouette can have there (``depth_factor`` × the chord of a
+  ball of the mask's inscribed radius R at the pixel's distance ρ from the silhouette
+  edge, ``2 √(ρ(2R − ρ))``, in world units at the voxel's depth: a thin frame allows
+  little depth,
+  a round object its own diameter at the centre), and *inconsistent* when
   it is visible on a mask-negative pixel, in front of the surface on a positive one
   (a floater), or hidden deeper than that; out of frame, or hidden behind a negative
   pixel (an occluder), says nothing. Voxels with ≥ 1 consistent and no inconsistent
@@ -74,6 +77,8 @@ class CompletionResult:
         contrib_added, fill_added: ``[N] bool`` Gaussians added by the contribution test /
             by their voxel (segmented or filled; not already selected).
         filled_voxels: ``[A] bool`` voxels added by the fill.
+        dropped: ``[N] bool`` Gaussians of the DivAS selection dropped as
+            contribution-inconsistent (``drop_inconsistent``).
         near: ``[N] bool`` Gaussians in the neighbourhood of the final voxel selection.
         rounds: fill rounds run; seconds: ``views`` (new views' records) and ``decide``.
     """
@@ -82,6 +87,7 @@ class CompletionResult:
     contrib_added: np.ndarray
     fill_added: np.ndarray
     filled_voxels: np.ndarray
+    dropped: np.ndarray
     near: np.ndarray
     rounds: int
     seconds: dict = field(default_factory=dict)
@@ -91,6 +97,7 @@ class CompletionResult:
             "contrib_added": int(self.contrib_added.sum()),
             "fill_added": int(self.fill_added.sum()),
             "filled_voxels": int(self.filled_voxels.sum()),
+            "dropped": int(self.dropped.sum()),
             "selected": int(self.selected.sum()),
         }
 
@@ -102,6 +109,19 @@ class _ViewRecord:
     q0: np.ndarray
     voxels: np.ndarray  # [m] int32 active voxels with evidence
     flags: np.ndarray  # [m] uint8 _CONSISTENT / _INCONSISTENT
+
+
+def _edge_distance(mask: np.ndarray) -> np.ndarray:
+    """``[H,W]`` float64 distance (pixels) of each pixel of the mask, its holes filled,
+    to the silhouette's edge (0 outside; the image border counts as outside). Holes are
+    filled because a hole is usually an occluder in front of the object (a hand in front
+    of a helmet), not an edge of its silhouette."""
+    import cv2
+    from scipy.ndimage import binary_fill_holes
+
+    m = np.pad(binary_fill_holes(np.asarray(mask, bool)).astype(np.uint8), 1)
+    d = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return d[1:-1, 1:-1].astype(np.float64)
 
 
 class _CoarseCells:
@@ -255,9 +275,16 @@ class VolumetricCompletion:
         p = pos[y, x]
         zz = z[idx]
         margin = cfg.surface_margin * self.h
-        # the mask's equal-area-disc diameter per unit depth: 2 √(pixels / π) / f
-        extent = 2.0 * np.sqrt(int(pos.sum()) / np.pi) / float(cam.fx)
-        depth_cap = cfg.depth_factor * extent * d + margin
+        # the depth a solid of this silhouette can have behind the pixel: the chord of a
+        # ball of the mask's inscribed radius R at the pixel's distance ρ from the
+        # silhouette's edge, 2 √(ρ (2R − ρ)) (pixels → world units at the voxel's depth)
+        rho = _edge_distance(pos)
+        big_r = float(rho.max()) if rho.size else 0.0
+        # a voxel is a cube, not a point: its centre may sit half a diagonal off the solid
+        half_diag = 0.5 * np.sqrt(3.0) * self.h * float(cam.fx) / zz
+        r_p = np.minimum(rho[y, x] + half_diag, big_r)
+        chord = 2.0 * np.sqrt(np.maximum(r_p * (2.0 * big_r - r_p), 0.0))
+        depth_cap = cfg.depth_factor * chord * zz / float(cam.fx) + margin
         surf = d > 0
         off = zz - d
         visible = ~surf | (off <= margin)
@@ -329,7 +356,7 @@ class VolumetricCompletion:
         # solid fill: grow from the segmented voxels through consistent, never
         # inconsistent voxels, one neighbourhood per round (only the new voxels' cells
         # are dilated each round)
-        cand = (self.n_cons > 0) & (self.n_incons == 0) & ~seg
+        cand = (self.n_cons >= max(cfg.fill_min_views, 1)) & (self.n_incons == 0) & ~seg
         cur = seg.copy()
         near_cells = np.zeros(self.cells.n + 1, bool)
         self.cells.dilate_into(near_cells, np.flatnonzero(seg))
@@ -359,11 +386,20 @@ class VolumetricCompletion:
         contrib_add[idx[positive]] = True
         fill_add[idx[in_voxels & ~negative & ~positive]] = True
         out = sel | contrib_add | fill_add
+        dropped = np.zeros(self.n, bool)
+        if cfg.drop_inconsistent:
+            j = np.flatnonzero(sel)
+            b1 = self.q1[j].astype(np.float64)
+            b0 = self.q0[j].astype(np.float64)
+            bad = ((b1 + b0) >= cfg.min_weight * QSCALE) & ~(b1 - b0 > cfg.gamma * np.hypot(b1, b0))
+            dropped[j[bad]] = True
+            out &= ~dropped
         return CompletionResult(
             selected=out,
             contrib_added=contrib_add,
             fill_added=fill_add,
             filled_voxels=filled,
+            dropped=dropped,
             near=near,
             rounds=rounds,
             seconds={"decide": time.perf_counter() - t},

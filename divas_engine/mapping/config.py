@@ -85,11 +85,18 @@ class CompletionConfig:
             surface" of a view (2, the fusion's behind-gate margin, eq:behind-gate);
             further in front is a floater in front of the object.
         depth_factor: a voxel hidden behind a mask-positive surface supports the object
-            only within ``depth_factor`` × the mask's extent (the diameter of the disc of
-            the mask's area at that depth, ``2 √(pixels / π) · D_med / f``) behind it — a
+            only within ``depth_factor`` × the depth a solid of that silhouette can have
+            there: the chord ``2 √(ρ(2R − ρ))`` of a ball of the mask's inscribed radius
+            R at the pixel's distance ρ from the silhouette edge (pixels, × z / f) — a
             solid object is about as deep as it is wide; deeper is what lies behind it.
         fill_rounds: at most this many growth rounds of the solid fill (each grows the
             filled region by one neighbourhood, 2–4 voxels).
+        fill_min_views: a voxel joins the fill only when at least this many fused views
+            are consistent with it (1: any; 2: the intersection of two visual cones,
+            bounded in 3D, where one cone alone is not).
+        drop_inconsistent: also drop Gaussians of the paper's selection whose blending
+            weight over the fused views lies mostly outside the masks (the same test,
+            the other way: ``A₀ − A₁ ≥ −γ ‖A‖`` with evidence ``≥ min_weight``).
     """
 
     enabled: bool = True
@@ -100,6 +107,8 @@ class CompletionConfig:
     surface_margin: float = 2.0
     depth_factor: float = 1.0
     fill_rounds: int = 8
+    fill_min_views: int = 2
+    drop_inconsistent: bool = True
 
     def __post_init__(self) -> None:
         if not -1.0 < self.gamma < 1.0:
