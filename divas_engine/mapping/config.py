@@ -92,11 +92,11 @@ class CompletionConfig:
         fill_rounds: at most this many growth rounds of the solid fill (each grows the
             filled region by one neighbourhood, 2–4 voxels).
         fill_min_views: a voxel joins the fill only when at least this many fused views
-            are consistent with it (1: any; 2: the intersection of two visual cones,
-            bounded in 3D, where one cone alone is not).
+            are consistent with it (2: the intersection of two visual cones is bounded
+            in 3D, one cone alone is not; 1 fills behind a single view).
         drop_inconsistent: also drop Gaussians of the paper's selection whose blending
             weight over the fused views lies mostly outside the masks (the same test,
-            the other way: ``A₀ − A₁ ≥ −γ ‖A‖`` with evidence ``≥ min_weight``).
+            the other way: not ``A₁ − A₀ > γ ‖A‖`` with evidence ``≥ min_weight``; True).
     """
 
     enabled: bool = True
