@@ -110,3 +110,16 @@ def test_alpha_fidelity_counts_what_the_scene_shows():
     assert r["opacity_weighted_iou"] == pytest.approx(0.4 / (0.4 + 0.95), rel=1e-6)
     # the truth alone equals the scene here (nothing else in it)
     assert r["psnr_ceiling"] == math.inf and r["psnr_vs_truth"] == pytest.approx(r["psnr"])
+
+
+def test_flashsplat_background_bias_by_hand():
+    """FlashSplat's rule on the L2-normalised pair: A₁ − A₀ > γ √(A₀² + A₁²)."""
+    from divas_engine.evaluation.baselines import flashsplat_foreground
+
+    a1 = np.array([3.0, 3.0, 1.0, 0.0, 2.0])
+    a0 = np.array([1.0, 1.0, 1.0, 0.0, 0.0])
+    # 2 > 0.5·√10 = 1.58 yes; 2 > 0.7·√10 = 2.21 no; tie no; no weight no; 2 > γ·2
+    assert flashsplat_foreground(a1, a0, 0.5).tolist() == [True, True, False, False, True]
+    assert flashsplat_foreground(a1, a0, 0.7).tolist() == [False, False, False, False, True]
+    assert flashsplat_foreground(a1, a0, 0.0).tolist() == [True, True, False, False, True]
+    assert flashsplat_foreground(a1, a0, -0.5)[2]  # a negative bias favours the object

@@ -60,6 +60,7 @@ __all__ = [
     "ContributionVoteConfig",
     "ContributionVoter",
     "contribution_vote",
+    "flashsplat_foreground",
     "as_mask_views",
 ]
 
@@ -204,6 +205,14 @@ class ContributionVoteConfig:
             raise ValueError(f"ContributionVoteConfig.gamma must be in (-1, 1), got {self.gamma}")
 
 
+def flashsplat_foreground(a1: np.ndarray, a0: np.ndarray, gamma: float) -> np.ndarray:
+    """FlashSplat's binary rule with background bias γ: ``A₁/‖A‖ > A₀/‖A‖ + γ`` with
+    ``‖A‖ = √(A₀² + A₁²)``; a Gaussian with no weight is background."""
+    a1 = np.asarray(a1, np.float64)
+    a0 = np.asarray(a0, np.float64)
+    return (a1 - a0 > gamma * np.hypot(a0, a1)) & (a0 + a1 > 0)
+
+
 class ContributionVoter:
     """Baseline (b) for one scene: the surfels are uploaded once; :meth:`vote` per view set.
 
@@ -258,7 +267,7 @@ class ContributionVoter:
             p, q = self.contributions(v, config.mask_threshold)
             a1 += p
             a0 += q
-        sel = (a1 - a0 > config.gamma * np.hypot(a0, a1)) & (a0 + a1 > 0)
+        sel = flashsplat_foreground(a1, a0, config.gamma)
         return BaselineResult(
             sel,
             a1,
