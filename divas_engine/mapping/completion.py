@@ -65,7 +65,9 @@ __all__ = ["QSCALE", "CompletionResult", "VolumetricCompletion"]
 #: fixed-point scale of the contribution accumulators (2⁻²⁴ pixel)
 QSCALE = float(1 << 24)
 
-_CONSISTENT, _INCONSISTENT = np.uint8(1), np.uint8(2)
+# per-view voxel evidence: seen on the surface inside the mask / hidden behind a
+# mask-positive surface within the object's depth / inconsistent
+_SURFACE, _INCONSISTENT, _HIDDEN = np.uint8(1), np.uint8(2), np.uint8(3)
 
 
 @dataclass(eq=False)
@@ -108,7 +110,7 @@ class _ViewRecord:
     q1: np.ndarray  # [k] int64 A₁ · QSCALE
     q0: np.ndarray
     voxels: np.ndarray  # [m] int32 active voxels with evidence
-    flags: np.ndarray  # [m] uint8 _CONSISTENT / _INCONSISTENT
+    flags: np.ndarray  # [m] uint8 _SURFACE / _HIDDEN / _INCONSISTENT
 
 
 def _edge_distance(mask: np.ndarray) -> np.ndarray:
@@ -220,7 +222,8 @@ class VolumetricCompletion:
         )
         self.q1 = np.zeros(n, np.int64)
         self.q0 = np.zeros(n, np.int64)
-        self.n_cons = np.zeros(self.a, np.int32)
+        self.n_surf = np.zeros(self.a, np.int32)
+        self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
 
@@ -288,9 +291,12 @@ class VolumetricCompletion:
         surf = d > 0
         off = zz - d
         visible = ~surf | (off <= margin)
-        cons = p & surf & (off >= -margin) & (off <= depth_cap)
+        on_surf = p & surf & (off >= -margin) & (off <= margin)
+        hidden = p & surf & (off > margin) & (off <= depth_cap)
         incons = (~p & visible) | (p & surf & ((off < -margin) | (off > depth_cap)))
-        flags = np.where(cons, _CONSISTENT, np.where(incons, _INCONSISTENT, np.uint8(0)))
+        flags = np.select(
+            [on_surf, hidden, incons], [_SURFACE, _HIDDEN, _INCONSISTENT], np.uint8(0)
+        )
         keep = flags != 0
         return idx[keep].astype(np.int32), flags[keep].astype(np.uint8)
 
@@ -299,7 +305,8 @@ class VolumetricCompletion:
         # cheaper than np.add.at); integer sums, so undo is exact
         self.q1[rec.gauss] += sign * rec.q1
         self.q0[rec.gauss] += sign * rec.q0
-        self.n_cons[rec.voxels] += sign * (rec.flags == _CONSISTENT).astype(np.int32)
+        self.n_surf[rec.voxels] += sign * (rec.flags == _SURFACE).astype(np.int32)
+        self.n_hidden[rec.voxels] += sign * (rec.flags == _HIDDEN).astype(np.int32)
         self.n_incons[rec.voxels] += sign * (rec.flags == _INCONSISTENT).astype(np.int32)
 
     def add_view(self, key: int, view: FusionView) -> None:
@@ -352,7 +359,8 @@ class VolumetricCompletion:
         # solid fill: grow from the segmented voxels through consistent, never
         # inconsistent voxels, one neighbourhood per round (only the new voxels' cells
         # are dilated each round)
-        cand = (self.n_cons >= max(cfg.fill_min_views, 1)) & (self.n_incons == 0) & ~seg
+        consistent = (self.n_surf >= 1) | (self.n_surf + self.n_hidden >= cfg.fill_min_views)
+        cand = consistent & (self.n_incons == 0) & ~seg
         cur = seg.copy()
         near_cells = np.zeros(self.cells.n + 1, bool)
         self.cells.dilate_into(near_cells, np.flatnonzero(seg))

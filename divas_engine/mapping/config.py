@@ -91,9 +91,10 @@ class CompletionConfig:
             solid object is about as deep as it is wide; deeper is what lies behind it.
         fill_rounds: at most this many growth rounds of the solid fill (each grows the
             filled region by one neighbourhood, 2–4 voxels).
-        fill_min_views: a voxel joins the fill only when at least this many fused views
-            are consistent with it (2: the intersection of two visual cones is bounded
-            in 3D, one cone alone is not; 1 fills behind a single view).
+        fill_min_views: a voxel *hidden* behind mask-positive surfaces joins the fill
+            only when at least this many fused views are consistent with it (2: the
+            intersection of two visual cones is bounded in 3D, one cone alone is not);
+            a voxel seen on the surface inside a mask needs one view.
         drop_inconsistent: also drop Gaussians of the paper's selection whose blending
             weight over the fused views lies mostly outside the masks (the same test,
             the other way: not ``A₁ − A₀ > γ ‖A‖`` with evidence ``≥ min_weight``; True).
