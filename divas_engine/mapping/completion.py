@@ -293,7 +293,10 @@ class VolumetricCompletion:
         visible = ~surf | (off <= margin)
         on_surf = p & surf & (off >= -margin) & (off <= margin)
         hidden = p & surf & (off > margin) & (off <= depth_cap)
-        incons = (~p & visible) | (p & surf & ((off < -margin) | (off > depth_cap)))
+        too_deep = p & surf & (off > depth_cap)
+        incons = (~p & visible) | (p & surf & (off < -margin))
+        if cfg.deep_is_inconsistent:
+            incons |= too_deep
         flags = np.select(
             [on_surf, hidden, incons], [_SURFACE, _HIDDEN, _INCONSISTENT], np.uint8(0)
         )
