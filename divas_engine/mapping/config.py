@@ -91,7 +91,7 @@ class CompletionConfig:
             solid object is about as deep as it is wide; deeper is what lies behind it.
         deep_is_inconsistent: a voxel hidden behind a mask-positive surface deeper than
             that carves (True) or says nothing (False: it may still be the object seen
-            obliquely; the other views decide).
+            obliquely; the other views decide; the default).
         fill_rounds: at most this many growth rounds of the solid fill (each grows the
             filled region by one neighbourhood, 2–4 voxels).
         fill_min_views: a voxel *hidden* behind mask-positive surfaces joins the fill
@@ -110,7 +110,7 @@ class CompletionConfig:
     neighbourhood_log2: int = 1
     surface_margin: float = 2.0
     depth_factor: float = 1.0
-    deep_is_inconsistent: bool = True
+    deep_is_inconsistent: bool = False
     fill_rounds: int = 8
     fill_min_views: int = 2
     drop_inconsistent: bool = True
