@@ -17,22 +17,23 @@ the result stays 3D-consistent and floaters away from the object stay out:
   (:func:`divas_kernels.contrib.accumulate_contributions`, the rasterizer's own weights);
   a Gaussian of the neighbourhood is added when ``A₀ + A₁ ≥ w_min`` over the fused views
   and ``A₁ − A₀ > γ √(A₀² + A₁²)``;
-* **solid fill** of voxels the views never voted for: per fused view a voxel is
-  *consistent* when its centre projects onto a mask-positive pixel and lies on the
-  visible surface there (``|z − D_med| ≤ m h_v``) or hidden behind it by at most the
-  depth a solid of that silhouette can have there (``depth_factor`` × the chord of a
-  ball of the mask's inscribed radius R at the pixel's distance ρ from the silhouette
-  edge, ``2 √(ρ(2R − ρ))``, in world units at the voxel's depth: a thin frame allows
-  little depth,
-  a round object its own diameter at the centre), and *inconsistent* when
-  it is visible on a mask-negative pixel, in front of the surface on a positive one
-  (a floater), or hidden deeper than that; out of frame, or hidden behind a negative
-  pixel (an occluder), says nothing. Voxels with ≥ 1 consistent and no inconsistent
-  view — the visual hull of the masks, carved by every view that sees them — are
-  grown from the segmented voxels through the neighbourhood (``fill_rounds`` rounds);
-  a Gaussian whose centre voxel is segmented or filled is added unless its own
-  contribution says it renders mostly outside the masks (a Gaussian Pass 3 culled as a
-  boundary bleeder stays out when it is visible; one hidden in every view is added).
+* **solid fill** of voxels the views never voted for: per fused view a voxel's centre is
+  *on the surface* (projects onto a mask-positive pixel, ``|z − D_med| ≤ m h_v``),
+  *hidden* (behind such a surface by at most the depth a solid of that silhouette can
+  have there: ``depth_factor`` × the chord ``2 √(ρ(2R − ρ))`` of a ball of the mask's
+  inscribed radius R at the pixel's distance ρ from the silhouette edge, in world units
+  at the voxel's depth — a thin frame allows little depth, a round object its diameter),
+  or *inconsistent* (visible on a mask-negative pixel, or a floater in front of a
+  positive one). Out of frame, hidden behind a negative pixel (an occluder) or deeper
+  than the chord (``deep_is_inconsistent``: an oblique flat object is deeper than its
+  silhouette's inscribed ball) says nothing. Voxels with no inconsistent view and one
+  surface view or ``fill_min_views`` (2) hidden/surface views — the visual hull of the
+  masks, carved by every view that sees them; one cone is unbounded, two intersect in a
+  bounded region — are grown from the segmented voxels through the neighbourhood
+  (``fill_rounds`` rounds); a Gaussian whose centre voxel is segmented or filled is
+  added unless its own contribution says it renders mostly outside the masks, and a
+  Gaussian of the paper's selection whose contribution says so is dropped
+  (``drop_inconsistent``: Pass 3's intent, with the renderer's weights).
 
 Incremental and exact under undo: adding a view computes only that view's records (one
 contribution gather and one projection of the active voxels) and adds them to integer
