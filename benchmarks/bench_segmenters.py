@@ -1,4 +1,6 @@
-"""ClassicSegmenter vs plain flood fill on the synthetic scenes' centroid views.
+"""ClassicSegmenter vs plain flood fill on the synthetic scenes' centroid views; and with
+``--cost``, the cost per prompt of the default 3D graph segmenter (issue 16) at up to 1M
+surfels beside classic's on the same view.
 
 For each synthetic scene: the metadata click points on the target are projected
 into their best training camera (one that sees the point unoccluded — rendered
@@ -10,6 +12,15 @@ view (its principal point) as the one positive prompt. 2D IoU of mask channel 1
 (NOTES "Evaluation").
 
     .venv/bin/python benchmarks/bench_segmenters.py [--size 100000] [--seed 0] [--clicks 4]
+    .venv/bin/python benchmarks/bench_segmenters.py --cost [--sizes 100000,1000000]
+
+``--cost``: the benchmark room of :mod:`benchmarks.scenes` (surfels on the walls and four
+spheres) at each size; one click on each sphere of :func:`~benchmarks.scenes.bench_camera`'s
+view (a fresh seed set each time, so no cut is cached); per prompt the 3D cut (local
+voxel graph, walk, sweep) and the render of the three regions into the 640×480 view at
+SAM's low-res size; classic's ``set_image`` + ``predict`` on the same view for the ratio
+(the machine is shared: compare within one run). The one-time per-scene preparation
+(features, ground search) is reported apart.
 """
 
 from __future__ import annotations
@@ -23,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.scenes import SPHERES, bench_camera, surfel_scene  # noqa: E402
 from divas_engine.render.surfel_renderer import SurfelRenderer  # noqa: E402
 from divas_engine.segment import ClassicSegmenter, FloodFillSegmenter  # noqa: E402
 from divas_engine.synthetic import SCENE_NAMES, generate_scene  # noqa: E402
@@ -57,13 +69,65 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.count_nonzero(a & b) / u) if u else float("nan")
 
 
+def cost(sizes: list[int]) -> None:
+    """Per-prompt cost of the graph3d segmenter vs classic (module docstring)."""
+    from divas_engine.segment import Graph3DSegmenter, SceneBinding
+    from divas_engine.segment.graph3d import Seeds
+
+    cam = bench_camera()
+    print(
+        "| surfels | prepare s (once) | cut ms | render ms | graph3d prompt ms | voxels | "
+        "classic prompt ms | ratio |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for n in sizes:
+        scene = surfel_scene(n)
+        r = SurfelRenderer(scene, device="cpu")
+        seg = Graph3DSegmenter(binding=SceneBinding(scene, r.render_values, lambda _v: cam))
+        t = time.perf_counter()
+        seg.primitives()
+        prep = time.perf_counter() - t
+        view = r.render(cam)
+        cuts, renders, vox, classic = [], [], [], []
+        for cen, rad in SPHERES:
+            c = np.asarray(cen, float)
+            p = c - np.array([0.0, 0.0, rad])  # the sphere's point facing the camera
+            t = time.perf_counter()
+            rc = seg.cut(Seeds(p[None], np.zeros((0, 3))))
+            t1 = time.perf_counter()
+            seg.render_masks(cam, rc.selected)
+            t2 = time.perf_counter()
+            cuts.append(t1 - t)
+            renders.append(t2 - t1)
+            vox.append(rc.info.get("voxels", 0))
+            uv = cam.project(p[None])[0]
+            cl = ClassicSegmenter()
+            t = time.perf_counter()
+            cl.set_image(view.rgb, view.D_med)
+            cl.predict(uv, np.array([1]))
+            classic.append(time.perf_counter() - t)
+        g = 1000 * (np.median(cuts) + np.median(renders))
+        c = 1000 * np.median(classic)
+        print(
+            f"| {n:,} | {prep:.1f} | {1000 * np.median(cuts):.0f} | "
+            f"{1000 * np.median(renders):.0f} | {g:.0f} | {int(np.median(vox)):,} | "
+            f"{c:.0f} | {g / c:.2f} |",
+            flush=True,
+        )
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cost", action="store_true", help="graph3d cost per prompt")
+    ap.add_argument("--sizes", default="100000,1000000", help="surfel counts for --cost")
     ap.add_argument("--size", type=int, default=100_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clicks", type=int, default=4)
     ap.add_argument("--scenes", nargs="*", default=list(SCENE_NAMES))
     a = ap.parse_args(argv)
+    if a.cost:
+        cost([int(x) for x in a.sizes.split(",")])
+        return 0
     rows = []
     t0 = time.perf_counter()
     for name in a.scenes:

@@ -1,40 +1,176 @@
-"""Per-update latency of the interactive loop (issue 6): render, segmenter, fusion kernel,
-voxel-to-surfel mapping and overlay, per accepted centroid view, on this machine.
+"""Latency of the interactive loop (issues 6 and 20) through the Session API.
 
-Runs ``divas segment`` (the real Session) on synthetic scenes of growing size with the
-scripted demo prompts (4 target clicks × 3 training cameras = 12 centroid views) and prints
-the median per-update figures from the report.
+Part 1 — what the user waits for, on one synthetic scene (default: the 1M-surfel
+``plant``): ``Session.open`` (planned anchors, first anchor rendered), a click → centroid
+view ready, a preview (segmenter, reported apart), accept → selection, and one full render
+of the same centroid view. All are measured in one process, side by side, and printed as
+seconds and as ratios to that render (the machine is shared: ratios are the figures
+that travel).
 
-    python benchmarks/bench_session.py [--sizes 100000,500000,1000000] [--scene plant]
+Part 2 — per-update cost of DivAS's incremental fusion + mapping against a
+FlashSplat-style re-accumulation (per-surfel blending-weight voting re-run over every
+fused view at each update), at growing view counts and scene sizes.
+
+Part 3 (``--per-update``) — the older per-update table of ``divas segment`` reports.
+
+    python benchmarks/bench_session.py [--size 1000000] [--scene plant] [--views 5,10,20]
+        [--fusion-sizes 250000,1000000] [--per-update]
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import platform
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from divas_engine.cli.segment import segment_scene
 from divas_engine.evaluation import demo_prompts
+from divas_engine.io.cameras import load_cameras
+from divas_engine.io.load import load_scene
 from divas_engine.synthetic import generate_scene
 
-COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "overlay_s", "update_s")
+COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "update_s")
+CACHE = Path(os.environ.get("DIVAS_BENCH_CACHE", tempfile.gettempdir())) / "divas_bench_scenes"
+
+
+def scene_files(name: str, size: int) -> Path:
+    """Generate (once, cached under ``CACHE``) a synthetic scene; returns its folder."""
+    out = CACHE / f"{name}_{size}"
+    if not (out / "scene.ply").exists() or not (out / "labels.npy").exists():
+        out.mkdir(parents=True, exist_ok=True)
+        sc = generate_scene(name, out, size=size, seed=0)
+        demo_prompts(sc.metadata, sc.cameras).write(out / "prompts.json")
+    return out
+
+
+def _first_click(folder: Path, cameras):
+    from divas_engine.session.prompts import load_prompts
+
+    pr = load_prompts(folder / "prompts.json")
+    by_name = {c.name: c for c in cameras}
+    ap = pr.anchors[0]
+    return by_name[ap.value], [c.xy for c in ap.clicks]
+
+
+def interactive(folder: Path, repeats: int) -> dict[str, float]:
+    """Median seconds of open / click / preview / accept / render on one scene."""
+    from divas_engine.segment.oracle import OracleSegmenter
+    from divas_engine.session import Session, SessionConfig
+
+    scene = load_scene(folder / "scene.ply")
+    cameras = load_cameras(folder / "cameras.json")
+    gt = np.load(folder / "labels.npy").astype(np.float32)
+    cam, clicks = _first_click(folder, cameras)
+    rows: dict[str, list[float]] = {}
+
+    def put(k: str, t0: float) -> None:
+        rows.setdefault(k, []).append(time.perf_counter() - t0)
+
+    for _ in range(repeats):
+        t = time.perf_counter()
+        s = Session.open(scene, cameras, SessionConfig(), OracleSegmenter(), "cpu", gt_values=gt)
+        put("open", t)
+        _ = s.grid  # waits for the background warm-up (fusion state, mapper)
+        put("ready", t)
+        a = s.add_anchor(cam, "training", 0)
+        t = time.perf_counter()
+        _ = a.buffers
+        put("render_anchor", t)
+        views = []
+        for k, xy in enumerate(clicks[:2]):
+            t = time.perf_counter()
+            views.append(s.click(a.index, xy))
+            put("click" if k == 0 else "click2", t)
+        for k, v in enumerate(views):
+            t = time.perf_counter()
+            s.prompt(v)
+            put("preview", t)
+            t = time.perf_counter()
+            res = s.accept(v)
+            put("accept" if k == 0 else "accept2", t)
+            t = time.perf_counter()
+            _ = res.overlay
+            put("overlay", t)
+        if hasattr(s.renderer, "clear_cache"):  # the reference render shares nothing
+            s.renderer.clear_cache()
+        t = time.perf_counter()
+        s.renderer.render(views[0].camera)
+        put("render", t)
+        s.close()
+    return {k: float(np.median(v)) for k, v in rows.items()}
+
+
+def print_interactive(name: str, size: int, repeats: int) -> None:
+    folder = scene_files(name, size)
+    m = interactive(folder, repeats)
+    r = m["render"]
+    print(f"\n## Interactive loop, {name} {size:,} surfels (median of {repeats})\n")
+    print("| step | seconds | ratio to one render of the view | target (ratio) |")
+    print("|---|---:|---:|---:|")
+    targets = {
+        "open": "≤ 6",
+        "click": "≤ 1.0",
+        "click2": "≤ 1.0",
+        "accept": "≤ 0.35",
+        "accept2": "≤ 0.35",
+    }
+    label = {
+        "open": "Session.open (returns, first anchor rendered)",
+        "ready": "open → background warm-up done (fusion state, mapper)",
+        "click": "click → centroid view (1st click)",
+        "click2": "click → centroid view (2nd click)",
+        "preview": "preview (oracle segmenter: a value render)",
+        "accept": "accept → selection (1st view)",
+        "accept2": "accept → selection (2nd view)",
+        "overlay": "overlay of the accepted view, when read",
+        "render": "full render of the centroid view",
+        "render_anchor": "full render of an anchor (640×480 training camera)",
+    }
+    for k in label:
+        if k in m:
+            print(f"| {label[k]} | {m[k]:.3f} | {m[k] / r:.2f} | {targets.get(k, '')} |")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="100000,500000,1000000")
+    ap.add_argument("--size", type=int, default=1_000_000)
     ap.add_argument("--scene", default="plant")
-    ap.add_argument("--segmenters", default="oracle,classic")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--views", default="5,10,20")
+    ap.add_argument("--fusion-sizes", default="250000,1000000")
+    ap.add_argument("--skip-interactive", action="store_true")
+    ap.add_argument("--skip-fusion", action="store_true")
+    ap.add_argument("--per-update", action="store_true", help="also the divas-segment table")
+    ap.add_argument("--sizes", default="100000,500000,1000000", help="--per-update sizes")
+    ap.add_argument("--segmenters", default="oracle,classic", help="--per-update segmenters")
     args = ap.parse_args()
     print(
-        f"# Session per-update latency — {platform.machine()}, {datetime.date.today()}, "
-        f"scene {args.scene}, 640×480 views, device cpu"
+        f"# Session latency — {platform.machine()}, {os.cpu_count()} cores, "
+        f"{datetime.date.today()}, device cpu"
     )
+    if not args.skip_interactive:
+        print_interactive(args.scene, args.size, args.repeats)
+    if not args.skip_fusion:
+        from bench_fusion_vs_flashsplat import print_fusion_vs_reaccumulation
+
+        print_fusion_vs_reaccumulation(
+            args.scene,
+            [int(s) for s in args.fusion_sizes.split(",")],
+            [int(v) for v in args.views.split(",")],
+            scene_files,
+        )
+    if args.per_update:
+        per_update(args)
+
+
+def per_update(args) -> None:
+    print(f"\n## Per-update latency of `divas segment`, scene {args.scene}, 640×480 views\n")
     print(
         "| surfels | segmenter | active voxels | views fused | "
         + " | ".join(c.removesuffix("_s") + " ms" for c in COLS)
@@ -42,16 +178,14 @@ def main() -> None:
     )
     print("|---:|---|---:|---:|" + "---:|" * (len(COLS) + 1))
     for n in (int(s) for s in args.sizes.split(",")):
+        out = scene_files(args.scene, n)
         with tempfile.TemporaryDirectory() as tmp:
-            out = Path(tmp)
-            sc = generate_scene(args.scene, out, size=n, seed=0)
-            demo_prompts(sc.metadata, sc.cameras).write(out / "prompts.json")
             for seg in args.segmenters.split(","):
                 report, _ = segment_scene(
                     out / "scene.ply",
                     out / "prompts.json",
                     cameras_path=out / "cameras.json",
-                    out=out / "sel.ply",
+                    out=Path(tmp) / "sel.ply",
                     segmenter=seg,
                     gt_labels=out / "labels.npy",
                     device="cpu",

@@ -2,16 +2,18 @@
 
 A thin ``bpy`` layer over the pure-Python ``divas_engine`` (bundled as a wheel):
 import operators, training/anchor cameras, the live session (start, click-to-segment
-modal, accept/undo/reset/finish, autosave and resume), extract and export. Arrays
-cross into Blender only in :mod:`.bridge`. Internal imports are relative, so the
-package works under any extension repository name (``bl_ext.<repo>.divas``).
+modal in any 3D view, accept/reset/finish, Blender's undo and redo, saved with the
+.blend and resumed), manual selection tools, feedback drawn over the viewport, extract
+and export. Arrays cross into Blender only in :mod:`.bridge`. Internal imports are
+relative, so the package works under any extension repository name
+(``bl_ext.<repo>.divas``).
 """
 
 from __future__ import annotations
 
 import bpy
 
-from . import operators, preferences, properties, session_registry, source, ui
+from . import handlers, operators, preferences, properties, session_registry, source, ui
 
 CLASSES = (preferences.DIVAS_AddonPreferences, *operators.CLASSES, *ui.CLASSES)
 
@@ -22,13 +24,11 @@ def register() -> None:
         bpy.utils.register_class(cls)
     for menu, func in operators.MENU_ENTRIES:
         getattr(bpy.types, menu).append(func)
-    if session_registry.on_load_pre not in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.append(session_registry.on_load_pre)
+    handlers.register()
 
 
 def unregister() -> None:
-    if session_registry.on_load_pre in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.remove(session_registry.on_load_pre)
+    handlers.unregister()
     session_registry.clear()
     for menu, func in reversed(operators.MENU_ENTRIES):
         getattr(bpy.types, menu).remove(func)

@@ -1,4 +1,6 @@
-"""Add-on preferences: compute device, 2D segmenter and the SAM model files.
+"""Add-on preferences: compute device, 2D segmenter, the SAM model files, how sharp the
+anchor images are, whether saved sessions resume when a .blend opens, and what is drawn
+over the viewport.
 
 Stored by Blender under the add-on's package name (``__package__``: ``bl_ext.<repo>.divas``
 when installed as an extension). :func:`get_settings` turns them into a frozen
@@ -11,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import bpy
-from bpy.props import EnumProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 from bpy.types import AddonPreferences
 
 __all__ = [
@@ -23,6 +25,7 @@ __all__ = [
     "DEVICES",
     "SEGMENTERS",
     "SAM_MODEL_TYPES",
+    "ANCHOR_RESOLUTION",
 ]
 
 ADDON_ID = __package__
@@ -32,6 +35,7 @@ DEVICES = (
     ("cuda", "CUDA", "Run the kernels on the first CUDA GPU (needs an NVIDIA driver)"),
 )
 SEGMENTERS = (
+    ("graph3d", "3D graph", "Weight-free 3D cut over the scene's own splats (no model files)"),
     ("classic", "Classic", "Weight-free GrabCut on colour + depth (no model files)"),
     ("sam_onnx", "SAM (ONNX)", "SAM / MobileSAM encoder + decoder .onnx files via onnxruntime"),
     (
@@ -47,31 +51,79 @@ SAM_MODEL_TYPES = (
 )
 
 
+#: default long side of an anchor image, pixels (the issue asks for ≥ 640).
+ANCHOR_RESOLUTION = 640
+
+
 @dataclass(frozen=True)
 class DivasSettings:
     device: str = "cpu"
-    segmenter: str = "classic"
+    segmenter: str = "graph3d"
     sam_encoder_path: str = ""
     sam_decoder_path: str = ""
     sam_checkpoint_path: str = ""
     sam_model_type: str = "vit_h"
+    anchor_resolution: int = ANCHOR_RESOLUTION
 
 
 class DIVAS_AddonPreferences(AddonPreferences):
     bl_idname = ADDON_ID
 
     device: EnumProperty(name="Device", items=DEVICES, default="cpu")
-    segmenter: EnumProperty(name="Segmenter", items=SEGMENTERS, default="classic")
+    segmenter: EnumProperty(name="Segmenter", items=SEGMENTERS, default="graph3d")
     sam_encoder_path: StringProperty(name="SAM Encoder (.onnx)", subtype="FILE_PATH")
     sam_decoder_path: StringProperty(name="SAM Decoder (.onnx)", subtype="FILE_PATH")
     sam_checkpoint_path: StringProperty(name="SAM Checkpoint (.pth)", subtype="FILE_PATH")
     sam_model_type: EnumProperty(name="Model Type", items=SAM_MODEL_TYPES, default="vit_h")
+    anchor_resolution: IntProperty(
+        name="Anchor Resolution",
+        default=ANCHOR_RESOLUTION,
+        min=0,
+        soft_min=320,
+        soft_max=1600,
+        subtype="PIXEL",
+        description="Long side of the anchor images you click on (their close-up views "
+        "get the same size: larger is sharper but slower). 0: the camera's size × "
+        "Render Scale",
+    )
+    resume_on_open: BoolProperty(
+        name="Resume Sessions on Open",
+        default=True,
+        description="When a .blend with DivAS sessions opens, resume them by themselves "
+        "(else: one click on Resume in the DivAS panel)",
+    )
+    show_render: BoolProperty(
+        name="Show Engine Render",
+        default=False,
+        description="Looking through a DivAS camera, draw the image the segmenter sees "
+        "over the scene (else the scene's own splats show under the mask)",
+    )
+    show_selection: BoolProperty(
+        name="Show Selection Tint",
+        default=True,
+        description="Draw the selected splats in orange over every 3D view",
+    )
+    tint_point_size: FloatProperty(
+        name="Tint Point Size",
+        default=3.0,
+        min=1.0,
+        max=12.0,
+        subtype="PIXEL",
+        description="Size of the dots that mark selected splats",
+    )
 
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
         layout.prop(self, "device")
         layout.prop(self, "segmenter")
+        layout.prop(self, "anchor_resolution")
+        layout.prop(self, "resume_on_open")
+        box = layout.box()
+        box.label(text="Viewport Feedback")
+        box.prop(self, "show_render")
+        box.prop(self, "show_selection")
+        box.prop(self, "tint_point_size")
         box = layout.box()
         box.label(text="SAM via ONNX Runtime")
         box.prop(self, "sam_encoder_path")
@@ -99,4 +151,5 @@ def get_settings(context=None) -> DivasSettings:
         bpy.path.abspath(prefs.sam_decoder_path),
         bpy.path.abspath(prefs.sam_checkpoint_path),
         prefs.sam_model_type,
+        int(prefs.anchor_resolution),
     )

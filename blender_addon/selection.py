@@ -63,7 +63,11 @@ def _require_source(obj) -> source.SourceRef:
     ref = source.source_of(obj)
     if ref is None:
         name = getattr(obj, "name", None)
-        raise DivasInputError(None, f"{name!r} is not a DivAS-imported point cloud")
+        raise DivasInputError(
+            None,
+            f"{name!r} is not a point cloud imported with DivAS: import the scene with "
+            "File › Import › Gaussian Splats first",
+        )
     return ref
 
 
@@ -75,7 +79,11 @@ def export_selection(obj, settings: ExportSettings) -> ExportResult:
     if not out.suffix:
         out = out.with_suffix(source.FORMAT_SUFFIX.get(ref.format, ".ply"))
     if not mask.any():
-        raise DivasInputError(out, "nothing to export: no point is selected")
+        raise DivasInputError(
+            out,
+            "nothing to export: no splat is selected. Select some (click the object in a "
+            "DivAS session, or use the Select tools), then export again",
+        )
     labels = (
         out.with_name(out.name.split(".")[0] + "_labels.npy") if settings.write_labels else None
     )
@@ -87,10 +95,16 @@ def extract_selection(context, obj) -> bpy.types.Object:
     """A new object with the selected points of ``obj`` and all their attributes."""
     geom = obj.data
     if geom.attributes.get(SELECTED) is None:
-        raise DivasInputError(None, f"{obj.name!r} has no selection (no {SELECTED!r} attribute)")
+        raise DivasInputError(
+            None,
+            f"{obj.name!r} has no selection yet: start a DivAS session on it or use the "
+            "Select tools first",
+        )
     sel = bridge.read_attribute(geom, SELECTED)
     if not sel.any():
-        raise DivasInputError(None, f"nothing to extract: no point of {obj.name!r} is selected")
+        raise DivasInputError(
+            None, f"nothing to extract: no splat of {obj.name!r} is selected. Select some first"
+        )
     attrs = bridge.read_attributes(geom, [n for n in bridge.attribute_names(geom) if n != SELECTED])
     collection = obj.users_collection[0] if obj.users_collection else context.scene.collection
     new = bridge.new_point_cloud_object(

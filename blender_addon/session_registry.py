@@ -1,11 +1,13 @@
 """The live DivAS sessions, one per imported object, kept outside Blender's data.
 
 Blender properties cannot hold Python objects, so each running
-:class:`~divas_engine.session.Session` lives in a module-level table keyed by the
-object's ``session_uid`` (stable for the Blender session, across renames and undo),
-with the object's name as a fallback. The table is emptied (sessions closed) when a
-file is loaded (:func:`on_load_pre`) and when the add-on is unregistered; a session can
-be brought back from its autosave with the "Resume DivAS Session" operator.
+:class:`~divas_engine.session.Session` lives in a module-level table. An object is
+matched to its session by its *session key* (``divas_session_key``, a random id stored
+on the object when the session starts: it survives renames, undo, saving and reopening
+the .blend), then by ``session_uid``, then by name. The table is emptied (sessions
+closed) when a file is loaded (:func:`on_load_pre`) and when the add-on is
+unregistered; the saved session comes back with "Resume DivAS Session"
+(:mod:`.session_actions.files`).
 """
 
 from __future__ import annotations
@@ -21,8 +23,14 @@ from divas_engine.session import Session
 
 from .modal_logic import OWNER_PROP
 
+#: the object's session key (stable id) and the session-history step its Blender state is at.
+KEY_PROP, STEP_PROP = "divas_session_key", "divas_history_step"
+
 __all__ = [
+    "KEY_PROP",
+    "STEP_PROP",
     "LiveSession",
+    "object_of",
     "put",
     "get",
     "drop",
@@ -30,6 +38,7 @@ __all__ = [
     "find",
     "owner_object",
     "all_sessions",
+    "discard",
     "on_load_pre",
 ]
 
@@ -48,6 +57,10 @@ class LiveSession:
         autosave: where the engine saves the session after every accept (None: off).
         segmenter: the segmenter's name; open_s: seconds to start (load → anchors).
         last_update: the last update's timings (seconds by stage) and what it was.
+        key: the object's session key (:data:`KEY_PROP`).
+        coverage: per view id, the engine's selection overlay on that view (Sec. 3.7)
+            and the selection array it was rendered for (drawn while it is current).
+        version: bumped whenever what is drawn over the viewport changes.
     """
 
     session: Session
@@ -56,10 +69,21 @@ class LiveSession:
     view_cameras: dict[str, str] = field(default_factory=dict)
     extra_prompts: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
     autosave: Path | None = None
-    segmenter: str = "classic"
+    segmenter: str = "graph3d"
     open_s: float = 0.0
     last_update: dict[str, Any] = field(default_factory=dict)
+    key: str = ""
+    coverage: dict[str, tuple[Any, Any]] = field(default_factory=dict)
+    version: int = 0
     _counts: dict[str, Any] | None = None
+
+    def host_state(self) -> dict[str, Any]:
+        """What the add-on keeps per history step (the engine keeps the rest)."""
+        return {"extra_prompts": {k: list(v) for k, v in self.extra_prompts.items()}}
+
+    def restore_host_state(self, state: dict[str, Any] | None) -> None:
+        extra = (state or {}).get("extra_prompts", {})
+        self.extra_prompts = {k: list(v) for k, v in extra.items()}
 
     @property
     def kind(self) -> str:
@@ -68,7 +92,12 @@ class LiveSession:
     def record(self, update: dict[str, Any]) -> None:
         """Remember the last update (what, seconds by stage) and refresh the counts."""
         self.last_update = dict(update)
+        self.changed()
+
+    def changed(self) -> None:
+        """The session changed: recount, redraw."""
         self._counts = self.session.counts()
+        self.version += 1
 
     def counts(self) -> dict[str, Any]:
         """The session's counts as of the last update (cheap: the panel redraws often)."""
@@ -88,17 +117,40 @@ def _key(obj) -> int:
 def put(obj, live: LiveSession) -> None:
     """Register ``live`` for ``obj`` (closing a previous session of that object)."""
     drop(obj)
+    live.key = live.key or str(obj.get(KEY_PROP, ""))
     _sessions[_key(obj)] = live
 
 
 def get(obj) -> LiveSession | None:
     if obj is None:
         return None
-    live = _sessions.get(_key(obj))
+    key = obj.get(KEY_PROP) if hasattr(obj, "get") else None
+    live = next((s for s in _sessions.values() if key and s.key == key), None)
+    if live is None:
+        live = _sessions.get(_key(obj))
+    if live is None:
+        live = next((s for s in _sessions.values() if s.object_name == obj.name), None)
     if live is not None:
         live.object_name = obj.name
-        return live
-    return next((s for s in _sessions.values() if s.object_name == obj.name), None)
+    return live
+
+
+def object_of(live: LiveSession):
+    """The object ``live`` segments (by key, then by name), or None when it is gone."""
+    if live.key:
+        obj = next((o for o in bpy.data.objects if o.get(KEY_PROP) == live.key), None)
+        if obj is not None:
+            live.object_name = obj.name
+            return obj
+    return bpy.data.objects.get(live.object_name)
+
+
+def discard(live: LiveSession) -> None:
+    """Close and forget ``live`` (its object may be gone)."""
+    for k, v in list(_sessions.items()):
+        if v is live:
+            del _sessions[k]
+    live.session.close()
 
 
 def drop(obj) -> None:
@@ -125,17 +177,18 @@ def all_sessions() -> list[LiveSession]:
 
 def owner_object(context):
     """The object whose session the context is about: the active object when it has a
-    session, else the owner of the scene camera (a DivAS view), else the only session's."""
+    session, else the owner of the scene camera (a DivAS view: its parent, or the object
+    named in ``divas_owner``), else the only session's."""
     obj = context.active_object
     if get(obj) is not None:
         return obj
     cam = context.scene.camera if context.scene is not None else None
     if cam is not None and cam.get(OWNER_PROP):
-        owner = bpy.data.objects.get(cam[OWNER_PROP])
-        if get(owner) is not None:
-            return owner
+        for owner in (cam.parent, bpy.data.objects.get(cam[OWNER_PROP])):
+            if owner is not None and get(owner) is not None:
+                return owner
     if len(_sessions) == 1:
-        owner = bpy.data.objects.get(next(iter(_sessions.values())).object_name)
+        owner = object_of(next(iter(_sessions.values())))
         if owner is not None:
             return owner
     return None

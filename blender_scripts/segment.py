@@ -27,6 +27,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 SEGMENTERS = {
+    "graph3d": "graph3d",
     "classic": "classic",
     "sam-onnx": "sam_onnx",
     "sam-torch": "sam_torch",
@@ -59,7 +60,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
     p.add_argument("--out", type=Path, required=True, help="output: the selected primitives")
     p.add_argument("--labels-out", type=Path, default=None, help="bool .npy per input row")
-    p.add_argument("--segmenter", choices=tuple(SEGMENTERS), default="classic")
+    p.add_argument("--segmenter", choices=tuple(SEGMENTERS), default="graph3d")
     p.add_argument("--sam-encoder", type=Path, default=None)
     p.add_argument("--sam-decoder", type=Path, default=None)
     p.add_argument("--sam-checkpoint", type=Path, default=None)

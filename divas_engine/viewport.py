@@ -21,6 +21,18 @@ need no special case: both only change where the corners are.
 
 Mouse events give integer region pixels (``event.mouse_region_x/y``); the click is
 taken at that pixel's centre, ``+0.5`` on both axes.
+
+A free 3D view is a camera too (:func:`camera_from_region`): Blender's
+``RegionView3D.view_matrix`` maps world to view space (camera axes: −z forward, y up)
+and its perspective ``window_matrix`` ``P`` maps view space to clip space, with
+``w = −z``. For a view-space point ``(x, y, z) = (x_c, −y_c, −z_c)`` (OpenCV camera
+coordinates ``x_c, y_c, z_c``), ``ndc_x = P₀₀ x_c / z_c − P₀₂`` and
+``ndc_y = −P₁₁ y_c / z_c − P₁₂``; the region pixel is ``((ndc_x + 1) W / 2,
+(ndc_y + 1) H / 2)`` and the image pixel flips y, so the region's exact pinhole camera
+has ``fx = W P₀₀ / 2``, ``cx = W (1 − P₀₂) / 2``, ``fy = H P₁₁ / 2``,
+``cy = H (1 + P₁₂) / 2`` and ``c2w = view_matrix⁻¹ · diag(1, −1, −1, 1)``. Looking
+through a camera, the window matrix already holds the camera frame's zoom and offset,
+so the same formula holds. An orthographic view (``P₃₃ = 1``) has no pinhole camera.
 """
 
 from __future__ import annotations
@@ -32,6 +44,10 @@ __all__ = [
     "frame_homography",
     "region_to_camera_pixel",
     "camera_pixel_to_region",
+    "OrthographicViewError",
+    "camera_from_region",
+    "region_matrices",
+    "region_click_pixel",
 ]
 
 
@@ -118,3 +134,68 @@ def camera_pixel_to_region(uv, frame_corners, image_size: tuple[int, int]) -> np
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     p = np.concatenate([uv, np.ones((len(uv), 1))], 1) @ hinv.T
     return p[:, :2] / p[:, 2:3]
+
+
+#: Blender camera axes (−z forward, y up) ↔ OpenCV axes, right-multiplied on a
+#: camera-to-world matrix (the same matrix as ``blender_convention.BLENDER_TO_OPENCV``;
+#: a sibling layer, so not imported).
+BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+class OrthographicViewError(ValueError):
+    """The 3D view is orthographic: it has no pinhole camera to click through."""
+
+
+def camera_from_region(view_matrix, window_matrix, region_size: tuple[int, int], name: str = ""):
+    """The exact pinhole :class:`~divas_engine.camera.Camera` (OpenCV, world frame) of a
+    perspective 3D-view region (module docstring), image size = the region's size.
+
+    Raises:
+        OrthographicViewError: the view is orthographic.
+        ValueError: a singular view matrix or an empty region.
+    """
+    from .camera import Camera
+
+    vm = np.asarray(view_matrix, np.float64).reshape(4, 4)
+    p = np.asarray(window_matrix, np.float64).reshape(4, 4)
+    w, h = int(region_size[0]), int(region_size[1])
+    if w <= 0 or h <= 0:
+        raise ValueError(f"empty region {w}x{h}")
+    if abs(p[3, 3]) > 1e-9 or abs(p[3, 2] + 1.0) > 1e-6:
+        raise OrthographicViewError("the 3D view is orthographic, not a perspective view")
+    try:
+        c2w = np.linalg.inv(vm)
+    except np.linalg.LinAlgError:
+        raise ValueError("the 3D view's view matrix is singular") from None
+    r = c2w[:3, :3]
+    c2w[:3, :3] = r / np.linalg.norm(r, axis=0, keepdims=True)  # float32 round-off
+    return Camera(
+        w,
+        h,
+        0.5 * w * p[0, 0],
+        0.5 * h * p[1, 1],
+        0.5 * w * (1.0 - p[0, 2]),
+        0.5 * h * (1.0 + p[1, 2]),
+        c2w @ BLENDER_TO_OPENCV,
+        name,
+    )
+
+
+def region_matrices(camera, near: float = 0.01, far: float = 1000.0):
+    """``(view_matrix, window_matrix)`` of a 3D-view region of the camera's image size
+    that shows exactly ``camera`` (the inverse of :func:`camera_from_region`)."""
+    vm = np.linalg.inv(camera.c2w @ BLENDER_TO_OPENCV)
+    w, h = camera.width, camera.height
+    p = np.zeros((4, 4))
+    p[0, 0], p[0, 2] = 2.0 * camera.fx / w, 1.0 - 2.0 * camera.cx / w
+    p[1, 1], p[1, 2] = 2.0 * camera.fy / h, 2.0 * camera.cy / h - 1.0
+    p[2, 2], p[2, 3] = -(far + near) / (far - near), -2.0 * far * near / (far - near)
+    p[3, 2] = -1.0
+    return vm, p
+
+
+def region_click_pixel(mouse_region: tuple[float, float], region_size: tuple[int, int]):
+    """The image pixel ``(u, v)`` of the region's own camera under a click at integer
+    region pixel ``mouse_region`` (its centre: ``+0.5``; y flipped)."""
+    mx, my = float(mouse_region[0]), float(mouse_region[1])
+    return mx + 0.5, float(region_size[1]) - (my + 0.5)

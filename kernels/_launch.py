@@ -18,6 +18,14 @@ from typing import Any, Literal
 
 import warp as wp
 
+# Quiet Warp, set once before anything initialises it: no banner and no per-module
+# "load" lines between the CLI's progress bars (errors and warnings still print).
+# Warp ≥ 1.10 has a log level; older releases a quiet flag.
+if hasattr(wp, "LOG_WARNING"):
+    wp.config.log_level = wp.LOG_WARNING
+else:  # pragma: no cover - older Warp
+    wp.config.quiet = True
+
 __all__ = ["resolve_device", "launch_split", "cpu_threads", "ensure_loaded"]
 
 _POOL: ThreadPoolExecutor | None = None

@@ -15,7 +15,14 @@ import warp as wp
 
 from .fusion_common import QSCALE, quantize
 
-__all__ = ["Records", "compact_contributions", "apply_records", "readout"]
+__all__ = [
+    "Records",
+    "ContributionBuffers",
+    "alloc_accumulators",
+    "compact_contributions",
+    "apply_records",
+    "readout",
+]
 
 KIND_THICK = 1
 KIND_THIN = 2
@@ -120,6 +127,35 @@ class Records:
     @property
     def nbytes(self) -> int:
         return sum(a.capacity for a in (self.idx, self.num, self.den, self.kind))
+
+
+def alloc_accumulators(n: int, words: int, device) -> dict[str, wp.array]:
+    """Zeroed fixed-point accumulators of ``n`` active voxels: ``w``, ``z``, ``wthin``
+    (int64, scale 2⁵²), ``n_thick``, ``n_thin`` (int32) and the view bitmask
+    ``vmask [n, words]`` uint32 (``[0, 0]`` when ``words`` is 0: no bitmask)."""
+    return {
+        "w": wp.zeros(n, dtype=wp.int64, device=device),
+        "z": wp.zeros(n, dtype=wp.int64, device=device),
+        "wthin": wp.zeros(n, dtype=wp.int64, device=device),
+        "n_thick": wp.zeros(n, dtype=wp.int32, device=device),
+        "n_thin": wp.zeros(n, dtype=wp.int32, device=device),
+        "vmask": wp.zeros((n if words else 0, words), dtype=wp.uint32, device=device),
+    }
+
+
+class ContributionBuffers:
+    """One view's dense contribution per active voxel (``num``, ``den`` float32,
+    ``kind`` uint8), written by a fusion kernel, plus the ``flags``/``pos`` scratch of
+    :func:`compact_contributions`."""
+
+    __slots__ = ("num", "den", "kind", "flags", "pos")
+
+    def __init__(self, n: int, device) -> None:
+        self.num = wp.zeros(n, dtype=float, device=device)
+        self.den = wp.zeros(n, dtype=float, device=device)
+        self.kind = wp.zeros(n, dtype=wp.uint8, device=device)
+        self.flags = wp.zeros(n, dtype=int, device=device)
+        self.pos = wp.zeros(n, dtype=int, device=device)
 
 
 def compact_contributions(

@@ -12,9 +12,10 @@ vs CUDA launch orders all give bit-identical sums (see ``divas_engine.fusion.sta
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
-from .integral_image import sat_sum
+from .integral_image import integral_images, sat_sum
 
 __all__ = [
     "ViewData",
@@ -31,6 +32,7 @@ __all__ = [
     "pixel_depths",
     "quantize",
     "depth_gradient_factor",
+    "upload_view_data",
 ]
 
 #: Fixed-point scale of the accumulators. Contributions lie in [0, 1]; with ≤ 2^11
@@ -276,3 +278,50 @@ def depth_gradient_factor(
         device=device,
     )
     return out
+
+
+def upload_view_data(
+    w2c: np.ndarray,
+    center: np.ndarray,
+    intrinsics: tuple[float, float, float, float],
+    d_cam: float,
+    mask: np.ndarray,
+    d_min: np.ndarray,
+    d_ref: np.ndarray,
+    d_max: np.ndarray,
+    n_samp: np.ndarray,
+    *,
+    mask_pos: float,
+    k_dg: float,
+    eps: float,
+    device,
+) -> ViewData:
+    """Copy one view to ``device`` (:class:`ViewData`) and precompute its integral images
+    and π_dg. ``intrinsics`` = ``(fx, fy, cx, cy)``; ``n_samp`` ``[H,W]`` int32; the image
+    buffers ``[H,W]`` (converted to float32)."""
+    fx, fy, cx, cy = (float(x) for x in intrinsics)
+    w2c = np.asarray(w2c, dtype=np.float64)
+    center = np.asarray(center, dtype=np.float64)
+
+    def f32(a: np.ndarray) -> wp.array2d:
+        return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=float, device=device)
+
+    v = ViewData()
+    v.rot = wp.mat33(*w2c[:3, :3].astype(np.float32).ravel())
+    v.trans = wp.vec3(*w2c[:3, 3].astype(np.float32))
+    v.origin = wp.vec3(*center.astype(np.float32))
+    v.fx, v.fy, v.cx, v.cy = fx, fy, cx, cy
+    v.rot_d = wp.mat33d(*w2c[:3, :3].ravel())
+    v.trans_d = wp.vec3d(*w2c[:3, 3])
+    v.origin_d = wp.vec3d(*center)
+    v.fx_d, v.fy_d = wp.float64(fx), wp.float64(fy)
+    v.cx_d, v.cy_d = wp.float64(cx), wp.float64(cy)
+    h, w = np.shape(mask)
+    v.width, v.height = int(w), int(h)
+    v.d_cam = float(d_cam)
+    v.mask = f32(mask)
+    v.dmin, v.dref, v.dmax = f32(d_min), f32(d_ref), f32(d_max)
+    v.nsamp = wp.array(np.ascontiguousarray(n_samp, dtype=np.int32), dtype=wp.int32, device=device)
+    v.sat_n, v.sat_n2, v.sat_pos = integral_images(v.nsamp, v.mask, mask_pos, device=device)
+    v.pdg = depth_gradient_factor(v.dmin, v.dref, v.dmax, k_dg, eps, device=device)
+    return v

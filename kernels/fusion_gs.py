@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ._launch import cpu_threads, launch_split
 from .fusion_common import (
     ViewData,
     centre_pixel,
@@ -228,8 +229,10 @@ def _gs_fuse_kernel(
     out_num: wp.array(dtype=float),
     out_den: wp.array(dtype=float),
     out_kind: wp.array(dtype=wp.uint8),
+    base: int,
+    stride: int,
 ):
-    a = wp.tid()
+    a = base + wp.tid() * stride
     xc = voxel_center_d(codes[a], geom)
     c = gs_contribution(v, p, xc, density[a])
     out_num[a] = c[0]
@@ -247,8 +250,11 @@ def gs_fuse_view(
     out_den: wp.array,
     out_kind: wp.array,
     device=None,
+    threads: int | None = None,
 ) -> None:
-    """Contribution of one view to every active voxel (dense ``[A]`` outputs)."""
+    """Contribution of one view to every active voxel (dense ``[A]`` outputs; voxels are
+    independent, so the CPU work is split over ``threads`` sub-launches, default all
+    cores — bit-identical to one)."""
     device = device or codes.device
     n = codes.shape[0]
     for name, arr in (
@@ -260,9 +266,10 @@ def gs_fuse_view(
         if arr.shape[0] != n:
             raise ValueError(f"gs_fuse_view: {name} has {arr.shape[0]} entries, expected {n}")
     if n:
-        wp.launch(
+        launch_split(
             _gs_fuse_kernel,
-            dim=n,
-            inputs=[codes, density, geom, view, params, out_num, out_den, out_kind],
-            device=device,
+            n,
+            [codes, density, geom, view, params, out_num, out_den, out_kind],
+            wp.get_device(device),
+            cpu_threads(threads),
         )

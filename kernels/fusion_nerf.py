@@ -20,12 +20,14 @@ Choices where the paper is silent:
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
+from ._launch import cpu_threads, launch_split
 from .fusion_common import ViewData, centre_pixel, footprint, pixel_depths, pixel_ray, project
 from .integral_image import sat_sum_i32
 
-__all__ = ["NerfGridGeom", "NerfParams", "nerf_fuse_view"]
+__all__ = ["NerfGridGeom", "NerfParams", "make_nerf_grid_geom", "nerf_fuse_view"]
 
 
 @wp.struct
@@ -40,6 +42,22 @@ class NerfGridGeom:
     nx: int
     ny: int
     dx: float
+
+
+def make_nerf_grid_geom(
+    origin: np.ndarray, cell: np.ndarray, shape_xyz: tuple[int, int, int], dx: float
+) -> NerfGridGeom:
+    """:class:`NerfGridGeom` of a lattice (``origin`` = AABB min, ``cell`` edges, float64)."""
+    origin = np.asarray(origin, dtype=np.float64)
+    cell = np.asarray(cell, dtype=np.float64)
+    g = NerfGridGeom()
+    g.origin = wp.vec3(*origin.astype(np.float32))
+    g.cell = wp.vec3(*cell.astype(np.float32))
+    g.origin_d = wp.vec3d(*origin)
+    g.cell_d = wp.vec3d(*cell)
+    g.nx, g.ny = int(shape_xyz[0]), int(shape_xyz[1])
+    g.dx = float(dx)
+    return g
 
 
 @wp.struct
@@ -155,8 +173,10 @@ def _nerf_fuse_kernel(
     out_num: wp.array(dtype=float),
     out_den: wp.array(dtype=float),
     out_kind: wp.array(dtype=wp.uint8),
+    base: int,
+    stride: int,
 ):
-    a = wp.tid()
+    a = base + wp.tid() * stride
     xc = nerf_center(int(index[a]), g)
     c = nerf_contribution(v, p, g, xc, density[a])
     out_num[a] = c[0]
@@ -174,8 +194,11 @@ def nerf_fuse_view(
     out_den: wp.array,
     out_kind: wp.array,
     device=None,
+    threads: int | None = None,
 ) -> None:
-    """Contribution of one view to every active voxel (dense ``[A]`` outputs)."""
+    """Contribution of one view to every active voxel (dense ``[A]`` outputs; voxels are
+    independent, so the CPU work is split over ``threads`` sub-launches, default all
+    cores — bit-identical to one)."""
     device = device or index.device
     n = index.shape[0]
     for name, arr in (
@@ -187,9 +210,10 @@ def nerf_fuse_view(
         if arr.shape[0] != n:
             raise ValueError(f"nerf_fuse_view: {name} has {arr.shape[0]} entries, expected {n}")
     if n:
-        wp.launch(
+        launch_split(
             _nerf_fuse_kernel,
-            dim=n,
-            inputs=[index, density, geom, view, params, out_num, out_den, out_kind],
-            device=device,
+            n,
+            [index, density, geom, view, params, out_num, out_den, out_kind],
+            wp.get_device(device),
+            cpu_threads(threads),
         )

@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ._launch import cpu_threads, launch_split
+
 __all__ = [
     "GridGeom",
     "point_voxel_code",
@@ -281,8 +283,10 @@ def _hash_query_kernel(
     shift: int,
     codes: wp.array(dtype=wp.int64),
     out: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
 ):
-    i = wp.tid()
+    i = base + wp.tid() * stride
     c = codes[i]
     r = -1
     if c >= wp.int64(0):
@@ -441,16 +445,18 @@ def hash_build(codes: wp.array, device=None) -> tuple[wp.array, wp.array, int]:
 
 
 def hash_query(
-    keys: wp.array, vals: wp.array, shift: int, codes: wp.array, device=None
+    keys: wp.array, vals: wp.array, shift: int, codes: wp.array, device=None, threads=None
 ) -> wp.array:
-    """``[M] int32`` active index of each code (−1 when absent or code < 0)."""
-    device = device or keys.device
+    """``[M] int32`` active index of each code (−1 when absent or code < 0); queries are
+    independent: split over ``threads`` CPU sub-launches (default all cores)."""
+    device = wp.get_device(device or keys.device)
     out = wp.empty(codes.shape[0], dtype=wp.int32, device=device)
     if codes.shape[0] > 0:
-        wp.launch(
+        launch_split(
             _hash_query_kernel,
-            dim=codes.shape[0],
-            inputs=[keys, vals, shift, codes, out],
-            device=device,
+            codes.shape[0],
+            [keys, vals, shift, codes, out],
+            device,
+            cpu_threads(threads),
         )
     return out

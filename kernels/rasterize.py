@@ -46,10 +46,13 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from . import render_defaults as RD
 from ._launch import cpu_threads, launch_split
 from .composite import ANCHOR_MED, BlendParams, PixelOut, PixState
 from .sh import eval_sh
 from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, splat_plane_rows
+from .tile_binning import tile_bands
+from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
 wp.set_module_options({"enable_backward": False})
@@ -60,8 +63,9 @@ __all__ = [
     "SurfelBuffers",
     "upload_surfels",
     "rasterize_surfels",
-    "tile_bands",
     "make_raster_camera",
+    "project_splats",
+    "ViewBinning",
 ]
 
 
@@ -84,16 +88,16 @@ class RasterSettings:
         profile: synchronise after each stage and record stage seconds in ``stats``.
     """
 
-    tau_sig: float = 0.05
-    tau_cw: float = 0.75
-    t_min: float = 1e-4
-    alpha_min: float = 1.0 / 255.0
-    alpha_max: float = 0.99
-    lowpass_sigma: float = float(np.sqrt(0.5))
-    near: float = 0.01
-    tile: int = 16
-    max_duplicates: int = 1 << 25
-    blend: str = "auto"
+    tau_sig: float = RD.TAU_SIG
+    tau_cw: float = RD.TAU_CW
+    t_min: float = RD.T_MIN
+    alpha_min: float = RD.ALPHA_MIN
+    alpha_max: float = RD.ALPHA_MAX
+    lowpass_sigma: float = RD.LOWPASS_SIGMA
+    near: float = RD.NEAR
+    tile: int = RD.TILE
+    max_duplicates: int = RD.MAX_DUPLICATES
+    blend: str = RD.BLEND
     threads: int | None = None
     profile: bool = False
 
@@ -146,7 +150,7 @@ def upload_surfels(
     sh: np.ndarray,
     sh_degree: int,
     device,
-    alpha_min: float = 1.0 / 255.0,
+    alpha_min: float = RD.ALPHA_MIN,
 ) -> SurfelBuffers:
     """Copy a surfel scene to ``device``. ``rotations`` ``[N,3,3]`` (columns t_u, t_v, n)."""
     n = len(means)
@@ -273,89 +277,6 @@ def preprocess_kernel(
         colors[i, 2] = col[2]
 
 
-@wp.func
-def band_tiles(sp: Splat, tile: int, band_lo: int, band_hi: int):
-    """Tile rectangle of ``sp`` clipped to tile rows ``[band_lo, band_hi)``; empty → tx0 > tx1."""
-    tx0 = sp.x0 // tile
-    tx1 = sp.x1 // tile
-    ty0 = wp.max(sp.y0 // tile, band_lo)
-    ty1 = wp.min(sp.y1 // tile, band_hi - 1)
-    if sp.x0 > sp.x1 or ty0 > ty1:
-        tx0 = 1
-        tx1 = 0
-    return tx0, tx1, ty0, ty1
-
-
-@wp.kernel
-def count_kernel(
-    splats: wp.array(dtype=Splat),
-    order: wp.array(dtype=wp.int32),
-    tile: int,
-    band_lo: int,
-    band_hi: int,
-    counts: wp.array(dtype=wp.int32),
-    base: int,
-    stride: int,
-):
-    """Tiles touched in the band by the ``j``-th surfel in depth order."""
-    j = base + wp.tid() * stride
-    tx0, tx1, ty0, ty1 = band_tiles(splats[order[j]], tile, band_lo, band_hi)
-    n = int(0)
-    if tx0 <= tx1:
-        n = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
-    counts[j] = wp.int32(n)
-
-
-@wp.kernel
-def duplicate_kernel(
-    splats: wp.array(dtype=Splat),
-    order: wp.array(dtype=wp.int32),
-    tile: int,
-    band_lo: int,
-    band_hi: int,
-    tiles_x: int,
-    incl: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=wp.int32),
-    vals: wp.array(dtype=wp.int32),
-    base: int,
-    stride: int,
-):
-    """Emit one (band-local tile id, surfel) pair per touched tile, in depth order."""
-    j = base + wp.tid() * stride
-    i = order[j]
-    tx0, tx1, ty0, ty1 = band_tiles(splats[i], tile, band_lo, band_hi)
-    o = int(incl[j]) - int(counts[j])  # exclusive offset
-    if tx0 <= tx1:
-        for ty in range(ty0, ty1 + 1):
-            for tx in range(tx0, tx1 + 1):
-                keys[o] = wp.int32((ty - band_lo) * tiles_x + tx)
-                vals[o] = i
-                o += 1
-
-
-@wp.kernel
-def ranges_kernel(
-    keys: wp.array(dtype=wp.int32),
-    n: int,
-    rstart: wp.array(dtype=wp.int32),
-    rend: wp.array(dtype=wp.int32),
-    base: int,
-    stride: int,
-):
-    """``[rstart[t], rend[t])``: the sorted pairs of tile ``t``."""
-    e = base + wp.tid() * stride
-    k = keys[e]
-    if e == 0:
-        rstart[k] = wp.int32(0)
-    elif keys[e - 1] != k:
-        rstart[k] = wp.int32(e)
-    if e == n - 1:
-        rend[k] = wp.int32(n)
-    elif keys[e + 1] != k:
-        rend[k] = wp.int32(e + 1)
-
-
 # --------------------------------------------------------------------------- wrapper
 @dataclass
 class RasterOutput:
@@ -371,6 +292,7 @@ class RasterOutput:
     width: int
     height: int
     stats: dict
+    binning: ViewBinning | None = None
 
 
 def blend_params(s: RasterSettings, anchor: int = ANCHOR_MED) -> BlendParams:
@@ -390,6 +312,130 @@ def alloc_pixel_out(P: int, C: int, bg: np.ndarray, device) -> PixelOut:
     return out
 
 
+def check_view(who: str, W: int, H: int, s: RasterSettings, dev) -> tuple[str, int, int]:
+    """Validate an image size and settings; ``(blend mode, tile, CPU threads)``."""
+    T = int(s.tile)
+    if W <= 0 or H <= 0:
+        raise ValueError(f"{who}: empty image {W}x{H}")
+    if T <= 0 or T > 64:
+        raise ValueError(f"{who}: tile size {T} outside 1..64")
+    mode = s.blend if s.blend != "auto" else ("pixel" if dev.is_cuda else "tile")
+    if mode not in ("pixel", "tile"):
+        raise ValueError(f"{who}: blend mode {s.blend!r} is not auto/pixel/tile")
+    return mode, T, (1 if dev.is_cuda else cpu_threads(s.threads))
+
+
+@wp.kernel
+def _visible_kernel(keys: wp.array(dtype=float), n: int, out: wp.array(dtype=int)):
+    """Binary search of the sorted ``keys[:n]``: the first culled key (``BIG``)."""
+    lo = int(0)
+    hi = n
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if keys[mid] < 0.5 * BIG:
+            lo = mid + 1
+        else:
+            hi = mid
+    out[0] = lo
+
+
+def count_visible(keys: wp.array, n: int) -> int:
+    """Surfels left after culling: the length of the visible prefix of the depth order
+    (culled surfels sort last with key ``BIG``). Binning only this prefix gives the same
+    (tile, surfel) pairs at a fraction of the cost when most surfels are off-screen —
+    zoomed centroid views and probes (issue 20)."""
+    out = wp.zeros(1, dtype=int, device=keys.device)
+    wp.launch(_visible_kernel, dim=1, inputs=[keys, int(n), out], device=keys.device)
+    return int(out.numpy()[0])
+
+
+def project_splats(
+    buf: SurfelBuffers,
+    cam: RasterCamera,
+    inv_var: float,
+    colors: wp.array | None,
+    threads: int,
+) -> tuple[wp.array, wp.array, wp.array]:
+    """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
+    into ``colors`` when given) and sort by centre depth (stable: ties keep index order).
+
+    Returns ``(splats [N], keys [2N], order [2N])``: ``order[:N]`` is the depth order,
+    culled surfels last (key +inf). Shared by every pass over the view's tiles.
+    """
+    n = len(buf)
+    dev = buf.device
+    splats = wp.empty(n, dtype=Splat, device=dev)
+    keys = wp.empty(2 * n, dtype=float, device=dev)
+    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    with_color = 0 if colors is None else 1
+    launch_split(
+        preprocess_kernel,
+        n,
+        [
+            buf.means,
+            buf.tu,
+            buf.tv,
+            buf.opacity,
+            buf.rho_cut,
+            buf.sh,
+            buf.sh_degree,
+            with_color,
+            cam,
+            inv_var,
+            splats,
+            keys,
+            order,
+            colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
+        ],
+        dev,
+        threads,
+    )
+    return splats, keys, order
+
+
+@dataclass(eq=False)
+class ViewBinning:
+    """Projection, culling, depth order and tile binning of one view, reusable by every
+    later pass over the same camera, settings and scene (issue 20: the RGB/depth render
+    and the value renders of a camera share them; the results are bit-identical, the
+    same kernels running on the same inputs).
+
+    Attributes:
+        key: what the binning depends on (scene buffers, camera, settings).
+        splats, keys, order: :func:`project_splats` output, ``order[:N]`` depth-sorted.
+        n_visible: :func:`count_visible` of the sorted keys.
+        bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
+            fits in one band, else None (each pass re-bins band by band: bounded memory).
+        colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
+        stats: pairs and bands.
+    """
+
+    key: tuple
+    cam: RasterCamera
+    splats: wp.array
+    keys: wp.array
+    order: wp.array
+    n_visible: int
+    bands: list | None
+    colors: wp.array | None
+    stats: dict
+
+    @property
+    def nbytes(self) -> int:
+        arrs = [self.splats, self.keys, self.order, self.colors]
+        for b in self.bands or ():
+            arrs += [b[2], b[3], b[4]]
+        return sum(a.capacity for a in arrs if a is not None)
+
+
+def binning_key(buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings) -> tuple:
+    """What a :class:`ViewBinning` depends on (the blend-only settings excluded)."""
+    w = np.ascontiguousarray(w2c, dtype=np.float64).tobytes()
+    geo = (float(fx), float(fy), float(cx), float(cy), int(W), int(H))
+    cfg = (float(s.near), float(s.lowpass_sigma), int(s.tile), int(s.max_duplicates))
+    return (id(buf), w, geo, cfg)
+
+
 def rasterize_surfels(
     buf: SurfelBuffers,
     w2c: np.ndarray,
@@ -402,229 +448,109 @@ def rasterize_surfels(
     settings: RasterSettings | None = None,
     values: np.ndarray | None = None,
     background: np.ndarray | tuple = (0.0, 0.0, 0.0),
+    *,
+    features: bool = True,
+    binning: ViewBinning | None = None,
+    keep_binning: bool = False,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
     Args:
         values: ``None`` → composite SH colours over ``background``; else ``[N]`` or
             ``[N, C]`` per-surfel values composited with the same weights (no background).
+        features: False (with ``values`` None) → the depth tuple only: no SH colours, no
+            feature compositing (``feat`` is ``[P, 0]``); the depths are the same.
+        binning: a :class:`ViewBinning` of an earlier pass; used when its key matches
+            this view (and, for an RGB render, it holds the colours), else ignored.
+        keep_binning: return this view's binning in ``RasterOutput.binning``.
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
     s = settings or RasterSettings()
     dev = buf.device
     n = len(buf)
-    W, H, T = int(width), int(height), int(s.tile)
-    if W <= 0 or H <= 0:
-        raise ValueError(f"rasterize_surfels: empty image {W}x{H}")
-    if T <= 0 or T > 64:
-        raise ValueError(f"rasterize_surfels: tile size {T} outside 1..64")
-    mode = s.blend if s.blend != "auto" else ("pixel" if dev.is_cuda else "tile")
-    if mode not in ("pixel", "tile"):
-        raise ValueError(f"rasterize_surfels: blend mode {s.blend!r} is not auto/pixel/tile")
-    threads = cpu_threads(s.threads)
-    cam = make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+    W, H = int(width), int(height)
+    mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
+    rgb = values is None and features
+    key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s)
+    if binning is not None and (binning.key != key or (rgb and binning.colors is None)):
+        binning = None
+    cam = (
+        binning.cam
+        if binning is not None
+        else make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+    )
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
     with wp.ScopedDevice(dev):
         if values is None:
-            C, with_color, bg = 3, 1, np.asarray(background, dtype=np.float32).reshape(3)
-            feat = wp.empty((max(n, 1), 3), dtype=float)
+            C = 3 if features else 0
+            bg = np.asarray(background, dtype=np.float32).reshape(3)[:C]
+            feat = wp.empty((max(n, 1), C), dtype=float)
         else:
             v = np.asarray(values, dtype=np.float32)
             v = v.reshape(len(v), -1) if v.ndim > 1 else v.reshape(-1, 1)
             if v.shape[0] != n:
                 raise ValueError(f"rasterize_surfels: values has {v.shape[0]} rows for {n} surfels")
-            C, with_color, bg = v.shape[1], 0, np.zeros(v.shape[1], np.float32)
+            C, bg = v.shape[1], np.zeros(v.shape[1], np.float32)
             feat = wp.array(np.ascontiguousarray(v), dtype=float)
         out = alloc_pixel_out(P, C, bg, dev)
+        sink = BlendSink()
+        sink.out = out
         stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode}
         tiles_x, tiles_y = -(-W // T), -(-H // T)
-        if n == 0:
-            _blend_empty(out, P, cam, s, T, tiles_x, tiles_y, feat, mode, threads, dev)
-            return RasterOutput(out, W, H, stats)
-        tm = _Timer(s.profile, stats)
-        splats = wp.empty(n, dtype=Splat)
-        keys = wp.empty(2 * n, dtype=float)
-        order = wp.empty(2 * n, dtype=wp.int32)
-        launch_split(
-            preprocess_kernel,
-            n,
-            [
-                buf.means,
-                buf.tu,
-                buf.tv,
-                buf.opacity,
-                buf.rho_cut,
-                buf.sh,
-                buf.sh_degree,
-                with_color,
-                cam,
-                inv_var,
-                splats,
-                keys,
-                order,
-                feat if with_color else wp.empty((1, 3), dtype=float),
-            ],
-            dev,
-            threads,
-        )
-        tm.lap("preprocess")
-        wp.utils.radix_sort_pairs(keys, order, n)
-        tm.lap("depth_sort")
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
-        for lo, nt, dvals, rstart, rend, _ in tile_bands(
-            splats, order, n, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm
-        ):
-            _blend(
-                mode,
-                splats,
-                dvals,
-                rstart,
-                rend,
-                feat,
-                cam,
-                inv_var,
-                s,
-                bp,
-                T,
-                tiles_x,
-                lo,
-                nt,
-                states,
-                out,
-                dev,
-                threads,
+        alpha_max = float(s.alpha_max)
+        if n == 0:  # every pixel gets the empty tuple and the background
+            sink.feat = feat
+            z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32)
+            one = wp.empty(1, dtype=wp.int32)
+            nt = tiles_x * tiles_y
+            args = (wp.empty(1, dtype=Splat), one, z, z, cam, inv_var, alpha_max, bp, T, tiles_x)
+            launch_walk(mode, sink, *args, 0, nt, states, dev, threads, "chunk")
+            return RasterOutput(out, W, H, stats)
+        tm = _Timer(s.profile, stats)
+        if binning is None:
+            splats, keys, order = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
+            tm.lap("preprocess")
+            wp.utils.radix_sort_pairs(keys, order, n)
+            n_vis = count_visible(keys, n)
+            tm.lap("depth_sort")
+            binning = ViewBinning(
+                key, cam, splats, keys, order, n_vis, None, feat if rgb else None, {}
             )
+            bands = tile_bands(
+                splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads,
+                tm.lap,
+            )  # fmt: skip
+            kept: list | None = []
+        else:
+            splats, keys = binning.splats, binning.keys
+            if rgb:
+                feat = binning.colors
+            if binning.bands is not None:
+                bands = iter(binning.bands)
+                stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
+            else:
+                bands = tile_bands(
+                    splats, binning.order, binning.n_visible, T, tiles_x, tiles_y,
+                    s.max_duplicates, stats, dev, threads, tm.lap,
+                )  # fmt: skip
+            kept = None
+        sink.feat = feat
+        for band in bands:
+            lo, nt, dvals, rstart, rend, _ = band
+            if kept is not None:
+                kept.append(band)
+            args = (splats, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
+            launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "chunk")
             tm.lap("blend")
+        if kept is not None:  # a fresh binning: keep its bands when there is one
+            binning.bands = kept if len(kept) == 1 else None
+            binning.stats = {"pairs": stats["pairs"], "bands": stats["bands"]}
         if s.profile:  # a device → host copy of the sort keys: only when profiling
             stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
-    return RasterOutput(out, W, H, stats)
-
-
-def tile_bands(
-    splats: wp.array,
-    order: wp.array,
-    n: int,
-    T: int,
-    tiles_x: int,
-    tiles_y: int,
-    max_duplicates: int,
-    stats: dict,
-    dev,
-    threads: int,
-    tm: _Timer | None = None,
-):
-    """Bin depth-sorted splats into tiles, one band of tile rows at a time.
-
-    Per band: count the tiles each splat touches, scan, split the band in two while it
-    holds more than ``max_duplicates`` (splat, tile) pairs (bounded memory), duplicate
-    keys, sort them by tile (stable, so depth order survives) and find each tile's range.
-    Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
-    used by the contribution pass (``kernels.contrib``) so both see the same binning.
-    """
-    lap = tm.lap if tm is not None else (lambda _stage: None)
-    counts = wp.empty(n, dtype=wp.int32)
-    incl = wp.empty(n, dtype=wp.int32)
-    bands = [(0, tiles_y)]
-    while bands:
-        lo, hi = bands.pop(0)
-        launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
-        wp.utils.array_scan(counts, incl, inclusive=True)
-        total = int(incl[n - 1 : n].numpy()[0])
-        lap("count")
-        if total > max_duplicates and hi - lo > 1:
-            mid = (lo + hi) // 2
-            bands[:0] = [(lo, mid), (mid, hi)]
-            continue
-        stats["pairs"] += total
-        stats["bands"] += 1
-        nt = (hi - lo) * tiles_x
-        rstart = wp.zeros(nt, dtype=wp.int32)
-        rend = wp.zeros(nt, dtype=wp.int32)
-        if total > 0:
-            dkeys = wp.empty(2 * total, dtype=wp.int32)
-            dvals = wp.empty(2 * total, dtype=wp.int32)
-            launch_split(
-                duplicate_kernel,
-                n,
-                [splats, order, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
-                dev,
-                threads,
-            )
-            lap("duplicate")
-            wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
-            lap("tile_sort")
-            launch_split(ranges_kernel, total, [dkeys, total, rstart, rend], dev, threads)
-        else:
-            dvals = wp.empty(1, dtype=wp.int32)
-        yield lo, nt, dvals, rstart, rend, total
-
-
-def _blend(
-    mode,
-    splats,
-    vals,
-    rstart,
-    rend,
-    feat,
-    cam,
-    inv_var,
-    s,
-    bp,
-    T,
-    tiles_x,
-    band_lo,
-    nt,
-    states,
-    out,
-    dev,
-    threads,
-) -> None:
-    from .rasterize_blend import blend_pixel_kernel, blend_tile_kernel
-
-    common = [
-        splats,
-        vals,
-        rstart,
-        rend,
-        feat,
-        cam,
-        inv_var,
-        float(s.alpha_max),
-        bp,
-        T,
-        tiles_x,
-        band_lo,
-    ]
-    if mode == "pixel":
-        launch_split(blend_pixel_kernel, nt * T * T, common + [out], dev, threads)
-    else:
-        launch_split(blend_tile_kernel, nt, common + [states, out], dev, threads, mode="interleave")
-
-
-def _blend_empty(out, P, cam, s, T, tiles_x, tiles_y, feat, mode, threads, dev) -> None:
-    """No surfels: every pixel gets the empty tuple and the background."""
-    z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32, device=dev)
-    splats = wp.empty(1, dtype=Splat, device=dev)
-    _blend(
-        mode,
-        splats,
-        wp.empty(1, dtype=wp.int32, device=dev),
-        z,
-        z,
-        feat,
-        cam,
-        1.0 / float(s.lowpass_sigma) ** 2,
-        s,
-        blend_params(s),
-        T,
-        tiles_x,
-        0,
-        tiles_x * tiles_y,
-        wp.empty(P, dtype=PixState, device=dev) if mode == "tile" else None,
-        out,
-        dev,
-        threads,
-    )
+    res = RasterOutput(out, W, H, stats)
+    res.binning = binning if keep_binning else None
+    return res

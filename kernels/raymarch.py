@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from . import render_defaults as RD
 from ._launch import cpu_threads, launch_split
 from .composite import (
     ANCHOR_MAX,
@@ -45,12 +46,12 @@ __all__ = ["GridBuffers", "upload_grid", "raymarch_grid", "MarchSettings", "occu
 class MarchSettings:
     """Constants of one march (see :class:`divas_engine.render.RenderConfig`)."""
 
-    tau_sig: float = 0.05
-    tau_cw: float = 0.75
-    t_min: float = 1e-4
-    alpha_min: float = 1.0 / 255.0
-    near: float = 0.01
-    step_scale: float = 0.5
+    tau_sig: float = RD.TAU_SIG
+    tau_cw: float = RD.TAU_CW
+    t_min: float = RD.T_MIN
+    alpha_min: float = RD.ALPHA_MIN
+    near: float = RD.NEAR
+    step_scale: float = RD.NERF_STEP_SCALE
     threads: int | None = None
 
 

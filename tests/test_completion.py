@@ -221,7 +221,7 @@ def test_session_completes_3dgs_only(ball):
         out[kind] = (s.selection.copy(), s.last_mapping.selected.copy(), s.backend.last_completion)
         if kind == SceneKind.GS3D:  # undo the second view: the completion follows exactly
             one = VolumetricCompletion(
-                sc, s.grid, s.backend._mapper.active_index, CompletionConfig(), device=CPU
+                sc, s.grid, s.backend._ready()[2].active_index, CompletionConfig(), device=CPU
             )
             s.undo()
             v0 = s.views[0]

@@ -18,7 +18,7 @@ ENGINE = REPO / "divas_engine"
 LAYERS: list[set[str]] = [
     {"kinds", "errors", "geometry"},
     {"camera", "scene"},
-    {"scene_stats", "blender_convention", "viewport"},
+    {"scene_stats", "blender_convention", "viewport", "selection_tools"},
     {"io", "render", "segment"},
     {"fusion", "views", "export", "point_attributes"},
     {"mapping", "synthetic"},

@@ -348,10 +348,10 @@ def test_kernels_compile_for_cuda(tmp_path):
     """The rasterizer and ray-marcher modules compile for CUDA (sm_75) with NVRTC even
     on a machine without a GPU; running them there is covered by the CUDA tests."""
     import divas_kernels.rasterize
-    import divas_kernels.rasterize_blend
     import divas_kernels.raymarch
+    import divas_kernels.tile_walk
 
-    for m in (divas_kernels.rasterize, divas_kernels.rasterize_blend, divas_kernels.raymarch):
+    for m in (divas_kernels.rasterize, divas_kernels.tile_walk, divas_kernels.raymarch):
         try:
             wp.compile_aot_module(m, arch=75, module_dir=tmp_path / m.__name__)
         except Exception as e:  # noqa: BLE001 - toolkit without NVRTC

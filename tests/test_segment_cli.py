@@ -102,8 +102,15 @@ def test_segment_oracle_2dgs(scene_dir, tmp_path, capsys):
     assert "centroid views fused" in capsys.readouterr().out
 
 
-def test_segment_classic_2dgs(scene_dir, tmp_path):
+def test_segment_default_graph3d_2dgs(scene_dir, tmp_path):
     rc = _segment(scene_dir, tmp_path, "--out", str(tmp_path / "sel.ply"))
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["segmenter"] == "graph3d" and rep["counts"]["centroid_views"] == 4
+    assert rc == 0 and (tmp_path / "sel.ply").exists() and rep["counts"]["selected"] > 0
+
+
+def test_segment_classic_2dgs(scene_dir, tmp_path):
+    rc = _segment(scene_dir, tmp_path, "--out", str(tmp_path / "sel.ply"), "--segmenter", "classic")
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["segmenter"] == "classic" and rep["counts"]["centroid_views"] == 4
     if rc == 0:

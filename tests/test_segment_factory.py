@@ -22,7 +22,13 @@ from tests.test_segmenters import make_decoder, make_preprocessed_encoder
 
 
 def test_kinds_are_the_segmenters_names_and_parse_both_spellings():
-    assert [k.value for k in SegmenterKind] == ["classic", "sam-onnx", "sam-torch", "oracle"]
+    assert [k.value for k in SegmenterKind] == [
+        "graph3d",
+        "classic",
+        "sam-onnx",
+        "sam-torch",
+        "oracle",
+    ]
     assert SegmenterKind.parse("sam_onnx") is SegmenterKind.SAM_ONNX
     assert SegmenterKind.parse("SAM-Torch") is SegmenterKind.SAM_TORCH
     assert SegmenterSettings("oracle").kind is SegmenterKind.ORACLE

@@ -101,3 +101,58 @@ def test_bad_frames():
         frame_homography([(0, 0), (1, 1)], (10, 10))
     with pytest.raises(ValueError, match="empty camera"):
         frame_homography(rect(0, 0, 1, 1), (0, 10))
+
+
+# ----------------------------------------------------------------------------- free views
+def _region_xy(view_matrix, window_matrix, size, pts):
+    """Blender's region position of world points (``location_3d_to_region_2d``'s formula,
+    written out): clip = P · V · p, ((ndc + 1) / 2) × size."""
+    clip = np.c_[pts, np.ones(len(pts))] @ (window_matrix @ view_matrix).T
+    ndc = clip[:, :2] / clip[:, 3:4]
+    return (ndc + 1.0) * 0.5 * np.asarray(size, float)
+
+
+def test_camera_from_region_reproduces_the_region_projection():
+    from divas_engine.camera import Camera
+    from divas_engine.viewport import camera_from_region, region_matrices
+
+    rng = np.random.default_rng(3)
+    for w, h, fx, fy, cx, cy in [(640, 480, 500, 500, 320, 240), (803, 611, 700, 640, 390.5, 330)]:
+        cam = Camera.look_at(
+            rng.normal(size=3) * 5,
+            rng.normal(size=3) * 0.2,
+            [0, 0, 1],
+            width=w,
+            height=h,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+        )
+        vm, wm = region_matrices(cam, near=0.05, far=200.0)
+        back = camera_from_region(vm, wm, (w, h))
+        assert (back.width, back.height) == (w, h)
+        np.testing.assert_allclose([back.fx, back.fy, back.cx, back.cy], [fx, fy, cx, cy])
+        np.testing.assert_allclose(back.c2w, cam.c2w, atol=1e-12)
+        # independent: the region position of 3D points (Blender's formula) is the
+        # camera pixel with y flipped
+        pts = cam.unproject(rng.uniform([0, 0], [w, h], (50, 2)), rng.uniform(1, 9, 50))
+        reg = _region_xy(vm, wm, (w, h), pts)
+        uv, _ = back.project(pts)
+        np.testing.assert_allclose(reg[:, 0], uv[:, 0], atol=1e-9)
+        np.testing.assert_allclose(h - reg[:, 1], uv[:, 1], atol=1e-9)
+        # float32 matrices (what Blender holds) still give a valid camera, sub-pixel close
+        b32 = camera_from_region(vm.astype(np.float32), wm.astype(np.float32), (w, h))
+        assert np.abs(b32.project(pts)[0] - uv).max() < 1e-2
+
+
+def test_region_click_pixel_and_orthographic_views():
+    from divas_engine.viewport import OrthographicViewError, camera_from_region, region_click_pixel
+
+    assert region_click_pixel((0, 0), (640, 480)) == (0.5, 479.5)
+    assert region_click_pixel((639, 479), (640, 480)) == (639.5, 0.5)
+    ortho = np.diag([0.1, 0.1, -0.01, 1.0])
+    with pytest.raises(OrthographicViewError, match="orthographic"):
+        camera_from_region(np.eye(4), ortho, (640, 480))
+    with pytest.raises(ValueError, match="empty region"):
+        camera_from_region(np.eye(4), ortho, (0, 480))

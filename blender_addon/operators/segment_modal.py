@@ -1,11 +1,15 @@
-"""Click to Segment: a modal operator in the 3D viewport, looking through a DivAS camera.
+"""Click to Segment: a modal operator in the 3D viewport — through a DivAS camera, or in
+any free 3D view (the view becomes an anchor).
 
-LMB positive, Shift+LMB / RMB negative, Enter accept, Backspace undo, Esc leave (the
-header shows the keys). What an event means is decided by the pure
-:mod:`..modal_logic`; :class:`ModalController` only maps the mouse onto the camera's
-image (:func:`..view3d.click_to_camera_pixel`) and runs the resulting step with
-:mod:`..session_actions`. The operator keeps the 3D view's main region from ``invoke``
-(it may be started from the sidebar, whose region is not the one clicked in).
+LMB positive, Shift+LMB / RMB negative, Enter accept, Ctrl+Z / Backspace undo,
+Ctrl+Shift+Z redo, Esc leave (the header shows the keys). What an event means is decided
+by the pure :mod:`..modal_logic`; :class:`ModalController` only maps the mouse onto the
+camera's image (:func:`..view3d.click_to_camera_pixel`) or the free view's own camera,
+runs the resulting step with :mod:`..session_actions` as one session step, and pushes
+one Blender undo step for it (``ed.undo_push``: a modal operator gets none of its own).
+Undo and redo are Blender's (``ed.undo`` / ``ed.redo``); the session follows them
+(:mod:`..session_actions.history`). The operator keeps the 3D view's main region from
+``invoke`` (it may be started from the sidebar, whose region is not the one clicked in).
 """
 
 from __future__ import annotations
@@ -13,16 +17,37 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import bpy
+import numpy as np
 
 from divas_engine.kinds import ViewStatus
 
 from .. import session_registry
-from ..modal_logic import HEADER_TEXT, KeyKind, Step, StepKind, decide, plan
-from ..reporting import report_exception
-from ..session_actions import accept, activate_camera, add_prompt, camera_target, click, undo
+from ..modal_logic import HEADER_TEXT, KeyKind, Step, StepKind, Target, decide, plan
+from ..reporting import rejection_message, report_exception
+from ..session_actions import (
+    accept,
+    add_prompt,
+    camera_target,
+    click,
+    run_step,
+    viewport_click,
+)
 from ..view3d import click_to_camera_pixel
 
 __all__ = ["DIVAS_OT_segment_modal", "ModalController"]
+
+#: the history / undo name of each step.
+_WHAT = {
+    StepKind.SPAWN: "Click on anchor",
+    StepKind.ANCHOR_NEGATIVE: "Negative click on anchor",
+    StepKind.PROMPT: "Add point to view",
+    StepKind.VIEWPORT_CLICK: "Click in a 3D view",
+    StepKind.ACCEPT: "Accept view",
+}
+
+
+def _through_camera(rv3d) -> bool:
+    return getattr(rv3d, "view_perspective", "CAMERA") == "CAMERA"
 
 
 class ModalController:
@@ -33,6 +58,7 @@ class ModalController:
         region, rv3d: the 3D view's main (``WINDOW``) region and its ``RegionView3D``.
         area: the 3D view area (header text, redraws); None headless.
         pixel_fn: ``(region, rv3d, scene, camera, mouse_xy) -> (u, v) | None``.
+        undo_push: ``(message) -> None``, one Blender undo step after each session step.
     """
 
     def __init__(
@@ -44,11 +70,13 @@ class ModalController:
         rv3d=None,
         area=None,
         pixel_fn: Callable = click_to_camera_pixel,
+        undo_push: Callable | None = None,
     ) -> None:
         self.object_name = object_name
         self.report = report
         self.region, self.rv3d, self.area = region, rv3d, area
         self.pixel_fn = pixel_fn
+        self.undo_push = undo_push or (lambda msg: bpy.ops.ed.undo_push(message=msg))
         self.last_step: Step | None = None
 
     # ------------------------------------------------------------------ helpers
@@ -75,7 +103,7 @@ class ModalController:
         if live is None:
             return HEADER_TEXT
         c = live.session.counts()
-        return f"{HEADER_TEXT}   |   {c['accepted']} views fused, {c['selected']:,} selected"
+        return f"{HEADER_TEXT}   |   {c['accepted']} views added, {c['selected']:,} selected"
 
     def set_header(self, text: str | None) -> None:
         if self.area is not None:
@@ -85,23 +113,38 @@ class ModalController:
     def close(self) -> None:
         self.set_header(None)
 
+    def target(self, live, scene) -> Target:
+        """Through one of the session's cameras, or a free view (any other view)."""
+        if _through_camera(self.rv3d):
+            t = camera_target(live, scene.camera)
+            if t.is_anchor or t.is_view:
+                return t
+        return Target(free=True)
+
     # ------------------------------------------------------------------ events
     def handle(self, context, event) -> set[str]:
         obj = bpy.data.objects.get(self.object_name)
         live = session_registry.get(obj)
         if live is None:
-            self.report({"WARNING"}, "The DivAS session has ended")
+            self.report({"WARNING"}, "The DivAS session has ended (Esc to leave)")
             self.close()
             return {"CANCELLED"}
         mouse = self._mouse(event)
-        key = decide(event.type, event.value, shift=event.shift, in_region=mouse is not None)
+        key = decide(
+            event.type,
+            event.value,
+            shift=event.shift,
+            in_region=mouse is not None,
+            ctrl=getattr(event, "ctrl", False),
+        )
         if key.kind is KeyKind.PASS:
             return {"PASS_THROUGH"}
-        cam = context.scene.camera
-        target = camera_target(live, cam)
+        target = self.target(live, context.scene)
         xy = None
         if key.kind is KeyKind.CLICK and (target.is_anchor or target.is_view):
-            xy = self.pixel_fn(self.region, self.rv3d, context.scene, cam, mouse)
+            xy = self.pixel_fn(self.region, self.rv3d, context.scene, context.scene.camera, mouse)
+        elif key.kind is KeyKind.CLICK and target.is_free and mouse is not None:
+            xy = (float(mouse[0]), float(mouse[1]))
         step = plan(key, target, xy)
         self.last_step = step
         return self.run(context, obj, live, step)
@@ -118,24 +161,48 @@ class ModalController:
         if k is StepKind.MESSAGE:
             self.report({"WARNING"}, step.message)
             return {"RUNNING_MODAL"}
-        try:
-            if k in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE):
-                click(context, obj, live, step.anchor, step.xy, step.positive)
-            elif k is StepKind.PROMPT:
-                add_prompt(context, obj, live, step.view_id, step.xy, step.positive)
-            elif k is StepKind.ACCEPT:
-                res = accept(context, obj, live, step.view_id)
-                if res.view.status == ViewStatus.REJECTED:
-                    self.report(
-                        {"WARNING"},
-                        f"View rejected: {res.view.reason}; add points and press Enter again",
-                    )
-            elif k is StepKind.UNDO and undo(context, obj, live) is None:
-                self.report({"WARNING"}, "Nothing to undo")
-        except Exception as e:  # noqa: BLE001 - reported; the modal keeps running
-            report_exception(_Reporter(self.report), e)
+        if k in (StepKind.UNDO, StepKind.REDO):
+            self._undo_redo(k)
+            live = session_registry.get(bpy.data.objects.get(self.object_name))
+        else:
+            try:
+                self._session_step(context, obj, live, step)
+            except Exception as e:  # noqa: BLE001 - reported; the modal keeps running
+                report_exception(_Reporter(self.report), e)
         self.set_header(self.header(live))
         return {"RUNNING_MODAL"}
+
+    def _session_step(self, context, obj, live, step: Step) -> None:
+        k = step.kind
+        what = _WHAT[k]
+        if k in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE):
+            run_step(obj, live, f"{what} {step.anchor}", click, context, obj, live,
+                     step.anchor, step.xy, step.positive)  # fmt: skip
+        elif k is StepKind.PROMPT:
+            run_step(obj, live, what, add_prompt, context, obj, live, step.view_id, step.xy,
+                     step.positive)  # fmt: skip
+        elif k is StepKind.VIEWPORT_CLICK:
+            r, rv = self.region, self.rv3d
+            run_step(obj, live, what, viewport_click, context, obj, live,
+                     np.array(rv.view_matrix), np.array(rv.window_matrix),
+                     (int(r.width), int(r.height)),
+                     (int(step.xy[0]), int(step.xy[1])), step.positive)  # fmt: skip
+        elif k is StepKind.ACCEPT:
+            res = run_step(obj, live, what, accept, context, obj, live, step.view_id)
+            if res.view.status == ViewStatus.REJECTED:
+                self.report({"WARNING"}, "View not added. " + rejection_message(res.view.reason))
+        self.undo_push(f"DivAS: {what}")
+
+    def _undo_redo(self, kind: StepKind) -> None:
+        op = bpy.ops.ed.undo if kind is StepKind.UNDO else bpy.ops.ed.redo
+        word = "undo" if kind is StepKind.UNDO else "redo"
+        if not op.poll():
+            self.report({"WARNING"}, f"Nothing to {word}")
+            return
+        try:
+            op()
+        except RuntimeError as e:
+            self.report({"WARNING"}, f"Could not {word} here ({e}): press Esc, then Ctrl+Z")
 
 
 def _inside(region, x: int, y: int) -> bool:
@@ -150,8 +217,8 @@ class _Reporter:
 
 
 class DIVAS_OT_segment_modal(bpy.types.Operator):
-    """Click the object in a DivAS view to segment it (LMB add, Shift+LMB/RMB remove,
-    Enter accept, Backspace undo, Esc leave)"""
+    """Click the object to segment it, through a DivAS camera or in any 3D view
+    (LMB add, Shift+LMB/RMB remove, Enter accept, Ctrl+Z undo, Esc leave)"""
 
     bl_idname = "divas.segment_modal"
     bl_label = "Click to Segment"
@@ -163,7 +230,7 @@ class DIVAS_OT_segment_modal(bpy.types.Operator):
             cls.poll_message_set("Run it from a 3D Viewport")
             return False
         if session_registry.find(context)[1] is None:
-            cls.poll_message_set("No DivAS session: select the imported object and Start DivAS")
+            cls.poll_message_set("No DivAS session yet: select the imported splats and Start DivAS")
             return False
         return True
 
@@ -175,14 +242,6 @@ class DIVAS_OT_segment_modal(bpy.types.Operator):
         self._ctl = ModalController(
             obj.name, self.report, region=region, rv3d=space.region_3d, area=area
         )
-        cam = context.scene.camera
-        t = camera_target(live, cam)
-        if not (t.is_anchor or t.is_view):
-            cam = bpy.data.objects.get(live.anchor_cameras[0]) if live.anchor_cameras else None
-        if cam is None:
-            self.report({"ERROR"}, "The session's anchor cameras are gone; Start DivAS again")
-            return {"CANCELLED"}
-        activate_camera(context, cam)
         self._ctl.set_header(self._ctl.header(live))
         context.window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}

@@ -1,4 +1,4 @@
-"""Accept View: fuse a centroid view's mask into the 3D selection.
+"""Accept View: fuse a centroid view's mask into the 3D selection (one undo step).
 
 ``points`` replace the points added on the view, as JSON ``[[x, y, positive], ...]`` in
 rendered-image pixels, or full-camera pixels with ``full_resolution`` (the prompts
@@ -14,8 +14,8 @@ from bpy.props import BoolProperty, StringProperty
 
 from divas_engine.kinds import ViewStatus
 
-from ..reporting import report_exception
-from ..session_actions import accept, full_to_session_xy
+from ..reporting import rejection_message, report_exception
+from ..session_actions import accept, full_to_session_xy, run_step
 from .session_base import SessionOperator, live_session
 
 
@@ -26,9 +26,28 @@ def _parse_points(text: str):
         labs = [int(bool(p[2])) if len(p) > 2 else 1 for p in doc]
     except (ValueError, TypeError, IndexError, KeyError) as e:
         raise ValueError(
-            f"points must be JSON [[x, y, positive], ...], got {text!r} ({e})"
+            f"Prompt Points must be JSON like [[x, y, true], [x, y, false]] (got {text!r}: "
+            f"{e}): fix the text and run Accept again"
         ) from None
     return pts, labs
+
+
+def accept_message(live, res) -> tuple[set[str], str]:
+    """The report (level, text) of an accept: what happened, what to do next."""
+    v = res.view
+    if v.status == ViewStatus.REJECTED:
+        return {"WARNING"}, "View not added. " + rejection_message(v.reason, v.score)
+    if v.status == ViewStatus.PENDING:
+        return {"INFO"}, (
+            f"View accepted; the segmenter is working on it in the background "
+            f"({res.pending} waiting). The selection updates when this anchor's views are "
+            "done (or press Sync)"
+        )
+    n = int(live.session.selection.sum())
+    return {"INFO"}, (
+        f"View added: {n:,} selected ({res.timings.get('update_s', 0.0):.2f} s). Click "
+        "another anchor to add more, or Finish Object when it is complete"
+    )
 
 
 class DIVAS_OT_session_accept(SessionOperator, bpy.types.Operator):
@@ -36,20 +55,24 @@ class DIVAS_OT_session_accept(SessionOperator, bpy.types.Operator):
 
     bl_idname = "divas.session_accept"
     bl_label = "Accept View"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO"}
 
     view: StringProperty(
+        options={"SKIP_SAVE"},
         name="View",
         default="",
         description="View id (default: the scene camera's view, else the next open one)",
     )
     points: StringProperty(
+        options={"SKIP_SAVE"},
         name="Prompt Points",
         default="",
         description="JSON [[x, y, positive], ...] replacing the points "
         "added on the view (its default prompt stays)",
     )
-    full_resolution: BoolProperty(name="Full-Resolution Pixels", default=False)
+    full_resolution: BoolProperty(
+        options={"SKIP_SAVE"}, name="Full-Resolution Pixels", default=False
+    )
 
     def execute(self, context):
         obj, live = live_session(context)
@@ -60,20 +83,15 @@ class DIVAS_OT_session_accept(SessionOperator, bpy.types.Operator):
                 if self.full_resolution and pts:
                     a = live.session.view(self.view).anchor if self.view else None
                     if a is None:
-                        raise ValueError("full_resolution points need the view id")
+                        raise ValueError(
+                            "Full-resolution points need the view they belong to: "
+                            "fill in View and run Accept again"
+                        )
                     pts = [full_to_session_xy(live, a, p) for p in pts]
-            res = accept(context, obj, live, self.view or None, pts, labs)
+            res = run_step(
+                obj, live, "Accept view", accept, context, obj, live, self.view or None, pts, labs
+            )
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
-        v = res.view
-        if v.status == ViewStatus.REJECTED:
-            self.report({"WARNING"}, f"View {v.id} rejected: {v.reason}")
-        elif v.status == ViewStatus.PENDING:
-            self.report({"INFO"}, f"View {v.id} pending ({res.pending} masks queued)")
-        else:
-            self.report(
-                {"INFO"},
-                f"View {v.id} fused: {int(live.session.selection.sum()):,} "
-                f"selected ({res.timings.get('update_s', 0.0):.2f} s)",
-            )
+        self.report(*accept_message(live, res))
         return {"FINISHED"}

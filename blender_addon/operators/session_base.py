@@ -25,6 +25,8 @@ class SessionOperator:
     @classmethod
     def poll(cls, context):
         if live_session(context)[1] is None:
-            cls.poll_message_set("No DivAS session: select the imported object and Start DivAS")
+            cls.poll_message_set(
+                "No DivAS session yet: select the imported splats and press Start DivAS"
+            )
             return False
         return True

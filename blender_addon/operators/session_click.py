@@ -1,5 +1,5 @@
 """Click Anchor: a positive click spawns a centroid view, a negative one adds a negative
-prompt.
+prompt (one undo step).
 
 Coordinates are rendered-image pixels of the anchor (the session's), or full-camera
 pixels with ``full_resolution`` (the prompts file's). RNA floats are single precision,
@@ -13,15 +13,28 @@ import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
 from ..reporting import report_exception
-from ..session_actions import click, full_to_session_xy
+from ..session_actions import click, full_to_session_xy, run_step
 from .session_base import SessionOperator, live_session
 
 
 def _parse_xy(text: str) -> tuple[float, float]:
     parts = text.replace(",", " ").split()
     if len(parts) != 2:
-        raise ValueError(f"xy must be two numbers 'x y', got {text!r}")
+        raise ValueError(f"XY needs two numbers 'x y' (got {text!r}): type e.g. '120.5 80'")
     return float(parts[0]), float(parts[1])
+
+
+def click_message(anchor: int, positive: bool) -> str:
+    """What a click did and what to do next."""
+    if positive:
+        return (
+            f"Opened a close-up view of the object from anchor {anchor}: if the blue mask "
+            "misses parts, click them; press Enter to add the view (Ctrl+Z takes the click back)"
+        )
+    return (
+        f"Marked that spot on anchor {anchor} as not part of the object: "
+        "the views of this anchor will leave it out"
+    )
 
 
 class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
@@ -29,24 +42,27 @@ class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
 
     bl_idname = "divas.session_click"
     bl_label = "Click Anchor"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO"}
 
-    anchor: IntProperty(name="Anchor", default=0, min=0)
-    x: FloatProperty(name="X", default=0.0)
-    y: FloatProperty(name="Y", default=0.0)
+    anchor: IntProperty(options={"SKIP_SAVE"}, name="Anchor", default=0, min=0)
+    x: FloatProperty(options={"SKIP_SAVE"}, name="X", default=0.0)
+    y: FloatProperty(options={"SKIP_SAVE"}, name="Y", default=0.0)
     xy: StringProperty(
+        options={"SKIP_SAVE"},
         name="XY (exact)",
         default="",
         description="'x y' as decimal text (double precision); overrides X/Y",
     )
-    positive: BoolProperty(name="Positive", default=True)
+    positive: BoolProperty(options={"SKIP_SAVE"}, name="Positive", default=True)
     full_resolution: BoolProperty(
+        options={"SKIP_SAVE"},
         name="Full-Resolution Pixels",
         default=False,
         description="X/Y are pixels of the full camera (the prompts "
         "file's), not of the rendered image",
     )
     preview: BoolProperty(
+        options={"SKIP_SAVE"},
         name="Preview",
         default=True,
         description="Segment the default prompt at once (the mask preview)",
@@ -54,13 +70,25 @@ class DIVAS_OT_session_click(SessionOperator, bpy.types.Operator):
 
     def execute(self, context):
         obj, live = live_session(context)
+        what = f"{'Click' if self.positive else 'Negative click'} on anchor {self.anchor}"
         try:
             xy = _parse_xy(self.xy) if self.xy else (self.x, self.y)
             if self.full_resolution:
                 xy = full_to_session_xy(live, self.anchor, xy)
-            res = click(context, obj, live, self.anchor, xy, self.positive, preview=self.preview)
+            run_step(
+                obj,
+                live,
+                what,
+                click,
+                context,
+                obj,
+                live,
+                self.anchor,
+                xy,
+                self.positive,
+                preview=self.preview,
+            )
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
-        what = f"spawned view {res.id}" if self.positive else "negative prompt recorded"
-        self.report({"INFO"}, f"Anchor {self.anchor}: {what}")
+        self.report({"INFO"}, click_message(self.anchor, self.positive))
         return {"FINISHED"}

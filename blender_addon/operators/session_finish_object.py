@@ -1,4 +1,5 @@
-"""Finish Object: commit the selection as the next label and start a new object."""
+"""Finish Object: commit the selection as the next label and start a new object (one
+undo step)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import bpy
 from bpy.props import StringProperty
 
 from ..reporting import report_exception
-from ..session_actions import finish_object
+from ..session_actions import finish_object, run_step
 from .session_base import SessionOperator, live_session
 
 
@@ -15,18 +16,26 @@ class DIVAS_OT_session_finish_object(SessionOperator, bpy.types.Operator):
 
     bl_idname = "divas.session_finish_object"
     bl_label = "Finish Object"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO"}
 
-    name: StringProperty(name="Name", default="", description="Object name (default object_<k>)")
+    name: StringProperty(
+        options={"SKIP_SAVE"},
+        name="Name",
+        default="",
+        description="Object name (default object_<k>)",
+    )
 
     def execute(self, context):
         obj, live = live_session(context)
         try:
-            rec = finish_object(context, obj, live, self.name or None)
+            rec = run_step(
+                obj, live, "Finish object", finish_object, context, obj, live, self.name or None
+            )
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
         self.report(
             {"INFO"},
-            f"Finished {rec.name} (label {rec.label}, {int(rec.selection.sum()):,} primitives)",
+            f"Saved {rec.name} as label {rec.label} ({int(rec.selection.sum()):,} selected): "
+            "click the next object on an anchor, or Export Objects",
         )
         return {"FINISHED"}

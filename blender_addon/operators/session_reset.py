@@ -1,4 +1,5 @@
-"""Reset: drop the current object's views and selection (optionally every label)."""
+"""Reset: drop the current object's views and selection (optionally every label; one
+undo step)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import bpy
 from bpy.props import BoolProperty
 
 from ..reporting import report_exception
-from ..session_actions import reset
+from ..session_actions import reset, run_step
 from .session_base import SessionOperator, live_session
 
 
@@ -15,17 +16,25 @@ class DIVAS_OT_session_reset(SessionOperator, bpy.types.Operator):
 
     bl_idname = "divas.session_reset"
     bl_label = "Reset"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO"}
 
     all_objects: BoolProperty(
-        name="All Objects", default=False, description="Also drop every finished object's label"
+        options={"SKIP_SAVE"},
+        name="All Objects",
+        default=False,
+        description="Also drop every finished object's label",
     )
 
     def execute(self, context):
         obj, live = live_session(context)
         try:
-            reset(context, obj, live, all_objects=self.all_objects)
+            run_step(obj, live, "Reset", reset, context, obj, live, all_objects=self.all_objects)
         except Exception as e:  # noqa: BLE001
             return report_exception(self, e)
-        self.report({"INFO"}, "DivAS session reset")
+        what = "every object's views and labels" if self.all_objects else "this object's views"
+        self.report(
+            {"INFO"},
+            f"Cleared {what} and the selection: click the object on an anchor to start "
+            "again (Ctrl+Z brings it back)",
+        )
         return {"FINISHED"}

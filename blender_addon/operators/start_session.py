@@ -1,7 +1,9 @@
-"""Start DivAS: a live session on the active imported object, its anchors as cameras."""
+"""Start DivAS: a live session on the active imported object, its anchors as cameras
+(one undo step: undoing it closes the session)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import bpy
@@ -46,7 +48,9 @@ def start_settings(
     gt_labels: str = "",
     autosave: str = "",
 ) -> StartSettings:
-    """Preferences + the scene's settings + operator overrides → :class:`StartSettings`."""
+    """Preferences + the scene's settings + operator overrides → :class:`StartSettings`.
+    Anchors render at the preferences' anchor resolution, except those of a prompts file
+    (they keep the file's cameras × render scale, as ``divas segment`` renders them)."""
     prefs = get_settings(context)
     props = scene_settings(context.scene)
     save = None
@@ -54,8 +58,10 @@ def start_settings(
         save = str(_path(autosave))
     elif props is None or props.autosave:
         save = str(autosave_path(obj))
+    config = session_config(props, autosave=save)
+    config = replace(config, anchor_long_side=0 if prompts else int(prefs.anchor_resolution))
     return StartSettings(
-        config=session_config(props, autosave=save),
+        config=config,
         device=prefs.device if device == "PREFERENCES" else device,
         segmenter=prefs.segmenter if segmenter == "PREFERENCES" else segmenter,
         sam_encoder=_path(prefs.sam_encoder_path),
@@ -74,7 +80,7 @@ class DIVAS_OT_start_session(bpy.types.Operator):
 
     bl_idname = "divas.start_session"
     bl_label = "Start DivAS"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO"}
 
     segmenter: EnumProperty(name="Segmenter", items=SEGMENTER_ITEMS, default="PREFERENCES")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="PREFERENCES")
@@ -98,15 +104,17 @@ class DIVAS_OT_start_session(bpy.types.Operator):
     autosave: StringProperty(
         name="Autosave To",
         subtype="FILE_PATH",
-        description="Session file written after every accept (default: "
-        "<blend>_divas_session.json when Autosave is on)",
+        description="Session file written after every accept (default: a recovery file "
+        "in the add-on's user folder when Autosave is on; the session is also saved "
+        "beside the .blend whenever the .blend is saved)",
     )
 
     @classmethod
     def poll(cls, context):
         if source.source_of(context.active_object) is None:
             cls.poll_message_set(
-                "Select a DivAS-imported point cloud (Import › Gaussian Splats / NeRF Density Grid)"
+                "Select splats imported with DivAS first (File › Import › Gaussian Splats, "
+                "or NeRF Density Grid)"
             )
             return False
         return context.mode == "OBJECT"
@@ -130,8 +138,8 @@ class DIVAS_OT_start_session(bpy.types.Operator):
         s = live.session
         self.report(
             {"INFO"},
-            f"DivAS started on {obj.name}: {len(s.scene):,} primitives, "
-            f"{len(s.anchors)} anchors, {len(s.grid):,} active voxels "
-            f"({live.open_s:.1f} s)",
+            f"DivAS is ready on {obj.name} ({len(s.scene):,} splats/voxels, "
+            f"{live.open_s:.1f} s): click the object in one of the {len(s.anchors)} anchor "
+            "views, or anywhere in a 3D view, with Click to Segment",
         )
         return {"FINISHED"}

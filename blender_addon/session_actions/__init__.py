@@ -7,11 +7,14 @@ what Blender shows. By responsibility:
 
 * :mod:`.start` — start a session on an imported object, or resume its saved one (the
   engine's inputs: scene, training cameras, ground truth, segmenter, device);
-* :mod:`.loop_steps` — the loop: add an anchor, click, add a prompt, accept, sync, undo,
-  reset, finish the object;
+* :mod:`.loop_steps` — the loop: add an anchor, click (on an anchor or in any 3D view),
+  add a prompt, accept, sync, undo, reset, finish the object;
+* :mod:`.history` — every step one Blender undo step, the session kept in step with
+  Blender's undo and redo;
+* :mod:`.files` — where a session is saved so it follows the .blend (sidecar, recovery
+  autosave, resume on open, relative scene paths);
 * :mod:`.view_cameras` — a camera per anchor and centroid view in "DivAS Views", with
-  the view's render, mask preview and prompt points (or the selection overlay) as its
-  background image;
+  the view's render (packed) as its background image;
 * :mod:`.points` — ``divas_selected`` / ``divas_label`` on the object's points after
   every change of the selection, so the display material recolours the splats live.
 
@@ -22,6 +25,8 @@ function says otherwise.
 from __future__ import annotations
 
 from ..reporting import SESSION_ERRORS, report_exception
+from .files import ensure_key, recovery_path, saved_session_path, sidecar_path
+from .history import commit, rollback, run_step, sync_after_undo, sync_blender
 from .loop_steps import (
     accept,
     add_anchor,
@@ -33,6 +38,8 @@ from .loop_steps import (
     reset,
     sync,
     undo,
+    viewport_camera,
+    viewport_click,
 )
 from .points import LABEL_ATTRIBUTE, write_selection
 from .start import StartSettings, autosave_path, resume, start
@@ -61,4 +68,15 @@ __all__ = [
     "scene_camera_of",
     "report_exception",
     "full_to_session_xy",
+    "viewport_camera",
+    "viewport_click",
+    "commit",
+    "rollback",
+    "run_step",
+    "sync_after_undo",
+    "sync_blender",
+    "ensure_key",
+    "recovery_path",
+    "saved_session_path",
+    "sidecar_path",
 ]

@@ -1,5 +1,6 @@
-"""The steps of the interactive loop on a live session: add an anchor, click, add a
-prompt point, accept, sync, undo, reset, finish the object.
+"""The steps of the interactive loop on a live session: add an anchor, click (on an
+anchor, or anywhere in a 3D view), add a prompt point, accept, sync, undo, reset,
+finish the object.
 
 Each makes one engine call on the session and then updates what Blender shows: the
 cameras' images (:mod:`.view_cameras`) and the points' selection (:mod:`.points`). Pixel
@@ -13,8 +14,10 @@ import time
 
 import numpy as np
 
+from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.kinds import ViewStatus
+from divas_engine.viewport import OrthographicViewError, camera_from_region, region_click_pixel
 
 from ..session_registry import LiveSession
 from .points import write_selection
@@ -26,11 +29,14 @@ from .view_cameras import (
     scene_camera_of,
     show_anchor,
     show_view,
+    world_to_scene_camera,
 )
 
 __all__ = [
     "full_to_session_xy",
     "add_anchor",
+    "viewport_camera",
+    "viewport_click",
     "click",
     "add_prompt",
     "refresh_preview",
@@ -55,10 +61,14 @@ def add_anchor(context, obj, live: LiveSession, cam_obj) -> int:
     placed, e.g. aligned to the viewport with Ctrl+Alt+Numpad 0) becomes the session's
     next anchor, with its own anchor camera; returns its index."""
     if cam_obj is None or cam_obj.type != "CAMERA":
-        raise DivasInputError(None, "select a camera object to add as an anchor")
+        raise DivasInputError(
+            None, "Select a camera object first (make it active), then Add Camera as Anchor"
+        )
     if cam_obj.name in live.anchor_cameras or cam_obj.name in live.view_cameras.values():
         raise DivasInputError(
-            None, f"{cam_obj.name!r} is already one of this session's anchor or view cameras"
+            None,
+            f"{cam_obj.name!r} is already one of this session's anchor or view cameras: "
+            "click the object on it directly",
         )
     training = [o.name for o in training_camera_objects()]
     source_name, index = (
@@ -67,12 +77,63 @@ def add_anchor(context, obj, live: LiveSession, cam_obj) -> int:
     t0 = time.perf_counter()
     cam = scene_camera_of(obj, cam_obj, context.scene)
     a = live.session.add_anchor(cam, source_name, index)
-    make_anchor_camera(context, obj, live, a.index, with_selection=True)
+    make_anchor_camera(context, obj, live, a.index)
     show_anchor(context, live, a.index)
     live.record(
         {"what": f"anchor {a.index} from {cam_obj.name}", "update_s": time.perf_counter() - t0}
     )
     return a.index
+
+
+def viewport_camera(obj, view_matrix, window_matrix, region_size) -> Camera:
+    """The exact camera of a 3D-view region (:func:`divas_engine.viewport.camera_from_region`)
+    in ``obj``'s scene frame."""
+    try:
+        cam = camera_from_region(view_matrix, window_matrix, region_size, name="viewport")
+    except OrthographicViewError:
+        raise DivasInputError(
+            None,
+            "This view is orthographic, so there is no camera to segment through: "
+            "switch it to perspective (Numpad 5) and click again",
+        ) from None
+    return world_to_scene_camera(obj, cam)
+
+
+def _same_view(a, cam: Camera) -> bool:
+    """``cam`` (a region camera) shows what anchor ``a`` shows (its full camera is ``cam``
+    resized): same pose, same normalised intrinsics."""
+    f = a.full_camera
+    norm = lambda c: np.array([c.fx / c.width, c.fy / c.height, c.cx / c.width, c.cy / c.height])  # noqa: E731
+    return (
+        a.source == "viewport"
+        and abs(f.width * cam.height - f.height * cam.width) <= max(f.width, cam.width)
+        and np.allclose(norm(f), norm(cam), rtol=0, atol=1e-4)
+        and np.allclose(f.c2w, cam.c2w, rtol=0, atol=1e-6)
+    )
+
+
+def viewport_click(
+    context,
+    obj,
+    live: LiveSession,
+    view_matrix,
+    window_matrix,
+    region_size: tuple[int, int],
+    mouse: tuple[int, int],
+    positive: bool = True,
+):
+    """A click in a free 3D view: the view becomes an anchor (its camera reconstructed
+    exactly from the region, reused while the view does not move) and the click proceeds
+    as a click on that anchor. Returns ``(anchor index, click result)``."""
+    cam = viewport_camera(obj, view_matrix, window_matrix, region_size)
+    s = live.session
+    index = next((a.index for a in reversed(s.anchors) if _same_view(a, cam)), None)
+    if index is None:
+        index = s.add_anchor(cam, "viewport", -1).index
+        make_anchor_camera(context, obj, live, index)
+    a = s.anchors[index]  # its camera: the region's, resized (anchor resolution, scale)
+    xy = cam.pixels_to(a.camera, region_click_pixel(mouse, region_size))
+    return index, click(context, obj, live, index, (float(xy[0]), float(xy[1])), positive)
 
 
 def click(
@@ -84,7 +145,6 @@ def click(
     t0 = time.perf_counter()
     res = s.click(int(anchor), (float(xy[0]), float(xy[1])), positive=positive)
     if not positive:
-        show_anchor(context, live, int(anchor), activate=False)
         live.record(
             {"what": f"negative click on anchor {anchor}", "update_s": time.perf_counter() - t0}
         )
@@ -140,7 +200,9 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
         nxt = s.next_view()
         if nxt is None:
             raise DivasInputError(
-                None, "no open view to accept: click the object on an anchor first"
+                None,
+                "There is no open view to accept: click the object on an anchor "
+                "(or anywhere in a 3D view) first",
             )
         view_id = nxt.id
     v = s.view(view_id)
@@ -162,9 +224,9 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
         show_view(context, obj, live, v)  # stay: more prompts, then Enter again
         return res
     if res.overlay is not None:
-        show_view(context, obj, live, v, res.overlay.image, activate=False)
+        show_view(context, obj, live, v, res.overlay, activate=False)
     if res.next_view is not None and res.next_overlay is not None:
-        show_view(context, obj, live, res.next_view, res.next_overlay.image)
+        show_view(context, obj, live, res.next_view, res.next_overlay)
     else:
         show_anchor(context, live, v.anchor)
     return res
@@ -200,8 +262,8 @@ def reset(context, obj, live: LiveSession, *, all_objects: bool = False) -> None
     live.session.reset(all_objects=all_objects)
     prune_view_cameras(live)
     write_selection(obj, live)
-    for i in range(len(live.anchor_cameras)):
-        show_anchor(context, live, i, activate=i == 0)
+    if live.anchor_cameras:
+        show_anchor(context, live, 0)
     live.record({"what": "reset", "update_s": time.perf_counter() - t0})
 
 
@@ -211,7 +273,5 @@ def finish_object(context, obj, live: LiveSession, name: str | None = None):
     rec = live.session.finish_object(name or None)
     prune_view_cameras(live)
     write_selection(obj, live)
-    for i in range(len(live.anchor_cameras)):  # the selection is empty now: plain renders
-        show_anchor(context, live, i, activate=False)
     live.record({"what": f"finish {rec.name}", "update_s": time.perf_counter() - t0})
     return rec

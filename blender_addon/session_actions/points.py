@@ -29,7 +29,9 @@ def write_selection(obj, live: LiveSession) -> None:
         labels = point_values(s.scene, index, s.label_set()).astype(np.int32)
     except ValueError:
         raise DivasInputError(
-            None, "the object's points are not rows of the session's scene"
+            None,
+            f"{obj.name!r} no longer matches the session's scene file (re-imported or "
+            "edited outside DivAS?): press Start DivAS on it again",
         ) from None
     bridge.write_attribute(geom, SELECTED, selected)
     bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)

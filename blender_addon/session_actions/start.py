@@ -8,8 +8,6 @@ the engine session, make the anchor cameras (:mod:`.view_cameras`) and register 
 
 from __future__ import annotations
 
-import re
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +17,6 @@ import bpy
 from divas_engine.errors import DivasInputError
 from divas_engine.evaluation.ground_truth import load_ground_truth
 from divas_engine.io.cameras import load_cameras
-from divas_engine.point_attributes import SELECTED
 from divas_engine.segment import SegmenterSettings, SegmenterSetupError, build_segmenter
 from divas_engine.session import Session, SessionConfig, anchor_plan, load_prompts
 from divas_engine.session.prompts import resolve_anchors
@@ -27,14 +24,15 @@ from divas_engine.session.prompts import resolve_anchors
 from .. import session_registry, source
 from ..camera_objects import engine_camera
 from ..importers import TRAINING_CAMERAS
-from ..session_registry import LiveSession
+from ..session_registry import STEP_PROP, LiveSession
+from .files import ensure_key, recovery_path
 from .points import write_selection
 from .view_cameras import (
     activate_camera,
+    adopt_cameras,
     make_anchor_cameras,
     remove_cameras_of,
     show_anchor,
-    show_view,
 )
 
 __all__ = [
@@ -47,10 +45,10 @@ __all__ = [
 
 #: where the add-on's user sets what a segmenter needs (``SegmenterSetupError.requires``).
 _WHERE = {
-    "ground_truth": "Ground Truth .npy",
-    "sam_encoder": "set in the DivAS add-on preferences",
-    "sam_decoder": "set in the DivAS add-on preferences",
-    "sam_checkpoint": "set in the DivAS add-on preferences",
+    "ground_truth": "set Ground Truth (.npy) in Start DivAS's options",
+    "sam_encoder": "set the SAM model files in the DivAS add-on preferences",
+    "sam_decoder": "set the SAM model files in the DivAS add-on preferences",
+    "sam_checkpoint": "set the SAM model files in the DivAS add-on preferences",
 }
 
 
@@ -83,12 +81,10 @@ class StartSettings:
 
 
 def autosave_path(obj) -> Path:
-    """``<blend>_divas_session.json`` beside the saved .blend, else in a temp folder."""
-    if bpy.data.filepath:
-        blend = Path(bpy.path.abspath(bpy.data.filepath))
-        return blend.with_name(f"{blend.stem}_divas_session.json")
-    safe = re.sub(r"[^A-Za-z0-9_-]+", "_", obj.name)
-    return Path(tempfile.gettempdir()) / "divas" / f"{safe}_divas_session.json"
+    """Where the session of ``obj`` autosaves between saves of the .blend: a recovery
+    file keyed by the object's session key (:mod:`.files`; the .blend's own sidecar is
+    written when the .blend is saved)."""
+    return recovery_path(ensure_key(obj))
 
 
 def training_camera_objects() -> list:
@@ -120,7 +116,9 @@ def _segmenter(settings: StartSettings):
         return build_segmenter(seg_settings, has_ground_truth=settings.gt_labels is not None)
     except SegmenterSetupError as e:
         where = dict.fromkeys(_WHERE[r] for r in e.requires)
-        raise DivasInputError(None, f"{e.problem} ({'; '.join(where)})") from None
+        raise DivasInputError(
+            None, f"{e.problem}: {'; '.join(where)}, then Start DivAS again"
+        ) from None
 
 
 def _engine_inputs(context, obj, settings: StartSettings):
@@ -130,8 +128,8 @@ def _engine_inputs(context, obj, settings: StartSettings):
     if ref is None:
         raise DivasInputError(
             None,
-            f"{getattr(obj, 'name', None)!r} is not a DivAS-imported "
-            "point cloud (import splats or a density grid first)",
+            f"{getattr(obj, 'name', None)!r} is not a point cloud imported with DivAS: "
+            "import the splats (or a density grid) with File › Import first",
         )
     seg = _segmenter(settings)
     scene = source.load_source_scene(ref)
@@ -140,8 +138,16 @@ def _engine_inputs(context, obj, settings: StartSettings):
     try:
         device = resolve_device(settings.device)
     except RuntimeError as e:
-        raise DivasInputError(None, str(e)) from None
+        raise DivasInputError(
+            None, f"{e}: choose the CPU device in the DivAS preferences and start again"
+        ) from None
     return scene, cameras, gt, seg, device
+
+
+def _follow_undo_steps(context, session: Session) -> None:
+    """Keep at least as many session steps as Blender keeps undo steps."""
+    steps = int(getattr(context.preferences.edit, "undo_steps", 32))
+    session.history.limit = max(session.history.limit, steps + 2)
 
 
 def start(context, obj, settings: StartSettings) -> LiveSession:
@@ -177,17 +183,19 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
                 obj.name,
                 autosave=None if config.autosave is None else Path(config.autosave),
                 segmenter=settings.segmenter,
+                key=ensure_key(obj),
             )
             session_registry.drop(obj)  # a restart: the old session and its cameras go
-            remove_cameras_of(obj.name)
+            remove_cameras_of(obj)
             make_anchor_cameras(context, obj, live)
         except BaseException:
-            remove_cameras_of(obj.name)
+            remove_cameras_of(obj)
             session.close()
             raise
-        if obj.data.attributes.get(SELECTED) is not None:
-            write_selection(obj, live)  # a restart clears the old selection
+        write_selection(obj, live)  # defined from the start (a restart clears the old one)
         session_registry.put(obj, live)
+        _follow_undo_steps(context, session)
+        obj[STEP_PROP] = session.history.current.id
         live.open_s = time.perf_counter() - t0
         live.record({"what": "start", "update_s": live.open_s})
         if live.anchor_cameras:
@@ -198,38 +206,46 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
 
 
 def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
-    """Reload a saved session (replayed by the engine) onto ``obj``: anchor and view
-    cameras, the selection; it keeps autosaving to ``path``."""
+    """Reload a saved session (replayed by the engine) onto ``obj``: the object's anchor
+    and view cameras kept when they match (a reopened .blend), made when missing; the
+    selection. It autosaves where ``settings`` says (the recovery file by default)."""
     wm = context.window_manager
     t0 = time.perf_counter()
     wm.progress_begin(0, 100)
     try:
         path = Path(path)
         if not path.is_file():
-            raise DivasInputError(path, "no saved DivAS session here")
+            raise DivasInputError(
+                path, "no saved DivAS session is here: Start DivAS to begin a new one"
+            )
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
         wm.progress_update(20)
+        autosave = settings.config.autosave
         session = Session.load(
-            path, scene, seg, device, cameras=cameras, gt_values=gt, autosave=str(path)
+            path, scene, seg, device, cameras=cameras, gt_values=gt, autosave=autosave
         )
         wm.progress_update(70)
         try:
-            live = LiveSession(session, obj.name, autosave=path, segmenter=settings.segmenter)
+            live = LiveSession(
+                session,
+                obj.name,
+                autosave=None if autosave is None else Path(autosave),
+                segmenter=settings.segmenter,
+                key=ensure_key(obj),
+            )
             session_registry.drop(obj)
-            remove_cameras_of(obj.name)
-            make_anchor_cameras(context, obj, live)
-            for v in session.views:
-                show_view(context, obj, live, v, activate=False)
+            adopt_cameras(context, obj, live)
             write_selection(obj, live)
         except BaseException:
-            remove_cameras_of(obj.name)
             session.close()
             raise
         session_registry.put(obj, live)
+        _follow_undo_steps(context, session)
+        obj[STEP_PROP] = session.history.current.id
         live.open_s = time.perf_counter() - t0
         live.record({"what": "resume", "update_s": live.open_s})
         if live.anchor_cameras:
-            show_anchor(context, live, 0)  # with the selection (the others: when shown)
+            show_anchor(context, live, 0)
         return live
     finally:
         wm.progress_end()

@@ -3,9 +3,14 @@
 Each is a camera in the "DivAS Views" collection, made by
 :func:`..camera_objects.create_camera_object` from the *rendered* camera (so its pixels
 are the session's pixels), parented to the segmented object (so it follows the object's
-transform), tagged with ``divas_owner`` / ``divas_anchor`` / ``divas_view``. Its
-background image is the view's render with the mask preview and prompt points
-(:mod:`..overlays`), or the selection overlay once accepted.
+transform and tells whose camera it is), tagged with ``divas_owner`` / ``divas_anchor``
+/ ``divas_view``. Its background image is the view's plain engine render, packed into
+the .blend; the mask preview, the prompt points and the selection are drawn over the
+viewport by :mod:`..draw` from the live session, so undo and redo need no image work.
+
+The tables of camera names a :class:`~..session_registry.LiveSession` keeps are rebuilt
+from the cameras themselves (:func:`sync_camera_tables`) after Blender's undo, which
+brings cameras back or removes them with the rest of the file's data.
 """
 
 from __future__ import annotations
@@ -18,11 +23,15 @@ import numpy as np
 from divas_engine.blender_convention import camera_from_blender
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
-from divas_engine.kinds import ViewStatus
 from divas_engine.session import Session, SessionView
 
 from .. import overlays
-from ..camera_objects import apply_render_settings, blender_params, create_camera_object
+from ..camera_objects import (
+    RESOLUTION_PROP,
+    apply_render_settings,
+    blender_params,
+    create_camera_object,
+)
 from ..modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP, Target, target_from_props
 from ..session_registry import LiveSession
 
@@ -31,12 +40,18 @@ __all__ = [
     "activate_camera",
     "camera_target",
     "scene_camera_of",
+    "object_frame",
+    "world_to_scene_camera",
     "make_anchor_camera",
     "make_anchor_cameras",
     "show_anchor",
     "show_view",
     "remove_cameras_of",
     "prune_view_cameras",
+    "prune_anchor_cameras",
+    "cameras_of",
+    "sync_camera_tables",
+    "adopt_cameras",
 ]
 
 VIEWS_COLLECTION = "DivAS Views"
@@ -64,9 +79,21 @@ def _remove_camera(name: str) -> None:
         bpy.data.images.remove(img)
 
 
-def remove_cameras_of(obj_name: str) -> None:
-    """Remove every camera a session made for the object named ``obj_name``."""
-    for o in [o for o in bpy.data.objects if o.type == "CAMERA" and o.get(OWNER_PROP) == obj_name]:
+def cameras_of(obj) -> list:
+    """The session cameras of ``obj``: its camera children tagged as anchors or views
+    (and untagged-parent cameras naming it in ``divas_owner``)."""
+    return [
+        o
+        for o in bpy.data.objects
+        if o.type == "CAMERA"
+        and (o.parent == obj or o.get(OWNER_PROP) == obj.name)
+        and ANCHOR_PROP in o
+    ]
+
+
+def remove_cameras_of(obj) -> None:
+    """Remove every camera a session made for ``obj``."""
+    for o in cameras_of(obj):
         _remove_camera(o.name)
 
 
@@ -123,72 +150,62 @@ def camera_target(live: LiveSession | None, cam) -> Target:
     return target_from_props({k: cam[k] for k in (ANCHOR_PROP, VIEW_PROP) if k in cam}, status)
 
 
-def scene_camera_of(obj, cam_obj, scene) -> Camera:
-    """The engine camera of Blender camera ``cam_obj`` in ``obj``'s scene frame (the
-    session's): ``obj.matrix_world⁻¹ @ cam.matrix_world`` — the anchor cameras are
-    parented to ``obj``, training cameras usually are not."""
+def object_frame(obj) -> np.ndarray:
+    """``obj.matrix_world`` (the session's scene frame in the world), checked to be a
+    rotation with a uniform scale (what a pinhole camera survives)."""
     ow = np.array(obj.matrix_world, np.float64)
     g = ow[:3, :3].T @ ow[:3, :3]  # s²·I for a rotation with uniform scale s
     if not np.allclose(g, np.eye(3) * np.trace(g) / 3.0, rtol=0, atol=1e-5 * np.trace(g)):
         raise DivasInputError(
             None,
-            f"{obj.name!r} has a non-uniform scale or shear: apply "
-            "its scale (Ctrl+A) before adding a camera as an anchor",
+            f"{obj.name!r} is stretched (a non-uniform scale or shear), so a camera cannot "
+            "be placed in its frame: apply its scale (Ctrl+A › Scale) and click again",
         )
+    return ow
+
+
+def world_to_scene_camera(obj, camera: Camera) -> Camera:
+    """A world-frame engine camera in ``obj``'s scene frame (uniform scale allowed)."""
+    c2w = np.linalg.inv(object_frame(obj)) @ camera.c2w
+    c2w[:3, :3] /= np.linalg.norm(c2w[:3, :3], axis=0, keepdims=True)
+    return camera.with_pose(c2w)
+
+
+def scene_camera_of(obj, cam_obj, scene) -> Camera:
+    """The engine camera of Blender camera ``cam_obj`` in ``obj``'s scene frame (the
+    session's): ``obj.matrix_world⁻¹ @ cam.matrix_world`` — the anchor cameras are
+    parented to ``obj``, training cameras usually are not."""
+    ow = object_frame(obj)
     p = blender_params(scene, cam_obj)
     return camera_from_blender(replace(p, matrix_world=np.linalg.inv(ow) @ p.matrix_world))
 
 
 # ----------------------------------------------------------------------------- anchors
-def _anchor_image(live: LiveSession, i: int, *, with_selection: bool) -> np.ndarray:
-    s = live.session
-    a = s.anchors[i]
-    rgb = a.rgb
-    if with_selection and s.selection.any():
-        rgb = s.overlay(a.camera, full_camera=False).image
-    clicks = s.current.clicks.get(i, [])
-    pts = np.array([c.xy for c in clicks], np.float64).reshape(-1, 2)
-    return overlays.preview_image(rgb, None, pts, [int(c.positive) for c in clicks])
-
-
 def show_anchor(context, live: LiveSession, i: int, *, activate: bool = True) -> None:
-    """Refresh anchor ``i``'s image (render, selection overlay, clicks); make it the scene
-    camera when ``activate``."""
-    cam = bpy.data.objects.get(live.anchor_cameras[i])
-    if cam is None:
-        return
-    overlays.set_background(cam, _anchor_image(live, i, with_selection=True))
-    if activate:
+    """Make anchor ``i``'s camera the scene camera (when ``activate``); what it shows
+    over its render is drawn live (:mod:`..draw`)."""
+    cam = bpy.data.objects.get(live.anchor_cameras[i]) if i < len(live.anchor_cameras) else None
+    if cam is not None and activate:
         activate_camera(context, cam)
 
 
-def make_anchor_camera(context, obj, live: LiveSession, i: int, *, with_selection: bool):
-    """The camera of anchor ``i`` (appended to ``live.anchor_cameras``)."""
+def make_anchor_camera(context, obj, live: LiveSession, i: int, **_ignored):
+    """The camera of anchor ``i`` with its render (appended to ``live.anchor_cameras``)."""
     a = live.session.anchors[i]
     cam = _new_camera(context, obj, a.camera, f"{obj.name} Anchor {i:02d}", live.session)
     cam[ANCHOR_PROP] = i
     live.anchor_cameras.append(cam.name)
-    overlays.set_background(cam, _anchor_image(live, i, with_selection=with_selection))
+    overlays.set_background(cam, a.rgb)
     return cam
 
 
 def make_anchor_cameras(context, obj, live: LiveSession) -> None:
     """A camera per anchor of the session, with its plain render."""
     for i in range(len(live.session.anchors)):
-        make_anchor_camera(context, obj, live, i, with_selection=False)
+        make_anchor_camera(context, obj, live, i)
 
 
 # ----------------------------------------------------------------------------- views
-def _view_image(live: LiveSession, v: SessionView) -> np.ndarray:
-    prev = v.preview
-    if v.status == ViewStatus.FUSED:
-        return live.session.overlay(v).image
-    if prev is None:
-        pts, labs = live.session.default_prompts(v)
-        return overlays.preview_image(v.rgb, None, pts, labs)
-    return overlays.preview_image(v.rgb, prev.mask, prev.points, prev.labels)
-
-
 def _view_camera(context, obj, live: LiveSession, v: SessionView):
     name = live.view_cameras.get(v.id)
     cam = bpy.data.objects.get(name) if name else None
@@ -196,17 +213,20 @@ def _view_camera(context, obj, live: LiveSession, v: SessionView):
         cam = _new_camera(context, obj, v.camera, f"{obj.name} View {v.id}", live.session)
         cam[VIEW_PROP], cam[ANCHOR_PROP] = v.id, int(v.anchor)
         live.view_cameras[v.id] = cam.name
+        overlays.set_background(cam, v.rgb)
     return cam
 
 
 def show_view(
-    context, obj, live: LiveSession, v: SessionView, image=None, *, activate: bool = True
+    context, obj, live: LiveSession, v: SessionView, overlay=None, *, activate: bool = True
 ):
-    """The camera of centroid view ``v`` (made on first use) showing ``image`` (default:
-    its preview, or its selection overlay once fused); the scene camera when
+    """The camera of centroid view ``v`` (made on first use, with its render); the
+    engine's selection ``overlay`` on it (an :class:`~divas_engine.session.Overlay`) is
+    kept to be drawn while that selection is current; the scene camera when
     ``activate``."""
     cam = _view_camera(context, obj, live, v)
-    overlays.set_background(cam, _view_image(live, v) if image is None else image)
+    if overlay is not None:
+        live.coverage[v.id] = (live.session.selection, overlay.coverage)
     if activate:
         activate_camera(context, cam)
     return cam
@@ -218,3 +238,62 @@ def prune_view_cameras(live: LiveSession) -> None:
     for vid in [vid for vid in live.view_cameras if vid not in current]:
         _remove_camera(live.view_cameras.pop(vid))
         live.extra_prompts.pop(vid, None)
+        live.coverage.pop(vid, None)
+
+
+def prune_anchor_cameras(live: LiveSession) -> None:
+    """Remove the cameras of anchors the session no longer has (an undone viewport click)."""
+    n = len(live.session.anchors)
+    for name in live.anchor_cameras[n:]:
+        _remove_camera(name)
+    del live.anchor_cameras[n:]
+
+
+def sync_camera_tables(obj, live: LiveSession) -> None:
+    """Rebuild ``live.anchor_cameras`` / ``view_cameras`` from ``obj``'s cameras."""
+    anchors: dict[int, str] = {}
+    views: dict[str, str] = {}
+    for cam in cameras_of(obj):
+        if cam.get(VIEW_PROP):
+            views[str(cam[VIEW_PROP])] = cam.name
+        else:
+            anchors[int(cam[ANCHOR_PROP])] = cam.name
+    live.anchor_cameras = [anchors[i] for i in sorted(anchors)]
+    live.view_cameras = views
+
+
+def adopt_cameras(context, obj, live: LiveSession) -> None:
+    """Match ``obj``'s existing session cameras (a reopened .blend) to the resumed
+    session: keep the ones that show an anchor / view of the same size, make the
+    missing ones, remove the rest."""
+    s = live.session
+    by_anchor, by_view = {}, {}
+    for cam in cameras_of(obj):
+        (by_view if cam.get(VIEW_PROP) else by_anchor)[
+            str(cam[VIEW_PROP]) if cam.get(VIEW_PROP) else int(cam[ANCHOR_PROP])
+        ] = cam
+
+    def fits(cam, camera) -> bool:
+        return tuple(cam.get(RESOLUTION_PROP, ())) == (camera.width, camera.height)
+
+    live.anchor_cameras, live.view_cameras = [], {}
+    for i, a in enumerate(s.anchors):
+        cam = by_anchor.pop(i, None)
+        if cam is not None and fits(cam, a.camera):
+            live.anchor_cameras.append(cam.name)
+            if not cam.data.background_images or cam.data.background_images[0].image is None:
+                overlays.set_background(cam, a.rgb)
+        else:
+            if cam is not None:
+                _remove_camera(cam.name)
+            make_anchor_camera(context, obj, live, i)
+    for v in s.views:
+        cam = by_view.pop(v.id, None)
+        if cam is not None and fits(cam, v.camera):
+            live.view_cameras[v.id] = cam.name
+        else:
+            if cam is not None:
+                _remove_camera(cam.name)
+            _view_camera(context, obj, live, v)
+    for cam in [*by_anchor.values(), *by_view.values()]:
+        _remove_camera(cam.name)

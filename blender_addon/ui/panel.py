@@ -1,5 +1,6 @@
 """The N-panel tab "DivAS": import, session settings, the live session (counts, the last
-update's timings, its buttons), the active object's selection, extract/export."""
+update's timings, undo / redo, its buttons), a saved session to resume, the manual
+selection and edit tools, the active object's selection, extract/export."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ from .. import session_registry, source
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import get_preferences
 from ..properties import scene_settings
+from ..reporting import rejection_message
 from ..selection import selected_count
+from ..session_actions import saved_session_path
 
 #: (timing key, label) shown for the last update, in pipeline order.
 TIMING_LABELS = (
@@ -74,6 +77,26 @@ def _draw_settings(layout, context, ref) -> None:
     box.prop(props, "autosave")
 
 
+def _wrap(text: str, width: int = 48) -> list[str]:
+    """``text`` in lines of at most ``width`` characters (panel labels do not wrap)."""
+    import textwrap
+
+    return textwrap.wrap(text, width) or [""]
+
+
+def _draw_history(layout, live) -> None:
+    h = live.session.history
+    row = layout.row(align=True)
+    undo = row.row(align=True)
+    undo.enabled = h.can_undo
+    undo.operator("ed.undo", text=f"Undo {h.undo_name}" if h.can_undo else "Undo", icon="LOOP_BACK")
+    redo = row.row(align=True)
+    redo.enabled = h.can_redo
+    redo.operator(
+        "ed.redo", text=f"Redo {h.redo_name}" if h.can_redo else "Redo", icon="LOOP_FORWARDS"
+    )
+
+
 def _draw_session(layout, live) -> None:
     box = layout.box()
     box.label(text="Session", icon="RESTRICT_SELECT_OFF")
@@ -81,13 +104,20 @@ def _draw_session(layout, live) -> None:
     col = box.column(align=True)
     col.label(
         text=f"{c['anchors']} anchors · {c['centroid_views']} views "
-        f"({c['accepted']} fused, {c['rejected']} rejected, {c['pending']} pending)"
+        f"({c['accepted']} added, {c['rejected']} not added, {c['pending']} waiting)"
     )
     col.label(
         text=f"{c['selected']:,} selected · {c['labelled']:,} labelled · "
         f"object {len(live.session.objects)}"
     )
     col.label(text=f"{c['active_voxels']:,} active voxels · {c['segmented_voxels']:,} segmented")
+    rejected = [v for v in live.session.views if v.status == "rejected"]
+    if rejected:
+        sub = box.column(align=True)
+        sub.alert = True
+        sub.label(text=f"{len(rejected)} view(s) not added. Last one:", icon="ERROR")
+        for line in _wrap(rejection_message(rejected[-1].reason, rejected[-1].score)):
+            sub.label(text=line)
     last = live.last_update
     if last:
         sub = box.column(align=True)
@@ -97,9 +127,11 @@ def _draw_session(layout, live) -> None:
                 sub.label(text=f"    {label}: {1000.0 * float(last[key]):.0f} ms")
     col = box.column(align=True)
     col.operator("divas.segment_modal", icon="RESTRICT_SELECT_OFF")
+    col.label(text="Click the object through an anchor camera or in any 3D view", icon="INFO")
+    _draw_history(col, live)
     row = col.row(align=True)
     row.operator("divas.session_accept", text="Accept", icon="CHECKMARK")
-    row.operator("divas.session_undo", text="Undo", icon="LOOP_BACK")
+    row.operator("divas.session_undo", text="Take Back View", icon="LOOP_BACK")
     col.operator("divas.session_add_anchor", icon="OUTLINER_OB_CAMERA")
     row = col.row(align=True)
     row.operator("divas.session_reset", text="Reset", icon="X")
@@ -107,6 +139,31 @@ def _draw_session(layout, live) -> None:
     layout.operator("divas.export_objects", icon="EXPORT")
     if live.kind == SceneKind.NERF and c["pending"]:
         col.operator("divas.session_sync", icon="FILE_REFRESH")
+
+
+def _draw_tools(layout) -> None:
+    box = layout.box()
+    box.label(text="Select Splats", icon="RESTRICT_SELECT_OFF")
+    row = box.row(align=True)
+    for shape, icon in (("BOX", "SELECT_SET"), ("LASSO", "MOD_CURVE"), ("CIRCLE", "MESH_CIRCLE")):
+        row.operator("divas.select_gesture", text=shape.title(), icon=icon).shape = shape
+    row = box.row(align=True)
+    row.operator("divas.select_sphere", text="Sphere at Cursor", icon="SPHERE")
+    for action, text in (("SELECT", "All"), ("DESELECT", "None"), ("INVERT", "Invert")):
+        row.operator("divas.select_all", text=text).action = action
+    row = box.row(align=True)
+    row.operator("divas.select_grow", text="Grow", icon="ADD").shrink = False
+    row.operator("divas.select_grow", text="Shrink", icon="REMOVE").shrink = True
+    row = box.row(align=True)
+    row.operator("divas.select_by_attribute", text="By Opacity").attribute = "OPACITY"
+    row.operator("divas.select_by_attribute", text="By Size").attribute = "SIZE"
+    col = box.column(align=True)
+    col.label(text="Edit Splats")
+    row = col.row(align=True)
+    row.operator("divas.delete_selected", text="Delete", icon="TRASH")
+    row.operator("divas.hide_selected", text="Hide", icon="HIDE_ON")
+    row.operator("divas.reveal_hidden", text="Reveal", icon="HIDE_OFF")
+    col.operator("divas.separate_selected", text="Separate into New Object", icon="DUPLICATE")
 
 
 class DIVAS_PT_main(bpy.types.Panel):
@@ -140,6 +197,10 @@ class DIVAS_PT_main(bpy.types.Panel):
                 icon="PLAY",
             )
             row.operator("divas.resume_session", text="", icon="RECOVER_LAST")
+            if live is None and saved_session_path(obj, search=False) is not None:
+                box = layout.box()
+                box.label(text="This object has a saved DivAS session", icon="FILE_TICK")
+                box.operator("divas.resume_session", text="Resume Session", icon="RECOVER_LAST")
         if live is not None:
             _draw_session(layout, live)
 
@@ -154,3 +215,4 @@ class DIVAS_PT_main(bpy.types.Panel):
         col = box.column(align=True)
         col.operator("divas.extract_selection", icon="DUPLICATE")
         col.operator("divas.export_selection", icon="EXPORT")
+        _draw_tools(layout)

@@ -4,9 +4,10 @@
 2. write ``DIR/prompts.json`` from its metadata click points: each click goes on
    ``--views-per-click`` (3) training cameras that see it (spread over the rig), one
    anchor per camera, one centroid view per (click, camera);
-3. segment it headless (``divas segment``; classic segmenter by default) →
-   ``DIR/segmented.ply``, ``DIR/labels.npy``, ``DIR/report.json``;
-4. render the selection recoloured over each test camera → ``DIR/overlay_<cam>.png``;
+3. segment it headless (``divas segment``; the weight-free graph3d segmenter by
+   default) → ``DIR/segmented.ply``, ``DIR/labels.npy``, ``DIR/report.json``;
+4. render the selection recoloured over each test camera → ``DIR/overlay_<cam>.png``,
+   and ``DIR/demo.png``: the first test cameras side by side, render | selection;
 5. print the IoU against ground truth at the test cameras (NOTES "Evaluation":
    predicted = render of the per-surfel indicator ≥ 0.1, ground truth = render of the
    ground-truth labels ≥ 0.5), also stored in the report under ``evaluation.render``.
@@ -38,9 +39,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument(
         "--segmenter",
-        choices=("classic", "oracle"),
-        default="classic",
-        help="classic (default, weight-free) or the SAM-like oracle",
+        choices=("graph3d", "classic", "oracle"),
+        default="graph3d",
+        help="graph3d (default, weight-free 3D cut), classic (weight-free GrabCut) or the "
+        "SAM-like oracle",
     )
     p.add_argument(
         "--views-per-click",
@@ -116,10 +118,16 @@ def run(args: argparse.Namespace) -> int:
                 renderer=session.renderer,
             )
         )
+        pairs = []
         for cam in test_cams:
             ov = session.overlay(cam)
             img = (np.clip(ov.image, 0, 1) * 255 + 0.5).astype(np.uint8)
             cv2.imwrite(str(out / f"overlay_{cam.name}.png"), img[..., ::-1])
+            if len(pairs) < _SIDE_BY_SIDE_ROWS:
+                rgb = session.renderer.render(session.working_camera(cam)).rgb
+                pairs.append(np.hstack([_u8(rgb), img]))
+        picture = out / "demo.png"
+        cv2.imwrite(str(picture), np.vstack(pairs)[..., ::-1])
         report.setdefault("evaluation", {})["render"] = scores.as_dict()
         report["timings"]["evaluation_s"] = time.perf_counter() - t
         report["timings"]["demo_total_s"] = time.perf_counter() - t0
@@ -142,7 +150,16 @@ def run(args: argparse.Namespace) -> int:
         f"{out}/overlay_*.png; report → {out / 'report.json'}; "
         f"total {time.perf_counter() - t0:.1f} s"
     )
+    print(f"picture (render | selection) → {picture}")
     return 0
+
+
+#: Test cameras shown in ``demo.png`` (one row each: render | selection overlay).
+_SIDE_BY_SIDE_ROWS = 2
+
+
+def _u8(rgb: np.ndarray) -> np.ndarray:
+    return (np.clip(rgb, 0.0, 1.0) * 255 + 0.5).astype(np.uint8)
 
 
 __all__ = ["add_parser", "run"]

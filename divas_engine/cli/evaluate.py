@@ -84,9 +84,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--segmenters",
-        type=_csv(("oracle", "classic"), "--segmenters"),
+        type=_csv(("oracle", "graph3d", "classic"), "--segmenters"),
         default=("oracle", "classic"),
-        help="oracle,classic (default both)",
+        help="comma-separated subset of oracle,graph3d,classic (default oracle,classic)",
     )
     p.add_argument("--no-nerf", action="store_true", help="skip the NeRF path on the ribs grid")
     p.add_argument(

@@ -204,9 +204,9 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     camera = _pick_camera(args, scene)
     if args.device == "cuda":
-        import warp as wp
+        from divas_kernels import cuda_device_count
 
-        if wp.get_cuda_device_count() == 0:
+        if cuda_device_count() == 0:
             raise DivasInputError(None, "--device cuda: no CUDA device available")
     renderer = make_renderer(scene, device=args.device)
     t0 = time.perf_counter()

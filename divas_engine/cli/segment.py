@@ -43,7 +43,7 @@ from ..errors import DivasInputError
 from ..kinds import SceneKind, ViewStatus
 from .anchors import parse_up
 
-SEGMENTERS = ("classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
+SEGMENTERS = ("graph3d", "classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -78,8 +78,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--segmenter",
         choices=SEGMENTERS,
-        default="classic",
-        help="2D mask source (default classic; oracle is for evaluation only)",
+        default="graph3d",
+        help="mask source (default graph3d: weight-free 3D cut over the scene's primitives; "
+        "classic: GrabCut on colour + depth; oracle is for evaluation only)",
     )
     p.add_argument("--sam-encoder", type=Path, default=None, help="SAM ONNX image encoder")
     p.add_argument("--sam-decoder", type=Path, default=None, help="SAM ONNX prompt decoder")
@@ -188,7 +189,7 @@ def segment_scene(
     cameras_path: Path | None = None,
     out: Path | None = None,
     labels_out: Path | None = None,
-    segmenter: str = "classic",
+    segmenter: str = "graph3d",
     sam_encoder: Path | None = None,
     sam_decoder: Path | None = None,
     sam_checkpoint: Path | None = None,

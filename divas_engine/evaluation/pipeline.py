@@ -184,9 +184,10 @@ class CachingRenderer:
 
 
 def make_segmenter(name: str, seed: int = 0):
-    """A fresh segmenter: ``"oracle"`` (SAM-like oracle, NOTES) or ``"classic"``."""
-    if name not in ("oracle", "classic"):
-        raise ValueError(f"unknown segmenter {name!r} (oracle, classic)")
+    """A fresh segmenter: ``"oracle"`` (SAM-like oracle, NOTES), ``"graph3d"`` (the
+    default, 3D cut) or ``"classic"``."""
+    if name not in ("oracle", "graph3d", "classic"):
+        raise ValueError(f"unknown segmenter {name!r} (oracle, graph3d, classic)")
     settings = SegmenterSettings(SegmenterKind(name), seed=seed)
     return build_segmenter(settings, has_ground_truth=True)  # the session's labels
 

@@ -47,10 +47,7 @@ Decisions on points the paper leaves open (see also the kernel docstring):
 
 from __future__ import annotations
 
-import warp as wp
-
-from divas_kernels.fusion_common import ViewData
-from divas_kernels.fusion_gs import GsParams, gs_fuse_view
+from divas_kernels import GsParams, ViewData, gs_fuse_view, resolve_device
 
 from .config import GsFusionConfig
 from .occupancy import OccupancyGrid
@@ -87,7 +84,7 @@ class GsFusion(IncrementalFusion):
     def __init__(
         self, grid: OccupancyGrid, config: GsFusionConfig = GsFusionConfig(), device=None
     ) -> None:
-        device = wp.get_device(device) if device is not None else grid.device
+        device = resolve_device(device) if device is not None else grid.device
         if device != grid.device:
             raise ValueError(f"GsFusion: grid lives on {grid.device}, asked for {device}")
         super().__init__(

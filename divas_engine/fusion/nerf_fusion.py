@@ -16,10 +16,7 @@ points the paper leaves open.
 
 from __future__ import annotations
 
-import warp as wp
-
-from divas_kernels.fusion_common import ViewData
-from divas_kernels.fusion_nerf import NerfParams, nerf_fuse_view
+from divas_kernels import NerfParams, ViewData, nerf_fuse_view, resolve_device
 
 from .config import NerfFusionConfig
 from .nerf_occupancy import NerfOccupancy
@@ -55,7 +52,7 @@ class NerfFusion(IncrementalFusion):
         self, occ: NerfOccupancy, config: NerfFusionConfig | None = None, device=None
     ) -> None:
         config = occ.config if config is None else config
-        device = wp.get_device(device) if device is not None else occ.device
+        device = resolve_device(device) if device is not None else occ.device
         if device != occ.device:
             raise ValueError(f"NerfFusion: occupancy lives on {occ.device}, asked for {device}")
         super().__init__(

@@ -16,9 +16,15 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import warp as wp
 
-from divas_kernels.fusion_nerf import NerfGridGeom
+from divas_kernels import (
+    Device,
+    DeviceArray,
+    NerfGridGeom,
+    make_nerf_grid_geom,
+    resolve_device,
+    to_device,
+)
 
 from ..scene import DensityGrid
 from .config import NerfFusionConfig
@@ -52,28 +58,21 @@ class NerfOccupancy:
         shape_xyz: (nx, ny, nz); aabb: ``[2,3]``; cell: ``[3]`` cell edges; dx: Δx.
     """
 
-    index: wp.array
-    density: wp.array
+    index: DeviceArray
+    density: DeviceArray
     shape_xyz: tuple[int, int, int]
     aabb: np.ndarray
     cell: np.ndarray
     dx: float
     config: NerfFusionConfig
-    device: wp.context.Device
+    device: Device
     report: NerfBuildReport
 
     def __len__(self) -> int:
         return self.index.shape[0]
 
     def device_geom(self) -> NerfGridGeom:
-        g = NerfGridGeom()
-        g.origin = wp.vec3(*self.aabb[0].astype(np.float32))
-        g.cell = wp.vec3(*self.cell.astype(np.float32))
-        g.origin_d = wp.vec3d(*self.aabb[0])
-        g.cell_d = wp.vec3d(*self.cell)
-        g.nx, g.ny = int(self.shape_xyz[0]), int(self.shape_xyz[1])
-        g.dx = float(self.dx)
-        return g
+        return make_nerf_grid_geom(self.aabb[0], self.cell, self.shape_xyz, self.dx)
 
     def centers(self) -> np.ndarray:
         """``[A,3]`` float64 world centres of the active cells."""
@@ -104,7 +103,7 @@ class NerfOccupancy:
 
 def build_nerf_occupancy(grid: DensityGrid, config: NerfFusionConfig, device=None) -> NerfOccupancy:
     """Active cells ``σ ≥ ρ_thresh`` of ``grid`` (linear order) on ``device``."""
-    device = wp.get_device(device)
+    device = resolve_device(device)
     t0 = time.perf_counter()
     dens = np.asarray(grid.density, dtype=np.float32)
     if dens.ndim != 3:
@@ -116,8 +115,8 @@ def build_nerf_occupancy(grid: DensityGrid, config: NerfFusionConfig, device=Non
         raise ValueError("build_nerf_occupancy: grids above 2^31 cells are not supported")
     cell = np.asarray(grid.voxel_size, dtype=np.float64)
     occ = NerfOccupancy(
-        wp.array(lin.astype(np.int32), dtype=wp.int32, device=device),
-        wp.array(flat[lin], dtype=float, device=device),
+        to_device(lin.astype(np.int32), device),
+        to_device(flat[lin], device, dtype=np.float32),
         grid.shape_xyz,
         np.asarray(grid.aabb, dtype=np.float64),
         cell,

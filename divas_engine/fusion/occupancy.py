@@ -29,9 +29,22 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import warp as wp
 
-from divas_kernels import occupancy as kocc
+from divas_kernels import (
+    Device,
+    DeviceArray,
+    GridGeom,
+    build_active,
+    device_synchronize,
+    device_zeros,
+    hash_build,
+    hash_query,
+    is_device_array,
+    make_grid_geom,
+    resolve_device,
+    surfel_codes,
+    to_device,
+)
 
 from ..scene import SurfelScene
 from ..scene_stats import robust_frame
@@ -87,8 +100,8 @@ class GridGeometry:
     def origin(self) -> np.ndarray:
         return self.center - self.half_extent
 
-    def device_geom(self) -> kocc.GridGeom:
-        return kocc.make_grid_geom(self.center, self.half_extent, self.voxel_size, self.resolution)
+    def device_geom(self) -> GridGeom:
+        return make_grid_geom(self.center, self.half_extent, self.voxel_size, self.resolution)
 
     def voxel_centers(self, codes: np.ndarray) -> np.ndarray:
         """``[A,3]`` float64 world centres of Morton ``codes``."""
@@ -191,13 +204,13 @@ class OccupancyGrid:
 
     geometry: GridGeometry
     config: GridConfig
-    codes: wp.array
-    density: wp.array
-    count: wp.array
-    hash_keys: wp.array
-    hash_vals: wp.array
+    codes: DeviceArray
+    density: DeviceArray
+    count: DeviceArray
+    hash_keys: DeviceArray
+    hash_vals: DeviceArray
     hash_shift: int
-    device: wp.context.Device
+    device: Device
     report: BuildReport
 
     def __len__(self) -> int:
@@ -221,13 +234,13 @@ class OccupancyGrid:
     ) -> OccupancyGrid:
         """A grid over given active ``codes`` (sorted ascending here) and their density
         (tests, hand-made grids)."""
-        device = wp.get_device(device)
+        device = resolve_device(device)
         codes = np.asarray(codes, dtype=np.int64)
         order = np.argsort(codes, kind="stable")
-        c = wp.array(codes[order], dtype=wp.int64, device=device)
-        d = wp.array(np.asarray(density, dtype=np.float32)[order], dtype=float, device=device)
-        cnt = wp.zeros(len(codes), dtype=wp.int32, device=device)
-        keys, vals, shift = kocc.hash_build(c, device=device)
+        c = to_device(codes[order], device)
+        d = to_device(np.asarray(density, dtype=np.float32)[order], device)
+        cnt = device_zeros(len(codes), np.int32, device)
+        keys, vals, shift = hash_build(c, device=device)
         g = geometry.resolution
         rep = BuildReport(
             g,
@@ -254,51 +267,51 @@ class OccupancyGrid:
         """``[A,3]`` float64 world centres of the active voxels."""
         return self.geometry.voxel_centers(self.codes.numpy())
 
-    def lookup(self, codes: np.ndarray | wp.array) -> np.ndarray:
+    def lookup(self, codes: np.ndarray | DeviceArray) -> np.ndarray:
         """``[M] int32`` active index of each Morton code (−1 absent/filtered)."""
-        c = (
-            codes
-            if isinstance(codes, wp.array)
-            else wp.array(
-                np.ascontiguousarray(codes, dtype=np.int64), dtype=wp.int64, device=self.device
-            )
-        )
-        return kocc.hash_query(
+        c = codes if is_device_array(codes) else to_device(codes, self.device, dtype=np.int64)
+        return hash_query(
             self.hash_keys, self.hash_vals, self.hash_shift, c, device=self.device
         ).numpy()
 
-    def surfel_active_index(self, means: np.ndarray | wp.array) -> np.ndarray:
+    def surfel_active_index(self, means: np.ndarray | DeviceArray) -> np.ndarray:
         """``[N] int32`` active index of each surfel's voxel (−1: filtered or inactive)."""
         codes = surfel_voxel_codes(means, self.geometry, device=self.device)
-        return kocc.hash_query(
+        return hash_query(
             self.hash_keys, self.hash_vals, self.hash_shift, codes, device=self.device
         ).numpy()
 
 
-def _as_vec3(means, device) -> wp.array:
-    if isinstance(means, wp.array):
+def _as_vec3(means, device) -> DeviceArray:
+    if is_device_array(means):
         return means
-    return wp.array(np.ascontiguousarray(means, dtype=np.float32), dtype=wp.vec3, device=device)
+    return to_device(means, device, vec3=True)
 
 
 def surfel_voxel_codes(
-    means: np.ndarray | wp.array, geometry: GridGeometry, device=None
-) -> wp.array:
+    means: np.ndarray | DeviceArray, geometry: GridGeometry, device=None
+) -> DeviceArray:
     """``[N] int64`` Morton code of each surfel's voxel, −1 where the AABB/NaN filter
     drops it — the exact filter and encoding of the build (alg:vox2surfel Pass 1)."""
-    device = wp.get_device(device)
+    device = resolve_device(device)
     m = _as_vec3(means, device)
-    codes, _, _ = kocc.surfel_codes(m, geometry.device_geom(), filtered=-1, device=device)
+    codes, _, _ = surfel_codes(m, geometry.device_geom(), filtered=-1, device=device)
     return codes
 
 
 def build_occupancy(
-    scene: SurfelScene, config: GridConfig = GridConfig(), device=None
+    scene: SurfelScene,
+    config: GridConfig = GridConfig(),
+    device=None,
+    geometry: GridGeometry | None = None,
 ) -> OccupancyGrid:
-    """Build the active-voxel list of ``scene`` on ``device`` (App. B, four passes)."""
-    device = wp.get_device(device)
+    """Build the active-voxel list of ``scene`` on ``device`` (App. B, four passes).
+
+    ``geometry``: ``grid_geometry(scene.means, scene.scales, config)`` when already known
+    (the session computes it at open, to fail early, and builds the rest later)."""
+    device = resolve_device(device)
     t0 = time.perf_counter()
-    geo = grid_geometry(scene.means, scene.scales, config)
+    geo = geometry or grid_geometry(scene.means, scene.scales, config)
     mem = {"cur": 0, "peak": 0}
 
     def track(nbytes: int) -> None:
@@ -306,16 +319,14 @@ def build_occupancy(
         mem["peak"] = max(mem["peak"], mem["cur"])
 
     means = _as_vec3(scene.means, device)
-    opac = wp.array(
-        np.ascontiguousarray(scene.opacities, dtype=np.float32), dtype=float, device=device
-    )
+    opac = to_device(scene.opacities, device, dtype=np.float32)
     track(means.capacity + opac.capacity)
-    res = kocc.build_active(
+    res = build_active(
         means, opac, geo.device_geom(), geo.bits, config.tau_tf, device=device, mem=track
     )
-    keys, vals, shift = kocc.hash_build(res["codes"], device=device)
+    keys, vals, shift = hash_build(res["codes"], device=device)
     track(keys.capacity + vals.capacity)
-    wp.synchronize_device(device)
+    device_synchronize(device)
     n_act = res["codes"].shape[0]
     in_active = int(res["count"].numpy().sum()) if n_act else 0
     grid = OccupancyGrid(

@@ -22,10 +22,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import warp as wp
 
-from divas_kernels.fusion_accum import Records, apply_records, compact_contributions, readout
-from divas_kernels.fusion_common import QSCALE, ViewData
+from divas_kernels import (
+    QSCALE,
+    ContributionBuffers,
+    DeviceArray,
+    Records,
+    ViewData,
+    alloc_accumulators,
+    apply_records,
+    compact_contributions,
+    readout,
+    resolve_device,
+)
 
 from .views import FusionView, upload_view
 
@@ -76,25 +85,15 @@ class IncrementalFusion:
         k_dg: float,
         device,
     ) -> None:
-        self.device = wp.get_device(device)
+        self.device = resolve_device(device)
         self.n_active = int(n_active)
         self.max_views = max_views
         self._eps, self._tau_cons, self._mask_pos, self._k_dg = eps, tau_cons, mask_pos, k_dg
         words = 0 if max_views is None else (max_views + 31) // 32
-        d, n = self.device, self.n_active
-        self._acc = {
-            "w": wp.zeros(n, dtype=wp.int64, device=d),
-            "z": wp.zeros(n, dtype=wp.int64, device=d),
-            "wthin": wp.zeros(n, dtype=wp.int64, device=d),
-            "n_thick": wp.zeros(n, dtype=wp.int32, device=d),
-            "n_thin": wp.zeros(n, dtype=wp.int32, device=d),
-            "vmask": wp.zeros((n if words else 0, words), dtype=wp.uint32, device=d),
-        }
-        self._num = wp.zeros(n, dtype=float, device=d)
-        self._den = wp.zeros(n, dtype=float, device=d)
-        self._kind = wp.zeros(n, dtype=wp.uint8, device=d)
-        self._flags = wp.zeros(n, dtype=int, device=d)
-        self._pos = wp.zeros(n, dtype=int, device=d)
+        self._acc = alloc_accumulators(self.n_active, words, self.device)
+        self._contrib = ContributionBuffers(self.n_active, self.device)
+        c = self._contrib
+        self._num, self._den, self._kind = c.num, c.den, c.kind
         self._records: dict[int, Records] = {}
         self._next_id = 0
 
@@ -138,9 +137,8 @@ class IncrementalFusion:
             )
         vd = self.upload(view)
         self._launch(vd)
-        rec = compact_contributions(
-            self._num, self._den, self._kind, self._flags, self._pos, device=self.device
-        )
+        c = self._contrib
+        rec = compact_contributions(c.num, c.den, c.kind, c.flags, c.pos, device=self.device)
         apply_records(
             rec, view_id if self.max_views is not None else -1, +1, self._acc, device=self.device
         )
@@ -166,7 +164,7 @@ class IncrementalFusion:
     def record_bytes(self) -> int:
         return sum(r.nbytes for r in self._records.values())
 
-    def device_result(self) -> tuple[wp.array, wp.array, wp.array]:
+    def device_result(self) -> tuple[DeviceArray, DeviceArray, DeviceArray]:
         """(P [A] float64, V_seg [A] uint8, masked bitmask [A, words] uint32) on device."""
         return readout(self._acc, self._eps, self._tau_cons, device=self.device)
 

@@ -7,10 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import warp as wp
 
-from divas_kernels.fusion_common import ViewData, depth_gradient_factor
-from divas_kernels.integral_image import integral_images
+from divas_kernels import ViewData, upload_view_data
 
 from ..camera import Camera
 
@@ -63,27 +61,19 @@ class FusionView:
 def upload_view(view: FusionView, *, mask_pos: float, k_dg: float, eps: float, device) -> ViewData:
     """Copy a view to ``device`` and precompute its integral images and π_dg."""
     cam = view.camera
-    w2c = cam.w2c
-
-    def f32(a: np.ndarray) -> wp.array2d:
-        return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=float, device=device)
-
-    v = ViewData()
-    v.rot = wp.mat33(*w2c[:3, :3].astype(np.float32).ravel())
-    v.trans = wp.vec3(*w2c[:3, 3].astype(np.float32))
-    v.origin = wp.vec3(*cam.center.astype(np.float32))
-    v.fx, v.fy, v.cx, v.cy = float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy)
-    v.rot_d = wp.mat33d(*w2c[:3, :3].ravel())
-    v.trans_d = wp.vec3d(*w2c[:3, 3])
-    v.origin_d = wp.vec3d(*cam.center)
-    v.fx_d, v.fy_d = wp.float64(cam.fx), wp.float64(cam.fy)
-    v.cx_d, v.cy_d = wp.float64(cam.cx), wp.float64(cam.cy)
-    v.width, v.height = int(cam.width), int(cam.height)
-    v.d_cam = float(view.d_cam)
-    v.mask = f32(view.mask)
-    v.dmin, v.dref, v.dmax = f32(view.d_min), f32(view.d_ref), f32(view.d_max)
     n = np.rint(np.nan_to_num(np.asarray(view.n_samp, dtype=np.float64))).clip(0, 2**31 - 1)
-    v.nsamp = wp.array(n.astype(np.int32), dtype=wp.int32, device=device)
-    v.sat_n, v.sat_n2, v.sat_pos = integral_images(v.nsamp, v.mask, mask_pos, device=device)
-    v.pdg = depth_gradient_factor(v.dmin, v.dref, v.dmax, k_dg, eps, device=device)
-    return v
+    return upload_view_data(
+        cam.w2c,
+        cam.center,
+        (cam.fx, cam.fy, cam.cx, cam.cy),
+        view.d_cam,
+        view.mask,
+        view.d_min,
+        view.d_ref,
+        view.d_max,
+        n.astype(np.int32),
+        mask_pos=mask_pos,
+        k_dg=k_dg,
+        eps=eps,
+        device=device,
+    )

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from divas_kernels import render_defaults as RD
+
 __all__ = ["MappingConfig", "CompletionConfig"]
 
 
@@ -40,7 +42,7 @@ class MappingConfig:
     surfel_coverage: float = 0.5
     box_sigma: float = 1.0
     accept_sigma: float = 3.0
-    near: float = 0.01
+    near: float = RD.NEAR
     needle_filter: bool = True
     coverage_filter: bool = True
     early_out: bool = True

@@ -52,9 +52,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from divas_kernels import coverage as kcov
-from divas_kernels import occupancy as kocc
-from divas_kernels._launch import cpu_threads, resolve_device
+# the kernel boundary: only names of divas_kernels.__all__ (coverage and occupancy
+# wrappers under their old module aliases, to keep this diff to the imports)
+import divas_kernels as kcov
+import divas_kernels as kocc
+from divas_kernels import cpu_threads, resolve_device
 
 from ..fusion.occupancy import OccupancyGrid, surfel_voxel_codes
 from ..fusion.state import FusionResult

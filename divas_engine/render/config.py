@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
+
+from divas_kernels import render_defaults as RD
 
 if TYPE_CHECKING:
     from divas_kernels import MarchSettings, RasterSettings
@@ -16,7 +17,8 @@ __all__ = ["RenderConfig"]
 
 @dataclass
 class RenderConfig:
-    """Constants of both renderers. Defaults are the paper / NOTES values.
+    """Constants of both renderers. Defaults are the paper / NOTES values, kept in one
+    place: ``divas_kernels.render_defaults`` (also the kernels' own settings defaults).
 
     Attributes:
         tau_sig: τ_sig — ``D_min`` is the depth of the first element with weight
@@ -41,18 +43,18 @@ class RenderConfig:
         profile: synchronise after each stage and put stage seconds in ``RenderBuffers.stats``.
     """
 
-    tau_sig: float = 0.05
-    tau_cw: float = 0.75
+    tau_sig: float = RD.TAU_SIG
+    tau_cw: float = RD.TAU_CW
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    t_min: float = 1e-4
-    alpha_min: float = 1.0 / 255.0
-    alpha_max: float = 0.99
-    lowpass_sigma: float = math.sqrt(0.5)
-    near: float = 0.01
-    tile: int = 16
-    max_duplicates: int = 1 << 25
-    blend: str = "auto"
-    nerf_step_scale: float = 0.5
+    t_min: float = RD.T_MIN
+    alpha_min: float = RD.ALPHA_MIN
+    alpha_max: float = RD.ALPHA_MAX
+    lowpass_sigma: float = RD.LOWPASS_SIGMA
+    near: float = RD.NEAR
+    tile: int = RD.TILE
+    max_duplicates: int = RD.MAX_DUPLICATES
+    blend: str = RD.BLEND
+    nerf_step_scale: float = RD.NERF_STEP_SCALE
     nerf_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
     threads: int | None = None
     profile: bool = False

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from divas_kernels import rasterize_surfels, resolve_device, upload_surfels
+from divas_kernels import binning_key, rasterize_surfels, resolve_device, upload_surfels
 
 from ..camera import Camera
 from ..kinds import SceneKind
@@ -31,12 +31,25 @@ class SurfelRenderer:
       screen bounds are exact for that disc (not a fixed 3σ box);
     * "stop when T < 1e-4": the element that brings T below is blended, then stop;
     * ``N_samp`` with no ``D_med`` counts every traversed contributing surfel.
+
+    The projection, culling, depth sort and tile binning of the last
+    ``binning_cache`` views are kept (:class:`divas_kernels.ViewBinning`), so a value
+    render (overlay, oracle target) of a camera just rendered in RGB only blends —
+    bit-identical to a fresh render (issue 20). 0 turns the cache off.
     """
 
     kind = SceneKind.GS2D
 
+    #: views whose binning is kept (the anchor on screen, the current and the next view:
+    #: their overlays); probe renders (``render_depth``) keep none
+    binning_cache: int = 3
+    #: device memory the kept binnings may hold together (≈ 130 bytes per surfel each:
+    #: 2 views of a 2M-surfel scene, 1 of a 4M one, none above)
+    binning_cache_bytes: int = 512 << 20
+
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
+        self._binnings: list = []
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
         self._buf = upload_surfels(
@@ -50,8 +63,15 @@ class SurfelRenderer:
             self.config.alpha_min,
         )
 
-    def _run(self, cam: Camera, values: np.ndarray | None):
-        return rasterize_surfels(
+    def _run(
+        self, cam: Camera, values: np.ndarray | None, features: bool = True, keep: bool = True
+    ):
+        settings = self.config.raster_settings(cam)
+        key = binning_key(
+            self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, settings
+        )
+        hit = next((b for b in self._binnings if b.key == key), None)
+        r = rasterize_surfels(
             self._buf,
             cam.w2c,
             cam.fx,
@@ -60,10 +80,24 @@ class SurfelRenderer:
             cam.cy,
             cam.width,
             cam.height,
-            self.config.raster_settings(cam),
+            settings,
             values=values,
             background=self.config.background,
+            features=features,
+            binning=hit,
+            keep_binning=keep and self.binning_cache > 0,
         )
+        b = r.binning
+        if b is not None:
+            kept = [b] + [x for x in self._binnings if x is not b and x.key != b.key]
+            self._binnings, total = [], 0
+            for x in kept[: self.binning_cache]:
+                total += x.nbytes
+                if total > self.binning_cache_bytes:
+                    break
+                self._binnings.append(x)
+            r.binning = None
+        return r
 
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         cam = camera if scale == 1.0 else camera.scaled(scale)
@@ -86,6 +120,33 @@ class SurfelRenderer:
             kind=self.kind,
             stats=r.stats,
         )
+
+    def render_depth(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+        """The depth tuple only (probes): ``rgb`` is zeros, no SH colours are evaluated
+        and nothing is composited but the depths, which equal :meth:`render`'s."""
+        cam = camera if scale == 1.0 else camera.scaled(scale)
+        o = self._run(cam, None, features=False, keep=False).out
+        H, W = cam.height, cam.width
+        img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
+        d_med = img(o.d_med)
+        return RenderBuffers(
+            rgb=np.zeros((H, W, 3), np.float32),
+            alpha=img(o.alpha),
+            D_min=img(o.d_min),
+            D_ref=d_med.copy(),
+            D_max=img(o.d_max),
+            D_mw=img(o.d_mw),
+            D_exp=img(o.d_exp),
+            D_med=d_med,
+            N_samp=img(o.n_samp),
+            camera=cam,
+            kind=self.kind,
+            stats={},
+        )
+
+    def clear_cache(self) -> None:
+        """Drop the kept view binnings (frees their device memory)."""
+        self._binnings = []
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)

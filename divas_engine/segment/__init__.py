@@ -2,11 +2,14 @@
 
 * :class:`SamOnnxSegmenter` — SAM / MobileSAM via onnxruntime (encoder + decoder files).
 * :class:`SamTorchSegmenter` — SAM via the optional ``segment-anything`` + ``torch``.
-* :class:`ClassicSegmenter` — weight-free default: seeded GrabCut on colour + depth.
+* :class:`Graph3DSegmenter` — the weight-free default: a 3D cut over the scene's own
+  primitives (:mod:`.graph3d`), rendered into each view; it is a
+  :class:`SceneAwareSegmenter` the session binds to its scene (:mod:`.scene_aware`).
+* :class:`ClassicSegmenter` — weight-free GrabCut on colour + depth (2D only).
 * :class:`FloodFillSegmenter` — colour flood-fill baseline (comparison only).
 * :class:`OracleSegmenter` — ground truth with SAM-like errors (evaluation only).
 
-:func:`build_segmenter` (:mod:`.factory`) builds one of the first four from
+:func:`build_segmenter` (:mod:`.factory`) builds one of the first five from
 :class:`SegmenterSettings`, for the CLI and the add-on alike.
 
 Plus :func:`select_mask` (channel 1 or rejection), the depth weighting of
@@ -28,9 +31,11 @@ from .depth_weighting import (
 )
 from .factory import SegmenterKind, SegmenterSettings, SegmenterSetupError, build_segmenter
 from .flood_fill import FloodFillConfig, FloodFillSegmenter
+from .graph3d import Graph3DConfig, Graph3DSegmenter
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
+from .scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
 from .worker import SamWorker, SegmentationJobError
 
 __all__ = [
@@ -38,6 +43,11 @@ __all__ = [
     "SegResult",
     "MaskSelection",
     "select_mask",
+    "Graph3DConfig",
+    "Graph3DSegmenter",
+    "SceneAwareSegmenter",
+    "SceneBinding",
+    "ObjectClicks",
     "ClassicConfig",
     "ClassicSegmenter",
     "FloodFillConfig",

@@ -48,10 +48,12 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class SegResult:
-    """One ``predict`` result: ``masks [3,H,W]`` float32 probabilities, ``scores [3]``."""
+    """One ``predict`` result: ``masks [3,H,W]`` float32 probabilities, ``scores [3]``,
+    and optionally a ``message`` for the user (what to do when the scores are low)."""
 
     masks: np.ndarray
     scores: np.ndarray
+    message: str | None = None
 
 
 @dataclass(frozen=True, eq=False)

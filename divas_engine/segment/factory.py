@@ -17,6 +17,7 @@ from pathlib import Path
 from ..errors import DivasInputError
 from .base import Segmenter
 from .classic import ClassicConfig, ClassicSegmenter
+from .graph3d import Graph3DSegmenter
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
@@ -27,11 +28,13 @@ __all__ = ["SegmenterKind", "SegmenterSettings", "SegmenterSetupError", "build_s
 class SegmenterKind(StrEnum):
     """The 2D mask sources a session can use (values: the segmenters' ``name``).
 
+    ``GRAPH3D`` weight-free 3D cut over the scene's primitives (the default);
     ``CLASSIC`` weight-free GrabCut on colour + depth; ``SAM_ONNX`` SAM / MobileSAM via
     onnxruntime; ``SAM_TORCH`` SAM via ``segment-anything``; ``ORACLE`` ground truth with
     SAM-like errors (evaluation only).
     """
 
+    GRAPH3D = "graph3d"
     CLASSIC = "classic"
     SAM_ONNX = "sam-onnx"
     SAM_TORCH = "sam-torch"
@@ -53,6 +56,7 @@ class SegmenterKind(StrEnum):
 
 
 _LABELS = {
+    SegmenterKind.GRAPH3D: "3D graph",
     SegmenterKind.CLASSIC: "classic",
     SegmenterKind.SAM_ONNX: "SAM (ONNX)",
     SegmenterKind.SAM_TORCH: "SAM (PyTorch)",
@@ -74,7 +78,7 @@ class SegmenterSettings:
             CUDA when torch sees one, else CPU).
     """
 
-    kind: SegmenterKind = SegmenterKind.CLASSIC
+    kind: SegmenterKind = SegmenterKind.GRAPH3D
     seed: int = 0
     sam_encoder: Path | None = None
     sam_decoder: Path | None = None
@@ -112,6 +116,8 @@ def build_segmenter(settings: SegmenterSettings, *, has_ground_truth: bool = Fal
         DivasInputError: an optional package of the kind is not installed.
     """
     kind = settings.kind
+    if kind is SegmenterKind.GRAPH3D:
+        return Graph3DSegmenter()
     if kind is SegmenterKind.CLASSIC:
         return ClassicSegmenter(ClassicConfig(seed=settings.seed))
     if kind is SegmenterKind.ORACLE:

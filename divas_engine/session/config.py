@@ -35,6 +35,11 @@ class SessionConfig:
             this fraction of its camera's resolution; Session pixel coordinates are in
             the rendered images (the prompts file is in full-camera pixels and is
             converted by its reader).
+        anchor_long_side: anchors render with this many pixels on their long side
+            (their camera resized, then rendered at ``render_scale``); 0 (default):
+            the camera's own size × ``render_scale``. Centroid views take their
+            anchor's size. Not in the paper: a host lets its user choose how sharp the
+            images to click on are.
         grid: 2DGS occupancy config; None → :class:`GridConfig` with ``g_max`` 512 for a
             forward-facing capture (NOTES "Occupancy"), 1024 otherwise.
         gs_fusion: 2DGS fusion constants.
@@ -64,6 +69,7 @@ class SessionConfig:
     """
 
     render_scale: float = 1.0
+    anchor_long_side: int = 0
     grid: GridConfig | None = None
     gs_fusion: GsFusionConfig = field(default_factory=GsFusionConfig)
     nerf_preset: str | None = None
@@ -97,6 +103,8 @@ class SessionConfig:
                 f"SessionConfig.nerf_preset must be one of {sorted(NERF_PRESETS)} "
                 f"or None, got {self.nerf_preset!r}"
             )
+        if int(self.anchor_long_side) < 0:
+            raise ValueError("SessionConfig.anchor_long_side must be ≥ 0")
         if self.sync_pending < 1:
             raise ValueError("SessionConfig.sync_pending must be ≥ 1")
         if self.autosave is not None:

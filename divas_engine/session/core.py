@@ -29,6 +29,7 @@ from ..segment.worker import SamWorker
 from ..views import AnchorPlan
 from .backends import SessionBackend, backend_class_for
 from .config import SessionConfig
+from .edits import EditLayer, compose
 from .masks import TimedSegmenter
 from .persistence import session_state
 from .records import AnchorView, ObjectRecord, Overlay, SessionView
@@ -86,6 +87,7 @@ class SessionCore:
             else make_renderer(scene, device=self.device, config=config.render)
         )
         self._seg = None if segmenter is None else TimedSegmenter(segmenter, self.timings)
+        self._bind_segmenter(segmenter)
         self.backend: SessionBackend = backend_cls(
             scene,
             config,
@@ -96,11 +98,12 @@ class SessionCore:
         self._gt_values = None
         if gt_values is not None:
             self.set_ground_truth(gt_values)
-        s = config.render_scale
-        self.anchors: list[AnchorView] = [
-            AnchorView(i, cam if s == 1.0 else cam.scaled(s), cam, src, idx, None, self)
-            for i, (cam, src, idx) in enumerate(anchors)
-        ]
+        self.anchors: list[AnchorView] = []
+        for cam, src, idx in anchors:
+            full = self._anchor_full_camera(cam)
+            self.anchors.append(
+                AnchorView(len(self.anchors), self.working_camera(full), full, src, idx, None, self)
+            )
         self._worker: SamWorker | None = None
         self._pending: list[SessionView] = []
         self._views: dict[str, SessionView] = {}
@@ -108,6 +111,9 @@ class SessionCore:
         shape = self.backend.selection_shape
         self.labels = np.zeros(shape, np.int32)
         self._selection = np.zeros(shape, bool)
+        self._semantic = np.zeros(shape, bool)  # before manual edits (:mod:`.edits`)
+        self.edits = EditLayer()
+        self._history = None  # :attr:`Session.history`, made on first use
         self.replay_matches: bool | None = None
         self.plan: AnchorPlan | None = None
         self._closed = False
@@ -166,6 +172,37 @@ class SessionCore:
         if isinstance(self.segmenter, OracleSegmenter) and self.segmenter.gt_render is None:
             self.segmenter.gt_render = self._gt_render
 
+    def _bind_segmenter(self, segmenter: Segmenter | None) -> None:
+        """A scene-aware segmenter (issue 16) gets the scene, the renderer, the camera of
+        a view id and the 3D clicks of the view's object, once."""
+        from ..segment.scene_aware import SceneAwareSegmenter, SceneBinding
+
+        if isinstance(segmenter, SceneAwareSegmenter):
+            segmenter.bind_scene(
+                SceneBinding(
+                    self.scene,
+                    self._render_values,
+                    self._view_camera,
+                    self._object_clicks,
+                    lambda: None if self.plan is None else self.plan.up,
+                )
+            )
+
+    def _view_camera(self, view_id: Hashable) -> Camera:
+        return self._views[str(view_id)].camera
+
+    def _object_clicks(self, view_id: Hashable):
+        from ..segment.scene_aware import ObjectClicks
+
+        obj = self.objects[self._views[str(view_id)].object_index]
+        clicks = [c for cs in obj.clicks.values() for c in cs if c.point is not None]
+        if not clicks:
+            return ObjectClicks.empty()
+        return ObjectClicks(
+            np.stack([np.asarray(c.point, np.float64) for c in clicks]),
+            np.array([bool(c.positive) for c in clicks]),
+        )
+
     def _gt_render(self, view_id: Hashable) -> np.ndarray:
         cam = self._views[str(view_id)].camera
         return self._render_values(cam, self._gt_values)
@@ -183,6 +220,15 @@ class SessionCore:
         """``camera`` at the session's render scale."""
         s = self.config.render_scale
         return camera if s == 1.0 else camera.scaled(s)
+
+    def _anchor_full_camera(self, camera: Camera) -> Camera:
+        """An anchor's full camera: ``camera`` resized so its render's long side is
+        ``config.anchor_long_side`` (unchanged when that is 0)."""
+        long_side = int(self.config.anchor_long_side)
+        if long_side <= 0:
+            return camera
+        s = self.config.render_scale
+        return camera.scaled(long_side / (s * max(camera.width, camera.height)))
 
     def indicator(self, selection: np.ndarray | None = None) -> np.ndarray:
         """Float per-primitive indicator of a selection (current by default)."""
@@ -203,7 +249,9 @@ class SessionCore:
             cam, rgb, vid = target.camera, target.buffers.rgb, target.id
         else:
             cam = self.working_camera(target) if full_camera else target
-            rgb, vid = self._render(cam).rgb, None
+            # an anchor's own camera: its render is already there (issue 20)
+            done = next((a._buffers for a in self.anchors if a.camera is cam), None)
+            rgb, vid = (done.rgb if done is not None else self._render(cam).rgb), None
         with self.timings.measure("overlay"):
             cov = self._render_values(cam, self.indicator(selection))
             a = (np.clip(cov, 0.0, 1.0) * np.float32(cfg.overlay_alpha))[..., None]
@@ -211,6 +259,20 @@ class SessionCore:
         return Overlay(
             cam, cov.astype(np.float32), cov >= cfg.overlay_threshold, img.astype(np.float32), vid
         )
+
+    def _lazy_overlays(self, view: SessionView | None):
+        """``(overlay of view, next open view, its overlay)`` for the current selection,
+        each overlay a callable rendered on first read (issue 20: an accept renders
+        nothing the user does not look at). The selection is captured now, so a later
+        accept does not change what these show."""
+        sel = self._selection
+        ov = nov = None
+        if view is not None and view.status == ViewStatus.FUSED:
+            ov = lambda: self.overlay(view, sel)  # noqa: E731
+        nxt = self.next_view()
+        if nxt is not None:
+            nov = lambda: self.overlay(nxt, sel)  # noqa: E731
+        return ov, nxt, nov
 
     # ------------------------------------------------------------------ state access
     @property
@@ -265,12 +327,17 @@ class SessionCore:
         t = time.perf_counter()
         live = self._live_views()
         if not live:
-            self._selection = np.zeros_like(self._selection)
+            self._set_semantic(np.zeros_like(self._selection))
             return 0.0
-        self._selection = self.backend.selection(self.fusion.result(), live)
+        self._set_semantic(self.backend.selection(self.fusion.result(), live))
         dt = time.perf_counter() - t
         self.timings.add("mapping", dt)
         return dt
+
+    def _set_semantic(self, semantic: np.ndarray) -> None:
+        """The fused selection ``S``; the selection is ``S`` with the manual edits."""
+        self._semantic = semantic
+        self._selection = compose(semantic, self.edits, self.current.index)
 
     # ------------------------------------------------------------------ anchors
     def add_anchor(self, camera: Camera, source: str = "camera", index: int = -1) -> AnchorView:
@@ -289,10 +356,11 @@ class SessionCore:
         """
         if not isinstance(camera, Camera):
             raise TypeError(f"add_anchor: expected a Camera, got {type(camera).__name__}")
+        full = self._anchor_full_camera(camera)
         a = AnchorView(
             len(self.anchors),
-            self.working_camera(camera),
-            camera,
+            self.working_camera(full),
+            full,
             str(source),
             int(index),
             None,

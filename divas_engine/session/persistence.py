@@ -26,6 +26,7 @@ from ..segment.base import Segmenter
 from ..views.centroid_common import CentroidView
 from .backends import backend_class_for
 from .config import SessionConfig
+from .edits import edit_arrays, restore_object_edits, restore_session_edits
 from .records import AnchorClick, ObjectRecord, SessionView
 from .store import SESSION_FORMAT, SESSION_VERSION, load_state
 
@@ -67,6 +68,7 @@ def session_state(session: Session) -> tuple[dict[str, Any], dict[str, np.ndarra
                 "views": vdocs,
             }
         )
+    arrays.update(edit_arrays(session.edits))
     arrays["labels"] = session.label_set(include_current=False)
     arrays["selection"] = session.selection
     scene = session.scene
@@ -133,6 +135,7 @@ def load_session(
     )
     s.plan = None
     s.objects = []
+    restore_session_edits(s, arrays)
     for od in doc["objects"]:
         restore_object(s, od, arrays, path)
         if od["finished"]:
@@ -168,6 +171,7 @@ def restore_object(
     fused again in their slots, the pending views re-submitted and synchronised."""
     obj = ObjectRecord(int(od["index"]), int(od["label"]), str(od["name"]))
     session.objects.append(obj)
+    restore_object_edits(session, obj.index, arrays)
     for a, cs in od["clicks"].items():
         obj.clicks[int(a)] = [
             AnchorClick(
@@ -216,8 +220,7 @@ def restore_object(
         elif v.status == ViewStatus.PENDING:
             pending.append(v)
     obj.accept_order = list(od["accept_order"])
-    if session._live_views():
-        session._update_selection()
+    session._update_selection()  # the fused views (if any) with the manual edits
     for v in pending:
         session._accept_async(v, v.points, v.labels)
     if pending:

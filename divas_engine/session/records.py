@@ -7,6 +7,7 @@ Views render their camera on first use through the session that made them
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -218,7 +219,10 @@ class AcceptResult:
         pending: masks still pending (NeRF).
         synced: a fusion (and propagation) happened in this call.
         selection: the current selection (per-surfel bool, NeRF ``[D,H,W]`` bool).
-        overlay, next_view, next_overlay: propagation feedback (Sec. 3.7).
+        overlay, next_view, next_overlay: propagation feedback (Sec. 3.7); the two
+            overlays are rendered when first read (``overlay_source`` /
+            ``next_overlay_source`` hold the :class:`Overlay` or the callable that
+            renders it), so an accept itself renders nothing (issue 20).
         timings: seconds of this update by stage.
     """
 
@@ -230,10 +234,22 @@ class AcceptResult:
     pending: int
     synced: bool
     selection: np.ndarray
-    overlay: Overlay | None = None
+    overlay_source: Overlay | Callable[[], Overlay] | None = None
     next_view: SessionView | None = None
-    next_overlay: Overlay | None = None
+    next_overlay_source: Overlay | Callable[[], Overlay] | None = None
     timings: dict = field(default_factory=dict)
+
+    @property
+    def overlay(self) -> Overlay | None:
+        if callable(self.overlay_source):
+            self.overlay_source = self.overlay_source()
+        return self.overlay_source
+
+    @property
+    def next_overlay(self) -> Overlay | None:
+        if callable(self.next_overlay_source):
+            self.next_overlay_source = self.next_overlay_source()
+        return self.next_overlay_source
 
 
 @dataclass(eq=False)

@@ -69,6 +69,8 @@ from ..views.centroid_common import click_point
 from .backends import backend_class_for
 from .config import SessionConfig
 from .core import SessionCore
+from .edits import SelectionEditing
+from .history import SessionHistory
 from .masks import TimedSegmenter, default_prompts, mask_preview, prompt_set
 from .persistence import load_session
 from .records import AcceptResult, AnchorClick, AnchorView, MaskPreview, ObjectRecord, SessionView
@@ -93,12 +95,23 @@ def anchor_plan(
     )
 
 
-class Session(SessionCore):
+class Session(SelectionEditing, SessionCore):
     """One interactive segmentation session over a scene (module docstring): the loop
     steps, over the state, rendering and outputs of :class:`~.core.SessionCore`.
 
     Create with :meth:`open` (fresh) or :meth:`load` (saved session, replayed).
+    Manual edits of the selection: :class:`~.edits.SelectionEditing`; undo / redo of any
+    step: :attr:`history`.
     """
+
+    @property
+    def history(self) -> SessionHistory:
+        """The undo / redo history of this session (:mod:`.history`); made on first use,
+        with the current state as its first step. Steps are recorded by the caller
+        (:meth:`SessionHistory.record`), once per user-level step."""
+        if self._history is None:
+            self._history = SessionHistory(self)
+        return self._history
 
     @classmethod
     def open(
@@ -119,20 +132,23 @@ class Session(SessionCore):
         Args:
             scene: a :class:`SurfelScene` (2DGS/3DGS) or :class:`DensityGrid` (NeRF).
             cameras: training cameras (anchor planning, capture type); may be empty.
-            segmenter: the 2D mask source (default: :class:`ClassicSegmenter`).
+            segmenter: the mask source (default: the weight-free :class:`Graph3DSegmenter`).
             device: Warp device (None/"auto": CUDA when present).
             anchors: the anchors to offer instead of the planned ones — each an
                 :class:`~divas_engine.views.Anchor`, a :class:`Camera`, or a
                 ``(camera, source, index)`` tuple (full-resolution cameras).
             gt_values: evaluation only — ground-truth per surfel ``[N]`` (NeRF ``[D,H,W]``);
                 wired into an :class:`OracleSegmenter` that has no ``gt_render``.
-            render_anchors: render every anchor now (else on first use).
+            render_anchors: render the first anchor now — what the user looks at first;
+                the others render on first use (``AnchorView.buffers``), so opening a
+                session does no work the first anchor does not need (issue 20). False:
+                none now.
         """
         cfg = config or SessionConfig()
         if segmenter is None:
-            from ..segment import ClassicSegmenter
+            from ..segment import Graph3DSegmenter
 
-            segmenter = ClassicSegmenter()
+            segmenter = Graph3DSegmenter()
         plan = anchor_plan(scene, cameras, cfg)
         if anchors is None:
             items = [(a.camera, a.source, a.index) for a in plan.anchors]
@@ -150,9 +166,9 @@ class Session(SessionCore):
             renderer=renderer,
         )
         s.plan = plan
-        if render_anchors:
-            for a in s.anchors:
-                _ = a.buffers
+        if render_anchors and s.anchors:
+            _ = s.anchors[0].buffers
+        s.backend.warm_up()
         return s
 
     @staticmethod
@@ -413,13 +429,8 @@ class Session(SessionCore):
         ov = nov = nxt = None
         if fused:
             timings["mapping_s"] = self._update_selection()
-            t = time.perf_counter()
-            if view is not None and view.status == ViewStatus.FUSED:
-                ov = self.overlay(view)
-            nxt = self.next_view()
-            if nxt is not None:
-                nov = self.overlay(nxt)
-            timings["overlay_s"] = time.perf_counter() - t
+            # overlays of this selection, rendered when first read (AcceptResult.overlay)
+            ov, nxt, nov = self._lazy_overlays(view)
         timings["fuse_s"] = sum(timings.values())
         return AcceptResult(
             view,
@@ -471,11 +482,14 @@ class Session(SessionCore):
                 for v in o.views:
                     self._views.pop(v.id, None)
             self.objects = [ObjectRecord(0, 1, "object_1")]
-            self.labels[...] = 0
+            self.labels = np.zeros_like(self.labels)
+            for k in list(self.edits.objects):
+                self.edits = self.edits.with_object(k, None)
         else:
             cur = self.current
             self.objects[-1] = ObjectRecord(cur.index, cur.label, f"object_{cur.label}")
-        self._selection = np.zeros_like(self._selection)
+            self.edits = self.edits.with_object(cur.index, None)
+        self._set_semantic(np.zeros_like(self._selection))
         self._autosave()
 
     def _drain_worker(self) -> None:
@@ -493,7 +507,7 @@ class Session(SessionCore):
             cur.name = str(name)
         cur.selection = self._selection.copy()
         take = cur.selection if self.config.overwrite_labels else cur.selection & (self.labels == 0)
-        self.labels[take] = cur.label
+        self.labels = np.where(take, cur.label, self.labels).astype(self.labels.dtype)
         cur.finished = True
         # open views of the finished object are dropped from the id table
         for v in cur.views:
@@ -501,9 +515,9 @@ class Session(SessionCore):
                 self._views.pop(v.id, None)
         cur.views = [v for v in cur.views if v.status != ViewStatus.OPEN]
         self.fusion.reset()
-        self._selection = np.zeros_like(self._selection)
         k = len(self.objects)
         self.objects.append(ObjectRecord(k, k + 1, f"object_{k + 1}"))
+        self._set_semantic(np.zeros_like(self._selection))
         self._autosave()
         return cur
 

@@ -2,8 +2,12 @@
 
 Strategy 1 (physical neighbourhood): z = D_med at the click, x_w its
 back-projection, R_phys = p_f z tan(FOV_x/2) (eq:Rphys); N = opaque surfels
-(α > α_min) within R_phys of x_w (eq:neigh), found with a k-d tree over the opaque
-centres built once per planner (= per scene). |N| < 5 → r_init = z p_f and no
+(α > α_min) within R_phys of x_w (eq:neigh), found by a distance pass over the
+opaque centres whose x lies within R_phys of x_w's (centres kept sorted by x, float64,
+per planner). A k-d tree was used before: building it took longer on a 1M-surfel scene
+(≈1.5 s) than many such queries, and one session makes a handful (issue 20); the set
+is the same (``‖c − x_w‖ < R_phys`` with the same NumPy norm; the x slab is widened by
+a relative 1e-9 so no rounding of that norm can fall outside it). |N| < 5 → r_init = z p_f and no
 box; else R_lat = P90 of the offsets perpendicular to the view direction
 (eq:Rlat), r_init = R_lat / (f_fill tan(FOV_x/2)) (eq:Rinit) and the anchor box is
 the projected bounding box of N.
@@ -28,7 +32,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..camera import Camera
 from ..render.buffers import RenderBuffers
@@ -56,6 +59,13 @@ def occluded_fraction(d_med: np.ndarray, tau_occ: float, f_fill: float) -> tuple
     return float(np.count_nonzero(d < tau_occ) / d.size), int(d.size)
 
 
+def _probe_depth(renderer, cam: Camera, scale: float) -> np.ndarray:
+    """D_med of a probe: the renderer's depth-only pass when it has one (no SH colours,
+    no feature compositing; the depth tuple is the same), else a full render."""
+    depth = getattr(renderer, "render_depth", None)
+    return (depth or renderer.render)(cam, scale=scale).D_med
+
+
 class GsCentroidPlanner:
     """Centroid views of one 2DGS scene.
 
@@ -64,33 +74,34 @@ class GsCentroidPlanner:
         renderer: a 2DGS renderer of the same scene (``render(camera, scale)``).
         config: :class:`ViewConfig`.
 
-    The k-d tree over the opaque surfel centres is built on first use and kept.
+    The float64 opaque surfel centres, sorted by x, are gathered on first use and kept.
     """
 
     def __init__(self, scene: SurfelScene, renderer, config: ViewConfig | None = None):
         self.scene = scene
         self.renderer = renderer
         self.config = config or ViewConfig()
-        self._tree: cKDTree | None = None
         self._opaque: np.ndarray | None = None
+        self._centres: np.ndarray | None = None
 
-    @property
-    def tree(self) -> cKDTree:
-        if self._tree is None:
-            self._opaque = np.flatnonzero(self.scene.opacities > self.config.alpha_min)
-            self._tree = cKDTree(np.asarray(self.scene.means[self._opaque], dtype=np.float64))
-        return self._tree
+    def _opaque_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._centres is None:
+            opaque = np.flatnonzero(self.scene.opacities > self.config.alpha_min)
+            c = np.asarray(self.scene.means[opaque], dtype=np.float64)
+            by_x = np.argsort(c[:, 0], kind="stable")
+            self._opaque, self._centres = opaque[by_x], np.ascontiguousarray(c[by_x])
+        return self._opaque, self._centres
 
     def neighbourhood(self, x_w: np.ndarray, radius: float) -> np.ndarray:
-        """Surfel indices of eq:neigh (opaque centres within ``radius`` of ``x_w``)."""
-        tree = self.tree
-        idx = np.asarray(
-            tree.query_ball_point(np.asarray(x_w, dtype=np.float64), radius), dtype=np.int64
-        )
-        if idx.size:
-            d = np.linalg.norm(tree.data[idx] - x_w, axis=1)
-            idx = idx[d < radius]  # strict, as eq:neigh
-        return np.sort(self._opaque[idx])
+        """Surfel indices of eq:neigh (opaque centres strictly within ``radius`` of ``x_w``),
+        ascending."""
+        opaque, c = self._opaque_centres()
+        x = np.asarray(x_w, dtype=np.float64)
+        slab = abs(float(radius)) * (1.0 + 1e-9) + 1e-300
+        lo = np.searchsorted(c[:, 0], x[0] - slab, side="left")
+        hi = np.searchsorted(c[:, 0], x[0] + slab, side="right")
+        d = np.linalg.norm(c[lo:hi] - x, axis=1)
+        return np.sort(opaque[lo:hi][d < radius])
 
     def probe_scale(self, cam: Camera) -> float:
         cfg = self.config
@@ -138,7 +149,7 @@ class GsCentroidPlanner:
         r_star, accepted = float(radii[-1]), False
         for r_k in radii:
             cam = build_pose(anchor, x_w, v, float(r_k), near_fraction=cfg.near_fraction)
-            d_med = self.renderer.render(cam, scale=s).D_med
+            d_med = _probe_depth(self.renderer, cam, s)
             o, valid = occluded_fraction(d_med, 0.0, cfg.f_fill)  # validity only
             if valid == 0:
                 probes.append(

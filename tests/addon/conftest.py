@@ -1,5 +1,10 @@
 """Add-on tests: the ``bpy`` module from PyPI (headless Blender), the add-on enabled once per
-module through ``addon_utils`` (so its preferences exist), a fresh startup file per test."""
+module through ``addon_utils`` (so its preferences exist), a fresh startup file per test.
+
+Anchors render at the camera's size × Render Scale (preference ``anchor_resolution`` 0)
+unless a test sets it, to keep the suite fast; recovery autosaves go to a temporary
+folder instead of the user's Blender folder. Blender's undo runs for real
+(``bpy.ops.ed.undo`` / ``ed.redo`` work headless once the stack has its first step)."""
 
 from __future__ import annotations
 
@@ -23,9 +28,20 @@ def addon():
 
 
 @pytest.fixture(autouse=True)
-def fresh_file(addon):
+def fresh_file(addon, tmp_path_factory, monkeypatch):
+    from blender_addon.preferences import ANCHOR_RESOLUTION, get_preferences
+    from blender_addon.session_actions import files
+
+    sessions = tmp_path_factory.mktemp("user_sessions")
+    monkeypatch.setattr(files, "user_sessions_dir", lambda: sessions)
     bpy.ops.wm.read_homefile(app_template="")
+    # headless, the undo stack starts empty after loading a file (a window's starts with
+    # the loaded state): the first push is that initial state, so make it here
+    bpy.ops.ed.undo_push(message="DivAS test: fresh file")
+    prefs = get_preferences()
+    prefs.anchor_resolution, prefs.resume_on_open = 0, False
     yield
+    prefs.anchor_resolution, prefs.resume_on_open = ANCHOR_RESOLUTION, True
 
 
 @pytest.fixture(scope="session")

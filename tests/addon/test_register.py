@@ -38,7 +38,10 @@ def test_preferences_keyed_by_package():
     assert (
         prefs is not None and type(prefs).bl_idname == blender_addon.__package__ == "blender_addon"
     )
-    assert get_settings() == DivasSettings()
+    # the test conftest sets the anchor resolution to 0 (fast anchors); the add-on's default
+    rna = type(prefs).bl_rna.properties["anchor_resolution"]
+    assert rna.default == DivasSettings().anchor_resolution >= 640
+    assert get_settings() == DivasSettings(anchor_resolution=prefs.anchor_resolution)
     prefs.device, prefs.segmenter = "cuda", "sam_onnx"
     prefs.sam_encoder_path = "/models/enc.onnx"
     s = get_settings()

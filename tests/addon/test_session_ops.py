@@ -6,6 +6,8 @@ panel and the scene settings."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import bpy
 import numpy as np
 import plyfile
@@ -18,7 +20,8 @@ from blender_addon.camera_objects import apply_render_settings
 from blender_addon.modal_logic import ANCHOR_PROP, OWNER_PROP, VIEW_PROP
 from blender_addon.overlays import image_name
 from blender_addon.properties import session_config
-from blender_addon.session_actions import LABEL_ATTRIBUTE, VIEWS_COLLECTION, autosave_path
+from blender_addon.session_actions import LABEL_ATTRIBUTE, VIEWS_COLLECTION, autosave_path, files
+from blender_addon.session_registry import KEY_PROP
 from divas_engine.point_attributes import INDEX, SELECTED, point_values, scene_selection
 from divas_engine.session import SessionConfig
 
@@ -122,7 +125,7 @@ def test_start_session_cameras_images_projection(scene_dir):
             a.camera.width,
             a.camera.height,
         )
-        assert bg.frame_method == "STRETCH"
+        assert bg.frame_method == "STRETCH" and bg.image.packed_file is not None
         np.testing.assert_allclose(_image_rgb(bg.image), np.clip(a.rgb, 0, 1), atol=1.0 / 254)
         assert _projection_error(bpy.context.scene, cam, a.camera, rng) < 0.5
     # a centroid view's camera is exact too
@@ -220,11 +223,21 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
     assert bpy.ops.divas.session_undo() == {"CANCELLED"}  # a warning: "Nothing to undo"
 
 
-def test_autosave_path_follows_the_blend(tmp_path):
+def test_autosave_path_is_unique_per_object(tmp_path):
+    """Between saves a session autosaves to a recovery file keyed by the object's own
+    session key: two objects of the same name (two unsaved files) never collide."""
     obj = bpy.data.objects["Cube"]
-    assert autosave_path(obj).name == "Cube_divas_session.json"
+    first = autosave_path(obj)
+    assert first.parent == files.user_sessions_dir() and first.stem == obj[KEY_PROP]
+    assert autosave_path(obj) == first  # stable
+    bpy.ops.wm.read_homefile(app_template="")
+    other = bpy.data.objects["Cube"]  # same name, another file
+    assert autosave_path(other) != first
+    dup = other.copy()  # a duplicate carries the key: it gets its own
+    bpy.context.scene.collection.objects.link(dup)
+    assert autosave_path(dup) != autosave_path(other)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "shot.blend"))
-    assert autosave_path(obj) == tmp_path / "shot_divas_session.json"
+    assert files.sidecar_path(bpy.data.filepath, "k") == tmp_path / "shot.divas" / "k.json"
 
 
 def test_resume_session(scene_dir, tmp_path):
@@ -251,8 +264,8 @@ def test_resume_session(scene_dir, tmp_path):
     assert len(live.anchor_cameras) == n_anchors
     assert set(live.view_cameras) == {v.id for v in live.session.views}
     _selection_matches(obj, live)
-    # it keeps autosaving to the same file
-    assert live.session.config.autosave == str(tmp_path / "session.json")
+    # it autosaves to the object's recovery file from now on
+    assert live.session.config.autosave == str(files.recovery_path(obj[KEY_PROP]))
 
 
 def test_export_and_extract_after_session(scene_dir, tmp_path):
@@ -289,11 +302,11 @@ def test_errors_are_one_line_reports(scene_dir, tmp_path):
     obj, live = _start(scene_dir)
     with pytest.raises(RuntimeError, match="outside"):
         bpy.ops.divas.session_click(anchor=0, x=-5.0, y=3.0)
-    with pytest.raises(RuntimeError, match="anchor 99 does not exist"):
+    with pytest.raises(RuntimeError, match=r"no anchor 99 \(this session has \d+"):
         bpy.ops.divas.session_click(anchor=99, x=5.0, y=3.0)
-    with pytest.raises(RuntimeError, match="no open view"):
+    with pytest.raises(RuntimeError, match="no open view to accept: click the object"):
         bpy.ops.divas.session_accept()
-    with pytest.raises(RuntimeError, match="points must be JSON"):
+    with pytest.raises(RuntimeError, match="Points must be JSON"):
         bpy.ops.divas.session_accept(points="[oops")
     with pytest.raises(RuntimeError, match="no saved DivAS session"):
         bpy.ops.divas.resume_session(filepath=str(tmp_path / "missing.json"), device="cpu")
@@ -315,7 +328,7 @@ def test_segmenter_errors_come_from_the_engine_and_say_where(scene_dir):
 def test_full_resolution_click_uses_the_engine_range_and_scale(scene_dir):
     obj, live = _start(scene_dir)
     a = live.session.anchors[0]
-    with pytest.raises(RuntimeError, match="anchor 99 does not exist"):
+    with pytest.raises(RuntimeError, match="no anchor 99"):
         bpy.ops.divas.session_click(anchor=99, xy="5 3", full_resolution=True)
     x, y = a.full_camera.width * 0.5 + 0.25, a.full_camera.height * 0.5 + 0.25
     assert bpy.ops.divas.session_click(anchor=0, xy=f"{x!r} {y!r}", full_resolution=True) == {
@@ -347,6 +360,7 @@ class _Layout:
 
     def operator(self, idname, text="", icon="NONE"):
         self.log.append(("operator", idname))
+        return SimpleNamespace()
 
     def prop(self, data, name, **k):
         getattr(data, name)
@@ -372,6 +386,17 @@ def test_panel_draws_session(scene_dir):
         "divas.extract_selection",
         "divas.export_selection",
         "divas.resume_session",
+        "ed.undo",
+        "ed.redo",
+        "divas.select_gesture",
+        "divas.select_sphere",
+        "divas.select_all",
+        "divas.select_grow",
+        "divas.select_by_attribute",
+        "divas.delete_selected",
+        "divas.hide_selected",
+        "divas.reveal_hidden",
+        "divas.separate_selected",
     } <= ops
     props = {v for k, v in log if k == "prop"}
     assert {"device", "segmenter", "preset", "see_through_gap", "surfel_coverage", "gamma"} <= props
@@ -442,7 +467,7 @@ def test_add_camera_as_anchor(scene_dir):
     assert b.full_camera.fx == pytest.approx(s.anchors[0].camera.fx, rel=1e-5)
     # errors are one-line reports
     n = len(s.anchors)
-    with pytest.raises(RuntimeError, match="select a camera object") as e:
+    with pytest.raises(RuntimeError, match="Select a camera object first") as e:
         bpy.ops.divas.session_add_anchor(camera=obj.name)
     assert "Traceback" not in str(e.value)
     with pytest.raises(RuntimeError, match="already one of this session's anchor"):

@@ -57,6 +57,11 @@ class SessionBackend(ABC):
     grid: Any
     fusion: Any
 
+    def warm_up(self) -> None:  # noqa: B027 - optional hook
+        """Start work that the first anchor does not need (e.g. a background thread
+        building the fusion state); the default does nothing. Called once by
+        :meth:`Session.open` after the first anchor is rendered (issue 20)."""
+
     def __init__(
         self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer
     ) -> None:

@@ -7,6 +7,7 @@ and the voxel-to-surfel mapping (Sec. 3.6); exports are surfel files.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
@@ -43,6 +44,13 @@ class SurfelBackend(SessionBackend):
         last_completion: on 3DGS scenes with ``config.mapping.completion.enabled``, the
             latest :class:`~divas_engine.mapping.completion.CompletionResult` (beyond the
             paper, issue 15); else None.
+
+    The occupancy geometry is computed at construction (a degenerate scene fails at
+    open, as before); the active voxels, the fusion state, the voxel-to-surfel mapper
+    and the click neighbourhood's centres are built by :meth:`warm_up` in a background
+    thread while the user looks at the first anchor, or on first use (``grid`` and
+    ``fusion`` wait for it). The same functions run on the same inputs: the state is
+    identical to building it at open (issue 20).
     """
 
     scene_type = SurfelScene
@@ -51,7 +59,8 @@ class SurfelBackend(SessionBackend):
     def __init__(
         self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer
     ) -> None:
-        from ...fusion import GridConfig, GsFusion, build_occupancy
+        from ...fusion import GridConfig
+        from ...fusion.occupancy import grid_geometry
 
         super().__init__(
             scene, config, forward_facing=forward_facing, device=device, renderer=renderer
@@ -59,14 +68,68 @@ class SurfelBackend(SessionBackend):
         self.grid_config = config.grid or (
             GridConfig.forward_facing() if self.forward_facing else GridConfig()
         )
-        self.grid = build_occupancy(scene, self.grid_config, device)
-        self.fusion = GsFusion(self.grid, config.gs_fusion, device)
+        self._geometry = grid_geometry(scene.means, scene.scales, self.grid_config)
+        self._build_config = config  # the state is built with the config given here
         self.last_mapping = None
         self.last_completion = None
         self._planner = None
-        self._mapper = None
         self._completion = None
         self._evidence: dict[int, tuple] = {}
+        self._state: tuple | None = None  # (grid, fusion, mapper)
+        self._state_error: BaseException | None = None
+        self._state_lock = threading.Lock()
+        self._warm: threading.Thread | None = None
+
+    # --- deferred state ----------------------------------------------------------
+    def _build_state(self) -> None:
+        from ...fusion import GsFusion, build_occupancy
+        from ...mapping import SurfelMapper
+
+        with self._state_lock:
+            if self._state is not None or self._state_error is not None:
+                return
+            try:
+                grid = build_occupancy(self.scene, self.grid_config, self.device, self._geometry)
+                cfg = self._build_config
+                fusion = GsFusion(grid, cfg.gs_fusion, self.device)
+                mapper = SurfelMapper(self.scene, grid, cfg.mapping, self.device)
+                self._state = (grid, fusion, mapper)
+            except BaseException as e:  # noqa: BLE001 - re-raised on first use
+                self._state_error = e
+        if self._state is not None:
+            self.planner._opaque_centres()
+
+    def warm_up(self) -> None:
+        if self._warm is None and self._state is None:
+            self._warm = threading.Thread(
+                target=self._build_state, name="divas-warm-up", daemon=True
+            )
+            self._warm.start()
+
+    def _ready(self) -> tuple:
+        if self._warm is not None:
+            self._warm.join()
+        if self._state is None:
+            self._build_state()
+        if self._state_error is not None:
+            raise self._state_error
+        return self._state
+
+    @property
+    def grid(self):
+        return self._ready()[0]
+
+    @property
+    def fusion(self):
+        return self._ready()[1]
+
+    @property
+    def planner(self):
+        if self._planner is None:
+            from ...views import GsCentroidPlanner
+
+            self._planner = GsCentroidPlanner(self.scene, self.renderer, self.config.view)
+        return self._planner
 
     @staticmethod
     def fingerprint_array(scene: Scene) -> np.ndarray:
@@ -82,11 +145,7 @@ class SurfelBackend(SessionBackend):
     def centroid_view(
         self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers, name: str
     ) -> CentroidView:
-        if self._planner is None:
-            from ...views import GsCentroidPlanner
-
-            self._planner = GsCentroidPlanner(self.scene, self.renderer, self.config.view)
-        return self._planner.centroid_view(camera, xy, buffers, name=name)
+        return self.planner.centroid_view(camera, xy, buffers, name=name)
 
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
@@ -98,11 +157,8 @@ class SurfelBackend(SessionBackend):
         return False
 
     def selection(self, fused: FusionResult, live: Sequence[SessionView]) -> np.ndarray:
-        from ...mapping import SurfelMapper
-
-        if self._mapper is None:
-            self._mapper = SurfelMapper(self.scene, self.grid, self.config.mapping, self.device)
-        res = self._mapper.map(
+        mapper = self._ready()[2]
+        res = mapper.map(
             fused,
             [v.fusion_view for v in live],
             [int(v.fusion_id) for v in live],
@@ -128,7 +184,7 @@ class SurfelBackend(SessionBackend):
             self._completion = VolumetricCompletion(
                 self.scene,
                 self.grid,
-                self._mapper.active_index,
+                self._ready()[2].active_index,
                 comp,
                 device=self.device,
                 render_config=self.config.render,

@@ -1,0 +1,67 @@
+"""The add-on's ``bpy.app.handlers``: what keeps the live sessions in step with the file.
+
+* ``load_pre`` — the file's objects are going away: close every session
+  (:func:`.session_registry.on_load_pre`);
+* ``load_post`` — resume the opened file's saved sessions (preference);
+* ``save_pre`` / ``save_post`` — scene paths relative to the .blend, each session
+  written beside it (:mod:`.session_actions.files`);
+* ``undo_post`` / ``redo_post`` — move each session to the step Blender's undo restored
+  (:mod:`.session_actions.history`).
+
+Every handler is ``@persistent`` (it outlives file loads) and registered once.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import bpy
+from bpy.app.handlers import persistent
+
+from . import draw, session_registry
+from .session_actions import files, sync_after_undo
+
+__all__ = ["register", "unregister", "on_undo_redo"]
+
+
+@persistent
+def on_undo_redo(*_args) -> None:
+    """Blender undid or redid a step: the sessions follow (never raises into Blender)."""
+    try:
+        for line in sync_after_undo():
+            print(line, file=sys.stderr)
+    except Exception as e:  # noqa: BLE001 - a handler must not break Blender's undo
+        print(f"DivAS: could not follow the undo ({type(e).__name__}: {e})", file=sys.stderr)
+    draw.touch()
+
+
+@persistent
+def _on_load_pre(*args) -> None:
+    session_registry.on_load_pre(*args)
+    draw.touch()
+
+
+_HANDLERS = (
+    ("load_pre", _on_load_pre),
+    ("load_post", files.on_load_post),
+    ("save_pre", files.on_save_pre),
+    ("save_post", files.on_save_post),
+    ("undo_post", on_undo_redo),
+    ("redo_post", on_undo_redo),
+)
+
+
+def register() -> None:
+    for name, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if fn not in handlers:
+            handlers.append(fn)
+    draw.register()
+
+
+def unregister() -> None:
+    draw.unregister()
+    for name, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        while fn in handlers:
+            handlers.remove(fn)

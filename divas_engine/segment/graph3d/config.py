@@ -1,0 +1,86 @@
+"""Every constant of the 3D graph segmenter (:mod:`divas_engine.segment.graph3d`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["Graph3DConfig"]
+
+
+@dataclass(frozen=True)
+class Graph3DConfig:
+    """Knobs of the 3D graph segmenter (not in the paper; issue 16). Symbols as in the
+    module docstrings of :mod:`.voxel_graph` and :mod:`.cut`.
+
+    Region and graph:
+        region_min: the smallest local region radius R, × the scene's robust radius
+            ``r_fg`` (0.35): a single click looks this far around it.
+        region_seed_factor: R is at least this × the spread of the positive seeds
+            (the largest distance of a seed from their centre) (1.5).
+        region_grow: R is multiplied by this when the chosen segment leans on the
+            region's rim (2.0), at most ``region_max_grows`` (2) times.
+        rim_share: "leans on the rim": the rim carries more than this share of the
+            segment's cut (0.35).
+        grid_cells: voxels along the region's diameter, ``h = 2R / grid_cells`` (96).
+        min_opacity: primitives below this opacity are left out of the graph (0.02;
+            near-invisible haze neither bridges objects nor shows in a mask).
+
+    Affinities ``w_ij = a_d · a_c · a_n · a_m`` of adjacent voxels (26-neighbourhood):
+        sigma_d: centroid distance scale, × h (1.0): ``a_d = exp(−|μ_i − μ_j|² / 2(σ_d h)²)``.
+        colour_contrast: ``a_c = exp(−β |c_i − c_j|²)`` with β = colour_contrast /
+            mean |Δc|² over the region's edges (GrabCut's contrast normalisation) (0.5).
+        normal_sigma: ``a_n = exp(−ν_i ν_j (1 − agreement) / normal_sigma)``, agreement
+            of the voxels' normal distributions, ν their confidence (0.15: two planes
+            30° apart → 0.41, 60° → 0.04).
+        mass_floor: ``a_m = m / (m + mass_floor · median m)``, m the smaller voxel mass
+            (Σ opacity) (0.5): thin haze links weakly.
+
+    Random walk and sweep:
+        leak: ground-leak λ of every free voxel, × its degree (1e-5): a tie-break — the walk
+            fades a little with graph distance, so of equally connected voxels the far
+            ones rank last.
+        cg_tol, cg_maxiter: conjugate-gradient tolerance and iteration cap.
+        ground_band: a voxel within this × r_fg of a detected supporting plane whose
+            normal is within ``ground_normal_deg`` of the plane's is a sink (0.02, 35°).
+        support_min_voxels, support_min_share: a horizontal surface below the seeds
+            with at least this many up-facing voxels (40) and this share of the region's
+            voxels (0.02), ``support_min_width`` voxels wide (6), is a local support
+            (:mod:`.supports`).
+        min_granularity_ratio: the small / large channels differ from the medium one by
+            at least this volume ratio (1.5); none → the medium itself.
+
+    Scores and mask:
+        score_contrast: boundary contrast c₀ at which the score is 0.5 (0.35); score =
+            1/(1+(c/c₀)²) (:mod:`.cut` step 4).
+        ambiguity_ratio: another sweep minimum within this φ ratio of the best and at a
+            different size makes the cut ambiguous (1.3): the score is scaled by
+            ``ambiguity_penalty`` (0.6).
+        low_res: longest side of the mask render (256, SAM's low-res logit grid).
+        logit_scale: logits = logit_scale · (coverage − 0.5) (8, as the oracle).
+    """
+
+    region_min: float = 0.35
+    region_seed_factor: float = 1.5
+    region_grow: float = 2.0
+    region_max_grows: int = 2
+    rim_share: float = 0.35
+    grid_cells: int = 96
+    min_opacity: float = 0.02
+    sigma_d: float = 1.0
+    colour_contrast: float = 0.5
+    normal_sigma: float = 0.15
+    mass_floor: float = 0.5
+    leak: float = 1e-5
+    cg_tol: float = 1e-5
+    cg_maxiter: int = 400
+    ground_band: float = 0.02
+    ground_normal_deg: float = 35.0
+    support_min_voxels: int = 40
+    support_min_share: float = 0.02
+    support_min_width: float = 6.0
+    min_granularity_ratio: float = 1.5
+    score_contrast: float = 0.35
+    ambiguity_ratio: float = 1.3
+    ambiguity_penalty: float = 0.6
+    low_res: int = 256
+    logit_scale: float = 8.0

@@ -1,0 +1,183 @@
+"""The scene's primitives as graph nodes: position, colour, normal, opacity.
+
+One :class:`ScenePrimitives` per scene, built once when the segmenter is bound:
+
+* surfel scenes (2DGS, and 3DGS flattened to surfels): the Gaussian centres, their
+  SH DC colour in CIE-Lab, their normal (rotation column 2) with a confidence κ — 1 for
+  a native 2DGS surfel, ``1 − s_n / min(s_1, s_2)`` for a flattened 3DGS Gaussian (a
+  round blob has no normal) —, and their opacity;
+* density grids: the occupied cells (opacity ``1 − exp(−σ h) ≥ 1/255``), their RGB
+  grid colour (or grey), the normal ``−∇σ`` with confidence from its magnitude.
+
+It also finds the scene's ground plane once — the one the shared
+:func:`~divas_engine.views.up_direction.estimate_scene_up` takes as the scene's up (a
+one-sided dense plane elsewhere, such as the top of a box, is not a ground) — and turns
+a per-primitive array into what the renderer's ``render_values`` takes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from ...scene import DensityGrid, Scene, SurfelScene
+from ...scene_stats import robust_frame
+from ...views.config import ViewConfig
+from ...views.ground import GroundPlane, ground_candidates, scene_points
+from ...views.up_direction import UpSource, estimate_scene_up
+
+__all__ = ["ScenePrimitives"]
+
+_GREY = np.float32(0.8)
+
+
+def _lab(rgb: np.ndarray) -> np.ndarray:
+    """``[N,3]`` CIE-Lab (L 0–100) of ``[N,3]`` RGB in [0,1] (sRGB, no linearisation)."""
+    a = np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32).reshape(-1, 1, 3)
+    return cv2.cvtColor(a, cv2.COLOR_RGB2Lab).reshape(-1, 3)
+
+
+@dataclass(eq=False)
+class ScenePrimitives:
+    """Graph-node features of every primitive of a scene (module docstring).
+
+    Attributes:
+        points: ``[M,3]`` float32 positions; lab: ``[M,3]`` float32 colour;
+        normals: ``[M,3]`` float32 unit normals (sign meaningless); kappa: ``[M]`` normal
+            confidence in [0,1]; mass: ``[M]`` float32 opacity.
+        index: ``[M]`` int64 primitive index in the scene (surfel row, or flat cell index).
+        center, radius: the robust frame ``c_scene``, ``r_fg`` (eq:scene-norm).
+        grounds: the scene's ground plane (none, or one: the up's).
+        up: the scene up (None when unknown: no local supports then).
+        scene: the scene.
+    """
+
+    points: np.ndarray
+    lab: np.ndarray
+    normals: np.ndarray
+    kappa: np.ndarray
+    mass: np.ndarray
+    index: np.ndarray
+    center: np.ndarray
+    radius: float
+    grounds: tuple[GroundPlane, ...]
+    scene: Scene
+
+    up: np.ndarray | None = None
+
+    @classmethod
+    def from_scene(
+        cls, scene: Scene, min_opacity: float = 0.0, up: np.ndarray | None = None
+    ) -> ScenePrimitives:
+        """Features of ``scene``; ``up``: the scene up the session planned its anchors
+        with (training cameras, or estimated), else estimated here."""
+        if isinstance(scene, SurfelScene):
+            out = cls._from_surfels(scene, min_opacity)
+        elif isinstance(scene, DensityGrid):
+            out = cls._from_grid(scene, max(min_opacity, 1.0 / 255.0))
+        else:
+            raise TypeError(f"3D graph segmenter: unsupported scene {type(scene).__name__}")
+        out._find_ground(up)
+        return out
+
+    @classmethod
+    def _from_surfels(cls, scene: SurfelScene, min_opacity: float) -> ScenePrimitives:
+        keep = np.flatnonzero(scene.opacities >= min_opacity)
+        normals = scene.normals()[keep].astype(np.float32)
+        if scene.scale_n is None:
+            kappa = np.ones(len(keep), np.float32)
+        else:
+            s_min = np.maximum(scene.scales[keep].min(axis=1), 1e-12)
+            kappa = np.clip(1.0 - scene.scale_n[keep] / s_min, 0.0, 1.0).astype(np.float32)
+        pts = np.asarray(scene.means[keep], np.float32)
+        mass = np.asarray(scene.opacities[keep], np.float32)
+        return cls._finish(scene, pts, _lab(scene.base_colors()[keep]), normals, kappa, mass, keep)
+
+    @classmethod
+    def _from_grid(cls, grid: DensityGrid, min_opacity: float) -> ScenePrimitives:
+        h = float(np.mean(grid.voxel_size))
+        alpha = 1.0 - np.exp(-grid.density.astype(np.float64) * h)
+        occ = alpha >= min_opacity
+        flat = np.flatnonzero(occ.reshape(-1))
+        iz, iy, ix = np.unravel_index(flat, grid.density.shape)
+        pts = grid.aabb[0] + (np.stack([ix, iy, iz], 1) + 0.5) * grid.voxel_size
+        gz, gy, gx = np.gradient(grid.density.astype(np.float32))
+        g = -np.stack([gx[occ], gy[occ], gz[occ]], 1) / np.asarray(grid.voxel_size, np.float32)
+        gn = np.linalg.norm(g, axis=1)
+        normals = g / np.maximum(gn, 1e-12)[:, None]
+        sig = grid.density[occ].astype(np.float32)
+        kappa = np.clip(gn * h / np.maximum(sig, 1e-12), 0.0, 1.0)  # relative change per cell
+        if grid.rgb is not None:
+            rgb = grid.rgb.reshape(-1, 3)[flat]
+        else:
+            rgb = np.full((len(flat), 3), _GREY, np.float32)
+        return cls._finish(
+            grid,
+            pts.astype(np.float32),
+            _lab(rgb),
+            normals.astype(np.float32),
+            kappa.astype(np.float32),
+            alpha[occ].astype(np.float32),
+            flat.astype(np.int64),
+        )
+
+    @classmethod
+    def _finish(cls, scene, pts, lab, normals, kappa, mass, index) -> ScenePrimitives:
+        frame = robust_frame(scene_points(scene)[0])
+        return cls(
+            pts, lab, normals, kappa, mass, index, frame.center, float(frame.radius), (), scene
+        )
+
+    def _find_ground(self, up: np.ndarray | None) -> None:
+        """The ground plane and up: with a known ``up``, the strongest supporting plane
+        within ``ground_convention_deg`` of it; else the shared scene-up estimate's ground
+        (a one-sided dense plane elsewhere, such as the top of a box, is not a ground)."""
+        p, w = scene_points(self.scene)
+        # the shared ground search on a lighter sample than the anchor planner's (the
+        # floor / table plane is dense; 1500 directions × 20k points take seconds)
+        cfg = replace(ViewConfig(), ground_points=6000, ground_directions=500)
+        if up is None:
+            est = estimate_scene_up(p, w, self.center, self.radius, cfg)
+            self.grounds = () if est.source != UpSource.GROUND else (est.ground,)
+            self.up = None if not self.grounds else np.asarray(est.up, np.float64)
+            return
+        u = np.asarray(up, np.float64) / np.linalg.norm(up)
+        cos = np.cos(np.radians(cfg.ground_convention_deg))
+        cands = [
+            g
+            for g in ground_candidates(p, w, self.center, self.radius, cfg)
+            if g.support >= cfg.ground_min_support
+            and g.sharpness >= cfg.ground_min_sharpness
+            and float(g.normal @ u) >= cos
+        ]
+        self.grounds = (max(cands, key=lambda g: g.support),) if cands else ()
+        # the floor's own normal is the finer up (a camera-rig up is good to a few
+        # degrees; a table top 40 cm wide tilted 3° spans a voxel of height)
+        self.up = np.asarray(self.grounds[0].normal, np.float64) if self.grounds else u
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def in_box(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Indices (into these arrays) of the primitives inside the box ``[lo, hi]``."""
+        p = self.points
+        m = (p[:, 0] >= lo[0]) & (p[:, 0] <= hi[0])
+        m &= (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1])
+        m &= (p[:, 2] >= lo[2]) & (p[:, 2] <= hi[2])
+        return np.flatnonzero(m)
+
+    def render_array(self, values: np.ndarray) -> np.ndarray:
+        """Per-primitive ``values [M,C]`` (these primitives' order) as the renderer's
+        ``render_values`` input: ``[N,C]`` per surfel, or ``[D,H,W,C]`` per grid cell
+        (primitives left out of the graph get 0)."""
+        v = np.asarray(values, np.float32)
+        if isinstance(self.scene, SurfelScene):
+            out = np.zeros((len(self.scene), v.shape[1]), np.float32)
+            out[self.index] = v
+            return out
+        shape = self.scene.density.shape
+        out = np.zeros((int(np.prod(shape)), v.shape[1]), np.float32)
+        out[self.index] = v
+        return out.reshape(*shape, v.shape[1])

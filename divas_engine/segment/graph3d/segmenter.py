@@ -1,0 +1,309 @@
+"""The weight-free default segmenter: a 3D cut over the scene's own primitives, rendered
+into each view as its mask (issue 16; not in the paper, which takes SAM's masks).
+
+Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
+
+1. **Seeds.** Every prompt point is back-projected with the view's depth (``D_ref``,
+   the depth tuple's surface estimate); the object's clicks on every anchor
+   (:class:`~..scene_aware.ObjectClicks`, the session's 3D click points) are added, so
+   every view of an object cuts with the same seeds.
+2. **Local graph.** The active voxels of the cube ``c ± R`` around the positive seeds
+   (:mod:`.voxel_graph`), ``R = max(region_min · r_fg, region_seed_factor · spread)``.
+3. **Cut.** Random walk from the seeds and a sweep cut by conductance
+   (:mod:`.cut`); the negative seeds, the region's rim and the supporting planes
+   (floor, table) are sinks. When the chosen region leans on the rim (the object goes
+   on beyond the region) ``R`` doubles and the cut is redone, at most twice.
+4. **Masks.** The three nested regions (small, medium, large) go to their primitives and
+   are rendered with the session's renderer into the view at SAM's low-res size
+   (longest side 256) as per-primitive values: coverage ``Σ w_k [k ∈ region]``, then
+   ``sigmoid(8 (coverage − 0.5))`` upsampled — the oracle's convention. So every view
+   shows the same 3D region and the preview is what fusion will certify.
+5. **Scores** from the cut's conductance (:mod:`.cut`); a low one comes with
+   :attr:`Graph3DSegmenter.last_message` — what the user should do (a negative click
+   on what leaked in, a positive click on what is missing).
+
+The cut of a seed set is cached, so the views of one object (same clicks) cost one cut
+and a render each.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ...camera import Camera
+from ..base import SegResult
+from ..sam_common import sigmoid
+from ..scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
+from .config import Graph3DConfig
+from .cut import CutResult, sweep_cut
+from .primitives import ScenePrimitives
+from .supports import support_nodes, support_primitives
+from .voxel_graph import VoxelGraph, build_voxel_graph
+
+__all__ = ["Graph3DSegmenter", "RegionCut", "Seeds"]
+
+_CUT_CACHE = 8
+_SAME_CLICK_PX = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class Seeds:
+    """3D seed points: ``positive [P,3]``, ``negative [Q,3]``."""
+
+    positive: np.ndarray
+    negative: np.ndarray
+
+    def key(self) -> bytes:
+        return np.round(self.positive, 6).tobytes() + b"|" + np.round(self.negative, 6).tobytes()
+
+
+@dataclass(eq=False)
+class RegionCut:
+    """One cut in 3D: the three nested primitive selections and how they were found.
+
+    Attributes:
+        selected: ``[3, M]`` bool over :class:`ScenePrimitives` (small, medium, large).
+        scores: ``[3]``; message: advice when the medium score is low, else None.
+        cut: the :class:`~.cut.CutResult`; graph: its :class:`~.voxel_graph.VoxelGraph`.
+        radius: the region radius R used; grows: how often R was enlarged.
+        seconds: time of the cut (graph + walk + sweep).
+    """
+
+    selected: np.ndarray
+    scores: np.ndarray
+    message: str | None
+    cut: CutResult | None
+    graph: VoxelGraph | None
+    radius: float
+    grows: int
+    seconds: float = 0.0
+    info: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class _ViewState:
+    camera: Camera
+    depth: np.ndarray | None
+    view_id: Hashable | None
+
+
+class Graph3DSegmenter(SceneAwareSegmenter):
+    """3D graph-cut segmenter over the scene's primitives (module docstring).
+
+    Args:
+        config: :class:`Graph3DConfig`.
+        binding: optional :class:`~..scene_aware.SceneBinding` (else the session binds).
+    """
+
+    name = "graph3d"
+
+    def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
+        super().__init__(cache_size=16)
+        self.config = config or Graph3DConfig()
+        self.prims: ScenePrimitives | None = None
+        self.last_message: str | None = None
+        self.last_cut: RegionCut | None = None
+        self._cuts: OrderedDict[bytes, RegionCut] = OrderedDict()
+        self._prims_lock = threading.Lock()
+        if binding is not None:
+            self.bind_scene(binding)
+
+    # ------------------------------------------------------------------ binding
+    def _on_bind(self, binding: SceneBinding) -> None:
+        self.prims = None  # built on first use (the session opens without waiting)
+        self._cuts.clear()
+
+    def primitives(self) -> ScenePrimitives:
+        """The bound scene's :class:`ScenePrimitives` (built once)."""
+        if self.binding is None:
+            raise RuntimeError(f"{self.name}: bind_scene() first (the session does it)")
+        with self._prims_lock:
+            if self.prims is None:
+                up = None if self.binding.up is None else self.binding.up()
+                self.prims = ScenePrimitives.from_scene(
+                    self.binding.scene, self.config.min_opacity, up
+                )
+            return self.prims
+
+    # ------------------------------------------------------------------ Segmenter hooks
+    def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id: Hashable | None) -> Any:
+        if self.binding is None:
+            raise RuntimeError(f"{self.name}: bind_scene() first (the session does it)")
+        if view_id is None:
+            raise ValueError(f"{self.name}: needs the view id of a bound view")
+        cam = self.binding.camera_of(view_id)
+        if (cam.height, cam.width) != rgb.shape[:2]:
+            raise ValueError(
+                f"{self.name}: view {view_id!r} camera is {cam.width}x{cam.height}, "
+                f"the image {rgb.shape[1]}x{rgb.shape[0]}"
+            )
+        return _ViewState(cam, depth, view_id)
+
+    def segment(self, rgb, depth, points, labels, *, view_id=None) -> SegResult:
+        with self._lock:
+            res = super().segment(rgb, depth, points, labels, view_id=view_id)
+            return SegResult(res.masks, res.scores, self.last_message)
+
+    def _predict(
+        self, state: _ViewState, points: np.ndarray, labels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        seeds, missed = self.seeds(state, points, labels)
+        h, w = state.camera.height, state.camera.width
+        if len(seeds.positive) == 0:
+            self.last_message = (
+                "no surface under the positive click: click on the object itself"
+                if missed
+                else None
+            )
+            return np.zeros((3, h, w), np.float32), np.zeros(3, np.float32)
+        rc = self.cut(seeds)
+        self.last_cut, self.last_message = rc, rc.message
+        return self.render_masks(state.camera, rc.selected), rc.scores.astype(np.float32)
+
+    # ------------------------------------------------------------------ steps
+    def seeds(self, state: _ViewState, points: np.ndarray, labels: np.ndarray) -> tuple[Seeds, int]:
+        """Step 1: the 3D seeds of a prompt set on a view (and how many prompt points
+        had no surface under them). A prompt point within ``_SAME_CLICK_PX`` of a known 3D
+        click's projection is that click (the session's default prompt is the click's
+        point projected): its exact 3D point is used, not the view's depth there, which
+        at a silhouette or behind a floater can be another surface."""
+        pos, neg, missed = [], [], 0
+        oc = ObjectClicks.empty()
+        if self.binding is not None and self.binding.clicks_of is not None:
+            oc = self.binding.clicks_of(state.view_id) or oc
+        if len(points) and len(oc.points):
+            uv, zc = state.camera.project(np.asarray(oc.points, np.float64))
+            d = np.linalg.norm(points[:, None, :] - uv[None], axis=2)
+            known = np.any((d <= _SAME_CLICK_PX) & (zc[None] > 0), axis=1)
+            points, labels = points[~known], labels[~known]
+        if len(points) and state.depth is not None:
+            hgt, wid = state.depth.shape
+            cols = np.clip(np.floor(points[:, 0]).astype(np.int64), 0, wid - 1)
+            rows = np.clip(np.floor(points[:, 1]).astype(np.int64), 0, hgt - 1)
+            z = state.depth[rows, cols]
+            ok = np.isfinite(z) & (z > 0)
+            missed = int(np.count_nonzero(~ok & (labels == 1)))
+            if ok.any():
+                xyz = state.camera.unproject(points[ok], z[ok].astype(np.float64))
+                lab = labels[ok]
+                pos.append(xyz[lab == 1])
+                neg.append(xyz[lab == 0])
+        if len(oc.points):
+            pos.append(np.asarray(oc.points)[oc.positive])
+            neg.append(np.asarray(oc.points)[~oc.positive])
+        p = np.concatenate(pos) if pos else np.zeros((0, 3))
+        q = np.concatenate(neg) if neg else np.zeros((0, 3))
+        p = np.unique(np.round(p.reshape(-1, 3), 6), axis=0)
+        q = np.unique(np.round(q.reshape(-1, 3), 6), axis=0)
+        return Seeds(p, q), missed
+
+    def cut(self, seeds: Seeds) -> RegionCut:
+        """Steps 2–3 (cached per seed set): the three nested 3D selections."""
+        key = seeds.key()
+        hit = self._cuts.get(key)
+        if hit is not None:
+            self._cuts.move_to_end(key)
+            return hit
+        rc = self._cut(seeds)
+        self._cuts[key] = rc
+        while len(self._cuts) > _CUT_CACHE:
+            self._cuts.popitem(last=False)
+        return rc
+
+    def _cut(self, seeds: Seeds) -> RegionCut:
+        t0 = time.perf_counter()
+        cfg = self.config
+        prims = self.primitives()
+        centre = 0.5 * (seeds.positive.min(axis=0) + seeds.positive.max(axis=0))
+        spread = float(np.linalg.norm(seeds.positive - centre, axis=1).max())
+        radius = max(cfg.region_min * prims.radius, cfg.region_seed_factor * spread)
+        grows = 0
+        while True:
+            graph = build_voxel_graph(prims, centre, radius, cfg)
+            pos = np.zeros(len(graph), bool)
+            pn = graph.node_of_points(seeds.positive)
+            pos[pn[pn >= 0]] = True
+            if not pos.any():
+                return self._empty(prims, "no scene content at the click", radius, grows, t0)
+            neg = np.zeros(len(graph), bool)
+            nn = graph.node_of_points(seeds.negative)
+            neg[nn[nn >= 0]] = True
+            sinks = graph.rim | neg
+            planes = support_nodes(graph, prims, pos, cfg, neg) & ~pos
+            sinks = (sinks | planes) & ~pos
+            res = sweep_cut(graph, pos, sinks, cfg, planes)
+            if res.rim_share > cfg.rim_share and grows < cfg.region_max_grows:
+                radius *= cfg.region_grow
+                grows += 1
+                continue
+            break
+        sel = np.zeros((3, len(prims)), bool)
+        on_support = support_primitives(graph, prims, planes, cfg)
+        for k, lev in enumerate(res.levels):
+            sel[k, graph.prim] = lev.nodes[graph.voxel_of] & ~on_support
+        scores = np.array([lev.score for lev in res.levels], np.float32)
+        msg = self._advice(res, scores[1], len(seeds.negative))
+        return RegionCut(
+            sel,
+            scores,
+            msg,
+            res,
+            graph,
+            radius,
+            grows,
+            time.perf_counter() - t0,
+            {"voxels": len(graph), "edges": len(graph.edges), "h": graph.h},
+        )
+
+    def _empty(self, prims, msg, radius, grows, t0) -> RegionCut:
+        sel = np.zeros((3, len(prims)), bool)
+        return RegionCut(
+            sel, np.zeros(3, np.float32), msg, None, None, radius, grows, time.perf_counter() - t0
+        )
+
+    def _advice(self, res: CutResult, score: float, n_negative: int) -> str | None:
+        if score >= 0.5:
+            return None
+        if res.rim_share > self.config.rim_share:
+            return (
+                "the object seems to go on beyond the part examined: add a positive click "
+                "on its far end"
+            )
+        if res.ambiguous and res.alternative is not None and res.alternative > 1.0:
+            return (
+                "ambiguous: the click fits a part and a larger whole — add a positive "
+                "click on another part to take the whole, or a negative click on what "
+                "should stay out"
+            )
+        if res.ambiguous:
+            return (
+                "ambiguous: the click fits a smaller part too — add a negative click on "
+                "what should stay out, or a positive click on what is missing"
+            )
+        return (
+            "no clear boundary around the click: add a negative click on what should not "
+            "be selected" + ("" if n_negative == 0 else ", or a positive click on what is missing")
+        )
+
+    def render_masks(self, camera: Camera, selected: np.ndarray) -> np.ndarray:
+        """Step 4: ``[3,H,W]`` probabilities of three primitive selections in ``camera``."""
+        cfg = self.config
+        prims = self.primitives()
+        h, w = camera.height, camera.width
+        s = min(1.0, cfg.low_res / max(h, w))
+        cam = camera if s == 1.0 else camera.scaled(s)
+        vals = prims.render_array(selected.T.astype(np.float32))
+        cov = np.asarray(self.binding.render_values(cam, vals), np.float32)
+        cov = cov.reshape(cam.height, cam.width, 3)
+        logits = np.float32(cfg.logit_scale) * (cov - np.float32(0.5))
+        if (cam.height, cam.width) != (h, w):
+            logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
+        return np.ascontiguousarray(sigmoid(logits).transpose(2, 0, 1), dtype=np.float32)

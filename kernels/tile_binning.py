@@ -1,0 +1,170 @@
+"""Tile binning of depth-sorted splats, shared by every pass that walks tiles
+(the rasterizer's blend, ``kernels.rasterize``, and the contribution pass,
+``kernels.contrib``), so all of them see the same (tile, surfel) lists.
+
+Per band of tile rows: count the tiles each splat touches (in depth order), exclusive
+scan, duplicate into (band-local tile id, surfel) pairs, stable radix sort on the tile
+bits (depth order survives within a tile) and find each tile's range. A band holding
+more than ``max_duplicates`` pairs is split in two (bounded memory on huge scenes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import warp as wp
+
+from ._launch import launch_split
+from .splat import Splat
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["band_tiles", "tile_bands"]
+
+
+@wp.func
+def band_tiles(sp: Splat, tile: int, band_lo: int, band_hi: int):
+    """Tile rectangle of ``sp`` clipped to tile rows ``[band_lo, band_hi)``; empty → tx0 > tx1."""
+    tx0 = sp.x0 // tile
+    tx1 = sp.x1 // tile
+    ty0 = wp.max(sp.y0 // tile, band_lo)
+    ty1 = wp.min(sp.y1 // tile, band_hi - 1)
+    if sp.x0 > sp.x1 or ty0 > ty1:
+        tx0 = 1
+        tx1 = 0
+    return tx0, tx1, ty0, ty1
+
+
+@wp.kernel
+def count_kernel(
+    splats: wp.array(dtype=Splat),
+    order: wp.array(dtype=wp.int32),
+    tile: int,
+    band_lo: int,
+    band_hi: int,
+    counts: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    """Tiles touched in the band by the ``j``-th surfel in depth order."""
+    j = base + wp.tid() * stride
+    tx0, tx1, ty0, ty1 = band_tiles(splats[order[j]], tile, band_lo, band_hi)
+    n = int(0)
+    if tx0 <= tx1:
+        n = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+    counts[j] = wp.int32(n)
+
+
+@wp.kernel
+def duplicate_kernel(
+    splats: wp.array(dtype=Splat),
+    order: wp.array(dtype=wp.int32),
+    tile: int,
+    band_lo: int,
+    band_hi: int,
+    tiles_x: int,
+    incl: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=wp.int32),
+    vals: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    """Emit one (band-local tile id, surfel) pair per touched tile, in depth order."""
+    j = base + wp.tid() * stride
+    i = order[j]
+    tx0, tx1, ty0, ty1 = band_tiles(splats[i], tile, band_lo, band_hi)
+    o = int(incl[j]) - int(counts[j])  # exclusive offset
+    if tx0 <= tx1:
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
+                keys[o] = wp.int32((ty - band_lo) * tiles_x + tx)
+                vals[o] = i
+                o += 1
+
+
+@wp.kernel
+def ranges_kernel(
+    keys: wp.array(dtype=wp.int32),
+    n: int,
+    rstart: wp.array(dtype=wp.int32),
+    rend: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    """``[rstart[t], rend[t])``: the sorted pairs of tile ``t``."""
+    e = base + wp.tid() * stride
+    k = keys[e]
+    if e == 0:
+        rstart[k] = wp.int32(0)
+    elif keys[e - 1] != k:
+        rstart[k] = wp.int32(e)
+    if e == n - 1:
+        rend[k] = wp.int32(n)
+    elif keys[e + 1] != k:
+        rend[k] = wp.int32(e + 1)
+
+
+def tile_bands(
+    splats: wp.array,
+    order: wp.array,
+    n: int,
+    T: int,
+    tiles_x: int,
+    tiles_y: int,
+    max_duplicates: int,
+    stats: dict,
+    dev,
+    threads: int,
+    lap: Callable[[str], None] | None = None,
+):
+    """Bin depth-sorted splats into tiles, one band of tile rows at a time.
+
+    Per band: count the tiles each splat touches, scan, split the band in two while it
+    holds more than ``max_duplicates`` (splat, tile) pairs (bounded memory), duplicate
+    keys, sort them by tile (stable, so depth order survives) and find each tile's range.
+    Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
+    used by the contribution pass (``kernels.contrib``) so both see the same binning.
+
+    ``n``: the splats to bin, ``order[:n]`` — the visible prefix of the depth order
+    (:func:`kernels.rasterize.count_visible`; culled splats touch no tile, so leaving
+    them out changes no pair).
+    """
+    lap = lap or (lambda _stage: None)
+    counts = wp.empty(max(n, 1), dtype=wp.int32)
+    incl = wp.empty(max(n, 1), dtype=wp.int32)
+    bands = [(0, tiles_y)]
+    while bands:
+        lo, hi = bands.pop(0)
+        total = 0
+        if n > 0:
+            launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
+            wp.utils.array_scan(counts, incl, inclusive=True)
+            total = int(incl[n - 1 : n].numpy()[0])
+        lap("count")
+        if total > max_duplicates and hi - lo > 1:
+            mid = (lo + hi) // 2
+            bands[:0] = [(lo, mid), (mid, hi)]
+            continue
+        stats["pairs"] += total
+        stats["bands"] += 1
+        nt = (hi - lo) * tiles_x
+        rstart = wp.zeros(nt, dtype=wp.int32)
+        rend = wp.zeros(nt, dtype=wp.int32)
+        if total > 0:
+            dkeys = wp.empty(2 * total, dtype=wp.int32)
+            dvals = wp.empty(2 * total, dtype=wp.int32)
+            launch_split(
+                duplicate_kernel,
+                n,
+                [splats, order, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
+                dev,
+                threads,
+            )
+            lap("duplicate")
+            wp.utils.radix_sort_pairs(dkeys, dvals, total, 0, max(1, (nt - 1).bit_length()))
+            lap("tile_sort")
+            launch_split(ranges_kernel, total, [dkeys, total, rstart, rend], dev, threads)
+        else:
+            dvals = wp.empty(1, dtype=wp.int32)
+        yield lo, nt, dvals, rstart, rend, total

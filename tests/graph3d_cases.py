@@ -1,0 +1,97 @@
+"""Hand-checkable scenes for the 3D graph segmenter: surfels on a few analytic shapes,
+each shape one flat colour, with the shape index of every surfel as ground truth."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from divas_engine.geometry import rotmat_to_quat
+from divas_engine.scene import SH_C0, SurfelScene
+from divas_engine.synthetic.surfaces import Cylinder, Frame, Rect, Sphere, Surface, box
+
+__all__ = ["Part", "CaseScene", "build_case", "touching_boxes", "rod_on_floor", "ball_on_floor"]
+
+FLOOR_RGB = (0.55, 0.55, 0.5)
+
+
+@dataclass(frozen=True)
+class Part:
+    """Surfaces of one shape, its colour, its surfel spacing."""
+
+    surfaces: tuple[Surface, ...]
+    rgb: tuple[float, float, float]
+    spacing: float = 0.01
+
+
+@dataclass(eq=False)
+class CaseScene:
+    scene: SurfelScene
+    part: np.ndarray  # [N] index of the part each surfel belongs to
+
+    def of(self, k: int) -> np.ndarray:
+        return self.part == k
+
+
+def _frames(normals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    t1 = np.cross(normals, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(normals, t1)
+    return np.stack([t1, t2, normals], axis=2)
+
+
+def build_case(parts: list[Part], seed: int = 0) -> CaseScene:
+    """Surfels on ``parts`` (one every ``spacing``² of area, scale ``0.7 spacing``)."""
+    rng = np.random.default_rng(seed)
+    pts, nrm, col, scl, ids = [], [], [], [], []
+    for k, part in enumerate(parts):
+        for s in part.surfaces:
+            n = max(8, int(round(s.area() / part.spacing**2)))
+            smp = s.sample(rng, n)
+            pts.append(smp.points)
+            nrm.append(smp.normals)
+            col.append(np.tile(part.rgb, (n, 1)))
+            scl.append(np.full((n, 2), 0.7 * part.spacing))
+            ids.append(np.full(n, k))
+    p = np.concatenate(pts).astype(np.float32)
+    n = np.concatenate(nrm)
+    quats = rotmat_to_quat(_frames(n / np.linalg.norm(n, axis=1, keepdims=True), rng))
+    sh = ((np.concatenate(col) - 0.5) / SH_C0)[:, None, :].astype(np.float32)
+    scene = SurfelScene(
+        p,
+        quats.astype(np.float32),
+        np.concatenate(scl).astype(np.float32),
+        np.full(len(p), 0.9, np.float32),
+        sh,
+        0,
+    )
+    return CaseScene(scene, np.concatenate(ids))
+
+
+def floor(half: float = 1.5, spacing: float = 0.02) -> Part:
+    return Part((Rect("floor", Frame.make((0, 0, 0), (0, 0, 1)), half, half),), FLOOR_RGB, spacing)
+
+
+def touching_boxes(same_colour: bool = False) -> CaseScene:
+    """Parts: 0 floor, 1 box A (x < 0), 2 box B (x > 0) touching A along x = 0; B is
+    shorter than A so the contact is a step, not a flush face."""
+    a = box("a", (-0.15, 0.0, 0.15), (0.15, 0.15, 0.15))
+    b = box("b", (0.12, 0.0, 0.1), (0.12, 0.12, 0.1))
+    rgb_b = (0.8, 0.3, 0.2) if same_colour else (0.2, 0.35, 0.8)
+    return build_case([floor(), Part(tuple(a), (0.8, 0.3, 0.2)), Part(tuple(b), rgb_b)])
+
+
+def rod_on_floor() -> CaseScene:
+    """Parts: 0 floor, 1 a thin vertical rod (radius 1 cm, 0.8 high) with a cap."""
+    fr = Frame.make((0.0, 0.0, 0.0), (0, 0, 1))
+    rod = Cylinder("rod", fr, 0.01, 0.0, 0.8)
+    cap = Sphere("cap", Frame.make((0.0, 0.0, 0.8), (0, 0, 1)), 0.01, 0.0, np.pi / 2)
+    return build_case([floor(), Part((rod, cap), (0.3, 0.3, 0.32), 0.004)])
+
+
+def ball_on_floor() -> CaseScene:
+    """Parts: 0 floor, 1 a ball of radius 0.2 resting on it (same grey as the floor)."""
+    ball = Sphere("ball", Frame.make((0.0, 0.0, 0.2), (0, 0, 1)), 0.2)
+    return build_case([floor(), Part((ball,), FLOOR_RGB)])

@@ -1,0 +1,127 @@
+"""The 3D graph segmenter (issue 16) on hand-checkable scenes, and its session wiring.
+
+Each scene is a few analytic shapes with one flat colour each (:mod:`tests.graph3d_cases`);
+the expected selections are the shapes themselves, checked per surfel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from divas_engine.camera import Camera
+from divas_engine.segment import Graph3DSegmenter, SceneAwareSegmenter, SceneBinding
+from divas_engine.segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
+from divas_engine.segment.graph3d import Seeds
+from divas_engine.session import Session, SessionConfig
+from tests.graph3d_cases import ball_on_floor, rod_on_floor, touching_boxes
+
+
+def _cut(case, positive, negative=()):
+    seg = Graph3DSegmenter(binding=SceneBinding(case.scene, None, None))
+    rc = seg.cut(Seeds(np.array(positive, float), np.array(negative, float).reshape(-1, 3)))
+    full = np.zeros((3, len(case.scene)), bool)
+    full[:, seg.primitives().index] = rc.selected
+    return rc, full
+
+
+def _share(sel: np.ndarray, case, part: int) -> float:
+    return float(np.mean(sel[case.of(part)]))
+
+
+@pytest.fixture(scope="module")
+def boxes():
+    return touching_boxes()
+
+
+def test_touching_boxes_split_at_the_contact(boxes):
+    # a click on the lower box B: the smallest region is B and stops at the contact with
+    # A; the medium region is the pair standing together; the floor is never selected
+    rc, sel = _cut(boxes, [[0.12, 0.0, 0.20]])
+    b_faces = boxes.of(2) & (boxes.scene.means[:, 0] > 0.005)  # B's -x face lies on A's
+    assert np.mean(sel[0][b_faces]) > 0.97
+    assert _share(sel[0], boxes, 1) < 0.01
+    assert _share(sel[1], boxes, 1) > 0.95 and _share(sel[1], boxes, 2) > 0.95
+    assert not sel[:, boxes.of(0)].any()
+    assert np.all(sel[0] <= sel[1]) and np.all(sel[1] <= sel[2])  # nested small → large
+
+
+def test_thin_rod_is_kept_whole():
+    case = rod_on_floor()
+    rc, sel = _cut(case, [[0.01, 0.0, 0.6]])
+    assert _share(sel[1], case, 1) > 0.98  # the whole 0.8 rod, top cap to the floor
+    assert _share(sel[1], case, 0) < 0.001  # floor surfels sharing the rod's foot voxel
+    assert rc.scores[1] > 0.8
+
+
+def test_negative_click_removes_a_part():
+    case = touching_boxes(same_colour=True)
+    _, both = _cut(case, [[-0.15, 0.0, 0.30]])
+    assert _share(both[1], case, 2) > 0.7  # one colour: the pair is one object
+    _, sel = _cut(case, [[-0.15, 0.0, 0.30]], [[0.12, 0.0, 0.20]])
+    assert _share(sel[1], case, 2) < 0.02
+    assert _share(sel[1], case, 1) > 0.75  # A kept (its face on B is B's too)
+
+
+def test_object_on_a_plane_separates_from_the_plane():
+    case = ball_on_floor()  # the same grey as the floor: geometry alone separates them
+    rc, sel = _cut(case, [[0.0, -0.2, 0.2]])
+    assert _share(sel[1], case, 1) > 0.9  # all but the contact cap in the ground band
+    assert _share(sel[1], case, 0) < 0.001
+    assert rc.scores[1] > 0.8 and rc.message is None
+
+
+def test_click_without_a_boundary_scores_low_and_says_what_to_do():
+    case = ball_on_floor()
+    rc, sel = _cut(case, [[0.6, 0.6, 0.0]])  # on the open floor: no object boundary
+    assert rc.scores[1] < 0.5
+    assert rc.message and "negative click" in rc.message
+    assert _share(sel[1], case, 1) == 0.0
+
+
+def test_default_segmenter_is_graph3d():
+    assert SegmenterSettings().kind is SegmenterKind.GRAPH3D
+    assert isinstance(build_segmenter(SegmenterSettings()), Graph3DSegmenter)
+
+
+def _camera(eye, target) -> Camera:
+    return Camera.look_at(
+        np.asarray(eye, float),
+        np.asarray(target, float),
+        np.array([0.0, 0.0, 1.0]),
+        width=160,
+        height=120,
+        fx=140.0,
+    )
+
+
+def test_session_binds_scene_and_the_preview_is_the_3d_region():
+    case = ball_on_floor()
+    anchor = _camera((0.0, -1.6, 0.9), (0.0, 0.0, 0.2))
+    seg = Graph3DSegmenter()
+    s = Session.open(
+        case.scene,
+        [],
+        SessionConfig(),
+        seg,
+        "cpu",
+        anchors=[(anchor, "camera", -1)],
+    )
+    try:
+        assert isinstance(seg, SceneAwareSegmenter) and seg.binding is not None
+        uv, _ = anchor.project(np.array([[0.0, -0.2, 0.25]]))
+        v = s.click(0, tuple(uv[0]))
+        prev = s.prompt(v)
+        assert prev.reason is None and prev.score > 0.8
+        # the preview is the render of the cut's medium region in this view
+        region = s.renderer.render_values(v.camera, seg.last_cut.selected[1].astype(np.float32))
+        mask = prev.selection.mask >= 0.5
+        assert np.mean(mask == (region >= 0.5)) > 0.97
+        s.accept(v)
+        sel = s.selection  # one view: the ball's side it sees, nothing of the floor
+        assert np.mean(sel[case.of(1)]) > 0.25 and np.mean(sel[case.of(0)]) < 0.001
+        # the object's clicks reach the segmenter in 3D
+        oc = seg.binding.clicks_of(v.id)
+        assert oc.positive.tolist() == [True] and np.allclose(oc.points[0], v.centroid.target)
+    finally:
+        s.close()

@@ -1,0 +1,151 @@
+"""Issue 20: work shared or skipped for speed gives bit-identical results — a value
+render reusing the RGB render's projection and tile binning, the depth-only probe
+render, the brute-force eq:neigh neighbourhood, and the lazily rendered accept
+overlays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from divas_engine.camera import Camera
+from divas_engine.render import RenderConfig
+from divas_engine.render.surfel_renderer import SurfelRenderer
+from divas_engine.views.centroid_gs import GsCentroidPlanner
+
+from .reference_render import random_surfel_scene
+
+
+@pytest.fixture(scope="module")
+def case():
+    sc = random_surfel_scene(2500, seed=5)
+    cams = [
+        Camera.look_at(
+            [0.2 * k, -0.1, -0.3], [0, 0, 4], [0, -1, 0], width=90, height=70, fx=80, cx=45, cy=35
+        )
+        for k in range(3)
+    ]
+    return sc, cams
+
+
+def _same(a, b):
+    for k, v in a.as_dict().items():
+        assert np.array_equal(v, getattr(b, k)), k
+
+
+@pytest.mark.parametrize("max_duplicates", [1 << 25, 300])  # one band / several bands
+def test_value_renders_reusing_the_binning_are_bit_identical(case, max_duplicates, device):
+    sc, cams = case
+    cfg = RenderConfig(max_duplicates=max_duplicates)
+    cached = SurfelRenderer(sc, device=device, config=cfg)
+    fresh = SurfelRenderer(sc, device=device, config=cfg)
+    fresh.binning_cache = 0
+    v = np.random.default_rng(0).random((len(sc), 2), dtype=np.float32)
+    for cam in cams:  # RGB first: its binning (and colours) kept
+        _same(cached.render(cam), fresh.render(cam))
+    assert len(cached._binnings) == cached.binning_cache and not fresh._binnings
+    for cam in cams[::-1]:  # cache hits (then RGB after values, scaled: misses)
+        assert np.array_equal(cached.render_values(cam, v), fresh.render_values(cam, v))
+        assert np.array_equal(cached.render_values(cam, v[:, 0]), fresh.render_values(cam, v[:, 0]))
+        _same(cached.render(cam), fresh.render(cam))  # RGB after a value render
+        _same(cached.render(cam, scale=0.5), fresh.render(cam, scale=0.5))
+
+
+def test_depth_only_render_has_the_same_depths(case, device):
+    sc, cams = case
+    r = SurfelRenderer(sc, device=device)
+    for cam in cams:
+        full, depth = r.render(cam, scale=0.4), r.render_depth(cam, scale=0.4)
+        for k in ("alpha", "D_min", "D_ref", "D_max", "D_mw", "D_exp", "D_med", "N_samp"):
+            assert np.array_equal(getattr(full, k), getattr(depth, k)), k
+
+
+def test_neighbourhood_matches_a_kd_tree(case):
+    sc, _ = case
+    p = GsCentroidPlanner(sc, renderer=None)
+    opaque = np.flatnonzero(sc.opacities > p.config.alpha_min)
+    pts = np.asarray(sc.means[opaque], dtype=np.float64)
+    tree = cKDTree(pts)
+    rng = np.random.default_rng(1)
+    for x, r in zip(pts[rng.integers(0, len(pts), 20)], rng.uniform(0.05, 1.5, 20)):
+        idx = np.asarray(tree.query_ball_point(x, r), dtype=np.int64)
+        idx = idx[np.linalg.norm(pts[idx] - x, axis=1) < r]
+        ref = np.sort(opaque[idx])
+        got = p.neighbourhood(x, r)
+        assert got.size > 0 and np.array_equal(got, ref)
+
+
+def test_accept_overlays_are_lazy_and_show_the_accepted_selection(tmp_path):
+    from divas_engine import load_scene
+    from divas_engine.segment import OracleSegmenter
+    from divas_engine.session import Session, SessionConfig
+    from divas_engine.synthetic import generate_scene
+
+    sc = generate_scene("ribs", tmp_path, size=20_000, seed=0, grid_resolution=32)
+    scene = load_scene(tmp_path / "scene.ply")
+    c = sc.metadata["clicks"][0]
+    cam = next(k for k in sc.cameras if k.name == c["visible_in"][0])
+    s = Session.open(
+        scene, sc.cameras, SessionConfig(render_scale=0.5), OracleSegmenter(), "cpu",
+        anchors=[cam], gt_values=sc.labels,
+    )  # fmt: skip
+    assert s.anchors[0]._buffers is not None  # the first anchor is rendered by open
+    a = s.anchors[0]
+    uv, _ = a.camera.project(np.array([c["xyz"]]))
+    views = [s.click(0, uv[0]), s.click(0, uv[0] + 6.0)]
+    renders = s.timings.calls("render")[:]
+    r0 = s.accept(views[0])
+    assert s.timings.calls("render") == renders  # accept rendered nothing
+    assert r0.overlay_source is not None and callable(r0.overlay_source)
+    r1 = s.accept(views[1])
+    assert not np.array_equal(r0.selection, r1.selection)
+    ov = r0.overlay  # rendered now, after r1 changed the session's selection
+    ref = s.renderer.render_values(views[0].camera, r0.selection.astype(np.float32))
+    assert np.array_equal(ov.coverage, ref.astype(np.float32))
+    assert r0.overlay is ov and r0.next_view is views[1]
+    nxt = r0.next_overlay
+    ref1 = s.renderer.render_values(views[1].camera, r0.selection.astype(np.float32))
+    assert np.array_equal(nxt.coverage, ref1.astype(np.float32))
+    # the anchor's overlay takes the anchor's existing render (no second RGB render)
+    n = len(s.timings.calls("render"))
+    ova = s.overlay(a.camera, full_camera=False)
+    assert len(s.timings.calls("render")) == n
+    fresh = s.renderer.render(a.camera).rgb
+    cov = ova.coverage
+    al = (np.clip(cov, 0.0, 1.0) * np.float32(s.config.overlay_alpha))[..., None]
+    col = np.asarray(s.config.overlay_color, np.float32)
+    assert np.array_equal(ova.image, (fresh * (1.0 - al) + col * al).astype(np.float32))
+    s.close()
+
+
+def test_fusion_kernel_split_over_threads_is_bit_identical(tmp_path):
+    """The per-voxel fusion kernel and the hash queries run as several CPU sub-launches
+    (issue 20: both cores); the contributions equal a single launch's bit for bit."""
+    import divas_kernels as dk
+    from divas_engine.fusion import FusionView, GridConfig, GsFusion, build_occupancy
+
+    sc = random_surfel_scene(4000, seed=3)
+    cam = Camera.look_at(
+        [0.1, -0.2, -0.4], [0, 0, 4], [0, -1, 0], width=80, height=60, fx=70, cx=40, cy=30
+    )
+    b = SurfelRenderer(sc, device="cpu").render(cam)
+    mask = (b.D_med > np.median(b.D_med[b.D_med > 0])).astype(np.float32)
+    grid = build_occupancy(sc, GridConfig(g_max=64), "cpu")
+    f = GsFusion(grid)
+    vd = f.upload(FusionView(cam, mask, b.D_min, b.D_ref, b.D_max, b.N_samp, 4.0))
+    outs = []
+    for threads in (1, 2, 3):
+        dk.gs_fuse_view(
+            grid.codes, grid.density, f._geom, vd, f._params, f._num, f._den, f._kind,
+            device="cpu", threads=threads,
+        )  # fmt: skip
+        outs.append((f._num.numpy().copy(), f._den.numpy().copy(), f._kind.numpy().copy()))
+        q = dk.hash_query(
+            grid.hash_keys, grid.hash_vals, grid.hash_shift, grid.codes, "cpu", threads
+        )
+        assert np.array_equal(q.numpy(), np.arange(len(grid), dtype=np.int32))
+    assert (outs[0][2] > 0).any()
+    for o in outs[1:]:
+        for x, y in zip(outs[0], o):
+            assert np.array_equal(x, y)
