@@ -1,4 +1,5 @@
-"""Baseline of the current pipeline on the real-capture targets (issues 15 and 16).
+"""DivAS on the real-capture targets (issues 15 and 16), with and without the 3DGS
+completion, against both peers fed the same masks.
 
 For every target of ``tests/data/targets`` (ground truth made by rule,
 :mod:`divas_engine.evaluation.real_targets`): one scripted session on the capture with
@@ -8,7 +9,15 @@ view, every view is accepted), once with the SAM-like oracle (NOTES "Evaluation"
 once with the classic segmenter on the same clicks; scored at the target's test views
 (:func:`~divas_engine.evaluation.real_targets.evaluation_cameras`) with
 :class:`~divas_engine.evaluation.metrics.ViewEvaluator` — the NOTES protocol: predicted
-mask = rendered selection indicator ≥ 0.1, ground truth = rendered labels ≥ 0.5.
+mask = rendered selection indicator ≥ 0.1, ground truth = rendered labels ≥ 0.5 — and
+:class:`~divas_engine.evaluation.fidelity.FidelityEvaluator` (alpha fidelity,
+opacity-weighted Gaussian IoU, PSNR of the selection rendered alone vs the scene inside
+the true silhouette, and vs the true object alone). Methods per session
+(:data:`METHODS`): DivAS (the session's selection, with the completion of 3DGS scenes),
+DivAS without it (the mapping's Pass-3 selection of the same session), the centre vote
+and the contribution vote fed the session's accepted masks (``--baseline-masks``), and
+the ground truth itself (the metrics' ceiling: the NOTES image IoU of the truth is below
+1 — translucent edges pass 0.1 but not 0.5).
 
     python benchmarks/bench_real_captures.py [--targets biker/helmet,guitar/neck]
         [--segmenters oracle,classic] [--scale 1] [--eval-scale 1] [--seed 0]
@@ -34,6 +43,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from divas_engine.evaluation.baselines import ContributionVoter, centre_vote  # noqa: E402
+from divas_engine.evaluation.fidelity import FidelityEvaluator  # noqa: E402
 from divas_engine.evaluation.metrics import EvalConfig, ViewEvaluator  # noqa: E402
 from divas_engine.evaluation.pipeline import make_segmenter, run_session  # noqa: E402
 from divas_engine.evaluation.real_target_defs import CAPTURES  # noqa: E402
@@ -44,6 +55,7 @@ from divas_engine.evaluation.real_targets import (  # noqa: E402
     target_scene_labels,
 )
 from divas_engine.io.load import load_scene  # noqa: E402
+from divas_engine.render import make_renderer  # noqa: E402
 from divas_engine.session import SessionConfig  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
@@ -63,6 +75,15 @@ def _export(out: Path, cap: str, name: str, doc: dict, anchors) -> None:
     (d / "prompts.json").write_text(json.dumps(prompts, indent=1))
 
 
+METHODS = {
+    "divas": "DivAS (with 3DGS completion)",
+    "divas_paper": "DivAS w/o completion (paper passes)",
+    "centre_vote": "(a) centre-projection vote",
+    "contrib_vote": "(b) contribution vote (FlashSplat-style)",
+    "truth": "the ground truth itself (the metrics' ceiling)",
+}
+
+
 def run(args: argparse.Namespace) -> list[dict]:
     wanted = None if not args.targets else set(args.targets.split(","))
     segs = args.segmenters.split(",")
@@ -72,6 +93,8 @@ def run(args: argparse.Namespace) -> list[dict]:
         if not names:
             continue
         scene = load_scene(DATA / c.path)
+        renderer = make_renderer(scene, device=args.device)
+        voter = ContributionVoter(scene, args.device)
         doc = read_targets(DATA / "targets" / cap)
         for name in names:
             labels = target_scene_labels(scene, doc, name)
@@ -79,8 +102,10 @@ def run(args: argparse.Namespace) -> list[dict]:
             cams = evaluation_cameras(scene, labels, c.true_up, device=args.device)
             if args.export:
                 _export(args.export, cap, name, doc, anchors)
-            ev = ViewEvaluator(
-                scene, cams, labels, config=EvalConfig(scale=args.eval_scale), device=args.device
+            ecfg = EvalConfig(scale=args.eval_scale)
+            ev = ViewEvaluator(scene, cams, labels, config=ecfg, renderer=renderer)
+            fid = FidelityEvaluator(
+                scene, cams, labels, gt_masks=ev.gt_masks, scale=args.eval_scale, renderer=renderer
             )
             for seg in segs:
                 t0 = time.perf_counter()
@@ -92,35 +117,85 @@ def run(args: argparse.Namespace) -> list[dict]:
                     segmenter=make_segmenter(seg, args.seed),
                     config=SessionConfig(render_scale=args.scale, seed=args.seed),
                     device=args.device,
+                    renderer=renderer,
                 )
                 t_session = time.perf_counter() - t0
-                sc = ev.score({"sel": out.selection})["sel"]
-                row = {
-                    "target": f"{cap}/{name}",
-                    "segmenter": seg,
-                    "gaussians": int(labels.sum()),
-                    "clicks": sum(len(a[3]) for a in anchors),
-                    "fused": sum(1 for _, st, _ in out.statuses if st == "fused"),
-                    "test_views": len(cams),
-                    "image_iou": sc.iou,
-                    "pooled_iou": sc.pooled_iou,
-                    "precision": sc.precision,
-                    "recall": sc.recall,
-                    "gaussian_iou": sc.primitives["iou"],
-                    "gaussian_recall": sc.primitives["recall"],
-                    "gaussian_precision": sc.primitives["precision"],
-                    "session_s": t_session,
+                mviews = out.views if args.baseline_masks == "raw" else out.weighted_views
+                sels = {
+                    "divas": out.selection,
+                    "divas_paper": out.mapped,
+                    "centre_vote": centre_vote(scene, mviews, renderer=renderer).selected,
+                    "contrib_vote": voter.vote(mviews).selected,
+                    "truth": labels,
                 }
-                rows.append(row)
-                print(
-                    f"{row['target']:20s} {seg:8s} views {len(cams):2d} fused {row['fused']}/"
-                    f"{row['clicks']}  image IoU {sc.iou:.3f} (pooled {sc.pooled_iou:.3f}, "
-                    f"P {sc.precision:.3f} R {sc.recall:.3f})  Gaussian IoU "
-                    f"{row['gaussian_iou']:.3f} R {row['gaussian_recall']:.3f} "
-                    f"P {row['gaussian_precision']:.3f}  session {t_session:.1f} s",
-                    flush=True,
-                )
+                scores = ev.score(sels)
+                fids = fid.score(sels)
+                if args.save_selections:
+                    args.save_selections.mkdir(parents=True, exist_ok=True)
+                    np.savez_compressed(
+                        args.save_selections / f"{cap}_{name}_{seg}.npz", gt=labels, **sels
+                    )
+                for m in sels:
+                    sc, f = scores[m], fids[m]
+                    row = {
+                        "target": f"{cap}/{name}",
+                        "segmenter": seg,
+                        "method": m,
+                        "gaussians": int(labels.sum()),
+                        "clicks": sum(len(a[3]) for a in anchors),
+                        "fused": sum(1 for _, st, _ in out.statuses if st == "fused"),
+                        "test_views": len(cams),
+                        "image_iou": sc.iou,
+                        "pooled_iou": sc.pooled_iou,
+                        "precision": sc.precision,
+                        "recall": sc.recall,
+                        "gaussian_iou": sc.primitives["iou"],
+                        "gaussian_recall": sc.primitives["recall"],
+                        "gaussian_precision": sc.primitives["precision"],
+                        **f,
+                        "session_s": t_session,
+                        "completion": out.completion if m == "divas" else None,
+                    }
+                    rows.append(row)
+                    print(
+                        f"{row['target']:18s} {seg:7s} {m:12s} views {len(cams):2d} "
+                        f"fused {row['fused']}/{row['clicks']}  image IoU {sc.iou:.3f} "
+                        f"alpha {f['alpha_fidelity']:.3f}  op-IoU "
+                        f"{f['opacity_weighted_iou']:.3f}  PSNR {f['psnr']:.2f} "
+                        f"(vs truth {f['psnr_vs_truth']:.2f}, ceiling {f['psnr_ceiling']:.2f})  "
+                        f"Gaussian IoU {row['gaussian_iou']:.3f} "
+                        f"R {row['gaussian_recall']:.3f} P {row['gaussian_precision']:.3f}",
+                        flush=True,
+                    )
+                print(f"  session {t_session:.1f} s, completion {out.completion}", flush=True)
     return rows
+
+
+def markdown(rows: list[dict]) -> str:
+    """The rows as the Markdown table of BENCHMARKS.md (one line per target × method)."""
+    out = [
+        "| target | method | image IoU | alpha fidelity | opacity-w. IoU | PSNR dB (vs truth) "
+        "| Gaussian IoU (R / P) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        out.append(
+            f"| {r['target']} | {METHODS.get(r['method'], r['method'])} | {r['image_iou']:.3f} | "
+            f"{r['alpha_fidelity']:.3f} | {r['opacity_weighted_iou']:.3f} | "
+            f"{r['psnr']:.1f} ({r['psnr_vs_truth']:.1f}) | {r['gaussian_iou']:.3f} "
+            f"({r['gaussian_recall']:.3f} / {r['gaussian_precision']:.3f}) |"
+        )
+    for m, label in METHODS.items():
+        rs = [r for r in rows if r["method"] == m]
+        if rs:
+            mean = lambda k: float(np.mean([r[k] for r in rs]))  # noqa: E731, B023
+            out.append(
+                f"| **mean** | {label} | **{mean('image_iou'):.3f}** | "
+                f"**{mean('alpha_fidelity'):.3f}** | **{mean('opacity_weighted_iou'):.3f}** | "
+                f"**{mean('psnr'):.1f}** ({mean('psnr_vs_truth'):.1f}) | "
+                f"**{mean('gaussian_iou'):.3f}** |"
+            )
+    return "\n".join(out)
 
 
 def main() -> int:
@@ -131,6 +206,14 @@ def main() -> int:
     p.add_argument("--eval-scale", type=float, default=1.0, help="test-view scale (default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu")
+    p.add_argument(
+        "--baseline-masks",
+        choices=("raw", "weighted"),
+        default="raw",
+        help="masks fed to the peers: the segmenter's (raw, default, as divas eval) or "
+        "the depth-weighted ones DivAS fused",
+    )
+    p.add_argument("--save-selections", type=Path, default=None, help="npz per target")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--export", type=Path, default=None)
     args = p.parse_args()
@@ -142,14 +225,19 @@ def main() -> int:
     )
     rows = run(args)
     for seg in args.segmenters.split(","):
-        r = [x for x in rows if x["segmenter"] == seg]
-        if r:
-            print(
-                f"mean {seg:8s} image IoU {np.mean([x['image_iou'] for x in r]):.3f}  "
-                f"Gaussian IoU {np.mean([x['gaussian_iou'] for x in r]):.3f} over {len(r)} targets"
-            )
+        for m in METHODS:
+            r = [x for x in rows if x["segmenter"] == seg and x["method"] == m]
+            if r:
+                mean = lambda k: np.mean([x[k] for x in r])  # noqa: E731, B023
+                print(
+                    f"mean {seg:7s} {m:12s} image IoU {mean('image_iou'):.3f}  alpha "
+                    f"{mean('alpha_fidelity'):.3f}  op-IoU {mean('opacity_weighted_iou'):.3f}  "
+                    f"PSNR {mean('psnr'):.2f}  Gaussian IoU {mean('gaussian_iou'):.3f} "
+                    f"over {len(r)} targets"
+                )
+    print(markdown(rows))
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+        args.json.write_text(json.dumps(rows, indent=1, default=float))
     return 0
 
 

@@ -90,6 +90,12 @@ def test_segment_oracle_2dgs(scene_dir, tmp_path, capsys):
     assert rep["counts"]["centroid_views"] == 4
     assert rep["memory"]["peak_rss_bytes"] > 0 and rep["oracle"]["seed"] == 3
     assert rep["evaluation"]["surfels"]["precision"] > 0.95
+    r = rep["evaluation"]["render"]
+    assert r["test_views"] > 0 and "without_completion" not in r  # 2DGS: no completion
+    x = r["selection"]
+    assert 0 < x["image_iou"] <= 1 and 0 < x["alpha_fidelity"] <= 1 and x["psnr"] > 5
+    # equal opacities in the generated scene: the weighted IoU is the per-surfel one
+    assert abs(x["opacity_weighted_iou"] - rep["evaluation"]["surfels"]["iou"]) < 0.1
     assert rep["config"]["render_scale"] == 0.5
     assert all(v["status"] in ("fused", "rejected") for v in rep["views"])
     assert (tmp_path / "s.json").exists() and (tmp_path / "s.json.npz").exists()

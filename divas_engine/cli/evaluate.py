@@ -13,7 +13,8 @@ oracle and the classic segmenter: DivAS full, without the thin path, without dep
 weighting, Pass 1 only, Pass 1+2; and two peer baselines fed the same accepted view masks
 (centre-projection voting, FlashSplat-style contribution voting); the NeRF path on the
 ribs density grid. Scores at the held-out test cameras (NOTES "Evaluation": mean IoU
-and pixel accuracy) and per primitive (precision / recall). See
+and pixel accuracy; alpha fidelity, opacity-weighted IoU and the PSNR of the selection
+rendered alone, issue 15) and per primitive (precision / recall). See
 :mod:`divas_engine.evaluation.suite`.
 """
 
@@ -139,6 +140,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=1.0,
         help="render the test cameras at this fraction of their size (default 1)",
     )
+    p.add_argument(
+        "--no-fidelity",
+        action="store_true",
+        help="skip alpha fidelity, opacity-weighted IoU and extracted-object PSNR "
+        "(one render of each selection alone per test camera)",
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument(
         "--json", action="store_true", help="print one JSON object instead of the Markdown table"
@@ -192,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
         grid_resolution=int(args.grid_resolution),
         baseline_masks=args.baseline_masks,
         eval=EvalConfig(scale=float(args.eval_scale)),
+        fidelity=not args.no_fidelity,
     )
     t0 = time.perf_counter()
     log = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))

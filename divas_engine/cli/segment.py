@@ -21,6 +21,9 @@ Report (``--report``) keys:
 * ``memory``: ``peak_rss_bytes`` (and ``rss_bytes``);
 * ``config``: the full session config; ``outputs``: files written;
 * ``evaluation`` (with ``--gt-labels``): 3D precision / recall / IoU of the selection;
+  on surfel scenes ``render``: image IoU, alpha fidelity, opacity-weighted IoU and
+  extracted-object PSNR at test views around the ground truth (also
+  ``without_completion`` on 3DGS scenes);
   ``oracle`` (oracle segmenter): its config and seed.
 """
 
@@ -126,6 +129,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="X,Y,Z",
         help="scene up for the planned (fibonacci) anchors (default: estimated)",
     )
+    p.add_argument(
+        "--no-completion",
+        action="store_true",
+        help="3DGS scenes: the paper's selection only, without the completion of "
+        "volumetric scenes (beyond the paper, issue 15)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -195,6 +204,7 @@ def segment_scene(
     keep_session: bool = False,
     mask_channel: int = 1,
     up: Sequence[float] | None = None,
+    completion: bool = True,
 ) -> tuple[dict[str, Any], Any]:
     """The whole ``divas segment`` pipeline; returns ``(report, session)``.
 
@@ -242,6 +252,15 @@ def segment_scene(
         mask_channel=int(mask_channel),
         autosave=None if session_path is None else str(session_path),
     )
+    if not completion:
+        from dataclasses import replace
+
+        config = replace(
+            config,
+            mapping=replace(
+                config.mapping, completion=replace(config.mapping.completion, enabled=False)
+            ),
+        )
     resolved = resolve_anchors(
         prompts, cameras, lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates]
     )
@@ -341,6 +360,8 @@ def segment_scene(
             report["evaluation"] = {
                 "surfels" if session.kind == SceneKind.GS2D else "voxels": surfel_scores(sel, gt)
             }
+            if session.kind == SceneKind.GS2D:
+                report["evaluation"]["render"] = _rendered_scores(session, sel, gt, dev)
         if segmenter == "oracle":
             from dataclasses import asdict
 
@@ -354,6 +375,28 @@ def segment_scene(
     finally:
         if not keep_session:
             session.close()
+
+
+def _rendered_scores(session, sel: np.ndarray, gt: np.ndarray, dev) -> dict[str, Any]:
+    """Image IoU, alpha fidelity, opacity-weighted IoU and extracted-object PSNR at test
+    views around the ground truth (:func:`~divas_engine.evaluation.fidelity.rendered_report`);
+    on 3DGS scenes also of the selection without the completion."""
+    from ..evaluation.fidelity import rendered_report
+    from ..session import anchor_plan
+
+    sels = {"selection": sel}
+    if getattr(session.backend, "last_completion", None) is not None:
+        sels["without_completion"] = session.last_mapping.selected
+    up = anchor_plan(session.scene, session.cameras, session.config).up
+    return rendered_report(
+        session.scene,
+        sels,
+        gt,
+        up,
+        scale=session.config.render_scale,
+        device=dev,
+        renderer=session.renderer,
+    )
 
 
 def write_report(path: Path, report: dict[str, Any]) -> None:
@@ -396,6 +439,7 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             mask_channel=args.mask_channel,
             up=parse_up(args.up),
+            completion=not args.no_completion,
         )
     except DivasInputError as e:
         if args.report is not None and getattr(e, "report", None) is not None:
@@ -419,6 +463,15 @@ def run(args: argparse.Namespace) -> int:
             f"  vs ground truth: precision {e['precision']:.3f}, recall {e['recall']:.3f}, "
             f"IoU {e['iou']:.3f}"
         )
+        r = report["evaluation"].get("render") or {}
+        for k in ("selection", "without_completion"):
+            if k in r:
+                x = r[k]
+                print(
+                    f"  {k} at {r['test_views']} test views: image IoU {x['image_iou']:.3f}, "
+                    f"alpha fidelity {x['alpha_fidelity']:.3f}, opacity-weighted IoU "
+                    f"{x['opacity_weighted_iou']:.3f}, PSNR {x['psnr']:.2f} dB"
+                )
     return 0
 
 

@@ -26,10 +26,15 @@ entry").
     mask-negative pixels (all views; :func:`kernels.contrib.accumulate_contributions`,
     the rasterizer's own weights) a surfel is foreground iff
 
-        A₁ > A₀ + γ · (A₀ + A₁)
+        A₁ / ‖A‖ > A₀ / ‖A‖ + γ,   ‖A‖ = √(A₀² + A₁²)
 
-    i.e. its positive share exceeds ``(1 + γ) / 2``; γ is an optional background bias
-    (default 0: ``A₁ > A₀``). Surfels that contribute to no pixel are background.
+    FlashSplat's binary solver with its background bias γ ("slackness"): the per-Gaussian
+    pair ``(A₀, A₁)`` is L2-normalised and γ is added to the background entry before the
+    argmax (their ``render.py``: ``normalize(all_counts, dim=0)``, then
+    ``all_counts[0] += slackness``, ``argmax``). γ ∈ (−1, 1); default 0, the plain
+    argmax ``A₁ > A₀`` (their default; the released scripts use 0.7–0.75 for object
+    *removal*, where a larger foreground is safer). Surfels that contribute to no pixel
+    are background.
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ __all__ = [
     "ContributionVoteConfig",
     "ContributionVoter",
     "contribution_vote",
+    "flashsplat_foreground",
     "as_mask_views",
 ]
 
@@ -186,7 +192,8 @@ class ContributionVoteConfig:
 
     Attributes:
         mask_threshold: mask-positive pixel ``m ≥`` this (0.5).
-        gamma: background bias γ ∈ (−1, 1): foreground iff ``A₁ > A₀ + γ(A₀ + A₁)`` (0).
+        gamma: background bias γ ∈ (−1, 1) on the L2-normalised pair: foreground iff
+            ``A₁ − A₀ > γ √(A₀² + A₁²)`` (0, FlashSplat's default).
     """
 
     mask_threshold: float = 0.5
@@ -195,6 +202,14 @@ class ContributionVoteConfig:
     def __post_init__(self) -> None:
         if not -1.0 < self.gamma < 1.0:
             raise ValueError(f"ContributionVoteConfig.gamma must be in (-1, 1), got {self.gamma}")
+
+
+def flashsplat_foreground(a1: np.ndarray, a0: np.ndarray, gamma: float) -> np.ndarray:
+    """FlashSplat's binary rule with background bias γ: ``A₁/‖A‖ > A₀/‖A‖ + γ`` with
+    ``‖A‖ = √(A₀² + A₁²)``; a Gaussian with no weight is background."""
+    a1 = np.asarray(a1, np.float64)
+    a0 = np.asarray(a0, np.float64)
+    return (a1 - a0 > gamma * np.hypot(a0, a1)) & (a0 + a1 > 0)
 
 
 class ContributionVoter:
@@ -251,7 +266,7 @@ class ContributionVoter:
             p, q = self.contributions(v, config.mask_threshold)
             a1 += p
             a0 += q
-        sel = a1 > a0 + config.gamma * (a0 + a1)
+        sel = flashsplat_foreground(a1, a0, config.gamma)
         return BaselineResult(
             sel,
             a1,

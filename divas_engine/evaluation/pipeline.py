@@ -199,6 +199,9 @@ class SessionOutcome:
     Attributes:
         selection: the final selection (``[N]`` surfels / ``[D,H,W]`` voxels).
         pass1, pass2: 2DGS mapping chain f¹, f² of the final state (None for NeRF).
+        mapped: the paper's selection f (Pass 3) before the 3DGS completion (the
+            same as ``selection`` when no completion ran; None for NeRF).
+        completion: counts of the 3DGS completion (None when it did not run).
         views: the fused views as :class:`MaskView` with the *raw* accepted masks (the
             segmenter's chosen channel before depth weighting) and their ``D_med``.
         weighted_views: the same with the depth-weighted masks that were fused.
@@ -212,6 +215,8 @@ class SessionOutcome:
     selection: np.ndarray
     pass1: np.ndarray | None
     pass2: np.ndarray | None
+    mapped: np.ndarray | None
+    completion: dict | None
     views: list[MaskView]
     weighted_views: list[MaskView]
     counts: dict
@@ -295,15 +300,20 @@ def run_session(
             views.append(MaskView(v.camera, raw, b.D_med))
             weighted.append(MaskView(v.camera, v.mask, b.D_med))
         sel = s.selection.copy()
-        p1 = p2 = None
+        p1 = p2 = mapped = comp = None
         if s.kind == SceneKind.GS2D:
             m = s.last_mapping if views else None  # no fused view: empty chain
             p1 = np.zeros_like(sel) if m is None else m.pass1.copy()
             p2 = np.zeros_like(sel) if m is None else m.pass2.copy()
+            mapped = np.zeros_like(sel) if m is None else m.selected.copy()
+            c = getattr(s.backend, "last_completion", None) if views else None
+            comp = None if c is None else {**c.counts(), "rounds": c.rounds, **c.seconds}
         return SessionOutcome(
             selection=sel,
             pass1=p1,
             pass2=p2,
+            mapped=mapped,
+            completion=comp,
             views=views,
             weighted_views=weighted,
             counts=s.counts(),

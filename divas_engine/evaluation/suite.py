@@ -32,6 +32,7 @@ from .baselines import CentreVoteConfig, ContributionVoteConfig, ContributionVot
 from .metrics import EvalConfig, ViewEvaluator
 from .pipeline import CachingRenderer, make_segmenter, run_session, scripted_anchors, variant_config
 from .scripted_user import ScriptedUser, UserBudget
+from .suite_table import markdown_table
 
 __all__ = [
     "METHODS",
@@ -54,6 +55,9 @@ METHODS: dict[str, str] = {
     "centre_vote": "(a) centre-projection vote",
     "contrib_vote": "(b) contribution vote (FlashSplat-style)",
 }
+#: Extra rows on 3DGS-derived scenes (``SceneKind.GS3D``): the paper's selection before
+#: the completion of volumetric scenes (beyond the paper, issue 15).
+GS3D_METHODS: dict[str, str] = {"no_completion": "w/o 3DGS completion (paper passes)"}
 #: View protocols: ``"user"`` — the simulated user on the session's anchor plan
 #: (:mod:`.scripted_user`, the paper's); ``"clicks"`` — the metadata clicks on training
 #: cameras (the ``divas demo`` protocol).
@@ -89,6 +93,9 @@ class SuiteConfig:
         eval: thresholds / test-camera scale.
         session: the base session config (variants change one field of it).
         centre_vote, contrib_vote: baseline constants.
+        fidelity: also score alpha fidelity, opacity-weighted IoU and the
+            extracted-object PSNR (:mod:`.fidelity`; one render of each selection alone
+            per test camera).
     """
 
     scenes: tuple[str, ...] = ("ribs", "plant", "occluded")
@@ -105,6 +112,7 @@ class SuiteConfig:
     session: SessionConfig = field(default_factory=SessionConfig)
     centre_vote: CentreVoteConfig = field(default_factory=CentreVoteConfig)
     contrib_vote: ContributionVoteConfig = field(default_factory=ContributionVoteConfig)
+    fidelity: bool = False
 
     def __post_init__(self) -> None:
         if self.baseline_masks not in ("raw", "weighted"):
@@ -123,7 +131,15 @@ class SuiteConfig:
 
 
 def _row(
-    scene: str, kind: str, seg: str, method: str, label: str, sc, extra: dict, seed: int
+    scene: str,
+    kind: str,
+    seg: str,
+    method: str,
+    label: str,
+    sc,
+    extra: dict,
+    seed: int,
+    fid: dict | None = None,
 ) -> dict:
     p = sc.primitives or {}
     return {
@@ -143,6 +159,7 @@ def _row(
         "iou_3d": p.get("iou"),
         "selected": p.get("selected"),
         "per_view_iou": [v.iou for v in sc.views],
+        **(fid or {}),
         **extra,
     }
 
@@ -211,6 +228,10 @@ def evaluate_scene(
             "views_fused": extras[f"{seg}/full"]["views_fused"],
             "views": extras[f"{seg}/full"]["views"],
         }
+        if full.completion is not None:  # 3DGS: the paper's selection before completion
+            selections[f"{seg}/no_completion"] = full.mapped
+            extras[f"{seg}/no_completion"] = dict(ex)
+            extras[f"{seg}/full"]["completion"] = full.completion
         selections[f"{seg}/pass1"], extras[f"{seg}/pass1"] = full.pass1, dict(ex)
         selections[f"{seg}/pass12"], extras[f"{seg}/pass12"] = full.pass2, dict(ex)
         mviews = full.views if config.baseline_masks == "raw" else full.weighted_views
@@ -229,16 +250,32 @@ def evaluate_scene(
         sc.scene, sc.test_cameras, sc.labels, config=config.eval, renderer=renderer, device=device
     )
     scores = ev.score(selections)
+    fids: dict[str, dict] = {}
+    if config.fidelity:
+        from .fidelity import FidelityEvaluator
+
+        fids = FidelityEvaluator(
+            sc.scene,
+            sc.test_cameras,
+            sc.labels,
+            gt_masks=ev.gt_masks,
+            scale=config.eval.scale,
+            renderer=renderer,
+            device=device,
+        ).score(selections)
     say(
         f"  scored {len(selections)} selections at {len(sc.test_cameras)} test cameras "
         f"({time.perf_counter() - t:.1f} s)"
     )
     rows = []
+    kind = SceneKind(sc.scene.kind)
     for seg in config.segmenters:
-        for m, label in METHODS.items():
+        for m, label in {**METHODS, **GS3D_METHODS}.items():
             k = f"{seg}/{m}"
+            if k not in selections:
+                continue
             rows.append(
-                _row(name, SceneKind.GS2D, seg, m, label, scores[k], extras[k], config.seed)
+                _row(name, kind, seg, m, label, scores[k], extras[k], config.seed, fids.get(k))
             )
     if config.nerf and sc.grid is not None:
         rows += _nerf_rows(name, sc, anchors, config, device, say)
@@ -378,7 +415,15 @@ def evaluate_suite(
     }
 
 
-_METRICS = ("iou", "accuracy", "precision_3d", "recall_3d")
+_METRICS = (
+    "iou",
+    "accuracy",
+    "precision_3d",
+    "recall_3d",
+    "alpha_fidelity",
+    "opacity_weighted_iou",
+    "psnr",
+)
 
 
 def _mean(rs: Sequence[dict], k: str) -> float | None:
@@ -438,6 +483,7 @@ def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
     full mean IoU ≥ 0.90 over the surfel suite; DivAS full ≥ both baselines on every
     scene (and, listed, in how many seeds); removing the thin path lowers the ribs IoU."""
     o = [r for r in rows if r["segmenter"] == "oracle" and r["kind"] == SceneKind.GS2D]
+    # (targets of the 2DGS suite; 3DGS variants are reported, their targets in issue 15)
     if not o:
         return {}
     by = {(r["scene"], r["method"]): r["iou"] for r in scene_means(o)}
@@ -463,116 +509,3 @@ def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
     if "ribs" in scenes:
         out["ribs_thin_path_helps"] = bool(by[("ribs", "no_thin")] < by[("ribs", "full")])
     return out
-
-
-def _f(x) -> str:
-    return "–" if x is None else f"{x:.3f}"
-
-
-def markdown_table(result: dict[str, Any]) -> str:
-    """The rows as a Markdown table, then the suite means and the targets."""
-    seeds = sorted({r.get("seed") for r in result["rows"]}, key=lambda x: (x is None, x))
-    multi = len(seeds) > 1
-    lines = [
-        "| scene | "
-        + ("seed | " if multi else "")
-        + "segmenter | method | IoU | acc | P₃D | R₃D | views |",
-        "|---|" + ("---:|" if multi else "") + "---|---|---:|---:|---:|---:|---:|",
-    ]
-    for r in result["rows"]:
-        sc = r["scene"] + (" (NeRF grid)" if r["kind"] == SceneKind.NERF else "")
-        lines.append(
-            f"| {sc} | "
-            + (f"{r.get('seed')} | " if multi else "")
-            + f"{r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
-            f"{_f(r['accuracy'])} | {_f(r['precision_3d'])} | {_f(r['recall_3d'])} | "
-            f"{r.get('views_fused', '–')}/{r.get('views', '–')} |"
-        )
-    if multi and result.get("scene_means"):
-        lines += [
-            "",
-            f"Mean over seeds {', '.join(map(str, seeds))} (min–max):",
-            "",
-            "| scene | segmenter | method | IoU | IoU min–max | acc | P₃D | R₃D |",
-            "|---|---|---|---:|---:|---:|---:|---:|",
-        ]
-        for r in result["scene_means"]:
-            sc = r["scene"] + (" (NeRF grid)" if r["kind"] == SceneKind.NERF else "")
-            lines.append(
-                f"| {sc} | {r['segmenter']} | {r['label']} | {_f(r['iou'])} | "
-                f"{_f(r['iou_min'])}–{_f(r['iou_max'])} | {_f(r['accuracy'])} | "
-                f"{_f(r['precision_3d'])} | {_f(r['recall_3d'])} |"
-            )
-    means = result.get("means") or []
-    if means:
-        lines += [
-            "",
-            "Mean over scenes:",
-            "",
-            "| kind | segmenter | method | scenes | IoU | acc | P₃D | R₃D |",
-            "|---|---|---|---:|---:|---:|---:|---:|",
-        ]
-        for m in means:
-            lines.append(
-                f"| {m['kind']} | {m['segmenter']} | {m['label']} | {m['scenes']} | "
-                f"{_f(m['iou'])} | {_f(m['accuracy'])} | {_f(m['precision_3d'])} | "
-                f"{_f(m['recall_3d'])} |"
-            )
-    cfg = result.get("config") or {}
-    if cfg.get("protocol"):
-        u = cfg.get("user") or {}
-        lines += [
-            "",
-            f"View protocol: {cfg['protocol']}"
-            + (
-                ""
-                if cfg["protocol"] != "user"
-                else " (simulated user on the session's anchor plan: "
-                + (
-                    f"≤ {u['clicks_per_anchor']} clicks per anchor"
-                    if u.get("clicks_per_anchor")
-                    else f"each anchor until complete or {u.get('max_failed_clicks')} clicks "
-                    "without progress"
-                )
-                + ", ≤ "
-                + (f"{u['max_views']}" if u.get("max_views") else "10 (forward-facing) / 20 (360°)")
-                + " views, regions ≥ "
-                f"{100 * u.get('min_region_frac', 0):.1f} % of the view, negative clicks "
-                f"{'on' if u.get('negative_clicks') else 'off'}, "
-                + (
-                    "then the other supported Fibonacci anchors"
-                    if u.get("more_anchors")
-                    else "offered anchors only"
-                )
-                + (
-                    f", then ≤ {u['manual_anchors']} training cameras as manual anchors)"
-                    if u.get("manual_anchors")
-                    else ")"
-                )
-            ),
-        ]
-    t = result.get("targets") or {}
-    if t:
-        lines += [
-            "",
-            "Targets (oracle"
-            + (", means over the seeds" if multi else "")
-            + "): mean DivAS-full IoU "
-            f"{t['mean_full_iou']:.3f} (≥ 0.90: {'yes' if t['mean_full_iou_ge_0.90'] else 'NO'}); "
-            "≥ both baselines: "
-            + ", ".join(
-                f"{s} {'yes' if ok else 'NO'}"
-                + (
-                    f" ({t['full_beats_baselines_seeds'][s]}/{len(t['seeds'])} seeds)"
-                    if len(t.get("seeds", ())) > 1
-                    else ""
-                )
-                for s, ok in t["full_beats_baselines"].items()
-            )
-            + (
-                ""
-                if "ribs_thin_path_helps" not in t
-                else f"; thin path raises ribs IoU: {'yes' if t['ribs_thin_path_helps'] else 'NO'}"
-            ),
-        ]
-    return "\n".join(lines)

@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from divas_kernels import render_defaults as RD
 
-__all__ = ["MappingConfig"]
+__all__ = ["MappingConfig", "CompletionConfig"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,8 @@ class MappingConfig:
         coverage_filter: apply Pass 3 (False: ``f = f²``; tab:ablation_needle_surfel).
         early_out: exact early-outs in Pass 3 (identical κ; see ``kernels/coverage.py``).
         threads: CPU launch threads (None: all usable cores; ignored on CUDA).
+        completion: the completion of 3DGS-derived scenes (beyond the paper,
+            :class:`CompletionConfig`); ignored on 2DGS scenes.
     """
 
     needle_percentile: float = 99.0
@@ -45,6 +47,7 @@ class MappingConfig:
     coverage_filter: bool = True
     early_out: bool = True
     threads: int | None = None
+    completion: CompletionConfig = field(default_factory=lambda: CompletionConfig())
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.needle_percentile <= 100.0:
@@ -56,3 +59,71 @@ class MappingConfig:
                 raise ValueError(f"MappingConfig.{k} must be positive")
         if not self.aspect_eps >= 0:
             raise ValueError("MappingConfig.aspect_eps must be ≥ 0")
+
+
+@dataclass(frozen=True)
+class CompletionConfig:
+    """Completion of the selection on volumetric (3DGS-derived) scenes — beyond the paper
+    (issue 15; :mod:`divas_engine.mapping.completion`). Runs only on ``SceneKind.GS3D``
+    scenes; 2DGS input keeps the paper's three passes exactly.
+
+    Attributes:
+        enabled: run the completion on 3DGS scenes (False: the paper's selection only;
+            ``divas segment --no-completion``).
+        mask_threshold: τ_M, a fused-mask pixel is positive when ``M̃ ≥ τ_M`` (0.5, as
+            Pass 3 and the thick entry).
+        gamma: background bias γ of the contribution test (FlashSplat's slackness on the
+            L2-normalised ``(A₀, A₁)``): a Gaussian is contribution-positive when
+            ``A₁ − A₀ > γ √(A₀² + A₁²)`` (0: the plain majority of its blending weight).
+        min_weight: a Gaussian has contribution evidence when its blending weight summed
+            over the fused views ``A₀ + A₁ ≥ min_weight`` (full-resolution pixels; 0.5 =
+            half a fully weighted pixel); below it only the solid fill decides.
+        neighbourhood_log2: the neighbourhood of the voxel selection is the set of coarse
+            cells of ``2^k`` voxels per side holding a segmented (or filled) voxel,
+            dilated by one cell: everything within ``2^k … 2^(k+1)`` voxels (1: 2–4 h_v).
+            Contribution and fill additions are restricted to it, so floaters away from
+            the object stay out.
+        surface_margin: ``|z − D_med| ≤ surface_margin · h_v`` is "on the visible
+            surface" of a view (2, the fusion's behind-gate margin, eq:behind-gate);
+            further in front is a floater in front of the object.
+        depth_factor: a voxel hidden behind a mask-positive surface supports the object
+            only within ``depth_factor`` × the depth a solid of that silhouette can have
+            there: the chord ``2 √(ρ(2R − ρ))`` of a ball of the mask's inscribed radius
+            R at the pixel's distance ρ from the silhouette edge (pixels, × z / f) — a
+            solid object is about as deep as it is wide; deeper is what lies behind it.
+        deep_is_inconsistent: a voxel hidden behind a mask-positive surface deeper than
+            that carves (True) or says nothing (False: it may still be the object seen
+            obliquely; the other views decide; the default).
+        fill_rounds: at most this many growth rounds of the solid fill (each grows the
+            filled region by one neighbourhood, 2–4 voxels).
+        fill_min_views: a voxel *hidden* behind mask-positive surfaces joins the fill
+            only when at least this many fused views are consistent with it (2: the
+            intersection of two visual cones is bounded in 3D, one cone alone is not);
+            a voxel seen on the surface inside a mask needs one view.
+        drop_inconsistent: also drop Gaussians of the paper's selection whose blending
+            weight over the fused views lies mostly outside the masks (the same test,
+            the other way: not ``A₁ − A₀ > γ ‖A‖`` with evidence ``≥ min_weight``; True).
+    """
+
+    enabled: bool = True
+    mask_threshold: float = 0.5
+    gamma: float = 0.0
+    min_weight: float = 0.5
+    neighbourhood_log2: int = 1
+    surface_margin: float = 2.0
+    depth_factor: float = 1.0
+    deep_is_inconsistent: bool = False
+    fill_rounds: int = 8
+    fill_min_views: int = 2
+    drop_inconsistent: bool = True
+
+    def __post_init__(self) -> None:
+        if not -1.0 < self.gamma < 1.0:
+            raise ValueError(f"CompletionConfig.gamma must be in (-1, 1), got {self.gamma}")
+        if not 0 <= self.neighbourhood_log2 <= 6:
+            raise ValueError("CompletionConfig.neighbourhood_log2 must be in 0..6")
+        for k in ("min_weight", "surface_margin", "depth_factor"):
+            if not getattr(self, k) >= 0:
+                raise ValueError(f"CompletionConfig.{k} must be ≥ 0")
+        if self.fill_rounds < 0:
+            raise ValueError("CompletionConfig.fill_rounds must be ≥ 0")

@@ -41,6 +41,9 @@ class SurfelBackend(SessionBackend):
         grid_config: the occupancy config in use (``SessionConfig.grid``, else
             ``g_max`` 512 forward-facing / 1024 otherwise, NOTES "Occupancy").
         last_mapping: the latest voxel-to-surfel :class:`~divas_engine.mapping.MappingResult`.
+        last_completion: on 3DGS scenes with ``config.mapping.completion.enabled``, the
+            latest :class:`~divas_engine.mapping.completion.CompletionResult` (beyond the
+            paper, issue 15); else None.
 
     The occupancy geometry is computed at construction (a degenerate scene fails at
     open, as before); the active voxels, the fusion state, the voxel-to-surfel mapper
@@ -68,7 +71,10 @@ class SurfelBackend(SessionBackend):
         self._geometry = grid_geometry(scene.means, scene.scales, self.grid_config)
         self._build_config = config  # the state is built with the config given here
         self.last_mapping = None
+        self.last_completion = None
         self._planner = None
+        self._completion = None
+        self._evidence: dict[int, tuple] = {}
         self._state: tuple | None = None  # (grid, fusion, mapper)
         self._state_error: BaseException | None = None
         self._state_lock = threading.Lock()
@@ -159,7 +165,52 @@ class SurfelBackend(SessionBackend):
             self.config.mapping,
         )
         self.last_mapping = res
-        return np.asarray(res.selected, dtype=bool)
+        sel = np.asarray(res.selected, dtype=bool)
+        comp = self.config.mapping.completion
+        if self.scene.kind != SceneKind.GS3D or not comp.enabled:
+            self.last_completion = None
+            return sel  # 2DGS: the paper's three passes exactly
+        return self._complete(sel, fused, live)
+
+    def _complete(
+        self, sel: np.ndarray, fused: FusionResult, live: Sequence[SessionView]
+    ) -> np.ndarray:
+        """Completion of a 3DGS-derived scene (beyond the paper, issue 15): the live views'
+        records are added/removed incrementally, then the selection is completed."""
+        from ...mapping.completion import VolumetricCompletion
+
+        comp = self.config.mapping.completion
+        if self._completion is None or self._completion.config != comp:
+            self._completion = VolumetricCompletion(
+                self.scene,
+                self.grid,
+                self._ready()[2].active_index,
+                comp,
+                device=self.device,
+                render_config=self.config.render,
+            )
+        t_views = self._completion.sync([(int(v.fusion_id), self._evidence_view(v)) for v in live])
+        res = self._completion.complete(sel, fused.segmented)
+        res.seconds["views"] = t_views
+        self.last_completion = res
+        return res.selected
+
+    def _evidence_view(self, v: SessionView):
+        """The view the completion reads: the fused view with the segmenter's own mask
+        (what the user accepted) in place of the depth-weighted M̃ — the band-pass
+        (eq:gs-bandpass) zeroes the object's parts outside the clicked depth band, which
+        the completion would read as background; cached per fused view so the
+        completion's records are made once."""
+        from dataclasses import replace
+
+        fv = v.fusion_view
+        hit = self._evidence.get(int(v.fusion_id))
+        if hit is not None and hit[0] is fv:
+            return hit[1]
+        raw = None if v.preview is None else v.preview.selection.mask
+        ev = fv if raw is None else replace(fv, mask=np.array(raw, np.float32))  # a copy
+        self._evidence[int(v.fusion_id)] = (fv, ev)
+        return ev
 
     def object_suffix(self) -> str:
         return export_suffix(self.scene)

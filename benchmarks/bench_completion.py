@@ -1,0 +1,152 @@
+"""Per-update cost of the 3DGS completion (issue 15) at 250k / 1M Gaussians.
+
+Scene: ``benchmarks/scenes.surfel_scene`` (a room plus four spheres), marked 3DGS; the
+fusion state is synthesised as in ``bench_mapping.py`` (voxels within 2 h_v of a sphere
+surface segmented, the object Gaussians selected). Views: 640×480, masks = the spheres'
+silhouettes, depth from the renderer. What one accept adds to the update:
+
+* ``view records ms`` — :meth:`VolumetricCompletion.view_record` of the new view: the
+  contribution gather (one rasterizer pass that splits each Gaussian's blending weight
+  by the mask, the FlashSplat-style evidence) and the projection of the active voxels;
+  ``of which gather ms`` is the rasterizer pass alone;
+* ``add ms`` / ``undo ms`` — adding / subtracting a view's integer records;
+* ``decide ms`` — :meth:`VolumetricCompletion.complete` with S live views (fill rounds,
+  neighbourhood, contribution test over all N Gaussians).
+
+``render ms`` is one plain render of the same view, side by side, for scale.
+
+    python benchmarks/bench_completion.py [--sizes 250000,1000000] [--views 1,5,20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.bench_mapping import make_cameras, sphere_mask, synth_fusion  # noqa: E402
+from benchmarks.scenes import surfel_scene  # noqa: E402
+from divas_engine.fusion import FusionView, GridConfig, build_occupancy  # noqa: E402
+from divas_engine.kinds import SceneKind  # noqa: E402
+from divas_engine.mapping import CompletionConfig, SurfelMapper  # noqa: E402
+from divas_engine.mapping.completion import VolumetricCompletion  # noqa: E402
+from divas_engine.render import make_renderer  # noqa: E402
+
+
+def median_ms(fn, reps: int) -> float:
+    ts = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(ts))
+
+
+def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
+    scene = surfel_scene(n, sh_degree=0)
+    scene.kind = SceneKind.GS3D
+    scene.scale_n = np.full(n, 1e-3, np.float32)
+    grid = build_occupancy(scene, GridConfig(), device)
+    mapper = SurfelMapper(scene, grid, device=device)
+    cams = make_cameras(max(view_counts))
+    fused = synth_fusion(grid, cams)
+    renderer = make_renderer(scene, device=device)
+    views = []
+    for cam in cams:
+        b = renderer.render(cam)
+        views.append(
+            FusionView(cam, sphere_mask(cam), b.D_min, b.D_med, b.D_max, b.N_samp, 5.0, cam.name)
+        )
+    t = time.perf_counter()
+    comp = VolumetricCompletion(scene, grid, mapper.active_index, CompletionConfig(), device=device)
+    setup_s = time.perf_counter() - t
+    sel = np.zeros(n, bool)
+    act = mapper.active_index
+    sel[act >= 0] = fused.segmented[act[act >= 0]]
+    rows = []
+    render_ms = median_ms(lambda: renderer.render(cams[0]), reps)
+    rec_ms = median_ms(lambda: comp.view_record(views[0]), reps)
+    from divas_kernels.contrib import accumulate_contributions
+
+    cam = cams[0]
+    pos = views[0].mask >= 0.5
+    gather_ms = median_ms(
+        lambda: accumulate_contributions(
+            comp._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos
+        ),
+        reps,
+    )
+    for s in view_counts:
+        for k in list(comp.keys):
+            comp.remove_view(k)
+        for i in range(s - 1):
+            comp.add_view(i, views[i])
+        rec = comp.view_record(views[s - 1])
+
+        adds, undos = [], []
+        for _ in range(reps):
+            t = time.perf_counter()
+            comp._apply(rec, +1)
+            adds.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            comp._apply(rec, -1)
+            undos.append(time.perf_counter() - t)
+        add_ms, undo_ms = 1e3 * float(np.median(adds)), 1e3 * float(np.median(undos))
+        comp.add_view(s - 1, views[s - 1])
+        decide = median_ms(lambda: comp.complete(sel, fused.segmented), reps)
+        res = comp.complete(sel, fused.segmented)
+        rows.append(
+            {
+                "gaussians": n,
+                "views": s,
+                "active_voxels": len(grid),
+                "coarse_cells": comp.cells.n,
+                "setup_s": setup_s,
+                "render_ms": render_ms,
+                "record_ms": rec_ms,
+                "gather_ms": gather_ms,
+                "add_ms": add_ms,
+                "undo_ms": undo_ms,
+                "decide_ms": decide,
+                "added": int(res.contrib_added.sum() + res.fill_added.sum()),
+            }
+        )
+        r = rows[-1]
+        print(
+            f"| {n:,} | {s} | {r['active_voxels']:,} | {r['render_ms']:.0f} | "
+            f"{r['record_ms']:.0f} | {r['gather_ms']:.0f} | {r['add_ms']:.1f} | "
+            f"{r['undo_ms']:.1f} | {r['decide_ms']:.1f} | {r['setup_s']:.2f} |",
+            flush=True,
+        )
+    return rows
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sizes", default="250000,1000000")
+    p.add_argument("--views", default="1,5,20")
+    p.add_argument("--reps", type=int, default=5)
+    p.add_argument("--device", default="cpu")
+    a = p.parse_args()
+    cpu = platform.processor() or platform.machine()
+    print(f"# bench_completion {datetime.date.today()} {cpu} ({os.cpu_count()} CPUs), {a.device}")
+    print(
+        "| Gaussians | views | active voxels | render ms | view records ms | of which gather "
+        "ms | add ms | undo ms | decide ms | setup s |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for n in (int(x) for x in a.sizes.split(",")):
+        run(n, [int(x) for x in a.views.split(",")], a.reps, a.device)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
