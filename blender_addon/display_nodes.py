@@ -5,9 +5,10 @@ Geometry Nodes group, per splat (fields on the imported point cloud ``P``):
 1. ``d = normalize(position − camera)``, the camera from *Active Camera* through *Object
    Info* (Relative), i.e. in the object's own (file) frame.
 2. Colour: ``divas_color`` is linear; with view-dependent colour it is re-encoded to
-   sRGB (the SH DC colour), the ``divas_sh_k`` codes are decoded (``(c − 127.5)/127.5 ·
+   sRGB (the SH DC colour), the ``divas_sh_k`` codes are decoded (``(c − 128)/127 ·
    range_band``) and added as ``Y_k(d) c_k`` (:data:`divas_engine.sh_rotation.
-   SH_MONOMIALS`), clamped at 0 like the engine, and decoded back to linear. Selected
+   SH_MONOMIALS`), clamped at 0 like the engine (the DC-only colour too), and decoded
+   back to linear. Selected
    points are tinted. Stored as ``divas_shade`` (RGBA, A = opacity) on a *clean* point
    cloud of the same points (Points + Sample Index), so no other attribute of ``P``
    (SH codes, file columns) is copied per quad when instancing.
@@ -155,7 +156,7 @@ def _srgb_decode_group(version):
 
 def _sh_term_group(version):
     """``Y · c``: the coefficient named *Name* decoded from its packed 8-bit codes
-    (``(code − 127.5) / 127.5 · Range`` per channel), times the basis value *Y*; 0
+    (``(code − 128) / 127 · Range`` per channel), times the basis value *Y*; 0
     when the attribute does not exist."""
 
     def body(b, gin):
@@ -170,8 +171,9 @@ def _sh_term_group(version):
             },
         ).outputs[0]
         rng = b.out(gin, "Range")
-        offset = b.node("ShaderNodeCombineXYZ", {0: rng, 1: rng, 2: rng}).outputs[0]
-        value = b.vmath("SUBTRACT", b.vmath("SCALE", rgb, b.math("DIVIDE", rng, 127.5)), offset)
+        value = b.vmath(
+            "SCALE", b.vmath("SUBTRACT", rgb, (128.0,) * 3), b.math("DIVIDE", rng, 127.0)
+        )
         y = b.math("MULTIPLY", b.out(gin, "Y"), exists)
         return {"Vector": b.vmath("SCALE", value, y), "Exists": exists}
 
@@ -254,7 +256,11 @@ def _shade_field(b: NodeBuilder, gin, tint, version):
     )
     rgb = b.node(
         "GeometryNodeSwitch",
-        {"Switch": b.out(use_sh, 0), "False": lin_dc, "True": lin_sh},
+        {
+            "Switch": b.out(use_sh, 0),
+            "False": b.vmath("MAXIMUM", lin_dc, (0.0,) * 3),
+            "True": lin_sh,
+        },
         input_type="VECTOR",
     ).outputs[0]
     selected, _ = _named(b, SELECTED, "BOOLEAN")

@@ -20,8 +20,8 @@ scene must fit in memory and in a reasonable ``.blend``):
   s₃ a 3DGS flattening dropped (0 for native 2DGS surfels).
 * ``divas_sh_<k>`` int32, k = 1 … (degree+1)²−1 (with ``sh_display``): the view-dependent
   SH coefficient k of R, G and B as three 8-bit codes packed in one integer
-  (R + 256·G + 65536·B, exact in a float32 too), band l's code c meaning
-  ``(c − 127.5) / 127.5 · range_l`` (:func:`quantize_sh`, ``PointTable.meta
+  (R + 256·G + 65536·B, exact in a float32 too), band l's code c ∈ [1, 255] meaning
+  ``(c − 128) / 127 · range_l`` — zero exact — (:func:`quantize_sh`, ``PointTable.meta
   ["sh_range"]``). Display only — exports read the source file — so 8 bits suffice
   (PlayCanvas's compressed PLY stores SH in 8 bits too) and a degree-3 scene costs
   60 bytes per splat instead of 180.
@@ -151,19 +151,21 @@ def quantize_sh(sh_rest: np.ndarray, degree: int) -> tuple[list[np.ndarray], np.
     Returns:
         ``(codes, ranges)``: per coefficient k an ``[N]`` int32 of packed R, G, B codes
         (``r + 256 g + 65536 b``), and ``ranges [3]`` (band 1, 2, 3; 0 beyond
-        ``degree``): the ``SH_RANGE_PERCENTILE`` of |c| over the band. A code c means
-        ``(c − 127.5) / 127.5 · range``, so every value within the range is kept to
-        half a step (``range / 255``); values beyond it clip.
+        ``degree`` or for an all-zero band): the ``SH_RANGE_PERCENTILE`` of |c| over the
+        band. A code c ∈ [1, 255] means ``(c − 128) / 127 · range``, so 0 is exact and
+        every value within the range is kept to half a step (``range / 254``); values
+        beyond it clip.
     """
     ranges = np.zeros(3, np.float64)
     codes = []
     for band in range(1, degree + 1):
         block = sh_rest[:, band * band - 1 : (band + 1) ** 2 - 1]
-        r = float(np.percentile(np.abs(block), SH_RANGE_PERCENTILE)) if block.size else 0.0
-        ranges[band - 1] = r if r > 0 else 1.0
+        if block.size:
+            ranges[band - 1] = float(np.percentile(np.abs(block), SH_RANGE_PERCENTILE))
     for k in range(1, sh_coeff_count(degree)):
-        scale = 127.5 / ranges[_band_of(k) - 1]
-        c = np.clip(np.rint(sh_rest[:, k - 1, :].astype(np.float64) * scale + 127.5), 0, 255)
+        r = ranges[_band_of(k) - 1]
+        scale = 127.0 / r if r > 0 else 0.0
+        c = np.clip(np.rint(sh_rest[:, k - 1, :].astype(np.float64) * scale) + 128, 1, 255)
         c = c.astype(np.int32)
         codes.append(np.ascontiguousarray(c[:, 0] | (c[:, 1] << 8) | (c[:, 2] << 16)))
     return codes, ranges
@@ -175,7 +177,7 @@ def dequantize_sh(codes: list[np.ndarray], ranges: np.ndarray) -> np.ndarray:
     for j, v in enumerate(codes):
         v = np.asarray(v, np.int64)
         rgb = np.stack([v & 255, (v >> 8) & 255, (v >> 16) & 255], 1).astype(np.float64)
-        out[:, j] = (rgb - 127.5) / 127.5 * ranges[_band_of(j + 1) - 1]
+        out[:, j] = (rgb - 128.0) / 127.0 * ranges[_band_of(j + 1) - 1]
     return out
 
 

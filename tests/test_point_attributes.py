@@ -80,9 +80,11 @@ def test_sh_codes_keep_coefficients_to_half_a_step():
     codes, ranges = quantize_sh(rest, 3)
     assert len(codes) == 15 and all(c.dtype == np.int32 for c in codes)
     assert all(c.min() >= 0 and c.max() < 1 << 24 for c in codes)  # exact in a float32
+    zero, zr = quantize_sh(np.zeros((3, 3, 3)), 1)
+    assert zr.tolist() == [0.0, 0.0, 0.0] and not dequantize_sh(zero, zr).any()
     back = dequantize_sh(codes, ranges)
     band = np.array([1] * 3 + [2] * 5 + [3] * 7)
-    step = ranges[band - 1] / 127.5
+    step = ranges[band - 1] / 127.0
     inside = np.abs(rest) <= ranges[band - 1][None, :, None]
     err = np.abs(back - rest)
     half = np.broadcast_to(step[None, :, None] / 2, err.shape)

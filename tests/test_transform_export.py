@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from divas_engine import load_scene
 from divas_engine.blender_convention import AXES, axis_conversion, up_conversion
+from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.geometry import quat_to_rotmat
 from divas_engine.io.splat import SPLAT_DTYPE
@@ -34,7 +35,7 @@ from divas_engine.transform_export import (
     transform_frames,
     transform_scene,
 )
-from divas_engine.views import plan_scene_anchors
+from divas_engine.views import scene_frame
 
 DATA = Path(__file__).parent / "data"
 LOD3 = DATA / "gaussiansplats3d-lod" / "lod3_tile_0.ply"  # 3DGS, SH degree 3 (all zero)
@@ -90,8 +91,11 @@ def _matrix(scale: float = 1.0) -> np.ndarray:
 
 
 @cache
-def _camera(path: Path):
-    return plan_scene_anchors(load_scene(path), []).anchors[1].camera.scaled(0.4)
+def _camera(path: Path) -> Camera:
+    """A 200×150 view of the scene's robust foreground from an oblique direction."""
+    fr = scene_frame(load_scene(path))
+    eye = fr.center + 2.2 * fr.radius * np.array([0.6, -0.5, 0.62])
+    return Camera.look_at(eye, fr.center, [0, 0, 1], width=200, height=150, fx=190.0)
 
 
 def _moved_camera(cam, m):
