@@ -78,7 +78,8 @@ def _uniform_scale(a: np.ndarray) -> float | None:
     """``s`` when ``A = s·R`` with ``R`` a proper rotation, else None."""
     g = a.T @ a
     s2 = np.trace(g) / 3.0
-    if np.allclose(g, s2 * np.eye(3), rtol=0, atol=1e-9 * s2) and np.linalg.det(a) > 0:
+    # 1e-6: object matrices come from Blender in float32
+    if np.allclose(g, s2 * np.eye(3), rtol=0, atol=1e-6 * s2) and np.linalg.det(a) > 0:
         return float(np.sqrt(s2))
     return None
 
@@ -126,12 +127,15 @@ def transform_frames(
         cov = np.einsum("ij,njk,nk,nlk,ml->nim", a, r, s * s, r, a)
         lam, vec = np.linalg.eigh(cov)  # ascending
         lam, vec = lam[:, ::-1], vec[:, :, ::-1]
-        new_s = np.sqrt(np.maximum(lam, 0.0))
+        # a vanishing axis (σ below the eigen-solver's precision) stays tiny but finite,
+        # so its log-scale can be written
+        floor = 1e-12 * np.sqrt(np.maximum(lam[:, :1], 0.0)) + 1e-30
+        new_s = np.maximum(np.sqrt(np.maximum(lam, 0.0)), floor)
     else:
         frame = a @ (r[:, :, :2] * s[:, None, :])  # [N,3,2]
         u, sv, _ = np.linalg.svd(frame, full_matrices=False)
         vec = np.concatenate([u, np.cross(u[:, :, 0], u[:, :, 1])[:, :, None]], axis=2)
-        new_s = sv
+        new_s = np.maximum(sv, 1e-12 * sv[:, :1] + 1e-30)
     flip = np.linalg.det(vec) < 0
     vec[flip, :, -1] *= -1.0
     return rotmat_to_quat(vec).astype(np.float64), new_s

@@ -15,7 +15,7 @@ engine's alpha > 0.5), 160×120, 16 samples, 1-px box filter:
   (sRGB) space, as the trainers and the engine do: guitar 0.061, biker 0.080 measured
   (its dark leathers shot with bright highlights blend brighter in linear light: the
   compositing space alone accounts for ~0.07), ≤ 0.07 / 0.09. The issue's target, ≤ 0.06
-  against the engine's own render, is not met: see ``/work/notes/issue-18.md``;
+  against the engine's own render, is not met (the issue note explains);
 * the mean display luminance inside the figure within 0.05 of the engine's (the old
   display: 0.42 against 0.23).
 
