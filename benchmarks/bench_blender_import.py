@@ -38,8 +38,9 @@ assert bpy.ops.divas.import_splats(filepath={ply!r}, display_mode={mode!r}) == {
 t_import, c_import = time.perf_counter() - t0, time.process_time() - c0
 rss_import = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 obj = bpy.context.active_object
-out = {{"import_s": t_import, "import_cpu_s": c_import, "rss_before_mb": base / 1024, "rss_import_mb": rss_import / 1024,
-        "points": len(obj.data.points), "attributes": len(obj.data.attributes)}}
+out = {{"import_s": t_import, "import_cpu_s": c_import, "rss_before_mb": base / 1024,
+        "rss_import_mb": rss_import / 1024, "points": len(obj.data.points),
+        "attributes": len(obj.data.attributes)}}
 if {evaluate!r}:
     t0 = time.perf_counter()
     cam = bpy.data.objects.get("Camera")
