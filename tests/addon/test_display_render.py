@@ -52,7 +52,7 @@ def _luma(rgb: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize(
     "capture, display_tol",
     [
-        ("playcanvas-splats/guitar.compressed.ply", 0.06),
+        ("playcanvas-splats/guitar.compressed.ply", 0.07),
         ("playcanvas-splats/biker.compressed.ply", 0.09),
     ],
 )
