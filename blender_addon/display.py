@@ -242,10 +242,19 @@ def add_display_modifier(
     return mod
 
 
-def setup_scene_for_splats(scene: bpy.types.Scene) -> None:
+def setup_scene_for_splats(scene: bpy.types.Scene, context=None) -> None:
     """Render settings splats need (never lowered): the Standard view transform (so the
     decoded colours display as captured), enough Cycles transparent bounces to see
-    through stacked splats, and EEVEE samples for the dithered alpha to converge."""
+    through stacked splats, EEVEE samples for the dithered alpha to converge, and
+    *Attribute* colour for Solid mode (the open 3D views and Workbench renders) so it
+    shows the splats' colour attribute."""
+    scene.display.shading.color_type = "VERTEX"
+    wm = getattr(context, "window_manager", None)
+    for window in getattr(wm, "windows", ()):
+        for area in window.screen.areas:
+            for space in area.spaces:
+                if space.type == "VIEW_3D":
+                    space.shading.color_type = "VERTEX"
     scene.view_settings.view_transform = "Standard"
     scene.view_settings.look = "None"
     scene.view_settings.exposure = 0.0

@@ -180,7 +180,7 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
                 max_radius=meta["max_radius"],
             )
         if settings.setup_scene:
-            display.setup_scene_for_splats(context.scene)
+            display.setup_scene_for_splats(context.scene, context)
         return obj
     finally:
         wm.progress_end()

@@ -16,8 +16,9 @@ engine's alpha > 0.5), 160×120, 16 samples, 1-px box filter:
   (its dark leathers shot with bright highlights blend brighter in linear light: the
   compositing space alone accounts for ~0.07), ≤ 0.07 / 0.09. The issue's target, ≤ 0.06
   against the engine's own render, is not met (the issue note explains);
-* the mean display luminance inside the figure within 0.05 of the engine's (the old
-  display: 0.42 against 0.23).
+* the mean display luminance inside the figure within 0.05 of the like-for-like engine
+  render (linear compositing, anti-aliased; the old display: 0.42 against 0.23 for the
+  biker's engine render).
 
 Workbench (what Solid mode draws) shows the splat colours: the same figure, not grey.
 """
@@ -72,7 +73,8 @@ def test_cycles_render_matches_the_engine(real_data, tmp_path, capture, display_
     mads = {k: CMP.mad(got, v, inside) for k, v in refs.items()}
     assert mads["engine_linear_aa"] <= 0.07, mads
     assert mads["engine_aa"] <= display_tol, mads
-    assert abs(_luma(got)[inside].mean() - _luma(refs["engine"])[inside].mean()) <= 0.05, mads
+    gap = abs(_luma(got)[inside].mean() - _luma(refs["engine_linear_aa"])[inside].mean())
+    assert gap <= 0.05, (gap, mads)
     assert _luma(got)[~inside].mean() < 0.02  # nothing drawn where the engine has nothing
 
 

@@ -88,6 +88,7 @@ def test_import_synthetic_2dgs(ribs):
     assert mod.type == "NODES" and mod.node_group.name == display.DISPLAY_GROUP
     assert [m.name for m in obj.data.materials] == [display.MATERIAL, display.POINTS_MATERIAL]
     assert bpy.context.scene.view_settings.view_transform == "Standard"
+    assert bpy.context.scene.display.shading.color_type == "VERTEX"  # Solid: Attribute colour
 
 
 def test_splat_display_is_the_oriented_gaussian_quads(real_data):
