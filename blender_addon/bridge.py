@@ -71,15 +71,27 @@ def point_count(geometry) -> int:
     return geometry.attributes.domain_size("POINT")
 
 
-def write_attribute(geometry, name: str, values: np.ndarray, *, data_type: str | None = None):
+#: :attr:`divas_engine.point_attributes.PointTable.kinds` → Blender data type.
+_KIND_TYPES = {"color": "FLOAT_COLOR", "quaternion": "QUATERNION"}
+
+
+def write_attribute(
+    geometry,
+    name: str,
+    values: np.ndarray,
+    *,
+    data_type: str | None = None,
+    kind: str | None = None,
+):
     """Create or overwrite the point attribute ``name`` from ``values`` (``[N]`` or ``[N,k]``).
 
-    The type follows the array (float → FLOAT/FLOAT2/FLOAT_VECTOR/FLOAT_COLOR, int32 →
-    INT, bool → BOOLEAN) unless ``data_type`` is given. An existing attribute of another
-    type or domain is replaced.
+    The type follows ``data_type``, else ``kind`` (``"color"``, ``"quaternion"``: a
+    (w, x, y, z) rotation), else the array (float → FLOAT/FLOAT2/FLOAT_VECTOR/FLOAT_COLOR,
+    int32 → INT, bool → BOOLEAN). An existing attribute of another type or domain is
+    replaced.
     """
     values = np.asarray(values)
-    data_type = data_type or _data_type_for(values)
+    data_type = data_type or _KIND_TYPES.get(kind or "") or _data_type_for(values)
     prop, dtype, comps = _TYPES[data_type]
     n = point_count(geometry)
     if len(values) != n or values.size != n * comps:

@@ -8,9 +8,17 @@ created here stores its own ``divas_resolution`` (W, H) and ``divas_pixel_aspect
 and the DivAS session do this), and :func:`engine_camera` always rebuilds the engine
 camera from the camera's *own* stored size, whatever the scene currently holds.
 Lens, sensor, fit and shift live on the camera data and are exact per camera.
+
+Frames (issue 18): a camera is made in the frame of the splats it belongs to — its
+world matrix is ``frame @ pose``, with ``frame`` the splat import's axis conversion
+(kept as the ``divas_frame`` custom property) or, for a camera parented to the splat
+object, the object itself. :func:`engine_camera` undoes exactly that, so it always
+returns the camera in the scene file's own frame, the one the engine works in.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import bpy
 import numpy as np
@@ -31,10 +39,13 @@ __all__ = [
     "apply_render_settings",
     "blender_params",
     "engine_camera",
+    "frame_of",
+    "FRAME_PROP",
     "is_divas_camera",
 ]
 
 RESOLUTION_PROP, PIXEL_ASPECT_PROP = "divas_resolution", "divas_pixel_aspect"
+FRAME_PROP = "divas_frame"
 
 
 def apply_params(obj: bpy.types.Object, p: BlenderCameraParams) -> None:
@@ -57,15 +68,23 @@ def create_camera_object(
     name: str | None = None,
     display_size: float = 0.25,
     clip: tuple[float, float] = (0.01, 1000.0),
+    frame: np.ndarray | None = None,
 ) -> bpy.types.Object:
-    """A Blender camera reproducing ``cam`` exactly (when its render settings are applied)."""
+    """A Blender camera reproducing ``cam`` exactly (when its render settings are applied);
+    ``frame``: the ``[4,4]`` axis conversion of the splats ``cam`` belongs to (module
+    docstring)."""
     name = name or cam.name or "DivAS Camera"
     data = bpy.data.cameras.new(name)
     data.display_size = display_size
     data.clip_start, data.clip_end = clip
     obj = bpy.data.objects.new(name, data)
     collection.objects.link(obj)
-    apply_params(obj, camera_to_blender(cam))
+    p = camera_to_blender(cam)
+    if frame is not None:
+        frame = np.asarray(frame, np.float64)
+        p = replace(p, matrix_world=frame @ p.matrix_world)
+        obj[FRAME_PROP] = frame.ravel().tolist()
+    apply_params(obj, p)
     return obj
 
 
@@ -110,6 +129,21 @@ def blender_params(
     )
 
 
+def frame_of(obj: bpy.types.Object) -> np.ndarray:
+    """``[4,4]`` world matrix of the frame ``obj`` was made in (module docstring): its
+    parent's world matrix, else its ``divas_frame``, else the identity."""
+    if obj.parent is not None:
+        return np.array(obj.parent.matrix_world, np.float64) @ np.array(
+            obj.matrix_parent_inverse, np.float64
+        )
+    if FRAME_PROP in obj:
+        return np.asarray(obj[FRAME_PROP], np.float64).reshape(4, 4)
+    return np.eye(4)
+
+
 def engine_camera(scene: bpy.types.Scene, obj: bpy.types.Object) -> Camera:
-    """The engine :class:`Camera` of a Blender camera object."""
-    return camera_from_blender(blender_params(scene, obj))
+    """The engine :class:`Camera` of a Blender camera object, in the frame of the splats
+    it was made for (:func:`frame_of`)."""
+    p = blender_params(scene, obj)
+    p = replace(p, matrix_world=np.linalg.inv(frame_of(obj)) @ p.matrix_world)
+    return camera_from_blender(p)

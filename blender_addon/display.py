@@ -1,122 +1,272 @@
-"""How imported splats and voxels look: a Geometry Nodes group and one material.
+"""How imported splats and voxels look: one Geometry Nodes group, two materials, a quad.
 
-The node group "DivAS Point Display" (a modifier on every imported point cloud):
-``Set Point Radius`` from the ``divas_radius`` attribute × a "Radius Scale" input,
-then ``Set Material`` "DivAS Splat". The material reads the point attributes:
-``divas_color`` as an unlit (emission) colour, tinted by ``divas_selected`` (so a
-selection shows live when the attribute changes), mixed with a transparent BSDF by
-``divas_opacity`` (EEVEE dithers it, Cycles blends it). Both are built once per file
-and reused; a user may edit them freely.
+Every imported point cloud gets the modifier "DivAS Display" running the node group
+"DivAS Splat Display" (built by :mod:`.display_nodes`). Per splat it computes the
+display colour — the linear ``divas_color`` (import decoded the SH DC colour from
+sRGB), or with *View-Dependent Colour* the full SH colour ``0.5 + Σ Y_k(d) c_k``
+evaluated like the engine's rasterizer along the direction ``d`` from the **scene
+camera** to the splat (in the object's own frame, so any object transform is honoured)
+and then decoded to linear — tinted where ``divas_selected`` is set, and shows it two
+ways:
+
+* **Splats** (default up to :data:`SPLATS_MAX_POINTS` splats): a quad per splat, rotated
+  by ``divas_rotation`` and scaled by the tangent σ's (``divas_scale``) × *Size* ×
+  :data:`QUAD_EXTENT` (the 2DGS cut-off √(2 ln 255) σ, where α·G falls below 1/255),
+  realised into one mesh. The material "DivAS Splat" evaluates the 2DGS Gaussian on the
+  quad's ``divas_quad_uv`` (σ units): ``α = min(0.99, opacity · exp(−(u²+v²)/2))``,
+  dropped below 1/255, as the alpha of an unlit emission over a transparent BSDF (Cycles
+  blends it; EEVEE dithers it and converges over its samples). The realised mesh's
+  active colour attribute ``divas_display`` is the same colour, so Solid mode with
+  *Attribute* colour (and Workbench renders) shows the splat colours.
+* **Points**: one point per splat (Cycles/EEVEE spheres) of radius *Size* ·
+  2√(s₁s₂), clipped at the P99 radius (or ``divas_radius`` where a density grid sets
+  one), material "DivAS Points". Cheap for huge scenes; Solid mode shows it in the
+  material colour (Blender's Workbench draws point clouds without attributes).
+
+Why the SH colour follows the scene camera and not the viewport: a shader sees the
+splat only after instancing, where the object's rotation is no longer separable from
+the splat's own, and the realised mesh that lets Solid mode show colours keeps only
+the colour; evaluating the SH in Geometry Nodes per splat keeps it exact (the engine's
+own direction) for renders, at the cost of the viewport showing the colours seen from
+the scene camera. *Opacity Threshold* hides splats whose opacity is below it (the
+floaters that wall a scene off in Solid mode).
 """
 
 from __future__ import annotations
 
+import math
+
 import bpy
+import numpy as np
+
+from divas_engine.point_attributes import COLOR
+
+from . import display_nodes
 
 __all__ = [
     "DISPLAY_GROUP",
     "MATERIAL",
+    "POINTS_MATERIAL",
     "MODIFIER",
+    "QUAD_OBJECT",
     "SELECTED_TINT",
+    "SPLATS_MAX_POINTS",
+    "QUAD_EXTENT",
+    "DisplayInputs",
     "ensure_material",
+    "ensure_points_material",
     "ensure_display_group",
     "add_display_modifier",
+    "set_display_inputs",
+    "display_inputs",
+    "setup_scene_for_splats",
 ]
 
-DISPLAY_GROUP = "DivAS Point Display"
+DISPLAY_GROUP = "DivAS Splat Display"
 MATERIAL = "DivAS Splat"
+POINTS_MATERIAL = "DivAS Points"
 MODIFIER = "DivAS Display"
-#: colour mixed into selected points (half strength) so they stand out.
+QUAD_OBJECT = "DivAS Splat Quad"
+#: colour (linear) mixed into selected points at half strength so they stand out.
 SELECTED_TINT = (1.0, 0.35, 0.05, 1.0)
+#: above this many splats an import shows points by default (the quads of 3M splats
+#: take ~650 MB once realised).
+SPLATS_MAX_POINTS = 1_000_000
+#: quad half-size in σ: where a fully opaque Gaussian's α·G drops below 1/255.
+QUAD_EXTENT = math.sqrt(2.0 * math.log(255.0))
+#: bumped when the node group or a material changes; older ones are rebuilt.
+VERSION = 5
+_VERSION_PROP = "divas_display_version"
 
 
-def _socket(sockets, identifier: str):
-    for s in sockets:
-        if s.identifier == identifier:
-            return s
-    raise KeyError(identifier)
+class DisplayInputs:
+    """Modifier input names of the display group (the panel and operators set them)."""
+
+    POINTS = "Points"
+    SIZE = "Size"
+    OPACITY_THRESHOLD = "Opacity Threshold"
+    VIEW_DEPENDENT = "View-Dependent Colour"
+    SH_RANGE = "SH Range"
+    MAX_RADIUS = "Max Radius"
 
 
-def ensure_material() -> bpy.types.Material:
-    mat = bpy.data.materials.get(MATERIAL)
-    if mat is not None:
-        return mat
-    mat = bpy.data.materials.new(MATERIAL)
+def _outdated(idblock) -> bool:
+    return idblock is not None and idblock.get(_VERSION_PROP) != VERSION
+
+
+def _fresh_material(name: str) -> bpy.types.Material:
+    mat = bpy.data.materials.get(name)
+    if mat is None:
+        mat = bpy.data.materials.new(name)
     if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
         mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
-
-    def attr(name: str, y: float):
-        n = nt.nodes.new("ShaderNodeAttribute")
-        n.attribute_type, n.attribute_name, n.location = "GEOMETRY", name, (-700, y)
-        return n
-
-    color, selected, opacity = (
-        attr("divas_color", 200),
-        attr("divas_selected", 0),
-        attr("divas_opacity", -200),
-    )
-    tint = nt.nodes.new("ShaderNodeMix")
-    tint.data_type, tint.location = "RGBA", (-450, 150)
-    nt.links.new(selected.outputs["Factor"], _socket(tint.inputs, "Factor_Float"))
-    nt.links.new(color.outputs["Color"], _socket(tint.inputs, "A_Color"))
-    _socket(tint.inputs, "B_Color").default_value = SELECTED_TINT
-    emission = nt.nodes.new("ShaderNodeEmission")
-    emission.location = (-200, 150)
-    nt.links.new(_socket(tint.outputs, "Result_Color"), emission.inputs["Color"])
-    transparent = nt.nodes.new("ShaderNodeBsdfTransparent")
-    transparent.location = (-200, -50)
-    mix = nt.nodes.new("ShaderNodeMixShader")
-    mix.location = (50, 50)
-    nt.links.new(opacity.outputs["Factor"], mix.inputs[0])
-    nt.links.new(transparent.outputs["BSDF"], mix.inputs[1])
-    nt.links.new(emission.outputs["Emission"], mix.inputs[2])
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    out.location = (250, 50)
-    nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    mat.node_tree.nodes.clear()
+    mat[_VERSION_PROP] = VERSION
     if hasattr(mat, "surface_render_method"):
         mat.surface_render_method = "DITHERED"
+    mat.use_backface_culling = False
     return mat
 
 
+def ensure_material() -> bpy.types.Material:
+    """The splat material (Gaussian alpha on the quad, module docstring)."""
+    mat = bpy.data.materials.get(MATERIAL)
+    if mat is not None and not _outdated(mat):
+        return mat
+    mat = _fresh_material(MATERIAL)
+    display_nodes.build_splat_material(mat.node_tree)
+    mat.diffuse_color = (0.8, 0.8, 0.8, 1.0)
+    return mat
+
+
+def ensure_points_material() -> bpy.types.Material:
+    """The point material: the display colour, opacity as alpha."""
+    mat = bpy.data.materials.get(POINTS_MATERIAL)
+    if mat is not None and not _outdated(mat):
+        return mat
+    mat = _fresh_material(POINTS_MATERIAL)
+    display_nodes.build_points_material(mat.node_tree)
+    return mat
+
+
+def ensure_quad_object() -> bpy.types.Object:
+    """The unit quad each splat instances (never linked into a scene): corners at ±1,
+    ``divas_quad_uv`` = corners × :data:`QUAD_EXTENT` (σ units) and the active colour
+    attribute ``divas_display`` the realised mesh inherits (so Solid mode shows it)."""
+    obj = bpy.data.objects.get(QUAD_OBJECT)
+    if obj is not None and obj.type == "MESH" and not _outdated(obj):
+        return obj
+    mesh = bpy.data.meshes.new(QUAD_OBJECT)
+    corners = [(-1.0, -1.0, 0.0), (1.0, -1.0, 0.0), (1.0, 1.0, 0.0), (-1.0, 1.0, 0.0)]
+    mesh.from_pydata(corners, [], [(0, 1, 2, 3)])
+    uv = mesh.attributes.new(display_nodes.QUAD_UV, "FLOAT2", "CORNER")
+    uv.data.foreach_set("vector", (np.array(corners)[:, :2] * QUAD_EXTENT).ravel())
+    col = mesh.color_attributes.new(display_nodes.DISPLAY_COLOR, "FLOAT_COLOR", "POINT")
+    mesh.color_attributes.active_color = col
+    mesh.color_attributes.render_color_index = mesh.color_attributes.active_color_index
+    for name in [a.name for a in mesh.attributes if a.name.startswith(".select")]:
+        mesh.attributes.remove(mesh.attributes[name])
+    if obj is None:
+        obj = bpy.data.objects.new(QUAD_OBJECT, mesh)
+    else:
+        old = obj.data
+        obj.data = mesh
+        if old is not None and old.users == 0:
+            bpy.data.meshes.remove(old)
+    obj[_VERSION_PROP] = VERSION
+    return obj
+
+
 def ensure_display_group() -> bpy.types.GeometryNodeTree:
+    """The display node group (module docstring), rebuilt in place when outdated."""
     ng = bpy.data.node_groups.get(DISPLAY_GROUP)
-    if ng is not None:
+    if ng is not None and not _outdated(ng):
         return ng
-    ng = bpy.data.node_groups.new(DISPLAY_GROUP, "GeometryNodeTree")
-    ng.is_modifier = True
-    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    scale = ng.interface.new_socket("Radius Scale", in_out="INPUT", socket_type="NodeSocketFloat")
-    scale.default_value, scale.min_value, scale.max_value = 1.0, 0.0, 100.0
-    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    nodes, links = ng.nodes, ng.links
-    gin, gout = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
-    gin.location, gout.location = (-600, 0), (400, 0)
-    radius = nodes.new("GeometryNodeInputNamedAttribute")
-    radius.data_type, radius.location = "FLOAT", (-600, -200)
-    radius.inputs["Name"].default_value = "divas_radius"
-    mul = nodes.new("ShaderNodeMath")
-    mul.operation, mul.location = "MULTIPLY", (-350, -150)
-    links.new(radius.outputs["Attribute"], mul.inputs[0])
-    links.new(gin.outputs["Radius Scale"], mul.inputs[1])
-    set_radius = nodes.new("GeometryNodeSetPointRadius")
-    set_radius.location = (-100, 0)
-    links.new(gin.outputs["Geometry"], set_radius.inputs["Points"])
-    links.new(mul.outputs["Value"], set_radius.inputs["Radius"])
-    set_mat = nodes.new("GeometryNodeSetMaterial")
-    set_mat.location = (150, 0)
-    set_mat.inputs["Material"].default_value = ensure_material()
-    links.new(set_radius.outputs["Points"], set_mat.inputs["Geometry"])
-    links.new(set_mat.outputs["Geometry"], gout.inputs["Geometry"])
+    if ng is None:
+        ng = bpy.data.node_groups.new(DISPLAY_GROUP, "GeometryNodeTree")
+    else:
+        ng.nodes.clear()
+        ng.interface.clear()
+    ng[_VERSION_PROP] = VERSION
+    display_nodes.build_display_group(
+        ng,
+        splat_material=ensure_material(),
+        points_material=ensure_points_material(),
+        quad=ensure_quad_object(),
+        tint=SELECTED_TINT,
+        version=VERSION,
+    )
     return ng
 
 
-def add_display_modifier(obj: bpy.types.Object) -> bpy.types.Modifier:
-    """Give ``obj`` the display modifier (and the material in its slot for Cycles/EEVEE)."""
+def _input_ids(mod) -> dict[str, str]:
+    return {
+        item.name: item.identifier
+        for item in mod.node_group.interface.items_tree
+        if getattr(item, "in_out", None) == "INPUT" and item.socket_type != "NodeSocketGeometry"
+    }
+
+
+def set_display_inputs(mod, **values) -> None:
+    """Set display-group inputs on modifier ``mod`` by their names
+    (:class:`DisplayInputs`), e.g. ``set_display_inputs(mod, **{"Size": 0.5})``."""
+    ids = _input_ids(mod)
+    for name, value in values.items():
+        if name not in ids:
+            raise KeyError(f"the display group has no input {name!r}")
+        mod[ids[name]] = tuple(value) if isinstance(value, list | tuple) else value
+    mod.node_group.interface_update(bpy.context)
+    mod.id_data.update_tag()
+
+
+def display_inputs(mod) -> dict[str, object]:
+    """The modifier's display-group input values by name."""
+    out = {}
+    for name, ident in _input_ids(mod).items():
+        v = mod.get(ident)
+        out[name] = tuple(v) if hasattr(v, "__len__") and not isinstance(v, str) else v
+    return out
+
+
+def add_display_modifier(
+    obj: bpy.types.Object,
+    *,
+    points: bool | None = None,
+    sh_range=(0.0, 0.0, 0.0),
+    max_radius: float = 0.0,
+) -> bpy.types.Modifier:
+    """Give ``obj`` the display modifier (and both materials in its slots).
+
+    ``points``: the fast point display (None: points above :data:`SPLATS_MAX_POINTS`
+    splats, or when the object has no ``divas_rotation``, e.g. a density grid);
+    ``sh_range``: the per-band ranges of the ``divas_sh_*`` codes; ``max_radius``: the
+    point radius clip (0: none).
+    """
     mod = obj.modifiers.get(MODIFIER) or obj.modifiers.new(MODIFIER, "NODES")
     mod.node_group = ensure_display_group()
-    mat = ensure_material()
-    if mat.name not in obj.data.materials:
-        obj.data.materials.append(mat)
+    for mat in (ensure_material(), ensure_points_material()):
+        if mat.name not in obj.data.materials:
+            obj.data.materials.append(mat)
+    if points is None:
+        n = obj.data.attributes.domain_size("POINT")
+        has_frame = obj.data.attributes.get("divas_rotation") is not None
+        points = n > SPLATS_MAX_POINTS or not has_frame
+    set_display_inputs(
+        mod,
+        **{
+            DisplayInputs.POINTS: bool(points),
+            DisplayInputs.SH_RANGE: [float(r) for r in sh_range],
+            DisplayInputs.MAX_RADIUS: float(max_radius),
+        },
+    )
     return mod
+
+
+def setup_scene_for_splats(scene: bpy.types.Scene, context=None) -> None:
+    """Render settings splats need (never lowered): the Standard view transform (so the
+    decoded colours display as captured), enough Cycles transparent bounces to see
+    through stacked splats, EEVEE samples for the dithered alpha to converge, and
+    *Attribute* colour for Solid mode (the open 3D views and Workbench renders) so it
+    shows the splats' colour attribute."""
+    scene.display.shading.color_type = "VERTEX"
+    wm = getattr(context, "window_manager", None)
+    for window in getattr(wm, "windows", ()):
+        for area in window.screen.areas:
+            for space in area.spaces:
+                if space.type == "VIEW_3D":
+                    space.shading.color_type = "VERTEX"
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    cycles = getattr(scene, "cycles", None)
+    if cycles is not None:
+        cycles.transparent_max_bounces = max(cycles.transparent_max_bounces, 128)
+    eevee = getattr(scene, "eevee", None)
+    if eevee is not None:
+        eevee.taa_render_samples = max(eevee.taa_render_samples, 64)
+
+
+def is_splat_display(obj) -> bool:
+    mod = obj.modifiers.get(MODIFIER) if obj is not None else None
+    return mod is not None and mod.node_group is not None and COLOR in obj.data.attributes

@@ -3,7 +3,9 @@
 * :func:`export_selection` reloads the object's source file through the engine and
   writes the selected rows with :func:`divas_engine.export.export_selection`, so the
   output is byte-identical to the engine's export (standard PLY rows copied verbatim,
-  other formats in their own encoding, grids as a masked ``.npz``).
+  other formats in their own encoding, grids as a masked ``.npz``) — or, with a
+  :class:`ExportTransform`, with :func:`divas_engine.transform_export.
+  export_transformed_selection` (positions, rotations, scales and SH rotated).
 * :func:`extract_selection` builds a new point-cloud object holding exactly the
   selected points with every attribute (``divas_selected`` itself is left behind: the
   selection belongs to the source object), the same source link, transform and
@@ -13,6 +15,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 import bpy
@@ -22,11 +25,14 @@ from divas_engine.errors import DivasInputError
 from divas_engine.export import ExportResult
 from divas_engine.export import export_selection as engine_export
 from divas_engine.point_attributes import SELECTED
+from divas_engine.transform_export import export_transformed_selection
 
 from . import bridge, display, source
 
 __all__ = [
     "ExportSettings",
+    "ExportTransform",
+    "export_matrix",
     "export_selection",
     "extract_selection",
     "selected_count",
@@ -34,13 +40,28 @@ __all__ = [
 ]
 
 
+class ExportTransform(StrEnum):
+    """What of the object's transform an export applies (issue 18).
+
+    ``NONE``: the rows as the file holds them (its own frame). ``OBJECT``: the object's
+    transform *since import* (``frame⁻¹ · matrix_world``, ``frame`` = the import's axis
+    conversion), so the file keeps its own axis convention with the user's moves, turns
+    and scaling baked in. ``WORLD``: the whole ``matrix_world`` (Blender's Z-up world)."""
+
+    NONE = "NONE"
+    OBJECT = "OBJECT"
+    WORLD = "WORLD"
+
+
 @dataclass(frozen=True)
 class ExportSettings:
     """``filepath``: output file (the source format's suffix is added when missing);
-    ``write_labels``: also write ``<stem>_labels.npy`` (bool per input-file row)."""
+    ``write_labels``: also write ``<stem>_labels.npy`` (bool per input-file row);
+    ``transform``: :class:`ExportTransform`."""
 
     filepath: Path
     write_labels: bool = False
+    transform: ExportTransform = ExportTransform.NONE
 
 
 def has_selection(obj) -> bool:
@@ -88,7 +109,21 @@ def export_selection(obj, settings: ExportSettings) -> ExportResult:
         out.with_name(out.name.split(".")[0] + "_labels.npy") if settings.write_labels else None
     )
     out.parent.mkdir(parents=True, exist_ok=True)
-    return engine_export(scene, mask, out, labels_path=labels)
+    matrix = export_matrix(obj, ExportTransform(settings.transform))
+    if matrix is None:
+        return engine_export(scene, mask, out, labels_path=labels)
+    return export_transformed_selection(scene, mask, out, matrix, labels_path=labels)
+
+
+def export_matrix(obj, transform: ExportTransform) -> np.ndarray | None:
+    """The ``[4,4]`` an export applies to ``obj``'s splats (None: none)."""
+    if transform == ExportTransform.NONE:
+        return None
+    world = np.array(obj.matrix_world, np.float64)
+    if transform == ExportTransform.WORLD:
+        return world
+    frame = np.asarray(obj.get("divas_frame", np.eye(4).ravel().tolist()), np.float64)
+    return np.linalg.inv(frame.reshape(4, 4)) @ world
 
 
 def extract_selection(context, obj) -> bpy.types.Object:
@@ -118,6 +153,8 @@ def extract_selection(context, obj) -> bpy.types.Object:
         source.KIND_PROP,
         "divas_grid_shape",
         "divas_grid_aabb",
+        "divas_frame",
+        "divas_up_reason",
     ):
         if key in obj:
             new[key] = obj[key]

@@ -45,6 +45,7 @@ FORMAT_SUFFIX = {
     "compressed_ply": ".ply",
     "splat": ".splat",
     "spz": ".spz",
+    "sog": ".sog",
     "npz": ".npz",
 }
 

@@ -1,7 +1,8 @@
-"""Build the DivAS Blender extension: pinned wheels per platform and Python, one zip each.
+"""Build the DivAS Blender extension: pinned wheels, one zip per platform and Python.
 
     python blender_scripts/build_extension.py                       # all platforms, cp311 + cp313
     python blender_scripts/build_extension.py --platforms linux-x64 --python 311   # the CI variant
+    python blender_scripts/build_extension.py --without-sam         # no onnxruntime (−24 MB)
 
 Steps:
 
@@ -18,8 +19,22 @@ Steps:
    into ``--out``. With neither available the zip is written here in the same layout
    (manifest at the archive root, wheels under ``wheels/``), one per platform.
 
-Blender 4.2–5.0 runs Python 3.11 and 5.1+ Python 3.13, so both are bundled. NumPy is not:
-Blender ships its own, and a second copy would shadow it.
+Blender 4.2–5.0 runs Python 3.11 and 5.1+ Python 3.13. Each Python gets its own zip
+(``divas-<version>-<platform>-cp311.zip`` with ``blender_version_max = "5.1.0"``,
+``…-cp313.zip`` with ``blender_version_min = "5.1.0"``): a Blender only ever loads the
+wheels of its own Python, so one zip holding both carried ~65 MB it never used.
+
+What a zip holds (linux-x64, cp311, measured 2026-12-02; the one zip with both Pythons
+was 329 MB): warp-lang 149 MB (45 %: ``warp.so`` with the CUDA code paths and
+``warp-clang.so``, the LLVM that JIT-compiles the kernels on the CPU — the engine needs
+both, one wheel serves every Python), opencv-python-headless 50 MB (already the smallest
+OpenCV build: no GUI, no contrib; the classic segmenter and SOG's WebP need it, one
+``abi3`` wheel), scipy 35 MB (KD-tree, ndimage, sparse), onnxruntime 24 MB (SAM in
+ONNX; ``--without-sam`` leaves it out for a build without SAM), zstandard 5.5 MB (.spz
+v4), psutil 0.2 MB (session memory figures), plyfile, the engine. Not bundled: NumPy
+(Blender ships its own, and a second copy would shadow it), tqdm (progress bars of the
+command line only; the add-on never imports it), and every test/development dependency
+(bpy, pytest, onnx, ruff — the ``test`` extra).
 """
 
 from __future__ import annotations
@@ -38,7 +53,8 @@ REPO = Path(__file__).resolve().parents[1]
 ADDON = REPO / "blender_addon"
 BUILD = REPO / "build" / "extension"
 
-#: The engine's run-time dependencies at the versions the test suite runs against.
+#: The engine's run-time dependencies the add-on needs, at the versions the test suite
+#: runs against (tqdm, a command-line-only dependency, is left out).
 PINNED = {
     "warp-lang": "1.19.0",
     "onnxruntime": "1.31.1",
@@ -46,9 +62,12 @@ PINNED = {
     "scipy": "1.17.1",
     "plyfile": "1.1.3",
     "zstandard": "0.25.0",
-    "tqdm": "4.70.1",
     "psutil": "7.2.2",
 }
+#: left out by ``--without-sam`` (only the SAM ONNX segmenter imports it).
+SAM_ONLY = ("onnxruntime",)
+#: Blender versions of each bundled Python: (blender_version_min, blender_version_max).
+BLENDER_RANGE = {"311": ("4.2.0", "5.1.0"), "313": ("5.1.0", None)}
 
 #: Blender platform → pip platform tags (newest first; Blender 4.2 needs glibc 2.28 / macOS 11.2).
 PLATFORMS = {
@@ -83,12 +102,14 @@ def _norm(name: str) -> str:
     return re.sub(r"[-_.]+", "_", name).lower()
 
 
-def download_wheels(platform: str, python: str, cache: Path) -> list[Path]:
+def download_wheels(platform: str, python: str, cache: Path, *, sam: bool = True) -> list[Path]:
     """The pinned wheels for one platform × Python (downloaded once into ``cache``)."""
     dest = cache / f"{platform}-cp{python}"
     dest.mkdir(parents=True, exist_ok=True)
     out = []
     for name, version in PINNED.items():
+        if not sam and name in SAM_ONLY:
+            continue
         prefix = f"{_norm(name)}-{version}-"
         have = sorted(p for p in dest.glob("*.whl") if p.name.lower().startswith(prefix))
         if not have:
@@ -146,10 +167,25 @@ def _toml_list(values: list[str]) -> str:
     return "[\n" + "".join(f'  "{v}",\n' for v in values) + "]"
 
 
-def write_manifest(src: Path, dst: Path, wheels: list[str], platforms: list[str]) -> None:
-    """Copy the manifest with ``wheels`` and ``platforms`` set (top-level keys, before tables)."""
+def write_manifest(
+    src: Path,
+    dst: Path,
+    wheels: list[str],
+    platforms: list[str],
+    blender_range: tuple[str, str | None] | None = None,
+) -> None:
+    """Copy the manifest with ``wheels`` and ``platforms`` set (top-level keys, before
+    tables), and with ``blender_range`` its ``blender_version_min``/``_max``."""
     text = src.read_text()
     text = re.sub(r"(?m)^(wheels|platforms)\s*=\s*\[[^\]]*\]\s*\n", "", text)
+    if blender_range is not None:
+        lo, hi = blender_range
+        text = re.sub(r"(?m)^blender_version_(min|max)\s*=.*\n", "", text)
+        head0, sep0, rest0 = text.partition("\n[")
+        extra = f'\nblender_version_min = "{lo}"\n' + (
+            f'blender_version_max = "{hi}"\n' if hi else ""
+        )
+        text = head0.rstrip("\n") + "\n" + extra + (sep0 + rest0 if sep0 else "")
     head, sep, rest = text.partition("\n[")
     block = f"\nplatforms = {_toml_list(platforms)}\nwheels = {_toml_list(wheels)}\n"
     dst.write_text(head.rstrip("\n") + "\n" + block + (sep + rest if sep else ""))
@@ -202,8 +238,10 @@ def _zip_ourselves(stage: Path, out: Path, version: str, platforms: list[str]) -
     return zips
 
 
-def build(platforms: list[str], pythons: list[str], out: Path, cache: Path) -> list[Path]:
-    t0 = time.perf_counter()
+def _build_one(
+    platforms: list[str], python: str, out: Path, cache: Path, *, sam: bool
+) -> list[Path]:
+    """The zips (one per platform) for one Python, named ``…-<platform>-cp<python>.zip``."""
     stage = BUILD / "stage" / "divas"
     if stage.exists():
         shutil.rmtree(stage)
@@ -211,8 +249,7 @@ def build(platforms: list[str], pythons: list[str], out: Path, cache: Path) -> l
     (stage / "wheels").mkdir()
     wheels = [engine_wheel(BUILD / "engine")]
     for plat in platforms:
-        for py in pythons:
-            wheels += download_wheels(plat, py, cache)
+        wheels += download_wheels(plat, python, cache, sam=sam)
     names = []
     for w in wheels:
         if w.name not in names:
@@ -223,22 +260,43 @@ def build(platforms: list[str], pythons: list[str], out: Path, cache: Path) -> l
         stage / "blender_manifest.toml",
         [f"./wheels/{n}" for n in names],
         platforms,
+        BLENDER_RANGE[python],
     )
     version = re.search(
         r'(?m)^version\s*=\s*"([^"]+)"', (stage / "blender_manifest.toml").read_text()
     )[1]
-    out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob(f"divas-{version}*.zip"):
-        old.unlink()
+    tmp = out / f".cp{python}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
     packager = _packager()
     if packager is None:
-        zips = _zip_ourselves(stage, out, version, platforms)
+        made = _zip_ourselves(stage, tmp, version, platforms)
     else:
         _run(
             packager
-            + ["build", "--source-dir", str(stage), "--output-dir", str(out), "--split-platforms"]
+            + ["build", "--source-dir", str(stage), "--output-dir", str(tmp), "--split-platforms"]
         )
-        zips = sorted(out.glob(f"divas-{version}*.zip"))
+        made = sorted(tmp.glob(f"divas-{version}*.zip"))
+    zips = []
+    for z in made:
+        dst = out / f"{z.stem}-cp{python}.zip"
+        z.replace(dst)
+        zips.append(dst)
+    shutil.rmtree(tmp)
+    return zips
+
+
+def build(
+    platforms: list[str], pythons: list[str], out: Path, cache: Path, *, sam: bool = True
+) -> list[Path]:
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("divas-*.zip"):
+        old.unlink()
+    zips = []
+    for py in pythons:
+        zips += _build_one(platforms, py, out, cache, sam=sam)
     print(f"built {len(zips)} package(s) in {time.perf_counter() - t0:.1f} s:")
     for z in zips:
         print(f"  {z}  ({z.stat().st_size / 1e6:.1f} MB)")
@@ -258,9 +316,14 @@ def main(argv: list[str] | None = None) -> int:
         default=BUILD / "wheels",
         help="downloaded wheels, reused between builds",
     )
+    ap.add_argument(
+        "--without-sam", action="store_true", help="leave out onnxruntime (no SAM segmenter)"
+    )
     args = ap.parse_args(argv)
     try:
-        zips = build(args.platforms, args.pythons, args.out, args.wheel_cache)
+        zips = build(
+            args.platforms, args.pythons, args.out, args.wheel_cache, sam=not args.without_sam
+        )
     except subprocess.CalledProcessError as e:
         print(
             f"build_extension: command failed ({e.returncode}): {' '.join(map(str, e.cmd))}",

@@ -27,6 +27,11 @@ in ``blenkernel/intern/camera.cc``; ``bpy_extras.object_utils.world_to_camera_vi
 'VERTICAL' for portrait, judged with pixel aspect) with the fitted sensor side equal to
 ``sensor_mm`` and the other side in the image's aspect, pixel aspect ≥ 1 on one axis
 (Blender's range is [1, 200]) and ``resolution_percentage`` 100.
+
+Axes of imported scenes (like Blender's own importers' Forward/Up options):
+:func:`axis_conversion` is ``bpy_extras.io_utils.axis_conversion`` in NumPy;
+:func:`up_conversion` turns an estimated scene up into the object rotation that makes
+it Blender's +Z.
 """
 
 from __future__ import annotations
@@ -38,6 +43,13 @@ import numpy as np
 from .camera import Camera
 
 __all__ = [
+    "AXES",
+    "FORWARD_FOR_UP",
+    "axis_vector",
+    "axis_conversion",
+    "nearest_axis",
+    "up_conversion",
+    "conversion_matrix",
     "BLENDER_TO_OPENCV",
     "BlenderCameraParams",
     "camera_from_blender",
@@ -225,3 +237,64 @@ def project_blender(
     ndc = world_to_camera_view(params, points)
     w, h = params.render_size
     return np.stack([ndc[:, 0] * w, (1.0 - ndc[:, 1]) * h], -1), ndc[:, 2]
+
+
+# ----------------------------------------------------------------------------- axes
+#: Axis names of Blender's import/export orientation options.
+AXES = ("X", "Y", "Z", "-X", "-Y", "-Z")
+#: Forward axis that goes with each up axis when only the up is known (the smallest
+#: rotation taking that up to Blender's +Z; −Y up gives COLMAP's convention, forward +Z).
+FORWARD_FOR_UP = {"Z": "Y", "-Z": "-Y", "Y": "-Z", "-Y": "Z", "X": "Y", "-X": "Y"}
+
+
+def axis_vector(name: str) -> np.ndarray:
+    """Unit vector of an axis name (``'X'`` … ``'-Z'``)."""
+    if name not in AXES:
+        raise ValueError(f"axis must be one of {AXES}, got {name!r}")
+    v = np.zeros(3)
+    v["XYZ".index(name[-1])] = -1.0 if name.startswith("-") else 1.0
+    return v
+
+
+def axis_conversion(forward: str, up: str) -> np.ndarray:
+    """``[3,3]`` rotation taking a file whose ``forward``/``up`` axes are given to
+    Blender's (forward +Y, up +Z, right +X = forward × up) — what
+    ``bpy_extras.io_utils.axis_conversion(from_forward=forward, from_up=up)`` returns.
+    E.g. ``('Z', '-Y')``, COLMAP-trained 3DGS: x → x, y → −z, z → y."""
+    f, u = axis_vector(forward), axis_vector(up)
+    if abs(f @ u) > 0.5:
+        raise ValueError(f"forward {forward!r} and up {up!r} must be different axes")
+    return np.stack([np.cross(f, u), f, u])
+
+
+def nearest_axis(v: np.ndarray) -> str:
+    """The signed axis name closest to direction ``v``."""
+    v = np.asarray(v, np.float64)
+    k = int(np.argmax(np.abs(v)))
+    return ("-" if v[k] < 0 else "") + "XYZ"[k]
+
+
+def up_conversion(up: np.ndarray) -> np.ndarray:
+    """``[3,3]`` rotation taking the scene direction ``up`` exactly to Blender's +Z: the
+    axis conversion of the nearest axis (:data:`FORWARD_FOR_UP`), then the smallest
+    rotation removing what tilt is left (none for an axis-aligned up)."""
+    u = np.asarray(up, np.float64) / np.linalg.norm(up)
+    ax = nearest_axis(u)
+    m = axis_conversion(FORWARD_FOR_UP[ax], ax)
+    a = m @ u
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(a, z)
+    s, c = np.linalg.norm(axis), float(a @ z)
+    if s < 1e-12:
+        return m
+    k = axis / s
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    tilt = np.eye(3) + s * kx + (1 - c) * (kx @ kx)  # Rodrigues, angle atan2(s, c)
+    return tilt @ m
+
+
+def conversion_matrix(rotation: np.ndarray) -> np.ndarray:
+    """``[4,4]`` object matrix of a ``[3,3]`` conversion."""
+    out = np.eye(4)
+    out[:3, :3] = rotation
+    return out

@@ -4,76 +4,197 @@ Pure NumPy (no ``bpy``): a host gets ``positions [N,3]`` and an ordered ``{name:
 it writes one attribute per entry, so no format knowledge lives in the host.
 
 Surfel scenes (:func:`surfel_point_table`), one point per scene primitive (rows dropped
-on load for NaN/Inf are absent):
+on load for NaN/Inf are absent). Every value is stored once (issue 18: a 3M-splat
+scene must fit in memory and in a reasonable ``.blend``):
 
-* **File columns.** Standard PLY: every vertex property, the *raw stored* value of the
-  file row (log-scales, logit opacity, …). Float properties become float32 (``double``
-  ones are rounded: the host has no 64-bit attribute type), integer properties int32
-  (``uint`` bit-cast, so the bits round-trip exactly). Compressed PLY: the raw
-  ``packed_*`` words (bit-cast int32) and the bytes of the ``sh`` element as
-  ``sh_<property>``, *plus* the decoded values as below. ``.splat`` / ``.spz`` /
-  generated scenes: the decoded values only, under the 2DGS-trainer PLY names the
-  engine writes (:func:`~divas_engine.io.ply.write_surfel_ply`): ``x y z f_dc_* f_rest_*
-  opacity scale_0 scale_1 rot_0..3`` (stored space; 3DGS Gaussians are flattened to
-  surfels on load, so two scales).
-* **Engine columns** (:data:`ENGINE_COLUMNS`): ``divas_index`` int32 file row (what
-  export needs), ``divas_color [N,4]`` RGBA (RGB from SH DC, A = opacity),
-  ``divas_opacity`` α, ``divas_radius`` display radius.
+* ``divas_index`` int32: the file row (what selection and export need; the export
+  copies rows from the source file, so no stored-space file value is kept twice).
+* ``divas_color`` ``[N,4]``: RGB in *linear* scene space — the SH DC colour
+  ``0.5 + C0·f_dc`` is a display (sRGB-encoded) value, so it is decoded with the
+  sRGB transfer function (:func:`srgb_to_linear`, extended sign-symmetrically
+  beyond [0, 1] so no value is clipped) and a host's Standard view transform shows
+  the capture's own colour — and A = opacity α.
+* ``divas_rotation`` ``[N,4]`` (w, x, y, z) unit quaternion of the surfel frame
+  (columns t_u, t_v, normal), a host *quaternion* attribute (:attr:`PointTable.kinds`).
+* ``divas_scale`` ``[N,3]``: tangent standard deviations (s₁, s₂) and the normal one
+  s₃ a 3DGS flattening dropped (0 for native 2DGS surfels).
+* ``divas_sh_<k>`` int32, k = 1 … (degree+1)²−1 (with ``sh_display``): the view-dependent
+  SH coefficient k of R, G and B as three 8-bit codes packed in one integer
+  (R + 256·G + 65536·B, exact in a float32 too), band l's code c ∈ [1, 255] meaning
+  ``(c − 128) / 127 · range_l`` — zero exact — (:func:`quantize_sh`, ``PointTable.meta
+  ["sh_range"]``). Display only — exports read the source file — so 8 bits suffice
+  (PlayCanvas's compressed PLY stores SH in 8 bits too) and a degree-3 scene costs
+  60 bytes per splat instead of 180.
+* Non-standard vertex properties of a PLY (anything but ``x y z nx ny nz f_dc_*
+  f_rest_* opacity scale_* rot_*``): the raw stored value, float32 (``double`` rounded)
+  or int32 (``uint`` bit-cast). Names a host reserves (:data:`RESERVED_NAMES`, a leading
+  ``.``, the ``divas_`` prefix) are prefixed ``ply_``.
 
 Density grids (:func:`grid_point_table`): one point per voxel whose cell opacity
 ``1 − exp(−σ·voxel)`` reaches a threshold, at the cell centre, with ``divas_index``
-(flat ``[iz,iy,ix]`` index into ``density``), ``divas_density`` σ, ``divas_opacity``,
-``divas_color`` (the grid's rgb, or grey by opacity) and ``divas_radius`` (half a cell).
-
-Names a host reserves (:data:`RESERVED_NAMES`, leading ``.``, the ``divas_`` prefix) are
-prefixed ``ply_`` when they come from a file.
+(flat ``[iz,iy,ix]`` index into ``density``), ``divas_density`` σ, ``divas_color``
+(the grid's rgb decoded to linear, or grey by opacity; A = opacity) and
+``divas_radius`` (half a cell).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import DensityGrid, SurfelScene, sh_coeff_count
+from .scene import SH_C0, DensityGrid, SurfelScene, sh_coeff_count
 
 __all__ = [
     "PointTable",
     "ENGINE_COLUMNS",
     "RESERVED_NAMES",
+    "STANDARD_PLY_PROPERTIES",
     "SELECTED",
     "INDEX",
+    "COLOR",
+    "ROTATION",
+    "SCALE",
+    "sh_attribute_name",
     "surfel_point_table",
     "grid_point_table",
     "display_radius",
-    "decoded_columns",
+    "srgb_to_linear",
+    "linear_to_srgb",
+    "quantize_sh",
+    "dequantize_sh",
     "scene_selection",
     "point_values",
 ]
 
 INDEX = "divas_index"
 SELECTED = "divas_selected"
-ENGINE_COLUMNS = (INDEX, "divas_color", "divas_opacity", "divas_radius")
+COLOR = "divas_color"
+ROTATION = "divas_rotation"
+SCALE = "divas_scale"
+ENGINE_COLUMNS = (INDEX, COLOR, ROTATION, SCALE)
 #: attribute names a point-cloud host uses for its own data.
 RESERVED_NAMES = frozenset({"position", "radius", "id"})
 #: display radius = RADIUS_SIGMAS × geometric-mean tangent σ, clipped at this percentile.
 RADIUS_SIGMAS = 2.0
 RADIUS_CLIP_PERCENTILE = 99.0
+#: percentile of |coefficient| per SH band that sets its 8-bit range (outliers clip).
+SH_RANGE_PERCENTILE = 99.9
+#: rows the SH range percentile is taken over (evenly strided).
+SH_RANGE_SAMPLE = 200_000
+
+
+def _is_standard(name: str) -> bool:
+    """A 3DGS/2DGS trainer property the engine decodes (kept once, as engine columns)."""
+    if name in {"x", "y", "z", "nx", "ny", "nz", "opacity"}:
+        return True
+    for prefix in ("f_dc_", "f_rest_", "scale_", "rot_"):
+        if name.startswith(prefix) and name[len(prefix) :].isdigit():
+            return True
+    return False
+
+
+STANDARD_PLY_PROPERTIES = "x y z nx ny nz f_dc_* f_rest_* opacity scale_* rot_*"
+
+
+def sh_attribute_name(k: int) -> str:
+    """Point attribute of SH coefficient ``k`` (1 … 15) of R, G, B (:func:`quantize_sh`)."""
+    return f"divas_sh_{k}"
 
 
 @dataclass(frozen=True, eq=False)
 class PointTable:
     """Points for a host: ``positions [N,3]`` float32 and ordered ``columns``.
 
-    Column arrays are C-contiguous: float32 ``[N]`` / ``[N,3]`` / ``[N,4]`` (the
-    ``[N,4]`` one is a colour), int32 ``[N]`` or bool ``[N]``.
+    Column arrays are C-contiguous: float32 ``[N]`` / ``[N,3]`` / ``[N,4]``, int32
+    ``[N]`` or bool ``[N]``. ``kinds`` names the columns a host must not store by
+    shape alone (``"color"`` for an RGBA ``[N,4]``, ``"quaternion"`` for a (w,x,y,z)
+    rotation); ``meta`` holds per-scene values a host keeps beside the points
+    (``sh_range``: the three per-band ranges of the ``divas_sh_*`` codes;
+    ``max_radius``: the P99 display radius; ``sh_degree``).
     """
 
     positions: np.ndarray
     columns: dict[str, np.ndarray]
+    kinds: dict[str, str] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.positions)
+
+
+def _float(x) -> np.ndarray:
+    """float32 arrays stay float32 (millions of colours), anything else becomes float64."""
+    x = np.asarray(x)
+    return x if x.dtype == np.float32 else x.astype(np.float64)
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB decoding, extended sign-symmetrically outside [0, 1]."""
+    c = _float(c)
+    a = np.abs(c)
+    lin = np.where(a <= 0.04045, a / 12.92, ((a + 0.055) / 1.055) ** 2.4)
+    return np.copysign(lin, c).astype(c.dtype, copy=False)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`srgb_to_linear` (sRGB encoding, extended the same way)."""
+    x = _float(x)
+    a = np.abs(x)
+    enc = np.where(a <= 0.0031308, a * 12.92, 1.055 * a ** (1 / 2.4) - 0.055)
+    return np.copysign(enc, x).astype(x.dtype, copy=False)
+
+
+def _band_of(k: int) -> int:
+    return int(np.floor(np.sqrt(k)))
+
+
+def quantize_sh(sh_rest: np.ndarray, degree: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """8-bit codes of the view-dependent SH coefficients.
+
+    Args:
+        sh_rest: ``[N, K−1, 3]`` coefficients 1 … K−1 (``SurfelScene.sh[:, 1:]``).
+        degree: SH degree 1 … 3.
+
+    Returns:
+        ``(codes, ranges)``: per coefficient k an ``[N]`` int32 of packed R, G, B codes
+        (``r + 256 g + 65536 b``), and ``ranges [3]`` (band 1, 2, 3; 0 beyond
+        ``degree`` or for an all-zero band): the ``SH_RANGE_PERCENTILE`` of |c| over the
+        band. A code c ∈ [1, 255] means ``(c − 128) / 127 · range``, so 0 is exact and
+        every value within the range is kept to half a step (``range / 254``); values
+        beyond it clip.
+    """
+    ranges = np.zeros(3, np.float64)
+    codes = []
+    n = len(sh_rest)
+    # the range from at most SH_RANGE_SAMPLE rows (evenly strided, deterministic): a
+    # percentile over millions of rows costs seconds and moves the range by < 1 %
+    sample = sh_rest[:: max(1, n // SH_RANGE_SAMPLE)]
+    for band in range(1, degree + 1):
+        block = sample[:, band * band - 1 : (band + 1) ** 2 - 1]
+        if block.size:
+            ranges[band - 1] = float(np.percentile(np.abs(block), SH_RANGE_PERCENTILE))
+    k1 = sh_coeff_count(degree) - 1
+    r = ranges[[_band_of(k) - 1 for k in range(1, k1 + 1)]]
+    scale = np.where(r > 0, 127.0 / np.where(r > 0, r, 1.0), 0.0).astype(np.float32)[:, None]
+    packed = np.empty((k1, n), np.int32)
+    for lo in range(0, n, 1 << 18):  # row blocks: vectorised over coefficients, small memory
+        c = np.rint(np.asarray(sh_rest[lo : lo + (1 << 18)], np.float32) * scale)
+        np.clip(c, -127, 127, out=c)
+        c = c.astype(np.int32) + 128
+        packed[:, lo : lo + len(c)] = (c[..., 0] | (c[..., 1] << 8) | (c[..., 2] << 16)).T
+    codes = list(packed)
+    return codes, ranges
+
+
+def dequantize_sh(codes: list[np.ndarray], ranges: np.ndarray) -> np.ndarray:
+    """``[N, len(codes), 3]`` coefficients from :func:`quantize_sh`'s codes."""
+    out = np.empty((len(codes[0]) if codes else 0, len(codes), 3), np.float64)
+    for j, v in enumerate(codes):
+        v = np.asarray(v, np.int64)
+        rgb = np.stack([v & 255, (v >> 8) & 255, (v >> 16) & 255], 1).astype(np.float64)
+        out[:, j] = (rgb - 128.0) / 127.0 * ranges[_band_of(j + 1) - 1]
+    return out
 
 
 def _host_name(name: str) -> str:
@@ -95,57 +216,24 @@ def _as_column(values: np.ndarray) -> np.ndarray:
     raise ValueError(f"unsupported column dtype {v.dtype}")
 
 
-def _ply_columns(path, kept_rows: np.ndarray) -> dict[str, np.ndarray]:
-    """Raw values of every vertex property at ``kept_rows`` (ascending file rows)."""
+def _ply_extra_columns(path, kept_rows: np.ndarray) -> dict[str, np.ndarray]:
+    """Raw values of the non-standard vertex properties at ``kept_rows`` (ascending)."""
     from .io.ply import iter_vertex_chunks, read_ply_header
 
     layout = read_ply_header(path)
     dtype = layout.vertex_dtype()
-    out = {
-        n: np.empty(len(kept_rows), _as_column(np.zeros(1, dtype[n])).dtype) for n in dtype.names
-    }
+    names = [n for n in dtype.names if not _is_standard(n)]
+    if not names:
+        return {}
+    out = {n: np.empty(len(kept_rows), _as_column(np.zeros(1, dtype[n])).dtype) for n in names}
     for start, chunk in iter_vertex_chunks(layout):
         lo, hi = np.searchsorted(kept_rows, [start, start + len(chunk)])
         if hi == lo:
             continue
         rows = chunk[kept_rows[lo:hi] - start]
-        for n in dtype.names:
+        for n in names:
             out[n][lo:hi] = _as_column(rows[n])
     return {_host_name(n): v for n, v in out.items()}
-
-
-def _compressed_ply_columns(path, kept_rows: np.ndarray) -> dict[str, np.ndarray]:
-    """Raw ``packed_*`` words of the vertex element and the ``sh`` element's bytes."""
-    import plyfile
-
-    ply = plyfile.PlyData.read(str(path))
-    out = {}
-    for el, prefix in (("vertex", ""), ("sh", "sh_")):
-        if el not in ply:
-            continue
-        data = ply[el].data
-        for n in data.dtype.names:
-            out[_host_name(prefix + n)] = _as_column(data[n][kept_rows])
-    return out
-
-
-def decoded_columns(scene: SurfelScene) -> dict[str, np.ndarray]:
-    """Stored-space values of the engine's surfels under 2DGS-trainer PLY names."""
-    k = sh_coeff_count(scene.sh_degree)
-    cols = {a: np.ascontiguousarray(scene.means[:, i]) for i, a in enumerate("xyz")}
-    for ch in range(3):
-        cols[f"f_dc_{ch}"] = np.ascontiguousarray(scene.sh[:, 0, ch])
-    for ch in range(3):
-        for j in range(k - 1):
-            cols[f"f_rest_{ch * (k - 1) + j}"] = np.ascontiguousarray(scene.sh[:, j + 1, ch])
-    o = np.clip(scene.opacities.astype(np.float64), 1e-7, 1 - 1e-7)
-    cols["opacity"] = np.log(o / (1 - o)).astype(np.float32)
-    with np.errstate(divide="ignore"):
-        for i in range(2):
-            cols[f"scale_{i}"] = np.log(scene.scales[:, i]).astype(np.float32)
-    for i in range(4):
-        cols[f"rot_{i}"] = np.ascontiguousarray(scene.quats[:, i])
-    return cols
 
 
 def display_radius(scales: np.ndarray) -> np.ndarray:
@@ -156,28 +244,41 @@ def display_radius(scales: np.ndarray) -> np.ndarray:
     return r.astype(np.float32)
 
 
-def surfel_point_table(scene: SurfelScene) -> PointTable:
-    """The :class:`PointTable` of a surfel scene (see the module docstring)."""
+def surfel_point_table(scene: SurfelScene, *, sh_display: bool = True) -> PointTable:
+    """The :class:`PointTable` of a surfel scene (see the module docstring).
+
+    ``sh_display``: include the ``divas_sh_*`` codes (view-dependent colour) when the
+    scene has SH degree ≥ 1.
+    """
     src = scene.source
     n = len(scene)
+    cols: dict[str, np.ndarray] = {}
     if src is not None and src.format == "ply":
-        cols = _ply_columns(src.path, src.kept_rows)
-    elif src is not None and src.format == "compressed_ply":
-        cols = _compressed_ply_columns(src.path, src.kept_rows)
-        cols.update(decoded_columns(scene))
-    else:
-        cols = decoded_columns(scene)
+        cols.update(_ply_extra_columns(src.path, src.kept_rows))
     index = src.kept_rows if src is not None else np.arange(n)
     if len(index) and index.max() > np.iinfo(np.int32).max:
         raise ValueError("scene has more file rows than an int32 index can address")
     color = np.empty((n, 4), np.float32)
-    color[:, :3] = scene.base_colors()
+    color[:, :3] = srgb_to_linear(np.float32(0.5) + np.float32(SH_C0) * scene.sh[:, 0, :])
     color[:, 3] = scene.opacities
+    scale = np.zeros((n, 3), np.float32)
+    scale[:, :2] = scene.scales
+    if scene.scale_n is not None:
+        scale[:, 2] = scene.scale_n
     cols[INDEX] = index.astype(np.int32)
-    cols["divas_color"] = color
-    cols["divas_opacity"] = np.ascontiguousarray(scene.opacities, dtype=np.float32)
-    cols["divas_radius"] = display_radius(scene.scales)
-    return PointTable(np.ascontiguousarray(scene.means, dtype=np.float32), cols)
+    cols[COLOR] = color
+    cols[ROTATION] = np.ascontiguousarray(scene.quats, dtype=np.float32)
+    cols[SCALE] = scale
+    meta: dict = {"sh_degree": int(scene.sh_degree), "sh_range": [0.0, 0.0, 0.0]}
+    if sh_display and scene.sh_degree > 0:
+        codes, ranges = quantize_sh(scene.sh[:, 1:], scene.sh_degree)
+        for k, c in enumerate(codes, start=1):
+            cols[sh_attribute_name(k)] = c
+        meta["sh_range"] = [float(r) for r in ranges]
+    radius = display_radius(scene.scales)
+    meta["max_radius"] = float(radius.max()) if n else 0.0
+    kinds = {COLOR: "color", ROTATION: "quaternion"}
+    return PointTable(np.ascontiguousarray(scene.means, dtype=np.float32), cols, kinds, meta)
 
 
 def grid_point_table(grid: DensityGrid, min_opacity: float = 0.01) -> PointTable:
@@ -195,18 +296,19 @@ def grid_point_table(grid: DensityGrid, min_opacity: float = 0.01) -> PointTable
     a = alpha.ravel()[flat].astype(np.float32)
     color = np.empty((len(flat), 4), np.float32)
     if grid.rgb is not None:
-        color[:, :3] = grid.rgb.reshape(-1, 3)[flat]
+        color[:, :3] = srgb_to_linear(grid.rgb.reshape(-1, 3)[flat])
     else:
-        color[:, :3] = a[:, None]
+        color[:, :3] = srgb_to_linear(a)[:, None]
     color[:, 3] = a
+    radius = 0.5 * float(np.min(vox))
     cols = {
         INDEX: flat.astype(np.int32),
         "divas_density": grid.density.ravel()[flat].astype(np.float32),
-        "divas_color": color,
-        "divas_opacity": a,
-        "divas_radius": np.full(len(flat), 0.5 * float(np.min(vox)), np.float32),
+        COLOR: color,
+        "divas_radius": np.full(len(flat), radius, np.float32),
     }
-    return PointTable(pos.astype(np.float32), cols)
+    meta = {"sh_degree": 0, "sh_range": [0.0, 0.0, 0.0], "max_radius": radius}
+    return PointTable(pos.astype(np.float32), cols, {COLOR: "color"}, meta)
 
 
 def scene_selection(

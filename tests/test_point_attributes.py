@@ -10,14 +10,17 @@ from divas_engine import load_scene
 from divas_engine.io.ply import write_surfel_ply
 from divas_engine.point_attributes import (
     ENGINE_COLUMNS,
-    decoded_columns,
+    dequantize_sh,
     display_radius,
     grid_point_table,
+    linear_to_srgb,
     point_values,
+    quantize_sh,
     scene_selection,
+    srgb_to_linear,
     surfel_point_table,
 )
-from divas_engine.scene import DensityGrid, SourceInfo, SurfelScene
+from divas_engine.scene import SH_C0, DensityGrid, SourceInfo, SurfelScene
 
 
 def _scene(n=50, seed=0) -> SurfelScene:
@@ -34,7 +37,7 @@ def _scene(n=50, seed=0) -> SurfelScene:
     )
 
 
-def test_ply_table_is_raw_rows_and_skips_dropped(tmp_path):
+def test_ply_table_holds_each_value_once_and_skips_dropped(tmp_path):
     clean, path = tmp_path / "clean.ply", tmp_path / "s.ply"
     write_surfel_ply(clean, _scene())
     ply = plyfile.PlyData.read(str(clean), mmap=False)
@@ -42,22 +45,52 @@ def test_ply_table_is_raw_rows_and_skips_dropped(tmp_path):
     ply.write(str(path))
     scene = load_scene(path)
     table = surfel_point_table(scene)
-    rows = plyfile.PlyData.read(str(path), mmap=False)["vertex"].data
     kept = np.setdiff1d(np.arange(50), [3, 7])
     np.testing.assert_array_equal(table.columns["divas_index"], kept)
-    for name in rows.dtype.names:
-        np.testing.assert_array_equal(table.columns[name], rows[name][kept])
-    assert list(table.columns)[-4:] == list(ENGINE_COLUMNS)
+    np.testing.assert_array_equal(table.positions, scene.means)
+    # standard trainer properties are decoded once (engine columns), never kept raw
+    assert list(table.columns) == [*ENGINE_COLUMNS, "divas_sh_1", "divas_sh_2", "divas_sh_3"]
+    assert table.kinds == {"divas_color": "color", "divas_rotation": "quaternion"}
+    np.testing.assert_array_equal(table.columns["divas_rotation"], scene.quats)
+    np.testing.assert_array_equal(table.columns["divas_scale"][:, :2], scene.scales)
+    assert not table.columns["divas_scale"][:, 2].any()  # 2DGS: no normal σ
+    np.testing.assert_array_equal(table.columns["divas_color"][:, 3], scene.opacities)
     assert all(v.flags.c_contiguous for v in table.columns.values())
+    assert table.meta["sh_degree"] == 1 and table.meta["sh_range"][1:] == [0.0, 0.0]
 
 
-def test_decoded_columns_invert_the_activations():
+def test_colour_is_the_sh_dc_colour_decoded_from_srgb():
     s = _scene()
-    cols = decoded_columns(s)
-    np.testing.assert_allclose(1 / (1 + np.exp(-cols["opacity"])), s.opacities, rtol=1e-5)
-    np.testing.assert_allclose(np.exp(cols["scale_0"]), s.scales[:, 0], rtol=1e-6)
-    assert [f"f_rest_{i}" in cols for i in range(9)] == [True] * 9
-    np.testing.assert_array_equal(cols["f_rest_3"], s.sh[:, 1, 1])  # channel-major
+    col = surfel_point_table(s).columns["divas_color"][:, :3].astype(np.float64)
+    shown = 0.5 + SH_C0 * s.sh[:, 0].astype(np.float64)
+    # the IEC 61966-2-1 formula written out, extended sign-symmetrically
+    a = np.abs(shown)
+    ref = np.sign(shown) * np.where(a <= 0.04045, a / 12.92, ((a + 0.055) / 1.055) ** 2.4)
+    np.testing.assert_allclose(col, ref, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(linear_to_srgb(col), shown, rtol=1e-5, atol=1e-6)
+    # a dark capture colour stays dark: 0.10 on screen is 0.010 in linear light
+    np.testing.assert_allclose(srgb_to_linear(0.1), 0.0100228, rtol=1e-5)
+
+
+def test_sh_codes_keep_coefficients_to_half_a_step():
+    rng = np.random.default_rng(2)
+    n = 4000
+    rest = rng.normal(scale=0.2, size=(n, 15, 3))
+    rest[0, 5, 1] = 9.0  # an outlier beyond the band's range clips instead of widening it
+    codes, ranges = quantize_sh(rest, 3)
+    assert len(codes) == 15 and all(c.dtype == np.int32 for c in codes)
+    assert all(c.min() >= 0 and c.max() < 1 << 24 for c in codes)  # exact in a float32
+    zero, zr = quantize_sh(np.zeros((3, 3, 3)), 1)
+    assert zr.tolist() == [0.0, 0.0, 0.0] and not dequantize_sh(zero, zr).any()
+    back = dequantize_sh(codes, ranges)
+    band = np.array([1] * 3 + [2] * 5 + [3] * 7)
+    step = ranges[band - 1] / 127.0
+    inside = np.abs(rest) <= ranges[band - 1][None, :, None]
+    err = np.abs(back - rest)
+    half = np.broadcast_to(step[None, :, None] / 2, err.shape)
+    assert np.all(err[inside] <= half[inside] + 1e-12)
+    assert back[0, 5, 1] == pytest.approx(ranges[1])
+    assert ranges[1] < 1.0  # the P99.9 range, not the outlier
 
 
 def test_display_radius_clips_outliers():

@@ -5,11 +5,26 @@ from __future__ import annotations
 from pathlib import Path
 
 import bpy
-from bpy.props import BoolProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from .. import source
 from ..reporting import USER_ERRORS, report_failure
-from ..selection import ExportSettings, export_selection, has_selection
+from ..selection import ExportSettings, ExportTransform, export_selection, has_selection
+
+_TRANSFORMS = (
+    (ExportTransform.NONE.value, "None", "Rows as the file holds them (its own frame)"),
+    (
+        ExportTransform.OBJECT.value,
+        "Object",
+        "Apply the object's transform since import: moves, turns and scaling baked in, "
+        "the file's own axis convention kept (positions, rotations, scales and SH rotated)",
+    ),
+    (
+        ExportTransform.WORLD.value,
+        "World",
+        "Apply the whole object transform: Blender's world frame (Z up)",
+    ),
+)
 
 
 class DIVAS_OT_export_selection(bpy.types.Operator):
@@ -25,6 +40,12 @@ class DIVAS_OT_export_selection(bpy.types.Operator):
         name="Write Labels",
         default=False,
         description="Also write <name>_labels.npy: one bool per input-file row",
+    )
+    apply_transform: EnumProperty(
+        name="Apply Transform",
+        items=_TRANSFORMS,
+        default=ExportTransform.NONE.value,
+        description="What of the object's transform to bake into the exported splats",
     )
 
     @classmethod
@@ -55,7 +76,11 @@ class DIVAS_OT_export_selection(bpy.types.Operator):
         if not self.filepath:
             self.report({"ERROR"}, "No output file given")
             return {"CANCELLED"}
-        settings = ExportSettings(Path(bpy.path.abspath(self.filepath)), self.write_labels)
+        settings = ExportSettings(
+            Path(bpy.path.abspath(self.filepath)),
+            self.write_labels,
+            ExportTransform(self.apply_transform),
+        )
         try:
             result = export_selection(context.active_object, settings)
         except USER_ERRORS as e:

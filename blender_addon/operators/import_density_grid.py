@@ -6,12 +6,13 @@ from pathlib import Path
 
 import bpy
 from bpy.props import BoolProperty, FloatProperty, StringProperty
-from bpy_extras.io_utils import ImportHelper
+from bpy_extras.io_utils import ImportHelper, orientation_helper
 
 from ..importers import GridImportSettings, import_density_grid
 from ..reporting import USER_ERRORS, report_failure
 
 
+@orientation_helper(axis_forward="Y", axis_up="Z")
 class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
     """Import a NeRF density grid (.npz) as a point cloud of its occupied voxels"""
 
@@ -31,7 +32,13 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
     display: BoolProperty(name="Display", default=True)
 
     def execute(self, context):
-        settings = GridImportSettings(Path(self.filepath), self.min_opacity, self.display)
+        settings = GridImportSettings(
+            Path(self.filepath),
+            self.min_opacity,
+            self.display,
+            forward=self.axis_forward,
+            up=self.axis_up,
+        )
         try:
             obj = import_density_grid(context, settings)
         except USER_ERRORS as e:

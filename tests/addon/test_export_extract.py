@@ -185,3 +185,50 @@ def test_bridge_round_trip_types():
     with pytest.raises(KeyError):
         bridge.read_attribute(geom, "nope")
     assert ".select_vert" not in geom.attributes and len(bpy.data.meshes) == 1  # the cube only
+
+
+@pytest.mark.parametrize("transform", ["OBJECT", "WORLD"])
+def test_export_applying_the_object_transform(real_data, tmp_path, transform):
+    """Apply Transform: OBJECT bakes the transform *since import* (the file keeps its own
+    axes), WORLD the whole object matrix; the file equals the engine's transformed export
+    of the same selection and matrix."""
+    from divas_engine.transform_export import export_transformed_selection
+
+    path = real_data / "gaussiansplats3d-lod" / "lod3_tile_0.ply"
+    obj = _import(bpy.ops.divas.import_splats, path)
+    frame = np.array(obj.matrix_world)
+    obj.rotation_euler = (0.5, -0.3, 1.2)
+    obj.location = (1.0, 2.0, -0.5)
+    obj.scale = (2.0, 2.0, 2.0)
+    bpy.context.view_layer.update()
+    sel = _select(obj, seed=3, frac=0.6)
+    out = tmp_path / "moved.ply"
+    assert bpy.ops.divas.export_selection(filepath=str(out), apply_transform=transform) == {
+        "FINISHED"
+    }
+    world = np.array(obj.matrix_world, np.float64)
+    m = world if transform == "WORLD" else np.linalg.inv(frame) @ world
+    scene = load_scene(path)
+    ref = tmp_path / "ref.ply"
+    export_transformed_selection(scene, _engine_mask(scene, obj, sel), ref, m)
+    assert out.read_bytes() == ref.read_bytes()
+    got = load_scene(out)
+    np.testing.assert_allclose(
+        got.means, scene.means[_engine_mask(scene, obj, sel)] @ m[:3, :3].T + m[:3, 3], atol=1e-4
+    )
+    if transform == "OBJECT":  # untouched object → the file's own frame, rows unchanged
+        obj.matrix_world = __import__("mathutils").Matrix(frame.tolist())
+        bpy.context.view_layer.update()
+        same = tmp_path / "same.ply"
+        bpy.ops.divas.export_selection(filepath=str(same), apply_transform="OBJECT")
+        np.testing.assert_allclose(
+            load_scene(same).means, scene.means[_engine_mask(scene, obj, sel)], atol=1e-5
+        )
+
+
+def test_export_applying_a_transform_to_spz_is_refused(real_data, tmp_path):
+    obj = _import(bpy.ops.divas.import_splats, real_data / "playcanvas-splats" / "biker.spz")
+    _select(obj)
+    with pytest.raises(RuntimeError, match="spz"):
+        bpy.ops.divas.export_selection(filepath=str(tmp_path / "x.spz"), apply_transform="OBJECT")
+    assert not (tmp_path / "x.spz").exists()

@@ -79,6 +79,19 @@ def _fake_wheels(tmp: Path) -> list[str]:
     return names
 
 
+def test_manifest_of_each_python_names_its_blender_versions(tmp_path):
+    mod = _build_module()
+    for py, (lo, hi) in mod.BLENDER_RANGE.items():
+        dst = tmp_path / f"m{py}.toml"
+        mod.write_manifest(
+            ADDON / "blender_manifest.toml", dst, ["./wheels/x.whl"], ["linux-x64"], (lo, hi)
+        )
+        m = tomllib.loads(dst.read_text())
+        assert m["blender_version_min"] == lo and m.get("blender_version_max") == hi
+        assert m["wheels"] == ["./wheels/x.whl"] and m["permissions"]
+    assert "tqdm" not in mod.PINNED and set(mod.SAM_ONLY) <= set(mod.PINNED)
+
+
 def test_manifest_rewrite_and_fallback_zip(tmp_path):
     """Without downloading: the staged manifest lists the wheels; the fallback zip keeps
     only one platform's wheels and Blender's validator accepts it."""
@@ -114,7 +127,7 @@ def test_manifest_rewrite_and_fallback_zip(tmp_path):
 
 @pytest.mark.skipif(
     os.environ.get("DIVAS_BUILD_EXTENSION") != "1" and not os.environ.get("CI"),
-    reason="downloads ~265 MB of wheels (pip's cache reused): runs in CI, "
+    reason="downloads ~250 MB of wheels (pip's cache reused): runs in CI, "
     "or locally with DIVAS_BUILD_EXTENSION=1",
 )
 def test_build_linux_cp311(tmp_path):
@@ -136,7 +149,7 @@ def test_build_linux_cp311(tmp_path):
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     zips = sorted(out.glob("divas-*.zip"))
-    assert [z.name for z in zips] == ["divas-0.1.0-linux_x64.zip"]
+    assert [z.name for z in zips] == ["divas-0.1.0-linux_x64-cp311.zip"]
     with zipfile.ZipFile(zips[0]) as z:
         m = tomllib.loads(z.read("blender_manifest.toml").decode())
         files = set(z.namelist())
@@ -149,5 +162,8 @@ def test_build_linux_cp311(tmp_path):
         prefix = re.sub(r"[-_.]+", "_", name).lower() + f"-{version}-"
         assert sum(Path(w).name.lower().startswith(prefix) for w in wheels) == 1, name
     assert not any("numpy" in w for w in wheels)  # Blender ships its own
+    for dev in ("bpy", "pytest", "onnx-", "ruff", "tqdm", "cp313"):  # test/CLI-only, other Python
+        assert not any(dev in w for w in wheels), dev
+    assert m.get("blender_version_max") == "5.1.0"  # 5.1+ runs Python 3.13: the cp313 zip
     res = _validate(zips[0])
     assert res.returncode == 0, res.stdout + res.stderr

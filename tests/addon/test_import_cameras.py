@@ -1,6 +1,8 @@
 """Camera import: for every created camera, Blender's ``world_to_camera_view`` of random
 3D points equals the engine's projection within 0.5 px (with that camera's own
-resolution and pixel aspect applied)."""
+resolution and pixel aspect applied). Points are made in the file's frame and placed in
+the world through the frame the camera was imported in (issue 18: the splats' axis
+conversion, or the splat object it is parented to)."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
 from blender_addon import camera_objects
+from divas_engine.blender_convention import axis_conversion
 from divas_engine.camera import Camera
 from divas_engine.io.cameras import load_cameras, save_cameras
 
@@ -32,7 +35,8 @@ def _check_all(objs, cams, seed=0):
         assert scene.camera == obj
         uv = rng.uniform([0, 0], [cam.width, cam.height], (40, 2))
         pts = cam.unproject(uv, rng.uniform(0.5, 20.0, 40))
-        got = _bpy_pixels(scene, obj, pts)
+        frame = camera_objects.frame_of(obj)
+        got = _bpy_pixels(scene, obj, pts @ frame[:3, :3].T + frame[:3, 3])
         err = np.abs(got - cam.project(pts)[0]).max()
         assert err < 0.5, f"{obj.name}: {err:.4f} px"
         back = camera_objects.engine_camera(scene, obj)
@@ -86,6 +90,42 @@ def test_import_cameras_json(ribs):
     r = bpy.context.scene.render
     assert (r.resolution_x, r.resolution_y) == (cams[0].width, cams[0].height)
     _check_all(objs, cams)
+    # default frame: COLMAP's (forward +Z, up -Y), the splat import's default convention
+    conv = axis_conversion("Z", "-Y")
+    for o, c in zip(objs, cams):
+        np.testing.assert_allclose(camera_objects.frame_of(o)[:3, :3], conv)
+        np.testing.assert_allclose(np.array(o.matrix_world.translation), conv @ c.center, atol=1e-5)
+
+
+def test_cameras_parented_to_the_active_splats_follow_them(ribs):
+    assert bpy.ops.divas.import_splats(filepath=str(ribs / "scene.ply")) == {"FINISHED"}
+    splats = bpy.context.active_object
+    splats.location = (1.0, -2.0, 0.5)
+    splats.rotation_euler = (0.3, 0.1, -0.7)
+    bpy.context.view_layer.update()
+    assert bpy.ops.divas.import_cameras(filepath=str(ribs / "cameras.json")) == {"FINISHED"}
+    cams = load_cameras(ribs / "cameras.json")
+    objs = _imported()
+    assert all(o.parent == splats for o in objs)
+    _check_all(objs, cams)  # through the object's frame, and back to the file frame
+    mw = np.array(splats.matrix_world)
+    np.testing.assert_allclose(
+        np.array(objs[0].matrix_world.translation), (mw @ [*cams[0].center, 1])[:3], atol=1e-5
+    )
+    back = camera_objects.engine_camera(bpy.context.scene, objs[0])
+    np.testing.assert_allclose(back.c2w, cams[0].c2w, atol=1e-5)
+
+
+@pytest.mark.parametrize("up", ["X", "Y", "Z", "-X", "-Y", "-Z"])
+def test_axis_conversion_is_blenders(up):
+    from bpy_extras.io_utils import axis_conversion as bpy_axis_conversion
+
+    for fwd in ("X", "Y", "Z", "-X", "-Y", "-Z"):
+        if fwd[-1] == up[-1]:
+            continue
+        ours = axis_conversion(fwd, up)
+        theirs = np.array(bpy_axis_conversion(from_forward=fwd, from_up=up))
+        np.testing.assert_allclose(ours, theirs, atol=1e-12, err_msg=f"{fwd} {up}")
 
 
 @pytest.mark.parametrize("fmt", ["colmap", "colmap_text", "transforms_json"])

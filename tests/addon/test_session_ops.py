@@ -81,8 +81,12 @@ def _projection_error(scene, cam_obj, engine_cam, rng) -> float:
     bpy.context.view_layer.update()
     uv = rng.uniform([0, 0], [engine_cam.width, engine_cam.height], (40, 2))
     pts = engine_cam.unproject(uv, rng.uniform(0.5, 5.0, 40))
+    # scene-frame points into the world through the object the camera is parented to
+    # (an import puts its axis conversion on the object)
+    m = np.array(cam_obj.parent.matrix_world) if cam_obj.parent is not None else np.eye(4)
+    world = pts @ m[:3, :3].T + m[:3, 3]
     w, h = scene.render.resolution_x, scene.render.resolution_y
-    got = np.array([world_to_camera_view(scene, cam_obj, Vector(p))[:2] for p in pts])
+    got = np.array([world_to_camera_view(scene, cam_obj, Vector(p))[:2] for p in world])
     got = np.stack([got[:, 0] * w, (1.0 - got[:, 1]) * h], axis=1)
     expect, _ = engine_cam.project(pts)
     return float(np.abs(got - expect).max())
