@@ -16,12 +16,12 @@ ENGINE = REPO / "divas_engine"
 #: its own package and any lower layer, never a higher one or another package of its own
 #: layer. Mirrors the table in docs/ARCHITECTURE.md.
 LAYERS: list[set[str]] = [
-    {"kinds", "errors", "geometry"},
+    {"kinds", "errors", "geometry", "sh_rotation"},
     {"camera", "scene"},
     {"scene_stats", "blender_convention", "viewport", "selection_tools"},
     {"io", "render"},
     {"fusion", "views", "export", "point_attributes"},
-    {"mapping", "synthetic", "segment"},
+    {"mapping", "synthetic", "segment", "transform_export"},
     {"session"},
     {"evaluation"},
     {"cli"},

@@ -51,8 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from divas_kernels import resolve_device, upload_surfels
-from divas_kernels.contrib import accumulate_contributions
+from divas_kernels import accumulate_contributions, resolve_device, upload_surfels
 
 from ..fusion.morton import morton_decode
 from ..fusion.occupancy import OccupancyGrid
