@@ -19,9 +19,9 @@ number is repeated here):
 * ``plant`` — the pot filled up to the soil (target; the 8 mm wall above the soil and the
   5 mm stems are left out: thinner than two interior Gaussians), the table top, the
   table legs and the book (background); the mug is thin-walled and stays hollow;
-* ``occluded`` — the vase (foot, body, neck: target; a closed vase is solid to the
-  trainer, its inside is never seen), the plinth, the pillar, the plank and the fence
-  posts (background).
+* ``occluded`` — the vase's foot and body (target; the trainer never sees inside them —
+  the neck is open, a camera looks into it, so it stays hollow), the plinth, the pillar,
+  the plank and the fence posts (background).
 """
 
 from __future__ import annotations
@@ -155,7 +155,8 @@ class SolidBall(Solid):
 @dataclass
 class SolidTube(Solid):
     """Solid torus tube: distance ≤ ``r`` from the core circle of radius ``R`` around local
-    z, over the major angle ``psi0 ≤ ψ ≤ psi1`` (cut flat at the arc ends)."""
+    z, over the major angle ``psi0 ≤ ψ ≤ psi1`` (cut flat at the arc ends; an arc may
+    exceed a half turn — the ribs span 300°)."""
 
     R: float = 0.0
     r: float = 0.0
@@ -165,13 +166,16 @@ class SolidTube(Solid):
     def _depth_local(self, q):
         rho = np.hypot(q[:, 0], q[:, 1])
         d = self.r - np.hypot(rho - self.R, q[:, 2])
-        if self.psi1 - self.psi0 >= 2 * math.pi - 1e-12:
+        span = self.psi1 - self.psi0
+        if span >= 2 * math.pi - 1e-12:
             return d
-        for pe, sgn in ((self.psi0, 1.0), (self.psi1, -1.0)):
-            # signed distance to the end half-plane through the axis at angle pe (inside > 0)
-            nrm = sgn * np.array([-math.sin(pe), math.cos(pe), 0.0])
-            d = np.minimum(d, q @ nrm)
-        return d
+        # angle from the first end; the distance to an end plane is ρ sin(angle) within a
+        # quarter turn of it (farther away it exceeds ρ > r and the tube term decides)
+        a = np.mod(np.arctan2(q[:, 1], q[:, 0]) - self.psi0, 2 * math.pi)
+        quarter = math.pi / 2
+        d = np.minimum(d, rho * np.sin(np.minimum(a, quarter)))
+        d = np.minimum(d, rho * np.sin(np.minimum(np.maximum(span - a, 0.0), quarter)))
+        return np.where(a <= span, d, -np.abs(d) - 1e-9)
 
     def _local_bounds(self):
         e = self.R + self.r
@@ -250,9 +254,7 @@ def scene_solids(name: str, surfaces: list[Surface]) -> list[Solid]:
         out += [_from_surface(surfaces[j], j) for n, j in ix.items() if n.startswith("table_leg_")]
         return out
     if name == "occluded":
-        out = [
-            _from_surface(surfaces[ix[n]], ix[n]) for n in ("vase_foot", "vase_body", "vase_neck")
-        ]
+        out = [_from_surface(surfaces[ix[n]], ix[n]) for n in ("vase_foot", "vase_body")]
         out += [
             _box(surfaces, p) for p in ("plinth", "pillar", "plank", "fence_post_0", "fence_post_1")
         ]
