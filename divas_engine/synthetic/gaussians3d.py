@@ -6,32 +6,38 @@ cameras: ``scenes.py``), but the primitives are 3D Gaussians drawn from what tra
 quantile table or a band of the real captures in ``tests/data``, not a guess). Four
 classes (:class:`GaussianClass`), counts exact in ``size``:
 
-* ``SURFACE`` (the rest of the budget, split over the surfaces ∝ density × area like
-  2DGS): centre = an area-uniform sample on the analytic surface moved along the normal
-  by ``N(0, ½ s_min)``; ``s_max = SURFACE_SCALE · spacing · exp(L)``, ``L`` from the
-  measured ``log s_max`` table; ``s_mid / s_max`` and ``s_min / s_mid`` from their tables
-  (so the third axis has the measured thickness, median ``s_min/s_max`` ≈ 0.04, not 0);
-  the smallest axis along the normal, the largest along the surface's straight direction
-  on cylinders and tubes (random in the plane elsewhere), the frame tilted by
-  ``N(0, TILT)`` about a random axis; on curved parts the extent across the curvature is
-  at most 0.45 × its radius. Opacity from the measured table. Needles
-  (``s_mid / s_max < 0.05``, 8–12 % of trained Gaussians) come out of the same tables;
-  they are ``NEEDLE_LENGTH``× longer and take the needles' own (fainter) opacity table,
-  as measured.
-* ``INTERIOR`` (``INTERIOR_SHARE``): uniform in the solids of :mod:`.solids` at depth
-  ≥ ``INTERIOR_MARGIN`` × the owner's spacing, never inside a solid of the other label;
-  count per solid ∝ deep volume × owner density^1.5 (the owner's packing); random
-  orientation, axes ratios and opacity from the tables, ``s_max`` around
-  ``INTERIOR_PACKING`` × the solid's interior spacing and never more than the centre's
-  depth (the 1σ ellipsoid stays inside). Colour: the owner's palette darkened by
-  ``INTERIOR_SHADE`` (no view constrains it). These are the Gaussians no view sees.
+* ``SURFACE`` (the rest of the budget, split over the surfaces ∝ density × area exactly
+  like 2DGS, so each object keeps its 2DGS share): centre = an area-uniform sample on the
+  analytic surface moved along the normal by ``N(0, ½ s_min)``. Shape and opacity are
+  one joint draw from the measured tables and copula
+  (:func:`~.splat_stats.sample_shapes`): ``s_max = SURFACE_SCALE · spacing ·
+  exp(LOG_SMAX_SPREAD · L)``, ``s_mid = s_max · (s_mid/s_max)``, ``s_min = s_mid ·
+  (s_min/s_mid)`` — so the third axis has the measured thickness (median ``s_min/s_max``
+  ≈ 0.04, not 0) and needles (``s_mid / s_max < 0.05``, ~10 %) are longer and fainter,
+  as measured. The smallest axis lies along the normal, the largest along the straight
+  direction of thin cylinders and tubes (stems, ribs; random in the plane elsewhere);
+  the frame is tilted by ``N(0, TILT)`` about a random axis. Across a curvature the
+  extent is at most 0.45 × its radius; near a patch edge (:mod:`.edges`) the Gaussian
+  shrinks, all axes alike, to the edge distance (at least ``EDGE_FLOOR`` spacings) —
+  a trainer keeps silhouettes sharp.
+* ``INTERIOR``: uniform in the solids of :mod:`.solids` at depth ≥ ``INTERIOR_MARGIN``
+  owner spacings, never inside a solid of the other label. Each solid's deep part is
+  filled at ``INTERIOR_SPACING`` owner spacings apart (at most ``INTERIOR_MAX_SHARE`` of
+  all Gaussians; a fixed point with the surface budget), so thick objects hold many and
+  thin ones none; random orientation, shape and opacity from the same joint draw,
+  ``s_max`` around ``INTERIOR_PACKING`` × the solid's interior spacing and never more
+  than the centre's depth (the 1σ ellipsoid stays inside). Colour: the owner's palette
+  darkened by ``INTERIOR_SHADE`` (no view constrains it). These are the Gaussians no
+  view sees.
 * ``HAZE`` (``HAZE_SHARE``): large translucent Gaussians over the surfaces: anchored at a
-  surface sample (surfaces ∝ their counts), centre off the surface by ``N(0, ¼ s_max)``
-  along the normal, ``s_max`` 3–8 × the surface median (log-uniform), thick
-  (``s_mid/s_max`` U(0.3, 1), ``s_min/s_mid`` U(0.2, 0.7)), opacity U(0.01, 0.2).
+  surface sample (surfaces ∝ their counts, the far dome left out), centre off the
+  surface by ``N(0, ¼ s_max)`` along the normal, ``s_max`` ``HAZE_SIZE`` × the surface
+  median (log-uniform), thick (``s_mid/s_max`` U(0.3, 1), ``s_min/s_mid`` U(0.2, 0.7)),
+  opacity U(0.01, 0.2).
 * ``FLOATER`` (the spec's floater shares, as 2DGS): free space in training frusta (the
   2DGS rule, :func:`~.builder.sample_floaters`), ``s_max`` 1–4 × 0.7 × the base spacing,
-  random orientation, opacity U(0.05, 0.2), the floater palette.
+  random orientation, axis ratios from the tables, opacity U(0.05, 0.2), the floater
+  palette.
 
 **Ground truth, by construction.** A Gaussian belongs to the object whose surface or
 solid it was generated for: ``SURFACE`` and ``HAZE`` take their surface's target flag and
