@@ -1,20 +1,28 @@
-"""Synthetic 2DGS (and NeRF-grid) scenes with exact ground truth.
+"""Synthetic 2DGS, 3DGS (and NeRF-grid) scenes with exact ground truth.
 
-``generate_scene(name, out_dir, size=..., seed=...)`` samples surfels on analytic
-surfaces (``surfaces.py``) with the surfel model of ``builder.py``; the named
-scenes are in ``scenes.py``. Everything is deterministic in ``(name, size,
-seed)`` and vectorised (2M surfels in seconds).
+``generate_scene(name, out_dir, size=..., seed=..., kind=...)`` samples surfels on
+analytic surfaces (``surfaces.py``) with the surfel model of ``builder.py`` (``kind``
+2DGS, the default), or writes the same scene as a trained-looking 3DGS
+(``gaussians3d.py``: surface Gaussians with thickness, interior Gaussians in the
+solids of ``solids.py``, large translucent haze, needles, floaters; statistics
+measured on real captures in ``splat_stats.py``); the named scenes are in
+``scenes.py``. Everything is deterministic in ``(name, size, seed, kind)`` and
+vectorised (2M surfels in seconds).
 
 Files written to ``out_dir``:
 
-* ``scene.ply`` — 2DGS-trainer PLY (:func:`~divas_engine.io.ply.write_surfel_ply`);
+* ``scene.ply`` — 2DGS-trainer PLY (:func:`~divas_engine.io.ply.write_surfel_ply`), or for
+  ``kind=3dgs`` the 3DGS reference-trainer PLY (``scale_0..2``, :mod:`.gaussians3d`);
 * ``cameras.json`` / ``test_cameras.json`` — training / held-out cameras (3DGS schema);
 * ``labels.npy`` — bool per surfel in PLY row order (True = target);
 * ``surface_ids.npy`` — int32 per surfel: index into ``scene.json["surfaces"]``, −1 floater;
 * ``scene.json`` — metadata: counts, surfaces (type, parameters, area, count),
   target description, click points on the target (with the training cameras
   that see each), scene centre/radius, the NOTES occupancy sizing (``h_v``…);
-* ``ribs`` only: ``grid.npz`` (``density [D,H,W]`` σ per world unit indexed
+* 3DGS only: ``classes.npy`` — uint8 per Gaussian, :class:`~.gaussians3d.GaussianClass`
+  (0 surface, 1 interior, 2 haze, 3 floater); ``scene.json`` adds ``kind``, ``solids``,
+  per-class counts and the shape ``statistics`` beside the real captures' bands;
+* ``ribs`` 2DGS only: ``grid.npz`` (``density [D,H,W]`` σ per world unit indexed
   ``[iz,iy,ix]`` at cell centres ``aabb[0] + (i + ½)·voxel``, ``rgb [D,H,W,3]``,
   ``aabb [2,3]``) and ``grid_labels.npy`` (bool ``[D,H,W]``).
 """
@@ -30,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import Camera
+from ..kinds import SceneKind
 from ..scene import DensityGrid, SurfelScene
 from .builder import BuiltScene, SceneSpec, build_surfels, choose_clicks, notes_grid_params
 from .grid import voxelize
@@ -61,6 +70,10 @@ class SyntheticScene:
     grid: DensityGrid | None = None
     grid_labels: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
+    kind: SceneKind = SceneKind.GS2D
+    #: 3DGS only: :class:`~.gaussians3d.GaussianClass` per Gaussian and the stored PLY rows.
+    classes: np.ndarray | None = None
+    ply_rows: np.ndarray | None = None
 
     @property
     def center(self) -> np.ndarray:
@@ -84,21 +97,29 @@ class SyntheticScene:
             out / "surface_ids.npy",
             out / "scene.json",
         ]
-        write_surfel_ply(paths[0], self.scene)
+        if self.kind == SceneKind.GS3D:
+            from ..io.ply import write_ply_rows
+
+            write_ply_rows(paths[0], {"vertex": self.ply_rows})
+        else:
+            write_surfel_ply(paths[0], self.scene)
         write_cameras_json(paths[1], self.cameras)
         write_cameras_json(paths[2], self.test_cameras)
         np.save(paths[3], self.labels.astype(bool))
         np.save(paths[4], self.surface_ids.astype(np.int32))
         paths[5].write_text(json.dumps(_jsonable(self.metadata), indent=1))
+        if self.classes is not None:
+            paths.append(out / "classes.npy")
+            np.save(paths[-1], self.classes.astype(np.uint8))
         if self.grid is not None:
             paths += [out / "grid.npz", out / "grid_labels.npy"]
             np.savez_compressed(
-                paths[6],
+                paths[-2],
                 density=self.grid.density.astype(np.float32),
                 rgb=self.grid.rgb.astype(np.float32),
                 aabb=self.grid.aabb.astype(np.float64),
             )
-            np.save(paths[7], self.grid_labels.astype(bool))
+            np.save(paths[-1], self.grid_labels.astype(bool))
         return paths
 
 
@@ -124,18 +145,27 @@ def generate_scene(
     *,
     size: int = 50_000,
     seed: int = 0,
-    sh_degree: int = 1,
+    sh_degree: int | None = None,
     grid_resolution: int = 128,
+    kind: SceneKind | str = SceneKind.GS2D,
 ) -> SyntheticScene:
     """Generate the named synthetic scene; write its files when ``out_dir`` is given.
 
     Args:
         name: one of :data:`SCENE_NAMES`.
-        size: total surfel count (surfaces + floaters), exact.
+        size: total surfel / Gaussian count (all classes), exact.
         seed: everything random (sampling, textures, jitter, plant layout) follows it.
-        sh_degree: SH degree of the colours (0..3; higher bands are small noise).
-        grid_resolution: cells along the longest side of the ``ribs`` NeRF grid.
+        sh_degree: SH degree of the colours (0..3; higher bands are small noise);
+            default 1 for 2DGS, 3 for 3DGS (what trainers write).
+        grid_resolution: cells along the longest side of the ``ribs`` NeRF grid (2DGS).
+        kind: ``"2dgs"`` (surfels, default) or ``"3dgs"`` (trained-looking 3D Gaussians,
+            :mod:`.gaussians3d`; same surfaces, cameras and test cameras).
     """
+    kind = SceneKind(kind)
+    if kind not in (SceneKind.GS2D, SceneKind.GS3D):
+        raise ValueError(f"kind must be 2dgs or 3dgs, got {kind!r}")
+    if sh_degree is None:
+        sh_degree = 3 if kind == SceneKind.GS3D else 1
     if name not in SCENE_BUILDERS:
         raise ValueError(f"unknown synthetic scene {name!r}; choose one of {list(SCENE_NAMES)}")
     if int(size) < MIN_SIZE:
@@ -148,6 +178,15 @@ def generate_scene(
     t0 = time.perf_counter()
     spec: SceneSpec = SCENE_BUILDERS[name](seed, size)
     t1 = time.perf_counter()
+    if kind == SceneKind.GS3D:
+        from .scene3d import generate_3dgs
+
+        out = generate_3dgs(spec, size, seed, int(sh_degree), {"layout": t1 - t0})
+        if out_dir is not None:
+            t5 = time.perf_counter()
+            out.write(out_dir)
+            out.timings["write"] = time.perf_counter() - t5
+        return out
     built = build_surfels(spec, size, seed, sh_degree)
     t2 = time.perf_counter()
     clicks = choose_clicks(seed, spec, built)
