@@ -143,8 +143,9 @@ def run(args: argparse.Namespace) -> dict:
     if str(REPO) not in sys.path:
         sys.path.insert(0, str(REPO))
     from divas_engine.cli.segment import write_report
-    from divas_engine.evaluation import surfel_scores
     from divas_engine.evaluation.ground_truth import load_ground_truth
+    from divas_engine.evaluation.session_scores import session_evaluation
+    from divas_engine.kinds import SceneKind
     from divas_engine.session import load_prompts
 
     registry = importlib.import_module(f"{addon.__name__}.session_registry")
@@ -287,13 +288,11 @@ def run(args: argparse.Namespace) -> dict:
         **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
         "outputs": outputs,
     }
-    if session.kind == "nerf":
+    if session.kind == SceneKind.NERF:
         report["preset"] = session.preset
     if args.gt_labels is not None:
         gt = load_ground_truth(args.gt_labels, session.scene)
-        report["evaluation"] = {
-            "surfels" if session.kind == "2dgs" else "voxels": surfel_scores(session.selection, gt)
-        }
+        report["evaluation"] = session_evaluation(session, session.selection, gt, session.device)
     if args.report is not None:
         write_report(args.report, report)
     if error is not None:

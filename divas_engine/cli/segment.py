@@ -212,7 +212,7 @@ def segment_scene(
     session is closed unless ``keep_session``.
     """
     from ..evaluation.ground_truth import load_ground_truth
-    from ..evaluation.metrics import surfel_scores
+    from ..evaluation.session_scores import session_evaluation
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
     from ..segment import SegmenterSettings
@@ -357,11 +357,7 @@ def segment_scene(
         if session.kind == SceneKind.NERF:
             report["preset"] = session.preset
         if gt is not None:
-            report["evaluation"] = {
-                "surfels" if session.kind == SceneKind.GS2D else "voxels": surfel_scores(sel, gt)
-            }
-            if session.kind == SceneKind.GS2D:
-                report["evaluation"]["render"] = _rendered_scores(session, sel, gt, dev)
+            report["evaluation"] = session_evaluation(session, sel, gt, dev)
         if segmenter == "oracle":
             from dataclasses import asdict
 
@@ -375,28 +371,6 @@ def segment_scene(
     finally:
         if not keep_session:
             session.close()
-
-
-def _rendered_scores(session, sel: np.ndarray, gt: np.ndarray, dev) -> dict[str, Any]:
-    """Image IoU, alpha fidelity, opacity-weighted IoU and extracted-object PSNR at test
-    views around the ground truth (:func:`~divas_engine.evaluation.fidelity.rendered_report`);
-    on 3DGS scenes also of the selection without the completion."""
-    from ..evaluation.fidelity import rendered_report
-    from ..session import anchor_plan
-
-    sels = {"selection": sel}
-    if getattr(session.backend, "last_completion", None) is not None:
-        sels["without_completion"] = session.last_mapping.selected
-    up = anchor_plan(session.scene, session.cameras, session.config).up
-    return rendered_report(
-        session.scene,
-        sels,
-        gt,
-        up,
-        scale=session.config.render_scale,
-        device=dev,
-        renderer=session.renderer,
-    )
 
 
 def write_report(path: Path, report: dict[str, Any]) -> None:
