@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 
 from divas_engine.errors import DivasInputError
-from divas_engine.point_attributes import INDEX, SELECTED, point_values, scene_selection
+from divas_engine.point_attributes import COLOR, INDEX, SELECTED, point_values, scene_selection
 from divas_engine.selection_tools import SelectMode, combine
 
 from . import bridge, session_registry, source
@@ -88,6 +88,12 @@ def visible(t: EditTarget) -> np.ndarray:
     if geom.attributes.get(HIDDEN) is None:
         return np.ones(bridge.point_count(geom), bool)
     return ~bridge.read_attribute(geom, HIDDEN).astype(bool)
+
+
+def point_opacities(t: EditTarget) -> np.ndarray:
+    """Per-point opacity α: the alpha of the linear display colour (surfels: the splat's
+    opacity; density grids: the cell opacity ``1 − exp(−σ·voxel)``)."""
+    return bridge.read_attribute(t.geom, COLOR)[:, 3].astype(np.float64)
 
 
 def point_sizes(t: EditTarget) -> np.ndarray:

@@ -8,7 +8,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty
 
 from divas_engine.selection_tools import in_range
 
-from .. import bridge, point_edits
+from .. import point_edits
 from .point_edit_base import PointEditOperator, mode_property
 
 ATTRIBUTES = (
@@ -34,7 +34,7 @@ class DIVAS_OT_select_by_attribute(PointEditOperator, bpy.types.Operator):
     def execute(self, context):
         def select(t):
             if self.attribute == "OPACITY":
-                values = bridge.read_attribute(t.geom, "divas_opacity")
+                values = point_edits.point_opacities(t)
             else:
                 values = point_edits.point_sizes(t)
             region = in_range(
