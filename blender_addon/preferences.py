@@ -173,6 +173,24 @@ def active_model(prefs) -> str:
     return f"{Path(ckpt).name} ({prefs.sam_model_type}), converted to ONNX at the next Start"
 
 
+def active_model_ready(prefs) -> bool:
+    """Whether a session started now has the model files its segmenter needs (what the
+    panel warns about): SAM (PyTorch) needs a checkpoint; SAM (ONNX) an ONNX pair, or a
+    checkpoint already converted or convertible here (torch installed)."""
+    from divas_engine.segment.sam_export import find_cached_conversion, torch_available
+
+    if prefs.segmenter == "sam_torch":
+        return bool(prefs.sam_checkpoint_path)
+    if prefs.segmenter != "sam_onnx" or (prefs.sam_encoder_path and prefs.sam_decoder_path):
+        return True
+    if not prefs.sam_checkpoint_path:
+        return False
+    ckpt = bpy.path.abspath(prefs.sam_checkpoint_path)
+    return torch_available() or (
+        find_cached_conversion(ckpt, prefs.sam_model_type, sam_cache_dir()) is not None
+    )
+
+
 def get_preferences(context=None) -> DIVAS_AddonPreferences | None:
     context = context or bpy.context
     addon = context.preferences.addons.get(ADDON_ID)

@@ -180,6 +180,7 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
         sam_model_type="vit_b",
     )
     assert prefs_mod.active_model(prefs).endswith("converted to ONNX at the next Start")
+    assert prefs_mod.active_model_ready(prefs)  # a checkpoint alone is enough: no warning
     settings = prefs_mod.DivasSettings(
         segmenter="sam_onnx", sam_checkpoint_path=str(path), sam_model_type="vit_b"
     )
@@ -203,6 +204,13 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
     prefs.sam_checkpoint_path = str(tmp_path / "other.pth")
     monkeypatch.setattr(se, "torch_available", lambda: False)
     assert "needs torch" in prefs_mod.active_model(prefs)
+    assert not prefs_mod.active_model_ready(prefs)  # unconverted and no torch: warned
+    prefs.sam_checkpoint_path = str(path)  # converted above: usable without torch
+    assert prefs_mod.active_model_ready(prefs)
+    prefs.sam_checkpoint_path = ""
+    assert not prefs_mod.active_model_ready(prefs)
+    prefs.segmenter = "sam_torch"
+    assert not prefs_mod.active_model_ready(prefs)
 
 
 def test_addon_active_model_names_weight_free_segmenters():

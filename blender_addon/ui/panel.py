@@ -10,7 +10,7 @@ from divas_engine.kinds import SceneKind
 
 from .. import session_registry, source
 from ..camera_objects import RESOLUTION_PROP
-from ..preferences import get_preferences
+from ..preferences import active_model, active_model_ready, get_preferences
 from ..properties import scene_settings
 from ..reporting import rejection_message
 from ..selection import selected_count
@@ -52,12 +52,11 @@ def _draw_settings(layout, context, ref) -> None:
     else:
         box.prop(prefs, "device")
         box.prop(prefs, "segmenter")
-        if prefs.segmenter == "sam_onnx" and not (
-            prefs.sam_encoder_path and prefs.sam_decoder_path
-        ):
-            box.label(text="Set the SAM .onnx files in Preferences", icon="ERROR")
-        if prefs.segmenter == "sam_torch" and not prefs.sam_checkpoint_path:
-            box.label(text="Set the SAM checkpoint in Preferences", icon="ERROR")
+        if prefs.segmenter in ("sam_onnx", "sam_torch"):
+            # one rule for what a Start would use: a checkpoint alone is enough for SAM
+            # (ONNX), it is converted once (issue 21)
+            ready = active_model_ready(prefs)
+            box.label(text=f"Model: {active_model(prefs)}", icon="INFO" if ready else "ERROR")
     props = scene_settings(context.scene)
     if props is None:
         return

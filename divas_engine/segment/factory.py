@@ -72,8 +72,11 @@ class SegmenterSettings:
         kind: which segmenter (a name is parsed: :meth:`SegmenterKind.parse`).
         seed: seed of the classic and oracle segmenters (their only randomness).
         sam_encoder, sam_decoder: ``SAM_ONNX`` image encoder / prompt decoder ``.onnx``.
-        sam_checkpoint: ``SAM_TORCH`` ``sam_vit_*.pth`` checkpoint.
-        sam_model_type: ``SAM_TORCH`` registry key (``vit_h`` / ``vit_l`` / ``vit_b``).
+        sam_checkpoint: ``SAM_TORCH`` checkpoint (``sam_vit_*.pth`` or MobileSAM's
+            ``mobile_sam.pt``); hosts also convert it once to an ONNX pair for ``SAM_ONNX``.
+        sam_model_type: the checkpoint's :class:`~.sam_models.SamModelType` (``vit_b`` /
+            ``vit_l`` / ``vit_h`` / ``mobile_sam``; ``default`` is ``vit_h``, ``vit_t``
+            is ``mobile_sam``).
         device: ``auto`` / ``cpu`` / ``cuda`` (``SAM_TORCH``'s torch device; ``auto``:
             CUDA when torch sees one, else CPU).
     """
