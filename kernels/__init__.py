@@ -15,11 +15,13 @@ from .coverage import (
     run_pass1,
     run_pass2,
     run_select,
+    upload_coverage_views,
 )
 from .device_arrays import (
     Device,
     DeviceArray,
     cuda_device_count,
+    device_append,
     device_synchronize,
     device_zeros,
     is_device_array,
@@ -65,6 +67,7 @@ __all__: list[str] = [
     "DeviceArray",
     "to_device",
     "device_zeros",
+    "device_append",
     "device_synchronize",
     "cuda_device_count",
     "is_device_array",
@@ -110,6 +113,7 @@ __all__: list[str] = [
     # voxel-to-surfel mapping (divas_engine.mapping)
     "CoverageView",
     "make_coverage_view",
+    "upload_coverage_views",
     "run_pass1",
     "run_pass2",
     "compact",

@@ -50,6 +50,7 @@ wp.set_module_options({"enable_backward": False})
 __all__ = [
     "CoverageView",
     "make_coverage_view",
+    "upload_coverage_views",
     "project_surfel",
     "splat_rho3",
     "footprint_counts",
@@ -105,6 +106,11 @@ def make_coverage_view(
     v.mask_off = int(mask_off)
     v.sat_off = int(sat_off)
     return v
+
+
+def upload_coverage_views(views: list[CoverageView], device) -> wp.array:
+    """The ``[V]`` device array of Pass-3 views :func:`run_coverage` takes."""
+    return wp.array(views, dtype=CoverageView, device=device)
 
 
 # --------------------------------------------------------------------------- funcs

@@ -15,6 +15,7 @@ __all__ = [
     "Device",
     "to_device",
     "device_zeros",
+    "device_append",
     "device_synchronize",
     "cuda_device_count",
     "is_device_array",
@@ -64,6 +65,24 @@ def to_device(host: np.ndarray, device, *, dtype=None, vec3: bool = False) -> wp
 def device_zeros(shape, dtype, device) -> wp.array:
     """A zero-filled device array of NumPy ``dtype``."""
     return wp.zeros(shape, dtype=_warp_dtype(dtype), device=device)
+
+
+def device_append(buf: wp.array, used: int, host: np.ndarray) -> tuple[wp.array, int]:
+    """Append ``host`` after the first ``used`` elements of the growable 1-D ``buf``
+    (same device and element type); the capacity at least doubles when it runs out, so
+    appends cost amortised O(len(host)). Returns ``(buf, used + len(host))`` — ``buf``
+    is a new array when it grew (its first ``used`` elements copied over)."""
+    host = np.ascontiguousarray(host).ravel()
+    need = used + host.size
+    if need > buf.shape[0]:
+        grown = wp.empty(max(need, 2 * buf.shape[0]), dtype=buf.dtype, device=buf.device)
+        if used:
+            wp.copy(grown, buf, count=used)
+        buf = grown
+    if host.size:
+        src = wp.array(host, dtype=buf.dtype, device=buf.device)
+        wp.copy(buf, src, dest_offset=used, count=host.size)
+    return buf, need
 
 
 def device_synchronize(device) -> None:

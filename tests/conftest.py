@@ -42,6 +42,7 @@ def device(request) -> str:
 # Test tiers by folder and file (``make test-engine`` etc.): the add-on tests need the
 # ``bpy`` module; the kernel tests exercise the Warp kernels against NumPy references.
 KERNEL_TESTS = {
+    "test_device_arrays.py",
     "test_fusion_gs.py",
     "test_fusion_incremental.py",
     "test_fusion_nerf.py",

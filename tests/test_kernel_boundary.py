@@ -9,9 +9,9 @@ from pathlib import Path
 import divas_kernels
 
 ENGINE = Path(__file__).resolve().parents[1] / "divas_engine"
-#: Engine modules that still allocate Warp arrays themselves (the mapping's device
-#: buffers; moving them is left to the mapping's owner — see the issue-13 note).
-WARP_ALLOWED = {"mapping/passes.py"}
+#: Engine modules allowed to import Warp themselves: none (allocation, upload and growth
+#: of device buffers live in ``kernels/device_arrays.py``).
+WARP_ALLOWED: set[str] = set()
 
 
 def _imports(path: Path):

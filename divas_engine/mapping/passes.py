@@ -50,13 +50,20 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import warp as wp
 
 # the kernel boundary: only names of divas_kernels.__all__ (coverage and occupancy
 # wrappers under their old module aliases, to keep this diff to the imports)
 import divas_kernels as kcov
 import divas_kernels as kocc
-from divas_kernels import cpu_threads, resolve_device
+from divas_kernels import (
+    DeviceArray,
+    cpu_threads,
+    device_append,
+    device_synchronize,
+    device_zeros,
+    resolve_device,
+    to_device,
+)
 
 from ..fusion.occupancy import OccupancyGrid, surfel_voxel_codes
 from ..fusion.state import FusionResult
@@ -141,11 +148,11 @@ class _ViewCache:
     def __init__(self, device) -> None:
         self.device = device
         self.res: dict[int, tuple[FusionView, float, int, int, int, int]] = {}
-        self.mbuf = wp.zeros(0, dtype=wp.uint8, device=device)
-        self.sbuf = wp.zeros(0, dtype=wp.int32, device=device)
+        self.mbuf = device_zeros(0, np.uint8, device)
+        self.sbuf = device_zeros(0, np.int32, device)
         self.mused = self.sused = 0
         self.key: tuple | None = None
-        self.views_dev: wp.array | None = None
+        self.views_dev: DeviceArray | None = None
 
     @staticmethod
     def binarise(v: FusionView, tau_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -155,25 +162,9 @@ class _ViewCache:
         np.cumsum(np.cumsum(b, axis=0, dtype=np.int32), axis=1, dtype=np.int32, out=sat[1:, 1:])
         return b.ravel(), sat.ravel()
 
-    def _append(self, buf: wp.array, used: int, host: np.ndarray, dtype) -> tuple[wp.array, int]:
-        need = used + host.size
-        if need > buf.shape[0]:
-            grown = wp.empty(max(need, 2 * buf.shape[0]), dtype=dtype, device=self.device)
-            if used:
-                wp.copy(grown, buf, count=used)
-            buf = grown
-        if host.size:
-            wp.copy(
-                buf,
-                wp.array(host, dtype=dtype, device=self.device),
-                dest_offset=used,
-                count=host.size,
-            )
-        return buf, need
-
     def buffers(
         self, views: Sequence[FusionView], slots: Sequence[int], cfg: MappingConfig
-    ) -> tuple[wp.array, wp.array, wp.array]:
+    ) -> tuple[DeviceArray, DeviceArray, DeviceArray]:
         tau = float(cfg.mask_threshold)
         key = (tuple(id(v) for v in views), tuple(int(s) for s in slots), tau, float(cfg.near))
         if key == self.key and self.views_dev is not None:
@@ -191,8 +182,8 @@ class _ViewCache:
             if id(v) not in self.res:
                 b, sat = self.binarise(v, tau)
                 moff, soff = self.mused, self.sused
-                self.mbuf, self.mused = self._append(self.mbuf, self.mused, b, wp.uint8)
-                self.sbuf, self.sused = self._append(self.sbuf, self.sused, sat, wp.int32)
+                self.mbuf, self.mused = device_append(self.mbuf, self.mused, b)
+                self.sbuf, self.sused = device_append(self.sbuf, self.sused, sat)
                 self.res[id(v)] = (v, tau, moff, soff, b.size, sat.size)
         structs = []
         for v, s in zip(views, slots):
@@ -213,7 +204,7 @@ class _ViewCache:
                     soff,
                 )
             )
-        self.views_dev = wp.array(structs, dtype=kcov.CoverageView, device=self.device)
+        self.views_dev = kcov.upload_coverage_views(structs, self.device)
         self.key = key
         return self.views_dev, self.mbuf, self.sbuf
 
@@ -250,9 +241,9 @@ class SurfelMapper:
         rot = scene.rotations().astype(np.float64)
         sc = np.asarray(scene.scales, dtype=np.float64)
         f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
-        self._means = wp.array(f32(scene.means), dtype=wp.vec3, device=d)
-        self._tu = wp.array(f32(rot[:, :, 0] * sc[:, :1]), dtype=wp.vec3, device=d)
-        self._tv = wp.array(f32(rot[:, :, 1] * sc[:, 1:2]), dtype=wp.vec3, device=d)
+        self._means = to_device(f32(scene.means), d, vec3=True)
+        self._tu = to_device(f32(rot[:, :, 0] * sc[:, :1]), d, vec3=True)
+        self._tv = to_device(f32(rot[:, :, 1] * sc[:, 1:2]), d, vec3=True)
         codes = surfel_voxel_codes(self._means, grid.geometry, device=d)
         self._act = kocc.hash_query(
             grid.hash_keys, grid.hash_vals, grid.hash_shift, codes, device=d
@@ -260,19 +251,19 @@ class SurfelMapper:
         self._act_host = self._act.numpy().copy()
         self._scales = scene.scales  # a reference (other ε only)
         self._aspects = surfel_aspects(scene.scales, config.aspect_eps)
-        self._needle: dict[tuple[float, float], tuple[float, np.ndarray, wp.array]] = {}
+        self._needle: dict[tuple[float, float], tuple[float, np.ndarray, DeviceArray]] = {}
         self._needle_entry(config)
         self._views = _ViewCache(d)
-        self._f1 = wp.zeros(n, dtype=wp.uint8, device=d)
-        self._f2 = wp.zeros(n, dtype=wp.uint8, device=d)
-        self._sel = wp.zeros(n, dtype=wp.uint8, device=d)
-        self._flag = wp.zeros(n, dtype=int, device=d)
-        self._kappa = wp.zeros(n, dtype=float, device=d)
-        self._scored = wp.zeros(n, dtype=wp.int32, device=d)
-        self._ones = wp.full(n, 1, dtype=wp.uint8, device=d)
+        self._f1 = device_zeros(n, np.uint8, d)
+        self._f2 = device_zeros(n, np.uint8, d)
+        self._sel = device_zeros(n, np.uint8, d)
+        self._flag = device_zeros(n, np.int32, d)
+        self._kappa = device_zeros(n, np.float32, d)
+        self._scored = device_zeros(n, np.int32, d)
+        self._ones = to_device(np.ones(n, np.uint8), d)
 
     # --- per-scene state ----------------------------------------------------------
-    def _needle_entry(self, cfg: MappingConfig) -> tuple[float, np.ndarray, wp.array]:
+    def _needle_entry(self, cfg: MappingConfig) -> tuple[float, np.ndarray, DeviceArray]:
         key = (float(cfg.needle_percentile), float(cfg.aspect_eps))
         e = self._needle.get(key)
         if e is None:
@@ -282,7 +273,7 @@ class SurfelMapper:
                 else surfel_aspects(self._scales, cfg.aspect_eps)
             )
             tau, keep = needle_threshold(a, cfg.needle_percentile)
-            e = (tau, keep, wp.array(keep.astype(np.uint8), dtype=wp.uint8, device=self.device))
+            e = (tau, keep, to_device(keep.astype(np.uint8), self.device))
             self._needle[key] = e
         return e
 
@@ -292,7 +283,7 @@ class SurfelMapper:
         return self._act_host
 
     @property
-    def selected_device(self) -> wp.array:
+    def selected_device(self) -> DeviceArray:
         """``[N] uint8`` f of the last :meth:`map` on the device (overwritten by the next)."""
         return self._sel
 
@@ -342,13 +333,13 @@ class SurfelMapper:
 
         def lap(name: str) -> None:
             nonlocal t
-            wp.synchronize_device(d)
+            device_synchronize(d)
             now = time.perf_counter()
             sec[name] = now - t
             t = now
 
         thr = cpu_threads(cfg.threads)
-        seg = wp.array(np.asarray(fused.segmented, dtype=np.uint8), dtype=wp.uint8, device=d)
+        seg = to_device(np.asarray(fused.segmented, dtype=np.uint8), d)
         kcov.run_pass1(self._act, seg, self._f1, d, thr)
         lap("pass1")
         tau_a, keep_h, keep = self._needle_entry(cfg)
@@ -362,7 +353,7 @@ class SurfelMapper:
         run3 = cfg.coverage_filter and len(views) > 0 and cand.shape[0] > 0
         if run3:
             vdev, mdev, sdev = self._views.buffers(views, slots, cfg)
-            vmask = wp.array(vm, dtype=wp.uint32, device=d)
+            vmask = to_device(vm, d)
         lap("views")
         if run3:
             kcov.run_coverage(
@@ -434,18 +425,18 @@ class SurfelMapper:
         d = self.device
         vm = self._check(fused, [view], [slot])
         n = self.n
-        seg = wp.array(np.asarray(fused.segmented, dtype=np.uint8), dtype=wp.uint8, device=d)
+        seg = to_device(np.asarray(fused.segmented, dtype=np.uint8), d)
         _, _, keep = self._needle_entry(cfg)
         if not cfg.needle_filter:
             keep = self._ones
-        tot = wp.zeros(n, dtype=wp.int32, device=d)
-        pos = wp.zeros(n, dtype=wp.int32, device=d)
-        kap = wp.zeros(n, dtype=float, device=d)
-        scored = wp.zeros(n, dtype=wp.int32, device=d)
+        tot = device_zeros(n, np.int32, d)
+        pos = device_zeros(n, np.int32, d)
+        kap = device_zeros(n, np.float32, d)
+        scored = device_zeros(n, np.int32, d)
         if n:
-            f1 = wp.zeros(n, dtype=wp.uint8, device=d)
-            f2 = wp.zeros(n, dtype=wp.uint8, device=d)
-            flag = wp.zeros(n, dtype=int, device=d)
+            f1 = device_zeros(n, np.uint8, d)
+            f2 = device_zeros(n, np.uint8, d)
+            flag = device_zeros(n, np.int32, d)
             kcov.run_pass1(self._act, seg, f1, d)
             kcov.run_pass2(f1, keep, f2, flag, d)
             cand = kcov.compact(flag, d)
@@ -454,7 +445,7 @@ class SurfelMapper:
                 kcov.run_coverage(
                     cand,
                     self._act,
-                    wp.array(vm, dtype=wp.uint32, device=d),
+                    to_device(vm, d),
                     self._means,
                     self._tu,
                     self._tv,
