@@ -78,6 +78,11 @@ def test_checkpoint_reading_and_type_errors(tiny_ckpt, tmp_path):
         sam_models.read_state_dict(tmp_path / "module.pth")
     with pytest.raises(DivasInputError, match="unknown SAM model type"):
         sam_models.load_sam_model(path, "vit_x")
+    # a SAM 2 checkpoint (Hiera trunk, saved under "model") is named and refused
+    sam2 = {"image_encoder.trunk.patch_embed.proj.weight": torch.zeros(8, 3, 7, 7)}
+    torch.save({"model": sam2}, tmp_path / "sam2.1_hiera_tiny.pt")
+    with pytest.raises(DivasInputError, match=r"SAM 2 \(Hiera\)"):
+        sam_models.load_sam_model(tmp_path / "sam2.1_hiera_tiny.pt", "vit_b")
 
 
 @pytest.mark.parametrize("layout", ["preprocessed", "raw"])
