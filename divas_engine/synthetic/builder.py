@@ -159,6 +159,34 @@ def _random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
     return q
 
 
+def scene_floaters(
+    rng: np.random.Generator,
+    spec: SceneSpec,
+    n_float: int,
+    n_focus: int,
+    surfaces: list[Surface],
+    margin: float,
+) -> np.ndarray:
+    """``[n_float + n_focus, 3]`` floaters of a scene (2DGS and 3DGS alike): ``n_float``
+    anywhere in the training frusta, then ``n_focus`` in front of the spec's focus
+    point (30–80 % of its depth), drawn from ``rng`` in that order."""
+    fl = [sample_floaters(rng, spec.cameras, n_float, surfaces, margin, spec.center)]
+    if n_focus:
+        fl.append(
+            sample_floaters(
+                rng,
+                spec.cameras,
+                n_focus,
+                surfaces,
+                margin,
+                spec.center,
+                focus=spec.focus,
+                depth_frac=(0.3, 0.8),
+            )
+        )
+    return np.concatenate(fl)
+
+
 def sample_floaters(
     rng: np.random.Generator,
     cams: list[Camera],
@@ -257,21 +285,7 @@ def build_surfels(spec: SceneSpec, size: int, seed: int, sh_degree: int = 1) -> 
     # floaters (free space, camera frusta)
     rng = rng_for(seed, spec.name, "floaters")
     margin = 3.0 * base_spacing
-    fl = [sample_floaters(rng, spec.cameras, n_float, surfaces, margin, spec.center)]
-    if n_focus:
-        fl.append(
-            sample_floaters(
-                rng,
-                spec.cameras,
-                n_focus,
-                surfaces,
-                margin,
-                spec.center,
-                focus=spec.focus,
-                depth_frac=(0.3, 0.8),
-            )
-        )
-    fpts = np.concatenate(fl)
+    fpts = scene_floaters(rng, spec, n_float, n_focus, surfaces, margin)
     nf = len(fpts)
     fq = _random_rotations(rng, nf)
     fsize = SCALE_FACTOR * base_spacing * rng.uniform(1.0, 4.0, (nf, 2))

@@ -74,7 +74,7 @@ from .builder import (
     SceneSpec,
     allocate_counts,
     rng_for,
-    sample_floaters,
+    scene_floaters,
 )
 from .edges import edge_distance
 from .solids import Solid, scene_solids
@@ -433,21 +433,7 @@ def build_gaussians3d(spec: SceneSpec, size: int, seed: int, sh_degree: int = 3)
     # floaters (the 2DGS rule)
     rng = rng_for(*key, "floaters")
     margin = 3.0 * base_spacing
-    fl = [sample_floaters(rng, spec.cameras, n_float, surfaces, margin, spec.center)]
-    if n_focus:
-        fl.append(
-            sample_floaters(
-                rng,
-                spec.cameras,
-                n_focus,
-                surfaces,
-                margin,
-                spec.center,
-                focus=spec.focus,
-                depth_frac=(0.3, 0.8),
-            )
-        )
-    fpts = np.concatenate(fl)
+    fpts = scene_floaters(rng, spec, n_float, n_focus, surfaces, margin)
     nf = len(fpts)
     fshp = sample_shapes(rng, nf)
     r1, r2 = fshp["mid_max"], fshp["min_mid"]
