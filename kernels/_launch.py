@@ -11,7 +11,9 @@ handles work item ``i = base + tid * stride``; :func:`launch_split` fills them.
 
 from __future__ import annotations
 
+import ctypes
 import os
+import sys
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Literal
@@ -26,7 +28,7 @@ if hasattr(wp, "LOG_WARNING"):
 else:  # pragma: no cover - older Warp
     wp.config.quiet = True
 
-__all__ = ["resolve_device", "launch_split", "cpu_threads", "ensure_loaded"]
+__all__ = ["resolve_device", "launch_split", "cpu_threads", "ensure_loaded", "init_warp"]
 
 _POOL: ThreadPoolExecutor | None = None
 _LOADED: set[tuple[int, str]] = set()
@@ -42,9 +44,44 @@ def cpu_threads(requested: int | None = None) -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _cuda_driver_loadable() -> bool:
+    """Whether the NVIDIA driver library loads (what Warp's init tries)."""
+    if sys.platform == "darwin":
+        return True  # no CUDA on macOS: Warp does not look for a driver there
+    names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so", "libcuda.so.1")
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+def init_warp() -> None:
+    """``wp.init()`` once. A machine without an NVIDIA driver is a supported CPU setup, so
+    Warp's C-level "Could not find or load the NVIDIA CUDA driver" line (written straight
+    to file descriptor 2, past the log level) is kept off the user's terminal: stderr is
+    muted for the init only, and only when the driver cannot be loaded."""
+    from warp._src import context as _ctx  # the runtime is None until the first init
+
+    if getattr(_ctx, "runtime", None) is not None or _cuda_driver_loadable():
+        wp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def resolve_device(device: Any = None) -> wp.context.Device:
     """A Warp device from ``None``/``"auto"`` (CUDA when present, else CPU), a name or a device."""
-    wp.init()
+    init_warp()
     if device is None or device == "auto":
         return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
     if isinstance(device, str) and device == "cuda" and wp.get_cuda_device_count() == 0:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ._launch import resolve_device
+from ._launch import init_warp, resolve_device
 
 __all__ = [
     "DeviceArray",
@@ -92,7 +92,7 @@ def device_synchronize(device) -> None:
 
 def cuda_device_count() -> int:
     """CUDA devices Warp can use (0 on a machine without a driver)."""
-    wp.init()
+    init_warp()
     return int(wp.get_cuda_device_count())
 
 
