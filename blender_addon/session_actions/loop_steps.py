@@ -223,10 +223,11 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
     if v.status == ViewStatus.REJECTED:
         show_view(context, obj, live, v)  # stay: more prompts, then Enter again
         return res
-    if res.overlay is not None:
-        show_view(context, obj, live, v, res.overlay, activate=False)
-    if res.next_view is not None and res.next_overlay is not None:
-        show_view(context, obj, live, res.next_view, res.next_overlay)
+    # the overlays are rendered when the view is first drawn (read), not here (issue 20)
+    if res.overlay_source is not None:
+        show_view(context, obj, live, v, lambda: res.overlay, activate=False)
+    if res.next_view is not None and res.next_overlay_source is not None:
+        show_view(context, obj, live, res.next_view, lambda: res.next_overlay)
     else:
         show_anchor(context, live, v.anchor)
     return res
