@@ -119,14 +119,16 @@ class LiveSession:
         self.changed()
 
     def changed(self) -> None:
-        """The session changed: recount, redraw."""
-        self._counts = self.session.counts()
+        """The session changed: recount (never waiting for the engine's background
+        warm-up: its voxel counts come when it is done), redraw."""
+        self._counts = self.session.counts(wait=False)
         self.version += 1
 
     def counts(self) -> dict[str, Any]:
         """The session's counts as of the last update (cheap: the panel redraws often)."""
-        if self._counts is None:
-            self._counts = self.session.counts()
+        c = self._counts
+        if c is None or (c.get("active_voxels") is None and self.session.warmed_up):
+            self._counts = self.session.counts(wait=False)
         return self._counts
 
 

@@ -62,6 +62,11 @@ def _primitive_of_points(live: LiveSession, geom) -> np.ndarray:
     """Each point's index into the session's per-primitive arrays (flat for grids)."""
     s = live.session
     index = bridge.read_attribute(geom, INDEX)
+    src = getattr(s.scene, "source", None)
+    if not isinstance(s.scene, DensityGrid) and src is not None and src.kept_rows is not None:
+        kept = src.kept_rows
+        if len(index) == len(kept) and np.array_equal(index, kept):
+            return np.arange(len(kept))  # every primitive, in order (a fresh import)
     try:
         if isinstance(s.scene, DensityGrid):
             return point_values(s.scene, index, np.arange(s.scene.density.size))

@@ -141,6 +141,29 @@ def test_lazy_anchors_show_their_render_when_looked_through(scene_dir):
         assert s.anchors[last].rendered and len(s.views) == 1
 
 
+def test_counts_never_wait_for_the_warm_up(scene_dir, monkeypatch):
+    """Start (and every step) recounts without waiting for the engine's background
+    warm-up; the voxel counts come once it is done."""
+    from blender_addon.ui import panel  # noqa: F401 - the panel draws these counts
+
+    obj, live = _start(scene_dir)
+    s = live.session
+    backend = type(s.backend)
+
+    def must_not_wait(self):
+        raise AssertionError("waited for the warm-up")
+
+    monkeypatch.setattr(backend, "ready", property(lambda self: False))
+    monkeypatch.setattr(backend, "_ready", must_not_wait)
+    c = s.counts(wait=False)
+    assert c["active_voxels"] is None and c["segmented_voxels"] is None
+    live.changed()
+    assert live.counts()["active_voxels"] is None
+    monkeypatch.undo()
+    assert s.warmed_up or s.grid is not None
+    assert live.counts()["active_voxels"] == len(s.grid) > 0  # recounted once ready
+
+
 def _attrs(obj):
     return (
         bridge.read_attribute(obj.data, SELECTED).copy(),
