@@ -57,7 +57,7 @@ def main() -> None:
 
     addon_utils.enable("blender_addon", default_set=True)
     bpy.ops.wm.read_homefile(app_template="")
-    rows: list[tuple[str, float, float, float, float]] = []
+    rows: list[tuple[str, float, float, float, float, float]] = []
     # time Blender's view-layer (depsgraph) updates that bpy.ops runs around an operator
     ops_cls = bpy.ops._BPyOpsSubModOp
     plain_update = ops_cls._view_layer_update
@@ -86,7 +86,7 @@ def main() -> None:
             prof.stop()
             args.profile.mkdir(parents=True, exist_ok=True)
             (args.profile / f"{name}.txt").write_text(prof.output_text(unicode=True))
-        rows.append((name, dt, dc, dg[0], _rss_gb()))
+        rows.append((name, dt, dc, dg[0], _rss_gb(), _peak_gb()))
         return out
 
     from blender_addon import session_registry
@@ -147,13 +147,13 @@ def main() -> None:
     )
     print(
         "| step | wall s | CPU s | of which depsgraph s | wall ratio to a render | "
-        "CPU ratio | RSS after, GB |"
+        "CPU ratio | RSS after, GB | peak RSS so far, GB |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|")
-    for name, dt, dc, dgs, rss in rows:
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for name, dt, dc, dgs, rss, peak in rows:
         print(
             f"| {name} | {dt:.2f} | {dc:.2f} | {dgs:.2f} | {dt / render_s:.2f} | "
-            f"{dc / render_cpu:.2f} | {rss:.2f} |"
+            f"{dc / render_cpu:.2f} | {rss:.2f} | {peak:.2f} |"
         )
     print(f"\npeak RSS {_peak_gb():.2f} GB")
 
