@@ -66,6 +66,10 @@ def pixel_items(context) -> list:
     for live in session_registry.all_sessions():
         target = camera_target(live, cam)
         if target.is_anchor or target.is_view:
+            if target.is_anchor:
+                from .handlers import request_background_fill
+
+                request_background_fill()  # a lazy anchor: its render comes by timer
             frame = camera_frame_in_region(region, rv3d, scene, cam)
             if frame is None:
                 return []

@@ -6,7 +6,10 @@
 * ``save_pre`` / ``save_post`` — scene paths relative to the .blend, each session
   written beside it (:mod:`.session_actions.files`);
 * ``undo_post`` / ``redo_post`` — move each session to the step Blender's undo restored
-  (:mod:`.session_actions.history`).
+  (:mod:`.session_actions.history`);
+* ``depsgraph_update_post`` — when the scene camera or the active object becomes an
+  anchor camera whose view is not rendered yet (anchors render lazily, issue 20), a
+  one-shot timer renders it (ID data cannot be written while the depsgraph updates).
 
 Every handler is ``@persistent`` (it outlives file loads) and registered once.
 """
@@ -20,8 +23,38 @@ from bpy.app.handlers import persistent
 
 from . import draw, session_registry
 from .session_actions import files, sync_after_undo
+from .session_actions.view_cameras import cameras_needing_background, fill_backgrounds
 
-__all__ = ["register", "unregister", "on_undo_redo"]
+__all__ = ["register", "unregister", "on_undo_redo", "request_background_fill"]
+
+
+def _fill_timer() -> None:
+    try:
+        if fill_backgrounds(bpy.context):
+            draw.touch()
+    except Exception as e:  # noqa: BLE001 - a timer must not raise into Blender
+        print(f"DivAS: could not render the anchor view ({type(e).__name__}: {e})", file=sys.stderr)
+    return None  # one shot
+
+
+def request_background_fill(context=None) -> bool:
+    """Schedule the render of the anchor view the user looks at, when it is missing;
+    returns whether one was scheduled (not when one is scheduled already)."""
+    if bpy.app.timers.is_registered(_fill_timer):
+        return False
+    try:
+        need = cameras_needing_background(context or bpy.context)
+    except (AttributeError, ReferenceError):
+        return False
+    if not need:
+        return False
+    bpy.app.timers.register(_fill_timer, first_interval=0.0)
+    return True
+
+
+@persistent
+def _on_depsgraph_update(*_args) -> None:
+    request_background_fill()
 
 
 @persistent
@@ -48,6 +81,7 @@ _HANDLERS = (
     ("save_post", files.on_save_post),
     ("undo_post", on_undo_redo),
     ("redo_post", on_undo_redo),
+    ("depsgraph_update_post", _on_depsgraph_update),
 )
 
 

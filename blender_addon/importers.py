@@ -164,6 +164,7 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
                 path, "is a NeRF density grid; use Import › NeRF Density Grid (.npz)"
             )
         wm.progress_update(1)
+        source.remember_scene(scene)  # Start DivAS takes it from here (no second read)
         rot, reason = scene_conversion(scene, settings.forward, settings.up, settings.up_from_scene)
         wm.progress_update(2)
         table = surfel_point_table(scene, sh_display=settings.view_dependent)

@@ -135,10 +135,10 @@ def camera_items(
         if mask is not None:
             key = ("mask", v.id, id(mask))
             items.append(ImageQuad(frame, mask_rgba(mask, PREVIEW_COLOR, PREVIEW_ALPHA), key))
-        cov = live.coverage.get(v.id)
-        if cov is not None and cov[0] is s.selection:
-            key = ("coverage", v.id, id(cov[1]))
-            items.append(ImageQuad(frame, mask_rgba(cov[1], SELECTION_COLOR, 0.5), key))
+        cov = live.coverage_of(v.id)  # rendered here on the view's first draw
+        if cov is not None:
+            key = ("coverage", v.id, id(cov))
+            items.append(ImageQuad(frame, mask_rgba(cov, SELECTION_COLOR, 0.5), key))
         pts, labs = _view_prompts(s, v)
         m = _markers(pts, labs, frame, size, radius)
         if m is not None:

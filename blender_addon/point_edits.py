@@ -185,7 +185,7 @@ def delete_selected(context, t: EditTarget) -> int:
         t.live.session.delete_primitives(_engine_mask(t, sel))
     _keep_points(context, t, ~sel)
     if t.live is not None:
-        write_selection(t.obj, t.live)
+        write_selection(t.obj, t.live, full=True)  # a new point cloud
     return n
 
 

@@ -58,8 +58,11 @@ class LiveSession:
         segmenter: the segmenter's name; open_s: seconds to start (load → anchors).
         last_update: the last update's timings (seconds by stage) and what it was.
         key: the object's session key (:data:`KEY_PROP`).
-        coverage: per view id, the engine's selection overlay on that view (Sec. 3.7)
-            and the selection array it was rendered for (drawn while it is current).
+        coverage: per view id, the selection array an overlay was made for and the
+            engine's selection overlay on that view (Sec. 3.7), or the callable that
+            renders it on first read (:meth:`coverage_of`; drawn while it is current).
+        written: what :func:`~.session_actions.points.write_selection` last wrote to
+            the points (to write only what changed), None when unknown.
         version: bumped whenever what is drawn over the viewport changes.
     """
 
@@ -75,7 +78,28 @@ class LiveSession:
     key: str = ""
     coverage: dict[str, tuple[Any, Any]] = field(default_factory=dict)
     version: int = 0
+    written: Any = None
     _counts: dict[str, Any] | None = None
+
+    def set_coverage(self, view_id: str, overlay: Any) -> None:
+        """Keep ``overlay`` (an engine ``Overlay`` or a callable returning one) of the
+        current selection on view ``view_id``."""
+        self.coverage[view_id] = (self.session.selection, overlay)
+
+    def coverage_of(self, view_id: str):
+        """The ``[H,W]`` selection coverage on view ``view_id`` while its selection is
+        current (rendered now if it was kept as a callable; then cached), else None."""
+        cov = self.coverage.get(view_id)
+        if cov is None or cov[0] is not self.session.selection:
+            return None
+        sel, ov = cov
+        if callable(ov):
+            ov = ov()
+            if ov is None:
+                self.coverage.pop(view_id, None)
+                return None
+            self.coverage[view_id] = (sel, ov)
+        return ov.coverage
 
     def host_state(self) -> dict[str, Any]:
         """What the add-on keeps per history step (the engine keeps the rest)."""
@@ -95,14 +119,16 @@ class LiveSession:
         self.changed()
 
     def changed(self) -> None:
-        """The session changed: recount, redraw."""
-        self._counts = self.session.counts()
+        """The session changed: recount (never waiting for the engine's background
+        warm-up: its voxel counts come when it is done), redraw."""
+        self._counts = self.session.counts(wait=False)
         self.version += 1
 
     def counts(self) -> dict[str, Any]:
         """The session's counts as of the last update (cheap: the panel redraws often)."""
-        if self._counts is None:
-            self._counts = self.session.counts()
+        c = self._counts
+        if c is None or (c.get("active_voxels") is None and self.session.warmed_up):
+            self._counts = self.session.counts(wait=False)
         return self._counts
 
 

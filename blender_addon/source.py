@@ -6,7 +6,10 @@ and its kind (``surfels`` / ``grid``); its points carry ``divas_index`` (file ro
 flat voxel index). That is all export needs: it reloads the file through the engine
 and writes the rows the points' ``divas_selected`` attribute marks, in the file's own
 format. The last loaded scene is cached (keyed by path, size and mtime) so repeated
-exports do not reparse a large file.
+exports do not reparse a large file. The importer hands the scene it has just read to
+that cache (:func:`remember_scene`), so Start DivAS right after an import reads nothing
+again (issue 20): the engine then holds one copy of the scene, shared by the cache and
+the session.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ __all__ = [
     "tag_object",
     "source_of",
     "load_source_scene",
+    "remember_scene",
     "selection_of",
     "clear_cache",
     "FORMAT_SUFFIX",
@@ -92,6 +96,20 @@ def load_source_scene(ref: SourceRef) -> Scene:
         _cache["scene"] = load_scene(ref.path, fmt=ref.format or None)
         _cache["key"] = key
     return _cache["scene"]
+
+
+def remember_scene(scene: Scene) -> None:
+    """Make ``scene`` (just loaded from its source file, unchanged) the cached scene of
+    that file, so :func:`load_source_scene` returns it instead of reading the file again."""
+    src = scene.source
+    if src is None or not src.path:
+        return
+    path = Path(src.path).resolve()
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    _cache["scene"], _cache["key"] = scene, (str(path), st.st_size, st.st_mtime_ns)
 
 
 def clear_cache() -> None:

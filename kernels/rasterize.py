@@ -152,7 +152,8 @@ def upload_surfels(
     device,
     alpha_min: float = RD.ALPHA_MIN,
 ) -> SurfelBuffers:
-    """Copy a surfel scene to ``device``. ``rotations`` ``[N,3,3]`` (columns t_u, t_v, n)."""
+    """A surfel scene on ``device`` (a copy on CUDA; on the CPU the float32 arrays are
+    shared, not copied). ``rotations`` ``[N,3,3]`` (columns t_u, t_v, n)."""
     n = len(means)
     if rotations.shape != (n, 3, 3) or scales.shape != (n, 2) or opacities.shape != (n,):
         raise ValueError("upload_surfels: inconsistent array shapes")
@@ -165,14 +166,21 @@ def upload_surfels(
     op = np.asarray(opacities, dtype=np.float64)
     with np.errstate(divide="ignore"):
         rho_cut = np.where(op * 255.0 > 1.0, 2.0 * np.log(np.maximum(op, 1e-30) / alpha_min), -1.0)
-    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+    dev = wp.get_device(device)
+
+    def put(a: np.ndarray, dtype) -> wp.array:
+        # on the CPU the Warp array *is* the float32 NumPy array (no copy: the scene's
+        # means and SH are held once, issue 20); kernels only read these buffers
+        return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=dtype, device=dev,
+                        copy=not dev.is_cpu)  # fmt: skip
+
     return SurfelBuffers(
-        means=wp.array(f32(means), dtype=wp.vec3, device=device),
-        tu=wp.array(f32(tu), dtype=wp.vec3, device=device),
-        tv=wp.array(f32(tv), dtype=wp.vec3, device=device),
-        opacity=wp.array(f32(op), dtype=float, device=device),
-        rho_cut=wp.array(f32(rho_cut), dtype=float, device=device),
-        sh=wp.array(f32(sh), dtype=wp.vec3, device=device),
+        means=put(means, wp.vec3),
+        tu=put(tu, wp.vec3),
+        tv=put(tv, wp.vec3),
+        opacity=put(op, float),
+        rho_cut=put(rho_cut, float),
+        sh=put(sh, wp.vec3),
         sh_degree=int(sh_degree),
         device=device,
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..camera_objects import apply_render_settings, is_divas_camera
+from ..session_actions.view_cameras import fill_backgrounds
 
 
 class DIVAS_OT_activate_camera(bpy.types.Operator):
@@ -20,6 +21,7 @@ class DIVAS_OT_activate_camera(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
+        fill_backgrounds(context)  # a lazy anchor's view renders when first looked through
         apply_render_settings(context.scene, obj)
         space = context.space_data
         if space is not None and space.type == "VIEW_3D":

@@ -102,7 +102,7 @@ class ModalController:
     def header(self, live=None) -> str:
         if live is None:
             return HEADER_TEXT
-        c = live.session.counts()
+        c = live.counts()  # never waits for the engine's warm-up
         return f"{HEADER_TEXT}   |   {c['accepted']} views added, {c['selected']:,} selected"
 
     def set_header(self, text: str | None) -> None:

@@ -76,7 +76,7 @@ def start_settings(
 
 class DIVAS_OT_start_session(bpy.types.Operator):
     """Build a DivAS session on the active imported object: occupancy grid, anchor views as
-    cameras (collection 'DivAS Views') with their renders as background images"""
+    cameras (collection 'DivAS Views'), each showing its render once first looked through"""
 
     bl_idname = "divas.start_session"
     bl_label = "Start DivAS"

@@ -47,7 +47,7 @@ def sync_blender(obj, live: LiveSession) -> None:
     longer has, the points' selection and labels."""
     prune_view_cameras(live)
     prune_anchor_cameras(live)
-    write_selection(obj, live)
+    write_selection(obj, live, full=True)  # after a failed step: write everything
     live.changed()
 
 
@@ -87,6 +87,8 @@ def sync_after_undo() -> list[str]:
             s = live.session.history.goto(step)
             live.restore_host_state(s.host)
             lines.append(f"DivAS: {live.object_name!r} back at {s.what!r}")
-        write_selection(obj, live)  # the file holds it already; cheap, and exact
+        # the restored file holds it already; written in full (what was last written
+        # is not what Blender restored), cheap and exact
+        write_selection(obj, live, full=True)
         live.record({"what": f"undo/redo → {live.session.history.current.what}"})
     return lines

@@ -24,6 +24,7 @@ from .points import write_selection
 from .start import training_camera_objects
 from .view_cameras import (
     camera_target,
+    ensure_background,
     make_anchor_camera,
     prune_view_cameras,
     scene_camera_of,
@@ -144,6 +145,7 @@ def click(
     s = live.session
     t0 = time.perf_counter()
     res = s.click(int(anchor), (float(xy[0]), float(xy[1])), positive=positive)
+    _show_rendered_anchor(live, int(anchor))
     if not positive:
         live.record(
             {"what": f"negative click on anchor {anchor}", "update_s": time.perf_counter() - t0}
@@ -155,6 +157,14 @@ def click(
     show_view(context, obj, live, res)
     live.record({"what": f"view {res.id}", **timings, "update_s": time.perf_counter() - t0})
     return res
+
+
+def _show_rendered_anchor(live: LiveSession, i: int) -> None:
+    """A click rendered anchor ``i`` (if it was not yet): its camera shows that render."""
+    import bpy
+
+    if 0 <= i < len(live.anchor_cameras):
+        ensure_background(live, bpy.data.objects.get(live.anchor_cameras[i]))
 
 
 def add_prompt(context, obj, live: LiveSession, view_id: str, xy, positive: bool = True):
@@ -223,10 +233,11 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
     if v.status == ViewStatus.REJECTED:
         show_view(context, obj, live, v)  # stay: more prompts, then Enter again
         return res
-    if res.overlay is not None:
-        show_view(context, obj, live, v, res.overlay, activate=False)
-    if res.next_view is not None and res.next_overlay is not None:
-        show_view(context, obj, live, res.next_view, res.next_overlay)
+    # the overlays are rendered when the view is first drawn (read), not here (issue 20)
+    if res.overlay_source is not None:
+        show_view(context, obj, live, v, lambda: res.overlay, activate=False)
+    if res.next_view is not None and res.next_overlay_source is not None:
+        show_view(context, obj, live, res.next_view, lambda: res.next_overlay)
     else:
         show_anchor(context, live, v.anchor)
     return res

@@ -1,38 +1,131 @@
 """The session's selection on the object's points: ``divas_selected`` (bool, the current
 object's selection) and ``divas_label`` (int, every object's label), written through
 :mod:`..bridge` after every change of the selection, so the display material recolours
-the splats live."""
+the splats live.
+
+Only what changed is written (issue 20): the point → primitive map and the values last
+written are kept on the live session (:class:`Written`), so an accept compares the new
+selection with them and writes just the points that changed — one element at a time
+while they are few, one bulk ``foreach_set`` when that is cheaper
+(:data:`PARTIAL_MAX`) — and leaves an unchanged attribute (the labels, at every accept)
+alone. The result is the same as a full write (tested); anything that may have changed
+the points behind the session's back (Blender's undo, a rebuilt point cloud) makes the
+next write a full one.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from divas_engine.errors import DivasInputError
 from divas_engine.point_attributes import INDEX, SELECTED, point_values
+from divas_engine.scene import DensityGrid
 
 from .. import bridge
 from ..session_registry import LiveSession
 
-__all__ = ["LABEL_ATTRIBUTE", "write_selection"]
+__all__ = ["LABEL_ATTRIBUTE", "PARTIAL_MAX", "Written", "WriteBack", "write_selection"]
 
 #: per-point int32: the label of every finished object plus the current selection.
 LABEL_ATTRIBUTE = "divas_label"
+#: up to this many changed points are written one element at a time; above it one bulk
+#: write of the whole attribute is cheaper (measured with bpy 5.0.1 on 1M points:
+#: ~1–3 µs per element vs ~1–6 ms per bulk bool / int write).
+PARTIAL_MAX = 1000
 
 
-def write_selection(obj, live: LiveSession) -> None:
-    """``divas_selected`` and ``divas_label`` of ``obj``'s points from the session."""
+@dataclass(eq=False)
+class Written:
+    """What was last written to a point cloud: its identity, each point's primitive
+    (``pos``: index into the session's per-primitive arrays) and the values written."""
+
+    geometry: int
+    count: int
+    pos: np.ndarray
+    selected: np.ndarray
+    labels: np.ndarray
+
+
+@dataclass(frozen=True)
+class WriteBack:
+    """What one :func:`write_selection` wrote: ``full`` (every point, both attributes) or
+    the changed point indices of each attribute (empty: left alone)."""
+
+    full: bool
+    selected: np.ndarray
+    labels: np.ndarray
+
+
+def _primitive_of_points(live: LiveSession, geom) -> np.ndarray:
+    """Each point's index into the session's per-primitive arrays (flat for grids)."""
     s = live.session
-    geom = obj.data
     index = bridge.read_attribute(geom, INDEX)
+    src = getattr(s.scene, "source", None)
+    if not isinstance(s.scene, DensityGrid) and src is not None and src.kept_rows is not None:
+        kept = src.kept_rows
+        if len(index) == len(kept) and np.array_equal(index, kept):
+            return np.arange(len(kept))  # every primitive, in order (a fresh import)
     try:
-        selected = point_values(s.scene, index, s.selection).astype(bool)
-        labels = point_values(s.scene, index, s.label_set()).astype(np.int32)
+        if isinstance(s.scene, DensityGrid):
+            return point_values(s.scene, index, np.arange(s.scene.density.size))
+        return point_values(s.scene, index, np.arange(len(s.scene)))
     except ValueError:
         raise DivasInputError(
             None,
-            f"{obj.name!r} no longer matches the session's scene file (re-imported or "
+            f"{geom.name!r} no longer matches the session's scene file (re-imported or "
             "edited outside DivAS?): press Start DivAS on it again",
         ) from None
-    bridge.write_attribute(geom, SELECTED, selected)
-    bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)
-    geom.update_tag()
+
+
+def _write_changed(geom, name: str, values: np.ndarray, changed: np.ndarray) -> None:
+    attr = geom.attributes.get(name)
+    data = attr.data
+    for i, v in zip(changed.tolist(), values[changed].tolist()):
+        data[i].value = v
+
+
+def _valid(w: Written | None, geom) -> bool:
+    if w is None or w.geometry != geom.as_pointer() or w.count != bridge.point_count(geom):
+        return False
+    for name, dtype in ((SELECTED, "BOOLEAN"), (LABEL_ATTRIBUTE, "INT")):
+        a = geom.attributes.get(name)
+        if a is None or a.data_type != dtype or a.domain != "POINT":
+            return False
+    return True
+
+
+def write_selection(obj, live: LiveSession, *, full: bool = False) -> WriteBack:
+    """``divas_selected`` and ``divas_label`` of ``obj``'s points from the session: only
+    the changed points (module docstring), or every point with ``full`` or when what
+    was last written is unknown."""
+    s = live.session
+    geom = obj.data
+    w = live.written
+    if full or not _valid(w, geom):
+        pos = _primitive_of_points(live, geom)
+        w = None
+    else:
+        pos = w.pos
+    selected = np.asarray(s.selection).reshape(-1)[pos].astype(bool)
+    labels = np.asarray(s.label_set()).reshape(-1)[pos].astype(np.int32)
+    if w is None:
+        bridge.write_attribute(geom, SELECTED, selected)
+        bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)
+        geom.update_tag()
+        live.written = Written(geom.as_pointer(), len(pos), pos, selected, labels)
+        everything = np.arange(len(pos))
+        return WriteBack(True, everything, everything)
+    out = []
+    for name, new, old in ((SELECTED, selected, w.selected), (LABEL_ATTRIBUTE, labels, w.labels)):
+        changed = np.flatnonzero(new != old)
+        if 0 < len(changed) <= PARTIAL_MAX:
+            _write_changed(geom, name, new, changed)
+        elif len(changed):
+            bridge.write_attribute(geom, name, new)
+        out.append(changed)
+    if any(len(c) for c in out):
+        geom.update_tag()
+    w.selected, w.labels = selected, labels
+    return WriteBack(False, out[0], out[1])

@@ -151,8 +151,9 @@ def _follow_undo_steps(context, session: Session) -> None:
 
 
 def start(context, obj, settings: StartSettings) -> LiveSession:
-    """Load the object's scene, build the session (occupancy grid, anchor renders) and the
-    anchor cameras; the first anchor becomes the scene camera."""
+    """Load the object's scene (the import's copy when it is still cached), build the
+    session and the anchor cameras; the first anchor, rendered now, becomes the scene
+    camera. The other anchors render when first looked through (issue 20)."""
     wm = context.window_manager
     t0 = time.perf_counter()
     wm.progress_begin(0, 100)
@@ -169,15 +170,11 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
                 lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates],
             )
             anchors = [(r.camera, r.source, r.index) for r in resolved]
-        session = Session.open(
-            scene, cameras, config, seg, device, anchors=anchors, gt_values=gt, render_anchors=False
-        )
-        wm.progress_update(40)
+        # the first anchor renders now (the user looks through it first); the others
+        # when the user looks through them (:func:`.view_cameras.ensure_background`)
+        session = Session.open(scene, cameras, config, seg, device, anchors=anchors, gt_values=gt)
+        wm.progress_update(80)
         try:
-            n = len(session.anchors)
-            for k, a in enumerate(session.anchors):
-                _ = a.buffers
-                wm.progress_update(40 + int(50 * (k + 1) / max(n, 1)))
             live = LiveSession(
                 session,
                 obj.name,

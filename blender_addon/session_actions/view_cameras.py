@@ -44,6 +44,10 @@ __all__ = [
     "world_to_scene_camera",
     "make_anchor_camera",
     "make_anchor_cameras",
+    "has_background",
+    "ensure_background",
+    "cameras_needing_background",
+    "fill_backgrounds",
     "show_anchor",
     "show_view",
     "remove_cameras_of",
@@ -120,7 +124,12 @@ def _new_camera(context, obj, camera, name: str, session: Session):
 
 def activate_camera(context, cam) -> None:
     """Make ``cam`` the scene camera with its own render size, and look through it in the
-    context's 3D view (when there is one)."""
+    context's 3D view (when there is one); a lazy anchor renders now."""
+    from .. import session_registry
+
+    for live in session_registry.all_sessions():
+        if ensure_background(live, cam):
+            break
     apply_render_settings(context.scene, cam)
     space = getattr(context, "space_data", None)
     if space is not None and getattr(space, "type", None) == "VIEW_3D":
@@ -190,19 +199,67 @@ def show_anchor(context, live: LiveSession, i: int, *, activate: bool = True) ->
 
 
 def make_anchor_camera(context, obj, live: LiveSession, i: int, **_ignored):
-    """The camera of anchor ``i`` with its render (appended to ``live.anchor_cameras``)."""
+    """The camera of anchor ``i`` (appended to ``live.anchor_cameras``), with its render
+    as background when the anchor is rendered already; otherwise the render comes when
+    the user first looks through it (:func:`ensure_background`)."""
     a = live.session.anchors[i]
     cam = _new_camera(context, obj, a.camera, f"{obj.name} Anchor {i:02d}", live.session)
     cam[ANCHOR_PROP] = i
     live.anchor_cameras.append(cam.name)
-    overlays.set_background(cam, a.rgb)
+    if a.rendered:
+        overlays.set_background(cam, a.rgb)
     return cam
 
 
 def make_anchor_cameras(context, obj, live: LiveSession) -> None:
-    """A camera per anchor of the session, with its plain render."""
+    """A camera per anchor of the session (lazy backgrounds: :func:`make_anchor_camera`)."""
     for i in range(len(live.session.anchors)):
         make_anchor_camera(context, obj, live, i)
+
+
+def has_background(cam) -> bool:
+    """``cam`` shows an image behind its view."""
+    bgs = cam.data.background_images
+    return len(bgs) > 0 and bgs[0].image is not None
+
+
+def ensure_background(live: LiveSession, cam) -> bool:
+    """Render anchor camera ``cam``'s view now if it has no background image yet (the
+    lazy anchors of issue 20: an anchor renders when the user looks through it or
+    selects it). Returns whether an image was made."""
+    if cam is None or cam.type != "CAMERA" or VIEW_PROP in cam or ANCHOR_PROP not in cam:
+        return False
+    if cam.name not in live.anchor_cameras or has_background(cam):
+        return False
+    i = live.anchor_cameras.index(cam.name)
+    if i >= len(live.session.anchors):
+        return False
+    overlays.set_background(cam, live.session.anchors[i].rgb)
+    return True
+
+
+def cameras_needing_background(context) -> list[tuple[LiveSession, object]]:
+    """``(live session, anchor camera)`` for the scene camera and the active object when
+    they are anchor cameras of a live session still without their render."""
+    from .. import session_registry
+
+    out = []
+    for cam in {getattr(context.scene, "camera", None), getattr(context, "active_object", None)}:
+        if cam is None or cam.type != "CAMERA" or ANCHOR_PROP not in cam or VIEW_PROP in cam:
+            continue
+        if has_background(cam):
+            continue
+        for live in session_registry.all_sessions():
+            if cam.name in live.anchor_cameras:
+                out.append((live, cam))
+                break
+    return out
+
+
+def fill_backgrounds(context) -> int:
+    """Render the missing anchor backgrounds the user looks at (scene camera, active
+    object); returns how many were made."""
+    return sum(ensure_background(live, cam) for live, cam in cameras_needing_background(context))
 
 
 # ----------------------------------------------------------------------------- views
@@ -221,12 +278,13 @@ def show_view(
     context, obj, live: LiveSession, v: SessionView, overlay=None, *, activate: bool = True
 ):
     """The camera of centroid view ``v`` (made on first use, with its render); the
-    engine's selection ``overlay`` on it (an :class:`~divas_engine.session.Overlay`) is
+    engine's selection ``overlay`` on it (an :class:`~divas_engine.session.Overlay`, or
+    a callable returning one: rendered only when the view is first drawn, issue 20) is
     kept to be drawn while that selection is current; the scene camera when
     ``activate``."""
     cam = _view_camera(context, obj, live, v)
     if overlay is not None:
-        live.coverage[v.id] = (live.session.selection, overlay.coverage)
+        live.set_coverage(v.id, overlay)
     if activate:
         activate_camera(context, cam)
     return cam
@@ -281,8 +339,8 @@ def adopt_cameras(context, obj, live: LiveSession) -> None:
         cam = by_anchor.pop(i, None)
         if cam is not None and fits(cam, a.camera):
             live.anchor_cameras.append(cam.name)
-            if not cam.data.background_images or cam.data.background_images[0].image is None:
-                overlays.set_background(cam, a.rgb)
+            if not has_background(cam) and a.rendered:
+                overlays.set_background(cam, a.rgb)  # else rendered when looked through
         else:
             if cam is not None:
                 _remove_camera(cam.name)

@@ -109,7 +109,12 @@ def _draw_session(layout, live) -> None:
         text=f"{c['selected']:,} selected · {c['labelled']:,} labelled · "
         f"object {len(live.session.objects)}"
     )
-    col.label(text=f"{c['active_voxels']:,} active voxels · {c['segmented_voxels']:,} segmented")
+    if c["active_voxels"] is None:  # the engine still builds it in the background
+        col.label(text="building the voxel grid …")
+    else:
+        col.label(
+            text=f"{c['active_voxels']:,} active voxels · {c['segmented_voxels']:,} segmented"
+        )
     rejected = [v for v in live.session.views if v.status == "rejected"]
     if rejected:
         sub = box.column(align=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import DivasInputError
-from ..geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
+from ..geometry import normalize_quats, quat_rotation_entries, rotation_entries_to_quat
 from ..kinds import SceneKind
 from ..scene import SourceInfo, SurfelScene
 
@@ -39,15 +39,20 @@ def flatten_to_surfels(quats: np.ndarray, scales3: np.ndarray) -> tuple[np.ndarr
         largest axes (largest first) and column 2 their cross product (the
         dropped, smallest axis up to sign), and ``[N,2]`` the matching scales.
     """
-    r = quat_to_rotmat(quats.astype(np.float32))
+    # the arithmetic of quat_to_rotmat → columns a, b → np.cross → rotmat_to_quat, on
+    # [N] entry arrays instead of [N,3,3] matrices (bit-identical, ~3x faster on load)
+    m = quat_rotation_entries(quats.astype(np.float32))
     order = np.argsort(-scales3, axis=1, kind="stable")
     a, b = order[:, 0], order[:, 1]
+    tu = [np.choose(a, row) for row in m]  # column a of each rotation
+    tv = [np.choose(b, row) for row in m]
+    n = [  # np.cross(tu, tv) (float32, same operation order)
+        tu[1] * tv[2] - tu[2] * tv[1],
+        tu[2] * tv[0] - tu[0] * tv[2],
+        tu[0] * tv[1] - tu[1] * tv[0],
+    ]
+    q2 = rotation_entries_to_quat([[tu[i], tv[i], n[i]] for i in range(3)]).astype(np.float32)
     idx = np.arange(len(quats))
-    tu = r[idx, :, a]
-    tv = r[idx, :, b]
-    n = np.cross(tu, tv)
-    r2 = np.stack([tu, tv, n], axis=2)
-    q2 = rotmat_to_quat(r2).astype(np.float32)
     s2 = np.stack([scales3[idx, a], scales3[idx, b]], axis=1).astype(np.float32)
     return q2, s2
 

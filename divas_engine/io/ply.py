@@ -1,10 +1,11 @@
 """Standard 3DGS / 2DGS PLY files: chunked structured read, exact subset write.
 
 The header is parsed by ``plyfile`` (a well-kept PLY library). The bulk vertex
-data of binary files is then read in row chunks with ``np.fromfile`` into the
-preallocated float32 output arrays: plyfile's whole-element read (or memmap,
-whose touched pages count toward RSS) would hold the raw file *and* the
-converted arrays at once — 6M SH-3 Gaussians are 1.5 GB raw — while a chunked
+data of binary files is then read in row chunks (``readinto`` one reused buffer) and
+gathered into the preallocated float32 output arrays: one gather per output from a
+float32 view of the chunk, the SH straight into its rows. plyfile's whole-element
+read (or memmap, whose touched pages count toward RSS) would hold the raw file *and*
+the converted arrays at once — 6M SH-3 Gaussians are 1.5 GB raw — while a chunked
 read peaks at the outputs plus one chunk. ASCII files go through plyfile's own
 reader (they are small in practice).
 
@@ -134,8 +135,11 @@ def _vertex_offset(layout: PlyLayout) -> int:
     raise DivasInputError(layout.path, "PLY has no 'vertex' element")
 
 
-def iter_vertex_chunks(layout: PlyLayout, chunk: int = CHUNK_ROWS):
-    """Yield ``(start, structured_rows)`` chunks of the vertex element, file order."""
+def iter_vertex_chunks(layout: PlyLayout, chunk: int = CHUNK_ROWS, *, reuse: bool = False):
+    """Yield ``(start, structured_rows)`` chunks of the vertex element, file order.
+
+    Binary rows are read with ``readinto``; with ``reuse`` every chunk is read into the
+    same buffer (a chunk is then valid only until the next one is read)."""
     v = layout.vertex
     if layout.text or any(isinstance(p, plyfile.PlyListProperty) for p in v.properties):
         try:
@@ -146,14 +150,29 @@ def iter_vertex_chunks(layout: PlyLayout, chunk: int = CHUNK_ROWS):
         return
     dtype = layout.vertex_dtype()
     start_off = _vertex_offset(layout)
+    buf = np.empty(min(chunk, v.count) * dtype.itemsize, np.uint8)
     with open(layout.path, "rb") as f:
+        f.seek(start_off)
         for start in range(0, v.count, chunk):
             n = min(chunk, v.count - start)
-            f.seek(start_off + start * dtype.itemsize)
-            rows = np.fromfile(f, dtype=dtype, count=n)
-            if len(rows) != n:
+            nbytes = n * dtype.itemsize
+            if not reuse and start:
+                buf = np.empty(nbytes, np.uint8)
+            if f.readinto(memoryview(buf)[:nbytes]) != nbytes:
                 raise DivasInputError(layout.path, "truncated PLY vertex data")
-            yield start, rows
+            yield start, buf[:nbytes].view(dtype)
+
+
+def _float32_columns(rows: np.ndarray) -> np.ndarray | None:
+    """``rows`` as a ``[n, properties]`` float32 view when every property is a
+    little-endian float32 (the trainers' layout), else None."""
+    dt = rows.dtype
+    f4 = np.dtype("<f4")
+    if dt.names is None or any(dt.fields[nm][0] != f4 for nm in dt.names):
+        return None
+    if dt.itemsize != 4 * len(dt.names) or not rows.flags.c_contiguous:
+        return None
+    return rows.view(f4).reshape(len(rows), len(dt.names))
 
 
 def _sh_layout(path: Path, names: list[str]) -> int:
@@ -199,27 +218,42 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     finite = np.empty(total, bool)
     rest_names = [f"f_rest_{i}" for i in range(3 * (k - 1))]
 
-    for start, rows in iter_vertex_chunks(layout):
-        sl = slice(start, start + len(rows))
+    # column positions of each output, so a chunk is converted with one gather per
+    # output (SH straight into its rows) instead of a copy per property
+    pos = {nm: i for i, nm in enumerate(names)}
+    idx_m = [pos[c] for c in ("x", "y", "z")]
+    idx_q = [pos[f"rot_{i}"] for i in range(4)]
+    idx_s = [pos[f"scale_{i}"] for i in range(n_scale)]
+    sh_names = [
+        [f"f_dc_{ch}" if j == 0 else rest_names[ch * (k - 1) + j - 1] for ch in range(3)]
+        for j in range(k)
+    ]  # sh[:, j, ch] comes from sh_names[j][ch]
+    idx_sh = np.array([[pos[nm] for nm in row] for row in sh_names]).reshape(-1)
 
-        def col(name: str) -> np.ndarray:
-            return rows[name].astype(np.float32, copy=False)  # noqa: B023 (called in this iteration)
+    for start, rows in iter_vertex_chunks(layout, CHUNK_ROWS, reuse=True):
+        n = len(rows)
+        sl = slice(start, start + n)
+        table = _float32_columns(rows)
+        if table is not None:
+            m, q, s = table[:, idx_m], table[:, idx_q], table[:, idx_s]
+            o = table[:, pos["opacity"]]
+            np.take(table, idx_sh, axis=1, out=sh[sl].reshape(n, 3 * k))
+        else:  # other property types: converted one property at a time
 
-        m = np.stack([col("x"), col("y"), col("z")], 1)
-        q = np.stack([col(f"rot_{i}") for i in range(4)], 1)
-        s = np.stack([col(f"scale_{i}") for i in range(n_scale)], 1)
-        o = col("opacity")
-        c = np.empty((len(rows), k, 3), np.float32)
-        for ch in range(3):
-            c[:, 0, ch] = col(f"f_dc_{ch}")
-            for j in range(k - 1):
-                c[:, j + 1, ch] = col(rest_names[ch * (k - 1) + j])
+            def cols(want: list[str]) -> np.ndarray:
+                return np.stack([rows[nm].astype(np.float32, copy=False) for nm in want], 1)  # noqa: B023
+
+            m = cols(["x", "y", "z"])
+            q = cols([f"rot_{i}" for i in range(4)])
+            s = cols([f"scale_{i}" for i in range(n_scale)])
+            o = rows["opacity"].astype(np.float32)
+            sh[sl] = cols([nm for row in sh_names for nm in row]).reshape(n, k, 3)
         ok = (
             np.isfinite(m).all(1)
             & np.isfinite(q).all(1)
             & np.isfinite(s).all(1)
             & np.isfinite(o)
-            & np.isfinite(c).all((1, 2))
+            & np.isfinite(sh[sl]).all((1, 2))
         )
         with np.errstate(over="ignore", invalid="ignore"):
             s_act = np.exp(np.clip(s, -80.0, 80.0)).astype(np.float32)
@@ -228,14 +262,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
         q2, s2 = surfels_from_arrays(np.where(ok[:, None], q, 1.0), s_act)
         if scale_n is not None:
             scale_n[sl] = s_act.min(1)
-        means[sl], quats[sl], scales[sl], opac[sl], sh[sl], finite[sl] = (
-            m,
-            q2,
-            s2,
-            sigmoid(o),
-            c,
-            ok,
-        )
+        means[sl], quats[sl], scales[sl], opac[sl], finite[sl] = m, q2, s2, sigmoid(o), ok
 
     return scene_from_rows(
         path, "ply", (means, quats, scales, opac, sh), finite, deg, kind, scale_n=scale_n

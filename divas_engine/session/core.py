@@ -402,9 +402,17 @@ class SessionCore:
         return self.backend.write_labelled(self.label_set(), path)
 
     # ------------------------------------------------------------------ report
-    def counts(self) -> dict[str, Any]:
-        """Views by status, primitives, objects, selected / labelled, voxels."""
-        return session_counts(self)
+    def counts(self, *, wait: bool = True) -> dict[str, Any]:
+        """Views by status, primitives, objects, selected / labelled, voxels.
+
+        ``wait=False``: while the fusion state is still being built in the background
+        (:meth:`Session.open`'s warm-up), do not wait for it: the voxel counts are None."""
+        return session_counts(self, wait=wait)
+
+    @property
+    def warmed_up(self) -> bool:
+        """The fusion state is built (reading it would not wait for the warm-up)."""
+        return self.backend.ready
 
     def report(self) -> dict[str, Any]:
         """Timings, counts, views (with rejection reasons), memory, config, seed."""

@@ -49,6 +49,11 @@ class _RenderedOnDemand:
     def rgb(self) -> np.ndarray:
         return self.buffers.rgb
 
+    @property
+    def rendered(self) -> bool:
+        """Whether the view is rendered already (reading ``buffers`` would not render)."""
+        return self._buffers is not None
+
 
 @dataclass(eq=False)
 class AnchorView(_RenderedOnDemand):

@@ -16,9 +16,10 @@ if TYPE_CHECKING:
 __all__ = ["session_counts", "session_report"]
 
 
-def session_counts(session: Session) -> dict[str, Any]:
+def session_counts(session: Session, *, wait: bool = True) -> dict[str, Any]:
     """:meth:`Session.counts <divas_engine.session.Session.counts>`."""
     views = [v for o in session.objects for v in o.views]
+    voxels = wait or session.warmed_up
     st = [v.status for v in views]
     return {
         "primitives": int(len(session.scene)),
@@ -31,8 +32,10 @@ def session_counts(session: Session) -> dict[str, Any]:
         "objects": len(session.object_selections()),
         "selected": int(session.selection.sum()),
         "labelled": int((session.label_set() > 0).sum()),
-        "active_voxels": int(len(session.grid)),
-        "segmented_voxels": int(session.fusion.result().segmented.sum())
+        "active_voxels": int(len(session.grid)) if voxels else None,
+        "segmented_voxels": None
+        if not voxels
+        else int(session.fusion.result().segmented.sum())
         if session._live_views()
         else 0,
     }

@@ -330,8 +330,10 @@ def test_modal_two_views_propagate(scene_dir):
     assert h.send(_event("NUMPAD_ENTER")) == {"RUNNING_MODAL"}
     assert v0.status == "fused" and v1.status == "open"
     assert scene.camera.name == live.view_cameras[v1.id]
-    sel_ref, cov = live.coverage[v1.id]  # the 3D selection rendered over the next view
-    assert sel_ref is s.selection and cov.shape == (v1.camera.height, v1.camera.width)
+    sel_ref, lazy = live.coverage[v1.id]  # the 3D selection over the next view: rendered
+    assert sel_ref is s.selection and callable(lazy)  # when first drawn (issue 20)
+    cov = live.coverage_of(v1.id)
+    assert cov.shape == (v1.camera.height, v1.camera.width)
     assert cov.max() > 0.5
     assert h.send(_event("RET")) == {"RUNNING_MODAL"}
     assert v1.status == "fused"

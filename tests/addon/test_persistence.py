@@ -79,7 +79,13 @@ def test_save_as_reopen_resume(scene_dir, tmp_path):
     _click(live, 1, sc)  # an open view is part of the saved state too
     sel = live.session.selection.copy()
     assert sel.sum() > 50
-    anchors = list(live.anchor_cameras)
+    all_anchors = list(live.anchor_cameras)
+    # anchors render lazily (issue 20): the ones looked through or clicked have their
+    # render packed; the others have no image (made when first looked through)
+    anchors = [n for n, a in zip(all_anchors, live.session.anchors) if a.rendered]
+    assert len(anchors) >= 2
+    for n in set(all_anchors) - set(anchors):
+        assert len(bpy.data.objects[n].data.background_images) == 0
     images = _anchor_images(anchors)
     for n, a in zip(anchors, live.session.anchors):  # the images are the engine's renders
         ref = np.clip(a.rgb, 0, 1)[::-1].reshape(-1, 3)
@@ -124,7 +130,7 @@ def test_save_as_reopen_resume(scene_dir, tmp_path):
     )
     np.testing.assert_array_equal(mapped, sel2)
     # the file's cameras were kept (not made again), their images untouched
-    assert live.anchor_cameras == anchors and len(bpy.data.objects) == n_objects
+    assert live.anchor_cameras == all_anchors and len(bpy.data.objects) == n_objects
     assert sorted(live.view_cameras.values()) == views
     for n, px in _anchor_images(anchors).items():
         np.testing.assert_array_equal(px, images[n])

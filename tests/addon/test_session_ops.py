@@ -120,9 +120,17 @@ def test_start_session_cameras_images_projection(scene_dir):
         s.anchors[0].camera.height,
     )
     rng = np.random.default_rng(0)
+    # anchors render lazily (issue 20): the first at Start, each other one when first
+    # looked through (Look Through Camera here), then with its render behind it
+    assert [a.rendered for a in s.anchors] == [True] + [False] * (len(s.anchors) - 1)
     for i, (cam, a) in enumerate(zip(cams, s.anchors)):
         assert cam[OWNER_PROP] == obj.name and cam[ANCHOR_PROP] == i and cam.parent == obj
         assert tuple(cam["divas_resolution"]) == (a.camera.width, a.camera.height)
+        if i > 0:
+            assert len(cam.data.background_images) == 0
+            bpy.context.view_layer.objects.active = cam
+            assert bpy.ops.divas.activate_camera() == {"FINISHED"}
+            assert a.rendered
         assert cam.data.show_background_images and len(cam.data.background_images) == 1
         bg = cam.data.background_images[0]
         assert bg.image.name == image_name(cam) and tuple(bg.image.size) == (

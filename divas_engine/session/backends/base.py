@@ -57,6 +57,11 @@ class SessionBackend(ABC):
     grid: Any
     fusion: Any
 
+    @property
+    def ready(self) -> bool:
+        """Reading the fusion state would not wait for a warm-up (default: always)."""
+        return True
+
     def warm_up(self) -> None:  # noqa: B027 - optional hook
         """Start work that the first anchor does not need (e.g. a background thread
         building the fusion state); the default does nothing. Called once by

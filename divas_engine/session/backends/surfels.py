@@ -106,6 +106,10 @@ class SurfelBackend(SessionBackend):
             )
             self._warm.start()
 
+    @property
+    def ready(self) -> bool:
+        return self._state is not None or self._state_error is not None
+
     def _ready(self) -> tuple:
         if self._warm is not None:
             self._warm.join()
