@@ -92,6 +92,14 @@ def clean_session_files(path: str | PathLike, keep: str | None) -> int:
     return n
 
 
+def _names(manifest: Path, name: str) -> bool:
+    """Whether the manifest on disk names the arrays file ``name``."""
+    try:
+        return json.loads(manifest.read_bytes()).get("arrays", {}).get("file") == name
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def save_state(path: str | PathLike, doc: dict[str, Any], arrays: dict[str, np.ndarray]) -> Path:
     """Write the session document and its arrays as one atomic unit; returns the manifest
     path. Raises :class:`DivasInputError` when it cannot be written (the previous save
@@ -109,7 +117,12 @@ def save_state(path: str | PathLike, doc: dict[str, Any], arrays: dict[str, np.n
         path.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temps(ap)
         write_bytes_atomic(ap, blob)  # a new name: the current manifest's file is untouched
-        write_bytes_atomic(path, manifest)  # the save lands here, in one rename
+        try:
+            write_bytes_atomic(path, manifest)  # the save lands here, in one rename
+        except BaseException:
+            if not _names(path, ap.name):  # not the previous save's arrays: drop them
+                ap.unlink(missing_ok=True)
+            raise
         clean_session_files(path, keep=ap.name)
     return path
 
