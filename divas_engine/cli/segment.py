@@ -444,7 +444,7 @@ def _saved_click(session, rec, xy, positive: bool, path):
     same = rec.positive == positive and np.allclose(rec.xy, xy, rtol=0, atol=1e-6)
     if not same:
         raise DivasInputError(path, "cannot resume: the session's clicks are not the prompts'")
-    return session.view(rec.view) if positive else rec
+    return session.view(rec.view_id) if positive else rec
 
 
 def write_report(path: Path, report: dict[str, Any]) -> None:

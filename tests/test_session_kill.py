@@ -1,0 +1,54 @@
+"""``kill -9`` of ``divas segment --session`` at seeded random moments, and at the torn
+window between the arrays file and the manifest (issue 14 items 2 and 6).
+
+Every killed run leaves a session that loads (or none, when it died before the first
+save), no temporary survives the resume, and ``--resume`` finishes it to the labels
+of the uninterrupted run. The trials fork the test process (``tests/kill_harness``):
+each child is a separate process killed with SIGKILL, without paying an interpreter
+start-up per trial.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from . import kill_harness as kh
+
+N_RANDOM = 16
+#: manifest renames to die at (1 = the first save: nothing on disk yet, tested too):
+#: open → 1, the 4 clicks → 2-5, the 4 accepts → 6-9, the final save → 10
+TORN = (1, 2, 5, 8)
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    # import before forking, so each child starts warm
+    import divas_engine.cli.segment  # noqa: F401
+    import divas_engine.session  # noqa: F401
+
+    return kh.make_case(tmp_path_factory.mktemp("kill_scene"))
+
+
+def test_kill9_at_random_points_then_resume(case, tmp_path):
+    t_ref, results = kh.run_trials(case, tmp_path, N_RANDOM, seed=14)
+    s = kh.summary(results)
+    detail = json.dumps([r.__dict__ for r in results], default=str, indent=1)
+    assert s["killed"] >= N_RANDOM // 2, detail  # the delays cover the run
+    assert s["session_on_disk"] >= N_RANDOM // 3, detail  # … and its saves
+    assert s["lost_unloadable"] == 0, detail
+    assert s["resumed_equal"] == N_RANDOM, detail
+    assert s["temps_left_after_resume"] == 0, detail
+    assert s["stray_arrays_after_resume"] == 0, detail
+
+
+def test_kill9_in_the_torn_window_keeps_the_previous_save(case, tmp_path):
+    _, labels = kh.reference(case, tmp_path / "reference")
+    results = kh.run_torn_trials(case, tmp_path, TORN, labels)
+    detail = json.dumps([r.__dict__ for r in results], default=str, indent=1)
+    assert all(r.killed for r in results), detail
+    assert [r.session_on_disk for r in results] == [k > 1 for k in TORN], detail
+    assert all(r.loads and r.resumed_equal for r in results), detail
+    assert all(not r.temps_after_resume for r in results), detail
+    assert all(r.arrays_files_after_resume == 1 for r in results), detail
