@@ -52,3 +52,17 @@ def test_kill9_in_the_torn_window_keeps_the_previous_save(case, tmp_path):
     assert all(r.loads and r.resumed_equal for r in results), detail
     assert all(not r.temps_after_resume for r in results), detail
     assert all(r.arrays_files_after_resume == 1 for r in results), detail
+
+
+def test_resume_refuses_a_session_of_other_settings(case, tmp_path):
+    _, code = kh.run_child(case.argv(tmp_path), tmp_path / "log.txt", None)
+    assert code == 0
+    argv = case.argv(tmp_path, resume=True)
+    argv[argv.index("--scale") + 1] = "0.25"
+    _, code = kh.run_child(argv, tmp_path / "other.txt", None)
+    log = (tmp_path / "other.txt").read_text()
+    assert code == 2 and "saved with other settings (render_scale)" in log, log
+    i = argv.index("--session")
+    _, code = kh.run_child(argv[:i] + argv[i + 2 :], tmp_path / "none.txt", None)
+    log = (tmp_path / "none.txt").read_text()
+    assert code == 2 and "--resume needs --session" in log, log

@@ -22,6 +22,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..kinds import ViewStatus
+from ..output_paths import check_output_path
 from ..render import make_renderer
 from ..render.buffers import RenderBuffers
 from ..scene import Scene
@@ -386,6 +387,7 @@ class SessionCore:
         from ..export import export_selection
 
         out = Path(out_dir)
+        check_output_path(out, what="objects folder", folder=True)
         out.mkdir(parents=True, exist_ok=True)
         files: dict[str, Any] = {"objects": []}
         ext = self.backend.object_suffix()
