@@ -99,6 +99,9 @@ def _run_quietly(argv: list[str], log: Path, prepare=None) -> int:
     fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
+    # the parent's sys.stdout/err may be pytest's capture objects: write to the log
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
     try:
         if prepare is not None:
             prepare()
@@ -122,6 +125,8 @@ def run_child(
         try:
             rc = _run_quietly(argv, log, prepare)
         finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
             os._exit(int(rc))
     if kill_after is not None:
         t_end = time.monotonic() + kill_after

@@ -187,6 +187,13 @@ def _meta_for(meta: dict, layout, n: int, palette_count: int | None) -> dict:
 
 
 def _write_folder_atomic(target: Path, files: dict[str, bytes]) -> None:
+    try:
+        _swap_folder(target, files)
+    except OSError as e:  # one clear error; the previous folder is back in place
+        raise DivasInputError(target, f"cannot write the output: {e.strerror or e}") from None
+
+
+def _swap_folder(target: Path, files: dict[str, bytes]) -> None:
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
     old = None
     try:
