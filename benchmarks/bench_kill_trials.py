@@ -55,8 +55,9 @@ def main() -> None:
     case = kh.make_case(root / "scene")
     resume = not args.no_resume
     t0 = time.perf_counter()
-    t_ref, rand = kh.run_trials(case, root / "random", args.random, args.seed, resume=resume)
-    _, labels = kh.reference(case, root / "ref2")
+    t_ref, rand, labels = kh.run_trials(
+        case, root / "random", args.random, args.seed, resume=resume
+    )
     ks = [int(k) for k in args.torn.split(",") if k]
     torn = kh.run_torn_trials(case, root / "torn", ks, labels, resume=resume)
     out = {

@@ -36,6 +36,7 @@ class KillCase:
     prompts: Path
     segmenter: str = "classic"
     scale: float = 0.125
+    extra: tuple[str, ...] = ()
 
     def argv(self, out_dir: Path, *, resume: bool = False) -> list[str]:
         a = [
@@ -57,7 +58,7 @@ class KillCase:
             "cpu",
             "--no-progress",
         ]
-        return a + (["--resume"] if resume else [])
+        return a + list(self.extra) + (["--resume"] if resume else [])
 
 
 def make_case(folder: Path, *, size: int = 4000, views_per_click: int = 1) -> KillCase:
@@ -216,15 +217,16 @@ def trial(
 
 def run_trials(
     case: KillCase, root: Path, n: int, seed: int, *, resume: bool = True
-) -> tuple[float, list[TrialResult]]:
-    """The reference run, then ``n`` kill trials with delays ~ U(0, 1.1 · reference)."""
+) -> tuple[float, list[TrialResult], np.ndarray]:
+    """The reference run, then ``n`` kill trials with delays ~ U(0, 1.1 · reference);
+    returns (reference seconds, trials, reference labels)."""
     t_ref, labels = reference(case, root / "reference")
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
         d = float(rng.uniform(0.0, 1.1 * t_ref))
         out.append(trial(case, root / f"trial_{i:03d}", d, labels, resume=resume))
-    return t_ref, out
+    return t_ref, out, labels
 
 
 def run_torn_trials(
@@ -263,5 +265,5 @@ if __name__ == "__main__":  # pragma: no cover - quick manual run
 
     root = Path(tempfile.mkdtemp())
     c = make_case(root / "scene")
-    t, rs = run_trials(c, root, int(sys.argv[1]) if len(sys.argv) > 1 else 5, 0)
+    t, rs, _ = run_trials(c, root, int(sys.argv[1]) if len(sys.argv) > 1 else 5, 0)
     print(json.dumps({"reference_s": t, **summary(rs)}, indent=1))

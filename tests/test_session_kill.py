@@ -16,7 +16,8 @@ import pytest
 
 from . import kill_harness as kh
 
-N_RANDOM = 16
+N_RANDOM = 11  # + 4 torn here, + 4 random and 1 torn on the NeRF grid: 20 kills
+N_NERF = 4
 #: manifest renames to die at (1 = the first save: nothing on disk yet, tested too):
 #: open → 1, the 4 clicks → 2-5, the 4 accepts → 6-9, the final save → 10
 TORN = (1, 2, 5, 8)
@@ -31,8 +32,22 @@ def case(tmp_path_factory):
     return kh.make_case(tmp_path_factory.mktemp("kill_scene"))
 
 
+@pytest.fixture(scope="module")
+def nerf_case(case):
+    """The same ribs capture as its density grid: asynchronous SAM with pending views,
+    the oracle (graph3d/classic reject every view of a 16³ grid at this scale)."""
+    folder = case.scene.parent
+    return kh.KillCase(
+        folder / "grid.npz",
+        case.prompts,
+        segmenter="oracle",
+        scale=0.25,
+        extra=("--gt-labels", str(folder / "grid_labels.npy")),
+    )
+
+
 def test_kill9_at_random_points_then_resume(case, tmp_path):
-    t_ref, results = kh.run_trials(case, tmp_path, N_RANDOM, seed=14)
+    t_ref, results, _ = kh.run_trials(case, tmp_path, N_RANDOM, seed=14)
     s = kh.summary(results)
     detail = json.dumps([r.__dict__ for r in results], default=str, indent=1)
     assert s["killed"] >= N_RANDOM // 2, detail  # the delays cover the run
@@ -41,6 +56,16 @@ def test_kill9_at_random_points_then_resume(case, tmp_path):
     assert s["resumed_equal"] == N_RANDOM, detail
     assert s["temps_left_after_resume"] == 0, detail
     assert s["stray_arrays_after_resume"] == 0, detail
+
+
+def test_kill9_nerf_grid_then_resume(nerf_case, tmp_path):
+    _, results, labels = kh.run_trials(nerf_case, tmp_path, N_NERF, seed=5)
+    results += kh.run_torn_trials(nerf_case, tmp_path, (6,), labels)
+    s = kh.summary(results)
+    detail = json.dumps([r.__dict__ for r in results], default=str, indent=1)
+    assert s["killed"] >= 3 and s["session_on_disk"] >= 2, detail
+    assert s["lost_unloadable"] == 0 and s["resumed_equal"] == N_NERF + 1, detail
+    assert s["temps_left_after_resume"] == 0 and s["stray_arrays_after_resume"] == 0, detail
 
 
 def test_kill9_in_the_torn_window_keeps_the_previous_save(case, tmp_path):
