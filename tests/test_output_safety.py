@@ -309,6 +309,20 @@ def test_failed_session_save_keeps_the_previous_save(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["s.json", doc["arrays"]["file"]])
 
 
+def test_session_save_removes_dead_writers_temporaries(tmp_path):
+    path = tmp_path / "s.json"
+    doc = {"format": store.SESSION_FORMAT, "version": 1}
+    dead = [  # a manifest and an arrays file (a hash never saved) of a killed writer
+        tmp_path / f".s.json.999999999-ab12{op.TEMP_SUFFIX}",
+        tmp_path / f".s.json.0123456789abcdef.npz.999999999-cd34{op.TEMP_SUFFIX}",
+    ]
+    for p in dead:
+        p.write_bytes(b"torn")
+    store.save_state(path, doc, {"a": np.ones(2)})
+    assert not any(p.exists() for p in dead)
+    assert len(list(tmp_path.iterdir())) == 2
+
+
 def test_legacy_session_layout_loads_and_is_migrated(tmp_path):
     """A session saved before issue 14 (arrays in ``<path>.npz``) loads; the next save
     writes the content-addressed file and removes the legacy one and its temporaries."""

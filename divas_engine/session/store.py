@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..io.json_file import read_json
-from ..output_paths import remove_stale_temps, write_bytes_atomic
+from ..output_paths import TEMP_SUFFIX, remove_stale_temps, write_bytes_atomic
 
 __all__ = [
     "SESSION_FORMAT",
@@ -78,6 +78,14 @@ def clean_session_files(path: str | PathLike, keep: str | None) -> int:
     file the manifest names) every other arrays file of it. Returns how many."""
     p = Path(path)
     n = remove_stale_temps(p)
+    # temporaries of arrays files that never landed (a writer killed mid-write)
+    tmp_rx = re.compile(
+        r"\." + re.escape(p.name) + r"(\.[0-9a-f]{16}\.npz)\.\d+-[0-9a-f]+" + re.escape(TEMP_SUFFIX)
+    )
+    for t in p.parent.glob(f".{p.name}.*{TEMP_SUFFIX}"):
+        m = tmp_rx.fullmatch(t.name)
+        if m:
+            n += remove_stale_temps(p.with_name(p.name + m.group(1)))
     for t in _legacy_temps(p):
         t.unlink(missing_ok=True)
         n += 1
