@@ -221,8 +221,9 @@ def segment_scene(
     ``prompts_path`` may also be a parsed :class:`~divas_engine.session.Prompts`. The
     session is closed unless ``keep_session``. Every output path (``out``,
     ``labels_out``, ``session_path``, ``report_path``) is checked before anything is
-    loaded (:func:`~divas_engine.output_paths.check_outputs`). ``resume``: continue from
-    the session saved at ``session_path`` (:func:`_resume_session`).
+    loaded (:func:`~divas_engine.output_paths.check_outputs`). ``resume``: continue the
+    run saved at ``session_path`` — replay it (``Session.load``, checked to be this run's
+    by :func:`_check_resumable`), reuse its clicks and accepted views, run the rest.
     """
     from ..evaluation.ground_truth import load_ground_truth
     from ..evaluation.session_scores import session_evaluation
