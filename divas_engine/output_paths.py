@@ -11,7 +11,8 @@
   file gets the user's normal permissions (``0666`` less the umask), not ``mkstemp``'s
   ``0600``.
 * :func:`remove_stale_temps` — temporaries left by a killed writer (their process is
-  gone) are removed on the next save or load.
+  gone) are removed by the next successful write of the same file, and by session
+  saves and loads.
 
 Temporary names are ``.<name>.<pid>-<token>.divas-tmp``; the pid lets a later process
 tell a dead writer's leftover from a live one's file in progress.
@@ -219,6 +220,7 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
             _unlink_quietly(tmp)
         with _LIVE_LOCK:
             _LIVE.discard(str(tmp))
+    remove_stale_temps(target)
 
 
 @contextmanager
@@ -257,6 +259,7 @@ def atomic_file(path: str | PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
             _unlink_quietly(tmp)
         with _LIVE_LOCK:
             _LIVE.discard(str(tmp))
+    remove_stale_temps(target)  # a killed earlier writer's leftovers of this file
 
 
 def write_bytes_atomic(path: str | PathLike, data: bytes) -> Path:

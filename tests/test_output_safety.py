@@ -108,6 +108,16 @@ def test_stale_temporaries_of_dead_writers_are_removed(tmp_path):
     assert not dead.exists() and live.exists() and other.exists()
 
 
+def test_a_write_removes_a_killed_writers_temporary_of_that_file(tmp_path):
+    target = tmp_path / "labels.npy"
+    dead = tmp_path / f".labels.npy.999999999-abcd{op.TEMP_SUFFIX}"
+    other = tmp_path / f".other.npy.999999999-abcd{op.TEMP_SUFFIX}"
+    dead.write_bytes(b"half")
+    other.write_bytes(b"half")
+    op.save_npy_atomic(target, np.arange(3))
+    assert not dead.exists() and other.exists()
+
+
 @pytest.mark.parametrize(
     "case, problem",
     [
