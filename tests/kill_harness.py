@@ -113,11 +113,18 @@ def _run_quietly(argv: list[str], log: Path, prepare=None) -> int:
 
 
 def run_child(
-    argv: list[str], log: Path, kill_after: float | None, prepare=None
+    argv: list[str],
+    log: Path,
+    kill_after: float | None,
+    prepare=None,
+    *,
+    wait_for: Path | None = None,
+    seen: list[float] | None = None,
 ) -> tuple[bool, int]:
     """Fork a child running ``divas`` ``argv`` (after ``prepare()``, in the child);
-    SIGKILL it after ``kill_after`` seconds (None: let it finish, or kill itself).
-    Returns ``(killed, exit status)``."""
+    SIGKILL it ``kill_after`` seconds after its start — or, with ``wait_for``, after that
+    file first appears (None: let it finish, or kill itself). ``seen`` gets the seconds
+    from the start to ``wait_for``'s appearance. Returns ``(killed, exit status)``."""
     sys.stdout.flush()
     sys.stderr.flush()
     pid = os.fork()
@@ -129,6 +136,15 @@ def run_child(
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(int(rc))
+    t0 = time.monotonic()
+    if wait_for is not None:
+        while not wait_for.exists():
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                return False, os.waitstatus_to_exitcode(status)
+            time.sleep(0.002)
+        if seen is not None:
+            seen.append(time.monotonic() - t0)
     if kill_after is not None:
         t_end = time.monotonic() + kill_after
         while time.monotonic() < t_end:
@@ -171,11 +187,13 @@ class TrialResult:
     arrays_files_after_resume: int = 0
 
 
-def reference(case: KillCase, folder: Path) -> tuple[float, np.ndarray]:
-    """An uninterrupted run in a child: (seconds, labels)."""
+def reference(case: KillCase, folder: Path, seen: list[float] | None = None):
+    """An uninterrupted run in a child: (seconds, labels); ``seen`` gets the seconds to
+    its first session save."""
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    killed, code = run_child(case.argv(folder), folder / "log.txt", None)
+    sp = folder / "session.json"
+    killed, code = run_child(case.argv(folder), folder / "log.txt", None, wait_for=sp, seen=seen)
     dt = time.monotonic() - t0
     if code != 0:
         raise RuntimeError(f"reference run failed ({code}): {(folder / 'log.txt').read_text()}")
@@ -190,11 +208,15 @@ def trial(
     *,
     resume: bool = True,
     prepare=None,
+    after_first_save: bool = False,
 ) -> TrialResult:
     """One kill at ``delay`` s (or by ``prepare``'s hook), then (``resume``) ``--resume``
     in a child and a compare with the uninterrupted labels."""
     folder.mkdir(parents=True, exist_ok=True)
-    killed, code = run_child(case.argv(folder), folder / "killed.txt", delay, prepare)
+    wait = folder / "session.json" if after_first_save else None
+    killed, code = run_child(
+        case.argv(folder), folder / "killed.txt", delay, prepare, wait_for=wait
+    )
     sp = folder / "session.json"
     on_disk = sp.exists()
     ok, problem = session_loads(sp) if on_disk else (True, "")
@@ -216,16 +238,36 @@ def trial(
 
 
 def run_trials(
-    case: KillCase, root: Path, n: int, seed: int, *, resume: bool = True
+    case: KillCase,
+    root: Path,
+    n: int,
+    seed: int,
+    *,
+    resume: bool = True,
+    after_first_save: int = 0,
 ) -> tuple[float, list[TrialResult], np.ndarray]:
-    """The reference run, then ``n`` kill trials with delays ~ U(0, 1.1 · reference);
-    returns (reference seconds, trials, reference labels)."""
-    t_ref, labels = reference(case, root / "reference")
+    """The reference run, then ``n`` kill trials: the first ``n − after_first_save`` with
+    delays ~ U(0, 1.1 · reference) from the start, the others ~ U(0, 1.1 · (reference −
+    its first save)) from the moment the session file first appears (so every one of
+    those dies with a session on disk). Returns (reference s, trials, reference labels)."""
+    seen: list[float] = []
+    t_ref, labels = reference(case, root / "reference", seen)
+    t_rest = max(t_ref - (seen[0] if seen else 0.0), 0.05)
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
-        d = float(rng.uniform(0.0, 1.1 * t_ref))
-        out.append(trial(case, root / f"trial_{i:03d}", d, labels, resume=resume))
+        anchored = i >= n - after_first_save
+        d = float(rng.uniform(0.0, 1.1 * (t_rest if anchored else t_ref)))
+        out.append(
+            trial(
+                case,
+                root / f"trial_{i:03d}",
+                d,
+                labels,
+                resume=resume,
+                after_first_save=anchored,
+            )
+        )
     return t_ref, out, labels
 
 

@@ -47,11 +47,13 @@ def nerf_case(case):
 
 
 def test_kill9_at_random_points_then_resume(case, tmp_path):
-    t_ref, results, _ = kh.run_trials(case, tmp_path, N_RANDOM, seed=14)
+    # 4 from the start (load, open …), 7 timed from the first save (all of them die with
+    # a session on disk: no timing luck needed for the assertions below)
+    t_ref, results, _ = kh.run_trials(case, tmp_path, N_RANDOM, seed=14, after_first_save=7)
     s = kh.summary(results)
     detail = json.dumps([r.__dict__ for r in results], default=str, indent=1)
-    assert s["killed"] >= N_RANDOM // 2, detail  # the delays cover the run
-    assert s["session_on_disk"] >= N_RANDOM // 3, detail  # … and its saves
+    assert s["killed"] >= 1, detail
+    assert sum(r.session_on_disk for r in results[-7:]) == 7, detail
     assert s["lost_unloadable"] == 0, detail
     assert s["resumed_equal"] == N_RANDOM, detail
     assert s["temps_left_after_resume"] == 0, detail
@@ -59,11 +61,11 @@ def test_kill9_at_random_points_then_resume(case, tmp_path):
 
 
 def test_kill9_nerf_grid_then_resume(nerf_case, tmp_path):
-    _, results, labels = kh.run_trials(nerf_case, tmp_path, N_NERF, seed=5)
+    _, results, labels = kh.run_trials(nerf_case, tmp_path, N_NERF, seed=5, after_first_save=N_NERF)
     results += kh.run_torn_trials(nerf_case, tmp_path, (6,), labels)
     s = kh.summary(results)
     detail = json.dumps([r.__dict__ for r in results], default=str, indent=1)
-    assert s["killed"] >= 3 and s["session_on_disk"] >= 2, detail
+    assert s["killed"] >= 1 and s["session_on_disk"] == N_NERF + 1, detail
     assert s["lost_unloadable"] == 0 and s["resumed_equal"] == N_NERF + 1, detail
     assert s["temps_left_after_resume"] == 0 and s["stray_arrays_after_resume"] == 0, detail
 
