@@ -143,9 +143,11 @@ def run(args: argparse.Namespace) -> dict:
     if str(REPO) not in sys.path:
         sys.path.insert(0, str(REPO))
     from divas_engine.cli.segment import write_report
+    from divas_engine.errors import DivasInputError
     from divas_engine.evaluation.ground_truth import load_ground_truth
     from divas_engine.evaluation.session_scores import session_evaluation
     from divas_engine.kinds import SceneKind
+    from divas_engine.output_paths import check_outputs
     from divas_engine.session import load_prompts
 
     registry = importlib.import_module(f"{addon.__name__}.session_registry")
@@ -163,6 +165,18 @@ def run(args: argparse.Namespace) -> dict:
         raise ScriptError("--segmenter sam-torch needs --sam-checkpoint")
     if args.seed < 0:
         raise ScriptError(f"--seed must be ≥ 0, got {args.seed}")
+    try:  # every output checked before anything is loaded, as `divas segment` (issue 14)
+        check_outputs(
+            [
+                ("--out", args.out),
+                ("--labels-out", args.labels_out),
+                ("--session", args.session),
+                ("--report", args.report),
+            ],
+            [args.scene, args.cameras, args.prompts, args.gt_labels],
+        )
+    except DivasInputError as e:
+        raise ScriptError(str(e)) from None
     prompts = load_prompts(args.prompts)
     ops = bpy.ops.divas
     is_grid = args.scene.suffix.lower() == ".npz"
@@ -254,7 +268,6 @@ def run(args: argparse.Namespace) -> dict:
         outputs.update({"out": str(out), "count": int(session.selection.sum())})
         if args.labels_out is not None:
             made = out.with_name(out.name.split(".")[0] + "_labels.npy")
-            args.labels_out.parent.mkdir(parents=True, exist_ok=True)
             if made.resolve() != args.labels_out.resolve():
                 shutil.move(str(made), str(args.labels_out))
             outputs["labels_out"] = str(args.labels_out)

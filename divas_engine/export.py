@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DivasInputError
+from .output_paths import check_outputs, save_npy_atomic
 from .scene import DensityGrid, Scene, SurfelScene
 
 __all__ = ["ExportResult", "file_labels", "export_selection"]
@@ -63,6 +64,12 @@ def export_selection(
     """Write the selected primitives (or voxels) of ``scene`` to ``out_path``."""
     out_path = Path(out_path)
     sel = _check_selection(scene, selection)
+    src = getattr(scene, "source", None)
+    sog = src is not None and src.format == "sog"  # SOG checks its own (folder) target
+    check_outputs(
+        [("export", None if sog else out_path), ("labels output", labels_path)],
+        [] if src is None else [src.path],
+    )
     if isinstance(scene, DensityGrid):
         from .io.density_grid import write_density_grid
 
@@ -71,13 +78,12 @@ def export_selection(
         )
         write_density_grid(out_path, masked, mask=sel)
         if labels_path is not None:
-            np.save(labels_path, sel)
+            save_npy_atomic(labels_path, sel)
         return ExportResult(
             out_path, "npz", int(sel.sum()), None if labels_path is None else Path(labels_path)
         )
     if not sel.any():
         raise DivasInputError(out_path, "nothing to export: the selection is empty")
-    src = scene.source
     if src is None:  # generated scene: write a 2DGS PLY of the selected surfels
         from .io.ply import write_surfel_ply
 
@@ -110,6 +116,5 @@ def export_selection(
             raise DivasInputError(src.path, f"cannot export scenes read from format {fmt!r}")
     lp = None
     if labels_path is not None:
-        lp = Path(labels_path)
-        np.save(lp, file_labels(scene, sel))
+        lp = save_npy_atomic(labels_path, file_labels(scene, sel))
     return ExportResult(out_path, fmt, int(sel.sum()), lp)

@@ -32,7 +32,6 @@ format; exporting them without the transform still writes them exactly.
 
 from __future__ import annotations
 
-import os
 from os import PathLike
 from pathlib import Path
 
@@ -41,6 +40,7 @@ import numpy as np
 from .errors import DivasInputError
 from .export import ExportResult, file_labels
 from .geometry import normalize_quats, quat_to_rotmat, rotmat_to_quat
+from .output_paths import check_outputs, save_npy_atomic, write_bytes_atomic
 from .scene import Scene, SurfelScene
 from .sh_rotation import rotate_sh
 
@@ -320,7 +320,7 @@ def _splat_transformed(src: Path, rows: np.ndarray, matrix, out: Path) -> None:
     rec["pos"] = transform_points(rec["pos"], matrix)
     rec["scale"] = s
     rec["rot"] = np.clip(np.rint(q * 128.0 + 128.0), 0, 255).astype(np.uint8)
-    rec.tofile(out)
+    write_bytes_atomic(out, rec.tobytes())
 
 
 def export_transformed_selection(
@@ -353,24 +353,22 @@ def export_transformed_selection(
             f"cannot apply a transform when exporting {fmt!r} (re-encoding is supported for "
             f"{', '.join(TRANSFORM_FORMATS)}); export without applying the transform",
         )
-    tmp = out_path.with_name(f".{out_path.name}.divas-tmp")
-    try:
-        if src is None:
-            from .io.ply import write_surfel_ply
+    inputs = [] if src is None else [src.path]
+    check_outputs([("export", out_path), ("labels output", labels_path)], inputs)
+    # every writer below is atomic (output_paths): a failed export never leaves a
+    # partial file and keeps the previous one
+    if src is None:
+        from .io.ply import write_surfel_ply
 
-            write_surfel_ply(tmp, transform_scene(scene.subset(sel), matrix))
-        else:
-            writer = {
-                "ply": _ply_transformed,
-                "compressed_ply": _compressed_ply_transformed,
-                "splat": _splat_transformed,
-            }[fmt]
-            writer(Path(src.path), src.kept_rows[sel], matrix, tmp)
-        os.replace(tmp, out_path)  # atomic: a failed export never leaves a partial file
-    finally:
-        tmp.unlink(missing_ok=True)
+        write_surfel_ply(out_path, transform_scene(scene.subset(sel), matrix))
+    else:
+        writer = {
+            "ply": _ply_transformed,
+            "compressed_ply": _compressed_ply_transformed,
+            "splat": _splat_transformed,
+        }[fmt]
+        writer(Path(src.path), src.kept_rows[sel], matrix, out_path)
     lp = None
     if labels_path is not None:
-        lp = Path(labels_path)
-        np.save(lp, file_labels(scene, sel))
+        lp = save_npy_atomic(labels_path, file_labels(scene, sel))
     return ExportResult(out_path, fmt, int(sel.sum()), lp)

@@ -17,7 +17,7 @@ ENGINE = REPO / "divas_engine"
 #: layer. Mirrors the table in docs/ARCHITECTURE.md.
 LAYERS: list[set[str]] = [
     {"kinds", "errors", "geometry", "sh_rotation"},
-    {"camera", "scene"},
+    {"camera", "scene", "output_paths"},
     {"scene_stats", "blender_convention", "viewport", "selection_tools"},
     {"io", "render"},
     {"fusion", "views", "export", "point_attributes"},

@@ -98,7 +98,9 @@ def test_segment_oracle_2dgs(scene_dir, tmp_path, capsys):
     assert abs(x["opacity_weighted_iou"] - rep["evaluation"]["surfels"]["iou"]) < 0.1
     assert rep["config"]["render_scale"] == 0.5
     assert all(v["status"] in ("fused", "rejected") for v in rep["views"])
-    assert (tmp_path / "s.json").exists() and (tmp_path / "s.json.npz").exists()
+    # issue 14: the arrays file is content-addressed, named by the manifest
+    arrays_file = json.loads((tmp_path / "s.json").read_text())["arrays"]["file"]
+    assert arrays_file.startswith("s.json.") and (tmp_path / arrays_file).exists()
     assert "centroid views fused" in capsys.readouterr().out
 
 

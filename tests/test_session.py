@@ -4,6 +4,7 @@ the labelled PLY, the NeRF asynchronous SAM groups, and bad inputs."""
 
 from __future__ import annotations
 
+import json
 import threading
 
 import numpy as np
@@ -84,13 +85,18 @@ def test_click_accept_undo_reset_save_replay(ribs, tmp_path):
     prev = s.prompt(v0)
     assert prev.accepted and prev.mask.shape == v0.buffers.alpha.shape and prev.band is not None
     assert prev.labels.tolist() == [1]
-    assert not auto.exists()
+    # issue 14: saved from the open on (anchors), and after every click
+    assert auto.exists() and len(Session.load(auto, scene, device="cpu").current.views) == 1
     r0 = s.accept(v0)
     assert r0.status == "fused" and r0.synced and r0.fused == [v0.id]
     sel0 = s.selection.copy()
     assert sel0.sum() > 100 and (sel0 & sc.labels).sum() / sel0.sum() > 0.95
     assert r0.overlay is not None and r0.overlay.mask.any()
-    assert auto.exists() and (auto.parent / "session.json.npz").exists()
+    # issue 14: the arrays file is content-addressed (named in the manifest), the arrays
+    # of earlier saves are gone
+    arrays_file = json.loads(auto.read_text())["arrays"]["file"]
+    assert auto.exists() and (auto.parent / arrays_file).exists()
+    assert sorted(p.name for p in auto.parent.iterdir()) == sorted(["session.json", arrays_file])
     acc0 = s.fusion.accumulators()
     # autosave replays to the same selection
     s_auto = Session.load(auto, scene, device="cpu")

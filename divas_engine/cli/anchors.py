@@ -10,7 +10,6 @@ confidence.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..kinds import SceneKind
+from ..output_paths import check_output_path, write_image_atomic, write_json_atomic
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -104,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scale <= 0:
         raise DivasInputError(None, f"--scale must be positive, got {args.scale}")
     up = parse_up(args.up)
+    check_output_path(args.out, what="--out", folder=True)
     scene = load_scene(args.scene)
     cams_path = args.cameras
     if cams_path is None and (args.scene.parent / "cameras.json").is_file():
@@ -127,14 +128,13 @@ def run(args: argparse.Namespace) -> int:
     for i, (a, entry) in enumerate(zip(plan.anchors, doc["anchors"])):
         if renderer is None:
             continue
-        import cv2
 
         rgb = renderer.render(a.camera, scale=args.scale).rgb
         img = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
         name = f"{i:02d}_{a.camera.name or a.source}.png"
-        cv2.imwrite(str(out / name), img[..., ::-1])
+        write_image_atomic(out / name, img[..., ::-1])
         entry["image"] = name
-    (out / "anchors.json").write_text(json.dumps(doc, indent=1))
+    write_json_atomic(out / "anchors.json", doc)
     print(up_line(plan, given=up is not None))
     print(
         f"{len(plan.anchors)} anchors ({'camera-free' if plan.camera_free else len(cameras)} "

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..kinds import ViewStatus
+from ..output_paths import check_output_path, write_image_atomic
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -64,7 +65,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
 
     from ..evaluation.demo_prompts import demo_prompts
     from ..evaluation.metrics import EvalConfig, evaluate_selection
@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         raise DivasInputError(None, f"--size {args.size} is too small (minimum {MIN_SIZE})")
     t0 = time.perf_counter()
     out: Path = args.out
+    check_output_path(out, what="--out", folder=True)
     out.mkdir(parents=True, exist_ok=True)
     sc = generate_scene(args.scene, out / "scene", size=args.size, seed=args.seed)
     print(
@@ -122,12 +123,12 @@ def run(args: argparse.Namespace) -> int:
         for cam in test_cams:
             ov = session.overlay(cam)
             img = (np.clip(ov.image, 0, 1) * 255 + 0.5).astype(np.uint8)
-            cv2.imwrite(str(out / f"overlay_{cam.name}.png"), img[..., ::-1])
+            write_image_atomic(out / f"overlay_{cam.name}.png", img[..., ::-1])
             if len(pairs) < _SIDE_BY_SIDE_ROWS:
                 rgb = session.renderer.render(session.working_camera(cam)).rgb
                 pairs.append(np.hstack([_u8(rgb), img]))
         picture = out / "demo.png"
-        cv2.imwrite(str(picture), np.vstack(pairs)[..., ::-1])
+        write_image_atomic(picture, np.vstack(pairs)[..., ::-1])
         report.setdefault("evaluation", {})["render"] = scores.as_dict()
         report["timings"]["evaluation_s"] = time.perf_counter() - t
         report["timings"]["demo_total_s"] = time.perf_counter() - t0

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from ..errors import DivasInputError
+from ..output_paths import check_output_path, write_text_atomic
 
 #: Default surfels per scene: the whole table (3 scenes × 2 segmenters + NeRF) runs in
 #: a few minutes on 2 CPU cores.
@@ -168,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
         raise DivasInputError(None, f"--eval-scale must be positive, got {args.eval_scale}")
     if args.grid_resolution < 8:
         raise DivasInputError(None, "--grid-resolution must be ≥ 8")
+    if args.out is not None:
+        check_output_path(args.out, what="--out")
     try:
         dev = resolve_device(args.device)
     except RuntimeError as e:
@@ -208,8 +211,7 @@ def run(args: argparse.Namespace) -> int:
     result["wall_s"] = time.perf_counter() - t0
     text = json.dumps(result, default=_json_default)
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+        write_text_atomic(args.out, text)
     if args.json:
         print(text)
     else:

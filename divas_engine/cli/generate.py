@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import DivasInputError
+from ..output_paths import check_output_path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -59,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         raise DivasInputError(None, f"--grid-res {args.grid_res} is too small (minimum 8)")
     if args.out.exists() and not args.out.is_dir():
         raise DivasInputError(args.out, "--out exists and is not a folder")
+    check_output_path(args.out, what="--out", folder=True)
     sc = generate_scene(
         args.name,
         args.out,

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from ..output_paths import check_output_path, check_outputs, save_npz_atomic, write_image_atomic
 
 __all__ = ["add_parser", "run", "orbit_camera", "parse_camera_json", "write_outputs"]
 
@@ -142,10 +143,27 @@ def _colorize(v: np.ndarray, valid: np.ndarray, lo: float, hi: float) -> np.ndar
     return img
 
 
-def write_outputs(buffers, prefix: Path) -> list[Path]:
-    """Write ``PREFIX.png``, ``PREFIX_<channel>.png`` and ``PREFIX.npz``; returns the paths."""
-    import cv2
+def output_paths(prefix: Path) -> list[Path]:
+    """The files :func:`write_outputs` writes for ``prefix``."""
+    from ..render import DEPTH_CHANNELS
 
+    prefix = Path(prefix)
+    names = [".png", *(f"_{c}.png" for c in DEPTH_CHANNELS), "_N_samp.png", ".npz"]
+    return [prefix.with_name(prefix.name + n) for n in names]
+
+
+def check_render_outputs(prefix: Path, inputs) -> None:
+    """Pre-flight of ``--out PREFIX`` (before loading): its folder may be created; every
+    file it names must be writable and none may be an input."""
+    prefix = Path(prefix)
+    check_output_path(prefix.parent, what="--out folder", folder=True)
+    if prefix.parent.is_dir():
+        check_outputs([("--out", p) for p in output_paths(prefix)], inputs)
+
+
+def write_outputs(buffers, prefix: Path) -> list[Path]:
+    """Write ``PREFIX.png``, ``PREFIX_<channel>.png`` and ``PREFIX.npz`` (each atomically);
+    returns the paths."""
     from ..render import DEPTH_CHANNELS
 
     prefix = Path(prefix)
@@ -153,22 +171,21 @@ def write_outputs(buffers, prefix: Path) -> list[Path]:
     written = []
     rgb = (np.clip(buffers.rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     p = prefix.with_name(prefix.name + ".png")
-    if not cv2.imwrite(str(p), rgb[:, :, ::-1]):
-        raise DivasInputError(p, "cannot write PNG")
+    write_image_atomic(p, rgb[:, :, ::-1])
     written.append(p)
     depths = [getattr(buffers, c) for c in DEPTH_CHANNELS]
     allv = np.concatenate([d[d > 0] for d in depths])
     lo, hi = np.percentile(allv, [1, 99]) if allv.size else (0.0, 1.0)
     for name, d in zip(DEPTH_CHANNELS, depths):
         p = prefix.with_name(f"{prefix.name}_{name}.png")
-        cv2.imwrite(str(p), _colorize(d, d > 0, float(lo), float(hi)))
+        write_image_atomic(p, _colorize(d, d > 0, float(lo), float(hi)))
         written.append(p)
     ns = buffers.N_samp
     p = prefix.with_name(f"{prefix.name}_N_samp.png")
-    cv2.imwrite(str(p), _colorize(ns.astype(np.float32), ns > 0, 0.0, float(max(ns.max(), 1))))
+    write_image_atomic(p, _colorize(ns.astype(np.float32), ns > 0, 0.0, float(max(ns.max(), 1))))
     written.append(p)
     p = prefix.with_name(prefix.name + ".npz")
-    np.savez_compressed(p, **buffers.as_dict())
+    save_npz_atomic(p, **buffers.as_dict())
     written.append(p)
     return written
 
@@ -201,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
         raise DivasInputError(None, "--index only applies to --cameras")
     if not (math.isfinite(args.scale) and args.scale > 0):
         raise DivasInputError(None, f"--scale must be positive, got {args.scale}")
+    check_render_outputs(args.out, [args.scene, args.cameras])
     scene = load_scene(args.scene)
     camera = _pick_camera(args, scene)
     if args.device == "cuda":

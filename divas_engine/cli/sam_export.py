@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import DivasInputError
+from ..output_paths import check_output_path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
         import_torch("divas sam-export")
         if args.out.exists() and not args.out.is_dir():
             raise DivasInputError(args.out, "--out must be a folder")
+        check_output_path(args.out, what="--out", folder=True)
         print(f"converting {args.checkpoint} ({args.model_type}) …", flush=True)
         result = convert_checkpoint(
             args.checkpoint,

@@ -41,6 +41,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..kinds import SceneKind, ViewStatus
+from ..output_paths import check_outputs, write_json_atomic
 from .anchors import parse_up
 
 SEGMENTERS = ("graph3d", "classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
@@ -113,7 +114,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--session",
         type=Path,
         default=None,
-        help="save the session here (JSON + .npz; autosaved after every accept)",
+        help="save the session here (JSON + a content-addressed .npz; autosaved after "
+        "open, every click and every accept)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run killed while saving to --session: replay what it saved, "
+        "then run the remaining prompts (a missing session file starts afresh)",
     )
     p.add_argument(
         "--mask-channel",
@@ -205,11 +213,17 @@ def segment_scene(
     mask_channel: int = 1,
     up: Sequence[float] | None = None,
     completion: bool = True,
+    resume: bool = False,
+    report_path: Path | None = None,
 ) -> tuple[dict[str, Any], Any]:
     """The whole ``divas segment`` pipeline; returns ``(report, session)``.
 
     ``prompts_path`` may also be a parsed :class:`~divas_engine.session.Prompts`. The
-    session is closed unless ``keep_session``.
+    session is closed unless ``keep_session``. Every output path (``out``,
+    ``labels_out``, ``session_path``, ``report_path``) is checked before anything is
+    loaded (:func:`~divas_engine.output_paths.check_outputs`). ``resume``: continue the
+    run saved at ``session_path`` — replay it (``Session.load``, checked to be this run's
+    by :func:`_check_resumable`), reuse its clicks and accepted views, run the rest.
     """
     from ..evaluation.ground_truth import load_ground_truth
     from ..evaluation.session_scores import session_evaluation
@@ -223,6 +237,25 @@ def segment_scene(
     t_start = time.perf_counter()
     if not (scale > 0 and np.isfinite(scale)):
         raise DivasInputError(None, f"--scale must be positive, got {scale}")
+    if resume and session_path is None:
+        raise DivasInputError(None, "--resume needs --session (the session to continue)")
+    check_outputs(  # before any loading or computing (issue 14)
+        [
+            ("--out", out),
+            ("--labels-out", labels_out),
+            ("--session", session_path),
+            ("--report", report_path),
+        ],
+        [
+            scene_path,
+            cameras_path,
+            prompts_path if isinstance(prompts_path, (str, Path)) else None,
+            gt_labels,
+            sam_encoder,
+            sam_decoder,
+            sam_checkpoint,
+        ],
+    )
     prompts = prompts_path if isinstance(prompts_path, Prompts) else load_prompts(prompts_path)
     dev = _device(device)
     scene = load_scene(scene_path)
@@ -266,16 +299,26 @@ def segment_scene(
     )
     t_load = time.perf_counter() - t_start
     t = time.perf_counter()
-    session = Session.open(
-        scene,
-        cameras,
-        config,
-        seg,
-        dev,
-        anchors=[(r.camera, r.source, r.index) for r in resolved],
-        gt_values=gt,
-        render_anchors=False,
-    )
+    if resume and Path(session_path).exists():
+        session = Session.load(
+            session_path, scene, seg, dev, cameras=cameras, gt_values=gt, autosave=session_path
+        )
+        try:
+            _check_resumable(session, config, resolved, session_path)
+        except BaseException:
+            session.close()
+            raise
+    else:
+        session = Session.open(
+            scene,
+            cameras,
+            config,
+            seg,
+            dev,
+            anchors=[(r.camera, r.source, r.index) for r in resolved],
+            gt_values=gt,
+            render_anchors=False,
+        )
     try:
         for a in _progress(session.anchors, desc="anchors", enabled=progress):
             _ = a.buffers
@@ -286,10 +329,15 @@ def segment_scene(
         bar = _progress(total=n_clicks, desc="centroid views", enabled=progress)
         for i, r in enumerate(resolved):
             a = session.anchors[i]
+            saved = session.current.clicks.get(i, [])  # a resumed session's clicks
             for k, c in enumerate(r.prompt.clicks):
                 try:
                     xy = a.full_camera.pixels_to(a.camera, c.xy)
-                    v = session.click(i, (float(xy[0]), float(xy[1])), positive=c.positive)
+                    xy = (float(xy[0]), float(xy[1]))
+                    if k < len(saved):
+                        v = _saved_click(session, saved[k], xy, c.positive, session_path)
+                    else:
+                        v = session.click(i, xy, positive=c.positive)
                 except DivasInputError as e:
                     raise DivasInputError(
                         prompts.source, f"anchors[{i}].clicks[{k}]: {e.problem}"
@@ -304,7 +352,8 @@ def segment_scene(
                 bar.update(1)
         bar.close()
         for v, pts, labs in _progress(spawned, desc="fusion", enabled=progress):
-            session.accept(v, pts, labs)
+            if v.status == ViewStatus.OPEN:  # a resumed session's accepted views are done
+                session.accept(v, pts, labs)
         session.sync()
         # outputs
         t = time.perf_counter()
@@ -320,7 +369,6 @@ def segment_scene(
                     f" (rejected views: {reasons})" if reasons else ""
                 )
             else:
-                Path(out).parent.mkdir(parents=True, exist_ok=True)
                 res = session.export(out, labels_path=labels_out)
                 outputs.update({"out": str(res.path), "format": res.format, "count": res.count})
                 if res.labels_path is not None:
@@ -373,10 +421,35 @@ def segment_scene(
             session.close()
 
 
-def write_report(path: Path, report: dict[str, Any]) -> None:
-    from ..session.store import atomic_write_bytes
+def _check_resumable(session, config, resolved, path) -> None:
+    """A saved session continues this run only if it was made by the same command:
+    the same settings and the same anchors, one unfinished object."""
+    saved = {k: v for k, v in session.config.to_dict().items() if k != "autosave"}
+    wanted = {k: v for k, v in config.to_dict().items() if k != "autosave"}
+    if json.dumps(saved, sort_keys=True) != json.dumps(wanted, sort_keys=True):
+        diff = sorted(k for k in wanted if saved.get(k) != wanted.get(k))
+        raise DivasInputError(
+            path, f"cannot resume: saved with other settings ({', '.join(diff) or 'config'})"
+        )
+    cams = [json.dumps(a.full_camera.to_dict(), sort_keys=True) for a in session.anchors]
+    want = [json.dumps(r.camera.to_dict(), sort_keys=True) for r in resolved]
+    if cams != want:
+        raise DivasInputError(path, "cannot resume: the session's anchors are not the prompts'")
+    if len(session.objects) != 1:
+        raise DivasInputError(path, "cannot resume: the session holds finished objects")
 
-    atomic_write_bytes(Path(path), json.dumps(report, indent=1, default=_json_default).encode())
+
+def _saved_click(session, rec, xy, positive: bool, path):
+    """The view (positive) or record (negative) of a click a resumed session already
+    made; it must be the prompts file's click."""
+    same = rec.positive == positive and np.allclose(rec.xy, xy, rtol=0, atol=1e-6)
+    if not same:
+        raise DivasInputError(path, "cannot resume: the session's clicks are not the prompts'")
+    return session.view(rec.view_id) if positive else rec
+
+
+def write_report(path: Path, report: dict[str, Any]) -> None:
+    write_json_atomic(path, report, default=_json_default)
 
 
 def _json_default(o):
@@ -414,6 +487,8 @@ def run(args: argparse.Namespace) -> int:
             mask_channel=args.mask_channel,
             up=parse_up(args.up),
             completion=not args.no_completion,
+            resume=args.resume,
+            report_path=args.report,
         )
     except DivasInputError as e:
         if args.report is not None and getattr(e, "report", None) is not None:

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..io.load import load_scene
+from ..output_paths import save_npy_atomic, write_text_atomic
 from ..scene import SurfelScene
 from ..views import ViewConfig, framed_camera, scene_frame, scene_points, up_frame
 from ..views.framing import SceneLayout, layout_from_points
@@ -135,7 +136,7 @@ def write_capture(capture: CaptureDef, data_dir: Path, out_dir: Path) -> dict:
     for t in capture.targets:
         labels = rule_labels(scene, t.rule)
         path = out_dir / f"{t.name}.npy"
-        np.save(path, pack_labels(labels))
+        save_npy_atomic(path, pack_labels(labels))
         doc["targets"][t.name] = {
             "kind": t.kind,
             "description": t.description,
@@ -146,7 +147,8 @@ def write_capture(capture: CaptureDef, data_dir: Path, out_dir: Path) -> dict:
             "sha256": sha256_file(path),
             "anchors": _anchor_doc(t),
         }
-    (out_dir / "targets.json").write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n")
+    text = json.dumps(doc, indent=1, ensure_ascii=False) + "\n"
+    write_text_atomic(out_dir / "targets.json", text)
     return doc
 
 

@@ -9,7 +9,6 @@ stored by the trainers: it is the image centre unless ``cx``/``cy`` are present
 
 from __future__ import annotations
 
-import json
 from os import PathLike
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from ..output_paths import write_json_atomic
 from .json_file import read_json
 
 __all__ = ["read_cameras_json", "write_cameras_json"]
@@ -70,4 +70,4 @@ def write_cameras_json(path: str | PathLike, cameras: list[Camera]) -> None:
                 "cy": c.cy,
             }
         )
-    Path(path).write_text(json.dumps(out, indent=1))
+    write_json_atomic(path, out)

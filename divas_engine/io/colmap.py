@@ -41,6 +41,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from ..output_paths import write_bytes_atomic, write_text_atomic
 
 __all__ = [
     "CAMERA_MODELS",
@@ -464,9 +465,9 @@ def write_colmap(path: str | PathLike, cameras: list[Camera], binary: bool = Tru
                 + b"\0"
                 + struct.pack("<Q", 0)
             )
-        (d / "cameras.bin").write_bytes(b"".join(cb))
-        (d / "images.bin").write_bytes(b"".join(ib))
-        (d / "points3D.bin").write_bytes(struct.pack("<Q", 0))
+        write_bytes_atomic(d / "cameras.bin", b"".join(cb))
+        write_bytes_atomic(d / "images.bin", b"".join(ib))
+        write_bytes_atomic(d / "points3D.bin", struct.pack("<Q", 0))
     else:
         g = lambda v: format(float(v), ".17g")  # noqa: E731  (exact float round trip)
         ct = [
@@ -484,11 +485,12 @@ def write_colmap(path: str | PathLike, cameras: list[Camera], binary: bool = Tru
         for iid, q, t, cid, name in img_rows:
             it.append(f"{iid} " + " ".join(g(v) for v in (*q, *t)) + f" {cid} {name}")
             it.append("")
-        (d / "cameras.txt").write_text("\n".join(ct) + "\n")
-        (d / "images.txt").write_text("\n".join(it) + "\n")
-        (d / "points3D.txt").write_text(
+        write_text_atomic(d / "cameras.txt", "\n".join(ct) + "\n")
+        write_text_atomic(d / "images.txt", "\n".join(it) + "\n")
+        write_text_atomic(
+            d / "points3D.txt",
             "# 3D point list with one line of data per point:\n"
             "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]\n"
-            "# Number of points: 0, mean track length: 0\n"
+            "# Number of points: 0, mean track length: 0\n",
         )
     return d

@@ -52,6 +52,7 @@ import plyfile
 
 from ..errors import DivasInputError
 from ..kinds import SceneKind
+from ..output_paths import same_file
 from ..scene import SH_C0, SourceInfo, SurfelScene, sh_coeff_count
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS, PlyLayout, read_ply_header, write_ply_rows
@@ -397,6 +398,8 @@ def write_compressed_ply_subset(
     quantisation step of the fresh chunk range of the value decoded from the source.
     """
     path = Path(source.path)
+    if same_file(path, out_path):
+        raise DivasInputError(out_path, "the output is the input; refusing to overwrite the input")
     layout = read_ply_header(path)
     if not is_compressed_ply(layout):
         raise DivasInputError(path, "not a compressed PLY (no 'chunk' element / packed_position)")

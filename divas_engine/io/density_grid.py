@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DivasInputError
+from ..output_paths import save_npz_atomic
 from ..scene import DensityGrid, SourceInfo
 
 __all__ = ["read_density_grid", "write_density_grid", "GRID_KEYS"]
@@ -68,4 +69,4 @@ def write_density_grid(path: str | PathLike, grid: DensityGrid, **extra: np.ndar
     if grid.rgb is not None:
         arrays["rgb"] = grid.rgb.astype(np.float32)
     arrays.update(extra)
-    np.savez_compressed(path, **arrays)
+    save_npz_atomic(path, **arrays)

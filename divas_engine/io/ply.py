@@ -25,6 +25,7 @@ import plyfile
 from ..errors import DivasInputError
 from ..geometry import normalize_quats
 from ..kinds import SceneKind
+from ..output_paths import atomic_file
 from ..scene import SurfelScene, sh_coeff_count
 from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
 
@@ -342,7 +343,7 @@ def write_ply_rows(
             le.append((f, dt.newbyteorder("<")))
         bodies.append(np.asarray(rows, dtype=np.dtype(le)))
     header = ("\n".join(lines) + "\nend_header\n").encode("ascii")
-    with open(path, "wb") as f:
+    with atomic_file(path) as f:
         f.write(header)
         for b in bodies:
             b.tofile(f)

@@ -14,6 +14,7 @@ import numpy as np
 import plyfile
 
 from ..errors import DivasInputError
+from ..output_paths import atomic_file, same_file
 from .ply import iter_vertex_chunks, read_ply_header
 
 __all__ = ["write_ply_subset"]
@@ -60,6 +61,8 @@ def write_ply_subset(
     bounded for multi-million-row files.
     """
     src, out = Path(src), Path(out)
+    if same_file(src, out):
+        raise DivasInputError(out, "the output is the input PLY; refusing to overwrite the input")
     layout = read_ply_header(src)
     n_file = layout.vertex.count
     rows = (
@@ -81,7 +84,7 @@ def write_ply_subset(
     vdt = layout.vertex_dtype()
     extra_dt = {k: v.dtype.newbyteorder("<") for k, v in extra.items()}
     le = np.dtype([(n, vdt[n].newbyteorder("<")) for n in vdt.names] + list(extra_dt.items()))
-    with open(out, "wb") as f:
+    with atomic_file(out) as f:  # temp + fsync + replace: a failure keeps the old file
         f.write(_header(layout, {"vertex": len(rows)}, extra_dt))
         for e in layout.elements:
             if e.name != "vertex":

@@ -33,7 +33,7 @@ Format rules reproduced only approximately, and why:
 Outputs are written atomically: ``.sog`` to a temporary file in the same folder,
 then ``os.replace``; a folder is built beside the target, then swapped in. A
 failure leaves any previous output intact. The output may not be the input.
-(This module has its own small atomic-write helpers; a shared one can replace them.)
+(Files go through :mod:`divas_engine.output_paths`; the folder swap is done here.)
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ import cv2
 import numpy as np
 
 from ..errors import DivasInputError
+from ..output_paths import dir_mode, write_bytes_atomic
 from ..scene import SourceInfo
 from .gaussians import check_file_rows
 from .sog import read_sog_texels
@@ -185,33 +186,18 @@ def _meta_for(meta: dict, layout, n: int, palette_count: int | None) -> dict:
     return out
 
 
-def _umask_mode(mode: int) -> int:
-    """``mode`` less the process umask (temp files are created 0600 / 0700)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mode & ~mask
-
-
-def _write_bytes_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, _umask_mode(0o666))
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def _write_folder_atomic(target: Path, files: dict[str, bytes]) -> None:
+    try:
+        _swap_folder(target, files)
+    except OSError as e:  # one clear error; the previous folder is back in place
+        raise DivasInputError(target, f"cannot write the output: {e.strerror or e}") from None
+
+
+def _swap_folder(target: Path, files: dict[str, bytes]) -> None:
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
     old = None
     try:
-        tmp.chmod(_umask_mode(0o777))
+        tmp.chmod(dir_mode())
         for name, data in files.items():
             (tmp / name).write_bytes(data)
         if target.exists():
@@ -270,7 +256,7 @@ def write_sog_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | 
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
             for name, data in files.items():
                 zf.writestr(name, data)
-        _write_bytes_atomic(target, buf.getvalue())
+        write_bytes_atomic(target, buf.getvalue())
         return target
     _write_folder_atomic(target, files)
     return target / "meta.json"

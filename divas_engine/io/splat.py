@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..kinds import SceneKind
+from ..output_paths import atomic_file, same_file
 from ..scene import SH_C0, SourceInfo, SurfelScene
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 
@@ -102,11 +103,13 @@ def read_splat(path: str | PathLike) -> SurfelScene:
 def write_splat_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | PathLike) -> None:
     """Copy the 32-byte records ``file_rows`` (in that order) of ``source`` to ``out_path``."""
     path = Path(source.path)
+    if same_file(path, out_path):
+        raise DivasInputError(out_path, "the output is the input; refusing to overwrite the input")
     total = _row_count(path)
     rows = check_file_rows(path, file_rows, total)
     if rows.size == 0:
         raise ValueError("nothing to write: file_rows is empty")
     mm = np.memmap(path, dtype=SPLAT_DTYPE, mode="r", shape=(total,))
-    with open(out_path, "wb") as f:
+    with atomic_file(out_path) as f:
         for start in range(0, len(rows), _BLOCK):
             np.asarray(mm[rows[start : start + _BLOCK]]).tofile(f)

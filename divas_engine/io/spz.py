@@ -60,6 +60,7 @@ import numpy as np
 
 from ..errors import DivasInputError
 from ..kinds import SceneKind
+from ..output_paths import same_file, write_bytes_atomic
 from ..scene import SourceInfo, SurfelScene
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
 from .ply import CHUNK_ROWS
@@ -320,6 +321,8 @@ def write_spz_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | 
     Versions 2-3 are re-gzipped, version 4 streams re-compressed with zstd.
     """
     path = Path(source.path)
+    if same_file(path, out_path):
+        raise DivasInputError(out_path, "the output is the input; refusing to overwrite the input")
     f = _parse(path)
     rows = check_file_rows(path, file_rows, f.n)
     if rows.size == 0:
@@ -337,4 +340,4 @@ def write_spz_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | 
             struct.pack("<QQ", len(z), len(b)) for z, b in zip(streams, [b for b in cols if b])
         )
         out = header + f.extensions + toc + b"".join(streams)
-    Path(out_path).write_bytes(out)
+    write_bytes_atomic(out_path, out)

@@ -21,7 +21,6 @@ the frames' ``file_path`` strings, verbatim. Other keys (``aabb_scale``, ``scale
 
 from __future__ import annotations
 
-import json
 import math
 import struct
 import warnings
@@ -33,6 +32,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from ..output_paths import write_json_atomic
 from .json_file import read_json
 
 __all__ = ["OPENGL_TO_OPENCV", "image_size", "read_transforms_json", "write_transforms_json"]
@@ -241,4 +241,4 @@ def write_transforms_json(path: str | PathLike, cameras: list[Camera]) -> None:
             fr.update(d)
         frames.append(fr)
     out["frames"] = frames
-    Path(path).write_text(json.dumps(out, indent=1))
+    write_json_atomic(path, out)

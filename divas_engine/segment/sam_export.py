@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DivasInputError
+from ..output_paths import file_mode, write_json_atomic
 from .sam_models import FAMILIES, SamModelType, import_torch, load_sam_model
 from .sam_upstream import sam_package
 
@@ -176,6 +177,10 @@ def _dynamic_crop(torch: Any, sam_onnx_model: type) -> type:
 
 
 def _replace(src: Path, dst: Path) -> None:
+    """Move a finished model file into place (fsynced first, normal permissions)."""
+    with open(src, "rb+") as f:
+        os.fsync(f.fileno())
+    os.chmod(src, file_mode())
     os.replace(src, dst)
 
 
@@ -392,9 +397,7 @@ def _write_meta(path: Path, export: SamExport, key: dict[str, Any]) -> None:
         "layout": export.layout,
         "check": None if export.check is None else asdict(export.check),
     }
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=1))
-    os.replace(tmp, path)
+    write_json_atomic(path, doc)
 
 
 def _cache_folder(path: Path, t: SamModelType, cache_root: str | PathLike) -> Path:

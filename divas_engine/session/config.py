@@ -64,7 +64,8 @@ class SessionConfig:
         overlay_color, overlay_alpha: overlay of the selection on a view.
         overlay_threshold: coverage threshold of the binary overlay mask (NOTES
             "Evaluation": 0.1).
-        autosave: path of the session JSON written after every accept (None: off).
+        autosave: path of the session JSON written after open, every click and every
+            accept (None: off).
         seed: recorded in saved sessions and reports.
     """
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
+import warnings
 from collections.abc import Hashable, Sequence
 from os import PathLike
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..kinds import ViewStatus
+from ..output_paths import check_output_path
 from ..render import make_renderer
 from ..render.buffers import RenderBuffers
 from ..scene import Scene
@@ -114,6 +116,9 @@ class SessionCore:
         self._semantic = np.zeros(shape, bool)  # before manual edits (:mod:`.edits`)
         self.edits = EditLayer()
         self._history = None  # :attr:`Session.history`, made on first use
+        #: the last autosave failure (None: the last autosave landed); a failed autosave
+        #: warns and the session goes on (issue 14)
+        self.autosave_error: str | None = None
         self.replay_matches: bool | None = None
         self.plan: AnchorPlan | None = None
         self._closed = False
@@ -382,6 +387,7 @@ class SessionCore:
         from ..export import export_selection
 
         out = Path(out_dir)
+        check_output_path(out, what="objects folder", folder=True)
         out.mkdir(parents=True, exist_ok=True)
         files: dict[str, Any] = {"objects": []}
         ext = self.backend.object_suffix()
@@ -428,8 +434,18 @@ class SessionCore:
         return save_state(path, doc, arrays)
 
     def _autosave(self) -> None:
-        if self.config.autosave:
+        """Save to ``config.autosave`` (when set). A failure (disk full, read-only
+        folder …) is a :class:`RuntimeWarning` and :attr:`autosave_error`, never an
+        exception: the user's work in memory goes on; the previous save stays intact."""
+        if not self.config.autosave:
+            return
+        try:
             self.save(self.config.autosave)
+        except (OSError, DivasInputError) as e:
+            self.autosave_error = str(e)
+            warnings.warn(f"autosave failed: {e}", RuntimeWarning, stacklevel=2)
+        else:
+            self.autosave_error = None
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:

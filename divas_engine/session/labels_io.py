@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import os
 from os import PathLike
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 from ..io.ply import surfel_rows, write_ply_rows
 from ..io.ply_subset import write_ply_subset
 from ..kinds import SceneKind
+from ..output_paths import check_output_path
 from ..scene import SurfelScene
 
 __all__ = ["LABEL_PROPERTY", "file_label_values", "write_labelled_ply", "decoded_rows"]
@@ -58,28 +58,24 @@ def decoded_rows(scene: SurfelScene) -> np.ndarray:
 def write_labelled_ply(scene: SurfelScene, labels: np.ndarray, out: str | PathLike) -> Path:
     """Write ``scene`` with the per-surfel int ``labels`` as an extra ``divas_label`` column.
 
-    The file is written to a temporary name and renamed (atomic).
+    The file is written through :mod:`~divas_engine.output_paths` (temporary, fsync,
+    rename): a failure keeps any previous file; the output may not be the input.
     """
     out = Path(out)
     lab = np.asarray(labels)
     if lab.shape != (len(scene),) or not np.issubdtype(lab.dtype, np.integer):
         raise ValueError(f"labels must be an int array of shape ({len(scene)},)")
-    tmp = out.with_name(out.name + ".tmp")
-    try:
-        src = scene.source
-        if src is not None and src.format == "ply":
-            write_ply_subset(
-                src.path, None, tmp, extra_columns={LABEL_PROPERTY: file_label_values(scene, lab)}
-            )
-        else:
-            base = decoded_rows(scene)
-            rows = np.empty(len(base), np.dtype(base.dtype.descr + [(LABEL_PROPERTY, "<i4")]))
-            for n in base.dtype.names:
-                rows[n] = base[n]
-            rows[LABEL_PROPERTY] = lab
-            write_ply_rows(tmp, {"vertex": rows}, comments=["divas labelled scene"])
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    src = scene.source
+    check_output_path(out, inputs=[] if src is None else [src.path], what="labelled PLY")
+    if src is not None and src.format == "ply":
+        write_ply_subset(
+            src.path, None, out, extra_columns={LABEL_PROPERTY: file_label_values(scene, lab)}
+        )
+    else:
+        base = decoded_rows(scene)
+        rows = np.empty(len(base), np.dtype(base.dtype.descr + [(LABEL_PROPERTY, "<i4")]))
+        for n in base.dtype.names:
+            rows[n] = base[n]
+        rows[LABEL_PROPERTY] = lab
+        write_ply_rows(out, {"vertex": rows}, comments=["divas labelled scene"])
     return out

@@ -29,7 +29,6 @@ Unknown keys, bad shapes, out-of-image points and dangling references raise
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,6 +39,7 @@ from typing import Any
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..io.json_file import read_json
+from ..output_paths import write_json_atomic
 
 __all__ = [
     "PROMPTS_VERSION",
@@ -105,7 +105,7 @@ class Prompts:
         }
 
     def write(self, path: str | PathLike) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        write_json_atomic(path, self.to_dict())
 
     def extra_points(self, anchor: int, click: int) -> tuple[Click, ...]:
         return self.centroid_prompts.get((anchor, click), ())

@@ -22,8 +22,9 @@ Coordinates: every pixel coordinate of this API is in the images the session ren
 
 Undo is exact (fixed-point fusion ``remove_view``; the mapping is recomputed from the
 same live views and slots). A session is serialised as JSON + npz (the accepted,
-depth-weighted masks), autosaved after every accept when ``config.autosave`` is set,
-and :meth:`Session.load` replays it — re-rendering the stored camera poses and fusing
+depth-weighted masks), autosaved after open, every click and every accept when
+``config.autosave`` is set (one atomic unit, :mod:`.store`), and :meth:`Session.load`
+replays it — re-rendering the stored camera poses and fusing
 the stored masks — to identical labels, without running SAM again.
 
 Multiple objects: :meth:`Session.finish_object` commits the selection as the next
@@ -169,6 +170,7 @@ class Session(SelectionEditing, SessionCore):
         if render_anchors and s.anchors:
             _ = s.anchors[0].buffers
         s.backend.warm_up()
+        s._autosave()  # the anchors are saved at once (issue 14)
         return s
 
     @staticmethod
@@ -208,6 +210,7 @@ class Session(SelectionEditing, SessionCore):
                 _, point = self._back_project(anchor, xy)
                 rec = AnchorClick(anchor.index, ci, xy, False, point)
                 clicks.append(rec)
+                self._autosave()
                 return rec
             vid = f"o{obj.index}:a{anchor.index}:c{ci}"
             t0 = time.perf_counter()
@@ -222,6 +225,7 @@ class Session(SelectionEditing, SessionCore):
         clicks.append(AnchorClick(anchor.index, ci, xy, True, cv.target.copy(), vid))
         obj.views.append(view)
         self._views[vid] = view
+        self._autosave()
         return view
 
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:

@@ -29,7 +29,6 @@ Files written to ``out_dir``:
 
 from __future__ import annotations
 
-import json
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -39,6 +38,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..kinds import SceneKind
+from ..output_paths import save_npy_atomic, save_npz_atomic, write_json_atomic
 from ..scene import DensityGrid, SurfelScene
 from .builder import BuiltScene, SceneSpec, build_surfels, choose_clicks, notes_grid_params
 from .grid import voxelize
@@ -105,21 +105,21 @@ class SyntheticScene:
             write_surfel_ply(paths[0], self.scene)
         write_cameras_json(paths[1], self.cameras)
         write_cameras_json(paths[2], self.test_cameras)
-        np.save(paths[3], self.labels.astype(bool))
-        np.save(paths[4], self.surface_ids.astype(np.int32))
-        paths[5].write_text(json.dumps(_jsonable(self.metadata), indent=1))
+        save_npy_atomic(paths[3], self.labels.astype(bool))
+        save_npy_atomic(paths[4], self.surface_ids.astype(np.int32))
+        write_json_atomic(paths[5], _jsonable(self.metadata))
         if self.classes is not None:
             paths.append(out / "classes.npy")
-            np.save(paths[-1], self.classes.astype(np.uint8))
+            save_npy_atomic(paths[-1], self.classes.astype(np.uint8))
         if self.grid is not None:
             paths += [out / "grid.npz", out / "grid_labels.npy"]
-            np.savez_compressed(
+            save_npz_atomic(
                 paths[-2],
                 density=self.grid.density.astype(np.float32),
                 rgb=self.grid.rgb.astype(np.float32),
                 aabb=self.grid.aabb.astype(np.float64),
             )
-            np.save(paths[-1], self.grid_labels.astype(bool))
+            save_npy_atomic(paths[-1], self.grid_labels.astype(bool))
         return paths
 
 

@@ -63,6 +63,7 @@ def test_headless_matches_divas_segment(scene_dir, tmp_path):
         seed=2,
     )
     ref_dir = tmp_path / "engine"
+    ref_dir.mkdir()  # issue 14: an output's folder must exist (it was created)
     report_ref, _ = segment_scene(
         scene_dir / "scene.ply",
         scene_dir / "prompts.json",
@@ -72,6 +73,7 @@ def test_headless_matches_divas_segment(scene_dir, tmp_path):
         **common,
     )
     ours = tmp_path / "blender"
+    ours.mkdir()
     r = _run(
         "--scene",
         scene_dir / "scene.ply",

@@ -182,7 +182,7 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
     ) == {"FINISHED"}
     v0 = s.views[0]
     assert bpy.context.scene.camera.name == live.view_cameras[v0.id]
-    assert not auto.exists()
+    assert auto.is_file()  # issue 14: autosaved from the open on, and after every click
     # accept the scene camera's view
     assert bpy.ops.divas.session_accept() == {"FINISHED"}
     assert v0.status == "fused" and s.selection.sum() > 100

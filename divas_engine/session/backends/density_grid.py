@@ -17,6 +17,7 @@ import numpy as np
 from ...camera import Camera
 from ...errors import DivasInputError
 from ...kinds import SceneKind
+from ...output_paths import save_npy_atomic
 from ...render.buffers import RenderBuffers
 from ...scene import DensityGrid, Scene
 from ...segment.depth_weighting import DepthBand, apply_nerf_depth_weight
@@ -99,9 +100,7 @@ class DensityGridBackend(SessionBackend):
         return ".npz"
 
     def write_label_set(self, labels: np.ndarray, out_dir: Path) -> Path:
-        path = out_dir / "labels.npy"
-        np.save(path, labels)
-        return path
+        return save_npy_atomic(out_dir / "labels.npy", labels)
 
     def write_labelled(self, labels: np.ndarray, path: str | PathLike) -> Path:
         raise DivasInputError(path, "labelled PLY needs a surfel scene (NeRF: labels.npy)")
