@@ -21,6 +21,7 @@ from ..errors import DivasInputError
 from .cameras_json import read_cameras_json, write_cameras_json
 from .colmap import find_colmap_model, read_colmap, write_colmap
 from .json_file import read_json
+from .limits import input_guard
 from .transforms_json import read_transforms_json, write_transforms_json
 
 __all__ = ["CAMERA_FORMATS", "detect_camera_format", "load_cameras", "save_cameras"]
@@ -67,12 +68,13 @@ def detect_camera_format(path: str | PathLike) -> tuple[str, Path]:
 
 def load_cameras(path: str | PathLike) -> list[Camera]:
     """Cameras (engine convention) from any supported camera file or folder."""
-    fmt, p = detect_camera_format(path)
-    if fmt == "colmap":
-        return read_colmap(p)
-    if fmt == "transforms_json":
-        return read_transforms_json(p)
-    return read_cameras_json(p)
+    with input_guard(path, "camera file"):
+        fmt, p = detect_camera_format(path)
+        if fmt == "colmap":
+            return read_colmap(p)
+        if fmt == "transforms_json":
+            return read_transforms_json(p)
+        return read_cameras_json(p)
 
 
 def save_cameras(path: str | PathLike, cameras: list[Camera], fmt: str | None = None) -> Path:

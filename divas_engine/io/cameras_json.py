@@ -46,7 +46,7 @@ def read_cameras_json(path: str | PathLike) -> list[Camera]:
                     str(e.get("img_name", e.get("id", i))),
                 )
             )
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
             what = f"missing key {err}" if isinstance(err, KeyError) else str(err)
             raise DivasInputError(path, f"camera entry {i}: {what}") from None
     return cams
