@@ -331,7 +331,7 @@ _JSON_BAD = [
     "Infinity",
     "-Infinity",
     "NaN",
-    "9" * 4300,
+    "9" * 5000,
     "-1",
     "0",
     "1e300",
@@ -505,33 +505,112 @@ def mutate(data: bytes, rng: random.Random, text: bool) -> bytes:
 
 
 # ----------------------------------------------------------------- running a case
-def _child(load, check, path: Path, mem_bytes: int, wfd: int) -> None:
-    import warnings
-
+def _classify(load, check, path: Path) -> tuple[str, str]:
     from divas_engine.errors import DivasInputError
 
-    warnings.simplefilter("ignore")  # overflow warnings of hostile values: noise here
+    try:
+        res = load(path)
+        why = check(res) if check else None
+        return ("garbage", why) if why else ("ok", "")
+    except DivasInputError as e:
+        return "input", str(e)[:300]
+    except MemoryError as e:
+        return "memory", repr(e)[:300]
+    except Exception as e:  # noqa: BLE001 - the point is to classify everything
+        return "crash", f"{type(e).__name__}: {e}"[:300]
 
+
+def _serve(families: dict[str, Family], mem_bytes: int, rfd: int, wfd: int) -> None:
+    """Worker loop: read ``family\tpath`` lines, answer one JSON line per case."""
+    import warnings
+
+    warnings.simplefilter("ignore")  # overflow warnings of hostile values: noise here
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     try:
         with open("/proc/self/statm") as f:
             vm = int(f.read().split()[0]) * resource.getpagesize()
         resource.setrlimit(resource.RLIMIT_AS, (vm + mem_bytes, vm + mem_bytes))
     except (OSError, ValueError):
         pass
-    try:
-        res = load(path)
-        why = check(res) if check else None
-        msg = ("garbage", why) if why else ("ok", "")
-    except DivasInputError as e:
-        msg = ("input", str(e)[:300])
-    except MemoryError as e:
-        msg = ("memory", repr(e)[:300])
-    except BaseException as e:  # noqa: BLE001 - the point is to classify everything
-        msg = ("crash", f"{type(e).__name__}: {e}"[:300])
-    try:
-        os.write(wfd, json.dumps(msg).encode()[:4000])
-    finally:
-        os._exit(0)
+    rf = os.fdopen(rfd, "rb")
+    while True:
+        line = rf.readline()
+        if not line:
+            os._exit(0)
+        name, path = line.decode().rstrip("\n").split("\t", 1)
+        fam = families[name]
+        msg = json.dumps(_classify(fam.load, fam.check, Path(path))).encode() + b"\n"
+        os.write(wfd, msg)
+
+
+class Worker:
+    """A forked worker that runs many cases (a fork per case costs ~50 ms here) under
+    ``RLIMIT_AS``; restarted after a hang (killed), a death, a ``MemoryError`` (the case
+    is retried once in a fresh worker, whose address space has not grown) and every
+    ``recycle`` cases."""
+
+    def __init__(self, families: dict[str, Family], mem_bytes: int, recycle: int = 300):
+        self.families, self.mem_bytes, self.recycle = families, mem_bytes, recycle
+        self.pid: int | None = None
+        self.served = 0
+
+    def _start(self) -> None:
+        r1, w1 = os.pipe()
+        r2, w2 = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            os.close(w1)
+            os.close(r2)
+            try:
+                _serve(self.families, self.mem_bytes, r1, w2)
+            finally:
+                os._exit(1)
+        os.close(r1)
+        os.close(w2)
+        self.pid, self.wfd, self.rfd, self.buf, self.served = pid, w1, r2, b"", 0
+
+    def stop(self, kill: bool = False) -> int:
+        if self.pid is None:
+            return 0
+        os.close(self.wfd)
+        if kill:
+            os.kill(self.pid, signal.SIGKILL)
+        _, status = os.waitpid(self.pid, 0)
+        os.close(self.rfd)
+        self.pid = None
+        return status
+
+    def run(self, name: str, path: Path, timeout: float, retry: bool = True) -> tuple[str, str]:
+        if self.pid is None or self.served >= self.recycle:
+            self.stop()
+            self._start()
+        self.served += 1
+        os.write(self.wfd, f"{name}\t{path}\n".encode())
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self.buf:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.stop(kill=True)
+                return "hang", f"no answer in {timeout:g} s"
+            ready, _, _ = select.select([self.rfd], [], [], left)
+            if not ready:
+                continue
+            chunk = os.read(self.rfd, 65536)
+            if not chunk:  # the worker died
+                status = self.stop()
+                if os.WIFSIGNALED(status):
+                    sig = os.WTERMSIG(status)
+                    out = "memory" if sig == signal.SIGKILL else "crash"
+                    return out, f"worker killed by signal {sig}"
+                return "crash", f"worker exited with status {status}"
+            self.buf += chunk
+        line, self.buf = self.buf.split(b"\n", 1)
+        out, detail = json.loads(line)
+        if out == "memory":
+            self.stop()
+            if retry:
+                return self.run(name, path, timeout, retry=False)
+        return out, detail
 
 
 class _Alarm(BaseException):
@@ -539,7 +618,7 @@ class _Alarm(BaseException):
 
 
 def _in_process(load, check, path: Path, timeout: float) -> tuple[str, str]:
-    from divas_engine.errors import DivasInputError
+    """One case in this process under a SIGALRM timeout (no memory limit)."""
 
     def ring(signum, frame):
         raise _Alarm()
@@ -547,17 +626,9 @@ def _in_process(load, check, path: Path, timeout: float) -> tuple[str, str]:
     old = signal.signal(signal.SIGALRM, ring)
     signal.setitimer(signal.ITIMER_REAL, timeout)
     try:
-        res = load(path)
-        why = check(res) if check else None
-        return ("garbage", why) if why else ("ok", "")
+        return _classify(load, check, path)
     except _Alarm:
         return "hang", f"no answer in {timeout:g} s"
-    except DivasInputError as e:
-        return "input", str(e)[:300]
-    except MemoryError as e:
-        return "memory", repr(e)[:300]
-    except Exception as e:  # noqa: BLE001 - the point is to classify everything
-        return "crash", f"{type(e).__name__}: {e}"[:300]
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
@@ -566,40 +637,14 @@ def _in_process(load, check, path: Path, timeout: float) -> tuple[str, str]:
 def run_case(
     load, check, path: Path, timeout: float, mem_bytes: int, fork: bool = True
 ) -> tuple[str, str]:
-    """Load ``path`` in a forked child (or in process); ``(outcome, detail)``."""
+    """Load one file in a fresh worker (or in process); ``(outcome, detail)``."""
     if not fork:
         return _in_process(load, check, path, timeout)
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:
-        os.close(r)
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-        _child(load, check, path, mem_bytes, w)
-    os.close(w)
-    deadline = time.monotonic() + timeout
-    chunks = []
-    while True:
-        left = deadline - time.monotonic()
-        if left <= 0:
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            os.close(r)
-            return "hang", f"no answer in {timeout:g} s"
-        ready, _, _ = select.select([r], [], [], left)
-        if ready:
-            buf = os.read(r, 4096)
-            if not buf:
-                break
-            chunks.append(buf)
-    os.close(r)
-    _, status = os.waitpid(pid, 0)
-    if chunks:
-        out, detail = json.loads(b"".join(chunks))
-        return out, detail
-    if os.WIFSIGNALED(status):
-        sig = os.WTERMSIG(status)
-        return ("memory" if sig == signal.SIGKILL else "crash"), f"child killed by signal {sig}"
-    return "crash", f"child exited {status} without an answer"
+    w = Worker({"case": Family("case", [path], load, check=check)}, mem_bytes)
+    try:
+        return w.run("case", path, timeout)
+    finally:
+        w.stop()
 
 
 def make_case(fam: Family, k: int, seed: int, work: Path) -> Path:
@@ -634,10 +679,18 @@ def run_family(
 ) -> dict[str, list]:
     """Run ``n`` cases of ``fam``: outcome -> list of (case, detail)."""
     res: dict[str, list] = {o: [] for o in OUTCOMES}
-    for k in range(n):
-        path = make_case(fam, k, seed, work)
-        out, detail = run_case(fam.load, fam.check, path, timeout, mem_bytes, fam.fork)
-        res[out].append((k, detail))
-        if on_case:
-            on_case(k, out, detail)
+    worker = Worker({fam.name: fam}, mem_bytes) if fam.fork else None
+    try:
+        for k in range(n):
+            path = make_case(fam, k, seed, work)
+            if worker is None:
+                out, detail = _in_process(fam.load, fam.check, path, timeout)
+            else:
+                out, detail = worker.run(fam.name, path, timeout)
+            res[out].append((k, detail))
+            if on_case:
+                on_case(k, out, detail)
+    finally:
+        if worker is not None:
+            worker.stop()
     return res
