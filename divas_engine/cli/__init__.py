@@ -55,16 +55,18 @@ MAX_SEED = 2**32 - 1
 EXIT_INTERNAL = 70
 
 
-def _check_common(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+def _check_common(args: argparse.Namespace) -> str | None:
+    """What is wrong with the shared numeric options (None: nothing)."""
     seed = getattr(args, "seed", None)
-    if seed is not None and not 0 <= seed <= MAX_SEED:
-        parser.error(f"--seed must be in 0..{MAX_SEED}, got {seed}")
+    if isinstance(seed, int) and not 0 <= seed <= MAX_SEED:
+        return f"--seed must be in 0..{MAX_SEED}, got {seed}"
     scale = getattr(args, "scale", None)
     if isinstance(scale, float) and not (math.isfinite(scale) and 0 < scale <= MAX_SCALE):
-        parser.error(f"--scale must be in (0, {MAX_SCALE:g}], got {scale}")
+        return f"--scale must be in (0, {MAX_SCALE:g}], got {scale}"
     size = getattr(args, "size", None)
     if isinstance(size, int) and not 0 < size <= 1 << 31:
-        parser.error(f"--size must be in 1..{1 << 31}, got {size}")
+        return f"--size must be in 1..{1 << 31}, got {size}"
+    return None
 
 
 def _save_traceback(command: str) -> Path | None:
@@ -92,10 +94,12 @@ def _os_error(e: OSError) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    _check_common(parser, args)
+    args = build_parser().parse_args(argv)
     cmd = args.command
+    bad = _check_common(args)
+    if bad:
+        print(f"divas {cmd}: error: {bad}", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args) or 0)
     except DivasInputError as e:
