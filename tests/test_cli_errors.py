@@ -46,6 +46,9 @@ def files(tmp_path_factory):
     pdoc["centroid_prompts"] = {"\u0663:0": [{"xy": [1, 1]}]}
     (d / "bad_prompts.json").write_text(json.dumps(pdoc))
     (d / "deep_prompts.json").write_text("[" * 50_000 + "]" * 50_000)
+    head = "{'descr': '|b1', 'fortran_order': False, 'shape': (100000, 100000, 100000), }"
+    head = head.ljust(118) + "\n"
+    (d / "huge.npy").write_bytes(b"\x93NUMPY\x01\x00" + struct.pack("<H", 119) + head.encode())
     fifo = d / "fifo.ply"
     os.mkfifo(fifo)
     png = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + struct.pack(">II", 10**5, 10**5)
@@ -137,6 +140,24 @@ def _matrix(d):
             f"{s}/no/such/dir/l.npy",
         ],
         "eval-missing": ["eval", f"{s}/nothing.json"],
+        "segment-gt-fifo": ["segment", scene, *pr, "--gt-labels", f"{s}/fifo.ply", *out],
+        "segment-gt-huge-shape": ["segment", scene, *pr, "--gt-labels", f"{s}/huge.npy", *out],
+        "render-camera-json-deep": [
+            "render",
+            scene,
+            "--camera-json",
+            "[" * 50_000,
+            "--out",
+            f"{s}/r",
+        ],
+        "render-camera-json-bigint": [
+            "render",
+            scene,
+            "--camera-json",
+            '{"width": ' + "9" * 5000 + "}",
+            "--out",
+            f"{s}/r",
+        ],
     }
 
 
@@ -147,7 +168,8 @@ CASES = [
     "anchors-scale-0", "generate-seed-2^64", "generate-seed-neg", "segment-fifo",
     "segment-dup", "segment-huge-cameras", "segment-scale-100", "segment-seed-2^64",
     "segment-bad-prompts", "segment-deep-prompts", "segment-fifo-prompts",
-    "segment-out-dir", "segment-labels-missing-dir", "eval-missing",
+    "segment-out-dir", "segment-labels-missing-dir", "eval-missing", "segment-gt-fifo",
+    "segment-gt-huge-shape", "render-camera-json-deep", "render-camera-json-bigint",
 ]  # fmt: skip
 
 
