@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,9 +23,9 @@ from .json_file import read_json
 __all__ = ["read_cameras_json", "write_cameras_json"]
 
 
-def read_cameras_json(path: str | PathLike) -> list[Camera]:
+def read_cameras_json(path: str | PathLike, doc: Any = None) -> list[Camera]:
     path = Path(path)
-    data = read_json(path, "camera file")
+    data = read_json(path, "camera file") if doc is None else doc  # doc: already parsed
     if not isinstance(data, list) or not data:
         raise DivasInputError(path, "expected a non-empty JSON list of cameras (3DGS cameras.json)")
     cams = []

@@ -185,10 +185,10 @@ def _frame_camera(path: Path, top: dict, fr: Any, i: int) -> tuple[Camera, bool]
     return cam, distorted
 
 
-def read_transforms_json(path: str | PathLike) -> list[Camera]:
+def read_transforms_json(path: str | PathLike, doc: Any = None) -> list[Camera]:
     """Engine cameras (OpenCV, +0.5 centres) of every frame, in file order."""
     path = Path(path)
-    data = read_json(path, "camera file")
+    data = read_json(path, "camera file") if doc is None else doc  # doc: already parsed
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
         raise DivasInputError(
             path, "expected a JSON object with a non-empty 'frames' list (transforms.json)"
