@@ -57,7 +57,7 @@ class LoadLimits:
 
     max_inflate_ratio: float = 256.0
     min_inflate_bytes: int = 256 << 20
-    max_rows: int = 1 << 31
+    max_rows: int = (1 << 31) - 1
     max_image_side: int = 16384 * 4
     max_json_bytes: int = 64 << 20
     max_clicks: int = 10_000
