@@ -286,3 +286,23 @@ def test_fifo_is_refused_without_opening(tmp_path, loader):
 
 def test_device_is_refused():
     _raises("/dev/zero", load_scene, "device")
+
+
+def test_sane_rows_flags_exactly_the_unusable_rows():
+    from divas_engine.io.gaussians import sane_rows
+
+    rng = np.random.default_rng(0)
+    n = 20
+    q = rng.normal(size=(n, 4)).astype(np.float32)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    means = rng.normal(size=(n, 3)).astype(np.float32)
+    scales = np.full((n, 2), 0.1, np.float32)
+    opac = np.full(n, 0.5, np.float32)
+    sh = rng.normal(size=(n, 4, 3)).astype(np.float32)
+    sh[5, 3, 1], sh[6, 3, 1], means[7, 0] = np.inf, np.nan, -np.inf
+    q[8] = 0  # zero quaternion
+    scales[9, 1], scales[10, 0] = 0.0, -1.0
+    opac[11], opac[12] = np.nan, 1.5
+    sh[13, 0, 0] = sh[13, 1, 0] = 3.4e38  # huge but finite: kept
+    ok = sane_rows((means, q, scales, opac, sh))
+    assert np.flatnonzero(~ok).tolist() == [5, 6, 7, 8, 9, 10, 11, 12]
