@@ -140,6 +140,8 @@ def _matrix(d):
             f"{s}/no/such/dir/l.npy",
         ],
         "eval-missing": ["eval", f"{s}/nothing.json"],
+        "info-long-name": ["info", f"{s}/{'x' * 300}.ply"],
+        "segment-long-prompts-name": ["segment", scene, "--prompts", f"{s}/{'p' * 300}.json", *out],
         "segment-gt-fifo": ["segment", scene, *pr, "--gt-labels", f"{s}/fifo.ply", *out],
         "segment-gt-huge-shape": ["segment", scene, *pr, "--gt-labels", f"{s}/huge.npy", *out],
         "render-camera-json-deep": [
@@ -170,6 +172,7 @@ CASES = [
     "segment-bad-prompts", "segment-deep-prompts", "segment-fifo-prompts",
     "segment-out-dir", "segment-labels-missing-dir", "eval-missing", "segment-gt-fifo",
     "segment-gt-huge-shape", "render-camera-json-deep", "render-camera-json-bigint",
+    "info-long-name", "segment-long-prompts-name",
 ]  # fmt: skip
 
 

@@ -20,7 +20,11 @@ def read_json(path: str | PathLike, what: str) -> Any:
         DivasInputError: missing, unreadable, or not valid JSON.
     """
     path = Path(path)
-    if not path.exists() and not path.is_symlink():
+    try:
+        missing = not path.exists() and not path.is_symlink()
+    except OSError:  # e.g. a name too long: require_input_file reports it
+        missing = False
+    if missing:
         raise DivasInputError(path, f"{what} not found")
     require_input_file(path, what)
     cap = limits().max_json_bytes
