@@ -14,7 +14,29 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "MAX_IMAGE_SIDE", "MAX_FOCAL", "MAX_PRINCIPAL"]
+
+#: Largest accepted image side in pixels (16384 · 4): a camera file asking for more is
+#: broken or hostile, and a render of it would not fit in memory anyway.
+MAX_IMAGE_SIDE = 16384 * 4
+#: Largest accepted focal length in pixels (a 0.0006° field of view at 1000 pixels).
+MAX_FOCAL = 1e8
+#: Largest accepted |principal point| in pixels (crops may move it far off the image).
+MAX_PRINCIPAL = 1e8
+
+
+def _image_side(name: str, k: str, v: Any, strict: bool = True) -> int:
+    """``v`` as a whole number of pixels in ``1..MAX_IMAGE_SIDE``, else ``ValueError``
+    (``strict=False``: a fractional value is truncated, as ``int`` does)."""
+    try:
+        f = float(v)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"camera {name!r}: {k}={v!r} is not a number") from None
+    if not math.isfinite(f) or (strict and f != int(f)):
+        raise ValueError(f"camera {name!r}: {k}={v!r} is not a whole number of pixels")
+    if not 1 <= f <= MAX_IMAGE_SIDE:
+        raise ValueError(f"camera {name!r}: {k}={int(f)} is outside 1..{MAX_IMAGE_SIDE} pixels")
+    return int(f)
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,21 +76,40 @@ class Camera:
         r = c2w[:3, :3]
         if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
             raise ValueError(f"camera {self.name!r}: c2w rotation is not a proper rotation")
+        for k in ("fx", "fy", "cx", "cy"):
+            try:
+                float(getattr(self, k))
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f"camera {self.name!r}: {k} is not a number") from None
         for k in ("fx", "fy"):
             v = float(getattr(self, k))
-            if not math.isfinite(v) or v <= 0:
-                raise ValueError(f"camera {self.name!r}: focal length {k}={v} must be positive")
+            if not math.isfinite(v) or v <= 0 or v > MAX_FOCAL:
+                raise ValueError(
+                    f"camera {self.name!r}: focal length {k}={v} must be positive "
+                    f"and ≤ {MAX_FOCAL:g}"
+                )
+        for k in ("cx", "cy"):
+            v = float(getattr(self, k))
+            if not math.isfinite(v) or abs(v) > MAX_PRINCIPAL:
+                raise ValueError(
+                    f"camera {self.name!r}: principal point {k}={v} must be finite, |{k}| ≤ "
+                    f"{MAX_PRINCIPAL:g}"
+                )
         near = float(self.near)
         if not math.isfinite(near) or near < 0:
             raise ValueError(f"camera {self.name!r}: near clip {self.near} must be finite and ≥ 0")
         object.__setattr__(self, "near", near)
-        if int(self.width) <= 0 or int(self.height) <= 0:
+        try:
+            empty = int(self.width) <= 0 or int(self.height) <= 0
+        except (TypeError, ValueError, OverflowError):
+            empty = False  # reported by _image_side below
+        if empty:
             raise ValueError(
                 f"camera {self.name!r}: image size {self.width}x{self.height} is empty"
             )
         object.__setattr__(self, "c2w", c2w)
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+        object.__setattr__(self, "width", _image_side(self.name, "width", self.width, False))
+        object.__setattr__(self, "height", _image_side(self.name, "height", self.height, False))
         for k in ("fx", "fy", "cx", "cy"):
             object.__setattr__(self, k, float(getattr(self, k)))
 
@@ -262,14 +303,15 @@ class Camera:
         missing = known - {"name", "near"} - set(d)
         if missing:
             raise ValueError(f"camera is missing {sorted(missing)}")
-        return cls(
-            int(d["width"]),
-            int(d["height"]),
-            float(d["fx"]),
-            float(d["fy"]),
-            float(d["cx"]),
-            float(d["cy"]),
-            np.asarray(d["c2w"], dtype=np.float64),
-            str(d.get("name", "")),
-            float(d.get("near", 0.0)),
-        )
+        try:
+            c2w = np.asarray(d["c2w"], dtype=np.float64)
+            vals = [float(d[k]) for k in ("fx", "fy", "cx", "cy")]
+            near = float(d.get("near", 0.0))
+        except (TypeError, ValueError, OverflowError) as e:
+            raise ValueError(f"camera has a non-numeric entry ({e})") from None
+        name = d.get("name", "")
+        if not isinstance(name, str):
+            raise ValueError(f"camera name must be a string, got {type(name).__name__}")
+        w = _image_side(name, "width", d["width"])
+        h = _image_side(name, "height", d["height"])
+        return cls(w, h, *vals, c2w, name, near)

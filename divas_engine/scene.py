@@ -40,7 +40,8 @@ class SourceInfo:
         path: the file that was read.
         format: ``"ply"``, ``"compressed_ply"``, ``"splat"``, ``"spz"`` or ``"npz"``.
         num_rows: primitives stored in the file (before any row was dropped).
-        kept_rows: ``[N] int64`` file row of each primitive in the scene, ascending.
+        kept_rows: ``[N] int64`` file row of each primitive in the scene, ascending
+            (``int32`` for a density grid, whose cells are all kept).
         dropped_nonfinite: rows dropped because a value was NaN/Inf.
     """
 

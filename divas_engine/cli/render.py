@@ -90,6 +90,8 @@ def parse_camera_json(text: str) -> Camera:
         d = json.loads(text)
     except json.JSONDecodeError as e:
         raise DivasInputError(src, f"--camera-json is not valid JSON ({e})") from None
+    except (RecursionError, ValueError) as e:  # nested too deeply, an over-long integer
+        raise DivasInputError(src, f"--camera-json is not readable JSON ({e})") from None
     if not isinstance(d, dict):
         raise DivasInputError(src, "--camera-json must be one JSON object (Camera.to_dict schema)")
     try:

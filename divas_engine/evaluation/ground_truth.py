@@ -13,6 +13,7 @@ from os import PathLike
 import numpy as np
 
 from ..errors import DivasInputError
+from ..io.limits import require_input_file
 from ..scene import Scene, SurfelScene
 
 __all__ = ["load_ground_truth"]
@@ -20,9 +21,15 @@ __all__ = ["load_ground_truth"]
 
 def load_ground_truth(path: str | PathLike, scene: Scene) -> np.ndarray:
     """Ground truth in scene order: per surfel (given per input row or per surfel) / grid."""
-    try:
-        g = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as e:
+    require_input_file(path, "ground-truth labels file")
+    try:  # memory-mapped first: a header declaring more than the file holds fails here
+        g = np.load(path, mmap_mode="r", allow_pickle=False)
+        if not isinstance(g, np.ndarray):
+            raise ValueError("not a single .npy array")
+        if g.dtype.fields is not None or g.dtype.hasobject:
+            raise ValueError(f"dtype {g.dtype} is not plain")
+        g = np.array(g)
+    except (OSError, ValueError, EOFError, TypeError, SyntaxError) as e:
         raise DivasInputError(path, f"cannot read ground-truth labels ({e})") from None
     if g.dtype != bool and not (np.issubdtype(g.dtype, np.integer) and np.isin(g, (0, 1)).all()):
         raise DivasInputError(path, f"ground-truth labels must be bool (or 0/1), got {g.dtype}")

@@ -21,6 +21,7 @@ from ..errors import DivasInputError
 from .cameras_json import read_cameras_json, write_cameras_json
 from .colmap import find_colmap_model, read_colmap, write_colmap
 from .json_file import read_json
+from .limits import input_guard
 from .transforms_json import read_transforms_json, write_transforms_json
 
 __all__ = ["CAMERA_FORMATS", "detect_camera_format", "load_cameras", "save_cameras"]
@@ -29,12 +30,13 @@ __all__ = ["CAMERA_FORMATS", "detect_camera_format", "load_cameras", "save_camer
 CAMERA_FORMATS = ("cameras_json", "transforms_json", "colmap", "colmap_text")
 
 
-def _json_kind(path: Path) -> str:
+def _json_at(path: Path) -> tuple[str, Path, object]:
+    """The JSON camera format of ``path``, the path and the parsed document (parsed once)."""
     data = read_json(path, "camera file")
     if isinstance(data, list):
-        return "cameras_json"
+        return "cameras_json", path, data
     if isinstance(data, dict) and "frames" in data:
-        return "transforms_json"
+        return "transforms_json", path, data
     raise DivasInputError(
         path,
         "unknown camera format: JSON is neither a list of cameras "
@@ -44,19 +46,25 @@ def _json_kind(path: Path) -> str:
 
 def detect_camera_format(path: str | PathLike) -> tuple[str, Path]:
     """``(format, path to read)`` for a camera file or folder; format in :data:`CAMERA_FORMATS`."""
+    fmt, p, _ = _detect(path)
+    return fmt, p
+
+
+def _detect(path: str | PathLike) -> tuple[str, Path, object]:
+    """:func:`detect_camera_format` plus the parsed JSON document (None for COLMAP)."""
     p = Path(path)
     if not p.exists():
         raise DivasInputError(p, "camera file or folder does not exist")
     model = find_colmap_model(p)
     if model is not None:
-        return "colmap", model
+        return "colmap", model, None
     if p.is_file():
         if p.suffix.lower() == ".json":
-            return _json_kind(p), p
+            return _json_at(p)
     elif p.is_dir():
         for name in ("transforms.json", "cameras.json"):
             if (p / name).is_file():
-                return _json_kind(p / name), p / name
+                return _json_at(p / name)
     raise DivasInputError(
         p,
         "unknown camera format (expected a 3DGS cameras.json, a "
@@ -67,12 +75,13 @@ def detect_camera_format(path: str | PathLike) -> tuple[str, Path]:
 
 def load_cameras(path: str | PathLike) -> list[Camera]:
     """Cameras (engine convention) from any supported camera file or folder."""
-    fmt, p = detect_camera_format(path)
-    if fmt == "colmap":
-        return read_colmap(p)
-    if fmt == "transforms_json":
-        return read_transforms_json(p)
-    return read_cameras_json(p)
+    with input_guard(path, "camera file"):
+        fmt, p, doc = _detect(path)
+        if fmt == "colmap":
+            return read_colmap(p)
+        if fmt == "transforms_json":
+            return read_transforms_json(p, doc)
+        return read_cameras_json(p, doc)
 
 
 def save_cameras(path: str | PathLike, cameras: list[Camera], fmt: str | None = None) -> Path:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,9 +23,9 @@ from .json_file import read_json
 __all__ = ["read_cameras_json", "write_cameras_json"]
 
 
-def read_cameras_json(path: str | PathLike) -> list[Camera]:
+def read_cameras_json(path: str | PathLike, doc: Any = None) -> list[Camera]:
     path = Path(path)
-    data = read_json(path, "camera file")
+    data = read_json(path, "camera file") if doc is None else doc  # doc: already parsed
     if not isinstance(data, list) or not data:
         raise DivasInputError(path, "expected a non-empty JSON list of cameras (3DGS cameras.json)")
     cams = []
@@ -46,7 +47,7 @@ def read_cameras_json(path: str | PathLike) -> list[Camera]:
                     str(e.get("img_name", e.get("id", i))),
                 )
             )
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
             what = f"missing key {err}" if isinstance(err, KeyError) else str(err)
             raise DivasInputError(path, f"camera entry {i}: {what}") from None
     return cams

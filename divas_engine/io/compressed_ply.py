@@ -338,7 +338,8 @@ def read_compressed_ply(path: str | PathLike, layout: PlyLayout | None = None) -
         means[sl] = f["pos"]
         quats[sl], scales[sl] = q2, s2
         opac[sl] = f["alpha"]
-        sh[sl, 0, :] = (f["rgb"] - 0.5) / SH_C0
+        with np.errstate(over="ignore", invalid="ignore"):  # ±inf rows are dropped below
+            sh[sl, 0, :] = (f["rgb"] - 0.5) / SH_C0
         if deg:
             rest = _dequantize_sh(np.asarray(shm[sl]), cl.sh_names)
             sh[sl, 1:, :] = rest.reshape(-1, 3, k - 1).transpose(0, 2, 1)

@@ -7,38 +7,123 @@ are cell-centred (see :class:`~divas_engine.scene.DensityGrid`).
 
 from __future__ import annotations
 
+import math
+import struct
+import tokenize
 import zipfile
+import zlib
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
+from numpy.lib import format as npformat
 
 from ..errors import DivasInputError
 from ..output_paths import save_npz_atomic
 from ..scene import DensityGrid, SourceInfo
+from .limits import inflate_budget, limits, require_input_file
 
 __all__ = ["read_density_grid", "write_density_grid", "GRID_KEYS"]
 
 GRID_KEYS = ("density", "rgb", "aabb")
 
 
+def _member(zf: zipfile.ZipFile, name: str, path: Path, budget: int) -> np.ndarray:
+    """One ``.npy`` member, its declared size and shape checked before any allocation.
+
+    Reads at most what the header declares (never more than the member's declared
+    uncompressed size, itself within ``budget``); plain numeric dtypes only.
+    """
+    info = zf.getinfo(name)
+    where = f"{path}:{name}"
+    if info.flag_bits & 0x1:
+        raise DivasInputError(where, "encrypted ZIP member")
+    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+        raise DivasInputError(where, f"unsupported ZIP compression method {info.compress_type}")
+    if info.file_size > budget:
+        raise DivasInputError(
+            where, f"declares {info.file_size} bytes uncompressed, over the {budget}-byte limit"
+        )
+    with zf.open(info) as f:
+        try:
+            version = npformat.read_magic(f)
+            if version == (1, 0):
+                shape, fortran, dtype = npformat.read_array_header_1_0(f)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = npformat.read_array_header_2_0(f)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+        except (ValueError, SyntaxError, TypeError, tokenize.TokenError) as e:
+            raise DivasInputError(where, f"bad .npy header ({e})") from None
+        if dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None:
+            raise DivasInputError(where, f"dtype {dtype} is not a plain numeric type")
+        if dtype.kind not in "biuf":
+            raise DivasInputError(where, f"dtype {dtype} is not a number type")
+        if not all(isinstance(d, int) and d >= 0 for d in shape):
+            raise DivasInputError(where, f"bad array shape {shape}")
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > info.file_size:
+            raise DivasInputError(
+                where, f"shape {shape} needs {nbytes} bytes, the member holds {info.file_size}"
+            )
+        data = bytearray(nbytes)  # writable, filled in place: no second copy
+        view, got = memoryview(data), 0
+        while got < nbytes:
+            k = f.readinto(view[got:])
+            if not k:
+                raise DivasInputError(where, f"truncated: {got} of {nbytes} bytes")
+            got += k
+    arr = np.frombuffer(data, dtype)
+    return arr.reshape(shape, order="F" if fortran else "C")
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    size = path.stat().st_size
+    budget = inflate_budget(size)
+    with zipfile.ZipFile(path) as zf:
+        names = {n[:-4]: n for n in zf.namelist() if n.endswith(".npy")}
+        if "density" not in names or "aabb" not in names:
+            raise DivasInputError(
+                path, f"density grid needs keys 'density' and 'aabb', has {sorted(names)}"
+            )
+        want = [k for k in GRID_KEYS if k in names]
+        total = sum(zf.getinfo(names[k]).file_size for k in want)
+        if total > budget:
+            raise DivasInputError(
+                path,
+                f"arrays declare {total} bytes uncompressed, over the {budget}-byte limit "
+                "for a file of this size (LoadLimits)",
+            )
+        return {k: _member(zf, names[k], path, budget) for k in want}
+
+
 def read_density_grid(path: str | PathLike) -> DensityGrid:
-    """Load and validate a density grid; NaN/Inf densities become 0 and are counted."""
-    path = Path(path)
+    """Load and validate a density grid; NaN/Inf densities become 0 and are counted.
+
+    The ``.npz`` is read member by member with every declared size checked first
+    (:class:`~divas_engine.io.limits.LoadLimits`), never through ``np.load``.
+    """
+    path = require_input_file(path, "density grid")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            keys = set(z.files)
-            if "density" not in keys or "aabb" not in keys:
-                raise DivasInputError(
-                    path, f"density grid needs keys 'density' and 'aabb', has {sorted(keys)}"
-                )
-            density = np.asarray(z["density"], dtype=np.float32)
-            aabb = np.asarray(z["aabb"], dtype=np.float64)
-            rgb = np.asarray(z["rgb"], dtype=np.float32) if "rgb" in keys else None
+        arrays = _read_arrays(path)
+        density = np.asarray(arrays["density"], dtype=np.float32)
+        aabb = np.asarray(arrays["aabb"], dtype=np.float64)
+        rgb = np.asarray(arrays["rgb"], dtype=np.float32) if "rgb" in arrays else None
     except DivasInputError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+    except (
+        OSError,
+        ValueError,
+        zipfile.BadZipFile,
+        EOFError,
+        zlib.error,
+        NotImplementedError,
+        RuntimeError,
+        struct.error,
+    ) as e:
         raise DivasInputError(path, f"not a readable .npz density grid ({e})") from None
+    if density.size > limits().max_rows:
+        raise DivasInputError(path, f"{density.size} cells, over the {limits().max_rows} limit")
     if density.ndim != 3 or min(density.shape) < 2:
         raise DivasInputError(
             path, f"'density' must be [D,H,W] with every side ≥ 2, got {density.shape}"
@@ -59,7 +144,9 @@ def read_density_grid(path: str | PathLike) -> DensityGrid:
         raise DivasInputError(path, "empty scene: the density grid is zero everywhere")
     if rgb is not None:
         rgb = np.nan_to_num(np.clip(rgb, 0.0, 1.0))
-    src = SourceInfo(path, "npz", int(density.size), np.arange(density.size, dtype=np.int64), n_bad)
+    # every cell is kept, in order: int32 indices (the cell count is capped below 2^31 by
+    # LoadLimits.max_rows) halve the per-cell bookkeeping of int64
+    src = SourceInfo(path, "npz", int(density.size), np.arange(density.size, dtype=np.int32), n_bad)
     return DensityGrid(density, aabb, rgb, src)
 
 

@@ -19,6 +19,7 @@ __all__ = [
     "surfels_from_arrays",
     "scene_from_rows",
     "check_file_rows",
+    "sane_rows",
 ]
 
 
@@ -76,18 +77,21 @@ def scene_from_rows(
     sh_degree: int,
     kind: SceneKind,
     extras: dict | None = None,
-    invalid_what: str = "NaN/Inf values",
+    invalid_what: str = "NaN/Inf values (or out-of-range scales, rotations, opacities)",
     scale_n: np.ndarray | None = None,
 ) -> SurfelScene:
     """The scene of every decoder: drop the rows where ``valid`` is False, count them.
 
     ``arrays`` = ``(means, quats, scales, opacities, sh)`` over all file rows, in file order;
     ``scale_n`` the dropped normal-axis scale of 3DGS rows (:attr:`SurfelScene.scale_n`).
+    Whatever the decoder checked, rows whose decoded values are unusable are dropped
+    too (:func:`sane_rows`): so every format drops-and-counts the same things.
 
     Raises:
         DivasInputError: no valid row is left.
     """
     total = len(valid)
+    valid = np.asarray(valid, bool) & sane_rows(arrays, scale_n)
     kept = np.flatnonzero(valid)
     n_bad = total - len(kept)
     if len(kept) == 0:
@@ -97,6 +101,38 @@ def scene_from_rows(
         scale_n = None if scale_n is None else scale_n[kept]
     src = SourceInfo(path, fmt, total, kept.astype(np.int64), n_bad)
     return SurfelScene(*arrays, sh_degree, kind, src, dict(extras or {}), scale_n)
+
+
+def sane_rows(arrays: tuple[np.ndarray, ...], scale_n: np.ndarray | None = None) -> np.ndarray:
+    """Rows whose activated values are usable: every value finite (as stored, float32),
+    scales > 0, unit quaternions (a zero quaternion normalises to garbage), opacity in
+    [0, 1]. Checked in row blocks to bound the temporaries."""
+    means, quats, scales, opac, sh = arrays[:5]
+    n = len(means)
+    ok = np.empty(n, bool)
+    step = 1 << 18
+    for a in range(0, n, step):
+        b = min(n, a + step)
+        q = quats[a:b]
+        with np.errstate(invalid="ignore", over="ignore"):
+            # one float64 row sum per array: finite iff every value is (float32 values
+            # cannot overflow a float64 sum), cheaper than isfinite(...).all(1) on each
+            total = np.add.reduce(sh[a:b].reshape(b - a, -1), axis=1, dtype=np.float64)
+            total += np.add.reduce(means[a:b], axis=1, dtype=np.float64)
+            total += np.add.reduce(scales[a:b], axis=1, dtype=np.float64)
+            total += opac[a:b]
+            qn = np.einsum("ij,ij->i", q, q, dtype=np.float64)  # NaN/Inf in q make it so
+            r = (
+                np.isfinite(total)
+                & (np.abs(qn - 1.0) < 1e-3)
+                & (scales[a:b].min(1) > 0)
+                & (opac[a:b] >= 0)
+                & (opac[a:b] <= 1)
+            )
+            if scale_n is not None:
+                r &= np.isfinite(scale_n[a:b]) & (scale_n[a:b] > 0)
+        ok[a:b] = r
+    return ok
 
 
 def check_file_rows(path, file_rows: np.ndarray, n: int) -> np.ndarray:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DivasInputError
+from .limits import limits, require_input_file
 
 __all__ = ["read_json"]
 
@@ -20,12 +21,28 @@ def read_json(path: str | PathLike, what: str) -> Any:
     """
     path = Path(path)
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DivasInputError(path, f"{what} not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DivasInputError(path, f"cannot read {what} ({e})") from None
+        missing = not path.exists() and not path.is_symlink()
+    except OSError:  # e.g. a name too long: require_input_file reports it
+        missing = False
+    if missing:
+        raise DivasInputError(path, f"{what} not found")
+    require_input_file(path, what)
+    cap = limits().max_json_bytes
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(cap + 1)
+        if len(raw) > cap:
+            raise DivasInputError(path, f"{what} is larger than {cap} bytes (LoadLimits)")
+        text = raw.decode("utf-8")
+    except OSError as e:
+        raise DivasInputError(path, f"cannot read {what} ({e.strerror or e})") from None
+    except UnicodeDecodeError as e:
+        raise DivasInputError(path, f"cannot read {what}: not UTF-8 text ({e})") from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
         raise DivasInputError(path, f"not valid JSON ({e})") from None
+    except RecursionError:
+        raise DivasInputError(path, f"{what} is nested too deeply to be read") from None
+    except ValueError as e:  # e.g. an integer literal longer than Python converts
+        raise DivasInputError(path, f"not readable JSON ({e})") from None

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ..errors import DivasInputError
 from ..scene import Scene
+from .limits import input_guard, require_input_file
 
 __all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
 
@@ -21,15 +22,17 @@ SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "sog", "npz")
 
 def detect_format(path: str | PathLike) -> str:
     """Return one of :data:`SCENE_FORMATS` for ``path`` or raise :class:`DivasInputError`."""
-    path = Path(path)
-    if not path.exists():
-        raise DivasInputError(path, "file does not exist")
+    path = require_input_file(path, "scene file", allow_dir=True)
     if path.is_dir() and (path / "meta.json").is_file():
+        require_input_file(path / "meta.json", "SOG meta.json")
         return "sog"
     if path.is_dir():
         raise DivasInputError(path, "is a directory, expected a scene file")
-    with open(path, "rb") as f:
-        head = f.read(8)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError as e:
+        raise DivasInputError(path, f"cannot read scene file ({e.strerror or e})") from None
     if not head:
         raise DivasInputError(path, "empty file")
     suffix = path.suffix.lower()
@@ -61,7 +64,12 @@ def load_scene(path: str | PathLike, *, fmt: str | None = None) -> Scene:
         fmt: force a format from :data:`SCENE_FORMATS` instead of detecting it.
     """
     path = Path(path)
-    fmt = fmt or detect_format(path)
+    with input_guard(path, "scene file"):
+        fmt = fmt or detect_format(path)
+        return _load(path, fmt)
+
+
+def _load(path: Path, fmt: str) -> Scene:
     if fmt == "ply":
         from .ply import read_gaussian_ply
 

@@ -28,6 +28,7 @@ from ..kinds import SceneKind
 from ..output_paths import atomic_file
 from ..scene import SurfelScene, sh_coeff_count
 from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
+from .limits import limits, require_input_file
 
 __all__ = [
     "PlyLayout",
@@ -93,7 +94,7 @@ class PlyLayout:
 
 def read_ply_header(path: str | PathLike) -> PlyLayout:
     """Parse the header; validate that the file is long enough for its binary data."""
-    path = Path(path)
+    path = require_input_file(path, "PLY file")
     try:
         with open(path, "rb") as f:
             magic = f.read(4)
@@ -104,11 +105,13 @@ def read_ply_header(path: str | PathLike) -> PlyLayout:
             offset = f.tell()
     except DivasInputError:
         raise
-    except plyfile.PlyHeaderParseError as e:
+    except (plyfile.PlyHeaderParseError, ValueError, KeyError, TypeError) as e:
+        # plyfile raises ValueError for duplicate element / property names
         raise DivasInputError(path, f"malformed PLY header ({e})") from None
     except (OSError, UnicodeDecodeError) as e:
         raise DivasInputError(path, f"cannot read PLY header ({e})") from None
     layout = PlyLayout(path, header, None if header.text else offset)
+    _check_counts(path, header, offset)
     if not header.text:
         need = offset
         for e in header.elements:
@@ -122,6 +125,42 @@ def read_ply_header(path: str | PathLike) -> PlyLayout:
                 path, f"truncated PLY: header promises {need} bytes, file has {size}"
             )
     return layout
+
+
+def _check_counts(path: Path, header: plyfile.PlyData, offset: int) -> None:
+    """Element counts that the file can hold: non-negative, within
+    :class:`~divas_engine.io.limits.LoadLimits`, and — for ASCII rows and list rows,
+    whose size is not fixed — no more rows than the body has room for (an ASCII value
+    takes at least two bytes, a binary list row at least its fixed part)."""
+    body = max(0, path.stat().st_size - offset)
+    names = [e.name for e in header.elements]
+    if len(set(names)) != len(names):
+        raise DivasInputError(path, f"malformed PLY header: duplicate element names {names}")
+    for e in header.elements:
+        props = [p.name for p in e.properties]
+        if len(set(props)) != len(props):
+            raise DivasInputError(path, f"malformed PLY header: duplicate properties in {e.name!r}")
+        if e.count < 0:
+            raise DivasInputError(path, f"PLY element {e.name!r} has a negative count {e.count}")
+        if e.count > limits().max_rows:
+            raise DivasInputError(
+                path, f"PLY element {e.name!r} declares {e.count} rows (limit {limits().max_rows})"
+            )
+        lists = [p for p in e.properties if isinstance(p, plyfile.PlyListProperty)]
+        if header.text:
+            min_row = 2 * max(1, len(e.properties))
+        elif lists:
+            fixed = [p for p in e.properties if not isinstance(p, plyfile.PlyListProperty)]
+            min_row = sum(np.dtype(p.val_dtype).itemsize for p in fixed)
+            min_row += sum(np.dtype(p.len_dtype).itemsize for p in lists)
+        else:
+            continue  # fixed-size rows: the file length is checked below
+        if e.count * min_row > body:
+            raise DivasInputError(
+                path,
+                f"truncated PLY: element {e.name!r} declares {e.count} rows, "
+                f"the {body}-byte body cannot hold them",
+            )
 
 
 def _vertex_offset(layout: PlyLayout) -> int:
@@ -202,6 +241,10 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     missing = [p for p in _REQUIRED if p not in names]
     if missing:
         raise DivasInputError(path, f"missing required Gaussian properties {missing}")
+    lists = [p.name for p in layout.vertex.properties if isinstance(p, plyfile.PlyListProperty)]
+    used = [n for n in lists if n in _REQUIRED or n.startswith(("f_rest_", "scale_"))]
+    if used:
+        raise DivasInputError(path, f"properties {used} are lists; Gaussian properties are scalars")
     kind = SceneKind.GS3D if "scale_2" in names else SceneKind.GS2D
     deg = _sh_layout(path, names)
     k = sh_coeff_count(deg)

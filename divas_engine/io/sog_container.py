@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from ..errors import DivasInputError
+from .limits import inflate_budget, limits
 
 __all__ = [
     "SogContainer",
@@ -104,7 +105,7 @@ class SogContainer:
                     where, f"{size} bytes, more than the {max_bytes} this scene needs"
                 )
             return f.read_bytes()
-        except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as e:
+        except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError) as e:
             raise DivasInputError(where, f"corrupt ZIP member ({e})") from None
         except OSError as e:
             raise DivasInputError(where, f"cannot read ({e})") from None
@@ -136,7 +137,7 @@ def open_sog(path: str | Path) -> tuple[SogContainer, dict]:
         raw = cont.read("meta.json", _MAX_META_BYTES)
     try:
         meta = json.loads(raw)
-    except (UnicodeDecodeError, ValueError) as e:
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
         cont.close()
         raise DivasInputError(cont.where("meta.json"), f"bad meta.json: not JSON ({e})") from None
     if not isinstance(meta, dict):
@@ -283,6 +284,10 @@ def parse_meta(meta: dict, where: str) -> SogLayout:
             )
     if count <= 0:
         raise DivasInputError(where, f"empty scene: meta.json declares {count} Gaussians")
+    if count > limits().max_rows:
+        raise DivasInputError(
+            where, f"meta.json declares {count} Gaussians, over the {limits().max_rows} limit"
+        )
     return SogLayout(version, count, files, means_range, scales, sh0, bands, palette, values)
 
 
@@ -384,6 +389,18 @@ def read_texels(cont: SogContainer, layout: SogLayout) -> tuple[SogLayout, dict[
             raise DivasInputError(where, f"{w}x{h} texels cannot hold the {n} Gaussians declared")
         if w * h > max_texels:
             raise DivasInputError(where, f"{w}x{h} texels, far more than {n} Gaussians need")
+    side = limits().max_image_side
+    for role, (iw, ih) in sizes.items():
+        if iw > side or ih > side:
+            raise DivasInputError(
+                cont.where(layout.files[role]), f"{iw}x{ih} image, over the {side}-pixel side limit"
+            )
+    decoded = sum(4 * iw * ih for iw, ih in sizes.values())
+    budget = inflate_budget(sum(len(b) for b in blobs.values()))
+    if decoded > budget:
+        raise DivasInputError(
+            cont.path, f"textures decode to {decoded} bytes, over the {budget}-byte limit"
+        )
     if "shN_centroids" in sizes:
         layout = _palette_layout(layout, sizes["shN_centroids"], cont)
     tex = {}

@@ -63,6 +63,7 @@ from ..kinds import SceneKind
 from ..output_paths import same_file, write_bytes_atomic
 from ..scene import SourceInfo, SurfelScene
 from .gaussians import check_file_rows, scene_from_rows, surfels_from_arrays
+from .limits import inflate_budget, limits, require_input_file
 from .ply import CHUNK_ROWS
 
 __all__ = ["read_spz", "write_spz_subset", "SPZ_MAGIC", "RUB_TO_RDF_SH_SIGNS"]
@@ -126,15 +127,44 @@ def _zstd(path: Path):
 def _check_common(path: Path, n: int, sh_degree: int) -> None:
     if n == 0:
         raise DivasInputError(path, "empty scene: the SPZ header says 0 points")
+    if n > limits().max_rows:
+        raise DivasInputError(
+            path, f"SPZ header says {n} points, over the {limits().max_rows} limit"
+        )
     if sh_degree > 4:
         raise DivasInputError(path, f"SPZ SH degree {sh_degree} is not supported (0..4)")
 
 
-def _parse_gzip(path: Path, data: bytes) -> _SpzFile:
+def _gunzip(path: Path, data: bytes, budget: int) -> bytes:
+    """Decompress the gzip stream(s) of ``data`` into at most ``budget`` bytes."""
+    out, rest = [], data
+    size = 0
     try:
-        payload = gzip.decompress(data)
-    except (OSError, EOFError, zlib.error) as e:
+        while rest:
+            if rest[:2] != b"\x1f\x8b":
+                if out and not rest.strip(b"\0"):
+                    break  # zero padding after the last member (gzip.decompress allows it)
+                raise DivasInputError(path, "corrupt gzip stream in SPZ file (trailing garbage)")
+            d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+            chunk = d.decompress(rest, budget - size + 1)
+            size += len(chunk)
+            out.append(chunk)
+            if size > budget:
+                raise DivasInputError(
+                    path,
+                    f"gzip stream inflates past {budget} bytes, the limit for a file of "
+                    f"{len(data)} bytes (LoadLimits)",
+                )
+            if not d.eof:
+                raise DivasInputError(path, "corrupt gzip stream in SPZ file (truncated)")
+            rest = d.unused_data
+    except zlib.error as e:
         raise DivasInputError(path, f"corrupt gzip stream in SPZ file ({e})") from None
+    return b"".join(out)
+
+
+def _parse_gzip(path: Path, data: bytes) -> _SpzFile:
+    payload = _gunzip(path, data, inflate_budget(len(data)))
     if len(payload) < 16:
         raise DivasInputError(path, "truncated SPZ: the payload is shorter than its 16-byte header")
     magic, version, n, deg, frac, flags = struct.unpack_from("<IIIBBB", payload, 0)
@@ -191,6 +221,13 @@ def _parse_ngsp(path: Path, data: bytes) -> _SpzFile:
             f"truncated or corrupt SPZ v4: table of contents at "
             f"{toc} does not fit in {len(data)} bytes",
         )
+    declared = n * sum(widths[c] for c in present)
+    if declared > inflate_budget(len(data)):
+        raise DivasInputError(
+            path,
+            f"SPZ v4 header declares {n} points ({declared} bytes of columns), over the "
+            f"{inflate_budget(len(data))}-byte limit for a file of {len(data)} bytes (LoadLimits)",
+        )
     zstandard = _zstd(path)
     dctx = zstandard.ZstdDecompressor()
     cols, off = {}, toc + 16 * n_streams
@@ -222,6 +259,7 @@ def _parse_ngsp(path: Path, data: bytes) -> _SpzFile:
 
 
 def _parse(path: Path) -> _SpzFile:
+    require_input_file(path, "SPZ file")
     try:
         data = path.read_bytes()
     except OSError as e:

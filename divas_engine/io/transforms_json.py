@@ -99,18 +99,24 @@ def image_size(path: str | PathLike) -> tuple[int, int] | None:
         import cv2  # other formats (EXR, BMP, TIFF, WebP …): decode fully
     except ImportError:
         return None
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    try:  # OpenCV refuses headers declaring more than its pixel limit with cv2.error
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        return None
     return None if img is None else (int(img.shape[1]), int(img.shape[0]))
 
 
 def _find_image(root: Path, file_path: str) -> Path | None:
-    p = root / file_path
-    if p.is_file():
-        return p
-    for ext in _IMAGE_SUFFIXES:
-        q = p.with_name(p.name + ext)
-        if q.is_file():
-            return q
+    try:
+        p = root / file_path
+        if p.is_file():
+            return p
+        for ext in _IMAGE_SUFFIXES:
+            q = p.with_name(p.name + ext)
+            if q.is_file():
+                return q
+    except (OSError, ValueError):  # a name too long for the file system, a NUL byte, …
+        return None
     return None
 
 
@@ -179,10 +185,10 @@ def _frame_camera(path: Path, top: dict, fr: Any, i: int) -> tuple[Camera, bool]
     return cam, distorted
 
 
-def read_transforms_json(path: str | PathLike) -> list[Camera]:
+def read_transforms_json(path: str | PathLike, doc: Any = None) -> list[Camera]:
     """Engine cameras (OpenCV, +0.5 centres) of every frame, in file order."""
     path = Path(path)
-    data = read_json(path, "camera file")
+    data = read_json(path, "camera file") if doc is None else doc  # doc: already parsed
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
         raise DivasInputError(
             path, "expected a JSON object with a non-empty 'frames' list (transforms.json)"
@@ -192,7 +198,7 @@ def read_transforms_json(path: str | PathLike) -> list[Camera]:
     for i, fr in enumerate(data["frames"]):
         try:
             cam, dist = _frame_camera(path, data, fr, i)
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
             what = f"missing key {err}" if isinstance(err, KeyError) else str(err)
             raise DivasInputError(path, f"frame {i}: {what}") from None
         cams.append(cam)

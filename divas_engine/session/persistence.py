@@ -20,15 +20,16 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
+from ..io.limits import PARSE_ERRORS, input_guard
 from ..kinds import ViewStatus
 from ..scene import Scene
 from ..segment.base import Segmenter
 from ..views.centroid_common import CentroidView
 from .backends import backend_class_for
-from .config import SessionConfig
 from .edits import edit_arrays, restore_object_edits, restore_session_edits
 from .records import AnchorClick, ObjectRecord, SessionView
 from .store import SESSION_FORMAT, SESSION_VERSION, load_state
+from .validate import check_session_doc
 
 if TYPE_CHECKING:
     from .session import Session
@@ -108,8 +109,36 @@ def load_session(
     saved are re-submitted to ``segmenter``. ``replay_matches`` tells whether the replayed
     labels equal the saved ones. ``autosave``: False keeps it off while loading and after;
     a path (or None) overrides the saved config's."""
-    doc, arrays = load_state(path)
-    config = SessionConfig.from_dict(doc["config"])
+    with input_guard(path, "session file"):
+        doc, arrays = load_state(path)
+    config = check_session_doc(path, doc, arrays)
+    try:
+        return _replay(
+            session_cls,
+            path,
+            doc,
+            arrays,
+            config,
+            scene,
+            segmenter,
+            device,
+            cameras,
+            gt_values,
+            autosave,
+        )
+    except DivasInputError as e:
+        if e.source is None:  # a check deep in the replay that does not know the file
+            raise DivasInputError(path, f"bad session file: {e.problem}") from None
+        raise
+    except PARSE_ERRORS as e:  # validated above; whatever still fails comes from the file
+        raise DivasInputError(
+            path, f"bad session file: replay failed ({type(e).__name__}: {e})"
+        ) from e
+
+
+def _replay(
+    session_cls, path, doc, arrays, config, scene, segmenter, device, cameras, gt_values, autosave
+) -> Session:
     final_autosave = config.autosave if autosave is False else autosave
     config = replace(config, autosave=None)
     sd = doc["scene"]

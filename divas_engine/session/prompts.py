@@ -39,6 +39,7 @@ from typing import Any
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..io.json_file import read_json
+from ..io.limits import limits
 from ..output_paths import write_json_atomic
 
 __all__ = [
@@ -168,7 +169,7 @@ def _parse_anchor(d: Any, i: int, src: str | None) -> AnchorPrompt:
             raise _fail(src, f"{where}.camera", "must be a camera object")
         try:
             value: Any = Camera.from_dict(v)
-        except (ValueError, KeyError, TypeError) as e:
+        except (ValueError, KeyError, TypeError, OverflowError) as e:
             raise _fail(src, f"{where}.camera", str(e)) from None
         if value.fx <= 0 or value.width <= 0:
             raise _fail(src, f"{where}.camera", "bad intrinsics")
@@ -186,6 +187,20 @@ def _parse_anchor(d: Any, i: int, src: str | None) -> AnchorPrompt:
     if not clicks:
         raise _fail(src, f"{where}.clicks", "must hold at least one click")
     return AnchorPrompt(kind, value, clicks)
+
+
+def _check_click_count(doc: dict, src: str | None) -> None:
+    """At most ``LoadLimits.max_clicks`` clicks in the file (each one is a view to render)."""
+    n = 0
+    for a in doc.get("anchors") or ():
+        if isinstance(a, dict) and isinstance(a.get("clicks"), list):
+            n += len(a["clicks"])
+    cp = doc.get("centroid_prompts")
+    if isinstance(cp, dict):
+        n += sum(len(v) for v in cp.values() if isinstance(v, list))
+    cap = limits().max_clicks
+    if n > cap:
+        raise DivasInputError(src, f"{n} clicks, more than the {cap} a prompts file may hold")
 
 
 def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
@@ -207,6 +222,7 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
     anchors_doc = doc.get("anchors")
     if not isinstance(anchors_doc, list) or not anchors_doc:
         raise _fail(src, "anchors", "must be a non-empty list of anchors")
+    _check_click_count(doc, src)
     anchors = tuple(_parse_anchor(a, i, src) for i, a in enumerate(anchors_doc))
     cp_doc = doc.get("centroid_prompts", {})
     if not isinstance(cp_doc, dict):
@@ -215,7 +231,7 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
     for key, pts in cp_doc.items():
         where = f"centroid_prompts[{key!r}]"
         parts = key.split(":")
-        if len(parts) != 2 or not all(p.isdigit() for p in parts):
+        if len(parts) != 2 or not all(p.isascii() and p.isdigit() and len(p) < 10 for p in parts):
             raise _fail(src, where, 'key must be "anchor:click" with two non-negative integers')
         a, c = int(parts[0]), int(parts[1])
         if a >= len(anchors):
