@@ -15,7 +15,7 @@ from divas_engine.segment.factory import SegmenterKind, SegmenterSettings, build
 from divas_engine.segment.graph3d import CutResult, Granularity, Seeds
 from divas_engine.segment.graph3d.segmenter import advice
 from divas_engine.session import Session, SessionConfig
-from tests.graph3d_cases import ball_on_floor, rod_on_floor, touching_boxes
+from tests.graph3d_cases import ball_on_floor, grid_ball_and_box, rod_on_floor, touching_boxes
 
 
 def _cut(case, positive, negative=()):
@@ -177,3 +177,27 @@ def test_an_ambiguous_click_scores_low_and_the_view_record_says_what_to_do():
         assert w.status == "fused" and w.advice is None
     finally:
         s.close()
+
+
+def test_nerf_grid_ball_is_cut_from_its_floor_and_a_neighbour():
+    # a density grid (solid cells): the ball clicked near its top is selected whole (its
+    # visible shell, down to the floor contact), neither the floor slab nor the box 3 cm
+    # beside it; the larger granularity may add the neighbour, never the floor; a click
+    # on the box takes the box alone; a negative click on the box keeps it out of the
+    # medium (fused) region
+    case = grid_ball_and_box()
+    seg = Graph3DSegmenter(binding=SceneBinding(case.grid, None, None))
+    part = case.part.reshape(-1)[seg.primitives().index]  # the cut's cells: the shell
+
+    def share(pos, neg=()):
+        rc = seg.cut(Seeds(np.array(pos, float), np.array(neg, float).reshape(-1, 3)))
+        return rc, [[float(np.mean(rc.selected[k][part == p])) for p in range(3)] for k in range(3)]
+
+    rc, s = share([[0.0, 0.0, 0.36]])
+    assert s[1][1] > 0.97 and s[1][0] < 0.001 and s[1][2] < 0.001
+    assert rc.scores[1] > 0.8 and rc.message is None
+    assert max(s[k][0] for k in range(3)) < 0.001
+    rc, s = share([[0.28, 0.0, 0.24]])
+    assert s[1][2] > 0.97 and s[1][1] < 0.001 and s[1][0] < 0.01
+    rc, s = share([[0.0, 0.0, 0.36]], [[0.28, 0.0, 0.24]])
+    assert s[1][1] > 0.97 and s[1][2] < 0.001 and s[0][2] < 0.001

@@ -20,7 +20,8 @@ class Graph3DConfig:
         region_grow: R is multiplied by this when the chosen segment leans on the
             region's rim (2.0), at most ``region_max_grows`` (2) times.
         rim_share: "leans on the rim": the rim carries more than this share of the
-            segment's cut (0.35).
+            segment's cut (0.35). R also grows when the medium score is < 0.5 and the
+            walk potential next to the rim exceeds ``rim_reach`` (1e-3).
         grid_cells: voxels along the region's diameter, ``h = 2R / grid_cells`` (96).
         min_opacity: primitives below this opacity are left out of the graph (0.02;
             near-invisible haze neither bridges objects nor shows in a mask).
@@ -64,6 +65,7 @@ class Graph3DConfig:
     region_grow: float = 2.0
     region_max_grows: int = 2
     rim_share: float = 0.35
+    rim_reach: float = 1e-3
     grid_cells: int = 96
     min_opacity: float = 0.02
     sigma_d: float = 1.0

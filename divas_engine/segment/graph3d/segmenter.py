@@ -225,6 +225,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         spread = float(np.linalg.norm(seeds.positive - centre, axis=1).max())
         radius = max(cfg.region_min * prims.radius, cfg.region_seed_factor * spread)
         grows = 0
+        band = cfg.ground_band * prims.radius
+        on_ground = any(
+            bool(np.any(np.abs(g.height(seeds.positive)) <= band)) for g in prims.grounds
+        )
         while True:
             graph = build_voxel_graph(prims, centre, radius, cfg)
             pos = np.zeros(len(graph), bool)
@@ -239,7 +243,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             planes = support_nodes(graph, prims, pos, cfg, neg) & ~pos
             sinks = (sinks | planes) & ~pos
             res = sweep_cut(graph, pos, sinks, cfg, planes)
-            if res.rim_share > cfg.rim_share and grows < cfg.region_max_grows:
+            if _too_small(res, graph, cfg, on_ground) and grows < cfg.region_max_grows:
                 radius *= cfg.region_grow
                 grows += 1
                 continue
@@ -285,6 +289,22 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         if (cam.height, cam.width) != (h, w):
             logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(sigmoid(logits).transpose(2, 0, 1), dtype=np.float32)
+
+
+def _too_small(res: CutResult, graph: VoxelGraph, cfg: Graph3DConfig, on_ground: bool) -> bool:
+    """The region looked at is too small for the object: its cut leans on the rim, or no
+    clear boundary was found inside it while the walk still reaches the rim (a click near
+    one end of an object about as large as the region: the cut then crosses the object
+    where the region's outside drains it) — unless the click is on the ground, which
+    goes on anyway."""
+    if res.rim_share > cfg.rim_share:
+        return True
+    if on_ground or res.levels[1].score >= 0.5:
+        return False
+    e = graph.edges
+    rim_a, rim_b = graph.rim[e[:, 0]], graph.rim[e[:, 1]]
+    x_by_rim = np.r_[res.potential[e[rim_a & ~rim_b, 1]], res.potential[e[rim_b & ~rim_a, 0]]]
+    return len(x_by_rim) > 0 and float(x_by_rim.max()) > cfg.rim_reach
 
 
 def advice(res: CutResult, score: float, n_negative: int, rim_share: float) -> str | None:
