@@ -162,7 +162,14 @@ def sweep_cut(
     order = np.argsort(-key, kind="stable")
     cut = _prefix_cuts(order, graph, deg)
     vol = np.cumsum(deg[order])
-    k_min = int(positive.sum())
+    # every positive seed comes with its surroundings (two rings of neighbours): with
+    # seeds on two parts (a guitar's fretboard and its headstock) the potential is higher
+    # around one of them, and a prefix holding that part and the bare other seed voxel
+    # must not count as a region holding both
+    rank = np.empty(v, np.int64)
+    rank[order] = np.arange(v)
+    near = _rings(graph, positive, 2) & (key > 1e-9)
+    k_min = max(int(positive.sum()), int(rank[near].max()) + 1 if near.any() else 0)
     k_max = int(np.count_nonzero((~sinks) & ((x > 1e-9) | positive)))
     ks = np.arange(v)
     ok = (ks >= k_min - 1) & (ks < k_max) & (vol > 0)
@@ -199,6 +206,18 @@ def sweep_cut(
     share = _rim_cut(graph, levels[1].nodes) / max(float(cut[best]), 1e-300)
     alt = None if rival_k is None else float(vol[rival_k] / max(vol[best], 1e-300))
     return CutResult(tuple(levels), x, float(min(share, 1.0)), bool(ambiguous), alt)
+
+
+def _rings(graph: VoxelGraph, nodes: np.ndarray, n: int) -> np.ndarray:
+    """``nodes`` and their neighbours up to ``n`` edges away (bool ``[V]``)."""
+    e = graph.edges
+    out = nodes.copy()
+    for _ in range(n):
+        grow = out.copy()
+        grow[e[out[e[:, 0]], 1]] = True
+        grow[e[out[e[:, 1]], 0]] = True
+        out = grow
+    return out
 
 
 def _contrast(graph: VoxelGraph, nodes: np.ndarray, planes: np.ndarray) -> float:
