@@ -47,6 +47,7 @@ from .voxel_graph import VoxelGraph
 __all__ = ["CutResult", "Granularity", "walk_potential", "sweep_cut"]
 
 _LOG_BINS = 256
+_MAX_RING_SEEDS = 32  # seeds whose surroundings must be in the region (the rest: the voxel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,14 +163,20 @@ def sweep_cut(
     order = np.argsort(-key, kind="stable")
     cut = _prefix_cuts(order, graph, deg)
     vol = np.cumsum(deg[order])
-    # every positive seed comes with its surroundings (two rings of neighbours): with
-    # seeds on two parts (a guitar's fretboard and its headstock) the potential is higher
-    # around one of them, and a prefix holding that part and the bare other seed voxel
-    # must not count as a region holding both
+    # every positive seed comes with (the better half of) its surroundings, two rings of
+    # neighbours: with seeds on two parts (a guitar's fretboard and its headstock) the
+    # potential is higher around one of them, and a prefix holding that part and the bare
+    # other seed voxel must not count as a region holding both. The better half: a seed
+    # on a thin part also touches what lies against it (a stand behind a guitar)
     rank = np.empty(v, np.int64)
     rank[order] = np.arange(v)
-    near = _rings(graph, positive, 2) & (key > 1e-9)
-    k_min = max(int(positive.sum()), int(rank[near].max()) + 1 if near.any() else 0)
+    k_min = int(positive.sum())
+    for p in np.flatnonzero(positive)[:_MAX_RING_SEEDS]:
+        one = np.zeros(v, bool)
+        one[p] = True
+        near = _rings(graph, one, 2) & (key > 1e-9) & ~positive
+        if near.any():
+            k_min = max(k_min, int(np.median(rank[near])) + 1)
     k_max = int(np.count_nonzero((~sinks) & ((x > 1e-9) | positive)))
     ks = np.arange(v)
     ok = (ks >= k_min - 1) & (ks < k_max) & (vol > 0)
