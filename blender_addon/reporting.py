@@ -21,6 +21,7 @@ __all__ = [
     "USER_ERRORS",
     "SESSION_ERRORS",
     "plain_message",
+    "advice_message",
     "rejection_message",
     "report_failure",
     "report_exception",
@@ -122,10 +123,27 @@ def _number(v: str) -> str:
     return f"{float(v):.2f}"
 
 
-def rejection_message(reason: str | None, score: float | None = None) -> str:
-    """Why a view was not added, and what to do next (``reason``: the engine's)."""
+def advice_message(advice: str | None) -> str:
+    """The segmenter's hint (what to click next when it was unsure; the engine's view
+    ``advice``) in the add-on's words: a negative click is Shift+click here."""
+    if not advice:
+        return ""
+    return plain_message(advice).replace("negative click", "negative click (Shift+click)", 1)
+
+
+def rejection_message(
+    reason: str | None, score: float | None = None, advice: str | None = None
+) -> str:
+    """Why a view was not added, and what to do next (``reason``: the engine's; ``advice``:
+    the segmenter's own hint, which names the click to add when it has one)."""
     if not reason:
         return ""
+    if advice:
+        sure = "" if score is None or score != score else f" (confidence {score:.2f})"
+        return (
+            f"The segmenter was unsure about this view{sure}. {advice_message(advice)}, "
+            "then press Enter"
+        )
     text = plain_message(reason)
     if text == reason:  # an engine reason this table does not know yet
         return f"This view was not added ({reason}): {_NEXT_CLICK}, then press Enter"

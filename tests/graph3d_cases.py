@@ -8,10 +8,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from divas_engine.geometry import rotmat_to_quat
-from divas_engine.scene import SH_C0, SurfelScene
+from divas_engine.scene import SH_C0, DensityGrid, SurfelScene
 from divas_engine.synthetic.surfaces import Cylinder, Frame, Rect, Sphere, Surface, box
 
-__all__ = ["Part", "CaseScene", "build_case", "touching_boxes", "rod_on_floor", "ball_on_floor"]
+__all__ = [
+    "Part",
+    "CaseScene",
+    "GridCase",
+    "build_case",
+    "touching_boxes",
+    "rod_on_floor",
+    "ball_on_floor",
+    "grid_ball_and_box",
+]
 
 FLOOR_RGB = (0.55, 0.55, 0.5)
 
@@ -95,3 +104,33 @@ def ball_on_floor() -> CaseScene:
     """Parts: 0 floor, 1 a ball of radius 0.2 resting on it (same grey as the floor)."""
     ball = Sphere("ball", Frame.make((0.0, 0.0, 0.2), (0, 0, 1)), 0.2)
     return build_case([floor(), Part((ball,), FLOOR_RGB)])
+
+
+@dataclass(eq=False)
+class GridCase:
+    grid: DensityGrid
+    part: np.ndarray  # [D,H,W] index of the part each cell belongs to (-1: empty)
+
+    def of(self, k: int) -> np.ndarray:
+        return self.part.reshape(-1) == k
+
+
+def grid_ball_and_box(n: int = 64, sigma: float = 60.0) -> GridCase:
+    """A NeRF density grid over ``[-0.5, 0.5]² × [0, 1]``, ``n`` cells a side. Parts: 0 a
+    floor slab 4 cells thick, 1 a ball of radius 0.15 resting on it (the floor's grey),
+    2 a box beside the ball (red), 3 cm apart. Solid parts hold density ``sigma``."""
+    h = 1.0 / n
+    c = (np.arange(n) + 0.5) * h
+    z, y, x = np.meshgrid(c, c - 0.5, c - 0.5, indexing="ij")
+    top = 4 * h
+    part = np.full((n, n, n), -1, np.int64)
+    part[z < top] = 0
+    part[(x**2 + y**2 + (z - top - 0.15) ** 2) <= 0.15**2] = 1
+    part[(np.abs(x - 0.28) <= 0.1) & (np.abs(y) <= 0.1) & (z >= top) & (z <= top + 0.2)] = 2
+    rgb = np.zeros((n, n, n, 3), np.float32)
+    rgb[part == 0] = FLOOR_RGB
+    rgb[part == 1] = FLOOR_RGB
+    rgb[part == 2] = (0.8, 0.25, 0.2)
+    density = np.where(part >= 0, np.float32(sigma), np.float32(0.0))
+    aabb = np.array([[-0.5, -0.5, 0.0], [0.5, 0.5, 1.0]])
+    return GridCase(DensityGrid(density.astype(np.float32), aabb, rgb), part)

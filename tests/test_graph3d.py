@@ -12,9 +12,10 @@ import pytest
 from divas_engine.camera import Camera
 from divas_engine.segment import Graph3DSegmenter, SceneAwareSegmenter, SceneBinding
 from divas_engine.segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
-from divas_engine.segment.graph3d import Seeds
+from divas_engine.segment.graph3d import CutResult, Granularity, Seeds
+from divas_engine.segment.graph3d.segmenter import advice
 from divas_engine.session import Session, SessionConfig
-from tests.graph3d_cases import ball_on_floor, rod_on_floor, touching_boxes
+from tests.graph3d_cases import ball_on_floor, grid_ball_and_box, rod_on_floor, touching_boxes
 
 
 def _cut(case, positive, negative=()):
@@ -125,3 +126,78 @@ def test_session_binds_scene_and_the_preview_is_the_3d_region():
         assert oc.positive.tolist() == [True] and np.allclose(oc.points[0], v.centroid.target)
     finally:
         s.close()
+
+
+def _cut_result(rim_share=0.0, ambiguous=False, alternative=None) -> CutResult:
+    g = Granularity(np.zeros(1, bool), 0.1, 0.3, 1.0)
+    return CutResult((g, g, g), np.zeros(1), rim_share, ambiguous, alternative)
+
+
+def test_advice_names_the_click_that_settles_each_kind_of_doubt():
+    # a sure cut gives no advice; every unsure kind names the click to add, in plain words
+    assert advice(_cut_result(), 0.8, 0, 0.35) is None
+    far = advice(_cut_result(rim_share=0.6), 0.3, 0, 0.35)
+    assert "far end" in far and "negative" not in far
+    whole = advice(_cut_result(ambiguous=True, alternative=3.0), 0.3, 0, 0.35)
+    assert "another part" in whole and "negative click" in whole
+    part = advice(_cut_result(ambiguous=True, alternative=0.3), 0.3, 0, 0.35)
+    assert "negative click on what should stay out" in part
+    edge = advice(_cut_result(), 0.3, 0, 0.35)
+    assert "negative click on what should not be selected" in edge
+    assert "missing" in advice(_cut_result(), 0.3, 1, 0.35)  # negatives given: maybe too few
+    for text in (far, whole, part, edge):  # no jargon from the cut's internals
+        for word in ("channel", "conductance", "rim", "sweep", "voxel", "potential"):
+            assert word not in text.lower()
+
+
+def test_an_ambiguous_click_scores_low_and_the_view_record_says_what_to_do():
+    # a click on the open floor beside a ball: nothing around it has an edge, so no region
+    # is clearly the object (an ambiguous cut) — the preview scores low, the view carries
+    # the segmenter's advice (a negative click on what spilled over), the rejection keeps it
+    case = ball_on_floor()
+    anchor = _camera((0.0, -1.6, 0.9), (0.0, 0.0, 0.2))
+    seg = Graph3DSegmenter()
+    s = Session.open(case.scene, [], SessionConfig(), seg, "cpu", anchors=[(anchor, "camera", -1)])
+    try:
+        uv, _ = anchor.project(np.array([[0.6, 0.6, 0.0]]))
+        v = s.click(0, tuple(uv[0]))
+        prev = s.prompt(v)
+        assert prev.score < 0.5 and seg.last_cut.cut.levels[1].contrast > 0.35
+        assert prev.advice and "negative click" in prev.advice
+        assert v.advice == prev.advice and v.to_dict(None)["advice"] == prev.advice
+        s.accept(v)
+        assert v.status == "rejected" and v.advice == prev.advice
+        report = next(r for r in s.report()["views"] if r["id"] == v.id)
+        assert report["advice"] == prev.advice and report["status"] == "rejected"
+        # a confident view carries no advice, also once fused
+        uv, _ = anchor.project(np.array([[0.0, -0.2, 0.25]]))
+        w = s.click(0, tuple(uv[0]))
+        assert s.prompt(w).advice is None
+        s.accept(w)
+        assert w.status == "fused" and w.advice is None
+    finally:
+        s.close()
+
+
+def test_nerf_grid_ball_is_cut_from_its_floor_and_a_neighbour():
+    # a density grid (solid cells): the ball clicked near its top is selected whole (its
+    # visible shell, down to the floor contact), neither the floor slab nor the box 3 cm
+    # beside it; the larger granularity may add the neighbour, never the floor; a click
+    # on the box takes the box alone; a negative click on the box keeps it out of the
+    # medium (fused) region
+    case = grid_ball_and_box()
+    seg = Graph3DSegmenter(binding=SceneBinding(case.grid, None, None))
+    part = case.part.reshape(-1)[seg.primitives().index]  # the cut's cells: the shell
+
+    def share(pos, neg=()):
+        rc = seg.cut(Seeds(np.array(pos, float), np.array(neg, float).reshape(-1, 3)))
+        return rc, [[float(np.mean(rc.selected[k][part == p])) for p in range(3)] for k in range(3)]
+
+    rc, s = share([[0.0, 0.0, 0.36]])
+    assert s[1][1] > 0.97 and s[1][0] < 0.001 and s[1][2] < 0.001
+    assert rc.scores[1] > 0.8 and rc.message is None
+    assert max(s[k][0] for k in range(3)) < 0.001
+    rc, s = share([[0.28, 0.0, 0.24]])
+    assert s[1][2] > 0.97 and s[1][1] < 0.001 and s[1][0] < 0.01
+    rc, s = share([[0.0, 0.0, 0.36]], [[0.28, 0.0, 0.24]])
+    assert s[1][1] > 0.97 and s[1][2] < 0.001 and s[0][2] < 0.001

@@ -23,7 +23,7 @@ from divas_engine.kinds import ViewStatus
 
 from .. import session_registry
 from ..modal_logic import HEADER_TEXT, KeyKind, Step, StepKind, Target, decide, plan
-from ..reporting import rejection_message, report_exception
+from ..reporting import advice_message, rejection_message, report_exception
 from ..session_actions import (
     accept,
     add_prompt,
@@ -175,22 +175,28 @@ class ModalController:
     def _session_step(self, context, obj, live, step: Step) -> None:
         k = step.kind
         what = _WHAT[k]
+        hinted = None  # the previewed object: its segmenter's hint is shown
         if k in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE):
-            run_step(obj, live, f"{what} {step.anchor}", click, context, obj, live,
-                     step.anchor, step.xy, step.positive)  # fmt: skip
+            hinted = run_step(obj, live, f"{what} {step.anchor}", click, context, obj, live,
+                              step.anchor, step.xy, step.positive)  # fmt: skip
         elif k is StepKind.PROMPT:
-            run_step(obj, live, what, add_prompt, context, obj, live, step.view_id, step.xy,
-                     step.positive)  # fmt: skip
+            hinted = run_step(obj, live, what, add_prompt, context, obj, live, step.view_id,
+                              step.xy, step.positive)  # fmt: skip
         elif k is StepKind.VIEWPORT_CLICK:
             r, rv = self.region, self.rv3d
-            run_step(obj, live, what, viewport_click, context, obj, live,
-                     np.array(rv.view_matrix), np.array(rv.window_matrix),
-                     (int(r.width), int(r.height)),
-                     (int(step.xy[0]), int(step.xy[1])), step.positive)  # fmt: skip
+            _, hinted = run_step(obj, live, what, viewport_click, context, obj, live,
+                                 np.array(rv.view_matrix), np.array(rv.window_matrix),
+                                 (int(r.width), int(r.height)),
+                                 (int(step.xy[0]), int(step.xy[1])), step.positive)  # fmt: skip
         elif k is StepKind.ACCEPT:
             res = run_step(obj, live, what, accept, context, obj, live, step.view_id)
-            if res.view.status == ViewStatus.REJECTED:
-                self.report({"WARNING"}, "View not added. " + rejection_message(res.view.reason))
+            v = res.view
+            if v.status == ViewStatus.REJECTED:
+                msg = rejection_message(v.reason, v.score, v.advice)
+                self.report({"WARNING"}, "View not added. " + msg)
+        hint = advice_message(getattr(hinted, "advice", None))
+        if hint:
+            self.report({"INFO"}, hint)
         self.undo_push(f"DivAS: {what}")
 
     def _undo_redo(self, kind: StepKind) -> None:

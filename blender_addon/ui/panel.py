@@ -12,7 +12,7 @@ from .. import session_registry, source
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import active_model, active_model_ready, get_preferences
 from ..properties import scene_settings
-from ..reporting import rejection_message
+from ..reporting import advice_message, rejection_message
 from ..selection import selected_count
 from ..session_actions import saved_session_path
 
@@ -120,7 +120,15 @@ def _draw_session(layout, live) -> None:
         sub = box.column(align=True)
         sub.alert = True
         sub.label(text=f"{len(rejected)} view(s) not added. Last one:", icon="ERROR")
-        for line in _wrap(rejection_message(rejected[-1].reason, rejected[-1].score)):
+        last_rejected = rejected[-1]
+        msg = rejection_message(last_rejected.reason, last_rejected.score, last_rejected.advice)
+        for line in _wrap(msg):
+            sub.label(text=line)
+    hinted = [v for v in live.session.views if v.status == "open" and v.advice]
+    if hinted:  # the segmenter was unsure about a preview: what to click next
+        sub = box.column(align=True)
+        sub.label(text=f"Unsure about view {hinted[-1].id}:", icon="QUESTION")
+        for line in _wrap(advice_message(hinted[-1].advice)):
             sub.label(text=line)
     last = live.last_update
     if last:

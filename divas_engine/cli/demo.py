@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import DivasInputError
 from ..kinds import ViewStatus
 from ..output_paths import check_output_path, write_image_atomic
+from .segment import advice_suffix
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -142,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     )
     for v in report["views"]:
         if v["status"] == ViewStatus.REJECTED:
-            print(f"  rejected {v['id']}: {v['reason']}")
+            print(f"  rejected {v['id']}: {v['reason']}" + advice_suffix(v.get("advice")))
     e3 = report["evaluation"]["surfels"]
     print(f"3D: precision {e3['precision']:.3f}, recall {e3['recall']:.3f}, IoU {e3['iou']:.3f}")
     print(

@@ -17,7 +17,8 @@ Report (``--report``) keys:
 * ``updates``: one record per accepted view (seconds by stage);
 * ``counts``: primitives, anchors, centroid_views, accepted, rejected, selected,
   active_voxels, segmented_voxels …;
-* ``views``: id, anchor, click, status (``fused``/``rejected``), reason, score, strategy;
+* ``views``: id, anchor, click, status (``fused``/``rejected``), reason, advice (the
+  segmenter's hint: what to click next), score, strategy;
 * ``memory``: ``peak_rss_bytes`` (and ``rss_bytes``);
 * ``config``: the full session config; ``outputs``: files written;
 * ``evaluation`` (with ``--gt-labels``): 3D precision / recall / IoU of the selection;
@@ -363,7 +364,9 @@ def segment_scene(
         if out is not None:
             if not sel.any():
                 reasons = "; ".join(
-                    f"{v.id}: {v.reason}" for v, _, _ in spawned if v.status == ViewStatus.REJECTED
+                    f"{v.id}: {v.reason}{advice_suffix(v.advice)}"
+                    for v, _, _ in spawned
+                    if v.status == ViewStatus.REJECTED
                 )
                 error = "the selection is empty; nothing to write" + (
                     f" (rejected views: {reasons})" if reasons else ""
@@ -419,6 +422,11 @@ def segment_scene(
     finally:
         if not keep_session:
             session.close()
+
+
+def advice_suffix(advice: str | None) -> str:
+    """The segmenter's hint for a rejected view (what to click next), as a suffix."""
+    return f" — {advice}" if advice else ""
 
 
 def _check_resumable(session, config, resolved, path) -> None:
@@ -505,7 +513,7 @@ def run(args: argparse.Namespace) -> int:
     )
     for v in report["views"]:
         if v["status"] == ViewStatus.REJECTED:
-            print(f"  rejected {v['id']}: {v['reason']}")
+            print(f"  rejected {v['id']}: {v['reason']}" + advice_suffix(v.get("advice")))
     if "evaluation" in report:
         e = next(iter(report["evaluation"].values()))
         print(
@@ -524,4 +532,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_parser", "run", "segment_scene", "write_report"]
+__all__ = ["add_parser", "advice_suffix", "run", "segment_scene", "write_report"]

@@ -46,6 +46,7 @@ HISTORY_LIMIT = 64
 _VIEW_FIELDS = (
     "status",
     "reason",
+    "advice",
     "score",
     "points",
     "labels",

@@ -4,7 +4,9 @@
   plus the anchor's visible negative clicks (NOTES "Headless prompts file");
 * :func:`prompt_set` — the user's points, checked;
 * :func:`mask_preview` — a SAM result → channel selection (score ≥ ``min_score``) →
-  the backend's depth weighting → the "empty mask" rule.
+  the backend's depth weighting → the "empty mask" rule; the segmenter's hint (what to
+  click next when it was unsure, :attr:`~..segment.base.SegResult.message`) is kept as
+  the preview's ``advice``.
 """
 
 from __future__ import annotations
@@ -104,4 +106,6 @@ def mask_preview(
         weighted = np.clip(weighted, 0.0, 1.0).astype(np.float32)
         if int(np.count_nonzero(weighted >= 0.5)) < config.min_mask_pixels:
             reason = "empty mask after depth weighting"
-    return MaskPreview(v.id, p, lab, res.masks, res.scores, sel, weighted, band, reason, seconds)
+    return MaskPreview(
+        v.id, p, lab, res.masks, res.scores, sel, weighted, band, reason, seconds, res.message
+    )

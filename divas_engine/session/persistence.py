@@ -231,6 +231,7 @@ def restore_object(
             vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv, _session=session
         )
         v.status, v.reason = _view_status(vd["status"], path), vd["reason"]
+        v.advice = vd.get("advice")  # absent in sessions saved before issue 16
         v.score = float("nan") if vd["score"] is None else float(vd["score"])
         if vd["points"] is not None:
             v.points = np.asarray(vd["points"], np.float64).reshape(-1, 2)

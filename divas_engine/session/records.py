@@ -106,6 +106,9 @@ class MaskPreview:
         mask: the depth-weighted mask M̃ (None when rejected by ``select_mask``).
         band: the 2DGS depth band (eq:depthband), None for NeRF.
         reason: why the view would be rejected, None when it would be fused.
+        advice: the segmenter's plain-language hint when it was unsure (what to click
+            next: a click on what is missing, a negative click on what spilled over),
+            None when it is confident or gives no hints (SAM, the oracle).
     """
 
     view_id: str
@@ -118,6 +121,7 @@ class MaskPreview:
     band: DepthBand | None
     reason: str | None
     seconds: float = 0.0
+    advice: str | None = None
 
     @property
     def accepted(self) -> bool:
@@ -138,6 +142,8 @@ class SessionView(_RenderedOnDemand):
             anchor box …).
         status: a :class:`~divas_engine.kinds.ViewStatus` — ``"open"`` (spawned),
             ``"pending"`` (NeRF: accepted, SAM running), ``"fused"`` or ``"rejected"``.
+        reason: why it was rejected; advice: the segmenter's hint of its last preview
+            or rejection (what to click next), None once fused or when it was sure.
         points, labels: the prompt set of the last preview / accept.
         mask: the depth-weighted mask that was fused.
         fusion_id: the fusion slot (2DGS: view-bitmask bit).
@@ -150,6 +156,7 @@ class SessionView(_RenderedOnDemand):
     centroid: CentroidView
     status: ViewStatus = ViewStatus.OPEN
     reason: str | None = None
+    advice: str | None = None
     score: float = float("nan")
     points: np.ndarray | None = None
     labels: np.ndarray | None = None
@@ -178,6 +185,7 @@ class SessionView(_RenderedOnDemand):
             "click": self.click,
             "status": self.status,
             "reason": self.reason,
+            "advice": self.advice,
             "score": None if not np.isfinite(self.score) else float(self.score),
             "camera": c.camera.to_dict(),
             "d_cam": c.d_cam,

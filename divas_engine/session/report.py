@@ -54,6 +54,7 @@ def session_report(session: Session) -> dict[str, Any]:
                     "click": v.click,
                     "status": v.status,
                     "reason": v.reason,
+                    "advice": v.advice,
                     "score": None if not np.isfinite(v.score) else float(v.score),
                     "strategy": v.centroid.strategy,
                     "d_cam": float(v.centroid.d_cam),

@@ -267,7 +267,7 @@ class Session(SelectionEditing, SessionCore):
         t0 = time.perf_counter()
         res = seg.segment(b.rgb, b.D_ref, p, lab, view_id=v.id)
         prev = self._mask_from(v, res, p, lab, time.perf_counter() - t0)
-        v.preview, v.points, v.labels = prev, p, lab
+        v.preview, v.points, v.labels, v.advice = prev, p, lab, prev.advice
         return prev
 
     # ------------------------------------------------------------------ accept / sync
@@ -330,6 +330,7 @@ class Session(SelectionEditing, SessionCore):
                 "view": v.id,
                 "status": v.status,
                 "reason": v.reason,
+                "advice": v.advice,
                 "synced": result.synced,
                 **v.timings,
                 **result.timings,
@@ -397,6 +398,7 @@ class Session(SelectionEditing, SessionCore):
             if reason is not None:
                 v.status, v.reason = ViewStatus.REJECTED, reason
                 v.score = float("nan") if isinstance(prev, str) else prev.score
+                v.advice = None if isinstance(prev, str) else prev.advice
                 rejected.append((v.id, reason))
                 continue
             b = v.buffers
@@ -426,7 +428,7 @@ class Session(SelectionEditing, SessionCore):
             dt = time.perf_counter() - t
             self.timings.add("kernel", dt)
             kernel_s += dt
-            v.status, v.reason, v.score = ViewStatus.FUSED, None, prev.score
+            v.status, v.reason, v.score, v.advice = ViewStatus.FUSED, None, prev.score, None
             v.mask, v.fusion_id, v.fusion_view = prev.mask, fid, fv
             fused.append(v.id)
         timings: dict[str, float] = {"kernel_s": kernel_s}

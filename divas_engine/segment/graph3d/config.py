@@ -20,7 +20,8 @@ class Graph3DConfig:
         region_grow: R is multiplied by this when the chosen segment leans on the
             region's rim (2.0), at most ``region_max_grows`` (2) times.
         rim_share: "leans on the rim": the rim carries more than this share of the
-            segment's cut (0.35).
+            segment's cut (0.35). R also grows when the medium score is < 0.5 and the
+            walk potential next to the rim exceeds ``rim_reach`` (1e-3).
         grid_cells: voxels along the region's diameter, ``h = 2R / grid_cells`` (96).
         min_opacity: primitives below this opacity are left out of the graph (0.02;
             near-invisible haze neither bridges objects nor shows in a mask).
@@ -48,10 +49,14 @@ class Graph3DConfig:
             (:mod:`.supports`).
         min_granularity_ratio: the small / large channels differ from the medium one by
             at least this volume ratio (1.5); none → the medium itself.
+        min_region_share: the medium region holds at least this share of the graph's
+            volume (0.01): a speck of haze cut off around the click is not the object.
 
     Scores and mask:
         score_contrast: boundary contrast c₀ at which the score is 0.5 (0.35); score =
             1/(1+(c/c₀)²) (:mod:`.cut` step 4).
+        neck_min_voxels: the contrast is scaled by the cut's narrowness (:mod:`.cut`
+            step 4) only when its boundary holds at least this many voxels (8).
         ambiguity_ratio: another sweep minimum within this φ ratio of the best and at a
             different size makes the cut ambiguous (1.3): the score is scaled by
             ``ambiguity_penalty`` (0.6).
@@ -64,6 +69,7 @@ class Graph3DConfig:
     region_grow: float = 2.0
     region_max_grows: int = 2
     rim_share: float = 0.35
+    rim_reach: float = 1e-3
     grid_cells: int = 96
     min_opacity: float = 0.02
     sigma_d: float = 1.0
@@ -79,7 +85,9 @@ class Graph3DConfig:
     support_min_share: float = 0.02
     support_min_width: float = 6.0
     min_granularity_ratio: float = 1.5
+    min_region_share: float = 0.01
     score_contrast: float = 0.35
+    neck_min_voxels: int = 8
     ambiguity_ratio: float = 1.3
     ambiguity_penalty: float = 0.6
     low_res: int = 256

@@ -22,12 +22,14 @@
    of log volume) at least ``min_granularity_ratio`` smaller / larger; none → the
    medium one. So the three are nested.
 4. **Score**: boundary contrast ``c`` = mean affinity of the cut edges / mean affinity
-   inside the region (edges to supporting planes and the rim left out): a real boundary
-   (contact, colour or normal change) has ``c ≪ 1``, a cut through a continuing surface
-   ``c ≈ 1``. ``score = 1 / (1 + (c / c₀)²)``, times ``1 − rim share`` (a region cut by
-   the rim of the examined region is not an object yet), times ``ambiguity_penalty``
-   when another local minimum of φ of a different size is nearly as good (the click does
-   not say which object is meant).
+   inside the region (edges to supporting planes and the rim left out), times the cut's
+   narrowness when below 1 (its boundary voxels over the perimeter ``2√(πn)`` of a disc
+   of the region's ``n`` voxels: a neck is a boundary even without an affinity drop): a
+   real boundary (contact, colour or normal change, a neck) has ``c ≪ 1``, a cut through
+   a continuing surface ``c ≈ 1``. ``score = 1 / (1 + (c / c₀)²)``, times ``1 − rim
+   share`` (a region cut by the rim of the examined region is not an object yet), times
+   ``ambiguity_penalty`` when another local minimum of φ of a different size is nearly as
+   good (the click does not say which object is meant).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from .voxel_graph import VoxelGraph
 __all__ = ["CutResult", "Granularity", "walk_potential", "sweep_cut"]
 
 _LOG_BINS = 256
+_MAX_RING_SEEDS = 32  # seeds whose surroundings must be in the region (the rest: the voxel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,21 +163,39 @@ def sweep_cut(
     order = np.argsort(-key, kind="stable")
     cut = _prefix_cuts(order, graph, deg)
     vol = np.cumsum(deg[order])
+    # every positive seed comes with (the better half of) its surroundings, two rings of
+    # neighbours: with seeds on two parts (a guitar's fretboard and its headstock) the
+    # potential is higher around one of them, and a prefix holding that part and the bare
+    # other seed voxel must not count as a region holding both. The better half: a seed
+    # on a thin part also touches what lies against it (a stand behind a guitar)
+    rank = np.empty(v, np.int64)
+    rank[order] = np.arange(v)
     k_min = int(positive.sum())
+    for p in np.flatnonzero(positive)[:_MAX_RING_SEEDS]:
+        one = np.zeros(v, bool)
+        one[p] = True
+        near = _rings(graph, one, 2) & (key > 1e-9) & ~positive
+        if near.any():
+            k_min = max(k_min, int(np.median(rank[near])) + 1)
     k_max = int(np.count_nonzero((~sinks) & ((x > 1e-9) | positive)))
     ks = np.arange(v)
     ok = (ks >= k_min - 1) & (ks < k_max) & (vol > 0)
+    # the medium region is no speck: a few voxels of haze around the click are cut off
+    # almost for free, yet are not what a click means (the small channel may be one)
+    big = ok & (vol >= config.min_region_share * total)
     den = np.minimum(vol, total - vol)
     phi = np.where(ok & (den > 0), cut / np.maximum(den, 1e-300), np.inf)
     if not np.isfinite(phi).any():
         return _degenerate(v, positive, x)
-    best = int(np.argmin(phi))
+    best = int(np.argmin(np.where(big, phi, np.inf))) if big.any() else int(np.argmin(phi))
     minima = _local_minima(phi, vol, config.min_granularity_ratio)
     ratio = config.min_granularity_ratio
     small = _best_where(minima, phi, vol <= vol[best] / ratio, best)
     large = _best_where(minima, phi, vol >= vol[best] * ratio, best)
-    rival = [
-        k for k in minima if k != best and not (vol[best] / ratio < vol[k] < vol[best] * ratio)
+    rival = [  # specks are no rival: the medium is never one
+        k
+        for k in minima
+        if k != best and big[k] and not (vol[best] / ratio < vol[k] < vol[best] * ratio)
     ]
     rival_k = min(rival, key=lambda k: phi[k]) if rival else None
     ambiguous = rival_k is not None and phi[rival_k] <= config.ambiguity_ratio * phi[best]
@@ -182,7 +203,8 @@ def sweep_cut(
     for k in (small, best, large):
         nodes = np.zeros(v, bool)
         nodes[order[: k + 1]] = True
-        c = _contrast(graph, nodes, planes)
+        neck = _narrowness(graph, nodes, planes, config.neck_min_voxels)
+        c = _contrast(graph, nodes, planes) * min(1.0, neck)
         s = 1.0 / (1.0 + (c / config.score_contrast) ** 2)
         s *= 1.0 - min(1.0, _rim_cut(graph, nodes) / max(float(cut[k]), 1e-300))
         if ambiguous:
@@ -191,6 +213,18 @@ def sweep_cut(
     share = _rim_cut(graph, levels[1].nodes) / max(float(cut[best]), 1e-300)
     alt = None if rival_k is None else float(vol[rival_k] / max(vol[best], 1e-300))
     return CutResult(tuple(levels), x, float(min(share, 1.0)), bool(ambiguous), alt)
+
+
+def _rings(graph: VoxelGraph, nodes: np.ndarray, n: int) -> np.ndarray:
+    """``nodes`` and their neighbours up to ``n`` edges away (bool ``[V]``)."""
+    e = graph.edges
+    out = nodes.copy()
+    for _ in range(n):
+        grow = out.copy()
+        grow[e[out[e[:, 0]], 1]] = True
+        grow[e[out[e[:, 1]], 0]] = True
+        out = grow
+    return out
 
 
 def _contrast(graph: VoxelGraph, nodes: np.ndarray, planes: np.ndarray) -> float:
@@ -205,6 +239,27 @@ def _contrast(graph: VoxelGraph, nodes: np.ndarray, planes: np.ndarray) -> float
     if not cut.any() or not inside.any():
         return 0.0
     return float(np.mean(w[cut]) / max(float(np.mean(w[inside])), 1e-300))
+
+
+def _narrowness(
+    graph: VoxelGraph, nodes: np.ndarray, planes: np.ndarray, min_ring: int = 0
+) -> float:
+    """Boundary voxels of the region (those with a cut edge, supporting planes left out) over
+    the perimeter of a disc of as many voxels, ``2 sqrt(π n)``: 1 for a patch cut out of a
+    continuing surface, well below 1 at a neck (a head on its shoulders, a pot's handle),
+    whose cut is a real boundary even where the affinities across it stay high. A boundary
+    of fewer than ``min_ring`` voxels is no neck but a gap of a sparse sampling (a patch
+    of a thinly sampled floor hangs on a few voxels): 1."""
+    e = graph.edges
+    a, b = nodes[e[:, 0]], nodes[e[:, 1]]
+    other = np.where(a, e[:, 1], e[:, 0])
+    inner = np.where(a, e[:, 0], e[:, 1])
+    cut = (a ^ b) & ~planes[other]  # a region running into the rim goes on: no neck there
+    n = int(np.count_nonzero(nodes))
+    ring = len(np.unique(inner[cut]))
+    if n == 0 or ring < min_ring:
+        return 1.0  # a gap in a sparse sampling, not a neck
+    return float(ring / (2.0 * np.sqrt(np.pi * n)))
 
 
 def _rim_cut(graph: VoxelGraph, nodes: np.ndarray) -> float:

@@ -6,8 +6,9 @@ One :class:`ScenePrimitives` per scene, built once when the segmenter is bound:
   SH DC colour in CIE-Lab, their normal (rotation column 2) with a confidence κ — 1 for
   a native 2DGS surfel, ``1 − s_n / min(s_1, s_2)`` for a flattened 3DGS Gaussian (a
   round blob has no normal) —, and their opacity;
-* density grids: the occupied cells (opacity ``1 − exp(−σ h) ≥ 1/255``), their RGB
-  grid colour (or grey), the normal ``−∇σ`` with confidence from its magnitude.
+* density grids: the occupied cells (opacity ``1 − exp(−σ h) ≥ 1/255``) on the shell of
+  the occupied set (an empty face neighbour), their RGB grid colour (or grey), the
+  normal ``−∇σ`` with confidence from its magnitude.
 
 It also finds the scene's ground plane once — the one the shared
 :func:`~divas_engine.views.up_direction.estimate_scene_up` takes as the scene's up (a
@@ -21,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
+from scipy.ndimage import binary_erosion
 
 from ...scene import DensityGrid, Scene, SurfelScene
 from ...scene_stats import robust_frame
@@ -51,6 +53,9 @@ class ScenePrimitives:
         center, radius: the robust frame ``c_scene``, ``r_fg`` (eq:scene-norm).
         grounds: the scene's ground plane (none, or one: the up's).
         up: the scene up (None when unknown: no local supports then).
+        cell: the grid's largest cell edge for a density grid (the graph's voxels are
+            never finer: a finer voxel grid would leave the occupied cells unconnected),
+            0 for surfels.
         scene: the scene.
     """
 
@@ -66,6 +71,7 @@ class ScenePrimitives:
     scene: Scene
 
     up: np.ndarray | None = None
+    cell: float = 0.0
 
     @classmethod
     def from_scene(
@@ -100,6 +106,10 @@ class ScenePrimitives:
         h = float(np.mean(grid.voxel_size))
         alpha = 1.0 - np.exp(-grid.density.astype(np.float64) * h)
         occ = alpha >= min_opacity
+        # the shell: an occupied cell with an empty face neighbour (what a view sees, like
+        # a surfel); a solid interior would make a cut across an object as cheap per
+        # volume as around it, and renders nothing anyway
+        occ &= ~binary_erosion(occ, iterations=1, border_value=0)
         flat = np.flatnonzero(occ.reshape(-1))
         iz, iy, ix = np.unravel_index(flat, grid.density.shape)
         pts = grid.aabb[0] + (np.stack([ix, iy, iz], 1) + 0.5) * grid.voxel_size
@@ -113,7 +123,7 @@ class ScenePrimitives:
             rgb = grid.rgb.reshape(-1, 3)[flat]
         else:
             rgb = np.full((len(flat), 3), _GREY, np.float32)
-        return cls._finish(
+        out = cls._finish(
             grid,
             pts.astype(np.float32),
             _lab(rgb),
@@ -122,6 +132,8 @@ class ScenePrimitives:
             alpha[occ].astype(np.float32),
             flat.astype(np.int64),
         )
+        out.cell = float(np.max(grid.voxel_size))
+        return out
 
     @classmethod
     def _finish(cls, scene, pts, lab, normals, kappa, mass, index) -> ScenePrimitives:

@@ -48,7 +48,10 @@ from .primitives import ScenePrimitives
 from .supports import support_nodes, support_primitives
 from .voxel_graph import VoxelGraph, build_voxel_graph
 
-__all__ = ["Graph3DSegmenter", "RegionCut", "Seeds"]
+__all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice"]
+
+#: the hint when a positive click hits nothing (the add-on's plain-language table knows it)
+NO_SURFACE = "no surface under the click: click on the object itself"
 
 _CUT_CACHE = 8
 _SAME_CLICK_PX = 2.0
@@ -158,11 +161,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         seeds, missed = self.seeds(state, points, labels)
         h, w = state.camera.height, state.camera.width
         if len(seeds.positive) == 0:
-            self.last_message = (
-                "no surface under the positive click: click on the object itself"
-                if missed
-                else None
-            )
+            self.last_message = NO_SURFACE if missed else None
             return np.zeros((3, h, w), np.float32), np.zeros(3, np.float32)
         rc = self.cut(seeds)
         self.last_cut, self.last_message = rc, rc.message
@@ -226,13 +225,17 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         spread = float(np.linalg.norm(seeds.positive - centre, axis=1).max())
         radius = max(cfg.region_min * prims.radius, cfg.region_seed_factor * spread)
         grows = 0
+        band = cfg.ground_band * prims.radius
+        on_ground = any(
+            bool(np.any(np.abs(g.height(seeds.positive)) <= band)) for g in prims.grounds
+        )
         while True:
             graph = build_voxel_graph(prims, centre, radius, cfg)
             pos = np.zeros(len(graph), bool)
             pn = graph.node_of_points(seeds.positive)
             pos[pn[pn >= 0]] = True
             if not pos.any():
-                return self._empty(prims, "no scene content at the click", radius, grows, t0)
+                return self._empty(prims, NO_SURFACE, radius, grows, t0)
             neg = np.zeros(len(graph), bool)
             nn = graph.node_of_points(seeds.negative)
             neg[nn[nn >= 0]] = True
@@ -240,7 +243,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             planes = support_nodes(graph, prims, pos, cfg, neg) & ~pos
             sinks = (sinks | planes) & ~pos
             res = sweep_cut(graph, pos, sinks, cfg, planes)
-            if res.rim_share > cfg.rim_share and grows < cfg.region_max_grows:
+            if _too_small(res, graph, cfg, on_ground) and grows < cfg.region_max_grows:
                 radius *= cfg.region_grow
                 grows += 1
                 continue
@@ -270,28 +273,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         )
 
     def _advice(self, res: CutResult, score: float, n_negative: int) -> str | None:
-        if score >= 0.5:
-            return None
-        if res.rim_share > self.config.rim_share:
-            return (
-                "the object seems to go on beyond the part examined: add a positive click "
-                "on its far end"
-            )
-        if res.ambiguous and res.alternative is not None and res.alternative > 1.0:
-            return (
-                "ambiguous: the click fits a part and a larger whole — add a positive "
-                "click on another part to take the whole, or a negative click on what "
-                "should stay out"
-            )
-        if res.ambiguous:
-            return (
-                "ambiguous: the click fits a smaller part too — add a negative click on "
-                "what should stay out, or a positive click on what is missing"
-            )
-        return (
-            "no clear boundary around the click: add a negative click on what should not "
-            "be selected" + ("" if n_negative == 0 else ", or a positive click on what is missing")
-        )
+        return advice(res, score, n_negative, self.config.rim_share)
 
     def render_masks(self, camera: Camera, selected: np.ndarray) -> np.ndarray:
         """Step 4: ``[3,H,W]`` probabilities of three primitive selections in ``camera``."""
@@ -307,3 +289,50 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         if (cam.height, cam.width) != (h, w):
             logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(sigmoid(logits).transpose(2, 0, 1), dtype=np.float32)
+
+
+def _too_small(res: CutResult, graph: VoxelGraph, cfg: Graph3DConfig, on_ground: bool) -> bool:
+    """The region looked at is too small for the object: its cut leans on the rim, or no
+    clear boundary was found inside it while the walk still reaches the rim (a click near
+    one end of an object about as large as the region: the cut then crosses the object
+    where the region's outside drains it) — unless the click is on the ground, which
+    goes on anyway."""
+    if res.rim_share > cfg.rim_share:
+        return True
+    if on_ground or res.levels[1].score >= 0.5:
+        return False
+    e = graph.edges
+    rim_a, rim_b = graph.rim[e[:, 0]], graph.rim[e[:, 1]]
+    x_by_rim = np.r_[res.potential[e[rim_a & ~rim_b, 1]], res.potential[e[rim_b & ~rim_a, 0]]]
+    return len(x_by_rim) > 0 and float(x_by_rim.max()) > cfg.rim_reach
+
+
+def advice(res: CutResult, score: float, n_negative: int, rim_share: float) -> str | None:
+    """What the user should do when the cut is unsure (medium ``score`` < 0.5), in plain
+    words: why it is unsure, then the click that settles it — a click on what is missing
+    (the object goes on past the examined region, or the click fits a part of a larger
+    whole) or a negative click on what spilled over (no clear edge, or a larger region
+    fits too). None when the cut is sure."""
+    if score >= 0.5:
+        return None
+    if res.rim_share > rim_share:
+        return (
+            "The object seems to go on past the area looked at around your click: add a "
+            "click on its far end"
+        )
+    if res.ambiguous and res.alternative is not None and res.alternative > 1.0:
+        return (
+            "Unsure whether you mean this part or the larger object it belongs to: add a "
+            "click on another part to take the whole object, or a negative click on the "
+            "part that should stay out"
+        )
+    if res.ambiguous:
+        return (
+            "Unsure where the object ends (a smaller part fits your click too): add a "
+            "negative click on what should stay out, or a click on a part that is missing"
+        )
+    return (
+        "No clear edge around your click, so the selection may spill over: add a negative "
+        "click on what should not be selected"
+        + ("" if n_negative == 0 else ", or a click on a part that is missing")
+    )

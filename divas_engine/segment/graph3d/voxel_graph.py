@@ -112,8 +112,12 @@ class VoxelGraph:
 def build_voxel_graph(
     prims: ScenePrimitives, center: np.ndarray, radius: float, config: Graph3DConfig
 ) -> VoxelGraph:
-    """The voxel graph of the cube ``center ± radius`` (module docstring)."""
+    """The voxel graph of the cube ``center ± radius`` (module docstring). On a density
+    grid the voxels are at least one grid cell wide (fewer than ``grid_cells`` a side when
+    the region is small), else the occupied cells would not touch."""
     g = int(config.grid_cells)
+    if prims.cell > 0.0:
+        g = max(4, min(g, int(2.0 * float(radius) / prims.cell)))
     h = 2.0 * float(radius) / g
     lo = np.asarray(center, np.float64) - radius - h  # one rim layer on each side
     cells = g + 2
