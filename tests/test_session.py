@@ -159,6 +159,13 @@ def test_manual_anchor_is_clicked_saved_and_replayed(ribs, tmp_path):
     assert s2.replay_matches and np.array_equal(s2.selection, sel)
     with pytest.raises(TypeError, match="Camera"):
         s.add_anchor("IMG_0001")
+    # a tampered hint (issue 16's advice) is a clear error naming the file, not a crash
+    doc = json.loads(auto.read_text())
+    doc["objects"][0]["views"][0]["advice"] = {"not": "text"}
+    bad = tmp_path / "tampered.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(DivasInputError, match=r"tampered\.json.*advice"):
+        Session.load(bad, scene, device="cpu")
     s.close()
     s2.close()
 

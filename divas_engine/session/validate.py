@@ -110,6 +110,8 @@ def _view(v: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -> 
     except (ValueError, TypeError):
         raise _Bad(f"{where}.status", f"unknown view status {_short(v['status'])}") from None
     _kind(_get(v, "reason", where), (str, type(None)), f"{where}.reason", "a string or null")
+    # the segmenter's hint (issue 16); absent in sessions saved before it
+    _kind(v.get("advice"), (str, type(None)), f"{where}.advice", "a string or null")
     score = _get(v, "score", where)
     if score is not None:
         _num(score, f"{where}.score")
