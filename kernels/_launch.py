@@ -97,6 +97,18 @@ def ensure_loaded(kernel: wp.Kernel, device: wp.context.Device) -> None:
         _LOADED.add(key)
 
 
+def _forget_pool_in_child() -> None:
+    """A forked child (a test harness, a user's multiprocessing) inherits the pool object
+    but none of its worker threads: work submitted to it would wait forever. The child
+    starts its own pool on first use."""
+    global _POOL
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_in_child)
+
+
 def _pool(n: int) -> ThreadPoolExecutor:
     global _POOL
     if _POOL is None or _POOL._max_workers < n:  # noqa: SLF001 - size check only
