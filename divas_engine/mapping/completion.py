@@ -39,8 +39,11 @@ Incremental and exact under undo: adding a view computes only that view's record
 contribution gather and one projection of the active voxels) and adds them to integer
 accumulators — ``A₀, A₁`` in int64 fixed point (2⁻²⁴ pixel), the voxel counters in
 int32 — removing it subtracts the same integers, so any add/undo sequence equals the
-views added once (tests: ``tests/test_completion.py``). The per-update decision is
-``O(N + 27 C)`` vector work (C coarse cells).
+views added once (tests: ``tests/test_completion.py``). The per-update decision
+touches only the coarse cells near the selection and their members (per-cell member
+lists built once; the voxels' fill candidacy is updated by each record), and the
+selected Gaussians (the drop test); its only ``O(N)`` / ``O(A)`` steps are copies and
+scans of ``[N]`` / ``[A]`` bool arrays.
 """
 
 from __future__ import annotations
@@ -126,9 +129,35 @@ def _edge_distance(mask: np.ndarray) -> np.ndarray:
     return d[1:-1, 1:-1].astype(np.float64)
 
 
+def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Members grouped by cell: ``(order, start)`` with cell ``c``'s members
+    ``order[start[c]:start[c + 1]]`` (members of the sentinel cell ``n_cells`` last)."""
+    order = np.argsort(cell_of, kind="stable").astype(np.int32)
+    start = np.searchsorted(cell_of[order], np.arange(n_cells + 1)).astype(np.int64)
+    return order, start
+
+
+def _gather(order: np.ndarray, start: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """The members of ``cells`` (indices, no sentinel), concatenated: ``O(members)``."""
+    lo, hi = start[cells], start[np.asarray(cells) + 1]
+    ln = hi - lo
+    total = int(ln.sum())
+    if total == 0:
+        return np.zeros(0, np.int32)
+    # positions lo[c] + 0 … ln[c] − 1 for each cell, without a Python loop
+    nz = ln > 0
+    lo, ln = lo[nz], ln[nz]
+    step = np.ones(total, np.int64)
+    ends = np.cumsum(ln)
+    step[0] = lo[0]
+    step[ends[:-1]] = lo[1:] - (lo[:-1] + ln[:-1]) + 1
+    return order[np.cumsum(step)]
+
+
 class _CoarseCells:
     """Coarse cells of ``2^k`` voxels holding Gaussians or active voxels, with their
-    26-neighbour table (built once per scene)."""
+    26-neighbour table and member lists (built once per scene), so the decision touches
+    only the cells near the selection."""
 
     def __init__(self, g_coords: np.ndarray, g_valid: np.ndarray, v_coords: np.ndarray, k: int):
         off = 1 << 22  # coordinates may be negative outside the grid: shift before packing
@@ -144,6 +173,8 @@ class _CoarseCells:
         self.of_gauss = np.full(len(g_coords), self.n, np.int64)  # n = the empty sentinel
         self.of_gauss[g_valid] = np.searchsorted(self.keys, gk)
         self.of_voxel = np.searchsorted(self.keys, vk)
+        self.g_order, self.g_start = _csr(self.of_gauss, self.n)
+        self.v_order, self.v_start = _csr(self.of_voxel, self.n)
         cx = (self.keys >> 42) & ((1 << 21) - 1)
         cy = (self.keys >> 21) & ((1 << 21) - 1)
         cz = self.keys & ((1 << 21) - 1)
@@ -158,15 +189,29 @@ class _CoarseCells:
                     nb.append(np.where(hit, i, self.n).astype(np.int32))
         self.neighbours = np.stack(nb, axis=1) if nb else np.zeros((0, 27), np.int32)
 
-    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> None:
+    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> np.ndarray:
         """Set in ``near`` (``[C+1] bool``, the last entry the always-False sentinel) the
         cells within one cell of a cell holding one of the active voxels ``voxels``
-        (indices): ``O(|voxels| + 27 · cells touched)``."""
+        (indices); returns the cells that were not near before:
+        ``O(|voxels| + 27 · cells touched)``."""
         if len(voxels) == 0:
-            return
-        cells = np.unique(self.of_voxel[voxels])
-        near[self.neighbours[cells].ravel()] = True
-        near[self.n] = False
+            return np.zeros(0, np.int64)
+        # boolean marks over the C cells, not np.unique (a sort): C ≪ N
+        mark = np.zeros(self.n + 1, bool)
+        mark[self.of_voxel[voxels]] = True
+        cells = np.flatnonzero(mark[: self.n])
+        mark[:] = False
+        mark[self.neighbours[cells].ravel()] = True
+        mark[self.n] = False
+        fresh = np.flatnonzero(mark & ~near)
+        near[fresh] = True
+        return fresh
+
+    def voxels_in(self, cells: np.ndarray) -> np.ndarray:
+        return _gather(self.v_order, self.v_start, cells)
+
+    def gaussians_in(self, cells: np.ndarray) -> np.ndarray:
+        return _gather(self.g_order, self.g_start, cells)
 
 
 class VolumetricCompletion:
@@ -225,6 +270,9 @@ class VolumetricCompletion:
         self.n_surf = np.zeros(self.a, np.int32)
         self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
+        # fill candidates (consistent, never inconsistent), kept up to date for the
+        # voxels a record touches, so the decision never scans all A voxels
+        self.fill_ok = np.zeros(self.a, bool)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
 
     # ------------------------------------------------------------------ per view
@@ -311,6 +359,11 @@ class VolumetricCompletion:
         self.n_surf[rec.voxels] += sign * (rec.flags == _SURFACE).astype(np.int32)
         self.n_hidden[rec.voxels] += sign * (rec.flags == _HIDDEN).astype(np.int32)
         self.n_incons[rec.voxels] += sign * (rec.flags == _INCONSISTENT).astype(np.int32)
+        v = rec.voxels
+        ns, nh = self.n_surf[v], self.n_hidden[v]
+        self.fill_ok[v] = ((ns >= 1) | (ns + nh >= self.config.fill_min_views)) & (
+            self.n_incons[v] == 0
+        )
 
     def add_view(self, key: int, view: FusionView) -> None:
         """Add one fused view under ``key`` (e.g. its fusion slot); its records are
@@ -360,25 +413,32 @@ class VolumetricCompletion:
                 f"expected ({self.n},) / ({self.a},)"
             )
         # solid fill: grow from the segmented voxels through consistent, never
-        # inconsistent voxels, one neighbourhood per round (only the new voxels' cells
-        # are dilated each round)
-        consistent = (self.n_surf >= 1) | (self.n_surf + self.n_hidden >= cfg.fill_min_views)
-        cand = consistent & (self.n_incons == 0) & ~seg
+        # inconsistent voxels, one neighbourhood per round. Only the voxels of the cells
+        # that became near since the last round are examined (every candidate of an
+        # older near cell joined in the round its cell became near), so the work is
+        # the cells near the selection and their voxels, not A or N.
+        cand = self.fill_ok
         cur = seg.copy()
         near_cells = np.zeros(self.cells.n + 1, bool)
-        self.cells.dilate_into(near_cells, np.flatnonzero(seg))
+        fresh = self.cells.dilate_into(near_cells, np.flatnonzero(seg))
+        near_list = [fresh]
         rounds = 0
         for _ in range(cfg.fill_rounds):
-            new = np.flatnonzero(cand & ~cur & near_cells[self.cells.of_voxel])
+            vox = self.cells.voxels_in(fresh)
+            new = vox[cand[vox] & ~cur[vox]]
             if len(new) == 0:
                 break
             cur[new] = True
             rounds += 1
-            self.cells.dilate_into(near_cells, new)
+            fresh = self.cells.dilate_into(near_cells, new)
+            near_list.append(fresh)
         filled = cur & ~seg
-        # Gaussian level, evaluated on the neighbourhood's Gaussians only
-        near = near_cells[self.cells.of_gauss]
-        idx = np.flatnonzero(near & ~sel)
+        # Gaussian level, evaluated on the neighbourhood's Gaussians only (member lists
+        # of the near cells: O(Gaussians near the selection))
+        g_near = self.cells.gaussians_in(np.concatenate(near_list))
+        near = np.zeros(self.n, bool)
+        near[g_near] = True
+        idx = g_near[~sel[g_near]]
         a1 = self.q1[idx].astype(np.float64)
         a0 = self.q0[idx].astype(np.float64)
         seen = (a1 + a0) >= cfg.min_weight * QSCALE
@@ -392,7 +452,8 @@ class VolumetricCompletion:
         fill_add = np.zeros(self.n, bool)
         contrib_add[idx[positive]] = True
         fill_add[idx[in_voxels & ~negative & ~positive]] = True
-        out = sel | contrib_add | fill_add
+        out = sel.copy()
+        out[idx[positive | (in_voxels & ~negative)]] = True
         dropped = np.zeros(self.n, bool)
         if cfg.drop_inconsistent:
             j = np.flatnonzero(sel)
@@ -400,7 +461,7 @@ class VolumetricCompletion:
             b0 = self.q0[j].astype(np.float64)
             bad = ((b1 + b0) >= cfg.min_weight * QSCALE) & ~(b1 - b0 > cfg.gamma * np.hypot(b1, b0))
             dropped[j[bad]] = True
-            out &= ~dropped
+            out[j[bad]] = False
         return CompletionResult(
             selected=out,
             contrib_added=contrib_add,
