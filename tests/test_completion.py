@@ -279,7 +279,8 @@ def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.nda
     in_vox[ok] = cur[comp.active_index[ok]]
     out = sel | (near & (pos | (in_vox & ~(seen & ~pos))))
     if cfg.drop_inconsistent:
-        out &= ~(sel & seen & ~pos)
+        ev = a1 + a0 >= cfg.drop_min_weight * QSCALE
+        out &= ~(sel & ev & ~(a1 - a0 > cfg.gamma * np.hypot(a1, a0)))
     return out, cur & ~seg, near
 
 
@@ -304,3 +305,32 @@ def test_decision_matches_plain_reference(ball, seed):
             assert np.array_equal(res.selected, out)
             assert np.array_equal(res.filled_voxels, filled)
             assert np.array_equal(res.near, near)
+
+
+def test_coarse_cells_are_the_2k_blocks(ball):
+    """Every coarse cell holds the voxels / Gaussians of one 2^k block (no two distant
+    blocks share a key), and the neighbour table lists exactly the blocks at Chebyshev
+    distance ≤ 1 — brute force over the block coordinates."""
+    from divas_engine.fusion.morton import morton_decode
+
+    scene, labels, parts, grid, act, views = ball
+    for k in (0, 1, 2):
+        comp = VolumetricCompletion(scene, grid, act, CompletionConfig(neighbourhood_log2=k))
+        cells = comp.cells
+        codes = grid.codes.numpy() if hasattr(grid.codes, "numpy") else np.asarray(grid.codes)
+        block = morton_decode(codes).astype(np.int64) >> k
+        geo = grid.geometry
+        g_block = np.floor((scene.means - geo.origin) / geo.voxel_size).astype(np.int64) >> k
+        blocks = np.concatenate([block, g_block])
+        cell_of = np.concatenate([cells.of_voxel, cells.of_gauss])
+        uniq, inv = np.unique(blocks, axis=0, return_inverse=True)
+        assert cells.n == len(uniq)
+        # a bijection between blocks and cells
+        pairs = np.unique(np.stack([inv.ravel(), cell_of], 1), axis=0)
+        assert len(pairs) == len(uniq)
+        coord = np.zeros((cells.n, 3), np.int64)
+        coord[pairs[:, 1]] = uniq[pairs[:, 0]]
+        cheb = np.abs(coord[:, None, :] - coord[None, :, :]).max(-1)
+        for c in range(cells.n):
+            nb = set(cells.neighbours[c].tolist()) - {cells.n}
+            assert nb == set(np.flatnonzero(cheb[c] <= 1).tolist()), (k, c)

@@ -160,7 +160,10 @@ class _CoarseCells:
     only the cells near the selection."""
 
     def __init__(self, g_coords: np.ndarray, g_valid: np.ndarray, v_coords: np.ndarray, k: int):
-        off = 1 << 22  # coordinates may be negative outside the grid: shift before packing
+        # coordinates may be negative outside the grid: shift into [0, 2^21) before
+        # packing three 21-bit fields (|c| < 2^20, checked by the caller; a larger
+        # shift would overflow a field and alias distant cells into one key)
+        off = 1 << 20
 
         def key(c: np.ndarray) -> np.ndarray:
             c = (c >> k) + off
@@ -196,10 +199,16 @@ class _CoarseCells:
         ``O(|voxels| + 27 · cells touched)``."""
         if len(voxels) == 0:
             return np.zeros(0, np.int64)
+        return self.dilate_cells(near, self.of_voxel[voxels])
+
+    def dilate_cells(self, near: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """:meth:`dilate_into` from cells (indices; the sentinel is ignored)."""
         # boolean marks over the C cells, not np.unique (a sort): C ≪ N
         mark = np.zeros(self.n + 1, bool)
-        mark[self.of_voxel[voxels]] = True
+        mark[cells] = True
         cells = np.flatnonzero(mark[: self.n])
+        if len(cells) == 0:
+            return np.zeros(0, np.int64)
         mark[:] = False
         mark[self.neighbours[cells].ravel()] = True
         mark[self.n] = False
@@ -252,7 +261,7 @@ class VolumetricCompletion:
         v_coords = morton_decode(codes)
         means = np.asarray(scene.means, np.float64)
         g_coords = np.floor((means - geo.origin) / self.h)
-        g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 21)).all(axis=1)
+        g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 20)).all(axis=1)
         g_coords = np.where(g_valid[:, None], g_coords, 0).astype(np.int64)
         self.cells = _CoarseCells(g_coords, g_valid, v_coords, int(config.neighbourhood_log2))
         self._buf = upload_surfels(
@@ -459,7 +468,8 @@ class VolumetricCompletion:
             j = np.flatnonzero(sel)
             b1 = self.q1[j].astype(np.float64)
             b0 = self.q0[j].astype(np.float64)
-            bad = ((b1 + b0) >= cfg.min_weight * QSCALE) & ~(b1 - b0 > cfg.gamma * np.hypot(b1, b0))
+            ev = (b1 + b0) >= cfg.drop_min_weight * QSCALE
+            bad = ev & ~(b1 - b0 > cfg.gamma * np.hypot(b1, b0))
             dropped[j[bad]] = True
             out[j[bad]] = False
         return CompletionResult(
