@@ -334,3 +334,47 @@ def test_coarse_cells_are_the_2k_blocks(ball):
         for c in range(cells.n):
             nb = set(cells.neighbours[c].tolist()) - {cells.n}
             assert nb == set(np.flatnonzero(cheb[c] <= 1).tolist()), (k, c)
+
+
+def test_gather_reuses_the_renderers_binning(ball):
+    """A view the renderer has just rendered is gathered from its kept binning (only the
+    tile walk runs): the records are identical to a fresh gather's."""
+    from divas_kernels import accumulate_contributions
+
+    scene, labels, parts, grid, act, views = ball
+    r = make_renderer(scene, device=CPU)
+    fresh = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU)
+    shared = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU, renderer=r)
+    assert shared._buf is r.surfel_buffers and fresh._buf is not r.surfel_buffers
+    for i, v in enumerate(views):
+        r.render(v.camera)  # the accept's render: its binning is kept
+        b = r.kept_binning(v.camera)
+        assert b is not None
+        cam = v.camera
+        pos = np.asarray(v.mask) >= 0.5
+        args = (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos)
+        st = r.config.raster_settings(cam)
+        reused = accumulate_contributions(r.surfel_buffers, *args, st, binning=b)
+        again = accumulate_contributions(r.surfel_buffers, *args, st)
+        assert reused.stats["reused"] and not again.stats["reused"]
+        assert np.array_equal(reused.a1.numpy(), again.a1.numpy())
+        assert np.array_equal(reused.a0.numpy(), again.a0.numpy())
+        fresh.add_view(i, v)
+        shared.add_view(i, v)
+    assert np.array_equal(fresh.q1, shared.q1) and np.array_equal(fresh.q0, shared.q0)
+    # a binning of another camera is ignored (key mismatch), not misused
+    cam = views[0].camera
+    other = accumulate_contributions(
+        r.surfel_buffers,
+        cam.w2c,
+        cam.fx,
+        cam.fy,
+        cam.cx,
+        cam.cy,
+        cam.width,
+        cam.height,
+        np.asarray(views[0].mask) >= 0.5,
+        r.config.raster_settings(cam),
+        binning=r.kept_binning(views[-1].camera),
+    )
+    assert not other.stats["reused"]

@@ -233,6 +233,10 @@ class VolumetricCompletion:
             none), e.g. :attr:`~divas_engine.mapping.SurfelMapper.active_index`.
         config: :class:`CompletionConfig`; render_config: the renderer's constants (the
             contribution weights are the rasterizer's).
+        renderer: optionally the session's renderer *of this scene*: when it renders with
+            ``render_config`` on ``device``, its buffers are shared and a view it has just
+            rendered (binning kept) is gathered without projecting, sorting and binning
+            again (same kernels, same inputs: the same records).
     """
 
     def __init__(
@@ -244,6 +248,7 @@ class VolumetricCompletion:
         *,
         device=None,
         render_config: RenderConfig | None = None,
+        renderer=None,
     ) -> None:
         self.device = resolve_device(device if device is not None else grid.device)
         self.config = config
@@ -264,16 +269,22 @@ class VolumetricCompletion:
         g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 20)).all(axis=1)
         g_coords = np.where(g_valid[:, None], g_coords, 0).astype(np.int64)
         self.cells = _CoarseCells(g_coords, g_valid, v_coords, int(config.neighbourhood_log2))
-        self._buf = upload_surfels(
-            scene.means,
-            scene.rotations(),
-            scene.scales,
-            scene.opacities,
-            scene.sh,
-            scene.sh_degree,
-            self.device,
-            self.render_config.alpha_min,
-        )
+        # share the renderer's buffers (and so its kept per-view binnings: the gather
+        # of a view just rendered only walks its tiles) when it renders this scene
+        # with the same constants; else upload our own
+        self._renderer = None
+        rb = getattr(renderer, "surfel_buffers", None)
+        if (
+            rb is not None
+            and hasattr(renderer, "kept_binning")
+            and len(rb) == n
+            and getattr(renderer, "config", None) == self.render_config
+            and rb.device == self.device
+        ):
+            self._renderer = renderer
+            self._buf = rb
+        else:
+            self._buf = self._upload(scene)
         self.q1 = np.zeros(n, np.int64)
         self.q0 = np.zeros(n, np.int64)
         self.n_surf = np.zeros(self.a, np.int32)
@@ -283,6 +294,18 @@ class VolumetricCompletion:
         # voxels a record touches, so the decision never scans all A voxels
         self.fill_ok = np.zeros(self.a, bool)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
+
+    def _upload(self, scene: SurfelScene):
+        return upload_surfels(
+            scene.means,
+            scene.rotations(),
+            scene.scales,
+            scene.opacities,
+            scene.sh,
+            scene.sh_degree,
+            self.device,
+            self.render_config.alpha_min,
+        )
 
     # ------------------------------------------------------------------ per view
     def view_record(self, view: FusionView) -> _ViewRecord:
@@ -303,6 +326,7 @@ class VolumetricCompletion:
             cam.height,
             pos,
             self.render_config.raster_settings(cam),
+            binning=None if self._renderer is None else self._renderer.kept_binning(cam),
         )
         a1 = out.a1.numpy().astype(np.float64)
         a0 = out.a0.numpy().astype(np.float64)

@@ -188,6 +188,7 @@ class SurfelBackend(SessionBackend):
                 comp,
                 device=self.device,
                 render_config=self.config.render,
+                renderer=self.renderer,
             )
         t_views = self._completion.sync([(int(v.fusion_id), self._evidence_view(v)) for v in live])
         res = self._completion.complete(sel, fused.segmented)
