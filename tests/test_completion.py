@@ -154,16 +154,14 @@ def test_incremental_equals_batch_and_undo_is_exact(ball):
     inc.add_view(0, views[0])
     inc.remove_view(1)  # undo
     inc.add_view(2, views[2])
-    for k in ("q1", "q0", "n_surf", "n_hidden", "n_incons", "fill_ok"):
+    for k in ("q1", "q0", "n_surf", "n_hidden", "n_incons"):
         assert np.array_equal(getattr(inc, k), getattr(batch, k)), k
     sel, seg = _divas_like(labels, parts, act, len(grid))
     assert np.array_equal(inc.complete(sel, seg).selected, batch.complete(sel, seg).selected)
     # undo of everything returns to zero exactly
     for k in list(inc.keys):
         inc.remove_view(k)
-    assert not any(
-        getattr(inc, k).any() for k in ("q1", "q0", "n_surf", "n_hidden", "n_incons", "fill_ok")
-    )
+    assert not any(getattr(inc, k).any() for k in ("q1", "q0", "n_surf", "n_hidden", "n_incons"))
     # sync: a key whose view object changed is re-added
     inc.sync([(0, views[0]), (1, views[1])])
     inc.sync([(0, views[0]), (1, views[2])])

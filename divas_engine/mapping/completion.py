@@ -41,7 +41,8 @@ accumulators — ``A₀, A₁`` in int64 fixed point (2⁻²⁴ pixel), the voxe
 int32 — removing it subtracts the same integers, so any add/undo sequence equals the
 views added once (tests: ``tests/test_completion.py``). The per-update decision
 touches only the coarse cells near the selection and their members (per-cell member
-lists built once; the voxels' fill candidacy is updated by each record), and the
+lists built once; the fill candidacy is read from the counters of the voxels examined
+only), and the
 selected Gaussians (the drop test); its only ``O(N)`` / ``O(A)`` steps are copies and
 scans of ``[N]`` / ``[A]`` bool arrays.
 """
@@ -290,9 +291,6 @@ class VolumetricCompletion:
         self.n_surf = np.zeros(self.a, np.int32)
         self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
-        # fill candidates (consistent, never inconsistent), kept up to date for the
-        # voxels a record touches, so the decision never scans all A voxels
-        self.fill_ok = np.zeros(self.a, bool)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
 
     def _upload(self, scene: SurfelScene):
@@ -392,11 +390,6 @@ class VolumetricCompletion:
         self.n_surf[rec.voxels] += sign * (rec.flags == _SURFACE).astype(np.int32)
         self.n_hidden[rec.voxels] += sign * (rec.flags == _HIDDEN).astype(np.int32)
         self.n_incons[rec.voxels] += sign * (rec.flags == _INCONSISTENT).astype(np.int32)
-        v = rec.voxels
-        ns, nh = self.n_surf[v], self.n_hidden[v]
-        self.fill_ok[v] = ((ns >= 1) | (ns + nh >= self.config.fill_min_views)) & (
-            self.n_incons[v] == 0
-        )
 
     def add_view(self, key: int, view: FusionView) -> None:
         """Add one fused view under ``key`` (e.g. its fusion slot); its records are
@@ -429,6 +422,14 @@ class VolumetricCompletion:
         return list(self._records)
 
     # ------------------------------------------------------------------ decision
+    def _fill_candidate(self, vox: np.ndarray) -> np.ndarray:
+        """Voxels ``vox`` (indices) the fill may take: consistent with one surface view
+        or ``fill_min_views`` views, inconsistent with none (evaluated only for the
+        voxels the fill examines, from the integer counters)."""
+        ns, nh = self.n_surf[vox], self.n_hidden[vox]
+        ok = (ns >= 1) | (ns + nh >= self.config.fill_min_views)
+        return ok & (self.n_incons[vox] == 0)
+
     def contributions(self) -> tuple[np.ndarray, np.ndarray]:
         """``(A₁, A₀)`` ``[N]`` float64 summed over the live views (pixels)."""
         return self.q1 / QSCALE, self.q0 / QSCALE
@@ -450,7 +451,6 @@ class VolumetricCompletion:
         # that became near since the last round are examined (every candidate of an
         # older near cell joined in the round its cell became near), so the work is
         # the cells near the selection and their voxels, not A or N.
-        cand = self.fill_ok
         cur = seg.copy()
         near_cells = np.zeros(self.cells.n + 1, bool)
         fresh = self.cells.dilate_into(near_cells, np.flatnonzero(seg))
@@ -458,7 +458,8 @@ class VolumetricCompletion:
         rounds = 0
         for _ in range(cfg.fill_rounds):
             vox = self.cells.voxels_in(fresh)
-            new = vox[cand[vox] & ~cur[vox]]
+            vox = vox[~cur[vox]]
+            new = vox[self._fill_candidate(vox)]
             if len(new) == 0:
                 break
             cur[new] = True
