@@ -8,7 +8,9 @@ silhouettes, depth from the renderer. What one accept adds to the update:
 * ``view records ms`` — :meth:`VolumetricCompletion.view_record` of the new view: the
   contribution gather (one rasterizer pass that splits each Gaussian's blending weight
   by the mask, the FlashSplat-style evidence) and the projection of the active voxels;
-  ``of which gather ms`` is the rasterizer pass alone;
+  ``of which gather ms`` is the rasterizer pass alone; ``gather, binning kept ms`` the
+  same pass when the accept's render of the view kept its projection, depth order and
+  tiles (the session shares its renderer's buffers with the completion);
 * ``add ms`` / ``undo ms`` — adding / subtracting a view's integer records;
 * ``decide ms`` — :meth:`VolumetricCompletion.complete` with S live views (fill rounds,
   neighbourhood, contribution test over all N Gaussians).
@@ -84,6 +86,27 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
         ),
         reps,
     )
+    # the same gather when the accept's render of the view kept its binning (only the
+    # tile walk runs; :meth:`SurfelRenderer.kept_binning`)
+    renderer.render(cam)
+    kept = renderer.kept_binning(cam)
+    st = renderer.config.raster_settings(cam)
+    gather_kept_ms = median_ms(
+        lambda: accumulate_contributions(
+            renderer.surfel_buffers,
+            cam.w2c,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            pos,
+            st,
+            binning=kept,
+        ),
+        reps,
+    )
     for s in view_counts:
         for k in list(comp.keys):
             comp.remove_view(k)
@@ -113,6 +136,7 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
                 "render_ms": render_ms,
                 "record_ms": rec_ms,
                 "gather_ms": gather_ms,
+                "gather_kept_ms": gather_kept_ms,
                 "add_ms": add_ms,
                 "undo_ms": undo_ms,
                 "decide_ms": decide,
@@ -122,7 +146,8 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
         r = rows[-1]
         print(
             f"| {n:,} | {s} | {r['active_voxels']:,} | {r['render_ms']:.0f} | "
-            f"{r['record_ms']:.0f} | {r['gather_ms']:.0f} | {r['add_ms']:.1f} | "
+            f"{r['record_ms']:.0f} | {r['gather_ms']:.0f} | {r['gather_kept_ms']:.0f} | "
+            f"{r['add_ms']:.1f} | "
             f"{r['undo_ms']:.1f} | {r['decide_ms']:.1f} | {r['setup_s']:.2f} |",
             flush=True,
         )
@@ -140,9 +165,9 @@ def main() -> int:
     print(f"# bench_completion {datetime.date.today()} {cpu} ({os.cpu_count()} CPUs), {a.device}")
     print(
         "| Gaussians | views | active voxels | render ms | view records ms | of which gather "
-        "ms | add ms | undo ms | decide ms | setup s |"
+        "ms | gather, binning kept ms | add ms | undo ms | decide ms | setup s |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n in (int(x) for x in a.sizes.split(",")):
         run(n, [int(x) for x in a.views.split(",")], a.reps, a.device)
     return 0

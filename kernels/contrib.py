@@ -38,6 +38,8 @@ from .composite import PixState
 from .rasterize import (
     RasterSettings,
     SurfelBuffers,
+    ViewBinning,
+    binning_key,
     blend_params,
     check_view,
     count_visible,
@@ -86,6 +88,8 @@ def accumulate_contributions(
     height: int,
     positive: np.ndarray,
     settings: RasterSettings | None = None,
+    *,
+    binning: ViewBinning | None = None,
 ) -> ContribOutput:
     """A₁ / A₀ of every surfel of ``buf`` for one view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -93,6 +97,11 @@ def accumulate_contributions(
         positive: ``[H, W]`` (or ``[H·W]``) mask, nonzero = mask-positive pixel.
         settings: the rasterizer's settings (same defaults: α_min, α_max, T_min, near,
             low-pass σ, tile, blend form, threads).
+        binning: a :class:`~kernels.rasterize.ViewBinning` a render of this view kept
+            (same buffers, camera and settings, :func:`~kernels.rasterize.binning_key`):
+            its projection, depth order and tiles are reused and only the walk runs —
+            the same kernels on the same inputs, so the sums are those of a fresh pass;
+            ignored when its key does not match.
     Returns:
         :class:`ContribOutput` on ``buf.device``.
     """
@@ -104,10 +113,16 @@ def accumulate_contributions(
     pos = np.asarray(positive)
     if pos.size != W * H:
         raise ValueError(f"accumulate_contributions: mask has {pos.size} pixels, the view {W}x{H}")
-    cam = make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+    if binning is not None and binning.key != binning_key(buf, w2c, fx, fy, cx, cy, W, H, s):
+        binning = None
+    cam = (
+        binning.cam
+        if binning is not None
+        else make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+    )
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
-    stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode}
+    stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode, "reused": binning is not None}
     with wp.ScopedDevice(dev):
         a1 = wp.zeros(n, dtype=float)
         a0 = wp.zeros(n, dtype=float)
@@ -119,15 +134,23 @@ def accumulate_contributions(
         )
         sink.a1 = rows1 = wp.zeros((threads, n), dtype=float)
         sink.a0 = rows0 = wp.zeros((threads, n), dtype=float)
-        splats, keys, order = project_splats(buf, cam, inv_var, None, threads)
-        wp.utils.radix_sort_pairs(keys, order, n)
-        n_vis = count_visible(keys, n)
+        tiles_x, tiles_y = -(-W // T), -(-H // T)
+        if binning is None:
+            splats, keys, order = project_splats(buf, cam, inv_var, None, threads)
+            wp.utils.radix_sort_pairs(keys, order, n)
+            n_vis = count_visible(keys, n)
+        else:
+            splats, order, n_vis = binning.splats, binning.order, binning.n_visible
+        if binning is not None and binning.bands is not None:
+            bands = iter(binning.bands)
+            stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
+        else:
+            bands = tile_bands(
+                splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
+            )
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
-        tiles_x, tiles_y = -(-W // T), -(-H // T)
-        for lo, nt, dvals, rstart, rend, total in tile_bands(
-            splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
-        ):
+        for lo, nt, dvals, rstart, rend, total in bands:
             if total == 0:
                 continue
             # interleave: CPU sub-launch j gets base = j, i.e. its own accumulator row

@@ -243,3 +243,136 @@ def test_session_completes_3dgs_only(ball):
     print("interior selected:", sel3[interior].mean(), "paper:", mapped3[interior].mean())
     assert sel3[interior].mean() > max(0.6, mapped3[interior].mean() + 0.3)
     assert not sel3[parts["floater"]].any()
+
+
+def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.ndarray):
+    """The decision written plainly over all N Gaussians and all voxels (module
+    docstring), independent of the per-cell member lists the engine walks."""
+    from divas_engine.mapping.completion import QSCALE
+
+    cfg, cells = comp.config, comp.cells
+    cand = ((comp.n_surf >= 1) | (comp.n_surf + comp.n_hidden >= cfg.fill_min_views)) & (
+        comp.n_incons == 0
+    )
+    cur = seg.copy()
+
+    def near_of(vox_sel):
+        near = np.zeros(cells.n + 1, bool)
+        c = np.unique(cells.of_voxel[np.flatnonzero(vox_sel)])
+        near[cells.neighbours[c].ravel()] = True
+        near[cells.n] = False
+        return near
+
+    for _ in range(cfg.fill_rounds):
+        new = cand & ~cur & near_of(cur)[cells.of_voxel]
+        if not new.any():
+            break
+        cur |= new
+    near = near_of(cur)[cells.of_gauss]
+    a1, a0 = comp.q1.astype(np.float64), comp.q0.astype(np.float64)
+    seen = a1 + a0 >= cfg.min_weight * QSCALE
+    pos = seen & (a1 - a0 > cfg.gamma * np.hypot(a1, a0))
+    in_vox = np.zeros(comp.n, bool)
+    ok = comp.active_index >= 0
+    in_vox[ok] = cur[comp.active_index[ok]]
+    out = sel | (near & (pos | (in_vox & ~(seen & ~pos))))
+    if cfg.drop_inconsistent:
+        ev = a1 + a0 >= cfg.drop_min_weight * QSCALE
+        out &= ~(sel & ev & ~(a1 - a0 > cfg.gamma * np.hypot(a1, a0)))
+    return out, cur & ~seg, near
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_decision_matches_plain_reference(ball, seed):
+    """The decision walks only the cells near the selection; a plain O(N) evaluation of
+    the same rules gives the same selection, fill and neighbourhood — on the DivAS-like
+    start and on random selections (scattered seeds grow through many cells)."""
+    scene, labels, parts, grid, act, views = ball
+    for cfg in (CompletionConfig(), CompletionConfig(neighbourhood_log2=0, gamma=0.2)):
+        comp = VolumetricCompletion(scene, grid, act, cfg, device=CPU)
+        for i, v in enumerate(views[:3]):
+            comp.add_view(i, v)
+        rng = np.random.default_rng(seed)
+        starts = [_divas_like(labels, parts, act, len(grid))]
+        sel = rng.random(len(labels)) < 0.05
+        seg = rng.random(len(grid)) < 0.02
+        starts += [(sel, seg), (np.zeros(len(labels), bool), np.zeros(len(grid), bool))]
+        for sel, seg in starts:
+            res = comp.complete(sel, seg)
+            out, filled, near = _reference_complete(comp, sel, seg)
+            assert np.array_equal(res.selected, out)
+            assert np.array_equal(res.filled_voxels, filled)
+            assert np.array_equal(res.near, near)
+
+
+def test_coarse_cells_are_the_2k_blocks(ball):
+    """Every coarse cell holds the voxels / Gaussians of one 2^k block (no two distant
+    blocks share a key), and the neighbour table lists exactly the blocks at Chebyshev
+    distance ≤ 1 — brute force over the block coordinates."""
+    from divas_engine.fusion.morton import morton_decode
+
+    scene, labels, parts, grid, act, views = ball
+    for k in (0, 1, 2):
+        comp = VolumetricCompletion(scene, grid, act, CompletionConfig(neighbourhood_log2=k))
+        cells = comp.cells
+        codes = grid.codes.numpy() if hasattr(grid.codes, "numpy") else np.asarray(grid.codes)
+        block = morton_decode(codes).astype(np.int64) >> k
+        geo = grid.geometry
+        g_block = np.floor((scene.means - geo.origin) / geo.voxel_size).astype(np.int64) >> k
+        blocks = np.concatenate([block, g_block])
+        cell_of = np.concatenate([cells.of_voxel, cells.of_gauss])
+        uniq, inv = np.unique(blocks, axis=0, return_inverse=True)
+        assert cells.n == len(uniq)
+        # a bijection between blocks and cells
+        pairs = np.unique(np.stack([inv.ravel(), cell_of], 1), axis=0)
+        assert len(pairs) == len(uniq)
+        coord = np.zeros((cells.n, 3), np.int64)
+        coord[pairs[:, 1]] = uniq[pairs[:, 0]]
+        cheb = np.abs(coord[:, None, :] - coord[None, :, :]).max(-1)
+        for c in range(cells.n):
+            nb = set(cells.neighbours[c].tolist()) - {cells.n}
+            assert nb == set(np.flatnonzero(cheb[c] <= 1).tolist()), (k, c)
+
+
+def test_gather_reuses_the_renderers_binning(ball):
+    """A view the renderer has just rendered is gathered from its kept binning (only the
+    tile walk runs): the records are identical to a fresh gather's."""
+    from divas_kernels import accumulate_contributions
+
+    scene, labels, parts, grid, act, views = ball
+    r = make_renderer(scene, device=CPU)
+    fresh = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU)
+    shared = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU, renderer=r)
+    assert shared._buf is r.surfel_buffers and fresh._buf is not r.surfel_buffers
+    for i, v in enumerate(views):
+        r.render(v.camera)  # the accept's render: its binning is kept
+        b = r.kept_binning(v.camera)
+        assert b is not None
+        cam = v.camera
+        pos = np.asarray(v.mask) >= 0.5
+        args = (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos)
+        st = r.config.raster_settings(cam)
+        reused = accumulate_contributions(r.surfel_buffers, *args, st, binning=b)
+        again = accumulate_contributions(r.surfel_buffers, *args, st)
+        assert reused.stats["reused"] and not again.stats["reused"]
+        assert np.array_equal(reused.a1.numpy(), again.a1.numpy())
+        assert np.array_equal(reused.a0.numpy(), again.a0.numpy())
+        fresh.add_view(i, v)
+        shared.add_view(i, v)
+    assert np.array_equal(fresh.q1, shared.q1) and np.array_equal(fresh.q0, shared.q0)
+    # a binning of another camera is ignored (key mismatch), not misused
+    cam = views[0].camera
+    other = accumulate_contributions(
+        r.surfel_buffers,
+        cam.w2c,
+        cam.fx,
+        cam.fy,
+        cam.cx,
+        cam.cy,
+        cam.width,
+        cam.height,
+        np.asarray(views[0].mask) >= 0.5,
+        r.config.raster_settings(cam),
+        binning=r.kept_binning(views[-1].camera),
+    )
+    assert not other.stats["reused"]

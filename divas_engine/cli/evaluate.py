@@ -147,6 +147,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="skip alpha fidelity, opacity-weighted IoU and extracted-object PSNR "
         "(one render of each selection alone per test camera)",
     )
+    p.add_argument(
+        "--kind",
+        choices=("2dgs", "3dgs"),
+        default="2dgs",
+        help="the scenes as 2DGS surfels (default) or as their trained-looking 3DGS "
+        "variants (divas generate --kind 3dgs; adds the w/o-completion row, no NeRF path)",
+    )
+    p.add_argument(
+        "--no-ablations",
+        action="store_true",
+        help="skip the w/o-thin-path and w/o-depth-weighting sessions",
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument(
         "--json", action="store_true", help="print one JSON object instead of the Markdown table"
@@ -203,6 +215,8 @@ def run(args: argparse.Namespace) -> int:
         baseline_masks=args.baseline_masks,
         eval=EvalConfig(scale=float(args.eval_scale)),
         fidelity=not args.no_fidelity,
+        kind=args.kind,
+        ablations=not args.no_ablations,
     )
     t0 = time.perf_counter()
     log = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))

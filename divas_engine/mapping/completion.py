@@ -39,8 +39,12 @@ Incremental and exact under undo: adding a view computes only that view's record
 contribution gather and one projection of the active voxels) and adds them to integer
 accumulators — ``A₀, A₁`` in int64 fixed point (2⁻²⁴ pixel), the voxel counters in
 int32 — removing it subtracts the same integers, so any add/undo sequence equals the
-views added once (tests: ``tests/test_completion.py``). The per-update decision is
-``O(N + 27 C)`` vector work (C coarse cells).
+views added once (tests: ``tests/test_completion.py``). The per-update decision
+touches only the coarse cells near the selection and their members (per-cell member
+lists built once; the fill candidacy is read from the counters of the voxels examined
+only), and the
+selected Gaussians (the drop test); its only ``O(N)`` / ``O(A)`` steps are copies and
+scans of ``[N]`` / ``[A]`` bool arrays.
 """
 
 from __future__ import annotations
@@ -126,12 +130,41 @@ def _edge_distance(mask: np.ndarray) -> np.ndarray:
     return d[1:-1, 1:-1].astype(np.float64)
 
 
+def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Members grouped by cell: ``(order, start)`` with cell ``c``'s members
+    ``order[start[c]:start[c + 1]]`` (members of the sentinel cell ``n_cells`` last)."""
+    order = np.argsort(cell_of, kind="stable").astype(np.int32)
+    start = np.searchsorted(cell_of[order], np.arange(n_cells + 1)).astype(np.int64)
+    return order, start
+
+
+def _gather(order: np.ndarray, start: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """The members of ``cells`` (indices, no sentinel), concatenated: ``O(members)``."""
+    lo, hi = start[cells], start[np.asarray(cells) + 1]
+    ln = hi - lo
+    total = int(ln.sum())
+    if total == 0:
+        return np.zeros(0, np.int32)
+    # positions lo[c] + 0 … ln[c] − 1 for each cell, without a Python loop
+    nz = ln > 0
+    lo, ln = lo[nz], ln[nz]
+    step = np.ones(total, np.int64)
+    ends = np.cumsum(ln)
+    step[0] = lo[0]
+    step[ends[:-1]] = lo[1:] - (lo[:-1] + ln[:-1]) + 1
+    return order[np.cumsum(step)]
+
+
 class _CoarseCells:
     """Coarse cells of ``2^k`` voxels holding Gaussians or active voxels, with their
-    26-neighbour table (built once per scene)."""
+    26-neighbour table and member lists (built once per scene), so the decision touches
+    only the cells near the selection."""
 
     def __init__(self, g_coords: np.ndarray, g_valid: np.ndarray, v_coords: np.ndarray, k: int):
-        off = 1 << 22  # coordinates may be negative outside the grid: shift before packing
+        # coordinates may be negative outside the grid: shift into [0, 2^21) before
+        # packing three 21-bit fields (|c| < 2^20, checked by the caller; a larger
+        # shift would overflow a field and alias distant cells into one key)
+        off = 1 << 20
 
         def key(c: np.ndarray) -> np.ndarray:
             c = (c >> k) + off
@@ -144,6 +177,8 @@ class _CoarseCells:
         self.of_gauss = np.full(len(g_coords), self.n, np.int64)  # n = the empty sentinel
         self.of_gauss[g_valid] = np.searchsorted(self.keys, gk)
         self.of_voxel = np.searchsorted(self.keys, vk)
+        self.g_order, self.g_start = _csr(self.of_gauss, self.n)
+        self.v_order, self.v_start = _csr(self.of_voxel, self.n)
         cx = (self.keys >> 42) & ((1 << 21) - 1)
         cy = (self.keys >> 21) & ((1 << 21) - 1)
         cz = self.keys & ((1 << 21) - 1)
@@ -158,15 +193,35 @@ class _CoarseCells:
                     nb.append(np.where(hit, i, self.n).astype(np.int32))
         self.neighbours = np.stack(nb, axis=1) if nb else np.zeros((0, 27), np.int32)
 
-    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> None:
+    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> np.ndarray:
         """Set in ``near`` (``[C+1] bool``, the last entry the always-False sentinel) the
         cells within one cell of a cell holding one of the active voxels ``voxels``
-        (indices): ``O(|voxels| + 27 · cells touched)``."""
+        (indices); returns the cells that were not near before:
+        ``O(|voxels| + 27 · cells touched)``."""
         if len(voxels) == 0:
-            return
-        cells = np.unique(self.of_voxel[voxels])
-        near[self.neighbours[cells].ravel()] = True
-        near[self.n] = False
+            return np.zeros(0, np.int64)
+        return self.dilate_cells(near, self.of_voxel[voxels])
+
+    def dilate_cells(self, near: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """:meth:`dilate_into` from cells (indices; the sentinel is ignored)."""
+        # boolean marks over the C cells, not np.unique (a sort): C ≪ N
+        mark = np.zeros(self.n + 1, bool)
+        mark[cells] = True
+        cells = np.flatnonzero(mark[: self.n])
+        if len(cells) == 0:
+            return np.zeros(0, np.int64)
+        mark[:] = False
+        mark[self.neighbours[cells].ravel()] = True
+        mark[self.n] = False
+        fresh = np.flatnonzero(mark & ~near)
+        near[fresh] = True
+        return fresh
+
+    def voxels_in(self, cells: np.ndarray) -> np.ndarray:
+        return _gather(self.v_order, self.v_start, cells)
+
+    def gaussians_in(self, cells: np.ndarray) -> np.ndarray:
+        return _gather(self.g_order, self.g_start, cells)
 
 
 class VolumetricCompletion:
@@ -179,6 +234,10 @@ class VolumetricCompletion:
             none), e.g. :attr:`~divas_engine.mapping.SurfelMapper.active_index`.
         config: :class:`CompletionConfig`; render_config: the renderer's constants (the
             contribution weights are the rasterizer's).
+        renderer: optionally the session's renderer *of this scene*: when it renders with
+            ``render_config`` on ``device``, its buffers are shared and a view it has just
+            rendered (binning kept) is gathered without projecting, sorting and binning
+            again (same kernels, same inputs: the same records).
     """
 
     def __init__(
@@ -190,6 +249,7 @@ class VolumetricCompletion:
         *,
         device=None,
         render_config: RenderConfig | None = None,
+        renderer=None,
     ) -> None:
         self.device = resolve_device(device if device is not None else grid.device)
         self.config = config
@@ -207,10 +267,34 @@ class VolumetricCompletion:
         v_coords = morton_decode(codes)
         means = np.asarray(scene.means, np.float64)
         g_coords = np.floor((means - geo.origin) / self.h)
-        g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 21)).all(axis=1)
+        g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 20)).all(axis=1)
         g_coords = np.where(g_valid[:, None], g_coords, 0).astype(np.int64)
         self.cells = _CoarseCells(g_coords, g_valid, v_coords, int(config.neighbourhood_log2))
-        self._buf = upload_surfels(
+        # share the renderer's buffers (and so its kept per-view binnings: the gather
+        # of a view just rendered only walks its tiles) when it renders this scene
+        # with the same constants; else upload our own
+        self._renderer = None
+        rb = getattr(renderer, "surfel_buffers", None)
+        if (
+            rb is not None
+            and hasattr(renderer, "kept_binning")
+            and len(rb) == n
+            and getattr(renderer, "config", None) == self.render_config
+            and rb.device == self.device
+        ):
+            self._renderer = renderer
+            self._buf = rb
+        else:
+            self._buf = self._upload(scene)
+        self.q1 = np.zeros(n, np.int64)
+        self.q0 = np.zeros(n, np.int64)
+        self.n_surf = np.zeros(self.a, np.int32)
+        self.n_hidden = np.zeros(self.a, np.int32)
+        self.n_incons = np.zeros(self.a, np.int32)
+        self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
+
+    def _upload(self, scene: SurfelScene):
+        return upload_surfels(
             scene.means,
             scene.rotations(),
             scene.scales,
@@ -220,12 +304,6 @@ class VolumetricCompletion:
             self.device,
             self.render_config.alpha_min,
         )
-        self.q1 = np.zeros(n, np.int64)
-        self.q0 = np.zeros(n, np.int64)
-        self.n_surf = np.zeros(self.a, np.int32)
-        self.n_hidden = np.zeros(self.a, np.int32)
-        self.n_incons = np.zeros(self.a, np.int32)
-        self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
 
     # ------------------------------------------------------------------ per view
     def view_record(self, view: FusionView) -> _ViewRecord:
@@ -246,6 +324,7 @@ class VolumetricCompletion:
             cam.height,
             pos,
             self.render_config.raster_settings(cam),
+            binning=None if self._renderer is None else self._renderer.kept_binning(cam),
         )
         a1 = out.a1.numpy().astype(np.float64)
         a0 = out.a0.numpy().astype(np.float64)
@@ -343,6 +422,14 @@ class VolumetricCompletion:
         return list(self._records)
 
     # ------------------------------------------------------------------ decision
+    def _fill_candidate(self, vox: np.ndarray) -> np.ndarray:
+        """Voxels ``vox`` (indices) the fill may take: consistent with one surface view
+        or ``fill_min_views`` views, inconsistent with none (evaluated only for the
+        voxels the fill examines, from the integer counters)."""
+        ns, nh = self.n_surf[vox], self.n_hidden[vox]
+        ok = (ns >= 1) | (ns + nh >= self.config.fill_min_views)
+        return ok & (self.n_incons[vox] == 0)
+
     def contributions(self) -> tuple[np.ndarray, np.ndarray]:
         """``(A₁, A₀)`` ``[N]`` float64 summed over the live views (pixels)."""
         return self.q1 / QSCALE, self.q0 / QSCALE
@@ -360,25 +447,32 @@ class VolumetricCompletion:
                 f"expected ({self.n},) / ({self.a},)"
             )
         # solid fill: grow from the segmented voxels through consistent, never
-        # inconsistent voxels, one neighbourhood per round (only the new voxels' cells
-        # are dilated each round)
-        consistent = (self.n_surf >= 1) | (self.n_surf + self.n_hidden >= cfg.fill_min_views)
-        cand = consistent & (self.n_incons == 0) & ~seg
+        # inconsistent voxels, one neighbourhood per round. Only the voxels of the cells
+        # that became near since the last round are examined (every candidate of an
+        # older near cell joined in the round its cell became near), so the work is
+        # the cells near the selection and their voxels, not A or N.
         cur = seg.copy()
         near_cells = np.zeros(self.cells.n + 1, bool)
-        self.cells.dilate_into(near_cells, np.flatnonzero(seg))
+        fresh = self.cells.dilate_into(near_cells, np.flatnonzero(seg))
+        near_list = [fresh]
         rounds = 0
         for _ in range(cfg.fill_rounds):
-            new = np.flatnonzero(cand & ~cur & near_cells[self.cells.of_voxel])
+            vox = self.cells.voxels_in(fresh)
+            vox = vox[~cur[vox]]
+            new = vox[self._fill_candidate(vox)]
             if len(new) == 0:
                 break
             cur[new] = True
             rounds += 1
-            self.cells.dilate_into(near_cells, new)
+            fresh = self.cells.dilate_into(near_cells, new)
+            near_list.append(fresh)
         filled = cur & ~seg
-        # Gaussian level, evaluated on the neighbourhood's Gaussians only
-        near = near_cells[self.cells.of_gauss]
-        idx = np.flatnonzero(near & ~sel)
+        # Gaussian level, evaluated on the neighbourhood's Gaussians only (member lists
+        # of the near cells: O(Gaussians near the selection))
+        g_near = self.cells.gaussians_in(np.concatenate(near_list))
+        near = np.zeros(self.n, bool)
+        near[g_near] = True
+        idx = g_near[~sel[g_near]]
         a1 = self.q1[idx].astype(np.float64)
         a0 = self.q0[idx].astype(np.float64)
         seen = (a1 + a0) >= cfg.min_weight * QSCALE
@@ -392,15 +486,17 @@ class VolumetricCompletion:
         fill_add = np.zeros(self.n, bool)
         contrib_add[idx[positive]] = True
         fill_add[idx[in_voxels & ~negative & ~positive]] = True
-        out = sel | contrib_add | fill_add
+        out = sel.copy()
+        out[idx[positive | (in_voxels & ~negative)]] = True
         dropped = np.zeros(self.n, bool)
         if cfg.drop_inconsistent:
             j = np.flatnonzero(sel)
             b1 = self.q1[j].astype(np.float64)
             b0 = self.q0[j].astype(np.float64)
-            bad = ((b1 + b0) >= cfg.min_weight * QSCALE) & ~(b1 - b0 > cfg.gamma * np.hypot(b1, b0))
+            ev = (b1 + b0) >= cfg.drop_min_weight * QSCALE
+            bad = ev & ~(b1 - b0 > cfg.gamma * np.hypot(b1, b0))
             dropped[j[bad]] = True
-            out &= ~dropped
+            out[j[bad]] = False
         return CompletionResult(
             selected=out,
             contrib_added=contrib_add,

@@ -144,6 +144,29 @@ class SurfelRenderer:
             stats={},
         )
 
+    @property
+    def surfel_buffers(self):
+        """The scene's device buffers (:func:`divas_kernels.upload_surfels`), for passes
+        that share this renderer's kept binnings (the 3DGS completion's gather)."""
+        return self._buf
+
+    def kept_binning(self, camera: Camera):
+        """The kept :class:`divas_kernels.ViewBinning` of ``camera`` (as rendered: same
+        size), or None."""
+        cam = camera
+        key = binning_key(
+            self._buf,
+            cam.w2c,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            self.config.raster_settings(cam),
+        )
+        return next((b for b in self._binnings if b.key == key), None)
+
     def clear_cache(self) -> None:
         """Drop the kept view binnings (frees their device memory)."""
         self._binnings = []

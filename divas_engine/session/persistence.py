@@ -1,10 +1,11 @@
 """A session as a saved document and back (the file layer is :mod:`.store`).
 
 :func:`session_state` turns a :class:`~divas_engine.session.Session` into the JSON
-document plus the arrays (the accepted, depth-weighted masks, the labels and the
-selection); :func:`load_session` rebuilds a session from them by *replaying* it: the
-stored camera poses are re-rendered and the stored masks fused in their slots, so the
-replayed labels equal the saved ones without running SAM again. Views that were still
+document plus the arrays (the accepted, depth-weighted masks, the segmenter's raw
+masks the 3DGS completion reads, the labels and the selection); :func:`load_session`
+rebuilds a session from them by *replaying* it: the stored camera poses are
+re-rendered and the stored masks fused in their slots, so the replayed labels equal
+the saved ones without running SAM again. Views that were still
 pending (NeRF) are re-submitted to the segmenter.
 """
 
@@ -53,11 +54,17 @@ def session_state(session: Session) -> tuple[dict[str, Any], dict[str, np.ndarra
     for o in session.objects:
         vdocs = []
         for v in o.views:
-            key = None
+            key = raw_key = None
             if v.status == ViewStatus.FUSED and v.mask is not None:
                 key = f"mask_{len(arrays)}"
                 arrays[key] = v.mask.astype(np.float32)
-            vdocs.append(v.to_dict(key))
+                raw = v.preview.selection.mask if v.preview is not None else v.raw_mask
+                if raw is not None:  # the 3DGS completion's evidence (the raw mask)
+                    raw_key = f"raw_{len(arrays)}"
+                    arrays[raw_key] = np.asarray(raw, np.float32)
+            vd = v.to_dict(key)
+            vd["raw_mask"] = raw_key
+            vdocs.append(vd)
         objs.append(
             {
                 "index": o.index,
@@ -247,6 +254,8 @@ def restore_object(
             with session.timings.measure("kernel"):
                 v.fusion_id = session.fusion.add_view(fv, int(vd["fusion_id"]))
             v.mask, v.fusion_view = mask, fv
+            if vd.get("raw_mask"):  # absent in older files: the fused mask stands in
+                v.raw_mask = arrays[vd["raw_mask"]]
         elif v.status == ViewStatus.PENDING:
             pending.append(v)
     obj.accept_order = list(od["accept_order"])

@@ -146,6 +146,9 @@ class SessionView(_RenderedOnDemand):
             or rejection (what to click next), None once fused or when it was sure.
         points, labels: the prompt set of the last preview / accept.
         mask: the depth-weighted mask that was fused.
+        raw_mask: the segmenter's own mask of that accept, restored from a saved
+            session (a live view reads it from ``preview``); the 3DGS completion's
+            evidence, so a replay completes exactly as the live session did.
         fusion_id: the fusion slot (2DGS: view-bitmask bit).
     """
 
@@ -162,6 +165,7 @@ class SessionView(_RenderedOnDemand):
     labels: np.ndarray | None = None
     preview: MaskPreview | None = None
     mask: np.ndarray | None = None
+    raw_mask: np.ndarray | None = None
     fusion_id: int | None = None
     fusion_view: Any = None
     timings: dict = field(default_factory=dict)

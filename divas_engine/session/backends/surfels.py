@@ -192,6 +192,7 @@ class SurfelBackend(SessionBackend):
                 comp,
                 device=self.device,
                 render_config=self.config.render,
+                renderer=self.renderer,
             )
         t_views = self._completion.sync([(int(v.fusion_id), self._evidence_view(v)) for v in live])
         res = self._completion.complete(sel, fused.segmented)
@@ -211,7 +212,7 @@ class SurfelBackend(SessionBackend):
         hit = self._evidence.get(int(v.fusion_id))
         if hit is not None and hit[0] is fv:
             return hit[1]
-        raw = None if v.preview is None else v.preview.selection.mask
+        raw = v.raw_mask if v.preview is None else v.preview.selection.mask
         ev = fv if raw is None else replace(fv, mask=np.array(raw, np.float32))  # a copy
         self._evidence[int(v.fusion_id)] = (fv, ev)
         return ev
