@@ -343,7 +343,7 @@ def test_gather_reuses_the_renderers_binning(ball):
     r = make_renderer(scene, device=CPU)
     fresh = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU)
     shared = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU, renderer=r)
-    assert shared._buf is r.surfel_buffers and fresh._buf is not r.surfel_buffers
+    assert shared._renderer is r and fresh._renderer is not r
     for i, v in enumerate(views):
         r.render(v.camera)  # the accept's render: its binning is kept
         b = r.kept_binning(v.camera)

@@ -45,10 +45,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from divas_kernels import accumulate_contributions, resolve_device, upload_surfels
+from divas_kernels import resolve_device
 
 from ..camera import Camera
 from ..render import RenderConfig, make_renderer
+from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
 
 __all__ = [
@@ -224,16 +225,7 @@ class ContributionVoter:
         self.device = resolve_device(device)
         self.render_config = render_config or RenderConfig()
         self.n = len(scene)
-        self._buf = upload_surfels(
-            scene.means,
-            scene.rotations(),
-            scene.scales,
-            scene.opacities,
-            scene.sh,
-            scene.sh_degree,
-            self.device,
-            self.render_config.alpha_min,
-        )
+        self._renderer = SurfelRenderer(scene, self.device, self.render_config)
 
     def contributions(
         self, view: MaskView, mask_threshold: float = 0.5
@@ -241,18 +233,7 @@ class ContributionVoter:
         """``(A₁, A₀)`` ``[N]`` float32 of one view."""
         cam = view.camera
         positive = np.asarray(view.mask) >= np.float32(mask_threshold)
-        out = accumulate_contributions(
-            self._buf,
-            cam.w2c,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            cam.width,
-            cam.height,
-            positive,
-            self.render_config.raster_settings(cam),
-        )
+        out = self._renderer.contributions(cam, positive)
         return out.a1.numpy(), out.a0.numpy()
 
     def vote(

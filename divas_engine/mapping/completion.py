@@ -55,12 +55,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from divas_kernels import accumulate_contributions, resolve_device, upload_surfels
+from divas_kernels import resolve_device
 
 from ..fusion.morton import morton_decode
 from ..fusion.occupancy import OccupancyGrid
 from ..fusion.views import FusionView
 from ..render.config import RenderConfig
+from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
 from .config import CompletionConfig
 
@@ -270,40 +271,26 @@ class VolumetricCompletion:
         g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 20)).all(axis=1)
         g_coords = np.where(g_valid[:, None], g_coords, 0).astype(np.int64)
         self.cells = _CoarseCells(g_coords, g_valid, v_coords, int(config.neighbourhood_log2))
-        # share the renderer's buffers (and so its kept per-view binnings: the gather
-        # of a view just rendered only walks its tiles) when it renders this scene
-        # with the same constants; else upload our own
-        self._renderer = None
+        # share the renderer (and so its kept per-view binnings: the gather of a view
+        # just rendered only walks its tiles) when it renders this scene with the same
+        # constants; else a renderer of our own, used for the gather only
         rb = getattr(renderer, "surfel_buffers", None)
         if (
             rb is not None
-            and hasattr(renderer, "kept_binning")
+            and hasattr(renderer, "contributions")
             and len(rb) == n
             and getattr(renderer, "config", None) == self.render_config
             and rb.device == self.device
         ):
             self._renderer = renderer
-            self._buf = rb
         else:
-            self._buf = self._upload(scene)
+            self._renderer = SurfelRenderer(scene, self.device, self.render_config)
         self.q1 = np.zeros(n, np.int64)
         self.q0 = np.zeros(n, np.int64)
         self.n_surf = np.zeros(self.a, np.int32)
         self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
-
-    def _upload(self, scene: SurfelScene):
-        return upload_surfels(
-            scene.means,
-            scene.rotations(),
-            scene.scales,
-            scene.opacities,
-            scene.sh,
-            scene.sh_degree,
-            self.device,
-            self.render_config.alpha_min,
-        )
 
     # ------------------------------------------------------------------ per view
     def view_record(self, view: FusionView) -> _ViewRecord:
@@ -313,19 +300,7 @@ class VolumetricCompletion:
         cam = view.camera
         mask = np.asarray(view.mask)
         pos = mask.astype(np.float32, copy=False) >= np.float32(cfg.mask_threshold)
-        out = accumulate_contributions(
-            self._buf,
-            cam.w2c,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            cam.width,
-            cam.height,
-            pos,
-            self.render_config.raster_settings(cam),
-            binning=None if self._renderer is None else self._renderer.kept_binning(cam),
-        )
+        out = self._renderer.contributions(cam, pos)
         a1 = out.a1.numpy().astype(np.float64)
         a0 = out.a0.numpy().astype(np.float64)
         q1 = np.rint(a1 * QSCALE).astype(np.int64)

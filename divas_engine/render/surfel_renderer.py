@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from divas_kernels import binning_key, rasterize_surfels, resolve_device, upload_surfels
+from divas_kernels import (
+    ContribOutput,
+    accumulate_contributions,
+    binning_key,
+    rasterize_surfels,
+    resolve_device,
+    upload_surfels,
+)
 
 from ..camera import Camera
 from ..kinds import SceneKind
@@ -102,35 +109,23 @@ class SurfelRenderer:
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         cam = camera if scale == 1.0 else camera.scaled(scale)
         r = self._run(cam, None)
-        H, W = cam.height, cam.width
-        o = r.out
-        img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
-        d_med = img(o.d_med)
-        return RenderBuffers(
-            rgb=o.feat.numpy().reshape(H, W, 3),
-            alpha=img(o.alpha),
-            D_min=img(o.d_min),
-            D_ref=d_med.copy(),
-            D_max=img(o.d_max),
-            D_mw=img(o.d_mw),
-            D_exp=img(o.d_exp),
-            D_med=d_med,
-            N_samp=img(o.n_samp),
-            camera=cam,
-            kind=self.kind,
-            stats=r.stats,
-        )
+        rgb = r.out.feat.numpy().reshape(cam.height, cam.width, 3)
+        return self._buffers(r.out, cam, rgb, r.stats)
 
     def render_depth(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         """The depth tuple only (probes): ``rgb`` is zeros, no SH colours are evaluated
         and nothing is composited but the depths, which equal :meth:`render`'s."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
         o = self._run(cam, None, features=False, keep=False).out
+        return self._buffers(o, cam, np.zeros((cam.height, cam.width, 3), np.float32), {})
+
+    def _buffers(self, o, cam: Camera, rgb: np.ndarray, stats: dict) -> RenderBuffers:
+        """The :class:`RenderBuffers` of one rasterizer output ``o`` of ``cam``."""
         H, W = cam.height, cam.width
         img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
         d_med = img(o.d_med)
         return RenderBuffers(
-            rgb=np.zeros((H, W, 3), np.float32),
+            rgb=rgb,
             alpha=img(o.alpha),
             D_min=img(o.d_min),
             D_ref=d_med.copy(),
@@ -141,7 +136,26 @@ class SurfelRenderer:
             N_samp=img(o.n_samp),
             camera=cam,
             kind=self.kind,
-            stats={},
+            stats=stats,
+        )
+
+    def contributions(self, camera: Camera, positive: np.ndarray) -> ContribOutput:
+        """FlashSplat-style split of each primitive's blending weight in ``camera`` by the
+        ``[H,W]`` bool mask ``positive``: A₁ inside, A₀ outside — this renderer's own
+        weights, walking the camera's kept binning when it was just rendered (same sums)."""
+        cam = camera
+        return accumulate_contributions(
+            self._buf,
+            cam.w2c,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            positive,
+            self.config.raster_settings(cam),
+            binning=self.kept_binning(cam),
         )
 
     @property
