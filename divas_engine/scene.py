@@ -40,20 +40,29 @@ class SourceInfo:
         path: the file that was read.
         format: ``"ply"``, ``"compressed_ply"``, ``"splat"``, ``"spz"`` or ``"npz"``.
         num_rows: primitives stored in the file (before any row was dropped).
-        kept_rows: ``[N] int64`` file row of each primitive in the scene, ascending
-            (``int32`` for a density grid, whose cells are all kept).
+        kept: ``[N] int64`` file row of each primitive in the scene, ascending; None when
+            every row is kept in order (a density grid: no per-cell index is held, so the
+            bookkeeping does not grow with the grid — issue 14).
         dropped_nonfinite: rows dropped because a value was NaN/Inf.
     """
 
     path: Path
     format: str
     num_rows: int
-    kept_rows: np.ndarray
+    kept: np.ndarray | None
     dropped_nonfinite: int = 0
 
     @property
+    def kept_rows(self) -> np.ndarray:
+        """The file row of each primitive (``kept``, or ``arange(num_rows)`` made on
+        demand when every row is kept)."""
+        if self.kept is None:
+            return np.arange(self.num_rows, dtype=np.int64)
+        return self.kept
+
+    @property
     def dropped(self) -> int:
-        return self.num_rows - len(self.kept_rows)
+        return 0 if self.kept is None else self.num_rows - len(self.kept)
 
 
 @dataclass(eq=False)
@@ -122,7 +131,7 @@ class SurfelScene:
         """A new scene with the primitives selected by bool mask or index array."""
         src = None
         if self.source is not None:
-            src = replace(self.source, kept_rows=self.source.kept_rows[keep])
+            src = replace(self.source, kept=self.source.kept_rows[keep])
         return SurfelScene(
             self.means[keep],
             self.quats[keep],

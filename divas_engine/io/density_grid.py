@@ -144,9 +144,8 @@ def read_density_grid(path: str | PathLike) -> DensityGrid:
         raise DivasInputError(path, "empty scene: the density grid is zero everywhere")
     if rgb is not None:
         rgb = np.nan_to_num(np.clip(rgb, 0.0, 1.0))
-    # every cell is kept, in order: int32 indices (the cell count is capped below 2^31 by
-    # LoadLimits.max_rows) halve the per-cell bookkeeping of int64
-    src = SourceInfo(path, "npz", int(density.size), np.arange(density.size, dtype=np.int32), n_bad)
+    # every cell is kept, in order: no per-cell row index is held (SourceInfo.kept None)
+    src = SourceInfo(path, "npz", int(density.size), None, n_bad)
     return DensityGrid(density, aabb, rgb, src)
 
 
