@@ -193,10 +193,11 @@ def _unlink_quietly(p: Path) -> None:
 
 
 @contextmanager
-def atomic_path(path: str | PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` for a writer that needs a path; when the
-    block ends without error the file is fsynced and replaces ``path``."""
-    target = Path(path)
+def _temporary(target: Path) -> Iterator[tuple[int, Path]]:
+    """An open temporary ``(fd, path)`` beside ``target``, registered as being written;
+    removed when the block leaves it behind (an error), OSErrors turned into one
+    :class:`DivasInputError` naming ``target``; a killed earlier writer's leftovers of
+    this file are removed afterwards."""
     if target.is_dir():
         raise DivasInputError(target, "the output is a folder; give a file path")
     try:
@@ -207,12 +208,7 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
         _LIVE.add(str(tmp))
     try:
         try:
-            os.close(fd)
-            yield tmp
-            with open(tmp, "rb+") as f:
-                os.fsync(f.fileno())
-            os.chmod(tmp, file_mode())
-            os.replace(tmp, target)
+            yield fd, tmp
         except OSError as e:
             raise DivasInputError(target, _problem_of(e)) from None
     finally:
@@ -223,6 +219,25 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
     remove_stale_temps(target)
 
 
+def _publish(tmp: Path, target: Path) -> None:
+    """Normal permissions, then ``os.replace`` over ``target`` (the data is fsynced)."""
+    os.chmod(tmp, file_mode())
+    os.replace(tmp, target)
+
+
+@contextmanager
+def atomic_path(path: str | PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` for a writer that needs a path; when the
+    block ends without error the file is fsynced and replaces ``path``."""
+    target = Path(path)
+    with _temporary(target) as (fd, tmp):
+        os.close(fd)
+        yield tmp
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        _publish(tmp, target)
+
+
 @contextmanager
 def atomic_file(path: str | PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
     """Open a temporary beside ``path`` for writing (``"wb"`` or ``"w"``); when the block
@@ -231,35 +246,17 @@ def atomic_file(path: str | PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
     if mode not in ("wb", "w"):
         raise ValueError(f"atomic_file mode must be 'wb' or 'w', got {mode!r}")
     target = Path(path)
-    if target.is_dir():
-        raise DivasInputError(target, "the output is a folder; give a file path")
-    try:
-        fd, tmp = _temp_for(target)
-    except OSError as e:
-        raise DivasInputError(target, _problem_of(e)) from None
-    with _LIVE_LOCK:
-        _LIVE.add(str(tmp))
-    try:
+    with _temporary(target) as (fd, tmp):
         try:
             f = os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"}))
         except BaseException:
             os.close(fd)
             raise
-        try:
-            with f:
-                yield f
-                f.flush()
-                os.fsync(f.fileno())
-            os.chmod(tmp, file_mode())
-            os.replace(tmp, target)
-        except OSError as e:
-            raise DivasInputError(target, _problem_of(e)) from None
-    finally:
-        if os.path.lexists(tmp):
-            _unlink_quietly(tmp)
-        with _LIVE_LOCK:
-            _LIVE.discard(str(tmp))
-    remove_stale_temps(target)  # a killed earlier writer's leftovers of this file
+        with f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        _publish(tmp, target)
 
 
 def write_bytes_atomic(path: str | PathLike, data: bytes) -> Path:
