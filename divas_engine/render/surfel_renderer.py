@@ -73,21 +73,11 @@ class SurfelRenderer:
     def _run(
         self, cam: Camera, values: np.ndarray | None, features: bool = True, keep: bool = True
     ):
-        settings = self.config.raster_settings(cam)
-        key = binning_key(
-            self._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, settings
-        )
-        hit = next((b for b in self._binnings if b.key == key), None)
+        hit = self.kept_binning(cam)
         r = rasterize_surfels(
             self._buf,
-            cam.w2c,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            cam.width,
-            cam.height,
-            settings,
+            *_projection(cam),
+            self.config.raster_settings(cam),
             values=values,
             background=self.config.background,
             features=features,
@@ -143,19 +133,12 @@ class SurfelRenderer:
         """FlashSplat-style split of each primitive's blending weight in ``camera`` by the
         ``[H,W]`` bool mask ``positive``: A₁ inside, A₀ outside — this renderer's own
         weights, walking the camera's kept binning when it was just rendered (same sums)."""
-        cam = camera
         return accumulate_contributions(
             self._buf,
-            cam.w2c,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            cam.width,
-            cam.height,
+            *_projection(camera),
             positive,
-            self.config.raster_settings(cam),
-            binning=self.kept_binning(cam),
+            self.config.raster_settings(camera),
+            binning=self.kept_binning(camera),
         )
 
     @property
@@ -167,18 +150,7 @@ class SurfelRenderer:
     def kept_binning(self, camera: Camera):
         """The kept :class:`divas_kernels.ViewBinning` of ``camera`` (as rendered: same
         size), or None."""
-        cam = camera
-        key = binning_key(
-            self._buf,
-            cam.w2c,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            cam.width,
-            cam.height,
-            self.config.raster_settings(cam),
-        )
+        key = binning_key(self._buf, *_projection(camera), self.config.raster_settings(camera))
         return next((b for b in self._binnings if b.key == key), None)
 
     def clear_cache(self) -> None:
@@ -197,3 +169,8 @@ class SurfelRenderer:
         f = r.out.feat.numpy()
         H, W = cam.height, cam.width
         return f.reshape(H, W) if values.ndim == 1 else f.reshape(H, W, -1)
+
+
+def _projection(cam: Camera) -> tuple:
+    """The camera arguments every rasterizer wrapper takes: ``w2c, fx, fy, cx, cy, W, H``."""
+    return cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height
