@@ -27,29 +27,14 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tests.fuzz_cases import OUTCOMES, build_seeds, run_family  # noqa: E402
-
-ALL = [
-    "ply",
-    "ply_ascii",
-    "compressed_ply",
-    "splat",
-    "spz",
-    "sog",
-    "npz",
-    "cameras_json",
-    "transforms_json",
-    "colmap",
-    "prompts",
-    "session",
-]
+from tests.fuzz_cases import FAMILIES, OUTCOMES, build_seeds, run_family  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", type=int, default=30_000)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--families", default=",".join(ALL))
+    ap.add_argument("--families", default=",".join(FAMILIES))
     ap.add_argument("--timeout", type=float, default=20.0)
     ap.add_argument("--mem-mib", type=int, default=1536)
     ap.add_argument("--work", default=None)

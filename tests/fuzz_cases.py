@@ -154,6 +154,23 @@ def _cameras(n: int = 3):
     ]
 
 
+#: every loader family :func:`build_seeds` knows, in the order the tables list them
+FAMILIES = [
+    "ply",
+    "ply_ascii",
+    "compressed_ply",
+    "splat",
+    "spz",
+    "sog",
+    "npz",
+    "cameras_json",
+    "transforms_json",
+    "colmap",
+    "prompts",
+    "session",
+]
+
+
 def build_seeds(work: Path, families: list[str] | None = None) -> dict[str, Family]:
     """Write the seed files under ``work`` and return the families (all by default)."""
     from divas_engine.io.cameras import load_cameras, save_cameras

@@ -10,22 +10,8 @@ import os
 
 import pytest
 
-from .fuzz_cases import build_seeds, run_case, run_family
+from .fuzz_cases import FAMILIES, build_seeds, run_case, run_family
 
-FAMILIES = [
-    "ply",
-    "ply_ascii",
-    "compressed_ply",
-    "splat",
-    "spz",
-    "sog",
-    "npz",
-    "cameras_json",
-    "transforms_json",
-    "colmap",
-    "prompts",
-    "session",
-]
 #: cases per family (session cases replay a session: fewer); DIVAS_FUZZ_CASES overrides
 CASES = int(os.environ.get("DIVAS_FUZZ_CASES", "250"))
 
