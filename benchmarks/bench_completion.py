@@ -76,35 +76,17 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
     rows = []
     render_ms = median_ms(lambda: renderer.render(cams[0]), reps)
     rec_ms = median_ms(lambda: comp.view_record(views[0]), reps)
-    from divas_kernels.contrib import accumulate_contributions
-
     cam = cams[0]
     pos = views[0].mask >= 0.5
-    gather_ms = median_ms(
-        lambda: accumulate_contributions(
-            comp._buf, cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos
-        ),
-        reps,
-    )
-    # the same gather when the accept's render of the view kept its binning (only the
-    # tile walk runs; :meth:`SurfelRenderer.kept_binning`)
+    # the gather alone (a renderer that kept no binning of this view: a full rasterizer
+    # pass), then the same gather once the accept's render kept the view's binning (only
+    # the tile walk runs; :meth:`SurfelRenderer.contributions`)
+    fresh = make_renderer(scene, device=device)
+    gather_ms = median_ms(lambda: fresh.contributions(cam, pos), reps)
     renderer.render(cam)
-    kept = renderer.kept_binning(cam)
-    st = renderer.config.raster_settings(cam)
+    assert renderer.kept_binning(cam) is not None
     gather_kept_ms = median_ms(
-        lambda: accumulate_contributions(
-            renderer.surfel_buffers,
-            cam.w2c,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            cam.width,
-            cam.height,
-            pos,
-            st,
-            binning=kept,
-        ),
+        lambda: renderer.contributions(cam, pos),
         reps,
     )
     for s in view_counts:
