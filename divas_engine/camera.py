@@ -169,6 +169,28 @@ class Camera:
             self.near,
         )
 
+    def cropped(self, x0: int, y0: int, width: int, height: int) -> Camera:
+        """Same pose and focal, image cut to the pixel window ``[x0, x0+width) ×
+        [y0, y0+height)`` of this camera's image: pixel ``(i, j)`` of the crop is pixel
+        ``(i + x0, j + y0)`` here (the principal point moves by ``-(x0, y0)``). A render
+        of the crop equals that window of the full render, at the cost of the window."""
+        x0, y0 = int(x0), int(y0)
+        if not (0 <= x0 < self.width and 0 <= y0 < self.height):
+            raise ValueError(f"camera {self.name!r}: crop origin ({x0}, {y0}) is off the image")
+        width = min(int(width), self.width - x0)
+        height = min(int(height), self.height - y0)
+        return Camera(
+            width,
+            height,
+            self.fx,
+            self.fy,
+            self.cx - x0,
+            self.cy - y0,
+            self.c2w,
+            self.name,
+            self.near,
+        )
+
     def pixels_to(self, other: Camera, xy) -> np.ndarray:
         """Pixels ``xy [..., 2]`` of this camera's image in ``other``'s image of the same
         view (``other`` is this camera resized, e.g. the full camera's render at a scale,

@@ -388,3 +388,22 @@ def test_camera_near_clip(random_case):
     assert np.allclose(rw.render(CAM).D_min, 0.05, rtol=1e-4)
     clipped = rw.render(CAM.with_near(0.2))
     assert np.allclose(clipped.D_min, 4.0, rtol=1e-4) and np.allclose(clipped.D_med, 4.0, rtol=1e-4)
+
+
+def test_cropped_camera_renders_the_window(random_case):
+    """``Camera.cropped``: a render of the crop is that pixel window of the full render
+    (the principal point moves with the window; pixel centres stay at +0.5)."""
+    sc, cam, _ = random_case
+    r = SurfelRenderer(sc, device="cpu")
+    full = r.render(cam)
+    crop = cam.cropped(17, 9, 40, 50)
+    assert (crop.width, crop.height) == (40, 50)
+    part = r.render(crop)
+    win = np.s_[9:59, 17:57]
+    assert np.abs(part.rgb - full.rgb[win]).max() < 1e-4
+    assert np.abs(part.alpha - full.alpha[win]).max() < 1e-5
+    assert np.array_equal(part.N_samp, full.N_samp[win])
+    edge = cam.cropped(80, 60, 40, 50)  # clipped to the image
+    assert (edge.width, edge.height) == (16, 12)
+    with pytest.raises(ValueError, match="off the image"):
+        cam.cropped(96, 0, 4, 4)
