@@ -54,6 +54,7 @@ from .rasterize import (
     ViewBinning,
     binning_key,
     rasterize_surfels,
+    surfel_rows,
     upload_surfels,
 )
 from .raymarch import GridBuffers, MarchSettings, raymarch_grid, upload_grid
@@ -78,6 +79,7 @@ __all__: list[str] = [
     "ViewBinning",
     "binning_key",
     "rasterize_surfels",
+    "surfel_rows",
     "upload_surfels",
     "GridBuffers",
     "MarchSettings",

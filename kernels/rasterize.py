@@ -186,6 +186,31 @@ def upload_surfels(
     )
 
 
+def surfel_rows(buf: SurfelBuffers, rows: np.ndarray, colours: bool = True) -> SurfelBuffers:
+    """The surfels ``rows`` of a CPU-resident ``buf`` as a scene of their own (a host
+    gather of the uploaded arrays: the same float32 values, so a render of the rows is
+    the render of those surfels in ``buf``). ``colours`` False: no SH (zero, degree 0),
+    for value renders only. CPU only: on CUDA render the whole scene."""
+    if not buf.device.is_cpu:
+        raise ValueError("surfel_rows: a host gather, for CPU-resident surfels only")
+    idx = np.asarray(rows, np.int64)
+    dev = buf.device
+
+    def take(a: wp.array, dtype) -> wp.array:
+        return wp.array(np.ascontiguousarray(a.numpy()[idx]), dtype=dtype, device=dev, copy=False)
+
+    return SurfelBuffers(
+        means=take(buf.means, wp.vec3),
+        tu=take(buf.tu, wp.vec3),
+        tv=take(buf.tv, wp.vec3),
+        opacity=take(buf.opacity, float),
+        rho_cut=take(buf.rho_cut, float),
+        sh=take(buf.sh, wp.vec3) if colours else wp.zeros((len(idx), 1), dtype=wp.vec3, device=dev),
+        sh_degree=buf.sh_degree if colours else 0,
+        device=dev,
+    )
+
+
 # --------------------------------------------------------------------------- kernels
 @wp.kernel
 def preprocess_kernel(

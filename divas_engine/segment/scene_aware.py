@@ -58,6 +58,10 @@ class SceneBinding:
             only the view's own prompts are used).
         up: the scene up the session planned with (training cameras or estimated), or
             None.
+        render_sparse: ``(camera, rows, values [K,C]) -> [H,W,C]``: ``render_values`` of
+            values that are 0 off the primitives ``rows`` (sorted), computed with only
+            the primitives that can blend before them
+            (:meth:`~divas_engine.render.SurfelRenderer.render_values_sparse`), or None.
     """
 
     scene: Scene
@@ -65,6 +69,7 @@ class SceneBinding:
     camera_of: Callable[[Hashable], Camera]
     clicks_of: Callable[[Hashable], ObjectClicks] | None = None
     up: Callable[[], np.ndarray | None] | None = None
+    render_sparse: Callable[[Camera, np.ndarray, np.ndarray], np.ndarray] | None = None
 
 
 class SceneAwareSegmenter(Segmenter):

@@ -190,6 +190,7 @@ class SessionCore:
                     self._view_camera,
                     self._object_clicks,
                     lambda: None if self.plan is None else self.plan.up,
+                    self._render_sparse if hasattr(self.renderer, "render_values_sparse") else None,
                 )
             )
 
@@ -220,6 +221,10 @@ class SessionCore:
     def _render_values(self, camera: Camera, values: np.ndarray) -> np.ndarray:
         with self._render_lock:
             return self.renderer.render_values(camera, values)
+
+    def _render_sparse(self, camera: Camera, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+        with self._render_lock:
+            return self.renderer.render_values_sparse(camera, rows, values)
 
     def working_camera(self, camera: Camera) -> Camera:
         """``camera`` at the session's render scale."""

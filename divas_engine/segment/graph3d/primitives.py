@@ -33,6 +33,7 @@ from ...views.up_direction import UpSource, estimate_scene_up
 __all__ = ["ScenePrimitives"]
 
 _GREY = np.float32(0.8)
+_REACH_SIGMAS = 4.0  # ≥ the 3.33 σ cutoff disc of α ≥ 1/255 (down to α_min ≈ 1/3000)
 
 
 def _lab(rgb: np.ndarray) -> np.ndarray:
@@ -56,6 +57,10 @@ class ScenePrimitives:
         cell: the grid's largest cell edge for a density grid (the graph's voxels are
             never finer: a finer voxel grid would leave the occupied cells unconnected),
             0 for surfels.
+        reach: ``[M]`` radius around each position beyond which the primitive draws
+            nothing (:mod:`.render_box`): ``_REACH_SIGMAS`` × its largest scale for a
+            surfel (its cutoff disc, α ≥ 1/255, is 3.33 σ), two cell edges for a grid
+            cell (its value is interpolated trilinearly from the neighbouring centres).
         scene: the scene.
     """
 
@@ -72,6 +77,7 @@ class ScenePrimitives:
 
     up: np.ndarray | None = None
     cell: float = 0.0
+    reach: np.ndarray | None = None
 
     @classmethod
     def from_scene(
@@ -99,7 +105,12 @@ class ScenePrimitives:
             kappa = np.clip(1.0 - scene.scale_n[keep] / s_min, 0.0, 1.0).astype(np.float32)
         pts = np.asarray(scene.means[keep], np.float32)
         mass = np.asarray(scene.opacities[keep], np.float32)
-        return cls._finish(scene, pts, _lab(scene.base_colors()[keep]), normals, kappa, mass, keep)
+        out = cls._finish(scene, pts, _lab(scene.base_colors()[keep]), normals, kappa, mass, keep)
+        sigma = scene.scales[keep].max(axis=1)
+        if scene.scale_n is not None:
+            sigma = np.maximum(sigma, scene.scale_n[keep])
+        out.reach = (_REACH_SIGMAS * sigma).astype(np.float32)
+        return out
 
     @classmethod
     def _from_grid(cls, grid: DensityGrid, min_opacity: float) -> ScenePrimitives:
@@ -133,6 +144,7 @@ class ScenePrimitives:
             flat.astype(np.int64),
         )
         out.cell = float(np.max(grid.voxel_size))
+        out.reach = np.full(len(flat), 2.0 * out.cell, np.float32)
         return out
 
     @classmethod

@@ -17,7 +17,9 @@ Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
    are rendered with the session's renderer into the view at SAM's low-res size
    (longest side 256) as per-primitive values: coverage ``Σ w_k [k ∈ region]``, then
    ``sigmoid(8 (coverage − 0.5))`` upsampled — the oracle's convention. So every view
-   shows the same 3D region and the preview is what fusion will certify.
+   shows the same 3D region and the preview is what fusion will certify. Only the
+   window the regions' footprints can reach is rendered (:mod:`.render_box`; the
+   coverage is 0 elsewhere), at the cost of the window.
 5. **Scores** from the cut's conductance (:mod:`.cut`); a low one comes with
    :attr:`Graph3DSegmenter.last_message` — what the user should do (a negative click
    on what leaked in, a positive click on what is missing).
@@ -39,12 +41,14 @@ import cv2
 import numpy as np
 
 from ...camera import Camera
+from ...scene import SurfelScene
 from ..base import SegResult
 from ..sam_common import sigmoid
 from ..scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
 from .config import Graph3DConfig
 from .cut import CutResult, sweep_cut
 from .primitives import ScenePrimitives
+from .render_box import WHOLE, screen_box
 from .supports import support_nodes, support_primitives
 from .voxel_graph import VoxelGraph, build_voxel_graph
 
@@ -55,6 +59,9 @@ NO_SURFACE = "no surface under the click: click on the object itself"
 
 _CUT_CACHE = 8
 _SAME_CLICK_PX = 2.0
+#: the mask render's window margin, pixels: the renderer's screen-space low-pass disc
+#: (σ √2/2 px, cut off at 3.33 σ = 2.4 px) and rounding
+_MASK_MARGIN_PX = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +114,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     """
 
     name = "graph3d"
+    #: render the masks only in the window the selection can reach (:mod:`.render_box`),
+    #: with only the surfels in front of it; False: the dense render of the whole image
+    #: (the reference the tests compare with)
+    fast_masks: bool = True
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
@@ -278,17 +289,61 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     def render_masks(self, camera: Camera, selected: np.ndarray) -> np.ndarray:
         """Step 4: ``[3,H,W]`` probabilities of three primitive selections in ``camera``."""
         cfg = self.config
-        prims = self.primitives()
         h, w = camera.height, camera.width
         s = min(1.0, cfg.low_res / max(h, w))
         cam = camera if s == 1.0 else camera.scaled(s)
-        vals = prims.render_array(selected.T.astype(np.float32))
-        cov = np.asarray(self.binding.render_values(cam, vals), np.float32)
-        cov = cov.reshape(cam.height, cam.width, 3)
+        cov = self._coverage(cam, selected)
         logits = np.float32(cfg.logit_scale) * (cov - np.float32(0.5))
         if (cam.height, cam.width) != (h, w):
             logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(sigmoid(logits).transpose(2, 0, 1), dtype=np.float32)
+
+    def _coverage(self, cam: Camera, selected: np.ndarray) -> np.ndarray:
+        """``[H,W,3]`` coverage of the selections in ``cam``: rendered in the window their
+        footprints can reach (:mod:`.render_box`), 0 elsewhere, with only the surfels
+        that can blend before them when the binding offers that render
+        (:attr:`~..scene_aware.SceneBinding.render_sparse`) — the whole image, densely,
+        when the window's border shows coverage (a renderer whose footprints reach
+        farther) or when :attr:`fast_masks` is off."""
+        prims = self.primitives()
+        cov = np.zeros((cam.height, cam.width, 3), np.float32)
+        cols = np.flatnonzero(selected.any(axis=0))
+        box = WHOLE
+        if self.fast_masks:
+            box = screen_box(cam, prims.points[cols], prims.reach[cols], _MASK_MARGIN_PX)
+        if box is None:
+            return cov
+        x0, y0, x1, y1 = (0, 0, cam.width, cam.height) if box == WHOLE else box
+        sub = cam if box == WHOLE else cam.cropped(x0, y0, x1 - x0, y1 - y0)
+        sparse = self.binding.render_sparse if self.fast_masks else None
+        if sparse is not None and isinstance(prims.scene, SurfelScene):
+            vals = selected[:, cols].T.astype(np.float32)
+            part = np.asarray(sparse(sub, prims.index[cols], vals), np.float32)
+        else:
+            vals = prims.render_array(selected.T.astype(np.float32))
+            part = np.asarray(self.binding.render_values(sub, vals), np.float32)
+        cov[y0:y1, x0:x1] = part.reshape(y1 - y0, x1 - x0, 3)
+        if box != WHOLE and _border_shows(cov, (x0, y0, x1, y1)):
+            vals = prims.render_array(selected.T.astype(np.float32))
+            full = self.binding.render_values(cam, vals)
+            cov = np.asarray(full, np.float32).reshape(cam.height, cam.width, 3)
+        return cov
+
+
+def _border_shows(cov: np.ndarray, box: tuple[int, int, int, int]) -> bool:
+    """Any coverage on the window's border rows/columns that are not the image's own."""
+    x0, y0, x1, y1 = box
+    h, w = cov.shape[:2]
+    edges = []
+    if x0 > 0:
+        edges.append(cov[y0:y1, x0])
+    if x1 < w:
+        edges.append(cov[y0:y1, x1 - 1])
+    if y0 > 0:
+        edges.append(cov[y0, x0:x1])
+    if y1 < h:
+        edges.append(cov[y1 - 1, x0:x1])
+    return any(bool(np.any(e != 0.0)) for e in edges)
 
 
 def _too_small(res: CutResult, graph: VoxelGraph, cfg: Graph3DConfig, on_ground: bool) -> bool:

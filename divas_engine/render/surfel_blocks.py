@@ -1,0 +1,170 @@
+"""Which surfels can touch a render of a few: a block index over a surfel scene.
+
+A value render whose values are zero off a few surfels ``K`` (a selection's mask) is
+decided by ``K`` and by what blends before them: a pixel's composite is the front-to-back
+sum ``Σ α_i T_i v_i`` in ascending centre depth (ties by index), and every surfel behind
+the deepest of ``K`` adds ``0 · w`` — nothing. So a surfel whose footprint meets only
+pixels where it lies behind every surfel of ``K`` there changes nothing, and the render of
+the others, in the scene's order, is the full render bit for bit
+(:meth:`~.surfel_renderer.SurfelRenderer.render_values_sparse`).
+
+Those surfels are found without a pass over the scene: the scene is cut once into blocks
+of a coarse grid (surfels sorted by block), each block a ball (its members' centres and
+their footprints: radius ``ρ_i = sqrt(ρ_cut,i) · max(s_1, s_2)``, the cutoff disc); a
+block is kept when its ball can lie in front of the deepest surfel of ``K`` whose footprint
+meets a tile (8 px) its own screen bound (:func:`ball_pixel_bounds`) meets. A kept block
+is kept whole (a superset is exact: its extra surfels are behind ``K`` or off it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import Camera
+
+__all__ = ["SurfelBlocks", "ball_pixel_bounds"]
+
+_BLOCKS_PER_SIDE = 32
+_TILE = 8  # pixels per side of the depth map's tiles
+
+
+def ball_pixel_bounds(
+    camera: Camera, centres: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous pixel bounds of balls ``centres [N,3] ± radii [N]`` in ``camera``:
+    ``lo [N,2]``, ``hi [N,2]`` (meaningful where ``front``), ``front`` (the ball lies
+    wholly beyond the camera plane), ``cut`` (it reaches the plane: no finite bound).
+    The ball lies in its box ``p ± ρ`` (camera frame); ``u = c_x + f_x x / z`` is extreme
+    over the box at its corners ``x = X ± ρ``, ``z = Z ± ρ`` when ``Z − ρ > 0``."""
+    pc = camera.world_to_camera(centres)
+    rho = np.asarray(radii, np.float64)
+    z_lo, z_hi = pc[:, 2] - rho, pc[:, 2] + rho
+    front = z_lo > 0.0
+    cut = (z_lo <= 0.0) & (z_hi > 0.0)
+    zl = np.where(front, z_lo, 1.0)
+    zh = np.where(front, z_hi, 1.0)
+    lo, hi = np.empty((len(pc), 2)), np.empty((len(pc), 2))
+    for k, (f, c) in enumerate(((camera.fx, camera.cx), (camera.fy, camera.cy))):
+        a, b = pc[:, k] - rho, pc[:, k] + rho
+        lo[:, k] = c + f * np.minimum(a / zl, a / zh)
+        hi[:, k] = c + f * np.maximum(b / zl, b / zh)
+    return lo, hi, front, cut
+
+
+@dataclass(eq=False)
+class SurfelBlocks:
+    """A scene's surfels grouped by the cells of a coarse grid (module docstring).
+
+    Attributes:
+        order: ``[N]`` surfel rows sorted by block; start: ``[B+1]`` each block's slice.
+        centre, radius: ``[B,3]``, ``[B]`` each block's ball (centres and footprints).
+    """
+
+    order: np.ndarray
+    start: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+
+    @classmethod
+    def build(cls, means: np.ndarray, reach: np.ndarray) -> SurfelBlocks:
+        """Blocks of ``means [N,3]`` with footprint radii ``reach [N]``."""
+        p = np.asarray(means, np.float64)
+        if len(p) == 0:
+            z = np.zeros(0)
+            return cls(np.zeros(0, np.int64), np.zeros(1, np.int64), z.reshape(0, 3), z)
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        g = _BLOCKS_PER_SIDE
+        cell = np.clip(((p - lo) / np.maximum(hi - lo, 1e-12) * g).astype(np.int64), 0, g - 1)
+        key = cell[:, 0] + g * (cell[:, 1] + g * cell[:, 2])
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+        start = np.r_[first, len(order)].astype(np.int64)
+        ps = p[order]
+        counts = np.diff(start)
+        blk = np.repeat(np.arange(len(first)), counts)
+        bmin = np.minimum.reduceat(ps, first, axis=0)
+        bmax = np.maximum.reduceat(ps, first, axis=0)
+        centre = 0.5 * (bmin + bmax)
+        spread = np.linalg.norm(ps - centre[blk], axis=1)
+        far = np.maximum.reduceat(spread + np.asarray(reach, np.float64)[order], first)
+        # float32 positions and rounding: a relative and an absolute sliver
+        scale = float(np.abs(p).max()) + 1.0
+        radius = far * (1.0 + 1e-4) + 1e-5 * scale
+        return cls(order.astype(np.int64), start, centre, radius)
+
+    def near(
+        self, camera: Camera, points: np.ndarray, reach: np.ndarray, margin_px: float
+    ) -> np.ndarray:
+        """Sorted rows of the surfels of every block that can blend, somewhere in
+        ``camera``'s image, before one of the surfels at ``points [K,3]`` (footprint radii
+        ``reach [K]``): a superset of what their value render needs. Per tile of
+        ``_TILE`` px the deepest of those surfels whose footprint bound meets it; a block
+        is kept when its ball can lie in front of that depth in a tile its bound meets
+        (bounds widened by ``margin_px`` and the rasterizer's slivers)."""
+        tiles_x = -(-camera.width // _TILE)
+        tiles_y = -(-camera.height // _TILE)
+        zmap = np.full(tiles_x * tiles_y, -np.inf)
+        lo, hi, front, cut = ball_pixel_bounds(camera, points, reach)
+        z = camera.world_to_camera(points)[:, 2]
+        if np.any(cut & (z > 0.0)):
+            zmap[:] = np.inf  # a footprint reaching the camera plane: no finite bound
+        else:
+            item, tile = self._tiles(camera, lo, hi, front, margin_px)
+            np.maximum.at(zmap, tile, z[item])
+        if not np.any(zmap > -np.inf):  # none of them on the image
+            return np.zeros(0, np.int64)
+        keep = np.flatnonzero(self._needed(camera, self.centre, self.radius, zmap, margin_px))
+        if len(keep) == 0:
+            return np.zeros(0, np.int64)
+        parts = [self.order[self.start[b] : self.start[b + 1]] for b in keep]
+        return np.sort(np.concatenate(parts))
+
+    def _needed(
+        self,
+        camera: Camera,
+        centres: np.ndarray,
+        radii: np.ndarray,
+        zmap: np.ndarray,
+        margin_px: float,
+    ) -> np.ndarray:
+        """Bool ``[N]``: the balls that can lie in front of ``zmap`` in a tile their
+        screen bound meets (any, when they reach the camera plane)."""
+        z_lo = camera.world_to_camera(centres)[:, 2] - radii
+        lo, hi, front, cut = ball_pixel_bounds(camera, centres, radii)
+        need = np.full(len(z_lo), -np.inf)
+        item, tile = self._tiles(camera, lo, hi, front, margin_px)
+        if len(item):
+            first = np.flatnonzero(np.r_[True, item[1:] != item[:-1]])
+            need[item[first]] = np.maximum.reduceat(zmap[tile], first)
+        need[cut] = zmap.max()
+        fin = np.isfinite(need)
+        need[fin] += 1e-4 * (np.abs(need[fin]) + 1.0)  # float32 sort keys
+        return z_lo <= need
+
+    @staticmethod
+    def _tiles(
+        camera: Camera, lo: np.ndarray, hi: np.ndarray, front: np.ndarray, margin_px: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(item, tile)`` pairs: the tiles each bound ``lo``–``hi`` (rows where
+        ``front``) meets, widened by ``margin_px`` and the rasterizer's slivers; items in
+        ascending order."""
+        tiles_x = -(-camera.width // _TILE)
+        tiles_y = -(-camera.height // _TILE)
+        m = margin_px + 2e-4 * (np.abs(lo) + np.abs(hi))
+        a, b = lo - m, hi + m
+        on = front & (b[:, 0] >= 0) & (a[:, 0] <= camera.width)
+        on &= (b[:, 1] >= 0) & (a[:, 1] <= camera.height)
+        idx = np.flatnonzero(on)
+        x0 = np.clip(np.floor(a[idx, 0] / _TILE), 0, tiles_x - 1).astype(np.int64)
+        x1 = np.clip(np.floor(b[idx, 0] / _TILE), 0, tiles_x - 1).astype(np.int64)
+        y0 = np.clip(np.floor(a[idx, 1] / _TILE), 0, tiles_y - 1).astype(np.int64)
+        y1 = np.clip(np.floor(b[idx, 1] / _TILE), 0, tiles_y - 1).astype(np.int64)
+        nx = x1 - x0 + 1
+        cnt = nx * (y1 - y0 + 1)
+        k = np.repeat(np.arange(len(idx)), cnt)
+        local = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        tile = (y0[k] + local // nx[k]) * tiles_x + x0[k] + local % nx[k]
+        return idx[k], tile

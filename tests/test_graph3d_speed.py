@@ -1,0 +1,109 @@
+"""The 3D graph segmenter's fast paths give the reference results (issue 16, cost per
+prompt): the walk's conjugate gradients are SciPy's bit for bit, and the masks rendered
+in the selection's window with only the surfels in front of it are the dense full-image
+render's."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import sparse
+from scipy.sparse.linalg import LinearOperator, cg
+
+from divas_engine.camera import Camera
+from divas_engine.render.config import RenderConfig
+from divas_engine.render.surfel_renderer import SurfelRenderer
+from divas_engine.segment import Graph3DSegmenter, SceneBinding
+from divas_engine.segment.graph3d import Seeds
+from divas_engine.segment.graph3d import segmenter as sm
+from divas_engine.segment.graph3d.config import Graph3DConfig
+from divas_engine.segment.graph3d.cut import _jacobi_cg, _laplacian
+from divas_engine.segment.graph3d.primitives import ScenePrimitives
+from divas_engine.segment.graph3d.render_box import WHOLE, screen_box
+from divas_engine.segment.graph3d.voxel_graph import build_voxel_graph
+from tests.graph3d_cases import touching_boxes
+
+
+@pytest.fixture(scope="module")
+def boxes():
+    return touching_boxes()
+
+
+def _camera() -> Camera:
+    return Camera.look_at(
+        np.array([0.5, -1.2, 0.7]),
+        np.array([0.0, 0.0, 0.1]),
+        np.array([0.0, 0.0, 1.0]),
+        width=200,
+        height=150,
+        fx=260.0,
+    )
+
+
+@pytest.mark.parametrize("maxiter", [400, 7])
+def test_walk_cg_is_scipys_bit_for_bit(boxes, maxiter):
+    """The walk's system on a real voxel graph (seeds on box B, the rim a sink): the
+    hand-rolled Jacobi CG returns SciPy's ``cg`` result exactly, converged or capped."""
+    cfg = Graph3DConfig()
+    prims = ScenePrimitives.from_scene(boxes.scene, cfg.min_opacity)
+    g = build_voxel_graph(prims, np.array([0.12, 0.0, 0.1]), 0.3, cfg)
+    wmat, deg = _laplacian(g)
+    pos = np.zeros(len(g), bool)
+    pos[g.node_of_points(np.array([[0.12, -0.12, 0.1]]))] = True
+    fi = np.flatnonzero(~(pos | g.rim) & (deg > 0))
+    sinks = np.flatnonzero(g.rim)
+    b = cfg.leak * deg[fi] + np.asarray(wmat[fi][:, sinks].sum(axis=1)).ravel()
+    diag = deg[fi] * (1.0 + cfg.leak)
+    a = sparse.diags(diag) - wmat[fi][:, fi]
+    x0 = np.clip(b / diag, 0.0, 1.0)
+    pre = LinearOperator(a.shape, matvec=lambda r: r / diag, dtype=np.float64)
+    ref, info = cg(a, b, x0=x0, rtol=cfg.cg_tol, maxiter=maxiter, M=pre)
+    assert (info == 0) == (maxiter == 400) and len(fi) > 1000
+    assert np.array_equal(_jacobi_cg(a, b, diag, x0, cfg.cg_tol, maxiter), ref)
+
+
+@pytest.mark.parametrize("alpha_min", [1.0 / 255.0, 1e-20])
+def test_fast_masks_are_the_dense_full_render(boxes, alpha_min, monkeypatch):
+    """The three masks of a cut, rendered in the selection's window with only the
+    surfels that blend before it, equal the dense render of the whole view; with
+    footprints wider than the window's bound assumes (α_min 1e-20: 9.6 σ, more than its
+    4 σ and margin) the window's border shows coverage and the whole view is rendered
+    instead — still equal."""
+    seen = []
+    border = sm._border_shows
+    monkeypatch.setattr(sm, "_border_shows", lambda c, b: seen.append(border(c, b)) or seen[-1])
+    wide = alpha_min < 1e-3
+    cam = _camera()
+    r = SurfelRenderer(boxes.scene, device="cpu", config=RenderConfig(alpha_min=alpha_min))
+    bind = SceneBinding(boxes.scene, r.render_values, lambda _v: cam)
+    seg = Graph3DSegmenter(binding=bind)
+    rc = seg.cut(Seeds(np.array([[0.12, -0.12, 0.1]]), np.zeros((0, 3))))
+    assert rc.selected.any()
+    seg.fast_masks = False
+    ref = seg.render_masks(cam, rc.selected)
+    seg.fast_masks = True
+    assert np.array_equal(seg.render_masks(cam, rc.selected), ref)  # window, dense
+    seg.bind_scene(
+        SceneBinding(
+            boxes.scene, r.render_values, lambda _v: cam, None, None, r.render_values_sparse
+        )
+    )
+    assert np.array_equal(seg.render_masks(cam, rc.selected), ref)  # window, sparse
+    prims = seg.primitives()
+    cols = rc.selected.any(axis=0)
+    box = screen_box(cam, prims.points[cols], prims.reach[cols], 4.0)
+    assert box not in (None, WHOLE)
+    x0, y0, x1, y1 = box
+    assert (x1 - x0) * (y1 - y0) < 0.6 * cam.width * cam.height  # a real window
+    assert (ref.max(axis=0) > 0.5).any()
+    assert seen == [wide, wide]  # the border check: the fallback exactly when needed
+
+
+def test_screen_box_of_nothing_and_of_a_ball_at_the_camera():
+    cam = _camera()
+    p = np.array([[0.0, 0.0, 0.1]])
+    assert screen_box(cam, p[:0], np.zeros(0), 4.0) is None
+    eye = cam.c2w[:3, 3]
+    assert screen_box(cam, eye[None], np.array([0.1]), 4.0) == WHOLE
+    behind = eye - 2.0 * cam.c2w[:3, 2]
+    assert screen_box(cam, behind[None], np.array([0.1]), 4.0) is None
