@@ -20,7 +20,8 @@ view (a fresh seed set each time, so no cut is cached); per prompt the 3D cut (l
 voxel graph, walk, sweep) and the render of the three regions into the 640×480 view at
 SAM's low-res size; classic's ``set_image`` + ``predict`` on the same view for the ratio
 (the machine is shared: compare within one run). The one-time per-scene preparation
-(features, ground search) is reported apart.
+(features, ground search, the renderer's block index for sparse mask renders) is
+reported apart.
 """
 
 from __future__ import annotations
@@ -83,9 +84,13 @@ def cost(sizes: list[int]) -> None:
     for n in sizes:
         scene = surfel_scene(n)
         r = SurfelRenderer(scene, device="cpu")
-        seg = Graph3DSegmenter(binding=SceneBinding(scene, r.render_values, lambda _v: cam))
+        sparse = getattr(r, "render_values_sparse", None)  # (absent before issue 16's speed-up)
+        bind = SceneBinding(scene, r.render_values, lambda _v: cam, render_sparse=sparse)
+        seg = Graph3DSegmenter(binding=bind)
         t = time.perf_counter()
         seg.primitives()
+        if sparse is not None:
+            r.sparse_index()  # the renderer's block index: once per scene, like the features
         prep = time.perf_counter() - t
         view = r.render(cam)
         cuts, renders, vox, classic = [], [], [], []

@@ -125,8 +125,15 @@ def build_voxel_graph(
     p = prims.points[sel].astype(np.float64)
     cell = np.clip(np.floor((p - lo) / h).astype(np.int64), 0, cells - 1)
     key = cell[:, 0] + cells * (cell[:, 1] + cells * cell[:, 2])
-    uniq, inv = np.unique(key, return_inverse=True)
+    # the occupied cells by a dense table over the cube (np.unique's sorted keys and
+    # inverse, without its sort; the table also finds the neighbours below)
+    occupied = np.zeros(cells**3, bool)
+    occupied[key] = True
+    uniq = np.flatnonzero(occupied)
     v = len(uniq)
+    node = np.empty(cells**3, np.int64)
+    node[uniq] = np.arange(v)
+    inv = node[key]
     a = prims.mass[sel].astype(np.float64)
     m = np.bincount(inv, a, v)
     msafe = np.maximum(m, 1e-12)
@@ -155,17 +162,15 @@ def build_voxel_graph(
     vcell = np.stack([uniq % cells, (uniq // cells) % cells, uniq // (cells * cells)], 1)
     rim = np.any((vcell == 0) | (vcell == cells - 1), axis=1)
 
-    # neighbours: 13 half-offsets, looked up in the sorted keys
+    # neighbours: 13 half-offsets, looked up in the table
     src, dst = [], []
     for off in _OFFSETS:
         nc = vcell + off
         ok = np.all((nc >= 0) & (nc < cells), axis=1)
-        nk = nc[:, 0] + cells * (nc[:, 1] + cells * nc[:, 2])
-        j = np.searchsorted(uniq, nk)
-        j = np.minimum(j, v - 1)
-        ok &= uniq[j] == nk
+        step = int(off[0] + cells * (off[1] + cells * off[2]))  # key of vcell + off
+        ok[ok] = occupied[uniq[ok] + step]
         src.append(np.flatnonzero(ok))
-        dst.append(j[ok])
+        dst.append(node[uniq[ok] + step])
     i0 = np.concatenate(src) if src else np.zeros(0, np.int64)
     i1 = np.concatenate(dst) if dst else np.zeros(0, np.int64)
     weights = _affinity(i0, i1, centroid, lab, normal, tensor, kappa, m, h, config)
