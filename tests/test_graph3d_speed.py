@@ -5,10 +5,12 @@ render's."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import sparse
-from scipy.sparse.linalg import LinearOperator, cg
+from scipy.sparse.linalg import LinearOperator, cg, spsolve
 
 from divas_engine.camera import Camera
 from divas_engine.render.config import RenderConfig
@@ -16,11 +18,12 @@ from divas_engine.render.surfel_renderer import SurfelRenderer
 from divas_engine.segment import Graph3DSegmenter, SceneBinding
 from divas_engine.segment.graph3d import Seeds
 from divas_engine.segment.graph3d import segmenter as sm
-from divas_engine.segment.graph3d.config import Graph3DConfig
-from divas_engine.segment.graph3d.cut import _jacobi_cg, _laplacian
+from divas_engine.segment.graph3d.config import Graph3DConfig, WalkSolver
+from divas_engine.segment.graph3d.cut import _laplacian
 from divas_engine.segment.graph3d.primitives import ScenePrimitives
 from divas_engine.segment.graph3d.render_box import WHOLE, screen_box
 from divas_engine.segment.graph3d.voxel_graph import build_voxel_graph
+from divas_engine.segment.graph3d.walk_solver import _pcg, solve_walk
 from tests.graph3d_cases import touching_boxes
 
 
@@ -40,26 +43,43 @@ def _camera() -> Camera:
     )
 
 
-@pytest.mark.parametrize("maxiter", [400, 7])
-def test_walk_cg_is_scipys_bit_for_bit(boxes, maxiter):
-    """The walk's system on a real voxel graph (seeds on box B, the rim a sink): the
-    hand-rolled Jacobi CG returns SciPy's ``cg`` result exactly, converged or capped."""
+def _walk_system(case, click):
+    """The walk's system on a real voxel graph (seed at ``click``, the rim a sink)."""
     cfg = Graph3DConfig()
-    prims = ScenePrimitives.from_scene(boxes.scene, cfg.min_opacity)
-    g = build_voxel_graph(prims, np.array([0.12, 0.0, 0.1]), 0.3, cfg)
+    prims = ScenePrimitives.from_scene(case.scene, cfg.min_opacity)
+    g = build_voxel_graph(prims, np.asarray(click), 0.3, cfg)
     wmat, deg = _laplacian(g)
     pos = np.zeros(len(g), bool)
-    pos[g.node_of_points(np.array([[0.12, -0.12, 0.1]]))] = True
+    pos[g.node_of_points(np.asarray(click)[None])] = True
     fi = np.flatnonzero(~(pos | g.rim) & (deg > 0))
-    sinks = np.flatnonzero(g.rim)
-    b = cfg.leak * deg[fi] + np.asarray(wmat[fi][:, sinks].sum(axis=1)).ravel()
+    b = cfg.leak * deg[fi] + np.asarray(wmat[fi][:, np.flatnonzero(g.rim)].sum(axis=1)).ravel()
     diag = deg[fi] * (1.0 + cfg.leak)
-    a = sparse.diags(diag) - wmat[fi][:, fi]
-    x0 = np.clip(b / diag, 0.0, 1.0)
+    a = (sparse.diags(diag) - wmat[fi][:, fi]).tocsr()
+    return a, b, diag, np.clip(b / diag, 0.0, 1.0), g.cell[fi], cfg
+
+
+@pytest.mark.parametrize("maxiter", [400, 7])
+def test_walk_cg_is_scipys_bit_for_bit(boxes, maxiter):
+    """The default walk solver returns SciPy's Jacobi-preconditioned ``cg`` result
+    exactly, converged or capped."""
+    a, b, diag, x0, _, cfg = _walk_system(boxes, [0.12, -0.12, 0.1])
     pre = LinearOperator(a.shape, matvec=lambda r: r / diag, dtype=np.float64)
     ref, info = cg(a, b, x0=x0, rtol=cfg.cg_tol, maxiter=maxiter, M=pre)
-    assert (info == 0) == (maxiter == 400) and len(fi) > 1000
-    assert np.array_equal(_jacobi_cg(a, b, diag, x0, cfg.cg_tol, maxiter), ref)
+    assert (info == 0) == (maxiter == 400) and len(b) > 1000
+    assert np.array_equal(_pcg(a, b, diag, x0, cfg.cg_tol, maxiter), ref)
+
+
+def test_two_level_walk_solver_reaches_the_solution(boxes):
+    """The two-level preconditioned CG meets the tolerance within a cap of 40 steps (the
+    Jacobi CG does not) and lands on the direct solve's potentials."""
+    a, b, diag, x0, cells, cfg = _walk_system(boxes, [0.12, -0.12, 0.1])
+    exact = spsolve(a.tocsc(), b)
+    capped = replace(cfg, cg_maxiter=40)
+    two = solve_walk(a, b, diag, x0, cells, replace(capped, walk_solver=WalkSolver.TWO_LEVEL))
+    jac = solve_walk(a, b, diag, x0, cells, capped)
+    tol = cfg.cg_tol * np.linalg.norm(b)
+    assert np.linalg.norm(a @ two - b) < tol < np.linalg.norm(a @ jac - b)
+    assert np.abs(two - exact).max() < 1e-3 * np.abs(exact).max()
 
 
 @pytest.mark.parametrize("alpha_min", [1.0 / 255.0, 1e-20])

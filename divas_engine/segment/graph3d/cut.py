@@ -7,7 +7,7 @@
    then leave the graph, as Golovinskiy & Funkhouser remove the ground plane: their
    edges are dropped, so an object on a table is an island of its own. The walk solves
    ``(L_UU + λ D_U) x_U = W_UF 1`` (SPD; conjugate gradients with a Jacobi
-   preconditioner, :func:`_jacobi_cg`). ``x_i`` is the probability
+   preconditioner, or two-level: :mod:`.walk_solver`). ``x_i`` is the probability
    that a walk from voxel ``i`` reaches a positive seed first: it stays high across
    strong edges and drops across weak ones (a contact, a colour or normal change).
 2. **Sweep cut** (the local-partitioning idea of Andersen, Chung & Lang 2006): sort the
@@ -42,6 +42,7 @@ from scipy.ndimage import minimum_filter1d
 
 from .config import Graph3DConfig
 from .voxel_graph import VoxelGraph
+from .walk_solver import solve_walk
 
 __all__ = ["CutResult", "Granularity", "walk_potential", "sweep_cut"]
 
@@ -115,40 +116,9 @@ def walk_potential(
     diag = deg[fi] * (1.0 + config.leak)
     a = sparse.diags(diag) - w_uu
     x0 = np.clip(b / diag, 0.0, 1.0)
-    sol = _jacobi_cg(a, b, diag, x0, config.cg_tol, config.cg_maxiter)
+    sol = solve_walk(a, b, diag, x0, graph.cell[fi], config)
     u[fi] = np.clip(sol, 0.0, 1.0)
     return 1.0 - u, wmat, deg
-
-
-def _jacobi_cg(
-    a: sparse.csr_matrix, b: np.ndarray, diag: np.ndarray, x: np.ndarray, rtol: float, maxiter: int
-) -> np.ndarray:
-    """Conjugate gradients with the Jacobi preconditioner ``M⁻¹ r = r / diag``, stopping
-    at ``‖r‖ < rtol ‖b‖`` or after ``maxiter`` steps: the very operations of SciPy's
-    ``cg`` (same order, same roundings; bit-identical), without its per-step
-    operator wrapping, which cost as much as the sparse products here."""
-    atol = rtol * float(np.linalg.norm(b))
-    if atol == 0.0:
-        return b
-    x = x.copy()
-    r = b - a @ x if x.any() else b.copy()
-    rho_prev, p = 1.0, np.empty_like(r)
-    for it in range(maxiter):
-        if np.linalg.norm(r) < atol:
-            break
-        z = r / diag
-        rho = np.dot(r, z)
-        if it > 0:
-            p *= rho / rho_prev
-            p += z
-        else:
-            p[:] = z
-        q = a @ p
-        alpha = rho / np.dot(p, q)
-        x += alpha * p
-        r -= alpha * q
-        rho_prev = rho
-    return x
 
 
 def _prefix_cuts(order: np.ndarray, graph: VoxelGraph, deg: np.ndarray) -> np.ndarray:

@@ -1,0 +1,88 @@
+"""The random walk's linear system (:mod:`.cut` step 1) and its two solvers.
+
+``A u = b`` with ``A = (1 + λ) D_U − W_UU`` (SPD) over the free voxels U.
+
+* :attr:`WalkSolver.JACOBI_CG` (default): conjugate gradients with the Jacobi
+  preconditioner ``M⁻¹ r = r / diag A``, stopping at ``‖r‖ < tol ‖b‖`` or after
+  ``cg_maxiter`` steps — the very operations of SciPy's ``cg`` (bit-identical to it)
+  without its per-step operator wrapping. On near-islands (regions joined to the rest by
+  a few weak edges) the 1e-5 leak makes ``A`` badly conditioned (``cond ≈ 1/λ``):
+  hundreds of steps, and the residual test bounds the error only to ``tol · cond``, so
+  potentials there can be off by 0.1–0.3 even when it stops on the tolerance
+  (BENCHMARKS.md, issue 16).
+* :attr:`WalkSolver.TWO_LEVEL`: the same CG with a two-level additive preconditioner
+  ``M⁻¹ r = r / diag A + P A_c⁻¹ Pᵀ r`` — ``P`` the piecewise-constant prolongation
+  from aggregates of ``_AGGREGATE³`` voxel cells, ``A_c = Pᵀ A P`` (SPD, about 1/4 of
+  the unknowns) factorised once (sparse LU). The aggregates solve the smooth, slowly
+  converging part of the error (a near-island's level) exactly, so CG needs tens of
+  steps instead of hundreds and reaches the tolerance: different potentials within the
+  solve's accuracy, hence opt-in until the IoU tables are re-measured with it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import splu
+
+from .config import Graph3DConfig, WalkSolver
+
+__all__ = ["WalkSolver", "solve_walk"]
+
+_AGGREGATE = 2  # voxel cells per aggregate side (two-level preconditioner)
+
+
+def solve_walk(
+    a: sparse.csr_matrix,
+    b: np.ndarray,
+    diag: np.ndarray,
+    x0: np.ndarray,
+    cells: np.ndarray,
+    config: Graph3DConfig,
+) -> np.ndarray:
+    """``u`` of ``a u = b`` from ``x0``; ``diag = diag a``; ``cells [n,3]`` the free
+    voxels' integer cells (the two-level aggregates)."""
+    pre = None
+    if WalkSolver(config.walk_solver) == WalkSolver.TWO_LEVEL and len(b) > 1:
+        pre = _two_level(a, diag, cells)
+    return _pcg(a, b, diag, x0, config.cg_tol, config.cg_maxiter, pre)
+
+
+def _two_level(a: sparse.csr_matrix, diag: np.ndarray, cells: np.ndarray):
+    """``r -> r / diag + P A_c⁻¹ Pᵀ r`` (module docstring)."""
+    c = np.asarray(cells, np.int64) // _AGGREGATE
+    c -= c.min(axis=0)
+    span = c.max(axis=0) + 1
+    _, agg = np.unique(c[:, 0] + span[0] * (c[:, 1] + span[1] * c[:, 2]), return_inverse=True)
+    m = int(agg.max()) + 1
+    p = sparse.csr_matrix((np.ones(len(agg)), (np.arange(len(agg)), agg)), shape=(len(agg), m))
+    pt = p.T.tocsr()
+    lu = splu((pt @ a @ p).tocsc())
+    return lambda r: r / diag + p @ lu.solve(pt @ r)
+
+
+def _pcg(a, b, diag, x, rtol: float, maxiter: int, pre=None) -> np.ndarray:
+    """Preconditioned CG, SciPy ``cg``'s operations in its order (``pre`` None: Jacobi,
+    ``r / diag``, which makes it bit-identical to ``cg`` with that preconditioner)."""
+    atol = rtol * float(np.linalg.norm(b))
+    if atol == 0.0:
+        return b
+    x = x.copy()
+    r = b - a @ x if x.any() else b.copy()
+    rho_prev, p = 1.0, np.empty_like(r)
+    for it in range(maxiter):
+        if np.linalg.norm(r) < atol:
+            break
+        z = r / diag if pre is None else pre(r)
+        rho = np.dot(r, z)
+        if it > 0:
+            p *= rho / rho_prev
+            p += z
+        else:
+            p[:] = z
+        q = a @ p
+        alpha = rho / np.dot(p, q)
+        x += alpha * p
+        r -= alpha * q
+        rho_prev = rho
+    return x
