@@ -13,6 +13,7 @@ view (its principal point) as the one positive prompt. 2D IoU of mask channel 1
 
     .venv/bin/python benchmarks/bench_segmenters.py [--size 100000] [--seed 0] [--clicks 4]
     .venv/bin/python benchmarks/bench_segmenters.py --cost [--sizes 100000,1000000]
+        [--walk-solver two_level]
 
 ``--cost``: the benchmark room of :mod:`benchmarks.scenes` (surfels on the walls and four
 spheres) at each size; one click on each sphere of :func:`~benchmarks.scenes.bench_camera`'s
@@ -70,10 +71,14 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.count_nonzero(a & b) / u) if u else float("nan")
 
 
-def cost(sizes: list[int]) -> None:
-    """Per-prompt cost of the graph3d segmenter vs classic (module docstring)."""
+def cost(sizes: list[int], walk_solver: str | None = None) -> None:
+    """Per-prompt cost of the graph3d segmenter vs classic (module docstring);
+    ``walk_solver``: a :class:`~divas_engine.segment.graph3d.config.WalkSolver` value."""
     from divas_engine.segment import Graph3DSegmenter, SceneBinding
     from divas_engine.segment.graph3d import Seeds
+    from divas_engine.segment.graph3d.config import Graph3DConfig
+
+    cfg = Graph3DConfig() if walk_solver is None else Graph3DConfig(walk_solver=walk_solver)
 
     cam = bench_camera()
     print(
@@ -86,7 +91,7 @@ def cost(sizes: list[int]) -> None:
         r = SurfelRenderer(scene, device="cpu")
         sparse = getattr(r, "render_values_sparse", None)  # (absent before issue 16's speed-up)
         bind = SceneBinding(scene, r.render_values, lambda _v: cam, render_sparse=sparse)
-        seg = Graph3DSegmenter(binding=bind)
+        seg = Graph3DSegmenter(cfg, binding=bind)
         t = time.perf_counter()
         seg.primitives()
         if sparse is not None:
@@ -125,13 +130,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cost", action="store_true", help="graph3d cost per prompt")
     ap.add_argument("--sizes", default="100000,1000000", help="surfel counts for --cost")
+    ap.add_argument("--walk-solver", default=None, help="--cost: jacobi_cg (default), two_level")
     ap.add_argument("--size", type=int, default=100_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clicks", type=int, default=4)
     ap.add_argument("--scenes", nargs="*", default=list(SCENE_NAMES))
     a = ap.parse_args(argv)
     if a.cost:
-        cost([int(x) for x in a.sizes.split(",")])
+        cost([int(x) for x in a.sizes.split(",")], a.walk_solver)
         return 0
     rows = []
     t0 = time.perf_counter()
