@@ -14,6 +14,7 @@ from scipy.sparse.linalg import LinearOperator, cg, spsolve
 
 from divas_engine.camera import Camera
 from divas_engine.render.config import RenderConfig
+from divas_engine.render.nerf_renderer import NerfRenderer
 from divas_engine.render.surfel_renderer import SurfelRenderer
 from divas_engine.segment import Graph3DSegmenter, SceneBinding
 from divas_engine.segment.graph3d import Seeds
@@ -24,7 +25,7 @@ from divas_engine.segment.graph3d.primitives import ScenePrimitives
 from divas_engine.segment.graph3d.render_box import WHOLE, screen_box
 from divas_engine.segment.graph3d.voxel_graph import build_voxel_graph
 from divas_engine.segment.graph3d.walk_solver import _pcg, solve_walk
-from tests.graph3d_cases import touching_boxes
+from tests.graph3d_cases import grid_ball_and_box, touching_boxes
 
 
 @pytest.fixture(scope="module")
@@ -127,3 +128,30 @@ def test_screen_box_of_nothing_and_of_a_ball_at_the_camera():
     assert screen_box(cam, eye[None], np.array([0.1]), 4.0) == WHOLE
     behind = eye - 2.0 * cam.c2w[:3, 2]
     assert screen_box(cam, behind[None], np.array([0.1]), 4.0) is None
+
+
+def test_fast_masks_of_a_density_grid_are_the_dense_render():
+    """A NeRF grid: the masks rendered in the selection's window (ray-marched, no sparse
+    path) equal the whole view's render up to the crop's float32 ray rounding, and the
+    window is smaller than the view."""
+    case = grid_ball_and_box()
+    cam = Camera.look_at(
+        np.array([0.0, -1.4, 0.8]),
+        np.array([0.0, 0.0, 0.2]),
+        np.array([0.0, 0.0, 1.0]),
+        width=160,
+        height=120,
+        fx=200.0,
+    )
+    r = NerfRenderer(case.grid, device="cpu")
+    seg = Graph3DSegmenter(binding=SceneBinding(case.grid, r.render_values, lambda _v: cam))
+    rc = seg.cut(Seeds(np.array([[0.0, 0.0, 0.36]]), np.zeros((0, 3))))
+    prims = seg.primitives()
+    cols = rc.selected.any(axis=0)
+    x0, y0, x1, y1 = screen_box(cam, prims.points[cols], prims.reach[cols], 4.0)
+    assert (x1 - x0) * (y1 - y0) < 0.5 * cam.width * cam.height
+    seg.fast_masks = False
+    ref = seg.render_masks(cam, rc.selected)
+    seg.fast_masks = True
+    fast = seg.render_masks(cam, rc.selected)
+    assert (ref.max(axis=0) > 0.5).any() and np.abs(fast - ref).max() < 1e-4
