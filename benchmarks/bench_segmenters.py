@@ -20,7 +20,9 @@ spheres) at each size; one click on each sphere of :func:`~benchmarks.scenes.ben
 view (a fresh seed set each time, so no cut is cached); per prompt the 3D cut (local
 voxel graph, walk, sweep) and the render of the three regions into the 640×480 view at
 SAM's low-res size; classic's ``set_image`` + ``predict`` on the same view for the ratio
-(the machine is shared: compare within one run). The one-time per-scene preparation
+(the machine is shared: compare within one run), and the prompt's CPU time
+(``process_time``: every thread, the render's too — steadier than wall time on a loaded
+machine). The one-time per-scene preparation
 (features, ground search, the renderer's block index for sparse mask renders) is
 reported apart.
 """
@@ -83,9 +85,9 @@ def cost(sizes: list[int], walk_solver: str | None = None) -> None:
     cam = bench_camera()
     print(
         "| surfels | prepare s (once) | cut ms | render ms | graph3d prompt ms | voxels | "
-        "classic prompt ms | ratio |"
+        "classic prompt ms | ratio | graph3d prompt CPU ms (cut + render) |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n in sizes:
         scene = surfel_scene(n)
         r = SurfelRenderer(scene, device="cpu")
@@ -98,15 +100,16 @@ def cost(sizes: list[int], walk_solver: str | None = None) -> None:
             r.sparse_index()  # the renderer's block index: once per scene, like the features
         prep = time.perf_counter() - t
         view = r.render(cam)
-        cuts, renders, vox, classic = [], [], [], []
+        cuts, renders, vox, classic, cpu = [], [], [], [], []
         for cen, rad in SPHERES:
             c = np.asarray(cen, float)
             p = c - np.array([0.0, 0.0, rad])  # the sphere's point facing the camera
-            t = time.perf_counter()
+            t, c0 = time.perf_counter(), time.process_time()
             rc = seg.cut(Seeds(p[None], np.zeros((0, 3))))
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.process_time()
             seg.render_masks(cam, rc.selected)
-            t2 = time.perf_counter()
+            t2, c2 = time.perf_counter(), time.process_time()
+            cpu.append((c1 - c0, c2 - c1))
             cuts.append(t1 - t)
             renders.append(t2 - t1)
             vox.append(rc.info.get("voxels", 0))
@@ -121,7 +124,9 @@ def cost(sizes: list[int], walk_solver: str | None = None) -> None:
         print(
             f"| {n:,} | {prep:.1f} | {1000 * np.median(cuts):.0f} | "
             f"{1000 * np.median(renders):.0f} | {g:.0f} | {int(np.median(vox)):,} | "
-            f"{c:.0f} | {g / c:.2f} |",
+            f"{c:.0f} | {g / c:.2f} | {1000 * np.median(np.sum(cpu, axis=1)):.0f} "
+            f"({1000 * np.median([x[0] for x in cpu]):.0f} + "
+            f"{1000 * np.median([x[1] for x in cpu]):.0f}) |",
             flush=True,
         )
 
