@@ -9,9 +9,9 @@ crop's render is that window of the full render) costs the window instead of the
 The window is conservative: each selected primitive is a ball of radius ``ρ``
 (:attr:`.primitives.ScenePrimitives.reach`, beyond which it draws nothing) around its
 position; the ball lies in its axis-aligned box ``p ± ρ`` (camera frame), whose
-projection is bounded by the corners' — ``u = c_x + f_x x / z`` is extreme at
-``x = X ± ρ``, ``z = Z ± ρ`` while the box is in front of the camera — widened by
-``margin`` pixels (the renderer's screen-space low-pass filter and rounding). A ball
+projection is bounded by its corners'
+(:func:`~divas_engine.render.surfel_blocks.ball_pixel_bounds`), widened by ``margin``
+pixels (the renderer's screen-space low-pass filter and rounding). A ball
 that reaches the camera plane (``Z − ρ ≤ 0 < Z + ρ``) has no finite window: the whole
 image. A ball wholly behind the camera draws nothing.
 """
@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...camera import Camera
+from ...render.surfel_blocks import ball_pixel_bounds
 
 __all__ = ["WHOLE", "screen_box"]
 
@@ -37,20 +38,13 @@ def screen_box(
     can show (no ball in front of the camera, or all beyond the image)."""
     if len(points) == 0:
         return None
-    pc = camera.world_to_camera(points)
-    rho = np.asarray(reach, np.float64)
-    z_lo, z_hi = pc[:, 2] - rho, pc[:, 2] + rho
-    front = z_hi > 0.0
+    lo_px, hi_px, front, cut = ball_pixel_bounds(camera, points, reach)
+    if cut.any():
+        return WHOLE
     if not front.any():
         return None
-    if np.any(front & (z_lo <= 0.0)):
-        return WHOLE
-    pc, rho, z_lo, z_hi = pc[front], rho[front], z_lo[front], z_hi[front]
-    lo, hi = [], []
-    for k, (f, c) in enumerate(((camera.fx, camera.cx), (camera.fy, camera.cy))):
-        a, b = pc[:, k] - rho, pc[:, k] + rho
-        lo.append(c + f * float(np.min(np.minimum(a / z_lo, a / z_hi))) - margin)
-        hi.append(c + f * float(np.max(np.maximum(b / z_lo, b / z_hi))) + margin)
+    lo = lo_px[front].min(axis=0) - margin
+    hi = hi_px[front].max(axis=0) + margin
     x0 = max(0, int(np.floor(lo[0])))
     y0 = max(0, int(np.floor(lo[1])))
     x1 = min(camera.width, int(np.floor(hi[0])) + 1)
