@@ -57,6 +57,7 @@ from .rasterize import (
     upload_surfels,
 )
 from .raymarch import GridBuffers, MarchSettings, raymarch_grid, upload_grid
+from .splat import pixel_window
 
 __all__: list[str] = [
     "cpu_threads",
@@ -76,6 +77,7 @@ __all__: list[str] = [
     "RasterSettings",
     "SurfelBuffers",
     "ViewBinning",
+    "pixel_window",
     "binning_key",
     "rasterize_surfels",
     "upload_surfels",

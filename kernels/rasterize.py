@@ -50,7 +50,15 @@ from . import render_defaults as RD
 from ._launch import cpu_threads, launch_split
 from .composite import ANCHOR_MED, BlendParams, PixelOut, PixState
 from .sh import eval_sh
-from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, splat_plane_rows
+from .splat import (
+    BIG,
+    RasterCamera,
+    Splat,
+    conic_range,
+    make_raster_camera,
+    pixel_window,
+    splat_plane_rows,
+)
 from .tile_binning import tile_bands
 from .tile_walk import BlendSink, launch_walk
 
@@ -206,7 +214,8 @@ def preprocess_kernel(
     base: int,
     stride: int,
 ):
-    """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour."""
+    """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
+    splat and the colour only for surfels that are not culled)."""
     i = base + wp.tid() * stride
     mu = means[i]
     pc = cam.R * mu + cam.t
@@ -264,19 +273,20 @@ def preprocess_kernel(
         xhi = wp.clamp(xhi, -2.0, W + 2.0)
         ylo = wp.clamp(ylo, -2.0, H + 2.0)
         yhi = wp.clamp(yhi, -2.0, H + 2.0)
-        sp.x0 = wp.max(int(wp.ceil(xlo - 0.5)), 0)
-        sp.x1 = wp.min(int(wp.floor(xhi - 0.5)), cam.width - 1)
-        sp.y0 = wp.max(int(wp.ceil(ylo - 0.5)), 0)
-        sp.y1 = wp.min(int(wp.floor(yhi - 0.5)), cam.height - 1)
-    key = BIG
-    if sp.x0 <= sp.x1 and sp.y0 <= sp.y1:
-        key = sp.depth
-    else:
-        sp.x0 = 1
-        sp.x1 = 0
-    splats[i] = sp
-    sort_keys[i] = key
+        # … clipped to the rendered window (the whole image: 0 … W − 1, 0 … H − 1)
+        sp.x0 = wp.max(int(wp.ceil(xlo - 0.5)), cam.win_x0)
+        sp.x1 = wp.min(int(wp.floor(xhi - 0.5)), cam.win_x1)
+        sp.y0 = wp.max(int(wp.ceil(ylo - 0.5)), cam.win_y0)
+        sp.y1 = wp.min(int(wp.floor(yhi - 0.5)), cam.win_y1)
     sort_vals[i] = wp.int32(i)
+    if sp.x0 > sp.x1 or sp.y0 > sp.y1:
+        # culled: sorts last and is never read again (binning, blending and every other
+        # pass read only the visible prefix of the depth order), so neither its splat
+        # nor its SH colour is written (issue 20: most surfels of a zoomed view)
+        sort_keys[i] = BIG
+        return
+    splats[i] = sp
+    sort_keys[i] = sp.depth
     if with_color != 0:
         d = wp.normalize(mu - cam.center)
         col = eval_sh(sh, i, sh_degree, d)
@@ -368,7 +378,8 @@ def project_splats(
     into ``colors`` when given) and sort by centre depth (stable: ties keep index order).
 
     Returns ``(splats [N], keys [2N], order [2N])``: ``order[:N]`` is the depth order,
-    culled surfels last (key +inf). Shared by every pass over the view's tiles.
+    culled surfels last (key +inf; their ``splats`` and ``colors`` entries are left
+    unset: only the visible prefix is read). Shared by every pass over the view's tiles.
     """
     n = len(buf)
     dev = buf.device
@@ -436,10 +447,13 @@ class ViewBinning:
         return sum(a.capacity for a in arrs if a is not None)
 
 
-def binning_key(buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings) -> tuple:
+def binning_key(
+    buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings, window=None
+) -> tuple:
     """What a :class:`ViewBinning` depends on (the blend-only settings excluded)."""
     w = np.ascontiguousarray(w2c, dtype=np.float64).tobytes()
     geo = (float(fx), float(fy), float(cx), float(cy), int(W), int(H))
+    geo += pixel_window(window, W, H)
     cfg = (float(s.near), float(s.lowpass_sigma), int(s.tile), int(s.max_duplicates))
     return (id(buf), w, geo, cfg)
 
@@ -460,6 +474,7 @@ def rasterize_surfels(
     features: bool = True,
     binning: ViewBinning | None = None,
     keep_binning: bool = False,
+    window: tuple[int, int, int, int] | None = None,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -471,6 +486,11 @@ def rasterize_surfels(
         binning: a :class:`ViewBinning` of an earlier pass; used when its key matches
             this view (and, for an RGB render, it holds the colours), else ignored.
         keep_binning: return this view's binning in ``RasterOutput.binning``.
+        window: ``(x0, y0, x1, y1)``, half-open pixels: render only this part of the
+            image — surfels whose bounds miss it are culled, bounds are clipped to it, so
+            its pixels equal the whole image's bit for bit at the cost of the window
+            (issue 20: the centroid-view probes read a central patch). Pixels outside it
+            are not rendered (partial or empty): read only the window. None: the image.
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -480,13 +500,15 @@ def rasterize_surfels(
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     rgb = values is None and features
-    key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s)
+    key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s, window)
     if binning is not None and (binning.key != key or (rgb and binning.colors is None)):
         binning = None
     cam = (
         binning.cam
         if binning is not None
-        else make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+        else make_raster_camera(
+            np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near, window
+        )
     )
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H

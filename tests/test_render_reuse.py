@@ -1,7 +1,7 @@
 """Issue 20: work shared or skipped for speed gives bit-identical results — a value
 render reusing the RGB render's projection and tile binning, the depth-only probe
-render, the brute-force eq:neigh neighbourhood, and the lazily rendered accept
-overlays."""
+render, the probe rendered over its central patch only, the brute-force eq:neigh
+neighbourhood, and the lazily rendered accept overlays."""
 
 from __future__ import annotations
 
@@ -59,6 +59,62 @@ def test_depth_only_render_has_the_same_depths(case, device):
         full, depth = r.render(cam, scale=0.4), r.render_depth(cam, scale=0.4)
         for k in ("alpha", "D_min", "D_ref", "D_max", "D_mw", "D_exp", "D_med", "N_samp"):
             assert np.array_equal(getattr(full, k), getattr(depth, k)), k
+
+
+@pytest.mark.parametrize("max_duplicates", [1 << 25, 200])  # one band / several bands
+def test_windowed_depth_render_is_the_window_of_the_whole_render(case, max_duplicates, device):
+    """A depth render of a pixel window: inside it every channel equals the whole
+    render's bit for bit (the surfels that miss it are culled, the others clipped to
+    it); outside it the empty tuple. Fewer (tile, surfel) pairs than the whole image."""
+    sc, cams = case
+    r = SurfelRenderer(sc, device=device, config=RenderConfig(max_duplicates=max_duplicates))
+    r.binning_cache = 0
+    chans = ("alpha", "D_min", "D_ref", "D_max", "D_mw", "D_exp", "D_med", "N_samp")
+    for cam in cams:
+        full = r.render(cam, scale=0.5)
+        h, w = full.alpha.shape
+        centre = (w // 4, h // 4, w // 4 + w // 2, h // 4 + h // 2)
+        for x0, y0, x1, y1 in [centre, (0, 0, 7, 5), (w - 3, h - 20, w + 9, h), (17, 9, 18, 10)]:
+            part = r.render_depth(cam, scale=0.5, window=(x0, y0, x1, y1))
+            inside = np.zeros((h, w), bool)
+            inside[y0:y1, x0:x1] = True
+            for k in chans:
+                a, b = getattr(part, k), getattr(full, k)
+                assert np.array_equal(a[inside], b[inside]), k
+                assert not a[~inside].any(), k
+        assert (full.D_med > 0).mean() > 0.3  # the windows see surfaces
+    with pytest.raises(ValueError, match="no pixel"):
+        r.render_depth(cams[0], window=(5, 5, 5, 9))
+
+
+def test_windowed_probes_give_the_same_centroid_views():
+    """The planner's probes render only their central patch (eq:occfrac reads nothing
+    else): the centroid cameras and the probe logs equal those of whole-image probe
+    renders (a renderer without ``render_depth``), here with rejected probes too."""
+    from divas_engine.synthetic import generate_scene
+
+    s = generate_scene("occluded", None, size=20_000, seed=0)
+    r = SurfelRenderer(s.scene, device="cpu")
+
+    class WholeImage:  # the probes' fallback: a full render of the whole probe image
+        render = r.render
+
+    windowed, whole = GsCentroidPlanner(s.scene, r), GsCentroidPlanner(s.scene, WholeImage())
+    rejected = 0
+    for cam in s.cameras[:6]:
+        buf = r.render(cam, scale=0.25)
+        anchor = buf.camera
+        ys, xs = np.nonzero((buf.alpha > 0.9) & (buf.D_med > 0))
+        for k in np.random.default_rng(0).choice(len(xs), 2, replace=False):
+            xy = (xs[k] + 0.5, ys[k] + 0.5)
+            a, b = windowed.centroid_view(anchor, xy, buf), whole.centroid_view(anchor, xy, buf)
+            assert np.array_equal(a.camera.w2c, b.camera.w2c) and a.d_cam == b.d_cam
+            assert a.strategy == b.strategy and len(a.probes) == len(b.probes)
+            for p, q in zip(a.probes, b.probes):
+                p_, q_ = list(p.__dict__.values()), list(q.__dict__.values())
+                assert np.array_equal(p_, q_, equal_nan=True)
+            rejected += sum(not p.accepted for p in a.probes)
+    assert rejected > 0  # some probe was occluded: the comparison covers rejections
 
 
 def test_neighbourhood_matches_a_kd_tree(case):

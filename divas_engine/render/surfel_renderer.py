@@ -9,6 +9,7 @@ from divas_kernels import (
     ContribOutput,
     accumulate_contributions,
     binning_key,
+    pixel_window,
     rasterize_surfels,
     resolve_device,
     upload_surfels,
@@ -71,9 +72,14 @@ class SurfelRenderer:
         )
 
     def _run(
-        self, cam: Camera, values: np.ndarray | None, features: bool = True, keep: bool = True
+        self,
+        cam: Camera,
+        values: np.ndarray | None,
+        features: bool = True,
+        keep: bool = True,
+        window: tuple[int, int, int, int] | None = None,
     ):
-        hit = self.kept_binning(cam)
+        hit = self.kept_binning(cam) if window is None else None
         r = rasterize_surfels(
             self._buf,
             *_projection(cam),
@@ -82,7 +88,8 @@ class SurfelRenderer:
             background=self.config.background,
             features=features,
             binning=hit,
-            keep_binning=keep and self.binning_cache > 0,
+            keep_binning=keep and window is None and self.binning_cache > 0,
+            window=window,
         )
         b = r.binning
         if b is not None:
@@ -102,12 +109,29 @@ class SurfelRenderer:
         rgb = r.out.feat.numpy().reshape(cam.height, cam.width, 3)
         return self._buffers(r.out, cam, rgb, r.stats)
 
-    def render_depth(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+    def render_depth(
+        self,
+        camera: Camera,
+        scale: float = 1.0,
+        window: tuple[int, int, int, int] | None = None,
+    ) -> RenderBuffers:
         """The depth tuple only (probes): ``rgb`` is zeros, no SH colours are evaluated
-        and nothing is composited but the depths, which equal :meth:`render`'s."""
+        and nothing is composited but the depths, which equal :meth:`render`'s.
+
+        ``window``: ``(x0, y0, x1, y1)`` half-open pixels of the (scaled) image — only
+        they are rendered (equal to the whole render's, at the window's cost: surfels
+        that miss it are culled); every pixel outside it holds the empty tuple (α 0,
+        depths 0, ``N_samp`` 0)."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
-        o = self._run(cam, None, features=False, keep=False).out
-        return self._buffers(o, cam, np.zeros((cam.height, cam.width, 3), np.float32), {})
+        o = self._run(cam, None, features=False, keep=False, window=window).out
+        b = self._buffers(o, cam, np.zeros((cam.height, cam.width, 3), np.float32), {})
+        if window is not None:
+            x0, y0, x1, y1 = pixel_window(window, cam.width, cam.height)
+            outside = np.ones((cam.height, cam.width), bool)
+            outside[y0:y1, x0:x1] = False
+            for a in (b.alpha, b.D_min, b.D_ref, b.D_max, b.D_mw, b.D_exp, b.D_med, b.N_samp):
+                a[outside] = 0
+        return b
 
     def _buffers(self, o, cam: Camera, rgb: np.ndarray, stats: dict) -> RenderBuffers:
         """The :class:`RenderBuffers` of one rasterizer output ``o`` of ``cam``."""
