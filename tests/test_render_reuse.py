@@ -52,6 +52,28 @@ def test_value_renders_reusing_the_binning_are_bit_identical(case, max_duplicate
         _same(cached.render(cam, scale=0.5), fresh.render(cam, scale=0.5))
 
 
+def test_kept_binnings_make_room_before_the_next_render(case):
+    """A render whose binning will be kept first drops the kept binnings that would not
+    survive it (the byte budget fits one here), so two are never held at once; a
+    cache only: the renders equal a renderer without one."""
+    sc, cams = case
+    r, fresh = SurfelRenderer(sc, device="cpu"), SurfelRenderer(sc, device="cpu")
+    fresh.binning_cache = 0
+    r.render(cams[0])
+    one = r._binnings[0].nbytes
+    r.binning_cache_bytes = int(1.5 * one)
+    seen = []
+    plain = r._make_room
+    r._make_room = lambda: (plain(), seen.append(len(r._binnings)))
+    for cam in cams[1:]:
+        _same(r.render(cam), fresh.render(cam))
+        assert len(r._binnings) == 1 and r.kept_binning(cam) is not None
+    assert seen == [0, 0]  # emptied before each render, not after
+    r.binning_cache_bytes = 3 * one + 1  # room for all: nothing dropped
+    r.render(cams[0])
+    assert len(r._binnings) == 2
+
+
 def test_depth_only_render_has_the_same_depths(case, device):
     sc, cams = case
     r = SurfelRenderer(sc, device=device)
