@@ -197,6 +197,40 @@ def test_accept_overlays_are_lazy_and_show_the_accepted_selection(tmp_path):
     s.close()
 
 
+def test_accept_releases_a_binning_the_budget_cannot_keep_beside_another(tmp_path):
+    """When the kept binnings' byte budget holds one view only (a 3M-surfel scene), an
+    accept frees the accepted view's binning at once (the next render would drop it);
+    with room for more it stays. The selection and the overlay are the same."""
+    from divas_engine import load_scene
+    from divas_engine.segment import OracleSegmenter
+    from divas_engine.session import Session, SessionConfig
+    from divas_engine.synthetic import generate_scene
+
+    sc = generate_scene("ribs", tmp_path, size=20_000, seed=0, grid_resolution=32)
+    scene = load_scene(tmp_path / "scene.ply")
+    c = sc.metadata["clicks"][0]
+    cam = next(k for k in sc.cameras if k.name == c["visible_in"][0])
+    out = []
+    for tight in (False, True):
+        s = Session.open(
+            scene, sc.cameras, SessionConfig(render_scale=0.5), OracleSegmenter(), "cpu",
+            anchors=[cam], gt_values=sc.labels,
+        )  # fmt: skip
+        uv, _ = s.anchors[0].camera.project(np.array([c["xyz"]]))
+        v = s.click(0, uv[0])
+        s.prompt(v)
+        kept = s.renderer.kept_binning(v.camera)
+        assert kept is not None  # the segmenter's value render reused it
+        if tight:
+            s.renderer.binning_cache_bytes = int(1.5 * kept.nbytes)
+        r = s.accept(v)
+        assert (s.renderer.kept_binning(v.camera) is None) == tight
+        out.append((r.selection.copy(), r.overlay.coverage))
+        s.close()
+    assert np.array_equal(out[0][0], out[1][0]) and out[0][0].any()
+    assert np.array_equal(out[0][1], out[1][1])
+
+
 def test_fusion_kernel_split_over_threads_is_bit_identical(tmp_path):
     """The per-voxel fusion kernel and the hash queries run as several CPU sub-launches
     (issue 20: both cores); the contributions equal a single launch's bit for bit."""

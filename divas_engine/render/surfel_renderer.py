@@ -193,6 +193,17 @@ class SurfelRenderer:
         key = binning_key(self._buf, *_projection(camera), self.config.raster_settings(camera))
         return next((b for b in self._binnings if b.key == key), None)
 
+    def release(self, camera: Camera) -> bool:
+        """Drop ``camera``'s kept binning now when the byte budget holds no second one
+        beside it — the next render would drop it anyway (a 3M-surfel view: ≈ 0.37 GB);
+        a view that is done with (accepted) frees its memory at once (issue 20). Returns
+        whether one was dropped; smaller binnings stay (their overlays reuse them)."""
+        hit = self.kept_binning(camera)
+        if hit is None or 2 * hit.nbytes <= self.binning_cache_bytes:
+            return False
+        self._binnings = [b for b in self._binnings if b is not hit]
+        return True
+
     def clear_cache(self) -> None:
         """Drop the kept view binnings (frees their device memory)."""
         self._binnings = []
