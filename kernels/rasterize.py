@@ -59,7 +59,7 @@ from .splat import (
     pixel_window,
     splat_plane_rows,
 )
-from .tile_binning import tile_bands
+from .tile_binning import tile_bands, visible_splats
 from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
@@ -421,7 +421,8 @@ class ViewBinning:
 
     Attributes:
         key: what the binning depends on (scene buffers, camera, settings).
-        splats, keys, order: :func:`project_splats` output, ``order[:N]`` depth-sorted.
+        splats, ids: the visible splats in depth order and their surfel indices
+            (:func:`kernels.tile_binning.visible_splats`; only these are kept).
         n_visible: :func:`count_visible` of the sorted keys.
         bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
             fits in one band, else None (each pass re-bins band by band: bounded memory).
@@ -432,8 +433,7 @@ class ViewBinning:
     key: tuple
     cam: RasterCamera
     splats: wp.array
-    keys: wp.array
-    order: wp.array
+    ids: wp.array
     n_visible: int
     bands: list | None
     colors: wp.array | None
@@ -441,7 +441,7 @@ class ViewBinning:
 
     @property
     def nbytes(self) -> int:
-        arrs = [self.splats, self.keys, self.order, self.colors]
+        arrs = [self.splats, self.ids, self.colors]
         for b in self.bands or ():
             arrs += [b[2], b[3], b[4]]
         return sum(a.capacity for a in arrs if a is not None)
@@ -537,7 +537,8 @@ def rasterize_surfels(
             z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32)
             one = wp.empty(1, dtype=wp.int32)
             nt = tiles_x * tiles_y
-            args = (wp.empty(1, dtype=Splat), one, z, z, cam, inv_var, alpha_max, bp, T, tiles_x)
+            args = (wp.empty(1, dtype=Splat), one, one, z, z, cam, inv_var, alpha_max, bp, T,
+                    tiles_x)  # fmt: skip
             launch_walk(mode, sink, *args, 0, nt, states, dev, threads, "chunk")
             return RasterOutput(out, W, H, stats)
         tm = _Timer(s.profile, stats)
@@ -546,17 +547,16 @@ def rasterize_surfels(
             tm.lap("preprocess")
             wp.utils.radix_sort_pairs(keys, order, n)
             n_vis = count_visible(keys, n)
+            splats, ids = visible_splats(splats, order, n_vis, dev, threads)
+            del keys, order  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            binning = ViewBinning(
-                key, cam, splats, keys, order, n_vis, None, feat if rgb else None, {}
-            )
+            binning = ViewBinning(key, cam, splats, ids, n_vis, None, feat if rgb else None, {})
             bands = tile_bands(
-                splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads,
-                tm.lap,
-            )  # fmt: skip
+                splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
+            )
             kept: list | None = []
         else:
-            splats, keys = binning.splats, binning.keys
+            splats, ids = binning.splats, binning.ids
             if rgb:
                 feat = binning.colors
             if binning.bands is not None:
@@ -564,8 +564,8 @@ def rasterize_surfels(
                 stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
             else:
                 bands = tile_bands(
-                    splats, binning.order, binning.n_visible, T, tiles_x, tiles_y,
-                    s.max_duplicates, stats, dev, threads, tm.lap,
+                    splats, binning.n_visible, T, tiles_x, tiles_y, s.max_duplicates, stats, dev,
+                    threads, tm.lap,
                 )  # fmt: skip
             kept = None
         sink.feat = feat
@@ -573,14 +573,14 @@ def rasterize_surfels(
             lo, nt, dvals, rstart, rend, _ = band
             if kept is not None:
                 kept.append(band)
-            args = (splats, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
+            args = (splats, ids, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
             launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "chunk")
             tm.lap("blend")
         if kept is not None:  # a fresh binning: keep its bands when there is one
             binning.bands = kept if len(kept) == 1 else None
             binning.stats = {"pairs": stats["pairs"], "bands": stats["bands"]}
-        if s.profile:  # a device → host copy of the sort keys: only when profiling
-            stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
+        if s.profile:
+            stats["visible"] = int(binning.n_visible)
     res = RasterOutput(out, W, H, stats)
     res.binning = binning if keep_binning else None
     return res

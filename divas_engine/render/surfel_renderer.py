@@ -51,9 +51,10 @@ class SurfelRenderer:
     #: views whose binning is kept (the anchor on screen, the current and the next view:
     #: their overlays); probe renders (``render_depth``) keep none
     binning_cache: int = 3
-    #: device memory the kept binnings may hold together (≈ 130 bytes per surfel each:
-    #: 2 views of a 2M-surfel scene, 1 of a 4M one, none above)
-    binning_cache_bytes: int = 512 << 20
+    #: device memory the kept binnings may hold together (each ≈ 60–80 bytes per surfel
+    #: of the scene: its visible splats, the colours and the pairs — 3 views of a
+    #: 1M-surfel scene, 1 of a 3M one, none from ≈ 4M on)
+    binning_cache_bytes: int = 256 << 20
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
@@ -110,7 +111,7 @@ class SurfelRenderer:
         """Before a render whose binning will be kept: drop the oldest kept binnings that
         would be dropped after it anyway (the count, or the bytes with one more of the
         size of the largest kept), so their memory is free while it renders (issue 20:
-        at 3M surfels one binning is ≈ 0.37 GB; the peak held two). A cache only: no
+        at 3M surfels one binning is ≈ 0.2 GB; the peak held two). A cache only: no
         result changes."""
         est = max((x.nbytes for x in self._binnings), default=0)
         while self._binnings and (
@@ -195,7 +196,7 @@ class SurfelRenderer:
 
     def release(self, camera: Camera) -> bool:
         """Drop ``camera``'s kept binning now when the byte budget holds no second one
-        beside it — the next render would drop it anyway (a 3M-surfel view: ≈ 0.37 GB);
+        beside it — the next render would drop it anyway (a 3M-surfel view: ≈ 0.2 GB);
         a view that is done with (accepted) frees its memory at once (issue 20). Returns
         whether one was dropped; smaller binnings stay (their overlays reuse them)."""
         hit = self.kept_binning(camera)
