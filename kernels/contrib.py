@@ -42,11 +42,10 @@ from .rasterize import (
     binning_key,
     blend_params,
     check_view,
-    count_visible,
     project_splats,
 )
 from .splat import make_raster_camera
-from .tile_binning import tile_bands, visible_splats
+from .tile_binning import sort_visible, tile_bands, visible_splats
 from .tile_walk import ContribSink, launch_walk
 
 wp.set_module_options({"enable_backward": False})
@@ -136,9 +135,8 @@ def accumulate_contributions(
         sink.a0 = rows0 = wp.zeros((threads, n), dtype=float)
         tiles_x, tiles_y = -(-W // T), -(-H // T)
         if binning is None:
-            splats, keys, order = project_splats(buf, cam, inv_var, None, threads)
-            wp.utils.radix_sort_pairs(keys, order, n)
-            n_vis = count_visible(keys, n)
+            splats, keys = project_splats(buf, cam, inv_var, None, threads)
+            order, n_vis = sort_visible(keys, n, dev, threads)
             splats, ids = visible_splats(splats, order, n_vis, dev, threads)
         else:
             splats, ids, n_vis = binning.splats, binning.ids, binning.n_visible

@@ -13,7 +13,8 @@ Pipeline per view (the 2DGS rasterizer structure, re-derived here):
    plane (2DGS culls by centre depth; a straddling disc would need the whole
    screen, its image being unbounded). So every rendered splat has a
    projected centre and an elliptic footprint.
-2. depth sort of all surfels (stable float radix sort: ties keep index order).
+2. depth sort of the surfels left after culling (compacted in index order, then a stable
+   float radix sort: ties keep index order), their splats gathered in that order.
 3. per band of tile rows: tile counts in depth order, exclusive scan, duplication
    into (tile, surfel) pairs, stable radix sort on the tile bits, tile ranges.
    Bands are split so the duplicate count stays under ``max_duplicates``.
@@ -59,7 +60,7 @@ from .splat import (
     pixel_window,
     splat_plane_rows,
 )
-from .tile_binning import tile_bands, visible_splats
+from .tile_binning import sort_visible, tile_bands, visible_splats
 from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
@@ -209,7 +210,6 @@ def preprocess_kernel(
     inv_var: float,
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
-    sort_vals: wp.array(dtype=wp.int32),
     colors: wp.array2d(dtype=float),
     base: int,
     stride: int,
@@ -278,11 +278,10 @@ def preprocess_kernel(
         sp.x1 = wp.min(int(wp.floor(xhi - 0.5)), cam.win_x1)
         sp.y0 = wp.max(int(wp.ceil(ylo - 0.5)), cam.win_y0)
         sp.y1 = wp.min(int(wp.floor(yhi - 0.5)), cam.win_y1)
-    sort_vals[i] = wp.int32(i)
     if sp.x0 > sp.x1 or sp.y0 > sp.y1:
-        # culled: sorts last and is never read again (binning, blending and every other
-        # pass read only the visible prefix of the depth order), so neither its splat
-        # nor its SH colour is written (issue 20: most surfels of a zoomed view)
+        # culled: left out of the depth order and never read again (binning, blending
+        # and every other pass read only the visible splats), so neither its splat nor
+        # its SH colour is written (issue 20: most surfels of a zoomed view)
         sort_keys[i] = BIG
         return
     splats[i] = sp
@@ -343,49 +342,24 @@ def check_view(who: str, W: int, H: int, s: RasterSettings, dev) -> tuple[str, i
     return mode, T, (1 if dev.is_cuda else cpu_threads(s.threads))
 
 
-@wp.kernel
-def _visible_kernel(keys: wp.array(dtype=float), n: int, out: wp.array(dtype=int)):
-    """Binary search of the sorted ``keys[:n]``: the first culled key (``BIG``)."""
-    lo = int(0)
-    hi = n
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if keys[mid] < 0.5 * BIG:
-            lo = mid + 1
-        else:
-            hi = mid
-    out[0] = lo
-
-
-def count_visible(keys: wp.array, n: int) -> int:
-    """Surfels left after culling: the length of the visible prefix of the depth order
-    (culled surfels sort last with key ``BIG``). Binning only this prefix gives the same
-    (tile, surfel) pairs at a fraction of the cost when most surfels are off-screen —
-    zoomed centroid views and probes (issue 20)."""
-    out = wp.zeros(1, dtype=int, device=keys.device)
-    wp.launch(_visible_kernel, dim=1, inputs=[keys, int(n), out], device=keys.device)
-    return int(out.numpy()[0])
-
-
 def project_splats(
     buf: SurfelBuffers,
     cam: RasterCamera,
     inv_var: float,
     colors: wp.array | None,
     threads: int,
-) -> tuple[wp.array, wp.array, wp.array]:
+) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
-    into ``colors`` when given) and sort by centre depth (stable: ties keep index order).
+    into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
 
-    Returns ``(splats [N], keys [2N], order [2N])``: ``order[:N]`` is the depth order,
-    culled surfels last (key +inf; their ``splats`` and ``colors`` entries are left
-    unset: only the visible prefix is read). Shared by every pass over the view's tiles.
+    Returns ``(splats [N], keys [N])``: the depth keys, +inf (``BIG``) for culled surfels,
+    whose ``splats`` and ``colors`` entries are left unset (only the visible ones are
+    read: :func:`kernels.tile_binning.sort_visible`, then ``visible_splats``).
     """
     n = len(buf)
     dev = buf.device
     splats = wp.empty(n, dtype=Splat, device=dev)
-    keys = wp.empty(2 * n, dtype=float, device=dev)
-    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    keys = wp.empty(n, dtype=float, device=dev)
     with_color = 0 if colors is None else 1
     launch_split(
         preprocess_kernel,
@@ -403,13 +377,12 @@ def project_splats(
             inv_var,
             splats,
             keys,
-            order,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
         ],
         dev,
         threads,
     )
-    return splats, keys, order
+    return splats, keys
 
 
 @dataclass(eq=False)
@@ -423,7 +396,7 @@ class ViewBinning:
         key: what the binning depends on (scene buffers, camera, settings).
         splats, ids: the visible splats in depth order and their surfel indices
             (:func:`kernels.tile_binning.visible_splats`; only these are kept).
-        n_visible: :func:`count_visible` of the sorted keys.
+        n_visible: how many surfels are not culled (:func:`~kernels.tile_binning.sort_visible`).
         bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
             fits in one band, else None (each pass re-bins band by band: bounded memory).
         colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
@@ -543,10 +516,9 @@ def rasterize_surfels(
             return RasterOutput(out, W, H, stats)
         tm = _Timer(s.profile, stats)
         if binning is None:
-            splats, keys, order = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
+            splats, keys = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
             tm.lap("preprocess")
-            wp.utils.radix_sort_pairs(keys, order, n)
-            n_vis = count_visible(keys, n)
+            order, n_vis = sort_visible(keys, n, dev, threads)
             splats, ids = visible_splats(splats, order, n_vis, dev, threads)
             del keys, order  # the full-size arrays are not kept
             tm.lap("depth_sort")

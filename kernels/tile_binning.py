@@ -15,11 +15,11 @@ from collections.abc import Callable
 import warp as wp
 
 from ._launch import launch_split
-from .splat import Splat
+from .splat import BIG, Splat
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["band_tiles", "tile_bands", "visible_splats"]
+__all__ = ["band_tiles", "sort_visible", "tile_bands", "visible_splats"]
 
 
 @wp.func
@@ -100,6 +100,54 @@ def ranges_kernel(
         rend[k] = wp.int32(n)
     elif keys[e + 1] != k:
         rend[k] = wp.int32(e + 1)
+
+
+@wp.kernel
+def _flag_kernel(
+    keys: wp.array(dtype=float), flags: wp.array(dtype=wp.int32), base: int, stride: int
+):
+    i = base + wp.tid() * stride
+    flags[i] = wp.int32(0)
+    if keys[i] < 0.5 * BIG:
+        flags[i] = wp.int32(1)
+
+
+@wp.kernel
+def _scatter_kernel(
+    keys: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
+    incl: wp.array(dtype=wp.int32),
+    out_keys: wp.array(dtype=float),
+    out_ids: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    i = base + wp.tid() * stride
+    if flags[i] != 0:
+        p = incl[i] - 1
+        out_keys[p] = keys[i]
+        out_ids[p] = wp.int32(i)
+
+
+def sort_visible(keys: wp.array, n: int, dev, threads: int) -> tuple[wp.array, int]:
+    """``(order, n_vis)``: the surfels whose key is not culled (``< BIG``), stably sorted by
+    key (ties: index order). They are compacted in index order first and only they are
+    radix-sorted — the prefix a stable sort of all ``n`` keys would give (culled keys are
+    ``BIG``, after every depth), at the cost of the visible ones (issue 20: a probe sees a
+    few percent of a 3M scene; the radix sort runs on one CPU thread)."""
+    flags = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
+    incl = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
+    n_vis = 0
+    if n > 0:
+        launch_split(_flag_kernel, n, [keys, flags], dev, threads)
+        wp.utils.array_scan(flags, incl, inclusive=True)
+        n_vis = int(incl[n - 1 : n].numpy()[0])
+    out_keys = wp.empty(2 * max(n_vis, 1), dtype=float, device=dev)
+    order = wp.empty(2 * max(n_vis, 1), dtype=wp.int32, device=dev)
+    if n_vis > 0:
+        launch_split(_scatter_kernel, n, [keys, flags, incl, out_keys, order], dev, threads)
+        wp.utils.radix_sort_pairs(out_keys, order, n_vis)
+    return order, n_vis
 
 
 @wp.kernel

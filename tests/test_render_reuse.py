@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 from scipy.spatial import cKDTree
 
 from divas_engine.camera import Camera
@@ -261,3 +262,19 @@ def test_fusion_kernel_split_over_threads_is_bit_identical(tmp_path):
     for o in outs[1:]:
         for x, y in zip(outs[0], o):
             assert np.array_equal(x, y)
+
+
+def test_sort_visible_is_the_prefix_of_a_stable_sort_of_all_keys(device):
+    """The depth order of the surfels left after culling (compacted, then sorted) equals
+    the first entries of a stable sort of every key (culled keys BIG sort last)."""
+    from divas_kernels.tile_binning import sort_visible
+
+    rng = np.random.default_rng(3)
+    dev = wp.get_device(device)
+    for n, culled in [(1, 0.0), (50, 1.0), (20_000, 0.7), (20_000, 0.05)]:
+        keys = rng.integers(1, 300, n).astype(np.float32) * np.float32(0.37)  # many ties
+        keys[rng.random(n) < culled] = np.float32(1e30)
+        order, n_vis = sort_visible(wp.array(keys, device=dev), n, dev, 2)
+        ref = np.argsort(keys, kind="stable")
+        assert n_vis == int((keys < 1e29).sum())
+        assert np.array_equal(order.numpy()[:n_vis], ref[:n_vis])
