@@ -58,6 +58,7 @@ from .rasterize import (
     upload_surfels,
 )
 from .raymarch import GridBuffers, MarchSettings, raymarch_grid, upload_grid
+from .splat import pixel_window
 
 __all__: list[str] = [
     "cpu_threads",
@@ -77,6 +78,7 @@ __all__: list[str] = [
     "RasterSettings",
     "SurfelBuffers",
     "ViewBinning",
+    "pixel_window",
     "binning_key",
     "rasterize_surfels",
     "surfel_rows",

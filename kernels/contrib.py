@@ -42,11 +42,10 @@ from .rasterize import (
     binning_key,
     blend_params,
     check_view,
-    count_visible,
     project_splats,
 )
 from .splat import make_raster_camera
-from .tile_binning import tile_bands
+from .tile_binning import sort_visible, tile_bands, visible_splats
 from .tile_walk import ContribSink, launch_walk
 
 wp.set_module_options({"enable_backward": False})
@@ -136,17 +135,17 @@ def accumulate_contributions(
         sink.a0 = rows0 = wp.zeros((threads, n), dtype=float)
         tiles_x, tiles_y = -(-W // T), -(-H // T)
         if binning is None:
-            splats, keys, order = project_splats(buf, cam, inv_var, None, threads)
-            wp.utils.radix_sort_pairs(keys, order, n)
-            n_vis = count_visible(keys, n)
+            splats, keys = project_splats(buf, cam, inv_var, None, threads)
+            order, n_vis = sort_visible(keys, n, dev, threads)
+            splats, ids = visible_splats(splats, order, n_vis, dev, threads)
         else:
-            splats, order, n_vis = binning.splats, binning.order, binning.n_visible
+            splats, ids, n_vis = binning.splats, binning.ids, binning.n_visible
         if binning is not None and binning.bands is not None:
             bands = iter(binning.bands)
             stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
         else:
             bands = tile_bands(
-                splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
+                splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads
             )
         states = wp.empty(P, dtype=PixState) if mode == "tile" else None
         bp = blend_params(s)
@@ -154,7 +153,8 @@ def accumulate_contributions(
             if total == 0:
                 continue
             # interleave: CPU sub-launch j gets base = j, i.e. its own accumulator row
-            args = (splats, dvals, rstart, rend, cam, inv_var, float(s.alpha_max), bp, T, tiles_x)
+            args = (splats, ids, dvals, rstart, rend, cam, inv_var, float(s.alpha_max), bp, T,
+                    tiles_x)  # fmt: skip
             launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "interleave")
         launch_split(_sum_rows_kernel, n, [rows1, a1], dev, threads)
         launch_split(_sum_rows_kernel, n, [rows0, a0], dev, threads)

@@ -13,7 +13,8 @@ Pipeline per view (the 2DGS rasterizer structure, re-derived here):
    plane (2DGS culls by centre depth; a straddling disc would need the whole
    screen, its image being unbounded). So every rendered splat has a
    projected centre and an elliptic footprint.
-2. depth sort of all surfels (stable float radix sort: ties keep index order).
+2. depth sort of the surfels left after culling (compacted in index order, then a stable
+   float radix sort: ties keep index order), their splats gathered in that order.
 3. per band of tile rows: tile counts in depth order, exclusive scan, duplication
    into (tile, surfel) pairs, stable radix sort on the tile bits, tile ranges.
    Bands are split so the duplicate count stays under ``max_duplicates``.
@@ -50,8 +51,16 @@ from . import render_defaults as RD
 from ._launch import cpu_threads, launch_split
 from .composite import ANCHOR_MED, BlendParams, PixelOut, PixState
 from .sh import eval_sh
-from .splat import BIG, RasterCamera, Splat, conic_range, make_raster_camera, splat_plane_rows
-from .tile_binning import tile_bands
+from .splat import (
+    BIG,
+    RasterCamera,
+    Splat,
+    conic_range,
+    make_raster_camera,
+    pixel_window,
+    splat_plane_rows,
+)
+from .tile_binning import sort_visible, tile_bands, visible_splats
 from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
@@ -226,12 +235,12 @@ def preprocess_kernel(
     inv_var: float,
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
-    sort_vals: wp.array(dtype=wp.int32),
     colors: wp.array2d(dtype=float),
     base: int,
     stride: int,
 ):
-    """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour."""
+    """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
+    splat and the colour only for surfels that are not culled)."""
     i = base + wp.tid() * stride
     mu = means[i]
     pc = cam.R * mu + cam.t
@@ -289,19 +298,19 @@ def preprocess_kernel(
         xhi = wp.clamp(xhi, -2.0, W + 2.0)
         ylo = wp.clamp(ylo, -2.0, H + 2.0)
         yhi = wp.clamp(yhi, -2.0, H + 2.0)
-        sp.x0 = wp.max(int(wp.ceil(xlo - 0.5)), 0)
-        sp.x1 = wp.min(int(wp.floor(xhi - 0.5)), cam.width - 1)
-        sp.y0 = wp.max(int(wp.ceil(ylo - 0.5)), 0)
-        sp.y1 = wp.min(int(wp.floor(yhi - 0.5)), cam.height - 1)
-    key = BIG
-    if sp.x0 <= sp.x1 and sp.y0 <= sp.y1:
-        key = sp.depth
-    else:
-        sp.x0 = 1
-        sp.x1 = 0
+        # … clipped to the rendered window (the whole image: 0 … W − 1, 0 … H − 1)
+        sp.x0 = wp.max(int(wp.ceil(xlo - 0.5)), cam.win_x0)
+        sp.x1 = wp.min(int(wp.floor(xhi - 0.5)), cam.win_x1)
+        sp.y0 = wp.max(int(wp.ceil(ylo - 0.5)), cam.win_y0)
+        sp.y1 = wp.min(int(wp.floor(yhi - 0.5)), cam.win_y1)
+    if sp.x0 > sp.x1 or sp.y0 > sp.y1:
+        # culled: left out of the depth order and never read again (binning, blending
+        # and every other pass read only the visible splats), so neither its splat nor
+        # its SH colour is written (issue 20: most surfels of a zoomed view)
+        sort_keys[i] = BIG
+        return
     splats[i] = sp
-    sort_keys[i] = key
-    sort_vals[i] = wp.int32(i)
+    sort_keys[i] = sp.depth
     if with_color != 0:
         d = wp.normalize(mu - cam.center)
         col = eval_sh(sh, i, sh_degree, d)
@@ -358,48 +367,24 @@ def check_view(who: str, W: int, H: int, s: RasterSettings, dev) -> tuple[str, i
     return mode, T, (1 if dev.is_cuda else cpu_threads(s.threads))
 
 
-@wp.kernel
-def _visible_kernel(keys: wp.array(dtype=float), n: int, out: wp.array(dtype=int)):
-    """Binary search of the sorted ``keys[:n]``: the first culled key (``BIG``)."""
-    lo = int(0)
-    hi = n
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if keys[mid] < 0.5 * BIG:
-            lo = mid + 1
-        else:
-            hi = mid
-    out[0] = lo
-
-
-def count_visible(keys: wp.array, n: int) -> int:
-    """Surfels left after culling: the length of the visible prefix of the depth order
-    (culled surfels sort last with key ``BIG``). Binning only this prefix gives the same
-    (tile, surfel) pairs at a fraction of the cost when most surfels are off-screen —
-    zoomed centroid views and probes (issue 20)."""
-    out = wp.zeros(1, dtype=int, device=keys.device)
-    wp.launch(_visible_kernel, dim=1, inputs=[keys, int(n), out], device=keys.device)
-    return int(out.numpy()[0])
-
-
 def project_splats(
     buf: SurfelBuffers,
     cam: RasterCamera,
     inv_var: float,
     colors: wp.array | None,
     threads: int,
-) -> tuple[wp.array, wp.array, wp.array]:
+) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
-    into ``colors`` when given) and sort by centre depth (stable: ties keep index order).
+    into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
 
-    Returns ``(splats [N], keys [2N], order [2N])``: ``order[:N]`` is the depth order,
-    culled surfels last (key +inf). Shared by every pass over the view's tiles.
+    Returns ``(splats [N], keys [N])``: the depth keys, +inf (``BIG``) for culled surfels,
+    whose ``splats`` and ``colors`` entries are left unset (only the visible ones are
+    read: :func:`kernels.tile_binning.sort_visible`, then ``visible_splats``).
     """
     n = len(buf)
     dev = buf.device
     splats = wp.empty(n, dtype=Splat, device=dev)
-    keys = wp.empty(2 * n, dtype=float, device=dev)
-    order = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    keys = wp.empty(n, dtype=float, device=dev)
     with_color = 0 if colors is None else 1
     launch_split(
         preprocess_kernel,
@@ -417,13 +402,12 @@ def project_splats(
             inv_var,
             splats,
             keys,
-            order,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
         ],
         dev,
         threads,
     )
-    return splats, keys, order
+    return splats, keys
 
 
 @dataclass(eq=False)
@@ -435,8 +419,9 @@ class ViewBinning:
 
     Attributes:
         key: what the binning depends on (scene buffers, camera, settings).
-        splats, keys, order: :func:`project_splats` output, ``order[:N]`` depth-sorted.
-        n_visible: :func:`count_visible` of the sorted keys.
+        splats, ids: the visible splats in depth order and their surfel indices
+            (:func:`kernels.tile_binning.visible_splats`; only these are kept).
+        n_visible: how many surfels are not culled (:func:`~kernels.tile_binning.sort_visible`).
         bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
             fits in one band, else None (each pass re-bins band by band: bounded memory).
         colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
@@ -446,8 +431,7 @@ class ViewBinning:
     key: tuple
     cam: RasterCamera
     splats: wp.array
-    keys: wp.array
-    order: wp.array
+    ids: wp.array
     n_visible: int
     bands: list | None
     colors: wp.array | None
@@ -455,16 +439,19 @@ class ViewBinning:
 
     @property
     def nbytes(self) -> int:
-        arrs = [self.splats, self.keys, self.order, self.colors]
+        arrs = [self.splats, self.ids, self.colors]
         for b in self.bands or ():
             arrs += [b[2], b[3], b[4]]
         return sum(a.capacity for a in arrs if a is not None)
 
 
-def binning_key(buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings) -> tuple:
+def binning_key(
+    buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings, window=None
+) -> tuple:
     """What a :class:`ViewBinning` depends on (the blend-only settings excluded)."""
     w = np.ascontiguousarray(w2c, dtype=np.float64).tobytes()
     geo = (float(fx), float(fy), float(cx), float(cy), int(W), int(H))
+    geo += pixel_window(window, W, H)
     cfg = (float(s.near), float(s.lowpass_sigma), int(s.tile), int(s.max_duplicates))
     return (id(buf), w, geo, cfg)
 
@@ -485,6 +472,7 @@ def rasterize_surfels(
     features: bool = True,
     binning: ViewBinning | None = None,
     keep_binning: bool = False,
+    window: tuple[int, int, int, int] | None = None,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -496,6 +484,11 @@ def rasterize_surfels(
         binning: a :class:`ViewBinning` of an earlier pass; used when its key matches
             this view (and, for an RGB render, it holds the colours), else ignored.
         keep_binning: return this view's binning in ``RasterOutput.binning``.
+        window: ``(x0, y0, x1, y1)``, half-open pixels: render only this part of the
+            image — surfels whose bounds miss it are culled, bounds are clipped to it, so
+            its pixels equal the whole image's bit for bit at the cost of the window
+            (issue 20: the centroid-view probes read a central patch). Pixels outside it
+            are not rendered (partial or empty): read only the window. None: the image.
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -505,13 +498,15 @@ def rasterize_surfels(
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     rgb = values is None and features
-    key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s)
+    key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s, window)
     if binning is not None and (binning.key != key or (rgb and binning.colors is None)):
         binning = None
     cam = (
         binning.cam
         if binning is not None
-        else make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+        else make_raster_camera(
+            np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near, window
+        )
     )
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
@@ -540,26 +535,25 @@ def rasterize_surfels(
             z = wp.zeros(tiles_x * tiles_y, dtype=wp.int32)
             one = wp.empty(1, dtype=wp.int32)
             nt = tiles_x * tiles_y
-            args = (wp.empty(1, dtype=Splat), one, z, z, cam, inv_var, alpha_max, bp, T, tiles_x)
+            args = (wp.empty(1, dtype=Splat), one, one, z, z, cam, inv_var, alpha_max, bp, T,
+                    tiles_x)  # fmt: skip
             launch_walk(mode, sink, *args, 0, nt, states, dev, threads, "chunk")
             return RasterOutput(out, W, H, stats)
         tm = _Timer(s.profile, stats)
         if binning is None:
-            splats, keys, order = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
+            splats, keys = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
             tm.lap("preprocess")
-            wp.utils.radix_sort_pairs(keys, order, n)
-            n_vis = count_visible(keys, n)
+            order, n_vis = sort_visible(keys, n, dev, threads)
+            splats, ids = visible_splats(splats, order, n_vis, dev, threads)
+            del keys, order  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            binning = ViewBinning(
-                key, cam, splats, keys, order, n_vis, None, feat if rgb else None, {}
-            )
+            binning = ViewBinning(key, cam, splats, ids, n_vis, None, feat if rgb else None, {})
             bands = tile_bands(
-                splats, order, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads,
-                tm.lap,
-            )  # fmt: skip
+                splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
+            )
             kept: list | None = []
         else:
-            splats, keys = binning.splats, binning.keys
+            splats, ids = binning.splats, binning.ids
             if rgb:
                 feat = binning.colors
             if binning.bands is not None:
@@ -567,8 +561,8 @@ def rasterize_surfels(
                 stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
             else:
                 bands = tile_bands(
-                    splats, binning.order, binning.n_visible, T, tiles_x, tiles_y,
-                    s.max_duplicates, stats, dev, threads, tm.lap,
+                    splats, binning.n_visible, T, tiles_x, tiles_y, s.max_duplicates, stats, dev,
+                    threads, tm.lap,
                 )  # fmt: skip
             kept = None
         sink.feat = feat
@@ -576,14 +570,14 @@ def rasterize_surfels(
             lo, nt, dvals, rstart, rend, _ = band
             if kept is not None:
                 kept.append(band)
-            args = (splats, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
+            args = (splats, ids, dvals, rstart, rend, cam, inv_var, alpha_max, bp, T, tiles_x)
             launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "chunk")
             tm.lap("blend")
         if kept is not None:  # a fresh binning: keep its bands when there is one
             binning.bands = kept if len(kept) == 1 else None
             binning.stats = {"pairs": stats["pairs"], "bands": stats["bands"]}
-        if s.profile:  # a device → host copy of the sort keys: only when profiling
-            stats["visible"] = int(np.count_nonzero(keys[:n].numpy() < 1e29))
+        if s.profile:
+            stats["visible"] = int(binning.n_visible)
     res = RasterOutput(out, W, H, stats)
     res.binning = binning if keep_binning else None
     return res

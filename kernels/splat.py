@@ -11,6 +11,7 @@ __all__ = [
     "RasterCamera",
     "Splat",
     "make_raster_camera",
+    "pixel_window",
     "conic_range",
     "splat_alpha",
     "row_span",
@@ -34,6 +35,12 @@ class RasterCamera:
     width: int
     height: int
     near: float
+    # the pixel window rendered, inclusive (the whole image unless a window is asked
+    # for): splat bounds are clipped to it, so surfels outside it are culled
+    win_x0: int
+    win_y0: int
+    win_x1: int
+    win_y1: int
 
 
 @wp.struct
@@ -77,7 +84,10 @@ def make_raster_camera(
     width: int,
     height: int,
     near: float,
+    window: tuple[int, int, int, int] | None = None,
 ) -> RasterCamera:
+    """The rasterizer's camera; ``window`` = ``(x0, y0, x1, y1)`` half-open pixel box
+    (:func:`pixel_window`) to render only that part of the image (None: all of it)."""
     c = RasterCamera()
     c.R = wp.mat33(*np.asarray(w2c[:3, :3], dtype=np.float32).ravel())
     c.t = wp.vec3(*np.asarray(w2c[:3, 3], dtype=np.float32))
@@ -86,7 +96,25 @@ def make_raster_camera(
     c.t64 = wp.vec3d(*np.asarray(w2c[:3, 3], dtype=np.float64))
     c.fx, c.fy, c.cx, c.cy = float(fx), float(fy), float(cx), float(cy)
     c.width, c.height, c.near = int(width), int(height), float(near)
+    c.win_x0, c.win_y0, x1, y1 = pixel_window(window, width, height)
+    c.win_x1, c.win_y1 = x1 - 1, y1 - 1
     return c
+
+
+def pixel_window(window, width: int, height: int) -> tuple[int, int, int, int]:
+    """``window`` ``(x0, y0, x1, y1)`` (half-open pixels) clipped to a ``width × height``
+    image; None → the whole image.
+
+    Raises:
+        ValueError: the window holds no pixel of the image.
+    """
+    if window is None:
+        return 0, 0, int(width), int(height)
+    x0, y0, x1, y1 = (int(v) for v in window)
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, int(width)), min(y1, int(height))
+    if x0 >= x1 or y0 >= y1:
+        raise ValueError(f"pixel window {tuple(window)} holds no pixel of a {width}x{height} image")
+    return x0, y0, x1, y1
 
 
 # --------------------------------------------------------------------------- funcs

@@ -15,11 +15,11 @@ from collections.abc import Callable
 import warp as wp
 
 from ._launch import launch_split
-from .splat import Splat
+from .splat import BIG, Splat
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["band_tiles", "tile_bands"]
+__all__ = ["band_tiles", "sort_visible", "tile_bands", "visible_splats"]
 
 
 @wp.func
@@ -38,7 +38,6 @@ def band_tiles(sp: Splat, tile: int, band_lo: int, band_hi: int):
 @wp.kernel
 def count_kernel(
     splats: wp.array(dtype=Splat),
-    order: wp.array(dtype=wp.int32),
     tile: int,
     band_lo: int,
     band_hi: int,
@@ -46,9 +45,9 @@ def count_kernel(
     base: int,
     stride: int,
 ):
-    """Tiles touched in the band by the ``j``-th surfel in depth order."""
+    """Tiles touched in the band by the ``j``-th visible surfel in depth order."""
     j = base + wp.tid() * stride
-    tx0, tx1, ty0, ty1 = band_tiles(splats[order[j]], tile, band_lo, band_hi)
+    tx0, tx1, ty0, ty1 = band_tiles(splats[j], tile, band_lo, band_hi)
     n = int(0)
     if tx0 <= tx1:
         n = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
@@ -58,7 +57,6 @@ def count_kernel(
 @wp.kernel
 def duplicate_kernel(
     splats: wp.array(dtype=Splat),
-    order: wp.array(dtype=wp.int32),
     tile: int,
     band_lo: int,
     band_hi: int,
@@ -70,16 +68,15 @@ def duplicate_kernel(
     base: int,
     stride: int,
 ):
-    """Emit one (band-local tile id, surfel) pair per touched tile, in depth order."""
+    """Emit one (band-local tile id, depth rank) pair per touched tile, in depth order."""
     j = base + wp.tid() * stride
-    i = order[j]
-    tx0, tx1, ty0, ty1 = band_tiles(splats[i], tile, band_lo, band_hi)
+    tx0, tx1, ty0, ty1 = band_tiles(splats[j], tile, band_lo, band_hi)
     o = int(incl[j]) - int(counts[j])  # exclusive offset
     if tx0 <= tx1:
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 keys[o] = wp.int32((ty - band_lo) * tiles_x + tx)
-                vals[o] = i
+                vals[o] = wp.int32(j)
                 o += 1
 
 
@@ -105,9 +102,83 @@ def ranges_kernel(
         rend[k] = wp.int32(e + 1)
 
 
+@wp.kernel
+def _flag_kernel(
+    keys: wp.array(dtype=float), flags: wp.array(dtype=wp.int32), base: int, stride: int
+):
+    i = base + wp.tid() * stride
+    flags[i] = wp.int32(0)
+    if keys[i] < 0.5 * BIG:
+        flags[i] = wp.int32(1)
+
+
+@wp.kernel
+def _scatter_kernel(
+    keys: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
+    incl: wp.array(dtype=wp.int32),
+    out_keys: wp.array(dtype=float),
+    out_ids: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    i = base + wp.tid() * stride
+    if flags[i] != 0:
+        p = incl[i] - 1
+        out_keys[p] = keys[i]
+        out_ids[p] = wp.int32(i)
+
+
+def sort_visible(keys: wp.array, n: int, dev, threads: int) -> tuple[wp.array, int]:
+    """``(order, n_vis)``: the surfels whose key is not culled (``< BIG``), stably sorted by
+    key (ties: index order). They are compacted in index order first and only they are
+    radix-sorted — the prefix a stable sort of all ``n`` keys would give (culled keys are
+    ``BIG``, after every depth), at the cost of the visible ones (issue 20: a probe sees a
+    few percent of a 3M scene; the radix sort runs on one CPU thread)."""
+    flags = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
+    incl = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
+    n_vis = 0
+    if n > 0:
+        launch_split(_flag_kernel, n, [keys, flags], dev, threads)
+        wp.utils.array_scan(flags, incl, inclusive=True)
+        n_vis = int(incl[n - 1 : n].numpy()[0])
+    out_keys = wp.empty(2 * max(n_vis, 1), dtype=float, device=dev)
+    order = wp.empty(2 * max(n_vis, 1), dtype=wp.int32, device=dev)
+    if n_vis > 0:
+        launch_split(_scatter_kernel, n, [keys, flags, incl, out_keys, order], dev, threads)
+        wp.utils.radix_sort_pairs(out_keys, order, n_vis)
+    return order, n_vis
+
+
+@wp.kernel
+def _gather_kernel(
+    splats: wp.array(dtype=Splat),
+    order: wp.array(dtype=wp.int32),
+    out: wp.array(dtype=Splat),
+    ids: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    j = base + wp.tid() * stride
+    i = order[j]
+    out[j] = splats[i]
+    ids[j] = i
+
+
+def visible_splats(splats: wp.array, order: wp.array, n_vis: int, dev, threads: int):
+    """``(splats [n_vis], ids [n_vis])``: the visible prefix of the depth order ``order``
+    gathered by depth rank ``j`` (``ids[j]`` its surfel index). Binning and walks read
+    these, so a kept view holds only its visible splats (issue 20: a third of a 3M
+    scene's 92-byte splats in a centroid view) and reads them in order."""
+    out = wp.empty(max(n_vis, 1), dtype=Splat, device=dev)
+    ids = wp.empty(max(n_vis, 1), dtype=wp.int32, device=dev)
+    if n_vis > 0:
+        launch_split(_gather_kernel, n_vis, [splats, order, out, ids], dev, threads)
+    return out, ids
+
+
 def tile_bands(
     splats: wp.array,
-    order: wp.array,
     n: int,
     T: int,
     tiles_x: int,
@@ -126,9 +197,9 @@ def tile_bands(
     Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
     used by the contribution pass (``kernels.contrib``) so both see the same binning.
 
-    ``n``: the splats to bin, ``order[:n]`` — the visible prefix of the depth order
-    (:func:`kernels.rasterize.count_visible`; culled splats touch no tile, so leaving
-    them out changes no pair).
+    ``splats[:n]``: the visible splats in depth order (:func:`visible_splats`; culled
+    splats touch no tile, so leaving them out changes no pair); the pairs hold depth
+    ranks ``j`` (the walks map them to surfels through ``ids``).
     """
     lap = lap or (lambda _stage: None)
     counts = wp.empty(max(n, 1), dtype=wp.int32)
@@ -138,7 +209,7 @@ def tile_bands(
         lo, hi = bands.pop(0)
         total = 0
         if n > 0:
-            launch_split(count_kernel, n, [splats, order, T, lo, hi, counts], dev, threads)
+            launch_split(count_kernel, n, [splats, T, lo, hi, counts], dev, threads)
             wp.utils.array_scan(counts, incl, inclusive=True)
             total = int(incl[n - 1 : n].numpy()[0])
         lap("count")
@@ -157,7 +228,7 @@ def tile_bands(
             launch_split(
                 duplicate_kernel,
                 n,
-                [splats, order, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
+                [splats, T, lo, hi, tiles_x, incl, counts, dkeys, dvals],
                 dev,
                 threads,
             )

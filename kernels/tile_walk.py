@@ -101,6 +101,7 @@ def sink_finish(sink: ContribSink, s: PixState, p: int):  # noqa: F811
 @wp.kernel
 def walk_pixel_kernel(
     splats: wp.array(dtype=Splat),
+    ids: wp.array(dtype=wp.int32),
     vals: wp.array(dtype=wp.int32),
     rstart: wp.array(dtype=wp.int32),
     rend: wp.array(dtype=wp.int32),
@@ -129,8 +130,9 @@ def walk_pixel_kernel(
     py = float(y) + 0.5
     s = state_init()
     for e in range(int(rstart[t]), int(rend[t])):
-        i = vals[e]
-        sp = splats[i]
+        j = vals[e]  # depth rank: the visible splats are stored in depth order
+        sp = splats[j]
+        i = ids[j]
         if x >= sp.x0 and x <= sp.x1 and y >= sp.y0 and y <= sp.y1:
             alpha, z = splat_alpha(sp, px, py, cam.fx, cam.fy, inv_var, alpha_max, cam.near)
             if alpha >= bp.alpha_min:
@@ -144,6 +146,7 @@ def walk_pixel_kernel(
 @wp.kernel
 def walk_tile_kernel(
     splats: wp.array(dtype=Splat),
+    ids: wp.array(dtype=wp.int32),
     vals: wp.array(dtype=wp.int32),
     rstart: wp.array(dtype=wp.int32),
     rend: wp.array(dtype=wp.int32),
@@ -172,8 +175,9 @@ def walk_tile_kernel(
     npix = (X1 - X0 + 1) * (Y1 - Y0 + 1)
     ndone = int(0)
     for e in range(int(rstart[t]), int(rend[t])):
-        i = vals[e]
-        sp = splats[i]
+        j = vals[e]  # depth rank: the visible splats are stored in depth order
+        sp = splats[j]
+        i = ids[j]
         xa = wp.max(sp.x0, X0)
         xb = wp.min(sp.x1, X1)
         ya = wp.max(sp.y0, Y0)
@@ -212,6 +216,7 @@ def launch_walk(
     mode: str,
     sink,
     splats,
+    ids,
     vals,
     rstart,
     rend,
@@ -233,7 +238,7 @@ def launch_walk(
     ``split``: how CPU sub-launches share the work (:func:`kernels._launch.launch_split`;
     a sink with per-thread rows needs ``"interleave"``: sub-launch ``j`` gets ``base = j``).
     """
-    common = [splats, vals, rstart, rend, cam, inv_var, alpha_max, bp, tile, tiles_x, band_lo]
+    common = [splats, ids, vals, rstart, rend, cam, inv_var, alpha_max, bp, tile, tiles_x, band_lo]
     if mode == "pixel":
         launch_split(
             walk_pixel_kernel, n_tiles * tile * tile, common + [sink], device, threads, mode=split

@@ -9,6 +9,7 @@ from divas_kernels import (
     ContribOutput,
     accumulate_contributions,
     binning_key,
+    pixel_window,
     rasterize_surfels,
     resolve_device,
     surfel_rows,
@@ -52,9 +53,10 @@ class SurfelRenderer:
     #: views whose binning is kept (the anchor on screen, the current and the next view:
     #: their overlays); probe renders (``render_depth``) keep none
     binning_cache: int = 3
-    #: device memory the kept binnings may hold together (≈ 130 bytes per surfel each:
-    #: 2 views of a 2M-surfel scene, 1 of a 4M one, none above)
-    binning_cache_bytes: int = 512 << 20
+    #: device memory the kept binnings may hold together (each ≈ 60–80 bytes per surfel
+    #: of the scene: its visible splats, the colours and the pairs — 3 views of a
+    #: 1M-surfel scene, 1 of a 3M one, none from ≈ 4M on)
+    binning_cache_bytes: int = 256 << 20
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
@@ -74,9 +76,17 @@ class SurfelRenderer:
         )
 
     def _run(
-        self, cam: Camera, values: np.ndarray | None, features: bool = True, keep: bool = True
+        self,
+        cam: Camera,
+        values: np.ndarray | None,
+        features: bool = True,
+        keep: bool = True,
+        window: tuple[int, int, int, int] | None = None,
     ):
-        hit = self.kept_binning(cam)
+        hit = self.kept_binning(cam) if window is None else None
+        keep = keep and window is None and self.binning_cache > 0
+        if keep and hit is None:
+            self._make_room()
         r = rasterize_surfels(
             self._buf,
             *_projection(cam),
@@ -85,7 +95,8 @@ class SurfelRenderer:
             background=self.config.background,
             features=features,
             binning=hit,
-            keep_binning=keep and self.binning_cache > 0,
+            keep_binning=keep,
+            window=window,
         )
         b = r.binning
         if b is not None:
@@ -99,18 +110,48 @@ class SurfelRenderer:
             r.binning = None
         return r
 
+    def _make_room(self) -> None:
+        """Before a render whose binning will be kept: drop the oldest kept binnings that
+        would be dropped after it anyway (the count, or the bytes with one more of the
+        size of the largest kept), so their memory is free while it renders (issue 20:
+        at 3M surfels one binning is ≈ 0.2 GB; the peak held two). A cache only: no
+        result changes."""
+        est = max((x.nbytes for x in self._binnings), default=0)
+        while self._binnings and (
+            len(self._binnings) >= self.binning_cache
+            or sum(x.nbytes for x in self._binnings) + est > self.binning_cache_bytes
+        ):
+            self._binnings.pop()
+
     def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
         cam = camera if scale == 1.0 else camera.scaled(scale)
         r = self._run(cam, None)
         rgb = r.out.feat.numpy().reshape(cam.height, cam.width, 3)
         return self._buffers(r.out, cam, rgb, r.stats)
 
-    def render_depth(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+    def render_depth(
+        self,
+        camera: Camera,
+        scale: float = 1.0,
+        window: tuple[int, int, int, int] | None = None,
+    ) -> RenderBuffers:
         """The depth tuple only (probes): ``rgb`` is zeros, no SH colours are evaluated
-        and nothing is composited but the depths, which equal :meth:`render`'s."""
+        and nothing is composited but the depths, which equal :meth:`render`'s.
+
+        ``window``: ``(x0, y0, x1, y1)`` half-open pixels of the (scaled) image — only
+        they are rendered (equal to the whole render's, at the window's cost: surfels
+        that miss it are culled); every pixel outside it holds the empty tuple (α 0,
+        depths 0, ``N_samp`` 0)."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
-        o = self._run(cam, None, features=False, keep=False).out
-        return self._buffers(o, cam, np.zeros((cam.height, cam.width, 3), np.float32), {})
+        o = self._run(cam, None, features=False, keep=False, window=window).out
+        b = self._buffers(o, cam, np.zeros((cam.height, cam.width, 3), np.float32), {})
+        if window is not None:
+            x0, y0, x1, y1 = pixel_window(window, cam.width, cam.height)
+            outside = np.ones((cam.height, cam.width), bool)
+            outside[y0:y1, x0:x1] = False
+            for a in (b.alpha, b.D_min, b.D_ref, b.D_max, b.D_mw, b.D_exp, b.D_med, b.N_samp):
+                a[outside] = 0
+        return b
 
     def _buffers(self, o, cam: Camera, rgb: np.ndarray, stats: dict) -> RenderBuffers:
         """The :class:`RenderBuffers` of one rasterizer output ``o`` of ``cam``."""
@@ -155,6 +196,17 @@ class SurfelRenderer:
         size), or None."""
         key = binning_key(self._buf, *_projection(camera), self.config.raster_settings(camera))
         return next((b for b in self._binnings if b.key == key), None)
+
+    def release(self, camera: Camera) -> bool:
+        """Drop ``camera``'s kept binning now when the byte budget holds no second one
+        beside it — the next render would drop it anyway (a 3M-surfel view: ≈ 0.2 GB);
+        a view that is done with (accepted) frees its memory at once (issue 20). Returns
+        whether one was dropped; smaller binnings stay (their overlays reuse them)."""
+        hit = self.kept_binning(camera)
+        if hit is None or 2 * hit.nbytes <= self.binning_cache_bytes:
+            return False
+        self._binnings = [b for b in self._binnings if b is not hit]
+        return True
 
     def clear_cache(self) -> None:
         """Drop the kept view binnings (frees their device memory)."""

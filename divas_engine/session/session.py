@@ -435,6 +435,9 @@ class Session(SelectionEditing, SessionCore):
         ov = nov = nxt = None
         if fused:
             timings["mapping_s"] = self._update_selection()
+            release = getattr(self.renderer, "release", None)
+            for vid in fused if release is not None else ():  # segmented: binning done
+                release(self._views[vid].camera)
             # overlays of this selection, rendered when first read (AcceptResult.overlay)
             ov, nxt, nov = self._lazy_overlays(view)
         timings["fuse_s"] = sum(timings.values())

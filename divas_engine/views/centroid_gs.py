@@ -13,7 +13,8 @@ box; else R_lat = P90 of the offsets perpendicular to the view direction
 the projected bounding box of N.
 
 Strategy 2 (occlusion-aware refinement): K_r radii linspace(r_init, 0.3 r_init);
-each probe renders D_med at low resolution (σ = ``probe_scale``, ≥ 64 px a side);
+each probe renders D_med at low resolution (σ = ``probe_scale``, ≥ 64 px a side),
+only over the central patch (the pixel window eq:occfrac reads; same depths there);
 the central patch is the centred f_fill-sized rectangle; τ_occ = 0.85 z_near with
 z_near the nearest positive camera z of N in the probe camera (eq:tauocc), 0.7 r_k
 when none; O(r_k) = fraction of valid (> 0) patch depths below τ_occ (eq:occfrac).
@@ -59,11 +60,17 @@ def occluded_fraction(d_med: np.ndarray, tau_occ: float, f_fill: float) -> tuple
     return float(np.count_nonzero(d < tau_occ) / d.size), int(d.size)
 
 
-def _probe_depth(renderer, cam: Camera, scale: float) -> np.ndarray:
-    """D_med of a probe: the renderer's depth-only pass when it has one (no SH colours,
-    no feature compositing; the depth tuple is the same), else a full render."""
+def _probe_depth(renderer, cam: Camera, scale: float, f_fill: float) -> np.ndarray:
+    """D_med of a probe, read only over its central patch (eq:occfrac): the renderer's
+    depth-only pass of that pixel window when it has one (no SH colours, no feature
+    compositing, the surfels that miss the patch culled; the patch's depths are the
+    whole render's bit for bit — issue 20), else a full render."""
     depth = getattr(renderer, "render_depth", None)
-    return (depth or renderer.render)(cam, scale=scale).D_med
+    if depth is None:
+        return renderer.render(cam, scale=scale).D_med
+    probe = cam if scale == 1.0 else cam.scaled(scale)
+    rs, cs = central_patch(probe.height, probe.width, f_fill)
+    return depth(probe, window=(cs.start, rs.start, cs.stop, rs.stop)).D_med
 
 
 class GsCentroidPlanner:
@@ -149,7 +156,7 @@ class GsCentroidPlanner:
         r_star, accepted = float(radii[-1]), False
         for r_k in radii:
             cam = build_pose(anchor, x_w, v, float(r_k), near_fraction=cfg.near_fraction)
-            d_med = _probe_depth(self.renderer, cam, s)
+            d_med = _probe_depth(self.renderer, cam, s, cfg.f_fill)
             o, valid = occluded_fraction(d_med, 0.0, cfg.f_fill)  # validity only
             if valid == 0:
                 probes.append(
