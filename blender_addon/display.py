@@ -75,7 +75,7 @@ SPLATS_MAX_POINTS = 1_000_000
 #: quad half-size in σ: where a fully opaque Gaussian's α·G drops below 1/255.
 QUAD_EXTENT = math.sqrt(2.0 * math.log(255.0))
 #: bumped when the node group or a material changes; older ones are rebuilt.
-VERSION = 5
+VERSION = 6
 _VERSION_PROP = "divas_display_version"
 
 
