@@ -15,7 +15,9 @@ ways:
   realised into one mesh. The material "DivAS Splat" evaluates the 2DGS Gaussian on the
   quad's ``divas_quad_uv`` (σ units): ``α = min(0.99, opacity · exp(−(u²+v²)/2))``,
   dropped below 1/255, as the alpha of an unlit emission over a transparent BSDF (Cycles
-  blends it; EEVEE dithers it and converges over its samples). The realised mesh's
+  blends it; EEVEE dithers it and converges over its samples) — the emission is the
+  sRGB-encoded colour when the scene blends like the capture (:mod:`.blend_space`,
+  which decodes the sum in the compositor). The realised mesh's
   active colour attribute ``divas_display`` is the same colour, so Solid mode with
   *Attribute* colour (and Workbench renders) shows the splat colours.
 * **Points**: one point per splat (Cycles/EEVEE spheres) of radius *Size* ·
