@@ -13,13 +13,13 @@ Standard view transform, a black world and a 1-pixel box filter; the engine refe
 
 * ``engine``: the engine's own render (point-sampled at pixel centres, 2DGS low-pass,
   colours composited in display (sRGB) space, as the 3DGS/2DGS trainers do);
-* ``engine_aa``: the same render at 8× the resolution (``--supersample``), area-averaged (in display
-  space) — the engine's picture anti-aliased the way a Blender pixel integrates its area
-  when the import blends like the capture (the add-on's ``blend_space``). It also drops
-  most of the native render's 2DGS screen-space low-pass (σ = √2/2 *pixels*), which at
-  a few hundred pixels widens every sub-pixel splat to a pixel-sized disc: on the
-  shared captures that, not aliasing, is most of the native render's difference to its
-  own supersampled picture;
+* ``engine_aa``: the same render at 8× the resolution (``--supersample``), area-averaged
+  in display space — the engine's picture anti-aliased the way a Blender pixel
+  integrates its area when the import blends like the capture (the add-on's
+  ``blend_space``). It also drops most of the native render's 2DGS screen-space
+  low-pass (σ = √2/2 *pixels*), which at a few hundred pixels widens every sub-pixel
+  splat to a pixel-sized disc: on the shared captures that, not aliasing, is most of
+  the native render's difference to its own supersampled picture (BENCHMARKS.md);
 * ``engine_linear_aa``: as ``engine_aa`` but compositing in linear light (the splat
   colours decoded to linear before blending, the sum and the area average in linear,
   encoded after) — what Blender's linear blending computes (``--blend LINEAR``).
