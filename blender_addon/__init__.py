@@ -13,13 +13,23 @@ from __future__ import annotations
 
 import bpy
 
-from . import handlers, operators, preferences, properties, session_registry, source, ui
+from . import (
+    blend_space,
+    handlers,
+    operators,
+    preferences,
+    properties,
+    session_registry,
+    source,
+    ui,
+)
 
 CLASSES = (preferences.DIVAS_AddonPreferences, *operators.CLASSES, *ui.CLASSES)
 
 
 def register() -> None:
     properties.register()  # scene.divas first: the panel and operators read it
+    blend_space.register()
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     for menu, func in operators.MENU_ENTRIES:
@@ -34,5 +44,6 @@ def unregister() -> None:
         getattr(bpy.types, menu).remove(func)
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
+    blend_space.unregister()
     properties.unregister()
     source.clear_cache()

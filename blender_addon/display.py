@@ -15,7 +15,9 @@ ways:
   realised into one mesh. The material "DivAS Splat" evaluates the 2DGS Gaussian on the
   quad's ``divas_quad_uv`` (σ units): ``α = min(0.99, opacity · exp(−(u²+v²)/2))``,
   dropped below 1/255, as the alpha of an unlit emission over a transparent BSDF (Cycles
-  blends it; EEVEE dithers it and converges over its samples). The realised mesh's
+  blends it; EEVEE dithers it and converges over its samples) — the emission is the
+  sRGB-encoded colour when the scene blends like the capture (:mod:`.blend_space`,
+  which decodes the sum in the compositor). The realised mesh's
   active colour attribute ``divas_display`` is the same colour, so Solid mode with
   *Attribute* colour (and Workbench renders) shows the splat colours.
 * **Points**: one point per splat (Cycles/EEVEE spheres) of radius *Size* ·
@@ -75,7 +77,7 @@ SPLATS_MAX_POINTS = 1_000_000
 #: quad half-size in σ: where a fully opaque Gaussian's α·G drops below 1/255.
 QUAD_EXTENT = math.sqrt(2.0 * math.log(255.0))
 #: bumped when the node group or a material changes; older ones are rebuilt.
-VERSION = 5
+VERSION = 6
 _VERSION_PROP = "divas_display_version"
 
 

@@ -30,6 +30,8 @@ __all__ = [
     "QUAD_UV",
     "DISPLAY_COLOR",
     "SHADE",
+    "BLEND_FLAG",
+    "srgb_encode",
     "build_display_group",
     "build_splat_material",
     "build_points_material",
@@ -38,6 +40,9 @@ __all__ = [
 QUAD_UV = "divas_quad_uv"
 DISPLAY_COLOR = "divas_display"
 SHADE = "divas_shade"
+#: scene property (a BoolProperty registered by :mod:`.blend_space`) the materials read
+#: through an Attribute node of type View Layer: set, they emit the display-encoded colour.
+BLEND_FLAG = "divas_blend_display"
 _SRGB_LIN_KNEE = 0.04045  # sRGB-encoded value where the curve's linear toe ends
 _LIN_SRGB_KNEE = 0.0031308  # the same point in linear
 
@@ -119,19 +124,25 @@ def _step(b: NodeBuilder, v, knee: float):
     return b.vmath("SCALE", b.vmath("ADD", s, (1.0,) * 3), 0.5)
 
 
+def srgb_encode(b: NodeBuilder, lin):
+    """Extended sRGB encoding of a vector socket (sign-symmetric), as in
+    ``linear_to_srgb``; plain vector-math nodes, so it builds in a Geometry Nodes tree
+    and in a material alike."""
+    a = b.vmath("ABSOLUTE", lin)
+    lo = b.vmath("SCALE", a, 12.92)
+    root = b.vmath("POWER", a, (1 / 2.4,) * 3)
+    hi = b.vmath("SUBTRACT", b.vmath("SCALE", root, 1.055), (0.055,) * 3)
+    enc = b.vmath(
+        "ADD", lo, b.vmath("MULTIPLY", _step(b, a, _LIN_SRGB_KNEE), b.vmath("SUBTRACT", hi, lo))
+    )
+    return b.vmath("MULTIPLY", enc, b.vmath("SIGN", lin))
+
+
 def _srgb_encode_group(version):
-    """Extended sRGB encoding of a vector (sign-symmetric), as in ``linear_to_srgb``."""
+    """:func:`srgb_encode` as a node group."""
 
     def body(b, gin):
-        lin = b.out(gin, "Vector")
-        a = b.vmath("ABSOLUTE", lin)
-        lo = b.vmath("SCALE", a, 12.92)
-        root = b.vmath("POWER", a, (1 / 2.4,) * 3)
-        hi = b.vmath("SUBTRACT", b.vmath("SCALE", root, 1.055), (0.055,) * 3)
-        enc = b.vmath(
-            "ADD", lo, b.vmath("MULTIPLY", _step(b, a, _LIN_SRGB_KNEE), b.vmath("SUBTRACT", hi, lo))
-        )
-        return {"Vector": b.vmath("MULTIPLY", enc, b.vmath("SIGN", lin))}
+        return {"Vector": srgb_encode(b, b.out(gin, "Vector"))}
 
     vec = [("Vector", "NodeSocketVector")]
     return _subgroup("DivAS sRGB Encode", version, vec, vec, body)
@@ -398,8 +409,21 @@ def _quad_extent() -> float:
     return QUAD_EXTENT
 
 
+def _blended_colour(b: NodeBuilder, color):
+    """What the material emits: the linear display colour, or with the scene's
+    :data:`BLEND_DISPLAY_FLAG` set its sRGB encoding (blending then sums display values
+    like the trainers; :mod:`.blend_space` decodes the sum in the compositor)."""
+    flag = b.node("ShaderNodeAttribute", attribute_type="VIEW_LAYER", attribute_name=BLEND_FLAG)
+    mix = b.node(
+        "ShaderNodeMix",
+        {"Factor": b.out(flag, "Fac"), "A": color, "B": srgb_encode(b, color)},
+        data_type="VECTOR",
+    )
+    return b.out(mix, "Result")
+
+
 def _emission_over_transparent(b: NodeBuilder, color, alpha) -> None:
-    em = b.node("ShaderNodeEmission", {"Color": color, "Strength": 1.0})
+    em = b.node("ShaderNodeEmission", {"Color": _blended_colour(b, color), "Strength": 1.0})
     tr = b.node("ShaderNodeBsdfTransparent")
     mix = b.node("ShaderNodeMixShader", {0: alpha, 1: b.out(tr, 0), 2: b.out(em, 0)})
     out = b.node("ShaderNodeOutputMaterial", {"Surface": b.out(mix, 0)})
@@ -408,7 +432,8 @@ def _emission_over_transparent(b: NodeBuilder, color, alpha) -> None:
 
 def build_splat_material(nt) -> None:
     """The 2DGS Gaussian on the quad (NOTES "Depth tuple": α = min(0.99, o·G), skip
-    α < 1/255) as the alpha of an unlit emission of the splat's display colour."""
+    α < 1/255) as the alpha of an unlit emission of the splat's display colour
+    (display-encoded when the scene blends in display space)."""
     b = NodeBuilder(nt)
     uv = b.node("ShaderNodeAttribute", attribute_type="GEOMETRY", attribute_name=QUAD_UV)
     col = b.node("ShaderNodeAttribute", attribute_type="GEOMETRY", attribute_name=DISPLAY_COLOR)

@@ -9,7 +9,9 @@
   (:mod:`.session_actions.history`);
 * ``depsgraph_update_post`` — when the scene camera or the active object becomes an
   anchor camera whose view is not rendered yet (anchors render lazily, issue 20), a
-  one-shot timer renders it (ID data cannot be written while the depsgraph updates).
+  one-shot timer renders it (ID data cannot be written while the depsgraph updates);
+* ``render_pre`` — no display-space decode for Workbench renders
+  (:func:`.blend_space.on_render_pre`).
 
 Every handler is ``@persistent`` (it outlives file loads) and registered once.
 """
@@ -21,7 +23,7 @@ import sys
 import bpy
 from bpy.app.handlers import persistent
 
-from . import draw, session_registry
+from . import blend_space, draw, session_registry
 from .session_actions import files, sync_after_undo
 from .session_actions.view_cameras import cameras_needing_background, fill_backgrounds
 
@@ -82,6 +84,7 @@ _HANDLERS = (
     ("undo_post", on_undo_redo),
     ("redo_post", on_undo_redo),
     ("depsgraph_update_post", _on_depsgraph_update),
+    ("render_pre", blend_space.on_render_pre),
 )
 
 

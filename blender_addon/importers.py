@@ -30,7 +30,7 @@ from divas_engine.io.cameras import load_cameras
 from divas_engine.point_attributes import PointTable, grid_point_table, surfel_point_table
 from divas_engine.scene import DensityGrid, Scene, SurfelScene
 
-from . import bridge, camera_objects, display, source
+from . import blend_space, bridge, camera_objects, display, source
 
 __all__ = [
     "SplatImportSettings",
@@ -58,7 +58,10 @@ class SplatImportSettings:
     the up from the engine's estimate instead of ``up`` when it finds a ground plane;
     ``display``: add the display modifier; ``points``: point display (None: by size);
     ``view_dependent``: keep the SH coefficients for view-dependent colour;
-    ``setup_scene``: set the view transform and render settings splats need."""
+    ``setup_scene``: set the view transform and render settings splats need;
+    ``blend_display``: blend in display space like the capture (:mod:`.blend_space`) or
+    in linear light; None (*Auto*): display space when the scene has nothing else to
+    render and ``setup_scene`` is set, else the scene's setting is left as it is."""
 
     filepath: Path
     display: bool = True
@@ -68,6 +71,7 @@ class SplatImportSettings:
     points: bool | None = None
     view_dependent: bool = True
     setup_scene: bool = True
+    blend_display: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -182,6 +186,11 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
             )
         if settings.setup_scene:
             display.setup_scene_for_splats(context.scene, context)
+        blend = settings.blend_display
+        if blend is None and settings.setup_scene:
+            blend = not blend_space.has_other_renderables(context.scene, exclude=(obj,)) or None
+        if blend is not None:
+            blend_space.set_blend_display(context.scene, blend, context)
         return obj
     finally:
         wm.progress_end()

@@ -3,7 +3,8 @@ the pictures side by side and the mean absolute differences inside the object.
 
     python blender_scripts/compare_render.py -- CAPTURE --out DIR
         [--engines CYCLES,BLENDER_WORKBENCH] [--width 320] [--samples 16]
-        [--azimuth 30] [--elevation 15] [--up 0,-1,0]
+        [--azimuth 30] [--elevation 15] [--up 0,-1,0] [--blend AUTO|DISPLAY|LINEAR]
+        [--supersample 8]
 
 (or ``blender -b --python blender_scripts/compare_render.py -- …``). The camera looks at
 the capture's robust centre (``scene_frame``) from ``2.4 r_fg`` at the given azimuth and
@@ -12,12 +13,16 @@ Standard view transform, a black world and a 1-pixel box filter; the engine refe
 
 * ``engine``: the engine's own render (point-sampled at pixel centres, 2DGS low-pass,
   colours composited in display (sRGB) space, as the 3DGS/2DGS trainers do);
-* ``engine_aa``: the same render at 4× the resolution, area-averaged in linear light —
-  the engine's picture anti-aliased the way a Blender pixel integrates its area;
+* ``engine_aa``: the same render at 8× the resolution (``--supersample``), area-averaged
+  in display space — the engine's picture anti-aliased the way a Blender pixel
+  integrates its area when the import blends like the capture (the add-on's
+  ``blend_space``). It also drops most of the native render's 2DGS screen-space
+  low-pass (σ = √2/2 *pixels*), which at a few hundred pixels widens every sub-pixel
+  splat to a pixel-sized disc: on the shared captures that, not aliasing, is most of
+  the native render's difference to its own supersampled picture (BENCHMARKS.md);
 * ``engine_linear_aa``: as ``engine_aa`` but compositing in linear light (the splat
-  colours decoded to linear before blending, the result encoded after) — what Blender's
-  linear pipeline computes; its difference to Blender isolates everything but the
-  compositing space.
+  colours decoded to linear before blending, the sum and the area average in linear,
+  encoded after) — what Blender's linear blending computes (``--blend LINEAR``).
 
 "Inside the object" is where the engine's native alpha is > 0.5. Writes
 ``<name>_<engine>.png``, ``<name>_<reference>.png``, ``<name>_side_by_side.png`` and
@@ -45,7 +50,10 @@ from divas_engine.render import make_renderer  # noqa: E402
 from divas_engine.scene import SH_C0  # noqa: E402
 from divas_engine.views import scene_frame  # noqa: E402
 
-SUPERSAMPLE = 4
+#: engine reference supersampling: at a few hundred pixels 4× still keeps part of the
+#: 2DGS low-pass (σ = √2/2 px of the 4× image) and misses sub-pixel detail (guitar,
+#: 160 px: 0.061 at 4× against 0.030 at 8×, Cycles 64 samples).
+SUPERSAMPLE = 8
 
 
 def view_camera(scene, width: int, azimuth: float, elevation: float, up) -> Camera:
@@ -68,21 +76,22 @@ def _area_down(img: np.ndarray, f: int) -> np.ndarray:
     return img[: h * f, : w * f].reshape(h, f, w, f, -1).mean(axis=(1, 3))
 
 
-def engine_references(path: Path, cam: Camera) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def engine_references(
+    path: Path, cam: Camera, supersample: int = SUPERSAMPLE
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """``({name: [H,W,3] display RGB in [0,1]}, inside mask)`` (module docstring)."""
     scene = load_scene(path)
     ren = make_renderer(scene, "cpu")
     native = ren.render(cam)
     refs = {"engine": np.clip(native.rgb, 0, 1)}
-    big = cam.scaled(SUPERSAMPLE)
-    lin = srgb_to_linear(np.clip(ren.render(big).rgb, 0, 1))
-    refs["engine_aa"] = np.clip(linear_to_srgb(_area_down(lin, SUPERSAMPLE)), 0, 1)
+    big = cam.scaled(supersample)
+    refs["engine_aa"] = np.clip(_area_down(np.clip(ren.render(big).rgb, 0, 1), supersample), 0, 1)
     dc = np.maximum(0.5 + SH_C0 * scene.sh[:, 0].astype(np.float64), 0.0)
     scene.sh[:, 0] = ((srgb_to_linear(dc) - 0.5) / SH_C0).astype(np.float32)
     if scene.sh_degree:  # linear compositing of the DC colour only (SH add in display space)
         scene.sh[:, 1:] = 0.0
     lin = np.maximum(make_renderer(scene, "cpu").render(big).rgb, 0.0)
-    refs["engine_linear_aa"] = np.clip(linear_to_srgb(_area_down(lin, SUPERSAMPLE)), 0, 1)
+    refs["engine_linear_aa"] = np.clip(linear_to_srgb(_area_down(lin, supersample)), 0, 1)
     return refs, native.alpha > 0.5
 
 
@@ -148,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--azimuth", type=float, default=30.0)
     ap.add_argument("--elevation", type=float, default=15.0)
     ap.add_argument("--up", default="0,-1,0", help="the capture's up in its own frame")
+    ap.add_argument("--supersample", type=int, default=SUPERSAMPLE)
+    ap.add_argument(
+        "--blend", default="AUTO", choices=("AUTO", "DISPLAY", "LINEAR"), help="import option"
+    )
     args = ap.parse_args(argv)
     import bpy  # noqa: I001 - bpy first: it puts addon_utils on the path
     import addon_utils
@@ -156,16 +169,22 @@ def main(argv: list[str] | None = None) -> int:
     bpy.ops.wm.read_homefile(app_template="")
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o)
-    assert bpy.ops.divas.import_splats(filepath=str(args.capture)) == {"FINISHED"}
+    done = bpy.ops.divas.import_splats(filepath=str(args.capture), blend_space=args.blend)
+    assert done == {"FINISHED"}
     obj = bpy.context.active_object
     up = [float(v) for v in args.up.split(",")]
     cam = view_camera(load_scene(args.capture), args.width, args.azimuth, args.elevation, up)
-    refs, inside = engine_references(args.capture, cam)
+    refs, inside = engine_references(args.capture, cam, args.supersample)
     args.out.mkdir(parents=True, exist_ok=True)
     name = args.capture.name.split(".")[0]
     if name == "meta":
         name = args.capture.parent.name
-    report = {"capture": str(args.capture), "size": [cam.width, cam.height], "mad": {}}
+    report = {
+        "capture": str(args.capture),
+        "size": [cam.width, cam.height],
+        "blend_display": bool(getattr(bpy.context.scene, "divas_blend_display", False)),
+        "mad": {},
+    }
     row = []
     for k, v in refs.items():
         _png(args.out / f"{name}_{k}.png", v)

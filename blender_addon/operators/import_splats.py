@@ -9,6 +9,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper, orientation_helper
 
+from ..blend_space import BLEND_FLAG
 from ..importers import SplatImportSettings, import_splats
 from ..reporting import USER_ERRORS, report_failure
 
@@ -16,6 +17,21 @@ _DISPLAY_MODES = (
     ("AUTO", "Auto", "Splats up to 1,000,000 splats, points above"),
     ("SPLATS", "Splats", "Oriented Gaussian quads (Cycles, EEVEE, Solid colours)"),
     ("POINTS", "Points", "One point per splat: fast for huge scenes"),
+)
+_BLEND_SPACES = (
+    (
+        "AUTO",
+        "Auto",
+        "Like the capture when the scene has nothing else to render, else the scene's "
+        "setting is kept",
+    ),
+    (
+        "DISPLAY",
+        "Like the Capture",
+        "Blend in display (sRGB) space as the 3DGS/2DGS trainers do (a compositor "
+        "decode node; other objects' mid-tones look darker)",
+    ),
+    ("LINEAR", "Linear", "Blender's linear blending (no compositor node)"),
 )
 
 
@@ -47,6 +63,13 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
         description="Keep the spherical-harmonic coefficients (8-bit) so colours change "
         "with the view",
     )
+    blend_space: EnumProperty(
+        name="Blend",
+        items=_BLEND_SPACES,
+        default="AUTO",
+        description="Where overlapping splats are blended: display space reproduces the "
+        "capture's colours; linear is Blender's own (Scene › Blend Like the Capture)",
+    )
     setup_scene: BoolProperty(
         name="Set Up Scene",
         default=True,
@@ -64,6 +87,7 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
             points={"AUTO": None, "SPLATS": False, "POINTS": True}[self.display_mode],
             view_dependent=self.view_dependent,
             setup_scene=self.setup_scene,
+            blend_display={"AUTO": None, "DISPLAY": True, "LINEAR": False}[self.blend_space],
         )
         t0 = time.perf_counter()
         try:
@@ -74,9 +98,14 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
         self.report(
             {"INFO"},
             f"Imported {n:,} splats from {settings.filepath.name} "
-            f"in {time.perf_counter() - t0:.1f} s (up: {obj.get('divas_up_reason', '')})",
+            f"in {time.perf_counter() - t0:.1f} s (up: {obj.get('divas_up_reason', '')}; "
+            f"blend: {'like the capture' if blending_display(context.scene) else 'linear'})",
         )
         return {"FINISHED"}
+
+
+def blending_display(scene) -> bool:
+    return bool(getattr(scene, BLEND_FLAG, False))
 
 
 def menu_func(self, context):

@@ -9,6 +9,7 @@ import bpy
 from divas_engine.kinds import SceneKind
 
 from .. import session_registry, source
+from ..blend_space import BLEND_FLAG
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import active_model, active_model_ready, get_preferences
 from ..properties import scene_settings
@@ -224,6 +225,7 @@ class DIVAS_PT_main(bpy.types.Panel):
         n = len(obj.data.points)
         count = selected_count(obj)
         box.label(text=f"{n:,} points" + ("" if count is None else f", {count:,} selected"))
+        box.prop(context.scene, BLEND_FLAG)
         col = box.column(align=True)
         col.operator("divas.extract_selection", icon="DUPLICATE")
         col.operator("divas.export_selection", icon="EXPORT")

@@ -3,22 +3,15 @@
 Cycles renders the shared biker and guitar captures (Standard view transform) from a
 camera the engine renders too (``blender_scripts/compare_render.py`` does the same at
 any size and writes the pictures). Mean absolute differences inside the object (the
-engine's alpha > 0.5), 160×120, 16 samples, 1-px box filter:
+engine's alpha > 0.5), 160×120, 16 samples, 1-px box filter, against the engine's
+render of that camera supersampled 8× (what a Blender pixel integrates; the native
+160-px render widens every sub-pixel splat with its 2DGS low-pass of √2/2 *pixel*,
+which is most of its difference to its own supersampled picture, see BENCHMARKS.md):
 
-* against the engine render anti-aliased like a Blender pixel (4× supersampled,
-  averaged in linear light) and composited in linear light, as Blender composites:
-  geometry, orientation, Gaussian falloff, opacity and colour decoding agree; what is
-  left is the blend *order* (the engine sorts splats by centre depth, Cycles meets them
-  in ray order — they differ where splats on one surface overlap): biker 0.052, guitar
-  0.065 measured, ≤ 0.07;
-* against the engine render anti-aliased the same way but composited in display
-  (sRGB) space, as the trainers and the engine do: guitar 0.061, biker 0.080 measured
-  (its dark leathers shot with bright highlights blend brighter in linear light: the
-  compositing space alone accounts for ~0.07), ≤ 0.07 / 0.09. The issue's target, ≤ 0.06
-  against the engine's own render, is not met (the issue note explains);
-* the mean display luminance inside the figure within 0.05 of the like-for-like engine
-  render (linear compositing, anti-aliased; the old display: 0.42 against 0.23 for the
-  biker's engine render).
+* the default import blends like the capture (display space, :mod:`blender_addon.
+  blend_space`): guitar 0.043, biker 0.037 measured, ≤ 0.06 (the issue's target);
+* switched off (biker), Blender blends in linear light again: 0.088 from that reference,
+  0.035 from the engine's render composited in linear light (≤ 0.06).
 
 Workbench (what Solid mode draws) shows the splat colours: the same figure, not grey.
 """
@@ -51,31 +44,43 @@ def _luma(rgb: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize(
-    "capture, display_tol",
+    "capture, check_linear",
     [
-        ("playcanvas-splats/guitar.compressed.ply", 0.07),
-        ("playcanvas-splats/biker.compressed.ply", 0.09),
+        ("playcanvas-splats/guitar.compressed.ply", False),
+        ("playcanvas-splats/biker.compressed.ply", True),  # dark leathers: where it shows most
     ],
 )
-def test_cycles_render_matches_the_engine(real_data, tmp_path, capture, display_tol):
+def test_cycles_render_matches_the_engine(real_data, tmp_path, capture, check_linear):
+    from blender_addon import blend_space
+
     path = real_data / capture
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o)
     assert bpy.ops.divas.import_splats(filepath=str(path)) == {"FINISHED"}
     obj = bpy.context.active_object
+    scene = bpy.context.scene
+    assert getattr(scene, blend_space.BLEND_FLAG)  # the default in an empty scene
     from divas_engine import load_scene
 
     cam = CMP.view_camera(load_scene(path), 160, 30.0, 15.0, (0, -1, 0))
     refs, inside = CMP.engine_references(path, cam)
     assert inside.sum() > 500
     got = CMP.render_blender(bpy.context, obj, cam, "CYCLES", 16, tmp_path / "cycles.png")
-    assert bpy.context.scene.view_settings.view_transform == "Standard"
+    assert scene.view_settings.view_transform == "Standard"
     mads = {k: CMP.mad(got, v, inside) for k, v in refs.items()}
-    assert mads["engine_linear_aa"] <= 0.07, mads
-    assert mads["engine_aa"] <= display_tol, mads
-    gap = abs(_luma(got)[inside].mean() - _luma(refs["engine_linear_aa"])[inside].mean())
-    assert gap <= 0.05, (gap, mads)
+    assert mads["engine_aa"] <= 0.06, mads
+    gap = abs(_luma(got)[inside].mean() - _luma(refs["engine_aa"])[inside].mean())
+    assert gap <= 0.02, (gap, mads)
     assert _luma(got)[~inside].mean() < 0.02  # nothing drawn where the engine has nothing
+    if not check_linear:
+        return
+    # switched off: Blender's linear blending, which matches the engine composited in
+    # linear light instead
+    blend_space.set_blend_display(scene, False)
+    lin = CMP.render_blender(bpy.context, obj, cam, "CYCLES", 16, tmp_path / "linear.png")
+    lin_mads = {k: CMP.mad(lin, v, inside) for k, v in refs.items()}
+    assert lin_mads["engine_linear_aa"] <= 0.06, lin_mads
+    assert lin_mads["engine_aa"] >= mads["engine_aa"] + 0.02, (lin_mads, mads)
 
 
 def test_solid_mode_shows_the_splat_colours(real_data, tmp_path):

@@ -345,6 +345,7 @@ def test_reports_return_cancelled(tmp_path):
     class Fake:
         filepath, display = str(tmp_path / "nope.splat"), True
         axis_forward, axis_up, up_from_scene, display_mode = "Z", "-Y", True, "AUTO"
+        blend_space = "AUTO"
         view_dependent = setup_scene = True
         reports = []
 
