@@ -19,6 +19,7 @@ __all__ = [
     "touching_boxes",
     "rod_on_floor",
     "ball_on_floor",
+    "ball_and_specks",
     "grid_ball_and_box",
 ]
 
@@ -101,9 +102,27 @@ def rod_on_floor() -> CaseScene:
 
 
 def ball_on_floor() -> CaseScene:
-    """Parts: 0 floor, 1 a ball of radius 0.2 resting on it (same grey as the floor)."""
+    """Parts: 0 floor, 1 a ball of radius 0.2 resting on it (same grey as the floor). The
+    floor's surfels lie closer than the graph's voxels around a click on it (h ≈ 1.4
+    cm): a sparser random sampling leaves voxel-wide holes, and a floor in pieces is no
+    longer one continuing surface to the cut."""
     ball = Sphere("ball", Frame.make((0.0, 0.0, 0.2), (0, 0, 1)), 0.2)
-    return build_case([floor(), Part((ball,), FLOOR_RGB)])
+    return build_case([floor(spacing=0.012), Part((ball,), FLOOR_RGB)])
+
+
+def ball_and_specks() -> CaseScene:
+    """Parts: 0 floor, 1 the grey ball of :func:`ball_on_floor`, 2 loose specks: three
+    small cubes (1.5 cm) floating beside and above the ball, touching nothing — bits of
+    haze a capture leaves around an object."""
+    ball = Sphere("ball", Frame.make((0.0, 0.0, 0.2), (0, 0, 1)), 0.2)
+    specks = [
+        s
+        for c in ((0.3, 0.0, 0.3), (0.0, 0.3, 0.45), (-0.28, -0.1, 0.2))
+        for s in box("speck", c, (0.0075, 0.0075, 0.0075))
+    ]
+    return build_case(
+        [floor(), Part((ball,), FLOOR_RGB), Part(tuple(specks), (0.7, 0.6, 0.5), 0.003)]
+    )
 
 
 @dataclass(eq=False)

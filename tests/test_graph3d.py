@@ -12,10 +12,17 @@ import pytest
 from divas_engine.camera import Camera
 from divas_engine.segment import Graph3DSegmenter, SceneAwareSegmenter, SceneBinding
 from divas_engine.segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
-from divas_engine.segment.graph3d import CutResult, Granularity, Seeds
+from divas_engine.segment.graph3d import CutResult, Granularity, Graph3DConfig, Seeds
+from divas_engine.segment.graph3d.cut import walk_potential
 from divas_engine.segment.graph3d.segmenter import advice
 from divas_engine.session import Session, SessionConfig
-from tests.graph3d_cases import ball_on_floor, grid_ball_and_box, rod_on_floor, touching_boxes
+from tests.graph3d_cases import (
+    ball_and_specks,
+    ball_on_floor,
+    grid_ball_and_box,
+    rod_on_floor,
+    touching_boxes,
+)
 
 
 def _cut(case, positive, negative=()):
@@ -70,6 +77,27 @@ def test_object_on_a_plane_separates_from_the_plane():
     assert _share(sel[1], case, 1) > 0.9  # all but the contact cap in the ground band
     assert _share(sel[1], case, 0) < 0.001
     assert rc.scores[1] > 0.8 and rc.message is None
+
+
+def test_loose_specks_get_no_potential_and_stay_out():
+    # specks touching nothing form parts of the graph without a seed: a walk from the
+    # ball never reaches them, so their potential is exactly 0 (not whatever an
+    # unfinished iterative solve left there) and no region takes them
+    case = ball_and_specks()
+    rc, sel = _cut(case, [[0.0, -0.2, 0.2]])
+    g = rc.graph
+    idx = Graph3DSegmenter(binding=SceneBinding(case.scene, None, None)).primitives().index
+    speck_nodes = np.unique(g.voxel_of[case.part[idx[g.prim]] == 2])
+    assert len(speck_nodes) >= 3  # all three specks are in the examined region
+    assert np.all(rc.cut.potential[speck_nodes] == 0.0)
+    assert not sel[:, case.of(2)].any()
+    assert _share(sel[1], case, 1) > 0.9
+    # the same on the walk alone, with the floor left free (no sink reachable from the
+    # ball: its potential stays near 1, the specks' at 0)
+    pos = np.zeros(len(g), bool)
+    pos[g.node_of_points(np.array([[0.0, -0.2, 0.2]]))] = True
+    x, _, _ = walk_potential(g, pos, g.rim.copy(), Graph3DConfig())
+    assert np.all(x[speck_nodes] == 0.0)
 
 
 def test_click_without_a_boundary_scores_low_and_says_what_to_do():
@@ -169,7 +197,9 @@ def test_an_ambiguous_click_scores_low_and_the_view_record_says_what_to_do():
         assert v.status == "rejected" and v.advice == prev.advice
         report = next(r for r in s.report()["views"] if r["id"] == v.id)
         assert report["advice"] == prev.advice and report["status"] == "rejected"
-        # a confident view carries no advice, also once fused
+        # a confident view carries no advice, also once fused (a new object: the floor
+        # click stays a seed of the first one, whose cut is the ball with the floor)
+        s.finish_object()
         uv, _ = anchor.project(np.array([[0.0, -0.2, 0.25]]))
         w = s.click(0, tuple(uv[0]))
         assert s.prompt(w).advice is None

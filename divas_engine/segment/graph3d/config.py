@@ -59,6 +59,14 @@ class Graph3DConfig:
             (:mod:`.supports`).
         min_granularity_ratio: the small / large channels differ from the medium one by
             at least this volume ratio (1.5); none → the medium itself.
+        tie_window, tie_potential, clean_phi: the medium region is the smallest dip
+            of φ (least within ± ``tie_window`` of its volume, 1.1) whose φ is within
+            ``ambiguity_ratio`` of the least φ — any φ below ``clean_phi`` (1e-5: a cut
+            of a hundredth of one strong edge per thousand of volume) is a clean
+            separation, as good as 0 — when the voxels the least-φ region adds have a
+            median walk potential below ``tie_potential`` (0.1) × the dip region's
+            (:func:`.cut._first_tie`): of two regions equally well cut off, the one
+            the walk reaches.
         min_region_share: the medium region holds at least this share of the graph's
             volume (0.01): a speck of haze cut off around the click is not the object.
 
@@ -97,6 +105,9 @@ class Graph3DConfig:
     support_min_width: float = 6.0
     min_granularity_ratio: float = 1.5
     min_region_share: float = 0.01
+    tie_window: float = 1.1
+    clean_phi: float = 1e-5
+    tie_potential: float = 0.1
     score_contrast: float = 0.35
     neck_min_voxels: int = 8
     ambiguity_ratio: float = 1.3

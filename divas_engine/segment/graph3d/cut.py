@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import sparse
 from scipy.ndimage import minimum_filter1d
+from scipy.sparse.csgraph import connected_components
 
 from .config import Graph3DConfig
 from .voxel_graph import VoxelGraph
@@ -100,12 +101,16 @@ def walk_potential(
     Solved for the escape probability ``u = 1 − x``:
     ``(L_UU + λ D_U) u = λ deg_U + W_U,sinks 1``, so that inside an island (no sink
     reachable, ``u = O(λ)``) the tolerance is relative to ``u`` and its ordering —
-    graph distance from the seeds — survives. Voxels with no edge are sinks."""
+    graph distance from the seeds — survives. Voxels with no edge are sinks, and so is
+    every part of the graph that holds no positive seed: there ``x = 0`` exactly (the
+    leaky system's solution ``u = 1``), which an iterative solve started at ``u ≈ λ``
+    would only approach after far more iterations than the cap — a loose speck of the
+    floor next to the object would keep a spurious high ``x`` and be swept in."""
     wmat, deg = _laplacian(graph)
     v = len(graph)
     u = np.ones(v)
     u[positive] = 0.0
-    free = ~(positive | sinks) & (deg > 0)
+    free = ~(positive | sinks) & (deg > 0) & _seeded_parts(wmat, positive)
     fi = np.flatnonzero(free)
     if len(fi) == 0:
         return 1.0 - u, wmat, deg
@@ -119,6 +124,13 @@ def walk_potential(
     sol = solve_walk(a, b, diag, x0, graph.cell[fi], config)
     u[fi] = np.clip(sol, 0.0, 1.0)
     return 1.0 - u, wmat, deg
+
+
+def _seeded_parts(wmat: sparse.csr_matrix, positive: np.ndarray) -> np.ndarray:
+    """Bool ``[V]``: the voxels of the connected parts of the graph that hold a positive
+    seed."""
+    _, part = connected_components(wmat > 0, directed=False)
+    return np.isin(part, np.unique(part[positive]))
 
 
 def _prefix_cuts(order: np.ndarray, graph: VoxelGraph, deg: np.ndarray) -> np.ndarray:
@@ -187,6 +199,7 @@ def sweep_cut(
     if not np.isfinite(phi).any():
         return _degenerate(v, positive, x)
     best = int(np.argmin(np.where(big, phi, np.inf))) if big.any() else int(np.argmin(phi))
+    best = _first_tie(phi, vol, big, best, np.minimum(key[order], 1.0), config)
     minima = _local_minima(phi, vol, config.min_granularity_ratio)
     ratio = config.min_granularity_ratio
     small = _best_where(minima, phi, vol <= vol[best] / ratio, best)
@@ -287,6 +300,34 @@ def _local_minima(phi: np.ndarray, vol: np.ndarray, ratio: float) -> list[int]:
     width = max(1, int(round(np.log(ratio) / (hi - lo) * (_LOG_BINS - 1))))
     filt = minimum_filter1d(best_phi, size=2 * width + 1, mode="nearest")
     return [int(best_k[i]) for i in range(_LOG_BINS) if best_k[i] >= 0 and best_phi[i] <= filt[i]]
+
+
+def _first_tie(
+    phi: np.ndarray,
+    vol: np.ndarray,
+    big: np.ndarray,
+    best: int,
+    xs: np.ndarray,
+    config: Graph3DConfig,
+) -> int:
+    """The smallest region as good as the least-φ one and not left by the walk: a dip
+    of φ (the least within ± ``tie_window`` of its volume) at a smaller volume whose φ
+    is within ``ambiguity_ratio`` of the best (or below ``clean_phi``: both cut off)
+    and beyond which the sweep runs on only through voxels the walk hardly reaches
+    (median potential below ``tie_potential`` × the dip region's median; ``xs``: the
+    potential in sweep order). Past an object's clean boundary the sweep may run on
+    through a piece that hangs on it as weakly as on everything else (an occluder
+    touching it in a few voxels): that piece costs no cut, so the larger prefix is as
+    good by conductance, and only the walk says it is not the object's. Along a rod
+    the conductance falls steadily to its end, with no dip on the way: kept whole."""
+    if not np.isfinite(phi[best]):
+        return best
+    tol = config.ambiguity_ratio * max(float(phi[best]), 0.0) + config.clean_phi
+    dips = _local_minima(np.where(big, phi, np.inf), vol, config.tie_window)
+    for k in sorted((k for k in dips if k < best and phi[k] <= tol), key=lambda k: vol[k]):
+        if np.median(xs[k + 1 : best + 1]) < config.tie_potential * np.median(xs[: k + 1]):
+            return k
+    return best
 
 
 def _best_where(minima: list[int], phi: np.ndarray, allowed: np.ndarray, fallback: int) -> int:
