@@ -20,6 +20,7 @@ __all__ = [
     "rod_on_floor",
     "ball_on_floor",
     "ball_and_specks",
+    "box_and_hanging_plate",
     "grid_ball_and_box",
 ]
 
@@ -123,6 +124,15 @@ def ball_and_specks() -> CaseScene:
     return build_case(
         [floor(), Part((ball,), FLOOR_RGB), Part(tuple(specks), (0.7, 0.6, 0.5), 0.003)]
     )
+
+
+def box_and_hanging_plate() -> CaseScene:
+    """Parts: 0 floor, 1 a red box floating 0.33 above it, 2 a blue slab beside it that
+    touches the box only along one vertical edge and nothing else (an occluder that
+    hangs on the object in a few voxels)."""
+    a = box("a", (0.0, 0.0, 0.45), (0.12, 0.12, 0.12))
+    b = box("b", (0.2, 0.2, 0.45), (0.08, 0.08, 0.2))
+    return build_case([floor(), Part(tuple(a), (0.8, 0.3, 0.2)), Part(tuple(b), (0.2, 0.35, 0.8))])
 
 
 @dataclass(eq=False)

@@ -19,6 +19,7 @@ from divas_engine.session import Session, SessionConfig
 from tests.graph3d_cases import (
     ball_and_specks,
     ball_on_floor,
+    box_and_hanging_plate,
     grid_ball_and_box,
     rod_on_floor,
     touching_boxes,
@@ -98,6 +99,18 @@ def test_loose_specks_get_no_potential_and_stay_out():
     pos[g.node_of_points(np.array([[0.0, -0.2, 0.2]]))] = True
     x, _, _ = walk_potential(g, pos, g.rim.copy(), Graph3DConfig())
     assert np.all(x[speck_nodes] == 0.0)
+
+
+def test_a_piece_hanging_on_an_edge_stays_out_of_the_medium_region():
+    # the slab touches the box along one edge and nothing else: box + slab is cut off as
+    # cleanly as the box alone (conductance alone would take both), but the walk from a
+    # click on the box hardly reaches the slab — the medium region is the box, the
+    # large one the pair, and the doubt shows in the score
+    case = box_and_hanging_plate()
+    rc, sel = _cut(case, [[0.0, -0.12, 0.45]])
+    assert _share(sel[1], case, 1) > 0.97 and _share(sel[1], case, 2) < 0.01
+    assert _share(sel[2], case, 2) > 0.97 and not sel[:, case.of(0)].any()
+    assert 0.5 <= rc.scores[1] < 0.8
 
 
 def test_click_without_a_boundary_scores_low_and_says_what_to_do():
