@@ -244,3 +244,27 @@ def test_nerf_grid_ball_is_cut_from_its_floor_and_a_neighbour():
     assert s[1][2] > 0.97 and s[1][1] < 0.001 and s[1][0] < 0.01
     rc, s = share([[0.0, 0.0, 0.36]], [[0.28, 0.0, 0.24]])
     assert s[1][1] > 0.97 and s[1][2] < 0.001 and s[0][2] < 0.001
+
+
+def test_the_region_grows_when_the_cut_fills_it_and_the_walk_runs_out():
+    # the guitar capture, the neck target's two clicks (headstock, fretboard): the first
+    # box around them stops above the body, the neck runs out through its rim and the
+    # headstock + upper neck fill most of it — so conductance, measured against the
+    # little left over, cut at the fretboard click. The box grows and the cut reaches
+    # down the neck towards the body joint
+    from pathlib import Path
+
+    from divas_engine.evaluation.real_targets import read_targets, target_scene_labels
+    from divas_engine.io.load import load_scene
+
+    data = Path(__file__).resolve().parent / "data"
+    scene = load_scene(data / "playcanvas-splats" / "guitar.compressed.ply")
+    neck = target_scene_labels(scene, read_targets(data / "targets" / "guitar"), "neck") > 0.5
+    seg = Graph3DSegmenter(binding=SceneBinding(scene, None, None, None, lambda: (0, -1.0, 0)))
+    clicks = np.array([[-0.020152, -3.039453, 0.176003], [-0.363333, -4.0003, 0.038261]])
+    rc = seg.cut(Seeds(clicks, np.zeros((0, 3))))
+    sel = np.zeros(len(scene), bool)
+    sel[seg.primitives().index] = rc.selected[1]
+    assert rc.grows >= 1
+    assert np.mean(sel[neck]) > 0.6  # 0.51 when the first box was kept
+    assert np.mean(neck[sel]) > 0.95

@@ -348,13 +348,19 @@ def _border_shows(cov: np.ndarray, box: tuple[int, int, int, int]) -> bool:
 
 def _too_small(res: CutResult, graph: VoxelGraph, cfg: Graph3DConfig, on_ground: bool) -> bool:
     """The region looked at is too small for the object: its cut leans on the rim, or no
-    clear boundary was found inside it while the walk still reaches the rim (a click near
-    one end of an object about as large as the region: the cut then crosses the object
-    where the region's outside drains it) — unless the click is on the ground, which
-    goes on anyway."""
+    clear boundary was found inside it — or the chosen region holds more than half of
+    the graph's volume — while the walk still reaches the rim (a click near one end of
+    an object about as large as the region: the cut then crosses the object where the
+    region's outside drains it) — unless the click is on the ground, which goes on
+    anyway."""
     if res.rim_share > cfg.rim_share:
         return True
-    if on_ground or res.levels[1].score >= 0.5:
+    if on_ground:
+        return False
+    # the region holds most of what was looked at: its conductance was measured against
+    # the little left over (a guitar's neck filling a box that stops above the body)
+    most = res.levels[1].volume > 0.5 * 2.0 * float(graph.weights.sum())
+    if res.levels[1].score >= 0.5 and not most:
         return False
     e = graph.edges
     rim_a, rim_b = graph.rim[e[:, 0]], graph.rim[e[:, 1]]
