@@ -740,6 +740,14 @@ def test_multi_seed_means_and_targets():
     assert SuiteConfig(seeds=(3, 4)).run_seeds == (3, 4) and SuiteConfig(seed=5).run_seeds == (5,)
     with pytest.raises(ValueError):
         SuiteConfig(seeds=(1, 1))
+    # `--no-ablations`: no no_thin rows — the thin-path claim is left out, not a KeyError
+    lean = check_targets([r for r in rows if r["method"] != "no_thin"])
+    assert "ribs_thin_path_helps" not in lean
+    assert lean["full_beats_baselines"] == {"plant": True, "ribs": True}
+    only_full = check_targets([r for r in rows if r["method"] == "full"])
+    assert set(only_full) == {"seeds", "mean_full_iou", "mean_full_iou_ge_0.90"}
+    lean_text = markdown_table({"rows": [], "targets": only_full})
+    assert "mean DivAS-full IoU 0.850" in lean_text and "baselines" not in lean_text
 
 
 def test_eval_cli_seeds_argument():

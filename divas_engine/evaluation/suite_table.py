@@ -125,16 +125,20 @@ def markdown_table(result: dict[str, Any]) -> str:
             "Targets (oracle"
             + (", means over the seeds" if multi else "")
             + "): mean DivAS-full IoU "
-            f"{t['mean_full_iou']:.3f} (≥ 0.90: {'yes' if t['mean_full_iou_ge_0.90'] else 'NO'}); "
-            "≥ both baselines: "
-            + ", ".join(
-                f"{s} {'yes' if ok else 'NO'}"
-                + (
-                    f" ({t['full_beats_baselines_seeds'][s]}/{len(t['seeds'])} seeds)"
-                    if len(t.get("seeds", ())) > 1
-                    else ""
+            f"{t['mean_full_iou']:.3f} (≥ 0.90: {'yes' if t['mean_full_iou_ge_0.90'] else 'NO'})"
+            + (
+                ""
+                if "full_beats_baselines" not in t
+                else "; ≥ both baselines: "
+                + ", ".join(
+                    f"{s} {'yes' if ok else 'NO'}"
+                    + (
+                        f" ({t['full_beats_baselines_seeds'][s]}/{len(t['seeds'])} seeds)"
+                        if len(t.get("seeds", ())) > 1
+                        else ""
+                    )
+                    for s, ok in t["full_beats_baselines"].items()
                 )
-                for s, ok in t["full_beats_baselines"].items()
             )
             + (
                 ""
