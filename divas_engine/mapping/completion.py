@@ -142,12 +142,11 @@ def _edge_distance(mask: np.ndarray) -> np.ndarray:
     return d[1:-1, 1:-1].astype(np.float64)
 
 
-def _chord_depth(pos: np.ndarray, y: np.ndarray, x: np.ndarray, extra: np.ndarray) -> np.ndarray:
-    """The depth (pixels) a solid of the silhouette ``pos`` can have behind pixels
-    ``(y, x)``: the chord ``2 √(ρ (2R − ρ))`` of a ball of the mask's inscribed radius R
-    at the pixel's distance ρ (+ ``extra`` pixels, capped at R) from the silhouette's
-    edge."""
-    rho = _edge_distance(pos)
+def _chord_depth(rho: np.ndarray, y: np.ndarray, x: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """The depth (pixels) a solid of the silhouette can have behind pixels ``(y, x)``:
+    the chord ``2 √(ρ (2R − ρ))`` of a ball of the mask's inscribed radius R at the
+    pixel's distance ρ (+ ``extra`` pixels, capped at R) from the silhouette's edge
+    (``rho``: :func:`_edge_distance` of the mask)."""
     big_r = float(rho.max()) if rho.size else 0.0
     r_p = np.minimum(rho[y, x] + extra, big_r)
     return 2.0 * np.sqrt(np.maximum(r_p * (2.0 * big_r - r_p), 0.0))
@@ -341,12 +340,13 @@ class VolumetricCompletion:
         q1 = np.rint(a1 * QSCALE).astype(np.int64)
         q0 = np.rint(a0 * QSCALE).astype(np.int64)
         nz = np.flatnonzero((q1 != 0) | (q0 != 0)).astype(np.int32)
-        seen, deep = self._gaussian_evidence(view, pos, nz, a1[nz] + a0[nz])
-        vox, flags = self._voxel_evidence(view, pos)
+        rho = _edge_distance(pos)
+        seen, deep = self._gaussian_evidence(view, pos, rho, nz, a1[nz] + a0[nz])
+        vox, flags = self._voxel_evidence(view, pos, rho)
         return _ViewRecord(nz, q1[nz], q0[nz], seen, deep, vox, flags)
 
     def _gaussian_evidence(
-        self, view: FusionView, pos: np.ndarray, g: np.ndarray, weight: np.ndarray
+        self, view: FusionView, pos: np.ndarray, rho: np.ndarray, g: np.ndarray, weight: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per Gaussian ``g`` with blending weight ``weight`` in this view: *seen* (the
         weight is ≥ ``min_visibility`` × its unoccluded footprint weight) and the depth
@@ -380,14 +380,16 @@ class VolumetricCompletion:
         zz = z[idx]
         ok = pos[y, x] & (d > 0)
         cap = (
-            cfg.depth_factor * _chord_depth(pos, y, x, np.zeros(len(idx))) * zz / float(cam.fx)
+            cfg.depth_factor * _chord_depth(rho, y, x, np.zeros(len(idx))) * zz / float(cam.fx)
             + cfg.surface_margin * self.h
         )
         deep[idx[ok & (zz - d <= cap)]] = 1
         deep[idx[ok & (zz - d > cap)]] = -1
         return np.asarray(seen, bool), deep
 
-    def _voxel_evidence(self, view: FusionView, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _voxel_evidence(
+        self, view: FusionView, pos: np.ndarray, rho: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         cam = view.camera
         if self.a == 0:
@@ -415,7 +417,7 @@ class VolumetricCompletion:
         # silhouette's edge, 2 √(ρ (2R − ρ)) (pixels → world units at the voxel's depth)
         # a voxel is a cube, not a point: its centre may sit half a diagonal off the solid
         half_diag = 0.5 * np.sqrt(3.0) * self.h * float(cam.fx) / zz
-        chord = _chord_depth(pos, y, x, half_diag)
+        chord = _chord_depth(rho, y, x, half_diag)
         depth_cap = cfg.depth_factor * chord * zz / float(cam.fx) + margin
         surf = d > 0
         off = zz - d
