@@ -363,7 +363,8 @@ class VolumetricCompletion:
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = np.abs((self.normals[g] * ray).sum(axis=1)) / dist
             full = self.footprint[g] * cos * float(cam.fx) * float(cam.fy) / (z * z)
-            seen = (z > 0) & (weight >= cfg.min_visibility * full)
+            # τ_vis = 0: every Gaussian with a weight is seen (the rule is off)
+            seen = (z > 0) & ((cfg.min_visibility <= 0) | (weight >= cfg.min_visibility * full))
             inside = (
                 (z > 0)
                 & np.isfinite(uv).all(axis=1)
