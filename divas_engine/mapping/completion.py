@@ -24,8 +24,9 @@ the result stays 3D-consistent and floaters away from the object stay out:
   that falls inside the silhouette because what covers it is the object, which says
   nothing about itself; such a Gaussian is added only as the hidden voxels of the fill
   are — its centre within the solid depth behind a mask-positive surface
-  (``depth_factor`` × the chord below) in ``fill_min_views`` views and beyond it in
-  none (one such view when its centre voxel is segmented or filled);
+  (``depth_factor`` × the chord below) in ``fill_min_views`` views (one when its
+  centre voxel is segmented or filled) and, with ``deep_is_inconsistent``, beyond it in
+  none;
 * **solid fill** of voxels the views never voted for: per fused view a voxel's centre is
   *on the surface* (projects onto a mask-positive pixel, ``|z − D_med| ≤ m h_v``),
   *hidden* (behind such a surface by at most the depth a solid of that silhouette can
@@ -351,7 +352,7 @@ class VolumetricCompletion:
         """Per Gaussian ``g`` with blending weight ``weight`` in this view: *seen* (the
         weight is ≥ ``min_visibility`` × its unoccluded footprint weight) and the depth
         evidence of its centre (+1 on a mask-positive pixel within the solid depth
-        behind the surface, −1 beyond it, 0 otherwise)."""
+        behind the surface, −1 beyond it when ``deep_is_inconsistent``, 0 otherwise)."""
         cfg = self.config
         cam = view.camera
         if len(g) == 0:
@@ -385,7 +386,8 @@ class VolumetricCompletion:
             + cfg.surface_margin * self.h
         )
         deep[idx[ok & (zz - d <= cap)]] = 1
-        deep[idx[ok & (zz - d > cap)]] = -1
+        if cfg.deep_is_inconsistent:  # else deeper says nothing, as for the voxels
+            deep[idx[ok & (zz - d > cap)]] = -1
         return np.asarray(seen, bool), deep
 
     def _voxel_evidence(

@@ -87,16 +87,15 @@ class CompletionConfig:
             ``o · 2π s₁ s₂ |cos θ| f_x f_y / z²`` (its weight with transmittance 1);
             a contribution-positive Gaussian seen in no view (seen only through other
             surfaces) is added only when its centre lies within the solid depth behind
-            a mask-positive surface (``depth_factor``) in ``fill_min_views`` views and
-            beyond it in none — as the fill's hidden voxels. 0.1: measured on the
+            a mask-positive surface (``depth_factor``) in ``fill_min_views`` views
+            (deeper says nothing unless ``deep_is_inconsistent``) — as the fill's
+            hidden voxels. 0.1: measured on the
             synthetic 3DGS plant (oracle, 2 views), the additions the masks claim
             through the pot and the leaves — table seen behind them, T ≈ 0.002 — have
             visibility 0.0002–0.03, the true additions the masks see 0.3–0.7; image IoU
-            0.452 → 0.693 (the paper's passes 0.660). It costs the real-capture
-            targets alpha fidelity (mean 0.987 → 0.976) and PSNR (37.1 → 35.8 dB;
-            lod1/plants 30.0 → 26.4): large translucent Gaussians seen only through
-            the object's front are left out too. 0 turns the rule off (the second
-            pass's completion).
+            0.452 → 0.684 (the paper's passes 0.660). Real-capture cost
+            (guitar, lod1/plants): see BENCHMARKS.md, issue 15 third pass. 0 turns the
+            rule off (the second pass's completion exactly).
         neighbourhood_log2: the neighbourhood of the voxel selection is the set of coarse
             cells of ``2^k`` voxels per side holding a segmented (or filled) voxel,
             dilated by one cell: everything within ``2^k … 2^(k+1)`` voxels (1: 2–4 h_v).
