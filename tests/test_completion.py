@@ -154,14 +154,15 @@ def test_incremental_equals_batch_and_undo_is_exact(ball):
     inc.add_view(0, views[0])
     inc.remove_view(1)  # undo
     inc.add_view(2, views[2])
-    for k in ("q1", "q0", "n_surf", "n_hidden", "n_incons"):
+    counters = ("q1", "q0", "n_surf", "n_hidden", "n_incons", "n_seen", "n_deep_ok", "n_deep_bad")
+    for k in counters:
         assert np.array_equal(getattr(inc, k), getattr(batch, k)), k
     sel, seg = _divas_like(labels, parts, act, len(grid))
     assert np.array_equal(inc.complete(sel, seg).selected, batch.complete(sel, seg).selected)
     # undo of everything returns to zero exactly
     for k in list(inc.keys):
         inc.remove_view(k)
-    assert not any(getattr(inc, k).any() for k in ("q1", "q0", "n_surf", "n_hidden", "n_incons"))
+    assert not any(getattr(inc, k).any() for k in counters)
     # sync: a key whose view object changed is re-added
     inc.sync([(0, views[0]), (1, views[1])])
     inc.sync([(0, views[0]), (1, views[2])])
@@ -169,6 +170,41 @@ def test_incremental_equals_batch_and_undo_is_exact(ball):
     ref.add_view(0, views[0])
     ref.add_view(1, views[2])
     assert np.array_equal(inc.q1, ref.q1) and np.array_equal(inc.n_incons, ref.n_incons)
+
+
+def test_visibility_is_weight_over_unoccluded_footprint(ball):
+    """A Gaussian is *seen* when its blending weight reaches ``min_visibility`` × its
+    unoccluded footprint weight. Reference: an isolated Gaussian's weight in the renderer
+    (transmittance 1) is that footprint (``o · 2π s₁ s₂ |cos θ| f² / z²``, up to the
+    3σ cut and the pixel grid); in the whole scene the ball's front is seen, its back and
+    the wall behind the ball (seen through the opaque ball) are not, the wall beside it
+    is (most of it: its overlapping coplanar Gaussians hide a part of each other)."""
+    scene, labels, parts, grid, act, views = ball
+    v = views[0]  # from −z: the wall at z = 3 is behind the ball
+    comp = VolumetricCompletion(scene, grid, act, CompletionConfig(), device=CPU)
+    means = np.asarray(scene.means, np.float64)
+    wall = np.arange(len(labels))[parts["floater"].stop :]
+    r_xy = np.hypot(means[:, 0], means[:, 1])
+    for i in (int(wall[np.argmin(r_xy[wall] + 9 * (r_xy[wall] < 1.5))]), 10):
+        alone = scene.subset(np.arange(len(labels)) == i)
+        one = VolumetricCompletion(
+            alone, grid, np.full(1, -1, np.int32), CompletionConfig(), device=CPU
+        )
+        out = one._renderer.contributions(v.camera, np.ones((96, 96), bool))
+        weight = float(out.a1.numpy()[0] + out.a0.numpy()[0])
+        mu = means[i]
+        ray = mu - v.camera.c2w[:3, 3]
+        cos = abs(comp.normals[i] @ ray) / np.linalg.norm(ray)
+        z = v.camera.project(mu[None])[1][0]
+        full = comp.footprint[i] * cos * v.camera.fx * v.camera.fy / z**2
+        assert full == pytest.approx(weight, rel=0.15)
+    rec = comp.view_record(v)
+    seen = np.zeros(len(labels), bool)
+    seen[rec.gauss[rec.seen]] = True
+    surf = np.arange(parts["surface"].start, parts["surface"].stop)
+    front, back = surf[means[surf, 2] < -0.8], surf[means[surf, 2] > 0.5]
+    assert seen[front].mean() > 0.9 and not seen[back].any()
+    assert not seen[wall[r_xy[wall] < 0.6]].any() and seen[wall[r_xy[wall] > 1.6]].mean() > 0.5
 
 
 def test_config_and_switch():
@@ -272,10 +308,15 @@ def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.nda
     a1, a0 = comp.q1.astype(np.float64), comp.q0.astype(np.float64)
     seen = a1 + a0 >= cfg.min_weight * QSCALE
     pos = seen & (a1 - a0 > cfg.gamma * np.hypot(a1, a0))
+    # seen in some view, or enclosed like a hidden voxel (min_visibility)
+    good = comp.n_deep_bad == 0
+    add = pos & ((comp.n_seen >= 1) | (good & (comp.n_deep_ok >= cfg.fill_min_views)))
+    # seen only through other surfaces: by its voxel only with one enclosing view
+    through = pos & ~add & ~(good & (comp.n_deep_ok >= 1))
     in_vox = np.zeros(comp.n, bool)
     ok = comp.active_index >= 0
     in_vox[ok] = cur[comp.active_index[ok]]
-    out = sel | (near & (pos | (in_vox & ~(seen & ~pos))))
+    out = sel | (near & (add | (in_vox & ~(seen & ~pos) & ~through)))
     if cfg.drop_inconsistent:
         ev = a1 + a0 >= cfg.drop_min_weight * QSCALE
         out &= ~(sel & ev & ~(a1 - a0 > cfg.gamma * np.hypot(a1, a0)))

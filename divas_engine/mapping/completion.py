@@ -16,7 +16,17 @@ the result stays 3D-consistent and floaters away from the object stay out:
   by its fused mask, ``A₁ = Σ_{M̃≥τ} α T``, ``A₀ = Σ_{M̃<τ} α T``
   (:func:`divas_kernels.contrib.accumulate_contributions`, the rasterizer's own weights);
   a Gaussian of the neighbourhood is added when ``A₀ + A₁ ≥ w_min`` over the fused views
-  and ``A₁ − A₀ > γ √(A₀² + A₁²)``;
+  and ``A₁ − A₀ > γ √(A₀² + A₁²)``, and the masks *see* it: in some fused view its
+  weight ``A₀ + A₁`` is at least ``min_visibility`` × its unoccluded footprint weight
+  ``o · 2π s₁ s₂ |cos θ| f_x f_y / z²`` (the weight it would have with ``T = 1``). A
+  Gaussian seen only *through* other surfaces (``T ≪ 1`` in every view: the support
+  behind a pot, the table under a leaf, the interior of a solid) has a blending weight
+  that falls inside the silhouette because what covers it is the object, which says
+  nothing about itself; such a Gaussian is added only as the hidden voxels of the fill
+  are — its centre within the solid depth behind a mask-positive surface
+  (``depth_factor`` × the chord below) in ``fill_min_views`` views (one when its
+  centre voxel is segmented or filled) and, with ``deep_is_inconsistent``, beyond it in
+  none;
 * **solid fill** of voxels the views never voted for: per fused view a voxel's centre is
   *on the surface* (projects onto a mask-positive pixel, ``|z − D_med| ≤ m h_v``),
   *hidden* (behind such a surface by at most the depth a solid of that silhouette can
@@ -114,6 +124,8 @@ class _ViewRecord:
     gauss: np.ndarray  # [k] int32 Gaussians with a non-zero weight
     q1: np.ndarray  # [k] int64 A₁ · QSCALE
     q0: np.ndarray
+    seen: np.ndarray  # [k] bool: weight ≥ min_visibility × unoccluded footprint weight
+    deep: np.ndarray  # [k] int8: +1 centre within the solid depth, −1 beyond it, 0 none
     voxels: np.ndarray  # [m] int32 active voxels with evidence
     flags: np.ndarray  # [m] uint8 _SURFACE / _HIDDEN / _INCONSISTENT
 
@@ -129,6 +141,16 @@ def _edge_distance(mask: np.ndarray) -> np.ndarray:
     m = np.pad(binary_fill_holes(np.asarray(mask, bool)).astype(np.uint8), 1)
     d = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return d[1:-1, 1:-1].astype(np.float64)
+
+
+def _chord_depth(rho: np.ndarray, y: np.ndarray, x: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """The depth (pixels) a solid of the silhouette can have behind pixels ``(y, x)``:
+    the chord ``2 √(ρ (2R − ρ))`` of a ball of the mask's inscribed radius R at the
+    pixel's distance ρ (+ ``extra`` pixels, capped at R) from the silhouette's edge
+    (``rho``: :func:`_edge_distance` of the mask)."""
+    big_r = float(rho.max()) if rho.size else 0.0
+    r_p = np.minimum(rho[y, x] + extra, big_r)
+    return 2.0 * np.sqrt(np.maximum(r_p * (2.0 * big_r - r_p), 0.0))
 
 
 def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -287,6 +309,19 @@ class VolumetricCompletion:
             self._renderer = SurfelRenderer(scene, self.device, self.render_config)
         self.q1 = np.zeros(n, np.int64)
         self.q0 = np.zeros(n, np.int64)
+        # the visibility test's geometry: centres, normals (rotation column 2) and the
+        # footprint weight o · 2π s₁ s₂ of each surfel (× |cos θ| f_x f_y / z² per view)
+        self.means = means
+        q = np.asarray(scene.quats, np.float64)
+        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        self.normals = np.stack(
+            [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1
+        )
+        sc = np.asarray(scene.scales, np.float64)
+        self.footprint = np.asarray(scene.opacities, np.float64) * 2.0 * np.pi * sc[:, 0] * sc[:, 1]
+        self.n_seen = np.zeros(n, np.int32)
+        self.n_deep_ok = np.zeros(n, np.int32)
+        self.n_deep_bad = np.zeros(n, np.int32)
         self.n_surf = np.zeros(self.a, np.int32)
         self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
@@ -306,10 +341,58 @@ class VolumetricCompletion:
         q1 = np.rint(a1 * QSCALE).astype(np.int64)
         q0 = np.rint(a0 * QSCALE).astype(np.int64)
         nz = np.flatnonzero((q1 != 0) | (q0 != 0)).astype(np.int32)
-        vox, flags = self._voxel_evidence(view, pos)
-        return _ViewRecord(nz, q1[nz], q0[nz], vox, flags)
+        rho = _edge_distance(pos)
+        seen, deep = self._gaussian_evidence(view, pos, rho, nz, a1[nz] + a0[nz])
+        vox, flags = self._voxel_evidence(view, pos, rho)
+        return _ViewRecord(nz, q1[nz], q0[nz], seen, deep, vox, flags)
 
-    def _voxel_evidence(self, view: FusionView, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _gaussian_evidence(
+        self, view: FusionView, pos: np.ndarray, rho: np.ndarray, g: np.ndarray, weight: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per Gaussian ``g`` with blending weight ``weight`` in this view: *seen* (the
+        weight is ≥ ``min_visibility`` × its unoccluded footprint weight) and the depth
+        evidence of its centre (+1 on a mask-positive pixel within the solid depth
+        behind the surface, −1 beyond it when ``deep_is_inconsistent``, 0 otherwise)."""
+        cfg = self.config
+        cam = view.camera
+        if len(g) == 0:
+            return np.zeros(0, bool), np.zeros(0, np.int8)
+        mu = self.means[g]
+        uv, z = cam.project(mu)
+        ray = mu - np.asarray(cam.c2w, np.float64)[:3, 3]
+        dist = np.linalg.norm(ray, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.abs((self.normals[g] * ray).sum(axis=1)) / dist
+            full = self.footprint[g] * cos * float(cam.fx) * float(cam.fy) / (z * z)
+            # τ_vis = 0: every Gaussian with a weight is seen (the rule is off)
+            seen = (z > 0) & ((cfg.min_visibility <= 0) | (weight >= cfg.min_visibility * full))
+            inside = (
+                (z > 0)
+                & np.isfinite(uv).all(axis=1)
+                & (uv[:, 0] >= 0)
+                & (uv[:, 0] < cam.width)
+                & (uv[:, 1] >= 0)
+                & (uv[:, 1] < cam.height)
+            )
+        deep = np.zeros(len(g), np.int8)
+        idx = np.flatnonzero(inside)
+        x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
+        y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
+        d = np.asarray(view.d_ref, np.float64)[y, x]
+        zz = z[idx]
+        ok = pos[y, x] & (d > 0)
+        cap = (
+            cfg.depth_factor * _chord_depth(rho, y, x, np.zeros(len(idx))) * zz / float(cam.fx)
+            + cfg.surface_margin * self.h
+        )
+        deep[idx[ok & (zz - d <= cap)]] = 1
+        if cfg.deep_is_inconsistent:  # else deeper says nothing, as for the voxels
+            deep[idx[ok & (zz - d > cap)]] = -1
+        return np.asarray(seen, bool), deep
+
+    def _voxel_evidence(
+        self, view: FusionView, pos: np.ndarray, rho: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         cam = view.camera
         if self.a == 0:
@@ -335,12 +418,9 @@ class VolumetricCompletion:
         # the depth a solid of this silhouette can have behind the pixel: the chord of a
         # ball of the mask's inscribed radius R at the pixel's distance ρ from the
         # silhouette's edge, 2 √(ρ (2R − ρ)) (pixels → world units at the voxel's depth)
-        rho = _edge_distance(pos)
-        big_r = float(rho.max()) if rho.size else 0.0
         # a voxel is a cube, not a point: its centre may sit half a diagonal off the solid
         half_diag = 0.5 * np.sqrt(3.0) * self.h * float(cam.fx) / zz
-        r_p = np.minimum(rho[y, x] + half_diag, big_r)
-        chord = 2.0 * np.sqrt(np.maximum(r_p * (2.0 * big_r - r_p), 0.0))
+        chord = _chord_depth(rho, y, x, half_diag)
         depth_cap = cfg.depth_factor * chord * zz / float(cam.fx) + margin
         surf = d > 0
         off = zz - d
@@ -362,6 +442,9 @@ class VolumetricCompletion:
         # cheaper than np.add.at); integer sums, so undo is exact
         self.q1[rec.gauss] += sign * rec.q1
         self.q0[rec.gauss] += sign * rec.q0
+        self.n_seen[rec.gauss] += sign * rec.seen.astype(np.int32)
+        self.n_deep_ok[rec.gauss] += sign * (rec.deep > 0).astype(np.int32)
+        self.n_deep_bad[rec.gauss] += sign * (rec.deep < 0).astype(np.int32)
         self.n_surf[rec.voxels] += sign * (rec.flags == _SURFACE).astype(np.int32)
         self.n_hidden[rec.voxels] += sign * (rec.flags == _HIDDEN).astype(np.int32)
         self.n_incons[rec.voxels] += sign * (rec.flags == _INCONSISTENT).astype(np.int32)
@@ -453,6 +536,15 @@ class VolumetricCompletion:
         seen = (a1 + a0) >= cfg.min_weight * QSCALE
         positive = seen & (a1 - a0 > cfg.gamma * np.hypot(a1, a0))
         negative = seen & ~positive
+        # the masks claim only what they show: a Gaussian seen through other surfaces in
+        # every view joins as the fill's hidden voxels do (module docstring)
+        ok_deep = self.n_deep_bad[idx] == 0
+        shown = self.n_seen[idx] >= 1
+        through = positive & ~(shown | (ok_deep & (self.n_deep_ok[idx] >= cfg.fill_min_views)))
+        positive &= ~through
+        # in a segmented or filled voxel, one view that puts the centre within the solid
+        # depth suffices (the voxel carries the rest of the evidence)
+        through &= ~(ok_deep & (self.n_deep_ok[idx] >= 1))
         act = self.active_index[idx]
         in_voxels = np.zeros(len(idx), bool)
         ok = act >= 0
@@ -460,9 +552,10 @@ class VolumetricCompletion:
         contrib_add = np.zeros(self.n, bool)
         fill_add = np.zeros(self.n, bool)
         contrib_add[idx[positive]] = True
-        fill_add[idx[in_voxels & ~negative & ~positive]] = True
+        by_voxel = in_voxels & ~negative & ~through
+        fill_add[idx[by_voxel & ~positive]] = True
         out = sel.copy()
-        out[idx[positive | (in_voxels & ~negative)]] = True
+        out[idx[positive | by_voxel]] = True
         dropped = np.zeros(self.n, bool)
         if cfg.drop_inconsistent:
             j = np.flatnonzero(sel)
