@@ -12,7 +12,6 @@ over-composite of their colours:
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import bpy
@@ -25,21 +24,11 @@ from divas_engine.io.ply import write_surfel_ply
 from divas_engine.point_attributes import linear_to_srgb, srgb_to_linear
 from divas_engine.scene import SH_C0, SurfelScene
 
-REPO = Path(__file__).resolve().parents[2]
+from .compare_script import CMP
+
 #: display colours and opacities of the front (A) and back (B) surfel
 S_A, ALPHA_A = np.array([0.10, 0.50, 0.02]), 0.6
 S_B, ALPHA_B = np.array([0.90, 0.30, 0.70]), 0.9
-
-
-def _compare_module():
-    path = REPO / "blender_scripts" / "compare_render.py"
-    spec = importlib.util.spec_from_file_location("compare_render", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-CMP = _compare_module()
 
 
 def _display() -> np.ndarray:

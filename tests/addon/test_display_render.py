@@ -18,25 +18,11 @@ Workbench (what Solid mode draws) shows the splat colours: the same figure, not 
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import bpy
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
-
-
-def _compare_module():
-    path = REPO / "blender_scripts" / "compare_render.py"
-    spec = importlib.util.spec_from_file_location("compare_render", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-CMP = _compare_module()
+from .compare_script import CMP
 
 
 def _luma(rgb: np.ndarray) -> np.ndarray:
