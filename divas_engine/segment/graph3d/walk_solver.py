@@ -4,12 +4,14 @@
 
 * :attr:`WalkSolver.JACOBI_CG` (default): conjugate gradients with the Jacobi
   preconditioner ``M⁻¹ r = r / diag A``, stopping at ``‖r‖ < tol ‖b‖`` or after
-  ``cg_maxiter`` steps — the very operations of SciPy's ``cg`` (bit-identical to it)
-  without its per-step operator wrapping. On near-islands (regions joined to the rest by
-  a few weak edges) the 1e-5 leak makes ``A`` badly conditioned (``cond ≈ 1/λ``):
-  hundreds of steps, and the residual test bounds the error only to ``tol · cond``, so
-  potentials there can be off by 0.1–0.3 even when it stops on the tolerance
-  (BENCHMARKS.md, issue 16).
+  ``cg_maxiter`` steps — SciPy ``cg``'s steps in its order, except that every inner
+  product is NumPy's pairwise sum (:func:`_dot`) instead of BLAS ``ddot``: OpenBLAS
+  splits long dots across threads, so the rounding — and, on a badly conditioned walk,
+  the cut — depended on the machine's core count. On near-islands (regions joined to
+  the rest by a few weak edges) the 1e-5 leak makes ``A`` badly conditioned
+  (``cond ≈ 1/λ``): hundreds of steps, and the residual test bounds the error only to
+  ``tol · cond``, so potentials there can be off by 0.1–0.3 even when it stops on the
+  tolerance (BENCHMARKS.md, issue 16).
 * :attr:`WalkSolver.TWO_LEVEL`: the same CG with a two-level additive preconditioner
   ``M⁻¹ r = r / diag A + P A_c⁻¹ Pᵀ r`` — ``P`` the piecewise-constant prolongation
   from aggregates of ``_AGGREGATE³`` voxel cells, ``A_c = Pᵀ A P`` (SPD, about 1/4 of
@@ -63,12 +65,18 @@ def _two_level(a: sparse.csr_matrix, diag: np.ndarray, cells: np.ndarray):
     return lambda r: r / diag + p @ lu.solve(pt @ r)
 
 
+def _dot(u: np.ndarray, v: np.ndarray, scratch: np.ndarray) -> float:
+    """``u·v`` as NumPy's pairwise sum of the products: one thread, the same bits on
+    every machine with this NumPy (BLAS ``ddot`` is threaded and rounds by core count)."""
+    return float(np.add.reduce(np.multiply(u, v, out=scratch)))
+
+
 def _pcg(a, b, diag, x, rtol: float, maxiter: int, pre=None) -> np.ndarray:
     """Preconditioned CG, SciPy ``cg``'s operations in its order (``pre`` None: Jacobi,
-    ``r / diag``, which makes it bit-identical to ``cg`` with that preconditioner). The
-    same roundings, less overhead: ``‖r‖`` as ``sqrt(r·r)`` (what ``np.linalg.norm`` does
-    for a vector, without its checks) and the updates in place."""
-    atol = rtol * float(np.linalg.norm(b))
+    ``r / diag``), the inner products by :func:`_dot`; ``‖r‖`` as ``sqrt(r·r)`` and the
+    updates in place."""
+    scratch = np.empty_like(b)
+    atol = rtol * math.sqrt(_dot(b, b, scratch))
     if atol == 0.0:
         return b
     x = x.copy()
@@ -76,20 +84,20 @@ def _pcg(a, b, diag, x, rtol: float, maxiter: int, pre=None) -> np.ndarray:
     rho_prev, p = 1.0, np.empty_like(r)
     z, step = np.empty_like(r), np.empty_like(r)
     for it in range(maxiter):
-        if math.sqrt(np.dot(r, r)) < atol:
+        if math.sqrt(_dot(r, r, scratch)) < atol:
             break
         if pre is None:
             np.divide(r, diag, out=z)
         else:
             z = pre(r)
-        rho = np.dot(r, z)
+        rho = _dot(r, z, scratch)
         if it > 0:
             p *= rho / rho_prev
             p += z
         else:
             p[:] = z
         q = a @ p
-        alpha = rho / np.dot(p, q)
+        alpha = rho / _dot(p, q, scratch)
         x += np.multiply(alpha, p, out=step)
         r -= np.multiply(alpha, q, out=step)
         rho_prev = rho
