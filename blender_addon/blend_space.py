@@ -174,10 +174,6 @@ def on_render_pre(scene, *_args) -> None:
         _mute_for_engine(scene)
 
 
-def _on_update(scene, context) -> None:
-    _apply(scene, context)
-
-
 def register() -> None:
     setattr(
         bpy.types.Scene,
@@ -189,7 +185,7 @@ def register() -> None:
             "do, so renders show the capture's own colours (Standard view transform). "
             "Adds a decode node to the compositor, which also darkens the mid-tones of "
             "any other object in the scene; off: Blender's linear blending",
-            update=_on_update,
+            update=_apply,
         ),
     )
 

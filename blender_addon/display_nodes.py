@@ -411,7 +411,7 @@ def _quad_extent() -> float:
 
 def _blended_colour(b: NodeBuilder, color):
     """What the material emits: the linear display colour, or with the scene's
-    :data:`BLEND_DISPLAY_FLAG` set its sRGB encoding (blending then sums display values
+    :data:`BLEND_FLAG` set its sRGB encoding (blending then sums display values
     like the trainers; :mod:`.blend_space` decodes the sum in the compositor)."""
     flag = b.node("ShaderNodeAttribute", attribute_type="VIEW_LAYER", attribute_name=BLEND_FLAG)
     mix = b.node(

@@ -70,6 +70,7 @@ from divas_kernels import resolve_device
 from ..fusion.morton import morton_decode
 from ..fusion.occupancy import OccupancyGrid
 from ..fusion.views import FusionView
+from ..geometry import quat_rotation_entries
 from ..render.config import RenderConfig
 from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
@@ -312,11 +313,8 @@ class VolumetricCompletion:
         # the visibility test's geometry: centres, normals (rotation column 2) and the
         # footprint weight o · 2π s₁ s₂ of each surfel (× |cos θ| f_x f_y / z² per view)
         self.means = means
-        q = np.asarray(scene.quats, np.float64)
-        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        self.normals = np.stack(
-            [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1
-        )
+        rot = quat_rotation_entries(np.asarray(scene.quats, np.float64))
+        self.normals = np.stack([rot[0][2], rot[1][2], rot[2][2]], axis=1)
         sc = np.asarray(scene.scales, np.float64)
         self.footprint = np.asarray(scene.opacities, np.float64) * 2.0 * np.pi * sc[:, 0] * sc[:, 1]
         self.n_seen = np.zeros(n, np.int32)

@@ -359,7 +359,8 @@ def _too_small(res: CutResult, graph: VoxelGraph, cfg: Graph3DConfig, on_ground:
         return False
     # the region holds most of what was looked at: its conductance was measured against
     # the little left over (a guitar's neck filling a box that stops above the body)
-    most = res.levels[1].volume > 0.5 * 2.0 * float(graph.weights.sum())
+    total = 2.0 * float(graph.weights.sum())  # the graph's volume, Σ deg
+    most = res.levels[1].volume > 0.5 * total
     if res.levels[1].score >= 0.5 and not most:
         return False
     e = graph.edges
