@@ -11,6 +11,14 @@ silhouettes, depth from the renderer. What one accept adds to the update:
   ``of which gather ms`` is the rasterizer pass alone; ``gather, binning kept ms`` the
   same pass when the accept's render of the view kept its projection, depth order and
   tiles (the session shares its renderer's buffers with the completion);
+* ``sparse gather ms`` — the same gather restricted to the Gaussians of the records'
+  cover of the selection's neighbourhood (``CompletionConfig.sparse_gather``,
+  :mod:`divas_engine.mapping.completion_gather`): only the surfels that can blend before
+  them are projected and walked; ``cover`` / ``sub-scene`` are those Gaussians and
+  surfels, ``mask %`` the mask's share of the view; ``equal`` checks the covered
+  records against the full pass's;
+* ``accept ms`` — the whole update with the sparse gather: ``add_view`` (voxel
+  evidence) and ``complete`` (cover gather and decision);
 * ``add ms`` / ``undo ms`` — adding / subtracting a view's integer records;
 * ``decide ms`` — :meth:`VolumetricCompletion.complete` with S live views (fill rounds,
   neighbourhood, contribution test over all N Gaussians).
@@ -34,6 +42,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks import bench_mapping  # noqa: E402
 from benchmarks.bench_mapping import make_cameras, sphere_mask, synth_fusion  # noqa: E402
 from benchmarks.scenes import surfel_scene  # noqa: E402
 from divas_engine.fusion import FusionView, GridConfig, build_occupancy  # noqa: E402
@@ -41,6 +50,8 @@ from divas_engine.kinds import SceneKind  # noqa: E402
 from divas_engine.mapping import CompletionConfig, SurfelMapper  # noqa: E402
 from divas_engine.mapping.completion import VolumetricCompletion  # noqa: E402
 from divas_engine.render import make_renderer  # noqa: E402
+
+ALL_CENTERS, ALL_RADII = bench_mapping.CENTERS, bench_mapping.RADII
 
 
 def median_ms(fn, reps: int) -> float:
@@ -52,7 +63,10 @@ def median_ms(fn, reps: int) -> float:
     return 1e3 * float(np.median(ts))
 
 
-def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
+def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "") -> list[dict]:
+    if spheres:  # the object: these spheres only (their masks and voxel selection)
+        k = [int(x) for x in spheres.split(",")]
+        bench_mapping.CENTERS, bench_mapping.RADII = ALL_CENTERS[k], ALL_RADII[k]
     scene = surfel_scene(n, sh_degree=0)
     scene.kind = SceneKind.GS3D
     scene.scale_n = np.full(n, 1e-3, np.float32)
@@ -89,6 +103,32 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
         lambda: renderer.contributions(cam, pos),
         reps,
     )
+    sp = VolumetricCompletion(scene, grid, mapper.active_index, CompletionConfig(), device=device)
+    sp.add_view(0, views[0])
+    sp.complete(sel, fused.segmented)
+    rec0 = sp._records[0][1]
+    cover = rec0.cover
+    pos0, rho0 = sp._mask(views[0])
+    sparse_ms = median_ms(lambda: sp._gauss_record(views[0], cover, pos0, rho0), reps)
+    full0 = comp.view_record(views[0])
+    covered = np.zeros(n, bool)
+    covered[sp.cells.members(cover) if cover is not None else slice(None)] = True
+    keep = covered[full0.gauss]
+    o = np.argsort(rec0.gauss)
+    equal = all(
+        np.array_equal(getattr(full0, f)[keep], getattr(rec0, f)[o])
+        for f in ("gauss", "q1", "q0", "seen", "deep")
+    )
+    from divas_engine.mapping.completion_gather import sparse_contributions
+
+    sub = sparse_contributions(sp._renderer, cam, pos, sp.cells.members(cover), 1.0)[2]
+
+    def accept() -> None:
+        sp.remove_view(0)
+        sp.add_view(0, views[0])
+        sp.complete(sel, fused.segmented)
+
+    accept_ms = median_ms(accept, reps)
     for s in view_counts:
         for k in list(comp.keys):
             comp.remove_view(k)
@@ -119,6 +159,12 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
                 "record_ms": rec_ms,
                 "gather_ms": gather_ms,
                 "gather_kept_ms": gather_kept_ms,
+                "sparse_gather_ms": sparse_ms,
+                "cover": int(covered.sum()),
+                "sub_scene": int(sub),
+                "mask_share": float(pos.mean()),
+                "equal": bool(equal),
+                "accept_ms": accept_ms,
                 "add_ms": add_ms,
                 "undo_ms": undo_ms,
                 "decide_ms": decide,
@@ -129,6 +175,8 @@ def run(n: int, view_counts: list[int], reps: int, device: str) -> list[dict]:
         print(
             f"| {n:,} | {s} | {r['active_voxels']:,} | {r['render_ms']:.0f} | "
             f"{r['record_ms']:.0f} | {r['gather_ms']:.0f} | {r['gather_kept_ms']:.0f} | "
+            f"{r['sparse_gather_ms']:.0f} | {r['cover']:,} | {r['sub_scene']:,} | "
+            f"{100 * r['mask_share']:.1f} | {r['equal']} | {r['accept_ms']:.0f} | "
             f"{r['add_ms']:.1f} | "
             f"{r['undo_ms']:.1f} | {r['decide_ms']:.1f} | {r['setup_s']:.2f} |",
             flush=True,
@@ -142,16 +190,18 @@ def main() -> int:
     p.add_argument("--views", default="1,5,20")
     p.add_argument("--reps", type=int, default=5)
     p.add_argument("--device", default="cpu")
+    p.add_argument("--spheres", default="", help="the object's spheres, e.g. 0 (default all)")
     a = p.parse_args()
     cpu = platform.processor() or platform.machine()
     print(f"# bench_completion {datetime.date.today()} {cpu} ({os.cpu_count()} CPUs), {a.device}")
     print(
         "| Gaussians | views | active voxels | render ms | view records ms | of which gather "
-        "ms | gather, binning kept ms | add ms | undo ms | decide ms | setup s |"
+        "ms | gather, binning kept ms | sparse gather ms | cover | sub-scene | mask % | "
+        "equal | accept ms | add ms | undo ms | decide ms | setup s |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|" + "---:|" * 17)
     for n in (int(x) for x in a.sizes.split(",")):
-        run(n, [int(x) for x in a.views.split(",")], a.reps, a.device)
+        run(n, [int(x) for x in a.views.split(",")], a.reps, a.device, a.spheres)
     return 0
 
 

@@ -74,6 +74,7 @@ from ..geometry import quat_rotation_entries
 from ..render.config import RenderConfig
 from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
+from .completion_gather import CoarseCells, sparse_contributions
 from .config import CompletionConfig
 
 __all__ = ["QSCALE", "CompletionResult", "VolumetricCompletion"]
@@ -129,6 +130,9 @@ class _ViewRecord:
     deep: np.ndarray  # [k] int8: +1 centre within the solid depth, −1 beyond it, 0 none
     voxels: np.ndarray  # [m] int32 active voxels with evidence
     flags: np.ndarray  # [m] uint8 _SURFACE / _HIDDEN / _INCONSISTENT
+    # [C+1] bool coarse cells whose Gaussians the Gaussian part holds exactly (the
+    # sentinel's always); None: all N (the full pass)
+    cover: np.ndarray | None = None
 
 
 def _edge_distance(mask: np.ndarray) -> np.ndarray:
@@ -152,100 +156,6 @@ def _chord_depth(rho: np.ndarray, y: np.ndarray, x: np.ndarray, extra: np.ndarra
     big_r = float(rho.max()) if rho.size else 0.0
     r_p = np.minimum(rho[y, x] + extra, big_r)
     return 2.0 * np.sqrt(np.maximum(r_p * (2.0 * big_r - r_p), 0.0))
-
-
-def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    """Members grouped by cell: ``(order, start)`` with cell ``c``'s members
-    ``order[start[c]:start[c + 1]]`` (members of the sentinel cell ``n_cells`` last)."""
-    order = np.argsort(cell_of, kind="stable").astype(np.int32)
-    start = np.searchsorted(cell_of[order], np.arange(n_cells + 1)).astype(np.int64)
-    return order, start
-
-
-def _gather(order: np.ndarray, start: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """The members of ``cells`` (indices, no sentinel), concatenated: ``O(members)``."""
-    lo, hi = start[cells], start[np.asarray(cells) + 1]
-    ln = hi - lo
-    total = int(ln.sum())
-    if total == 0:
-        return np.zeros(0, np.int32)
-    # positions lo[c] + 0 … ln[c] − 1 for each cell, without a Python loop
-    nz = ln > 0
-    lo, ln = lo[nz], ln[nz]
-    step = np.ones(total, np.int64)
-    ends = np.cumsum(ln)
-    step[0] = lo[0]
-    step[ends[:-1]] = lo[1:] - (lo[:-1] + ln[:-1]) + 1
-    return order[np.cumsum(step)]
-
-
-class _CoarseCells:
-    """Coarse cells of ``2^k`` voxels holding Gaussians or active voxels, with their
-    26-neighbour table and member lists (built once per scene), so the decision touches
-    only the cells near the selection."""
-
-    def __init__(self, g_coords: np.ndarray, g_valid: np.ndarray, v_coords: np.ndarray, k: int):
-        # coordinates may be negative outside the grid: shift into [0, 2^21) before
-        # packing three 21-bit fields (|c| < 2^20, checked by the caller; a larger
-        # shift would overflow a field and alias distant cells into one key)
-        off = 1 << 20
-
-        def key(c: np.ndarray) -> np.ndarray:
-            c = (c >> k) + off
-            return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
-
-        gk = key(g_coords[g_valid])
-        vk = key(v_coords)
-        self.keys = np.unique(np.concatenate([gk, vk]))
-        self.n = len(self.keys)
-        self.of_gauss = np.full(len(g_coords), self.n, np.int64)  # n = the empty sentinel
-        self.of_gauss[g_valid] = np.searchsorted(self.keys, gk)
-        self.of_voxel = np.searchsorted(self.keys, vk)
-        self.g_order, self.g_start = _csr(self.of_gauss, self.n)
-        self.v_order, self.v_start = _csr(self.of_voxel, self.n)
-        cx = (self.keys >> 42) & ((1 << 21) - 1)
-        cy = (self.keys >> 21) & ((1 << 21) - 1)
-        cz = self.keys & ((1 << 21) - 1)
-        nb = []
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                for dz in (-1, 0, 1):
-                    k2 = ((cx + dx) << 42) | ((cy + dy) << 21) | (cz + dz)
-                    i = np.searchsorted(self.keys, k2)
-                    i = np.minimum(i, self.n - 1) if self.n else i
-                    hit = self.keys[i] == k2 if self.n else np.zeros(0, bool)
-                    nb.append(np.where(hit, i, self.n).astype(np.int32))
-        self.neighbours = np.stack(nb, axis=1) if nb else np.zeros((0, 27), np.int32)
-
-    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> np.ndarray:
-        """Set in ``near`` (``[C+1] bool``, the last entry the always-False sentinel) the
-        cells within one cell of a cell holding one of the active voxels ``voxels``
-        (indices); returns the cells that were not near before:
-        ``O(|voxels| + 27 · cells touched)``."""
-        if len(voxels) == 0:
-            return np.zeros(0, np.int64)
-        return self.dilate_cells(near, self.of_voxel[voxels])
-
-    def dilate_cells(self, near: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        """:meth:`dilate_into` from cells (indices; the sentinel is ignored)."""
-        # boolean marks over the C cells, not np.unique (a sort): C ≪ N
-        mark = np.zeros(self.n + 1, bool)
-        mark[cells] = True
-        cells = np.flatnonzero(mark[: self.n])
-        if len(cells) == 0:
-            return np.zeros(0, np.int64)
-        mark[:] = False
-        mark[self.neighbours[cells].ravel()] = True
-        mark[self.n] = False
-        fresh = np.flatnonzero(mark & ~near)
-        near[fresh] = True
-        return fresh
-
-    def voxels_in(self, cells: np.ndarray) -> np.ndarray:
-        return _gather(self.v_order, self.v_start, cells)
-
-    def gaussians_in(self, cells: np.ndarray) -> np.ndarray:
-        return _gather(self.g_order, self.g_start, cells)
 
 
 class VolumetricCompletion:
@@ -293,7 +203,7 @@ class VolumetricCompletion:
         g_coords = np.floor((means - geo.origin) / self.h)
         g_valid = np.isfinite(g_coords).all(axis=1) & (np.abs(g_coords) < (1 << 20)).all(axis=1)
         g_coords = np.where(g_valid[:, None], g_coords, 0).astype(np.int64)
-        self.cells = _CoarseCells(g_coords, g_valid, v_coords, int(config.neighbourhood_log2))
+        self.cells = CoarseCells(g_coords, g_valid, v_coords, int(config.neighbourhood_log2))
         # share the renderer (and so its kept per-view binnings: the gather of a view
         # just rendered only walks its tiles) when it renders this scene with the same
         # constants; else a renderer of our own, used for the gather only
@@ -326,23 +236,50 @@ class VolumetricCompletion:
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
 
     # ------------------------------------------------------------------ per view
-    def view_record(self, view: FusionView) -> _ViewRecord:
+    def view_record(self, view: FusionView, cover: np.ndarray | None = None) -> _ViewRecord:
         """The integer records of one fused view (its contribution gather and its voxel
-        evidence)."""
-        cfg = self.config
+        evidence); with ``cover`` (``[C+1] bool`` coarse cells) the Gaussian part only
+        for the Gaussians of those cells (:meth:`_gauss_record`)."""
+        pos, rho = self._mask(view)
+        rec = self._gauss_record(view, cover, pos, rho)
+        rec.voxels, rec.flags = self._voxel_evidence(view, pos, rho)
+        return rec
+
+    def _mask(self, view: FusionView) -> tuple[np.ndarray, np.ndarray]:
+        pos = np.asarray(view.mask).astype(np.float32, copy=False) >= np.float32(
+            self.config.mask_threshold
+        )
+        return pos, _edge_distance(pos)
+
+    def _gauss_record(
+        self, view: FusionView, cover: np.ndarray | None, pos: np.ndarray, rho: np.ndarray
+    ) -> _ViewRecord:
+        """The Gaussian part of a view's records (no voxels): ``A₁, A₀`` in fixed point,
+        seen, deep — of every Gaussian (``cover`` None: one full rasterizer pass) or of
+        the Gaussians of the cells ``cover``, from the surfels that can blend before
+        them (:func:`.completion_gather.sparse_contributions`: the same sums, so the
+        same records for those Gaussians). The cover falls back to all when that
+        sub-scene is most of the scene (or off the CPU)."""
         cam = view.camera
-        mask = np.asarray(view.mask)
-        pos = mask.astype(np.float32, copy=False) >= np.float32(cfg.mask_threshold)
-        out = self._renderer.contributions(cam, pos)
-        a1 = out.a1.numpy().astype(np.float64)
-        a0 = out.a0.numpy().astype(np.float64)
+        out = None
+        if cover is not None:
+            rows = self.cells.members(cover)
+            out = sparse_contributions(
+                self._renderer, cam, pos, rows, self.config.gather_max_fraction
+            )
+        if out is None:
+            cover = None
+            full = self._renderer.contributions(cam, pos)
+            rows, out = None, (full.a1.numpy(), full.a0.numpy(), self.n)
+        a1 = out[0].astype(np.float64)
+        a0 = out[1].astype(np.float64)
         q1 = np.rint(a1 * QSCALE).astype(np.int64)
         q0 = np.rint(a0 * QSCALE).astype(np.int64)
-        nz = np.flatnonzero((q1 != 0) | (q0 != 0)).astype(np.int32)
-        rho = _edge_distance(pos)
-        seen, deep = self._gaussian_evidence(view, pos, rho, nz, a1[nz] + a0[nz])
-        vox, flags = self._voxel_evidence(view, pos, rho)
-        return _ViewRecord(nz, q1[nz], q0[nz], seen, deep, vox, flags)
+        nz = np.flatnonzero((q1 != 0) | (q0 != 0))
+        g = (nz if rows is None else rows[nz]).astype(np.int32)
+        seen, deep = self._gaussian_evidence(view, pos, rho, g, a1[nz] + a0[nz])
+        empty = np.zeros(0, np.int32)
+        return _ViewRecord(g, q1[nz], q0[nz], seen, deep, empty, empty.astype(np.uint8), cover)
 
     def _gaussian_evidence(
         self, view: FusionView, pos: np.ndarray, rho: np.ndarray, g: np.ndarray, weight: np.ndarray
@@ -436,6 +373,10 @@ class VolumetricCompletion:
         return idx[keep].astype(np.int32), flags[keep].astype(np.uint8)
 
     def _apply(self, rec: _ViewRecord, sign: int) -> None:
+        self._apply_gauss(rec, sign)
+        self._apply_voxels(rec, sign)
+
+    def _apply_gauss(self, rec: _ViewRecord, sign: int) -> None:
         # the indices of a record are unique, so fancy-indexed += is exact (and far
         # cheaper than np.add.at); integer sums, so undo is exact
         self.q1[rec.gauss] += sign * rec.q1
@@ -443,21 +384,28 @@ class VolumetricCompletion:
         self.n_seen[rec.gauss] += sign * rec.seen.astype(np.int32)
         self.n_deep_ok[rec.gauss] += sign * (rec.deep > 0).astype(np.int32)
         self.n_deep_bad[rec.gauss] += sign * (rec.deep < 0).astype(np.int32)
+
+    def _apply_voxels(self, rec: _ViewRecord, sign: int) -> None:
         self.n_surf[rec.voxels] += sign * (rec.flags == _SURFACE).astype(np.int32)
         self.n_hidden[rec.voxels] += sign * (rec.flags == _HIDDEN).astype(np.int32)
         self.n_incons[rec.voxels] += sign * (rec.flags == _INCONSISTENT).astype(np.int32)
 
     def add_view(self, key: int, view: FusionView) -> None:
-        """Add one fused view under ``key`` (e.g. its fusion slot); its records are
-        computed once."""
+        """Add one fused view under ``key`` (e.g. its fusion slot). Its voxel evidence is
+        computed now; with ``sparse_gather`` its Gaussian part covers no cell yet and is
+        gathered by :meth:`complete` for the cover the selection needs (the counters of
+        the Gaussians hold only what the live records cover)."""
         if key in self._records:
             raise ValueError(f"completion: view {key} is already added")
-        rec = self.view_record(view)
+        if self.config.sparse_gather:
+            rec = self.view_record(view, np.zeros(self.cells.n + 1, bool))
+        else:
+            rec = self.view_record(view)
         self._apply(rec, +1)
         self._records[key] = (view, rec)
 
     def remove_view(self, key: int) -> None:
-        """Undo a view exactly (subtracts the integers its add added)."""
+        """Undo a view exactly (subtracts the integers its add and gathers added)."""
         _, rec = self._records.pop(key)
         self._apply(rec, -1)
 
@@ -472,6 +420,29 @@ class VolumetricCompletion:
             if k not in self._records:
                 self.add_view(k, v)
         return time.perf_counter() - t
+
+    def cover(self, need: np.ndarray) -> int:
+        """Make every live record hold the Gaussians of the cells ``need`` (indices):
+        a record whose cover lacks one is re-gathered (its Gaussian part subtracted,
+        gathered again for its cover ∪ the cells within ``gather_margin`` of ``need``,
+        added — integers, so exact) or, when that cover is most of the scene, gathered
+        in full. Returns the records gathered."""
+        need = np.asarray(need, np.int64)
+        wide = None
+        done = 0
+        for key, (view, rec) in list(self._records.items()):
+            if rec.cover is None or rec.cover[need].all():
+                continue
+            if wide is None:
+                wide = self.cells.rings(need, int(self.config.gather_margin))
+            pos, rho = self._mask(view)
+            new = self._gauss_record(view, rec.cover | wide, pos, rho)
+            self._apply_gauss(rec, -1)
+            self._apply_gauss(new, +1)
+            new.voxels, new.flags = rec.voxels, rec.flags
+            self._records[key] = (view, new)
+            done += 1
+        return done
 
     @property
     def keys(self) -> list[int]:
@@ -573,3 +544,46 @@ class VolumetricCompletion:
             rounds=rounds,
             seconds={"decide": time.perf_counter() - t},
         )
+
+    # ------------------------------------------------------------------ records' cover
+    # The decision above reads the records of the Gaussians of the cells near the
+    # selection (grown by the fill) and of the selected ones. With the sparse gather each
+    # live record holds only the Gaussians of its cover, so ``complete`` first widens the
+    # covers to the decision's first neighbourhood, decides, and — when the fill grew the
+    # neighbourhood beyond a cover — widens again and decides once more (the fill reads
+    # only the voxel counters, complete in every record, so the second neighbourhood is
+    # the first decision's). The decision itself is unchanged: ``_decide``.
+    _decide = complete
+
+    def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:  # noqa: F811
+        """The completed selection from the DivAS selection ``selected`` ``[N]`` and the
+        fused voxel selection ``segmented`` ``[A]`` (module docstring): the decision on
+        records that cover everything it reads (:meth:`cover`)."""
+        sel = np.asarray(selected, bool)
+        seg = np.asarray(segmented, bool)
+        sparse = (
+            self.config.sparse_gather
+            and bool(self._records)
+            and sel.shape == (self.n,)
+            and seg.shape == (self.a,)
+        )
+        t = time.perf_counter()
+        gathered = 0
+        if sparse:
+            first = self.cells.rings(self.cells.of_voxel[np.flatnonzero(seg)], 1)
+            first[self.cells.of_gauss[np.flatnonzero(sel)]] = True
+            gathered += self.cover(np.flatnonzero(first[: self.cells.n]))
+        t_gather = time.perf_counter() - t
+        res = self._decide(sel, seg)
+        if sparse:
+            t = time.perf_counter()
+            mark = np.zeros(self.cells.n + 1, bool)
+            mark[self.cells.of_gauss[np.flatnonzero(res.near)]] = True
+            again = self.cover(np.flatnonzero(mark[: self.cells.n]))
+            t_gather += time.perf_counter() - t
+            if again:
+                gathered += again
+                res = self._decide(sel, seg)
+        res.seconds["gather"] = t_gather
+        res.seconds["gathered"] = gathered
+        return res

@@ -129,6 +129,17 @@ class CompletionConfig:
             the paper's selection needs more than the trace of weight an addition near
             the selection may rest on — a surface Gaussian at the silhouette's edge
             has a little weight, mostly just outside the mask).
+        sparse_gather: gather a view's contributions only for the Gaussians of a cover
+            of the selection's neighbourhood, from the surfels that can blend before
+            them (:mod:`.completion_gather`; the same records there, at a fraction of
+            the full pass's cost); re-gathered when the neighbourhood outgrows the cover
+            (True; CPU only — elsewhere the full pass).
+        gather_margin: coarse cells the cover reaches beyond the decision's first
+            neighbourhood (the segmented voxels' cells dilated once and the selected
+            Gaussians' cells), room for the fill to grow before a re-gather (2).
+        gather_max_fraction: the sparse gather falls back to the full pass when the
+            surfels that can blend before the cover exceed this share of the scene
+            (0.5).
     """
 
     enabled: bool = True
@@ -144,6 +155,9 @@ class CompletionConfig:
     fill_min_views: int = 2
     drop_inconsistent: bool = True
     drop_min_weight: float = 0.5
+    sparse_gather: bool = True
+    gather_margin: int = 2
+    gather_max_fraction: float = 0.5
 
     def __post_init__(self) -> None:
         if not -1.0 < self.gamma < 1.0:

@@ -1,0 +1,196 @@
+"""The neighbourhood cells of the 3DGS completion and its sparse per-view gather (issue 15).
+
+The completion's decision (:meth:`.completion.VolumetricCompletion.complete`) reads the
+contribution records ``A₁, A₀`` (and the visibility / depth evidence derived from them) of
+two sets of Gaussians only: those of the coarse cells near the DivAS voxel selection
+(:class:`CoarseCells`, grown by the fill) and the selected ones (the drop test). So a
+view's gather need not split the blending weight of all ``N`` Gaussians: it needs the
+weights of the Gaussians ``K`` of a *cover* (a set of coarse cells holding that
+neighbourhood), and a Gaussian's weight ``w_{i,p} = α_{i,p} T_{i,p}`` at a pixel is decided
+by the Gaussians that blend before it there. :func:`sparse_contributions` therefore runs
+the same contribution pass (:func:`divas_kernels.accumulate_contributions`: the
+rasterizer's projection, depth order, tiles and walk) on only the surfels that can blend,
+somewhere in the image, before one of ``K``
+(:meth:`~divas_engine.render.surfel_blocks.SurfelBlocks.near`, the graph3d segmenter's
+sparse mask renders use the same index): every pixel of every tile a footprint of ``K``
+meets holds, in the same order (ascending depth, ties by index — the rows keep the scene's
+order), every surfel that precedes a Gaussian of ``K`` there, so the weights of ``K`` are the
+full pass's over the whole image (``A₀`` included: no window cuts a footprint). Surfels of
+the sub-scene outside ``K`` may miss what lies in front of them elsewhere: their sums are
+discarded. The sums are accumulated per tile into the same ``[threads, ·]`` rows in the
+same tile order as the full pass, so they are the full pass's bit for bit (tested).
+
+Which cells a record covers is remembered with it; the completion widens a record's cover
+(re-gathers it) when the selection's neighbourhood outgrows it, and falls back to the full
+pass when the cover's sub-scene holds most of the scene, or off the CPU (where the pass
+over the scene is cheap).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from divas_kernels import accumulate_contributions, surfel_rows
+
+from ..camera import Camera
+
+__all__ = ["CoarseCells", "sparse_contributions"]
+
+
+def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Members grouped by cell: ``(order, start)`` with cell ``c``'s members
+    ``order[start[c]:start[c + 1]]`` (members of the sentinel cell ``n_cells`` last)."""
+    order = np.argsort(cell_of, kind="stable").astype(np.int32)
+    start = np.searchsorted(cell_of[order], np.arange(n_cells + 1)).astype(np.int64)
+    return order, start
+
+
+def _gather(order: np.ndarray, start: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """The members of ``cells`` (indices, no sentinel), concatenated: ``O(members)``."""
+    lo, hi = start[cells], start[np.asarray(cells) + 1]
+    ln = hi - lo
+    total = int(ln.sum())
+    if total == 0:
+        return np.zeros(0, np.int32)
+    # positions lo[c] + 0 … ln[c] − 1 for each cell, without a Python loop
+    nz = ln > 0
+    lo, ln = lo[nz], ln[nz]
+    step = np.ones(total, np.int64)
+    ends = np.cumsum(ln)
+    step[0] = lo[0]
+    step[ends[:-1]] = lo[1:] - (lo[:-1] + ln[:-1]) + 1
+    return order[np.cumsum(step)]
+
+
+class CoarseCells:
+    """Coarse cells of ``2^k`` voxels holding Gaussians or active voxels, with their
+    26-neighbour table and member lists (built once per scene), so the decision touches
+    only the cells near the selection."""
+
+    def __init__(self, g_coords: np.ndarray, g_valid: np.ndarray, v_coords: np.ndarray, k: int):
+        # coordinates may be negative outside the grid: shift into [0, 2^21) before
+        # packing three 21-bit fields (|c| < 2^20, checked by the caller; a larger
+        # shift would overflow a field and alias distant cells into one key)
+        off = 1 << 20
+
+        def key(c: np.ndarray) -> np.ndarray:
+            c = (c >> k) + off
+            return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+
+        gk = key(g_coords[g_valid])
+        vk = key(v_coords)
+        self.keys = np.unique(np.concatenate([gk, vk]))
+        self.n = len(self.keys)
+        self.of_gauss = np.full(len(g_coords), self.n, np.int64)  # n = the empty sentinel
+        self.of_gauss[g_valid] = np.searchsorted(self.keys, gk)
+        self.of_voxel = np.searchsorted(self.keys, vk)
+        self.g_order, self.g_start = _csr(self.of_gauss, self.n)
+        self.v_order, self.v_start = _csr(self.of_voxel, self.n)
+        cx = (self.keys >> 42) & ((1 << 21) - 1)
+        cy = (self.keys >> 21) & ((1 << 21) - 1)
+        cz = self.keys & ((1 << 21) - 1)
+        nb = []
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    k2 = ((cx + dx) << 42) | ((cy + dy) << 21) | (cz + dz)
+                    i = np.searchsorted(self.keys, k2)
+                    i = np.minimum(i, self.n - 1) if self.n else i
+                    hit = self.keys[i] == k2 if self.n else np.zeros(0, bool)
+                    nb.append(np.where(hit, i, self.n).astype(np.int32))
+        self.neighbours = np.stack(nb, axis=1) if nb else np.zeros((0, 27), np.int32)
+
+    def dilate_into(self, near: np.ndarray, voxels: np.ndarray) -> np.ndarray:
+        """Set in ``near`` (``[C+1] bool``, the last entry the always-False sentinel) the
+        cells within one cell of a cell holding one of the active voxels ``voxels``
+        (indices); returns the cells that were not near before:
+        ``O(|voxels| + 27 · cells touched)``."""
+        if len(voxels) == 0:
+            return np.zeros(0, np.int64)
+        return self.dilate_cells(near, self.of_voxel[voxels])
+
+    def dilate_cells(self, near: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """:meth:`dilate_into` from cells (indices; the sentinel is ignored)."""
+        # boolean marks over the C cells, not np.unique (a sort): C ≪ N
+        mark = np.zeros(self.n + 1, bool)
+        mark[cells] = True
+        cells = np.flatnonzero(mark[: self.n])
+        if len(cells) == 0:
+            return np.zeros(0, np.int64)
+        mark[:] = False
+        mark[self.neighbours[cells].ravel()] = True
+        mark[self.n] = False
+        fresh = np.flatnonzero(mark & ~near)
+        near[fresh] = True
+        return fresh
+
+    def voxels_in(self, cells: np.ndarray) -> np.ndarray:
+        return _gather(self.v_order, self.v_start, cells)
+
+    def gaussians_in(self, cells: np.ndarray) -> np.ndarray:
+        return _gather(self.g_order, self.g_start, cells)
+
+    def rings(self, cells: np.ndarray, r: int) -> np.ndarray:
+        """``[C+1] bool``: the cells within ``r`` cells (Chebyshev, through the neighbour
+        table) of ``cells`` (indices; the sentinel is ignored)."""
+        out = np.zeros(self.n + 1, bool)
+        cells = np.asarray(cells, np.int64)
+        out[cells] = True
+        out[self.n] = False
+        fresh = np.flatnonzero(out)
+        for _ in range(r):
+            if len(fresh) == 0:
+                break
+            fresh = self.dilate_cells(out, fresh)
+        return out
+
+    def members(self, cover: np.ndarray) -> np.ndarray:
+        """The Gaussians of the cells set in ``cover`` (``[C+1] bool``) and those of the
+        sentinel (no finite cell: never in the neighbourhood, read only when selected)."""
+        g = self.gaussians_in(np.flatnonzero(cover[: self.n]))
+        return np.concatenate([g, self.g_order[self.g_start[self.n] :]])
+
+
+def sparse_contributions(
+    renderer, camera: Camera, positive: np.ndarray, rows: np.ndarray, max_fraction: float
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """``(A₁, A₀, surfels)`` ``[len(rows)]`` float32 of the Gaussians ``rows`` in
+    ``camera`` split by the ``[H,W]`` bool mask ``positive`` — equal to those of the full
+    pass (:meth:`~divas_engine.render.surfel_renderer.SurfelRenderer.contributions`) —
+    from a pass over only the surfels that can blend before one of them (module
+    docstring); ``surfels`` the size of that sub-scene. None when that sub-scene holds
+    more than ``max_fraction`` of the scene or the renderer is not on the CPU: the full
+    pass is cheaper there."""
+    buf = renderer.surfel_buffers
+    n = len(buf)
+    rows = np.asarray(rows, np.int64)
+    if not buf.device.is_cpu or not hasattr(renderer, "sparse_index"):
+        return None
+    a1 = np.zeros(len(rows), np.float32)
+    a0 = np.zeros(len(rows), np.float32)
+    if len(rows) == 0:
+        return a1, a0, 0
+    blocks, reach = renderer.sparse_index()  # sets the screen margin of the bounds
+    sub = blocks.near(camera, buf.means.numpy()[rows], reach[rows], renderer._margin_px)
+    if len(sub) > max_fraction * n:
+        return None
+    if len(sub) == 0:
+        return a1, a0, 0
+    out = accumulate_contributions(
+        surfel_rows(buf, sub, colours=False),
+        camera.w2c,
+        camera.fx,
+        camera.fy,
+        camera.cx,
+        camera.cy,
+        camera.width,
+        camera.height,
+        positive,
+        renderer.config.raster_settings(camera),
+    )
+    # a Gaussian of ``rows`` outside the sub-scene does not reach the image: weight 0
+    pos = np.minimum(np.searchsorted(sub, rows), len(sub) - 1)
+    hit = sub[pos] == rows
+    a1[hit] = out.a1.numpy()[pos[hit]]
+    a0[hit] = out.a0.numpy()[pos[hit]]
+    return a1, a0, len(sub)

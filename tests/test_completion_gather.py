@@ -1,0 +1,197 @@
+"""The 3DGS completion's sparse gather (issue 15): a view's records are gathered only for
+the Gaussians of a cover of the selection's neighbourhood, from the surfels that can blend
+before them. References: the full rasterizer pass's records (``sparse_gather=False``) —
+bit-equal on every covered Gaussian — and the completion decided on full records: the
+same selection, also when the fill grows the neighbourhood beyond the first cover (the
+re-gather fires), under undo, and with the full-pass fallback."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from divas_engine.mapping import CompletionConfig
+from divas_engine.mapping.completion import VolumetricCompletion
+from divas_engine.mapping.completion_gather import sparse_contributions
+
+from divas_engine.fusion import GridConfig, build_occupancy
+from divas_engine.mapping import SurfelMapper
+
+from .test_completion import CPU, _ball_scene, _divas_like, _views
+
+
+@pytest.fixture(scope="module")
+def ball():
+    """The solid ball of ``test_completion`` (surface, interior, floater, back wall),
+    four views."""
+    scene, labels, parts = _ball_scene()
+    grid = build_occupancy(scene, GridConfig(), CPU)
+    act = SurfelMapper(scene, grid, device=CPU).active_index
+    views = _views(scene, labels, [(0, 0, -1), (1, 0, -0.3), (-1, 0.2, -0.3), (0, 1, -0.5)])
+    return scene, labels, parts, grid, act, views
+
+
+def _cap(labels, parts, act, a, scene, lo=0.4):
+    """A part of the ball: its surface Gaussians with ``x > lo`` and their voxels."""
+    sel = np.zeros(len(labels), bool)
+    idx = np.arange(parts["surface"].start, parts["surface"].stop)
+    sel[idx[np.asarray(scene.means)[idx, 0] > lo]] = True
+    seg = np.zeros(a, bool)
+    seg[act[sel & (act >= 0)]] = True
+    return sel, seg
+
+
+def _covered(comp, rec) -> np.ndarray:
+    out = np.ones(comp.n, bool)
+    if rec.cover is not None:
+        out[:] = False
+        out[comp.cells.members(rec.cover)] = True
+    return out
+
+
+def _same_records(comp, full) -> int:
+    """Every live record of ``comp`` equals ``full``'s on its covered Gaussians (and
+    holds nothing else); returns the number of Gaussians left uncovered."""
+    left = 0
+    for key, (_, rec) in comp._records.items():
+        ref = full._records[key][1]
+        cov = _covered(comp, rec)
+        left += int((~cov).sum())
+        keep = cov[ref.gauss]
+        o = np.argsort(rec.gauss)
+        for f in ("gauss", "q1", "q0", "seen", "deep"):
+            assert np.array_equal(getattr(ref, f)[keep], getattr(rec, f)[o]), (key, f)
+        assert np.array_equal(ref.voxels, rec.voxels) and np.array_equal(ref.flags, rec.flags)
+    return left
+
+
+def _pair(ball, **kw):
+    """A sparse and a full completion; the sparse one never declines the sparse pass
+    (the ball scene is small: the surfels before a part of it are most of the scene)
+    unless ``gather_max_fraction`` is given."""
+    scene, labels, parts, grid, act, views = ball
+    kw.setdefault("gather_max_fraction", 1.0)
+    sp = VolumetricCompletion(scene, grid, act, CompletionConfig(**kw), device=CPU)
+    full = VolumetricCompletion(
+        scene, grid, act, CompletionConfig(sparse_gather=False, **kw), device=CPU
+    )
+    return sp, full
+
+
+def test_sparse_sums_equal_the_full_pass(ball):
+    """The contribution sums of a few Gaussians from the surfels that can blend before
+    them are the full pass's, bit for bit, from a sub-scene smaller than the scene."""
+    scene, labels, parts, grid, act, views = ball
+    sp, _ = _pair(ball)
+    rows = np.flatnonzero(_cap(labels, parts, act, len(grid), scene)[0])
+    shown = []
+    for v in views:
+        pos = np.asarray(v.mask) >= 0.5
+        full = sp._renderer.contributions(v.camera, pos)
+        a1, a0, n_sub = sparse_contributions(sp._renderer, v.camera, pos, rows, 1.0)
+        assert 0 < n_sub < len(labels)
+        assert np.array_equal(a1, full.a1.numpy()[rows])
+        assert np.array_equal(a0, full.a0.numpy()[rows])
+        shown.append(float((a1 + a0).sum()))
+    assert max(shown) > 20.0  # the Gaussians do show (pixels of weight)
+    # above the fraction the sparse pass declines (the caller takes the full pass)
+    v = views[0]
+    pos = np.asarray(v.mask) >= 0.5
+    assert sparse_contributions(sp._renderer, v.camera, pos, rows, 0.0) is None
+
+
+@pytest.mark.parametrize("margin", [0, 2])
+def test_selection_equals_full_gather(ball, margin):
+    """The completion on sparse records equals the completion on full records, for the
+    DivAS-like start, a part of the ball and random selections; the records are the full
+    ones on their covers, and with a part selected some Gaussians stay uncovered."""
+    scene, labels, parts, grid, act, views = ball
+    rng = np.random.default_rng(margin)
+    starts = [
+        _cap(labels, parts, act, len(grid), scene, 0.6),
+        _divas_like(labels, parts, act, len(grid)),
+        (rng.random(len(labels)) < 0.03, rng.random(len(grid)) < 0.01),
+    ]
+    for sel, seg in starts:
+        sp, full = _pair(ball, gather_margin=margin)
+        for i, v in enumerate(views):
+            sp.add_view(i, v)
+            full.add_view(i, v)
+        rs, rf = sp.complete(sel, seg), full.complete(sel, seg)
+        assert np.array_equal(rs.selected, rf.selected)
+        assert np.array_equal(rs.filled_voxels, rf.filled_voxels)
+        assert np.array_equal(rs.near, rf.near)
+        _same_records(sp, full)
+    # the cap alone: the records cover a part of the scene only
+    sp, full = _pair(ball, gather_margin=margin)
+    sel, seg = starts[0]
+    sp.add_view(0, views[0])
+    full.add_view(0, views[0])
+    sp.complete(sel, seg)
+    assert _same_records(sp, full) > 0
+
+
+def test_neighbourhood_outgrows_the_cover(ball):
+    """A cover gathered for a small selection is widened when the selection grows (the
+    records are re-gathered before the decision), and when the fill grows the
+    neighbourhood beyond it (re-gathered after the first decision, which is then run
+    again): the result is the full gather's each time, and undo stays exact."""
+    scene, labels, parts, grid, act, views = ball
+    sp, full = _pair(ball, gather_margin=0)
+    for i, v in enumerate(views):
+        sp.add_view(i, v)
+        full.add_view(i, v)
+    calls = []
+    decide = sp._decide
+    sp._decide = lambda s, g: calls.append(1) or decide(s, g)  # counts the decisions
+
+    small = _cap(labels, parts, act, len(grid), scene, 0.8)
+    res = sp.complete(*small)
+    assert np.array_equal(res.selected, full.complete(*small).selected)
+    # the fill grew the neighbourhood beyond the first cover: a second decision ran
+    assert len(calls) == 2 and res.seconds["gathered"] > len(views)
+    # the selection grows to a far part of the scene (a corner of the back wall): every
+    # record is widened before the decision (the drop test reads the selected ones)
+    before = [r.cover.copy() for _, r in sp._records.values()]
+    big = _divas_like(labels, parts, act, len(grid))
+    means = np.asarray(scene.means)
+    corner = (means[:, 2] > 2.9) & (means[:, 0] > 1.7) & (means[:, 1] > 1.7)
+    big[0][corner] = True
+    big[1][act[corner & (act >= 0)]] = True
+    calls.clear()
+    res = sp.complete(*big)
+    assert np.array_equal(res.selected, full.complete(*big).selected)
+    assert res.seconds["gathered"] >= len(views)
+    for (_, r), b in zip(sp._records.values(), before):
+        assert (r.cover >= b).all() and r.cover.sum() > b.sum()
+        assert _covered(sp, r)[corner].all() and not _covered(sp, r).all()
+    _same_records(sp, full)
+    # undo a view and re-add it (its pending record covers nothing until the decision)
+    sp.remove_view(1)
+    full.remove_view(1)
+    sp.add_view(1, views[2])
+    full.add_view(1, views[2])
+    res = sp.complete(*big)
+    assert np.array_equal(res.selected, full.complete(*big).selected)
+    _same_records(sp, full)
+    for k in list(sp.keys):
+        sp.remove_view(k)
+    counters = ("q1", "q0", "n_surf", "n_hidden", "n_incons", "n_seen", "n_deep_ok", "n_deep_bad")
+    assert not any(getattr(sp, k).any() for k in counters)
+
+
+def test_full_pass_fallback(ball):
+    """When the surfels that can blend before the cover exceed ``gather_max_fraction`` of
+    the scene the record is the full pass's (cover None), same decision."""
+    scene, labels, parts, grid, act, views = ball
+    sp, full = _pair(ball, gather_max_fraction=0.0)
+    for i, v in enumerate(views):
+        sp.add_view(i, v)
+        full.add_view(i, v)
+    sel, seg = _divas_like(labels, parts, act, len(grid))
+    res = sp.complete(sel, seg)
+    assert all(r.cover is None for _, r in sp._records.values())
+    assert np.array_equal(res.selected, full.complete(sel, seg).selected)
+    assert _same_records(sp, full) == 0
+    for k in ("q1", "q0", "n_seen", "n_deep_ok", "n_deep_bad"):
+        assert np.array_equal(getattr(sp, k), getattr(full, k)), k
