@@ -10,12 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from divas_engine.mapping import CompletionConfig
+from divas_engine.fusion import GridConfig, build_occupancy
+from divas_engine.mapping import CompletionConfig, SurfelMapper
 from divas_engine.mapping.completion import VolumetricCompletion
 from divas_engine.mapping.completion_gather import sparse_contributions
-
-from divas_engine.fusion import GridConfig, build_occupancy
-from divas_engine.mapping import SurfelMapper
 
 from .test_completion import CPU, _ball_scene, _divas_like, _views
 
