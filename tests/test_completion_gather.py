@@ -130,10 +130,10 @@ def test_selection_equals_full_gather(ball, margin):
 
 
 def test_neighbourhood_outgrows_the_cover(ball):
-    """A cover gathered for a small selection is widened when the selection grows (the
-    records are re-gathered before the decision), and when the fill grows the
-    neighbourhood beyond it (re-gathered after the first decision, which is then run
-    again): the result is the full gather's each time, and undo stays exact."""
+    """Records are gathered by the first decision for what it read (a second decision
+    runs on them), widened when the voxel selection grows elsewhere (the neighbourhood
+    the fill walks) and when the selection does (the drop test reads the selected
+    Gaussians): the result is the full gather's each time, and undo stays exact."""
     scene, labels, parts, grid, act, views = ball
     sp, full = _pair(ball, gather_margin=0)
     for i, v in enumerate(views):
@@ -146,23 +146,31 @@ def test_neighbourhood_outgrows_the_cover(ball):
     small = _cap(labels, parts, act, len(grid), scene, 0.8)
     res = sp.complete(*small)
     assert np.array_equal(res.selected, full.complete(*small).selected)
-    # the fill grew the neighbourhood beyond the first cover: a second decision ran
-    assert len(calls) == 2 and res.seconds["gathered"] > len(views)
-    # the selection grows to a far part of the scene (a corner of the back wall): every
-    # record is widened before the decision (the drop test reads the selected ones)
-    before = [r.cover.copy() for _, r in sp._records.values()]
-    big = _divas_like(labels, parts, act, len(grid))
+    # pending records were gathered for the first decision's reads, then it ran again
+    assert len(calls) == 2 and res.seconds["gathered"] == len(views)
+    calls.clear()
+    res = sp.complete(*small)  # nothing new: no gather, one decision
+    assert len(calls) == 1 and res.seconds["gathered"] == 0
+    # the voxel selection grows to a far part of the scene (a corner of the back wall),
+    # the Gaussian selection not: the records are widened to the new neighbourhood
     means = np.asarray(scene.means)
     corner = (means[:, 2] > 2.9) & (means[:, 0] > 1.7) & (means[:, 1] > 1.7)
-    big[0][corner] = True
-    big[1][act[corner & (act >= 0)]] = True
+    seg = small[1].copy()
+    seg[act[corner & (act >= 0)]] = True
+    before = [r.cover.copy() for _, r in sp._records.values()]
     calls.clear()
-    res = sp.complete(*big)
-    assert np.array_equal(res.selected, full.complete(*big).selected)
-    assert res.seconds["gathered"] >= len(views)
+    res = sp.complete(small[0], seg)
+    assert np.array_equal(res.selected, full.complete(small[0], seg).selected)
+    assert len(calls) == 2 and res.seconds["gathered"] == len(views)
     for (_, r), b in zip(sp._records.values(), before):
         assert (r.cover >= b).all() and r.cover.sum() > b.sum()
         assert _covered(sp, r)[corner].all() and not _covered(sp, r).all()
+    # the selection grows too (the ball's surface and the corner's Gaussians)
+    big = _divas_like(labels, parts, act, len(grid))
+    big[0][corner] = True
+    big[1][:] |= seg
+    res = sp.complete(*big)
+    assert np.array_equal(res.selected, full.complete(*big).selected)
     _same_records(sp, full)
     # undo a view and re-add it (its pending record covers nothing until the decision)
     sp.remove_view(1)

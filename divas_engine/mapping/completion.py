@@ -133,6 +133,8 @@ class _ViewRecord:
     # [C+1] bool coarse cells whose Gaussians the Gaussian part holds exactly (the
     # sentinel's always); None: all N (the full pass)
     cover: np.ndarray | None = None
+    # the view's (positive mask, edge distance) kept until its first gather
+    mask: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _edge_distance(mask: np.ndarray) -> np.ndarray:
@@ -243,6 +245,8 @@ class VolumetricCompletion:
         pos, rho = self._mask(view)
         rec = self._gauss_record(view, cover, pos, rho)
         rec.voxels, rec.flags = self._voxel_evidence(view, pos, rho)
+        if cover is not None and not cover.any():
+            rec.mask = (pos, rho)  # pending: gathered by the first decision
         return rec
 
     def _mask(self, view: FusionView) -> tuple[np.ndarray, np.ndarray]:
@@ -421,12 +425,12 @@ class VolumetricCompletion:
                 self.add_view(k, v)
         return time.perf_counter() - t
 
-    def cover(self, need: np.ndarray) -> int:
+    def cover(self, need: np.ndarray, full: bool = False) -> int:
         """Make every live record hold the Gaussians of the cells ``need`` (indices):
         a record whose cover lacks one is re-gathered (its Gaussian part subtracted,
         gathered again for its cover ∪ the cells within ``gather_margin`` of ``need``,
         added — integers, so exact) or, when that cover is most of the scene, gathered
-        in full. Returns the records gathered."""
+        in full (always with ``full``). Returns the records gathered."""
         need = np.asarray(need, np.int64)
         wide = None
         done = 0
@@ -435,8 +439,8 @@ class VolumetricCompletion:
                 continue
             if wide is None:
                 wide = self.cells.rings(need, int(self.config.gather_margin))
-            pos, rho = self._mask(view)
-            new = self._gauss_record(view, rec.cover | wide, pos, rho)
+            pos, rho = rec.mask if rec.mask is not None else self._mask(view)
+            new = self._gauss_record(view, None if full else rec.cover | wide, pos, rho)
             self._apply_gauss(rec, -1)
             self._apply_gauss(new, +1)
             new.voxels, new.flags = rec.voxels, rec.flags
@@ -548,11 +552,11 @@ class VolumetricCompletion:
     # ------------------------------------------------------------------ records' cover
     # The decision above reads the records of the Gaussians of the cells near the
     # selection (grown by the fill) and of the selected ones. With the sparse gather each
-    # live record holds only the Gaussians of its cover, so ``complete`` first widens the
-    # covers to the decision's first neighbourhood, decides, and — when the fill grew the
-    # neighbourhood beyond a cover — widens again and decides once more (the fill reads
-    # only the voxel counters, complete in every record, so the second neighbourhood is
-    # the first decision's). The decision itself is unchanged: ``_decide``.
+    # live record holds only the Gaussians of its cover, so ``complete`` decides, widens
+    # the covers to what that decision read (re-gathers) and, if it had to, decides
+    # again — until no cover lacks a cell (the fill reads only the voxel counters,
+    # complete in every record, so the second neighbourhood is the first's and one
+    # round suffices; the loop makes sure). The decision itself is ``_decide``.
     _decide = complete
 
     def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:  # noqa: F811
@@ -561,29 +565,23 @@ class VolumetricCompletion:
         records that cover everything it reads (:meth:`cover`)."""
         sel = np.asarray(selected, bool)
         seg = np.asarray(segmented, bool)
-        sparse = (
-            self.config.sparse_gather
-            and bool(self._records)
-            and sel.shape == (self.n,)
-            and seg.shape == (self.a,)
-        )
-        t = time.perf_counter()
-        gathered = 0
-        if sparse:
-            first = self.cells.rings(self.cells.of_voxel[np.flatnonzero(seg)], 1)
-            first[self.cells.of_gauss[np.flatnonzero(sel)]] = True
-            gathered += self.cover(np.flatnonzero(first[: self.cells.n]))
-        t_gather = time.perf_counter() - t
         res = self._decide(sel, seg)
-        if sparse:
-            t = time.perf_counter()
+        t = time.perf_counter()
+        gathered = rounds = 0
+        if self.config.sparse_gather and self._records:
             mark = np.zeros(self.cells.n + 1, bool)
-            mark[self.cells.of_gauss[np.flatnonzero(res.near)]] = True
-            again = self.cover(np.flatnonzero(mark[: self.cells.n]))
-            t_gather += time.perf_counter() - t
-            if again:
-                gathered += again
+            mark[self.cells.of_gauss[np.flatnonzero(sel)]] = True
+            sel_cells = np.flatnonzero(mark[: self.cells.n])
+            while True:
+                mark[:] = False
+                mark[sel_cells] = True
+                mark[self.cells.of_gauss[np.flatnonzero(res.near)]] = True
+                got = self.cover(np.flatnonzero(mark[: self.cells.n]), full=rounds >= 3)
+                if not got:
+                    break
+                gathered += got
+                rounds += 1
                 res = self._decide(sel, seg)
-        res.seconds["gather"] = t_gather
+        res.seconds["gather"] = time.perf_counter() - t - res.seconds["decide"] * (rounds > 0)
         res.seconds["gathered"] = gathered
         return res
