@@ -201,3 +201,16 @@ def test_full_pass_fallback(ball):
     assert _same_records(sp, full) == 0
     for k in ("q1", "q0", "n_seen", "n_deep_ok", "n_deep_bad"):
         assert np.array_equal(getattr(sp, k), getattr(full, k)), k
+
+
+def test_gather_config():
+    with pytest.raises(ValueError):
+        CompletionConfig(gather_margin=-1)
+    with pytest.raises(ValueError):
+        CompletionConfig(gather_max_fraction=1.5)
+    from divas_engine.mapping import MappingConfig
+    from divas_engine.session import SessionConfig
+
+    c = CompletionConfig(sparse_gather=False, gather_margin=3)
+    cfg = SessionConfig(mapping=MappingConfig(completion=c))
+    assert SessionConfig.from_dict(cfg.to_dict()).mapping.completion == c

@@ -175,3 +175,7 @@ class CompletionConfig:
                 raise ValueError(f"CompletionConfig.{k} must be ≥ 0")
         if self.fill_rounds < 0:
             raise ValueError("CompletionConfig.fill_rounds must be ≥ 0")
+        if self.gather_margin < 0 or not 0.0 <= self.gather_max_fraction <= 1.0:
+            raise ValueError(
+                "CompletionConfig.gather_margin must be ≥ 0, gather_max_fraction in [0, 1]"
+            )
