@@ -18,7 +18,12 @@ order), every surfel that precedes a Gaussian of ``K`` there, so the weights of 
 full pass's over the whole image (``A₀`` included: no window cuts a footprint). Surfels of
 the sub-scene outside ``K`` may miss what lies in front of them elsewhere: their sums are
 discarded. The sums are accumulated per tile into the same ``[threads, ·]`` rows in the
-same tile order as the full pass, so they are the full pass's bit for bit (tested).
+same tile order as the full pass, so they are the full pass's bit for bit (tested) — as
+long as the full pass walks the image in one band of tiles (its (tile, surfel) pairs ≤
+``RenderConfig.max_duplicates``, 2²⁵: true at 1M surfels and 640 × 480). A full pass split
+into bands hands band-local tile numbers to the CPU sub-launches, so a tile may land in
+another accumulator row and a sum differ in its last float32 bit (one fixed-point unit
+of 2⁻²⁴ pixel).
 
 Which cells a record covers is remembered with it; the completion widens a record's cover
 (re-gathers it) when the selection's neighbourhood outgrows it, and falls back to the full
