@@ -50,7 +50,7 @@ from .tile_walk import ContribSink, launch_walk
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["ContribOutput", "accumulate_contributions"]
+__all__ = ["ContribOutput", "accumulate_contributions", "accumulate_contributions_window"]
 
 
 # --------------------------------------------------------------------------- kernels
@@ -104,6 +104,35 @@ def accumulate_contributions(
     Returns:
         :class:`ContribOutput` on ``buf.device``.
     """
+    return _accumulate(buf, w2c, fx, fy, cx, cy, width, height, positive, settings, binning)
+
+
+def accumulate_contributions_window(
+    buf: SurfelBuffers,
+    w2c: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    positive: np.ndarray,
+    settings: RasterSettings | None,
+    window: tuple[int, int, int, int],
+) -> ContribOutput:
+    """:func:`accumulate_contributions` over the pixels of ``window`` ``(x0, y0, x1, y1)``
+    (half-open) only, as :func:`~kernels.rasterize.rasterize_surfels`' ``window``:
+    surfels whose bounds miss it are culled and bounds are clipped to it, tiles keep
+    their image numbers. So each surfel's weights at the window's pixels are the whole
+    pass's, summed in the same per-thread rows and tile order (while both passes walk the
+    image in one band): a surfel whose footprint lies inside the window gets the whole
+    pass's A₁ / A₀ bit for bit; one reaching beyond it gets only its window's part."""
+    return _accumulate(buf, w2c, fx, fy, cx, cy, width, height, positive, settings, None, window)
+
+
+def _accumulate(
+    buf, w2c, fx, fy, cx, cy, width, height, positive, settings, binning, window=None
+) -> ContribOutput:
     s = settings or RasterSettings()
     dev = buf.device
     n = len(buf)
@@ -117,7 +146,9 @@ def accumulate_contributions(
     cam = (
         binning.cam
         if binning is not None
-        else make_raster_camera(np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near)
+        else make_raster_camera(
+            np.asarray(w2c, dtype=np.float64), fx, fy, cx, cy, W, H, s.near, window
+        )
     )
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H

@@ -14,6 +14,7 @@ from divas_engine.fusion import GridConfig, build_occupancy
 from divas_engine.mapping import CompletionConfig, SurfelMapper
 from divas_engine.mapping.completion import VolumetricCompletion
 from divas_engine.mapping.completion_gather import sparse_contributions
+from divas_engine.segment.graph3d.render_box import screen_box
 
 from .test_completion import CPU, _ball_scene, _divas_like, _views
 
@@ -82,8 +83,11 @@ def test_sparse_sums_equal_the_full_pass(ball):
     scene, labels, parts, grid, act, views = ball
     sp, _ = _pair(ball)
     rows = np.flatnonzero(_cap(labels, parts, act, len(grid), scene)[0])
-    shown = []
+    _, reach = sp._renderer.sparse_index()
+    means = sp._renderer.surfel_buffers.means.numpy()
+    shown, boxes = [], []
     for v in views:
+        boxes.append(screen_box(v.camera, means[rows], reach[rows], sp._renderer._margin_px))
         pos = np.asarray(v.mask) >= 0.5
         full = sp._renderer.contributions(v.camera, pos)
         a1, a0, n_sub = sparse_contributions(sp._renderer, v.camera, pos, rows, 1.0)
@@ -92,6 +96,10 @@ def test_sparse_sums_equal_the_full_pass(ball):
         assert np.array_equal(a0, full.a0.numpy()[rows])
         shown.append(float((a1 + a0).sum()))
     assert max(shown) > 20.0  # the Gaussians do show (pixels of weight)
+    # the pass walked a window smaller than the image in some view (the windowed walk)
+    assert any(
+        isinstance(b, tuple) and (b[2] - b[0]) * (b[3] - b[1]) < 0.5 * 96 * 96 for b in boxes
+    )
     # above the fraction the sparse pass declines (the caller takes the full pass)
     v = views[0]
     pos = np.asarray(v.mask) >= 0.5

@@ -35,9 +35,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from divas_kernels import accumulate_contributions, surfel_rows
+from divas_kernels import accumulate_contributions, accumulate_contributions_window, surfel_rows
 
 from ..camera import Camera
+from ..segment.graph3d.render_box import WHOLE, screen_box
 
 __all__ = ["CoarseCells", "sparse_contributions"]
 
@@ -176,12 +177,19 @@ def sparse_contributions(
     if len(rows) == 0:
         return a1, a0, 0
     blocks, reach = renderer.sparse_index()  # sets the screen margin of the bounds
-    sub = blocks.near(camera, buf.means.numpy()[rows], reach[rows], renderer._margin_px)
+    means = buf.means.numpy()
+    sub = blocks.near(camera, means[rows], reach[rows], renderer._margin_px)
     if len(sub) > max_fraction * n:
         return None
     if len(sub) == 0:
         return a1, a0, 0
-    out = accumulate_contributions(
+    # only the pixels the footprints of ``rows`` can reach are walked (the window holds
+    # each of them whole, so their A₀ too): the tiles the surfels in front spill over
+    # elsewhere are skipped
+    box = screen_box(camera, means[rows], reach[rows], renderer._margin_px + 2.0)
+    if box is None:  # none of them can show
+        return a1, a0, 0
+    args = (
         surfel_rows(buf, sub, colours=False),
         camera.w2c,
         camera.fx,
@@ -193,6 +201,10 @@ def sparse_contributions(
         positive,
         renderer.config.raster_settings(camera),
     )
+    if box == WHOLE:
+        out = accumulate_contributions(*args)
+    else:
+        out = accumulate_contributions_window(*args, box)
     # a Gaussian of ``rows`` outside the sub-scene does not reach the image: weight 0
     pos = np.minimum(np.searchsorted(sub, rows), len(sub) - 1)
     hit = sub[pos] == rows
