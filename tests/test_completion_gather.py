@@ -222,3 +222,39 @@ def test_gather_config():
     c = CompletionConfig(sparse_gather=False, gather_margin=3)
     cfg = SessionConfig(mapping=MappingConfig(completion=c))
     assert SessionConfig.from_dict(cfg.to_dict()).mapping.completion == c
+
+
+def test_window_pass_is_the_full_pass_inside_the_window(ball):
+    """``accumulate_contributions_window``: a surfel whose footprint bound lies inside the
+    window gets the whole pass's A₁ / A₀ bit for bit; one the window cuts gets less; one
+    outside it nothing."""
+    from divas_engine.render.surfel_blocks import ball_pixel_bounds
+    from divas_kernels import accumulate_contributions_window
+
+    scene, labels, parts, grid, act, views = ball
+    sp, _ = _pair(ball)
+    r = sp._renderer
+    _, reach = r.sparse_index()
+    means = r.surfel_buffers.means.numpy()
+    v = views[1]
+    cam, pos = v.camera, np.asarray(v.mask) >= 0.5
+    full = r.contributions(cam, pos)
+    f1, f0 = full.a1.numpy(), full.a0.numpy()
+    box = (20, 16, 70, 80)
+    args = (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos)
+    out = accumulate_contributions_window(
+        r.surfel_buffers, *args, r.config.raster_settings(cam), box
+    )
+    w1, w0 = out.a1.numpy(), out.a0.numpy()
+    lo, hi, front, _ = ball_pixel_bounds(cam, means, reach)
+    m = r._margin_px + 1.0
+    inside = front & (lo[:, 0] - m >= box[0]) & (lo[:, 1] - m >= box[1])
+    inside &= (hi[:, 0] + m < box[2]) & (hi[:, 1] + m < box[3])
+    outside = front & ((hi[:, 0] + m < box[0]) | (lo[:, 0] - m >= box[2]))
+    shown = f1 + f0 > 0
+    assert (inside & shown).sum() > 50 and (outside & shown).sum() > 50
+    assert np.array_equal(w1[inside], f1[inside]) and np.array_equal(w0[inside], f0[inside])
+    assert not (w1 + w0)[outside].any()
+    cut = shown & ~inside & ~outside & (w1 + w0 > 0)
+    assert cut.any() and ((w1 + w0)[cut] <= (f1 + f0)[cut] + 1e-6).all()
+    assert ((w1 + w0)[cut] < (f1 + f0)[cut]).any()
