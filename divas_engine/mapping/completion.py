@@ -462,7 +462,9 @@ class VolumetricCompletion:
         return ok & (self.n_incons[vox] == 0)
 
     def contributions(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(A₁, A₀)`` ``[N]`` float64 summed over the live views (pixels)."""
+        """``(A₁, A₀)`` ``[N]`` float64 summed over the live views (pixels); with
+        ``sparse_gather`` only the Gaussians the records cover (those the last
+        :meth:`complete` read) hold their sums, the others 0."""
         return self.q1 / QSCALE, self.q0 / QSCALE
 
     def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:
