@@ -146,6 +146,7 @@ def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "
             undos.append(time.perf_counter() - t)
         add_ms, undo_ms = 1e3 * float(np.median(adds)), 1e3 * float(np.median(undos))
         comp.add_view(s - 1, views[s - 1])
+        comp.complete(sel, fused.segmented)  # gathers the new records: decide alone below
         decide = median_ms(lambda: comp.complete(sel, fused.segmented), reps)
         res = comp.complete(sel, fused.segmented)
         rows.append(
