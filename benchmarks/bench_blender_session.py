@@ -13,8 +13,10 @@ of the clicked view, measured in the same run (the figure to compare across load
 The clicked anchor is looked through first (as a user does; a lazy anchor renders
 then). Also: the first look through another anchor and the first
 read of the accepted selection's overlay on the view shown next (rendered when first
-drawn). With ``--profile``, a pyinstrument text profile of each step is written to
-OUT_DIR (the evidence of where the add-on's time goes).
+drawn). With ``--profile``, a cProfile text profile of each step (sorted by cumulative
+time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
+``--fixed-colour``, *View-Dependent Colour* is switched off after the import (the display
+then runs its camera-free variant: a click's camera switch does not re-evaluate it).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=1_000_000)
     ap.add_argument("--profile", type=Path, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/divas_bench_scenes"))
+    ap.add_argument("--fixed-colour", action="store_true", help="View-Dependent Colour off")
     args = ap.parse_args()
 
     import bpy  # noqa: I001 - bpy first: addon_utils ships with it
@@ -72,20 +75,25 @@ def main() -> None:
 
     def step(name: str, fn):
         prof = None
-        if args.profile is not None:
-            from pyinstrument import Profiler
-
-            prof = Profiler()
-            prof.start()
         bpy.context.view_layer.update()  # nothing pending from the step before
+        if args.profile is not None:
+            import cProfile
+
+            prof = cProfile.Profile()
+            prof.enable()
         dg[0] = 0.0
         t, c = time.perf_counter(), time.process_time()
         out = fn()
         dt, dc = time.perf_counter() - t, time.process_time() - c
         if prof is not None:
-            prof.stop()
+            import io
+            import pstats
+
+            prof.disable()
             args.profile.mkdir(parents=True, exist_ok=True)
-            (args.profile / f"{name}.txt").write_text(prof.output_text(unicode=True))
+            text = io.StringIO()
+            pstats.Stats(prof, stream=text).sort_stats("cumulative").print_stats(45)
+            (args.profile / f"{name.replace(' ', '_')}.txt").write_text(text.getvalue())
         rows.append((name, dt, dc, dg[0], _rss_gb(), _peak_gb()))
         return out
 
@@ -97,6 +105,12 @@ def main() -> None:
     )
     obj = bpy.context.active_object
     bpy.context.scene.divas.autosave = False
+    if args.fixed_colour:
+        from blender_addon import display
+
+        mod = obj.modifiers[display.MODIFIER]
+        display.set_display_inputs(mod, **{display.DisplayInputs.VIEW_DEPENDENT: False})
+        print(f"display group: {mod.node_group.name}")
     step(
         "start",
         lambda: bpy.ops.divas.start_session(
@@ -139,7 +153,10 @@ def main() -> None:
     ref.render(v.camera)
     render_s, render_cpu = time.perf_counter() - t, time.process_time() - c
     load = os.getloadavg()
-    print(f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3\n")
+    print(
+        f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
+        f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}\n"
+    )
     print(
         f"Reference: one full engine render of the clicked view "
         f"({v.camera.width}×{v.camera.height}) {render_s:.2f} s wall, {render_cpu:.2f} s CPU. "

@@ -30,7 +30,13 @@ splat only after instancing, where the object's rotation is no longer separable 
 the splat's own, and the realised mesh that lets Solid mode show colours keeps only
 the colour; evaluating the SH in Geometry Nodes per splat keeps it exact (the engine's
 own direction) for renders, at the cost of the viewport showing the colours seen from
-the scene camera. *Opacity Threshold* hides splats whose opacity is below it (the
+the scene camera. With *View-Dependent Colour* off (or no SH coefficients on the points)
+the modifier runs the fixed-colour variant "DivAS Splat Display (Fixed Colour)" instead
+(same inputs, the same colour node for node, no *Active Camera* node), so switching the
+scene camera — every click and accept of a session does — does not re-evaluate the
+display (issue 20); :func:`sync_display_group` picks the variant, after every
+:func:`set_display_inputs` and (through a handler) when the input is changed in the
+modifier panel. *Opacity Threshold* hides splats whose opacity is below it (the
 floaters that wall a scene off in Solid mode).
 """
 
@@ -41,12 +47,13 @@ import math
 import bpy
 import numpy as np
 
-from divas_engine.point_attributes import COLOR
+from divas_engine.point_attributes import COLOR, sh_attribute_name
 
 from . import display_nodes
 
 __all__ = [
     "DISPLAY_GROUP",
+    "DISPLAY_GROUP_FIXED",
     "MATERIAL",
     "POINTS_MATERIAL",
     "MODIFIER",
@@ -61,10 +68,14 @@ __all__ = [
     "add_display_modifier",
     "set_display_inputs",
     "display_inputs",
+    "sync_display_group",
+    "display_group_outdated",
     "setup_scene_for_splats",
 ]
 
 DISPLAY_GROUP = "DivAS Splat Display"
+#: the camera-free variant (module docstring): View-Dependent Colour off or no SH.
+DISPLAY_GROUP_FIXED = "DivAS Splat Display (Fixed Colour)"
 MATERIAL = "DivAS Splat"
 POINTS_MATERIAL = "DivAS Points"
 MODIFIER = "DivAS Display"
@@ -159,13 +170,15 @@ def ensure_quad_object() -> bpy.types.Object:
     return obj
 
 
-def ensure_display_group() -> bpy.types.GeometryNodeTree:
-    """The display node group (module docstring), rebuilt in place when outdated."""
-    ng = bpy.data.node_groups.get(DISPLAY_GROUP)
+def ensure_display_group(view_dependent: bool = True) -> bpy.types.GeometryNodeTree:
+    """The display node group (module docstring), rebuilt in place when outdated;
+    ``view_dependent=False``: the fixed-colour variant without a camera dependency."""
+    name = DISPLAY_GROUP if view_dependent else DISPLAY_GROUP_FIXED
+    ng = bpy.data.node_groups.get(name)
     if ng is not None and not _outdated(ng):
         return ng
     if ng is None:
-        ng = bpy.data.node_groups.new(DISPLAY_GROUP, "GeometryNodeTree")
+        ng = bpy.data.node_groups.new(name, "GeometryNodeTree")
     else:
         ng.nodes.clear()
         ng.interface.clear()
@@ -177,8 +190,48 @@ def ensure_display_group() -> bpy.types.GeometryNodeTree:
         quad=ensure_quad_object(),
         tint=SELECTED_TINT,
         version=VERSION,
+        view_dependent=view_dependent,
     )
     return ng
+
+
+def _wants_view_dependent(mod) -> bool:
+    """Whether ``mod`` needs the camera: View-Dependent Colour on and SH on the points
+    (the view-dependent group shows the DC colour otherwise)."""
+    ident = _input_ids(mod).get(DisplayInputs.VIEW_DEPENDENT)
+    on = mod.get(ident) if ident is not None else None
+    if on is not None and not on:
+        return False
+    data = getattr(mod.id_data, "data", None)
+    attrs = getattr(data, "attributes", None)
+    return attrs is not None and attrs.get(sh_attribute_name(1)) is not None
+
+
+def _is_ours(mod) -> bool:
+    ng = mod.node_group if mod is not None and mod.type == "NODES" else None
+    return ng is not None and ng.name in (DISPLAY_GROUP, DISPLAY_GROUP_FIXED)
+
+
+def display_group_outdated(mod) -> bool:
+    """``mod`` runs one of the display groups, not the one its inputs call for."""
+    if not _is_ours(mod):
+        return False
+    return (mod.node_group.name == DISPLAY_GROUP) != _wants_view_dependent(mod)
+
+
+def sync_display_group(mod) -> bool:
+    """Give ``mod`` the display variant its inputs call for (module docstring), keeping
+    every input value; returns whether the group changed. A user's own group is left."""
+    if not display_group_outdated(mod):
+        return False
+    values = {k: v for k, v in display_inputs(mod).items() if v is not None}
+    mod.node_group = ensure_display_group(mod.node_group.name != DISPLAY_GROUP)
+    ids = _input_ids(mod)
+    for name, value in values.items():
+        if name in ids:
+            mod[ids[name]] = value
+    mod.id_data.update_tag()
+    return True
 
 
 def _input_ids(mod) -> dict[str, str]:
@@ -197,6 +250,7 @@ def set_display_inputs(mod, **values) -> None:
         if name not in ids:
             raise KeyError(f"the display group has no input {name!r}")
         mod[ids[name]] = tuple(value) if isinstance(value, list | tuple) else value
+    sync_display_group(mod)
     mod.node_group.interface_update(bpy.context)
     mod.id_data.update_tag()
 

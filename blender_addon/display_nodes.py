@@ -3,7 +3,11 @@
 Geometry Nodes group, per splat (fields on the imported point cloud ``P``):
 
 1. ``d = normalize(position − camera)``, the camera from *Active Camera* through *Object
-   Info* (Relative), i.e. in the object's own (file) frame.
+   Info* (Relative), i.e. in the object's own (file) frame. Only in the view-dependent
+   group: the *fixed-colour* variant (``view_dependent=False``) has no camera node at
+   all, so a change of scene camera does not re-evaluate the modifier (issue 20: 0.7 CPU
+   s per camera switch at 3M points); its colour is the same ``max(divas_color, 0)``
+   nodes the view-dependent group switches to when the SH are off or absent.
 2. Colour: ``divas_color`` is linear; with view-dependent colour it is re-encoded to
    sRGB (the SH DC colour), the ``divas_sh_k`` codes are decoded (``(c − 128)/127 ·
    range_band``) and added as ``Y_k(d) c_k`` (:data:`divas_engine.sh_rotation.
@@ -244,18 +248,13 @@ def _sh_colour_group(version):
     )
 
 
-def _shade_field(b: NodeBuilder, gin, tint, version):
-    """The display colour field on ``P`` (module docstring, step 2) and opacity."""
+def _view_dependent_rgb(b: NodeBuilder, gin, lin_dc, version):
+    """The SH colour along the direction from the scene camera (module docstring, steps
+    1–2), or ``max(lin_dc, 0)`` when *View-Dependent Colour* is off or there are no SH."""
     cam = b.node("GeometryNodeInputActiveCamera")
     info = b.node("GeometryNodeObjectInfo", {"Object": b.out(cam, 0)}, transform_space="RELATIVE")
     pos = b.out(b.node("GeometryNodeInputPosition"), 0)
     d = b.vmath("NORMALIZE", b.vmath("SUBTRACT", pos, b.out(info, "Location")))
-    color, _ = _named(b, COLOR, "FLOAT_COLOR")
-    sep = b.node("FunctionNodeSeparateColor", {0: color})
-    lin_dc = b.node(
-        "ShaderNodeCombineXYZ",
-        {0: b.out(sep, "Red"), 1: b.out(sep, "Green"), 2: b.out(sep, "Blue")},
-    ).outputs[0]
     sh = _call(b, _sh_colour_group(version), {"Direction": d, "SH Range": b.out(gin, "SH Range")})
     dc = b.out(_call(b, _srgb_encode_group(version), {"Vector": lin_dc}), 0)
     shown = b.vmath("MAXIMUM", b.vmath("ADD", dc, b.out(sh, "Vector")), (0.0,) * 3)
@@ -274,6 +273,22 @@ def _shade_field(b: NodeBuilder, gin, tint, version):
         },
         input_type="VECTOR",
     ).outputs[0]
+    return rgb
+
+
+def _shade_field(b: NodeBuilder, gin, tint, version, view_dependent: bool):
+    """The display colour field on ``P`` (module docstring, step 2) and opacity; without
+    ``view_dependent`` no node reads the scene camera."""
+    color, _ = _named(b, COLOR, "FLOAT_COLOR")
+    sep = b.node("FunctionNodeSeparateColor", {0: color})
+    lin_dc = b.node(
+        "ShaderNodeCombineXYZ",
+        {0: b.out(sep, "Red"), 1: b.out(sep, "Green"), 2: b.out(sep, "Blue")},
+    ).outputs[0]
+    if view_dependent:
+        rgb = _view_dependent_rgb(b, gin, lin_dc, version)
+    else:  # the view-dependent group's "False" branch, node for node
+        rgb = b.vmath("MAXIMUM", lin_dc, (0.0,) * 3)
     selected, _ = _named(b, SELECTED, "BOOLEAN")
     mix = b.node(
         "ShaderNodeMix",
@@ -293,8 +308,11 @@ def _shade_field(b: NodeBuilder, gin, tint, version):
     return b.out(out, "Color"), b.out(sep, "Alpha")
 
 
-def build_display_group(ng, *, splat_material, points_material, quad, tint, version) -> None:
-    """Fill the (empty) Geometry Nodes group ``ng`` (module docstring)."""
+def build_display_group(
+    ng, *, splat_material, points_material, quad, tint, version, view_dependent: bool = True
+) -> None:
+    """Fill the (empty) Geometry Nodes group ``ng`` (module docstring); without
+    ``view_dependent`` the fixed-colour variant (no camera dependency, same inputs)."""
     ng.is_modifier = True
     _interface(ng)
     b = NodeBuilder(ng)
@@ -311,7 +329,7 @@ def build_display_group(ng, *, splat_material, points_material, quad, tint, vers
         )
         return b.out(n, "Value")
 
-    shade, opacity = _shade_field(b, gin, tint, version)
+    shade, opacity = _shade_field(b, gin, tint, version, view_dependent)
     count = b.out(
         b.node("GeometryNodeAttributeDomainSize", {0: geo}, component="POINTCLOUD"), "Point Count"
     )

@@ -10,6 +10,9 @@
 * ``depsgraph_update_post`` — when the scene camera or the active object becomes an
   anchor camera whose view is not rendered yet (anchors render lazily, issue 20), a
   one-shot timer renders it (ID data cannot be written while the depsgraph updates);
+  and when an updated object's display modifier runs the wrong colour variant (its
+  *View-Dependent Colour* was toggled in the modifier panel), a one-shot timer swaps it
+  (:func:`.display.sync_display_group`: no camera dependency with the SH colour off);
 * ``render_pre`` — no display-space decode for Workbench renders
   (:func:`.blend_space.on_render_pre`).
 
@@ -23,11 +26,17 @@ import sys
 import bpy
 from bpy.app.handlers import persistent
 
-from . import blend_space, draw, session_registry
+from . import blend_space, display, draw, session_registry
 from .session_actions import files, sync_after_undo
 from .session_actions.view_cameras import cameras_needing_background, fill_backgrounds
 
-__all__ = ["register", "unregister", "on_undo_redo", "request_background_fill"]
+__all__ = [
+    "register",
+    "unregister",
+    "on_undo_redo",
+    "request_background_fill",
+    "request_display_sync",
+]
 
 
 def _fill_timer() -> None:
@@ -54,9 +63,41 @@ def request_background_fill(context=None) -> bool:
     return True
 
 
+_pending_display: set[str] = set()
+
+
+def _display_timer() -> None:
+    names = sorted(_pending_display)
+    _pending_display.clear()
+    for name in names:
+        obj = bpy.data.objects.get(name)
+        mod = obj.modifiers.get(display.MODIFIER) if obj is not None else None
+        try:
+            display.sync_display_group(mod)
+        except (AttributeError, ReferenceError, KeyError) as e:
+            print(f"DivAS: could not switch the display of {name!r} ({e})", file=sys.stderr)
+    return None  # one shot
+
+
+def request_display_sync(depsgraph) -> bool:
+    """Schedule :func:`.display.sync_display_group` for the updated objects whose display
+    modifier runs the wrong variant; returns whether one was scheduled."""
+    for u in getattr(depsgraph, "updates", ()):
+        obj = u.id.original if isinstance(u.id, bpy.types.Object) else None
+        mod = obj.modifiers.get(display.MODIFIER) if obj is not None else None
+        if mod is not None and display.display_group_outdated(mod):
+            _pending_display.add(obj.name)
+    if not _pending_display or bpy.app.timers.is_registered(_display_timer):
+        return False
+    bpy.app.timers.register(_display_timer, first_interval=0.0)
+    return True
+
+
 @persistent
-def _on_depsgraph_update(*_args) -> None:
+def _on_depsgraph_update(_scene=None, depsgraph=None, *_args) -> None:
     request_background_fill()
+    if depsgraph is not None:
+        request_display_sync(depsgraph)
 
 
 @persistent
