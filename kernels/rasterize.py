@@ -233,6 +233,8 @@ def preprocess_kernel(
     with_color: int,
     cam: RasterCamera,
     inv_var: float,
+    rows: wp.array(dtype=wp.int32),
+    use_rows: int,
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
     colors: wp.array2d(dtype=float),
@@ -240,8 +242,12 @@ def preprocess_kernel(
     stride: int,
 ):
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
-    splat and the colour only for surfels that are not culled)."""
-    i = base + wp.tid() * stride
+    splat and the colour only for surfels that are not culled). With ``use_rows``,
+    item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel)."""
+    j = base + wp.tid() * stride
+    i = j
+    if use_rows != 0:
+        i = rows[j]
     mu = means[i]
     pc = cam.R * mu + cam.t
     a = cam.R * tu[i]
@@ -307,10 +313,10 @@ def preprocess_kernel(
         # culled: left out of the depth order and never read again (binning, blending
         # and every other pass read only the visible splats), so neither its splat nor
         # its SH colour is written (issue 20: most surfels of a zoomed view)
-        sort_keys[i] = BIG
+        sort_keys[j] = BIG
         return
-    splats[i] = sp
-    sort_keys[i] = sp.depth
+    splats[j] = sp
+    sort_keys[j] = sp.depth
     if with_color != 0:
         d = wp.normalize(mu - cam.center)
         col = eval_sh(sh, i, sh_degree, d)
@@ -373,15 +379,18 @@ def project_splats(
     inv_var: float,
     colors: wp.array | None,
     threads: int,
+    rows: wp.array | None = None,
 ) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
     into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
+    ``rows``: only these surfels (int32, ascending; every other one must be culled).
 
-    Returns ``(splats [N], keys [N])``: the depth keys, +inf (``BIG``) for culled surfels,
-    whose ``splats`` and ``colors`` entries are left unset (only the visible ones are
-    read: :func:`kernels.tile_binning.sort_visible`, then ``visible_splats``).
+    Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
+    (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
+    (only the visible ones are read: :func:`kernels.tile_binning.sort_visible`, then
+    ``visible_splats``).
     """
-    n = len(buf)
+    n = len(buf) if rows is None else rows.shape[0]
     dev = buf.device
     splats = wp.empty(n, dtype=Splat, device=dev)
     keys = wp.empty(n, dtype=float, device=dev)
@@ -400,6 +409,8 @@ def project_splats(
             with_color,
             cam,
             inv_var,
+            rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev),
+            0 if rows is None else 1,
             splats,
             keys,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
@@ -473,6 +484,7 @@ def rasterize_surfels(
     binning: ViewBinning | None = None,
     keep_binning: bool = False,
     window: tuple[int, int, int, int] | None = None,
+    rows: np.ndarray | None = None,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -489,6 +501,9 @@ def rasterize_surfels(
             its pixels equal the whole image's bit for bit at the cost of the window
             (issue 20: the centroid-view probes read a central patch). Pixels outside it
             are not rendered (partial or empty): read only the window. None: the image.
+        rows: ascending surfel indices, a superset of those the view keeps: only they are
+            projected (the others would be culled; the survivors keep their index order
+            for the stable depth sort): the same render at the rows' cost (issue 20).
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -541,11 +556,12 @@ def rasterize_surfels(
             return RasterOutput(out, W, H, stats)
         tm = _Timer(s.profile, stats)
         if binning is None:
-            splats, keys = project_splats(buf, cam, inv_var, feat if rgb else None, threads)
+            rws = None if rows is None else wp.array(np.asarray(rows, np.int32), dtype=wp.int32)
+            splats, keys = project_splats(buf, cam, inv_var, feat if rgb else None, threads, rws)
             tm.lap("preprocess")
-            order, n_vis = sort_visible(keys, n, dev, threads)
-            splats, ids = visible_splats(splats, order, n_vis, dev, threads)
-            del keys, order  # the full-size arrays are not kept
+            order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
+            splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
+            del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
             binning = ViewBinning(key, cam, splats, ids, n_vis, None, feat if rgb else None, {})
             bands = tile_bands(

@@ -154,6 +154,8 @@ def sort_visible(keys: wp.array, n: int, dev, threads: int) -> tuple[wp.array, i
 def _gather_kernel(
     splats: wp.array(dtype=Splat),
     order: wp.array(dtype=wp.int32),
+    rows: wp.array(dtype=wp.int32),
+    use_rows: int,
     out: wp.array(dtype=Splat),
     ids: wp.array(dtype=wp.int32),
     base: int,
@@ -162,18 +164,26 @@ def _gather_kernel(
     j = base + wp.tid() * stride
     i = order[j]
     out[j] = splats[i]
-    ids[j] = i
+    if use_rows != 0:
+        ids[j] = rows[i]
+    else:
+        ids[j] = i
 
 
-def visible_splats(splats: wp.array, order: wp.array, n_vis: int, dev, threads: int):
+def visible_splats(
+    splats: wp.array, order: wp.array, n_vis: int, dev, threads: int, rows: wp.array | None = None
+):
     """``(splats [n_vis], ids [n_vis])``: the visible prefix of the depth order ``order``
-    gathered by depth rank ``j`` (``ids[j]`` its surfel index). Binning and walks read
-    these, so a kept view holds only its visible splats (issue 20: a third of a 3M
-    scene's 92-byte splats in a centroid view) and reads them in order."""
+    gathered by depth rank ``j`` (``ids[j]`` its surfel index: ``rows[order[j]]`` when the
+    splats are those of the surfels ``rows``). Binning and walks read these, so a kept
+    view holds only its visible splats (issue 20: a third of a 3M scene's 92-byte splats
+    in a centroid view) and reads them in order."""
     out = wp.empty(max(n_vis, 1), dtype=Splat, device=dev)
     ids = wp.empty(max(n_vis, 1), dtype=wp.int32, device=dev)
     if n_vis > 0:
-        launch_split(_gather_kernel, n_vis, [splats, order, out, ids], dev, threads)
+        use = 0 if rows is None else 1
+        r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
+        launch_split(_gather_kernel, n_vis, [splats, order, r, use, out, ids], dev, threads)
     return out, ids
 
 

@@ -60,12 +60,14 @@ class SurfelBlocks:
     Attributes:
         order: ``[N]`` surfel rows sorted by block; start: ``[B+1]`` each block's slice.
         centre, radius: ``[B,3]``, ``[B]`` each block's ball (centres and footprints).
+        block: ``[N]`` int32, each surfel's block (None: not built).
     """
 
     order: np.ndarray
     start: np.ndarray
     centre: np.ndarray
     radius: np.ndarray
+    block: np.ndarray | None = None
 
     @classmethod
     def build(cls, means: np.ndarray, reach: np.ndarray) -> SurfelBlocks:
@@ -93,7 +95,32 @@ class SurfelBlocks:
         # float32 positions and rounding: a relative and an absolute sliver
         scale = float(np.abs(p).max()) + 1.0
         radius = far * (1.0 + 1e-4) + 1e-5 * scale
-        return cls(order.astype(np.int64), start, centre, radius)
+        block = np.empty(len(order), np.int32)
+        block[order] = blk
+        return cls(order.astype(np.int64), start, centre, radius, block)
+
+    def in_window(
+        self, camera: Camera, window: tuple[int, int, int, int], margin_px: float
+    ) -> np.ndarray:
+        """Ascending rows of the surfels of every block whose ball can reach a pixel of
+        ``window`` (``x0, y0, x1, y1`` half-open pixels of ``camera``'s image) — a
+        superset of the surfels a render of that window does not cull (issue 20: a
+        zoomed centroid view or a probe's central patch meets a few blocks, and only
+        their surfels need projecting). A ball wholly behind the camera plane is left
+        out (its surfels lie behind the near plane); one reaching the plane is kept.
+        Bounds are widened by ``margin_px`` (the low-pass disc), a pixel of rounding and
+        the rasterizer's slivers."""
+        lo, hi, front, cut = ball_pixel_bounds(camera, self.centre, self.radius)
+        m = margin_px + 2e-4 * (np.abs(lo) + np.abs(hi))
+        a, b = lo - m, hi + m
+        x0, y0, x1, y1 = window
+        on = front & (b[:, 0] >= x0 - 1) & (a[:, 0] <= x1 + 1)
+        on &= (b[:, 1] >= y0 - 1) & (a[:, 1] <= y1 + 1)
+        keep = on | cut
+        if self.block is None:
+            parts = [self.order[self.start[k] : self.start[k + 1]] for k in np.flatnonzero(keep)]
+            return np.sort(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+        return np.flatnonzero(keep[self.block])
 
     def near(
         self, camera: Camera, points: np.ndarray, reach: np.ndarray, margin_px: float

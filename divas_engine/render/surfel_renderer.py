@@ -87,6 +87,9 @@ class SurfelRenderer:
         keep = keep and window is None and self.binning_cache > 0
         if keep and hit is None:
             self._make_room()
+        rows = None
+        if hit is None and self.device.is_cpu and (window is not None or self._blocks is not None):
+            rows = self._candidates(cam, window)
         r = rasterize_surfels(
             self._buf,
             *_projection(cam),
@@ -97,6 +100,7 @@ class SurfelRenderer:
             binning=hit,
             keep_binning=keep,
             window=window,
+            rows=rows,
         )
         b = r.binning
         if b is not None:
@@ -109,6 +113,21 @@ class SurfelRenderer:
                 self._binnings.append(x)
             r.binning = None
         return r
+
+    #: block culling is skipped when it keeps more than this fraction of the surfels
+    block_cull_max_fraction: float = 0.85
+
+    def _candidates(self, cam: Camera, window) -> np.ndarray | None:
+        """The surfels of the scene blocks that can reach ``window`` of ``cam`` (the
+        image when None; :meth:`SurfelBlocks.in_window`), or None when that is most of
+        the scene. Projecting only them renders the same image bit for bit (issue 20:
+        a centroid view and its probes see a small part of the scene). CPU only."""
+        if self.num_primitives == 0:
+            return None
+        blocks, _ = self.sparse_index()
+        win = pixel_window(window, cam.width, cam.height)
+        rows = blocks.in_window(cam, win, self._margin_px)
+        return None if len(rows) > self.block_cull_max_fraction * self.num_primitives else rows
 
     def _make_room(self) -> None:
         """Before a render whose binning will be kept: drop the oldest kept binnings that

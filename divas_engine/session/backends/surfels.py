@@ -98,6 +98,10 @@ class SurfelBackend(SessionBackend):
                 self._state_error = e
         if self._state is not None:
             self.planner._opaque_centres()
+            # the block index the renderer culls zoomed views and probes with (issue 20)
+            index = getattr(self.renderer, "sparse_index", None)
+            if index is not None:
+                index()
 
     def warm_up(self) -> None:
         if self._warm is None and self._state is None:
