@@ -57,10 +57,9 @@ from .splat import (
     Splat,
     conic_range,
     make_raster_camera,
-    pixel_window,
     splat_plane_rows,
 )
-from .tile_binning import sort_visible, tile_bands, visible_splats
+from .tile_binning import ViewBinning, binning_key, sort_visible, tile_bands, visible_splats
 from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
@@ -419,52 +418,6 @@ def project_splats(
         threads,
     )
     return splats, keys
-
-
-@dataclass(eq=False)
-class ViewBinning:
-    """Projection, culling, depth order and tile binning of one view, reusable by every
-    later pass over the same camera, settings and scene (issue 20: the RGB/depth render
-    and the value renders of a camera share them; the results are bit-identical, the
-    same kernels running on the same inputs).
-
-    Attributes:
-        key: what the binning depends on (scene buffers, camera, settings).
-        splats, ids: the visible splats in depth order and their surfel indices
-            (:func:`kernels.tile_binning.visible_splats`; only these are kept).
-        n_visible: how many surfels are not culled (:func:`~kernels.tile_binning.sort_visible`).
-        bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
-            fits in one band, else None (each pass re-bins band by band: bounded memory).
-        colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
-        stats: pairs and bands.
-    """
-
-    key: tuple
-    cam: RasterCamera
-    splats: wp.array
-    ids: wp.array
-    n_visible: int
-    bands: list | None
-    colors: wp.array | None
-    stats: dict
-
-    @property
-    def nbytes(self) -> int:
-        arrs = [self.splats, self.ids, self.colors]
-        for b in self.bands or ():
-            arrs += [b[2], b[3], b[4]]
-        return sum(a.capacity for a in arrs if a is not None)
-
-
-def binning_key(
-    buf: SurfelBuffers, w2c, fx, fy, cx, cy, W, H, s: RasterSettings, window=None
-) -> tuple:
-    """What a :class:`ViewBinning` depends on (the blend-only settings excluded)."""
-    w = np.ascontiguousarray(w2c, dtype=np.float64).tobytes()
-    geo = (float(fx), float(fy), float(cx), float(cy), int(W), int(H))
-    geo += pixel_window(window, W, H)
-    cfg = (float(s.near), float(s.lowpass_sigma), int(s.tile), int(s.max_duplicates))
-    return (id(buf), w, geo, cfg)
 
 
 def rasterize_surfels(

@@ -26,7 +26,8 @@ from ..camera import Camera
 
 __all__ = ["SurfelBlocks", "ball_pixel_bounds"]
 
-_BLOCKS_PER_SIDE = 32
+_BLOCKS_PER_SIDE = 64
+_REACH_CLASSES = 4  # footprint classes: ≤ 4×, ≤ 16×, ≤ 64×, more than the median's
 _TILE = 8  # pixels per side of the depth map's tiles
 
 
@@ -76,10 +77,22 @@ class SurfelBlocks:
         if len(p) == 0:
             z = np.zeros(0)
             return cls(np.zeros(0, np.int64), np.zeros(1, np.int64), z.reshape(0, 3), z)
-        lo, hi = p.min(axis=0), p.max(axis=0)
         g = _BLOCKS_PER_SIDE
-        cell = np.clip(((p - lo) / np.maximum(hi - lo, 1e-12) * g).astype(np.int64), 0, g - 1)
-        key = cell[:, 0] + g * (cell[:, 1] + g * cell[:, 2])
+        # cells cut at each axis's quantiles (a dense object inside a large backdrop gets
+        # many small blocks), and split by footprint class (a few huge backdrop surfels
+        # would otherwise widen the balls of the blocks they share with small ones)
+        q = np.linspace(0.0, 1.0, g + 1)[1:-1]
+        key = np.zeros(len(p), np.int64)
+        for k in (2, 1, 0):
+            edges = np.quantile(p[:, k], q)
+            key = key * g + np.searchsorted(edges, p[:, k], side="right")
+        r = np.asarray(reach, np.float64)
+        med = float(np.median(r[r > 0])) if np.any(r > 0) else 1.0
+        with np.errstate(divide="ignore"):
+            cls_ = np.clip(
+                np.floor(np.log2(np.maximum(r, 1e-300) / med) / 2), 0, _REACH_CLASSES - 1
+            )
+        key += g**3 * cls_.astype(np.int64)
         order = np.argsort(key, kind="stable")
         ks = key[order]
         first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
@@ -116,11 +129,16 @@ class SurfelBlocks:
         x0, y0, x1, y1 = window
         on = front & (b[:, 0] >= x0 - 1) & (a[:, 0] <= x1 + 1)
         on &= (b[:, 1] >= y0 - 1) & (a[:, 1] <= y1 + 1)
-        keep = on | cut
-        if self.block is None:
-            parts = [self.order[self.start[k] : self.start[k + 1]] for k in np.flatnonzero(keep)]
+        return self._rows(np.flatnonzero(on | cut))
+
+    def _rows(self, keep: np.ndarray) -> np.ndarray:
+        """Ascending rows of the surfels of the blocks ``keep`` (block indices)."""
+        if self.block is None or len(keep) < 64:
+            parts = [self.order[self.start[k] : self.start[k + 1]] for k in keep]
             return np.sort(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
-        return np.flatnonzero(keep[self.block])
+        mask = np.zeros(len(self.start) - 1, bool)
+        mask[keep] = True
+        return np.flatnonzero(mask[self.block])
 
     def near(
         self, camera: Camera, points: np.ndarray, reach: np.ndarray, margin_px: float
@@ -146,8 +164,7 @@ class SurfelBlocks:
         keep = np.flatnonzero(self._needed(camera, self.centre, self.radius, zmap, margin_px))
         if len(keep) == 0:
             return np.zeros(0, np.int64)
-        parts = [self.order[self.start[b] : self.start[b + 1]] for b in keep]
-        return np.sort(np.concatenate(parts))
+        return self._rows(keep)
 
     def _needed(
         self,
