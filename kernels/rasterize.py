@@ -59,7 +59,14 @@ from .splat import (
     make_raster_camera,
     splat_plane_rows,
 )
-from .tile_binning import ViewBinning, binning_key, sort_visible, tile_bands, visible_splats
+from .tile_binning import (
+    ViewBinning,
+    binning_key,
+    sort_visible,
+    take_rows,
+    tile_bands,
+    visible_splats,
+)
 from .tile_walk import BlendSink, launch_walk
 
 # forward only: no adjoint code (halves compile time)
@@ -92,6 +99,10 @@ class RasterSettings:
         tile: tile edge in pixels.
         max_duplicates: soft cap on (tile, surfel) pairs held at once (bands above it).
         blend: ``"auto"`` (``tile`` on CPU, ``pixel`` on CUDA), ``"tile"`` or ``"pixel"``.
+        cull_pass_min: from this many projected surfels on, culling is a pass of its own
+            (sort keys only) and only the visible surfels are projected, in depth order:
+            no splat buffer of the scene's size (92 bytes a surfel; issue 20: the render
+            peak at 3M); the same render, at one more pass over the culled ones.
         threads: CPU launch threads (None: all usable cores).
         profile: synchronise after each stage and record stage seconds in ``stats``.
     """
@@ -106,6 +117,7 @@ class RasterSettings:
     tile: int = RD.TILE
     max_duplicates: int = RD.MAX_DUPLICATES
     blend: str = RD.BLEND
+    cull_pass_min: int = 2_000_000
     threads: int | None = None
     profile: bool = False
 
@@ -234,6 +246,7 @@ def preprocess_kernel(
     inv_var: float,
     rows: wp.array(dtype=wp.int32),
     use_rows: int,
+    write_splat: int,
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
     colors: wp.array2d(dtype=float),
@@ -242,7 +255,8 @@ def preprocess_kernel(
 ):
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
     splat and the colour only for surfels that are not culled). With ``use_rows``,
-    item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel)."""
+    item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel);
+    ``write_splat`` 0: the sort key only (the culling pass)."""
     j = base + wp.tid() * stride
     i = j
     if use_rows != 0:
@@ -314,6 +328,9 @@ def preprocess_kernel(
         # its SH colour is written (issue 20: most surfels of a zoomed view)
         sort_keys[j] = BIG
         return
+    if write_splat == 0:
+        sort_keys[j] = sp.depth
+        return
     splats[j] = sp
     sort_keys[j] = sp.depth
     if with_color != 0:
@@ -379,19 +396,23 @@ def project_splats(
     colors: wp.array | None,
     threads: int,
     rows: wp.array | None = None,
+    count: int | None = None,
+    write_splats: bool = True,
 ) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
     into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
-    ``rows``: only these surfels (int32, ascending; every other one must be culled).
+    ``rows``: only these surfels (int32, their first ``count``; ascending, every other
+    one culled — or the visible ones in depth order). ``write_splats`` False: the keys
+    only (``splats`` is a placeholder).
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
     (only the visible ones are read: :func:`kernels.tile_binning.sort_visible`, then
     ``visible_splats``).
     """
-    n = len(buf) if rows is None else rows.shape[0]
+    n = len(buf) if rows is None else (rows.shape[0] if count is None else int(count))
     dev = buf.device
-    splats = wp.empty(n, dtype=Splat, device=dev)
+    splats = wp.empty(n if write_splats else 1, dtype=Splat, device=dev)
     keys = wp.empty(n, dtype=float, device=dev)
     with_color = 0 if colors is None else 1
     launch_split(
@@ -410,6 +431,7 @@ def project_splats(
             inv_var,
             rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev),
             0 if rows is None else 1,
+            int(write_splats),
             splats,
             keys,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
@@ -510,10 +532,19 @@ def rasterize_surfels(
         tm = _Timer(s.profile, stats)
         if binning is None:
             rws = None if rows is None else wp.array(np.asarray(rows, np.int32), dtype=wp.int32)
-            splats, keys = project_splats(buf, cam, inv_var, feat if rgb else None, threads, rws)
-            tm.lap("preprocess")
-            order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
-            splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
+            cols = feat if rgb else None
+            if (n if rws is None else rws.shape[0]) < s.cull_pass_min:
+                splats, keys = project_splats(buf, cam, inv_var, cols, threads, rws)
+                tm.lap("preprocess")
+                order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
+                splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
+            else:  # cull first (keys only), then project the visible ones in depth order
+                _, keys = project_splats(buf, cam, inv_var, None, threads, rws, write_splats=False)
+                order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
+                ids = take_rows(rws, order, n_vis, dev, threads)
+                keys = order = None  # freed before the splats are allocated
+                splats, keys = project_splats(buf, cam, inv_var, cols, threads, ids, n_vis)
+                tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
             binning = ViewBinning(key, cam, splats, ids, n_vis, None, feat if rgb else None, {})

@@ -26,6 +26,7 @@ __all__ = [
     "band_tiles",
     "binning_key",
     "sort_visible",
+    "take_rows",
     "tile_bands",
     "visible_splats",
 ]
@@ -179,6 +180,33 @@ def _gather_kernel(
         ids[j] = i
 
 
+@wp.kernel
+def _take_kernel(
+    rows: wp.array(dtype=wp.int32),
+    use_rows: int,
+    order: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    base: int,
+    stride: int,
+):
+    j = base + wp.tid() * stride
+    if use_rows != 0:
+        ids[j] = rows[order[j]]
+    else:
+        ids[j] = order[j]
+
+
+def take_rows(rows: wp.array | None, order: wp.array, n_vis: int, dev, threads: int) -> wp.array:
+    """``ids [n_vis]``: the surfel indices of the visible prefix of the depth order
+    ``order`` (``rows[order[j]]`` when the keys were those of the surfels ``rows``)."""
+    ids = wp.empty(max(n_vis, 1), dtype=wp.int32, device=dev)
+    if n_vis > 0:
+        use = 0 if rows is None else 1
+        r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
+        launch_split(_take_kernel, n_vis, [r, use, order, ids], dev, threads)
+    return ids
+
+
 def visible_splats(
     splats: wp.array, order: wp.array, n_vis: int, dev, threads: int, rows: wp.array | None = None
 ):
@@ -295,9 +323,7 @@ class ViewBinning:
         return sum(a.capacity for a in arrs if a is not None)
 
 
-def binning_key(
-    buf, w2c, fx, fy, cx, cy, W, H, s, window=None
-) -> tuple:
+def binning_key(buf, w2c, fx, fy, cx, cy, W, H, s, window=None) -> tuple:
     """What a :class:`ViewBinning` depends on (the blend-only settings excluded)."""
     w = np.ascontiguousarray(w2c, dtype=np.float64).tobytes()
     geo = (float(fx), float(fy), float(cx), float(cy), int(W), int(H))

@@ -27,6 +27,7 @@ from ..camera import Camera
 __all__ = ["SurfelBlocks", "ball_pixel_bounds"]
 
 _BLOCKS_PER_SIDE = 64
+_CHUNK = 1 << 18  # surfels per chunk of the index's per-surfel passes
 _REACH_CLASSES = 4  # footprint classes: ≤ 4×, ≤ 16×, ≤ 64×, more than the median's
 _TILE = 8  # pixels per side of the depth map's tiles
 
@@ -73,40 +74,55 @@ class SurfelBlocks:
     @classmethod
     def build(cls, means: np.ndarray, reach: np.ndarray) -> SurfelBlocks:
         """Blocks of ``means [N,3]`` with footprint radii ``reach [N]``."""
-        p = np.asarray(means, np.float64)
-        if len(p) == 0:
+        m = np.asarray(means)
+        n = len(m)
+        if n == 0:
             z = np.zeros(0)
             return cls(np.zeros(0, np.int64), np.zeros(1, np.int64), z.reshape(0, 3), z)
         g = _BLOCKS_PER_SIDE
         # cells cut at each axis's quantiles (a dense object inside a large backdrop gets
         # many small blocks), and split by footprint class (a few huge backdrop surfels
-        # would otherwise widen the balls of the blocks they share with small ones)
+        # would otherwise widen the balls of the blocks they share with small ones).
+        # Per axis and in chunks: the transient memory stays a few [N] arrays (issue 20)
         q = np.linspace(0.0, 1.0, g + 1)[1:-1]
-        key = np.zeros(len(p), np.int64)
+        key = np.zeros(n, np.int64)
         for k in (2, 1, 0):
-            edges = np.quantile(p[:, k], q)
-            key = key * g + np.searchsorted(edges, p[:, k], side="right")
+            x = m[:, k].astype(np.float64)
+            key *= g
+            key += np.searchsorted(np.quantile(x, q), x, side="right")
+        del x
         r = np.asarray(reach, np.float64)
-        med = float(np.median(r[r > 0])) if np.any(r > 0) else 1.0
-        with np.errstate(divide="ignore"):
-            cls_ = np.clip(
-                np.floor(np.log2(np.maximum(r, 1e-300) / med) / 2), 0, _REACH_CLASSES - 1
-            )
-        key += g**3 * cls_.astype(np.int64)
+        pos = r > 0
+        med = float(np.median(r[pos])) if np.any(pos) else 1.0
+        del pos
+        for c in range(0, n, _CHUNK):
+            rc = r[c : c + _CHUNK]
+            with np.errstate(divide="ignore"):
+                cl = np.clip(
+                    np.floor(np.log2(np.maximum(rc, 1e-300) / med) / 2), 0, _REACH_CLASSES - 1
+                )
+            key[c : c + _CHUNK] += g**3 * cl.astype(np.int64)
         order = np.argsort(key, kind="stable")
-        ks = key[order]
-        first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
-        start = np.r_[first, len(order)].astype(np.int64)
-        ps = p[order]
-        counts = np.diff(start)
-        blk = np.repeat(np.arange(len(first)), counts)
-        bmin = np.minimum.reduceat(ps, first, axis=0)
-        bmax = np.maximum.reduceat(ps, first, axis=0)
-        centre = 0.5 * (bmin + bmax)
-        spread = np.linalg.norm(ps - centre[blk], axis=1)
-        far = np.maximum.reduceat(spread + np.asarray(reach, np.float64)[order], first)
+        key = key[order]
+        first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        del key
+        start = np.r_[first, n].astype(np.int64)
+        blk = np.repeat(np.arange(len(first), dtype=np.int32), np.diff(start))
+        centre = np.empty((len(first), 3))
+        scale = 1.0
+        for k in range(3):
+            x = m[order, k].astype(np.float64)
+            centre[:, k] = 0.5 * (np.minimum.reduceat(x, first) + np.maximum.reduceat(x, first))
+            scale = max(scale, float(np.abs(x).max()) + 1.0)
+        del x
+        val = np.empty(n)
+        for c in range(0, n, _CHUNK):
+            o = order[c : c + _CHUNK]
+            d = m[o].astype(np.float64) - centre[blk[c : c + _CHUNK]]
+            val[c : c + _CHUNK] = np.linalg.norm(d, axis=1) + r[o]
+        far = np.maximum.reduceat(val, first)
+        del val, d
         # float32 positions and rounding: a relative and an absolute sliver
-        scale = float(np.abs(p).max()) + 1.0
         radius = far * (1.0 + 1e-4) + 1e-5 * scale
         block = np.empty(len(order), np.int32)
         block[order] = blk

@@ -288,9 +288,16 @@ class SurfelRenderer:
         if self._blocks is None:
             b = self._buf
             k2 = np.maximum(b.rho_cut.numpy().astype(np.float64), 0.0)
-            tu, tv = b.tu.numpy().astype(np.float64), b.tv.numpy().astype(np.float64)
-            s = np.maximum(np.linalg.norm(tu, axis=1), np.linalg.norm(tv, axis=1))
-            self._reach = np.sqrt(k2) * s
+            tu, tv = b.tu.numpy(), b.tv.numpy()
+            reach = np.empty(len(k2))
+            for c in range(0, len(k2), 1 << 18):  # in chunks: little transient memory
+                sl = slice(c, c + (1 << 18))
+                s = np.maximum(
+                    np.linalg.norm(tu[sl].astype(np.float64), axis=1),
+                    np.linalg.norm(tv[sl].astype(np.float64), axis=1),
+                )
+                reach[sl] = np.sqrt(k2[sl]) * s
+            self._reach = reach
             self._blocks = SurfelBlocks.build(b.means.numpy(), self._reach)
             k2max = float(k2.max()) if len(k2) else 0.0
             self._margin_px = np.sqrt(k2max) * float(self.config.lowpass_sigma) + 1.5
