@@ -117,7 +117,7 @@ class RasterSettings:
     tile: int = RD.TILE
     max_duplicates: int = RD.MAX_DUPLICATES
     blend: str = RD.BLEND
-    cull_pass_min: int = 2_000_000
+    cull_pass_min: int = 1_500_000
     threads: int | None = None
     profile: bool = False
 
