@@ -256,7 +256,7 @@ def preprocess_kernel(
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
     splat and the colour only for surfels that are not culled). With ``use_rows``,
     item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel);
-    ``write_splat`` 0: the sort key only (the culling pass)."""
+    ``write_splat`` 0: the sort key (and colour) only (the culling pass)."""
     j = base + wp.tid() * stride
     i = j
     if use_rows != 0:
@@ -328,10 +328,8 @@ def preprocess_kernel(
         # its SH colour is written (issue 20: most surfels of a zoomed view)
         sort_keys[j] = BIG
         return
-    if write_splat == 0:
-        sort_keys[j] = sp.depth
-        return
-    splats[j] = sp
+    if write_splat != 0:
+        splats[j] = sp
     sort_keys[j] = sp.depth
     if with_color != 0:
         d = wp.normalize(mu - cam.center)
@@ -403,7 +401,7 @@ def project_splats(
     into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
     ``rows``: only these surfels (int32, their first ``count``; ascending, every other
     one culled — or the visible ones in depth order). ``write_splats`` False: the keys
-    only (``splats`` is a placeholder).
+    (and colours) only (``splats`` is a placeholder).
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
@@ -539,11 +537,12 @@ def rasterize_surfels(
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
             else:  # cull first (keys only), then project the visible ones in depth order
-                _, keys = project_splats(buf, cam, inv_var, None, threads, rws, write_splats=False)
+                # the SH colours here, read in index order (the second pass reads in depth order)
+                _, keys = project_splats(buf, cam, inv_var, cols, threads, rws, write_splats=False)
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 ids = take_rows(rws, order, n_vis, dev, threads)
                 keys = order = None  # freed before the splats are allocated
-                splats, keys = project_splats(buf, cam, inv_var, cols, threads, ids, n_vis)
+                splats, keys = project_splats(buf, cam, inv_var, None, threads, ids, n_vis)
                 tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
