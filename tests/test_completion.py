@@ -212,6 +212,8 @@ def test_config_and_switch():
         CompletionConfig(gamma=1.0)
     with pytest.raises(ValueError):
         CompletionConfig(fill_rounds=-1)
+    with pytest.raises(ValueError):
+        CompletionConfig(appearance_k=-1)
     from divas_engine.session import SessionConfig
 
     cfg = SessionConfig(mapping=MappingConfig(completion=CompletionConfig(enabled=False)))
@@ -324,7 +326,20 @@ def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.nda
     good = comp.n_deep_bad == 0
     add = pos & ((comp.n_seen >= 1) | (good & (comp.n_deep_ok >= cfg.fill_min_views)))
     # seen only through other surfaces: by its voxel only with one enclosing view
-    through = pos & ~add & ~(good & (comp.n_deep_ok >= 1))
+    through = pos & ~add & near & ~sel
+    if cfg.appearance_k > 0 and through.any():
+        # ... or it looks like the seen object next to it: brute-force k nearest seen
+        # Gaussians of the neighbourhood, the colour-closest one in the selection
+        obj = sel | (near & add)
+        ref = np.flatnonzero(near & (comp.n_seen >= 1) & seen)
+        if len(ref) and obj[ref].any():
+            for i in np.flatnonzero(through):
+                d = np.linalg.norm(comp.means[ref] - comp.means[i], axis=1)
+                nb = ref[np.argsort(d, kind="stable")[: cfg.appearance_k]]
+                dc = ((comp.colors[nb] - comp.colors[i]) ** 2).sum(axis=1)
+                if obj[nb[np.argmin(dc)]]:
+                    add[i], through[i] = True, False
+    through &= ~(good & (comp.n_deep_ok >= 1))
     in_vox = np.zeros(comp.n, bool)
     ok = comp.active_index >= 0
     in_vox[ok] = cur[comp.active_index[ok]]
@@ -429,3 +444,74 @@ def test_gather_reuses_the_renderers_binning(ball):
         binning=r.kept_binning(views[-1].camera),
     )
     assert not other.stats["reused"]
+
+
+def test_appearance_votes_by_hand():
+    """The colour-closest of the k spatially nearest seen Gaussians decides."""
+    from divas_engine.mapping.appearance import appearance_votes
+
+    green, brown = [0.1, 0.8, 0.1], [0.5, 0.3, 0.1]
+    means = np.array(
+        [
+            [0.0, 0.0, 0.0],  # 0 object, green
+            [0.1, 0.0, 0.0],  # 1 object, green
+            [0.0, 0.0, 1.0],  # 2 support, brown
+            [0.1, 0.0, 1.0],  # 3 support, brown
+            [0.05, 0.0, 0.6],  # 4 candidate, green, nearer the support
+            [0.05, 0.0, 0.6],  # 5 candidate, brown
+            [0.05, 0.0, 0.1],  # 6 candidate, brown, nearer the object
+        ]
+    )
+    colors = np.array([green, green, brown, brown, green, brown, brown])
+    ref, in_obj = np.array([0, 1, 2, 3]), np.array([True, True, False, False])
+    cand = np.array([4, 5, 6])
+    assert appearance_votes(cand, ref, in_obj, means, colors, 4).tolist() == [True, False, False]
+    # k = 2: candidate 4 sees only the two support Gaussians nearest to it, 6 only the
+    # object ones (so the colour-closest of those is an object one)
+    assert appearance_votes(cand, ref, in_obj, means, colors, 2).tolist() == [False, False, True]
+    # nothing of the object among the references: nothing joins
+    assert not appearance_votes(cand, ref, np.zeros(4, bool), means, colors, 4).any()
+
+
+def test_seen_through_joins_by_appearance(ball):
+    """Counters set by hand on the ball: the front half selected (green, seen), the back
+    half a seen unselected support (brown). An interior Gaussian at the equator with a
+    positive contribution that no view sees and no depth evidence supports joins when it
+    is green and not when it is brown; with ``appearance_k = 0`` it never joins."""
+    from divas_engine.mapping.completion import QSCALE
+
+    scene, labels, parts, grid, act, _ = ball
+    k = parts["surface"].stop
+    means = np.asarray(scene.means, np.float64)
+    front = np.zeros(len(labels), bool)
+    front[:k] = means[:k, 2] < 0
+    back = np.zeros(len(labels), bool)
+    back[:k] = means[:k, 2] >= 0
+    inner = np.arange(k, parts["interior"].stop)
+    cand = inner[np.argmin(np.abs(means[inner, 2]) - 0.1 * np.hypot(*means[inner, :2].T))]
+    seg = np.zeros(len(grid), bool)
+    seg[act[front]] = True
+    got = {}
+    for kk in (8, 0):
+        for name, col in (("green", [0.1, 0.8, 0.1]), ("brown", [0.5, 0.3, 0.1])):
+            comp = VolumetricCompletion(
+                scene, grid, act, CompletionConfig(appearance_k=kk), device=CPU
+            )
+            comp.colors[front] = [0.1, 0.8, 0.1]
+            comp.colors[back] = [0.5, 0.3, 0.1]
+            comp.colors[cand] = col
+            comp.n_seen[front | back] = 1
+            comp.q1[front] = int(QSCALE)
+            comp.q0[back] = int(QSCALE)
+            comp.q1[cand] = int(QSCALE)  # positive, seen by no view, no depth evidence
+            res = comp.complete(front, seg)
+            assert res.near[cand]
+            got[kk, name] = bool(res.selected[cand])
+            out, _, _ = _reference_complete(comp, front, seg)
+            assert np.array_equal(res.selected, out)
+    assert got == {
+        (8, "green"): True,
+        (8, "brown"): False,
+        (0, "green"): False,
+        (0, "brown"): False,
+    }

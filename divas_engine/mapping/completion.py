@@ -26,7 +26,8 @@ the result stays 3D-consistent and floaters away from the object stay out:
   are — its centre within the solid depth behind a mask-positive surface
   (``depth_factor`` × the chord below) in ``fill_min_views`` views (one when its
   centre voxel is segmented or filled) and, with ``deep_is_inconsistent``, beyond it in
-  none;
+  none — or when it looks like the object's seen Gaussians next to it
+  (``appearance_k``, :mod:`divas_engine.mapping.appearance`);
 * **solid fill** of voxels the views never voted for: per fused view a voxel's centre is
   *on the surface* (projects onto a mask-positive pixel, ``|z − D_med| ≤ m h_v``),
   *hidden* (behind such a surface by at most the depth a solid of that silhouette can
@@ -74,6 +75,7 @@ from ..geometry import quat_rotation_entries
 from ..render.config import RenderConfig
 from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
+from .appearance import appearance_votes
 from .completion_gather import CoarseCells, sparse_contributions
 from .config import CompletionConfig
 
@@ -229,6 +231,7 @@ class VolumetricCompletion:
         self.normals = np.stack([rot[0][2], rot[1][2], rot[2][2]], axis=1)
         sc = np.asarray(scene.scales, np.float64)
         self.footprint = np.asarray(scene.opacities, np.float64) * 2.0 * np.pi * sc[:, 0] * sc[:, 1]
+        self.colors = np.asarray(scene.base_colors(), np.float64)  # appearance rule
         self.n_seen = np.zeros(n, np.int32)
         self.n_deep_ok = np.zeros(n, np.int32)
         self.n_deep_bad = np.zeros(n, np.int32)
@@ -517,6 +520,18 @@ class VolumetricCompletion:
         shown = self.n_seen[idx] >= 1
         through = positive & ~(shown | (ok_deep & (self.n_deep_ok[idx] >= cfg.fill_min_views)))
         positive &= ~through
+        if cfg.appearance_k > 0 and through.any():
+            # … or when it looks like the object's seen Gaussians next to it, not like
+            # the seen support behind the object (mapping.appearance)
+            j = np.flatnonzero(through)
+            obj = sel.copy()
+            obj[idx[positive]] = True
+            ref = g_near[self.n_seen[g_near] >= 1]
+            ref = ref[(self.q1[ref] + self.q0[ref]) >= cfg.min_weight * QSCALE]
+            k = cfg.appearance_k
+            like = appearance_votes(idx[j], ref, obj[ref], self.means, self.colors, k)
+            positive[j[like]] = True
+            through[j[like]] = False
         # in a segmented or filled voxel, one view that puts the centre within the solid
         # depth suffices (the voxel carries the rest of the evidence)
         through &= ~(ok_deep & (self.n_deep_ok[idx] >= 1))

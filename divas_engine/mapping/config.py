@@ -96,6 +96,13 @@ class CompletionConfig:
             0.452 → 0.684 (the paper's passes 0.660). Real-capture cost
             (guitar, lod1/plants): see BENCHMARKS.md, issue 15 third pass. 0 turns the
             rule off (the second pass's completion exactly).
+        appearance_k: a contribution-positive Gaussian seen in no view that the depth
+            rule above leaves out still joins when, among the ``appearance_k`` Gaussians
+            of the neighbourhood nearest to it in 3D that some view *sees*, the one of
+            closest colour (SH DC) is in the selection: the object's own inside seen
+            through its front looks like the object, the support seen through the object
+            like the support's seen part next to it (:mod:`divas_engine.mapping.appearance`).
+            0 turns the rule off (the third pass's completion exactly).
         neighbourhood_log2: the neighbourhood of the voxel selection is the set of coarse
             cells of ``2^k`` voxels per side holding a segmented (or filled) voxel,
             dilated by one cell: everything within ``2^k … 2^(k+1)`` voxels (1: 2–4 h_v).
@@ -147,6 +154,7 @@ class CompletionConfig:
     gamma: float = 0.0
     min_weight: float = 0.01
     min_visibility: float = 0.1
+    appearance_k: int = 8
     neighbourhood_log2: int = 1
     surface_margin: float = 2.0
     depth_factor: float = 1.0
@@ -173,6 +181,8 @@ class CompletionConfig:
         ):
             if not getattr(self, k) >= 0:
                 raise ValueError(f"CompletionConfig.{k} must be ≥ 0")
+        if self.appearance_k < 0:
+            raise ValueError("CompletionConfig.appearance_k must be ≥ 0")
         if self.fill_rounds < 0:
             raise ValueError("CompletionConfig.fill_rounds must be ≥ 0")
         if self.gather_margin < 0 or not 0.0 <= self.gather_max_fraction <= 1.0:
