@@ -331,7 +331,13 @@ def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.nda
         # ... or it looks like the seen object next to it: brute-force k nearest seen
         # Gaussians of the neighbourhood, the colour-closest one in the selection
         obj = sel | (near & add)
-        ref = np.flatnonzero(near & (comp.n_seen >= 1) & seen)
+        # the references: seen Gaussians of the neighbourhood whose coarse cell is
+        # next to (or is) a candidate's cell
+        cc = np.unique(cells.of_gauss[through])
+        by_cell = np.zeros(cells.n + 1, bool)
+        by_cell[cells.neighbours[cc].ravel()] = True
+        by_cell[cells.n] = False
+        ref = np.flatnonzero(near & (comp.n_seen >= 1) & seen & by_cell[cells.of_gauss])
         if len(ref) and obj[ref].any():
             for i in np.flatnonzero(through):
                 d = np.linalg.norm(comp.means[ref] - comp.means[i], axis=1)

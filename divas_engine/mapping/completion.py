@@ -526,7 +526,13 @@ class VolumetricCompletion:
             j = np.flatnonzero(through)
             obj = sel.copy()
             obj[idx[positive]] = True
-            ref = g_near[self.n_seen[g_near] >= 1]
+            # the references: the seen Gaussians of the neighbourhood in the candidates'
+            # coarse cells and the cells next to them (local: no O(N) tree)
+            cand_cells = self.cells.dilate_cells(
+                np.zeros(self.cells.n + 1, bool), self.cells.of_gauss[idx[j]]
+            )
+            ref = self.cells.gaussians_in(cand_cells)
+            ref = ref[near[ref] & (self.n_seen[ref] >= 1)]
             ref = ref[(self.q1[ref] + self.q0[ref]) >= cfg.min_weight * QSCALE]
             k = cfg.appearance_k
             like = appearance_votes(idx[j], ref, obj[ref], self.means, self.colors, k)
