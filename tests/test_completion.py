@@ -362,7 +362,11 @@ def test_decision_matches_plain_reference(ball, seed):
     the same rules gives the same selection, fill and neighbourhood — on the DivAS-like
     start and on random selections (scattered seeds grow through many cells)."""
     scene, labels, parts, grid, act, views = ball
-    for cfg in (CompletionConfig(), CompletionConfig(neighbourhood_log2=0, gamma=0.2)):
+    for cfg in (
+        CompletionConfig(),
+        CompletionConfig(neighbourhood_log2=0, gamma=0.2),
+        CompletionConfig(appearance_k=8),
+    ):
         comp = VolumetricCompletion(scene, grid, act, cfg, device=CPU)
         for i, v in enumerate(views[:3]):
             comp.add_view(i, v)

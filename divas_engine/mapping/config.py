@@ -102,7 +102,13 @@ class CompletionConfig:
             closest colour (SH DC) is in the selection: the object's own inside seen
             through its front looks like the object, the support seen through the object
             like the support's seen part next to it (:mod:`divas_engine.mapping.appearance`).
-            0 turns the rule off (the third pass's completion exactly).
+            0 (the default) turns the rule off: the third pass's completion exactly.
+            Measured at 8 (BENCHMARKS.md, issue 15 fourth pass, oracle): real captures
+            alpha 0.984 → 0.986, PSNR 36.4 → 36.9 dB (lod1/plants 28.0 → 29.5), op-IoU
+            0.895 → 0.894, image IoU 0.840 → 0.837; synthetic occluded op-IoU 0.824 →
+            0.897 but image IoU 0.667 → 0.632; synthetic plant end to end 0.684 → 0.577
+            (the simulated user stops after 2 views instead of 3; on that same session
+            the rule changes nothing in image IoU). Off until that is resolved.
         neighbourhood_log2: the neighbourhood of the voxel selection is the set of coarse
             cells of ``2^k`` voxels per side holding a segmented (or filled) voxel,
             dilated by one cell: everything within ``2^k … 2^(k+1)`` voxels (1: 2–4 h_v).
@@ -154,7 +160,7 @@ class CompletionConfig:
     gamma: float = 0.0
     min_weight: float = 0.01
     min_visibility: float = 0.1
-    appearance_k: int = 8
+    appearance_k: int = 0
     neighbourhood_log2: int = 1
     surface_margin: float = 2.0
     depth_factor: float = 1.0
