@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["appearance_votes"]
+__all__ = ["appearance_votes", "seen_through_like_object"]
 
 
 def appearance_votes(
@@ -53,3 +53,21 @@ def appearance_votes(
     d2[ref[nb] == cand[:, None]] = np.inf  # a candidate is no reference for itself
     best = np.argmin(d2, axis=1)  # first on ties: the nearest in 3D
     return np.asarray(ref_in_object, bool)[nb[np.arange(len(cand)), best]]
+
+
+def seen_through_like_object(
+    comp, cand: np.ndarray, obj: np.ndarray, near: np.ndarray, min_q: float
+) -> np.ndarray:
+    """:func:`appearance_votes` for the candidates ``cand`` of a
+    :class:`~divas_engine.mapping.completion.VolumetricCompletion` ``comp``: the
+    references are the *seen* Gaussians (``n_seen ≥ 1``, fixed-point weight ``q₀ + q₁ ≥
+    min_q``) of the neighbourhood ``near`` (``[N] bool``) in the candidates' coarse cells
+    and the cells next to them (local: no tree over the whole neighbourhood); ``obj``
+    ``[N] bool`` says which Gaussians are the object's; ``comp.config.appearance_k``."""
+    cells = comp.cells
+    cand_cells = cells.dilate_cells(np.zeros(cells.n + 1, bool), cells.of_gauss[cand])
+    ref = cells.gaussians_in(cand_cells)
+    ref = ref[near[ref] & (comp.n_seen[ref] >= 1)]
+    ref = ref[(comp.q1[ref] + comp.q0[ref]) >= min_q]
+    k = comp.config.appearance_k
+    return appearance_votes(cand, ref, obj[ref], comp.means, comp.colors, k)

@@ -26,8 +26,7 @@ the result stays 3D-consistent and floaters away from the object stay out:
   are — its centre within the solid depth behind a mask-positive surface
   (``depth_factor`` × the chord below) in ``fill_min_views`` views (one when its
   centre voxel is segmented or filled) and, with ``deep_is_inconsistent``, beyond it in
-  none — or when it looks like the object's seen Gaussians next to it
-  (``appearance_k``, :mod:`divas_engine.mapping.appearance`);
+  none — or, with ``appearance_k``, when it looks like the object (mapping.appearance);
 * **solid fill** of voxels the views never voted for: per fused view a voxel's centre is
   *on the surface* (projects onto a mask-positive pixel, ``|z − D_med| ≤ m h_v``),
   *hidden* (behind such a surface by at most the depth a solid of that silhouette can
@@ -75,7 +74,7 @@ from ..geometry import quat_rotation_entries
 from ..render.config import RenderConfig
 from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
-from .appearance import appearance_votes
+from .appearance import seen_through_like_object
 from .completion_gather import CoarseCells, sparse_contributions
 from .config import CompletionConfig
 
@@ -521,21 +520,11 @@ class VolumetricCompletion:
         through = positive & ~(shown | (ok_deep & (self.n_deep_ok[idx] >= cfg.fill_min_views)))
         positive &= ~through
         if cfg.appearance_k > 0 and through.any():
-            # … or when it looks like the object's seen Gaussians next to it, not like
-            # the seen support behind the object (mapping.appearance)
+            # … or when it looks like the object's seen Gaussians next to it (appearance)
             j = np.flatnonzero(through)
             obj = sel.copy()
             obj[idx[positive]] = True
-            # the references: the seen Gaussians of the neighbourhood in the candidates'
-            # coarse cells and the cells next to them (local: no O(N) tree)
-            cand_cells = self.cells.dilate_cells(
-                np.zeros(self.cells.n + 1, bool), self.cells.of_gauss[idx[j]]
-            )
-            ref = self.cells.gaussians_in(cand_cells)
-            ref = ref[near[ref] & (self.n_seen[ref] >= 1)]
-            ref = ref[(self.q1[ref] + self.q0[ref]) >= cfg.min_weight * QSCALE]
-            k = cfg.appearance_k
-            like = appearance_votes(idx[j], ref, obj[ref], self.means, self.colors, k)
+            like = seen_through_like_object(self, idx[j], obj, near, cfg.min_weight * QSCALE)
             positive[j[like]] = True
             through[j[like]] = False
         # in a segmented or filled voxel, one view that puts the centre within the solid
