@@ -33,7 +33,8 @@ class Graph3DConfig:
         grid_cells: voxels along the region's diameter, ``h = 2R / grid_cells`` (96).
         extent_sigmas, extent_min_sigma: a Gaussian wider than a voxel
             (``σ_max > extent_min_sigma · h``, 1.0; a narrower one reaches only its
-            voxel's neighbours, which the 26-neighbourhood links anyway) also occupies
+            voxel's neighbours, which the 26-neighbourhood links anyway) whose centre's
+            voxel has no occupied neighbour (its centre leaves it unlinked) also occupies
             every voxel its ellipsoid ``|u| ≤ extent_sigmas`` (σ units) covers, with its
             opacity there ``α exp(−|u|²/2)`` (1.0; 0: centres only), sampled a voxel
             apart at most ``extent_max_steps`` (4) steps each way along an axis

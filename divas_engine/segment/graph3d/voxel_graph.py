@@ -183,8 +183,11 @@ def build_voxel_graph(
     i1 = np.concatenate(dst) if dst else np.zeros(0, np.int64)
     # the mass scale of a_m: the median over the voxels that hold a primitive's centre
     # (the extents' faint tails would lower it, and then thin haze would link strongly)
-    centre_voxels = np.unique(inv[:n_prim])
-    typical = float(np.median(m[centre_voxels])) if len(centre_voxels) else 0.0
+    if len(inv) > n_prim:
+        centre_voxels = np.bincount(inv[:n_prim], minlength=v) > 0
+        typical = float(np.median(m[centre_voxels])) if n_prim else 0.0
+    else:
+        typical = float(np.median(m)) if v else 0.0
     weights = _affinity(i0, i1, centroid, lab, normal, tensor, kappa, m, typical, h, config)
     return VoxelGraph(
         prim=sel,
@@ -217,8 +220,9 @@ def _extent_entries(
     """The voxels the extent of a primitive wider than its voxel covers, besides its own.
 
     A Gaussian with ``σ_max > extent_min_sigma · h`` (a narrower one reaches only its
-    voxel's neighbours, which the 26-neighbourhood links already) is sampled on a lattice
-    over its
+    voxel's neighbours, which the 26-neighbourhood links already) whose centre's voxel
+    has no occupied neighbour (the centres leave it unlinked; a densely sampled surface
+    is connected by its centres, and keeps its graph) is sampled on a lattice over its
     ellipsoid ``|u| ≤ k`` in σ units (``k = extent_sigmas``): along each principal axis
     ``m_i = min(⌈k s_i / h⌉, extent_max_steps)`` steps each way, ``min(k s_i / m_i, h)``
     apart — neighbouring samples at most a voxel apart, so the covered voxels are
@@ -236,6 +240,20 @@ def _extent_entries(
     if prims.sigma is None or k <= 0.0 or len(sel) == 0:
         return empty
     big = np.flatnonzero(prims.sigma[sel].astype(np.float64) > config.extent_min_sigma * h)
+    if len(big) == 0:
+        return empty
+    # only where the centres leave a primitive unlinked: its voxel has no occupied
+    # neighbour (a densely sampled surface is already connected by its centres)
+    occupied = np.zeros(cells**3, bool)
+    occupied[key] = True
+    cb = np.stack([key[big] % cells, (key[big] // cells) % cells, key[big] // cells**2], 1)
+    linked = np.zeros(len(big), bool)
+    for off in np.r_[_OFFSETS, -_OFFSETS]:
+        nc = cb + off
+        ok = np.all((nc >= 0) & (nc < cells), axis=1)
+        nk = nc[:, 0] + cells * (nc[:, 1] + cells * nc[:, 2])
+        linked |= ok & occupied[np.where(ok, nk, 0)]
+    big = big[~linked]
     if len(big) == 0:
         return empty
     axes = prims.extent_axes(sel[big])  # [n,3,3]: σ-scaled principal axes as rows
