@@ -122,7 +122,7 @@ def test_a_large_gaussian_is_linked_by_its_extent_not_only_its_centre():
     # alone they were islands the walk never reached. A fifth leaf 30 cm away overlaps
     # nothing and stays out; so does the floor.
     case = ball_with_leaves()
-    rc, sel = _cut(case, [[0.0, -0.2, 0.2]])
+    rc, sel = _cut(case, [[0.0, -0.2, 0.2]], config=Graph3DConfig(extent_sigmas=1.0))
     g = rc.graph
     assert 0.01 < g.h < 0.04 / 2.5  # the leaves' centres lie 2.5 voxels or more out
     assert _share(sel[1], case, 1) > 0.9
@@ -150,7 +150,7 @@ def test_extent_entries_cover_the_ellipse_with_the_gaussian_falloff():
         0,
     )
     prims = ScenePrimitives.from_scene(scene)
-    g = build_voxel_graph(prims, np.zeros(3), 4 * h, Graph3DConfig(grid_cells=8))
+    g = build_voxel_graph(prims, np.zeros(3), 4 * h, Graph3DConfig(grid_cells=8, extent_sigmas=1.0))
     assert g.h == pytest.approx(h)
     offsets = sorted(int(round((c[0] - g.centroid[g.voxel_of[0]][0]) / h)) for c in g.centroid)
     assert offsets == [-2, -1, 0, 1, 2]

@@ -49,10 +49,8 @@ def _camera() -> Camera:
 
 
 def _walk_system(case, click):
-    """The walk's system on a real voxel graph (seed at ``click``, the rim a sink), of
-    the primitives' centres only: with the extents of the sparse surfels (σ 7 mm > h
-    6 mm here) SciPy's ``cg`` needs more than the 400 steps these checks compare at."""
-    cfg = Graph3DConfig(extent_sigmas=0.0)
+    """The walk's system on a real voxel graph (seed at ``click``, the rim a sink)."""
+    cfg = Graph3DConfig()
     prims = ScenePrimitives.from_scene(case.scene, cfg.min_opacity)
     g = build_voxel_graph(prims, np.asarray(click), 0.3, cfg)
     wmat, deg = _laplacian(g)

@@ -36,7 +36,10 @@ class Graph3DConfig:
             voxel's neighbours, which the 26-neighbourhood links anyway) whose centre's
             voxel has no occupied neighbour (its centre leaves it unlinked) also occupies
             every voxel its ellipsoid ``|u| ≤ extent_sigmas`` (σ units) covers, with its
-            opacity there ``α exp(−|u|²/2)`` (1.0; 0: centres only), sampled a voxel
+            opacity there ``α exp(−|u|²/2)`` (0: centres only, the default; 1.0 is the
+            measured setting: lod1/plants 0.687 → 0.828, but the simulated user's plant
+            and occluded scenes 0.836 / 0.883 → 0.720 / 0.711 — off until that is
+            understood, BENCHMARKS "Primitive extents"), sampled a voxel
             apart at most ``extent_max_steps`` (4) steps each way along an axis
             (:func:`.voxel_graph._extent_entries`): a large foliage Gaussian whose centre
             sits alone in its voxel is linked to what its footprint overlaps.
@@ -99,7 +102,7 @@ class Graph3DConfig:
     rim_reach: float = 1e-3
     grid_cells: int = 96
     min_opacity: float = 0.02
-    extent_sigmas: float = 1.0
+    extent_sigmas: float = 0.0
     extent_max_steps: int = 4
     extent_min_sigma: float = 1.0
     sigma_d: float = 1.0
