@@ -21,6 +21,7 @@ __all__ = [
     "ball_on_floor",
     "ball_and_specks",
     "box_and_hanging_plate",
+    "ball_with_leaves",
     "grid_ball_and_box",
 ]
 
@@ -133,6 +134,43 @@ def box_and_hanging_plate() -> CaseScene:
     a = box("a", (0.0, 0.0, 0.45), (0.12, 0.12, 0.12))
     b = box("b", (0.2, 0.2, 0.45), (0.08, 0.08, 0.2))
     return build_case([floor(), Part(tuple(a), (0.8, 0.3, 0.2)), Part(tuple(b), (0.2, 0.35, 0.8))])
+
+
+def ball_with_leaves() -> CaseScene:
+    """Parts: 0 floor, 1 the grey ball of :func:`ball_on_floor`, 2 four large round 3DGS
+    Gaussians (σ 7 cm on all three axes, no sure normal, the ball's grey-green) around
+    the ball like a plant's soft foliage — each centre 4 cm (≈ 3 voxels of a click's
+    graph) off the ball's surface, so its 1 σ extent overlaps the ball while its
+    centre's voxel touches no other occupied voxel —, 3 one more such Gaussian 30 cm off
+    the ball, overlapping nothing. The surfels of 0 and 1 are flat (``scale_n`` 0)."""
+    base = build_case(
+        [
+            floor(spacing=0.012),
+            Part((Sphere("ball", Frame.make((0.0, 0.0, 0.2), (0, 0, 1)), 0.2),), FLOOR_RGB),
+        ]
+    )
+    c0 = np.array([0.0, 0.0, 0.2])
+    dirs = [(1.0, 0.0, 0.3), (-1.0, 0.0, 0.3), (0.0, 1.0, 0.3), (0.0, -1.0, 0.3), (1.0, 1.0, 0.2)]
+    offs = [0.04, 0.04, 0.04, 0.04, 0.3]
+    pts = [
+        c0 + (0.2 + off) * np.asarray(d) / np.linalg.norm(d)
+        for d, off in zip(dirs, offs, strict=True)
+    ]
+    k = len(pts)
+    s = base.scene
+    rgb = np.array([0.5, 0.6, 0.45])
+    scene = SurfelScene(
+        np.concatenate([s.means, np.asarray(pts, np.float32)]),
+        np.concatenate([s.quats, np.tile(np.float32([1.0, 0.0, 0.0, 0.0]), (k, 1))]),
+        np.concatenate([s.scales, np.full((k, 2), 0.07, np.float32)]),
+        np.concatenate([s.opacities, np.full(k, 0.9, np.float32)]),
+        np.concatenate([s.sh, np.tile(((rgb - 0.5) / SH_C0)[None, None, :], (k, 1, 1))]).astype(
+            np.float32
+        ),
+        0,
+        scale_n=np.r_[np.zeros(len(s), np.float32), np.full(k, 0.07, np.float32)],
+    )
+    return CaseScene(scene, np.r_[base.part, [2, 2, 2, 2, 3]])
 
 
 @dataclass(eq=False)

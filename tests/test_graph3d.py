@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from divas_engine.camera import Camera
+from divas_engine.scene import SurfelScene
 from divas_engine.segment import Graph3DSegmenter, SceneAwareSegmenter, SceneBinding
 from divas_engine.segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
 from divas_engine.segment.graph3d import CutResult, Granularity, Graph3DConfig, Seeds
@@ -19,6 +20,7 @@ from divas_engine.session import Session, SessionConfig
 from tests.graph3d_cases import (
     ball_and_specks,
     ball_on_floor,
+    ball_with_leaves,
     box_and_hanging_plate,
     grid_ball_and_box,
     rod_on_floor,
@@ -26,8 +28,8 @@ from tests.graph3d_cases import (
 )
 
 
-def _cut(case, positive, negative=()):
-    seg = Graph3DSegmenter(binding=SceneBinding(case.scene, None, None))
+def _cut(case, positive, negative=(), config=None):
+    seg = Graph3DSegmenter(config, binding=SceneBinding(case.scene, None, None))
     rc = seg.cut(Seeds(np.array(positive, float), np.array(negative, float).reshape(-1, 3)))
     full = np.zeros((3, len(case.scene)), bool)
     full[:, seg.primitives().index] = rc.selected
@@ -111,6 +113,52 @@ def test_a_piece_hanging_on_an_edge_stays_out_of_the_medium_region():
     assert _share(sel[1], case, 1) > 0.97 and _share(sel[1], case, 2) < 0.01
     assert _share(sel[2], case, 2) > 0.97 and not sel[:, case.of(0)].any()
     assert 0.5 <= rc.scores[1] < 0.8
+
+
+def test_a_large_gaussian_is_linked_by_its_extent_not_only_its_centre():
+    # four round foliage Gaussians (σ 7 cm) sit around the ball: each centre is 4 cm off the
+    # surface, in a voxel with no occupied neighbour, but each 1 σ footprint overlaps
+    # the ball. Linked by their extents they are selected with the ball; by their centres
+    # alone they were islands the walk never reached. A fifth leaf 30 cm away overlaps
+    # nothing and stays out; so does the floor.
+    case = ball_with_leaves()
+    rc, sel = _cut(case, [[0.0, -0.2, 0.2]], config=Graph3DConfig(extent_sigmas=1.0))
+    g = rc.graph
+    assert 0.01 < g.h < 0.04 / 2.5  # the leaves' centres lie 2.5 voxels or more out
+    assert _share(sel[1], case, 1) > 0.9
+    assert np.all(sel[1][case.of(2)])
+    assert not sel[:, case.of(3)].any() and _share(sel[1], case, 0) < 0.001
+    # by centres only (extent_sigmas 0) the leaves' voxels are isolated and left out
+    _, alone = _cut(case, [[0.0, -0.2, 0.2]], config=Graph3DConfig(extent_sigmas=0.0))
+    assert not alone[:, case.of(2)].any() and _share(alone[1], case, 1) > 0.9
+
+
+def test_extent_entries_cover_the_ellipse_with_the_gaussian_falloff():
+    # one flat Gaussian, σ = (2h, h/4) along x and y, centre in the middle of a voxel:
+    # within 1 σ (extent_sigmas) it reaches 2 voxels each way along x (samples h apart),
+    # none along y (h/4 < the half voxel), each voxel holding α times exp(−|u|²/2)
+    from divas_engine.segment.graph3d.primitives import ScenePrimitives
+    from divas_engine.segment.graph3d.voxel_graph import build_voxel_graph
+
+    h = 0.1
+    scene = SurfelScene(
+        np.array([[0.05, 0.05, 0.05]], np.float32),
+        np.array([[1.0, 0.0, 0.0, 0.0]], np.float32),
+        np.array([[2 * h, h / 4]], np.float32),
+        np.array([0.8], np.float32),
+        np.zeros((1, 1, 3), np.float32),
+        0,
+    )
+    prims = ScenePrimitives.from_scene(scene)
+    g = build_voxel_graph(prims, np.zeros(3), 4 * h, Graph3DConfig(grid_cells=8, extent_sigmas=1.0))
+    assert g.h == pytest.approx(h)
+    offsets = sorted(int(round((c[0] - g.centroid[g.voxel_of[0]][0]) / h)) for c in g.centroid)
+    assert offsets == [-2, -1, 0, 1, 2]
+    assert np.all(np.abs(g.centroid[:, 1:] - 0.05) < 1e-6)
+    # masses: α at the centre; α·exp(−u²/2) of the nearest sample to the voxel's centre
+    x = (g.centroid[:, 0] - 0.05) / (2 * h)  # σ units along x
+    assert g.mass[g.voxel_of[0]] == pytest.approx(0.8)
+    assert np.allclose(g.mass, 0.8 * np.exp(-0.5 * x**2), rtol=1e-5)
 
 
 def test_click_without_a_boundary_scores_low_and_says_what_to_do():

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import binary_erosion
 
+from ...geometry import quat_to_rotmat
 from ...scene import DensityGrid, Scene, SurfelScene
 from ...scene_stats import robust_frame
 from ...views.config import ViewConfig
@@ -61,6 +62,10 @@ class ScenePrimitives:
             nothing (:mod:`.render_box`): ``_REACH_SIGMAS`` × its largest scale for a
             surfel (its cutoff disc, α ≥ 1/255, is 3.33 σ), two cell edges for a grid
             cell (its value is interpolated trilinearly from the neighbouring centres).
+        sigma: ``[M]`` each surfel's largest standard deviation (None for a grid, whose
+            cells have no extent beyond their own voxel-sized cell); the voxel graph gives
+            a primitive wider than its voxel every voxel its extent covers
+            (:func:`extent_axes`).
         scene: the scene.
     """
 
@@ -78,6 +83,7 @@ class ScenePrimitives:
     up: np.ndarray | None = None
     cell: float = 0.0
     reach: np.ndarray | None = None
+    sigma: np.ndarray | None = None
 
     @classmethod
     def from_scene(
@@ -110,6 +116,7 @@ class ScenePrimitives:
         if scene.scale_n is not None:
             sigma = np.maximum(sigma, scene.scale_n[keep])
         out.reach = (_REACH_SIGMAS * sigma).astype(np.float32)
+        out.sigma = sigma.astype(np.float32)
         return out
 
     @classmethod
@@ -191,6 +198,21 @@ class ScenePrimitives:
         m &= (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1])
         m &= (p[:, 2] >= lo[2]) & (p[:, 2] <= hi[2])
         return np.flatnonzero(m)
+
+    def extent_axes(self, rows: np.ndarray) -> np.ndarray:
+        """``[n,3,3]`` float64: row ``k`` of each is the primitive's ``k``-th principal
+        axis scaled by its standard deviation (tangents ``s_1 t_u``, ``s_2 t_v``, then
+        ``s_n n`` for a 3DGS Gaussian, 0 for a flat 2DGS surfel), for the primitives
+        ``rows`` (indices into these arrays) of a surfel scene."""
+        scene = self.scene
+        assert isinstance(scene, SurfelScene)
+        i = self.index[np.asarray(rows, np.int64)]
+        rot = quat_to_rotmat(np.asarray(scene.quats[i], np.float64))  # columns: t_u, t_v, n
+        s = np.zeros((len(i), 3))
+        s[:, :2] = scene.scales[i]
+        if scene.scale_n is not None:
+            s[:, 2] = scene.scale_n[i]
+        return np.ascontiguousarray((rot * s[:, None, :]).transpose(0, 2, 1))
 
     def render_array(self, values: np.ndarray) -> np.ndarray:
         """Per-primitive ``values [M,C]`` (these primitives' order) as the renderer's

@@ -125,6 +125,15 @@ def build_voxel_graph(
     p = prims.points[sel].astype(np.float64)
     cell = np.clip(np.floor((p - lo) / h).astype(np.int64), 0, cells - 1)
     key = cell[:, 0] + cells * (cell[:, 1] + cells * cell[:, 2])
+    n_prim = len(sel)
+    # a primitive wider than its voxel also occupies the voxels its extent covers, with
+    # the opacity it has there (entries after the first n_prim: row, position, key)
+    ext_row, ext_p, ext_key, ext_g = _extent_entries(prims, sel, p, key, lo, h, cells, config)
+    a = prims.mass[sel].astype(np.float64)
+    rows = np.r_[np.arange(n_prim), ext_row]
+    p = np.concatenate([p, ext_p])
+    key = np.r_[key, ext_key]
+    a = np.r_[a, a[ext_row] * ext_g]
     # the occupied cells by a dense table over the cube (np.unique's sorted keys and
     # inverse, without its sort; the table also finds the neighbours below)
     occupied = np.zeros(cells**3, bool)
@@ -134,7 +143,6 @@ def build_voxel_graph(
     node = np.empty(cells**3, np.int64)
     node[uniq] = np.arange(v)
     inv = node[key]
-    a = prims.mass[sel].astype(np.float64)
     m = np.bincount(inv, a, v)
     msafe = np.maximum(m, 1e-12)
 
@@ -145,9 +153,9 @@ def build_voxel_graph(
         )
 
     centroid = wmean(p)
-    lab = wmean(prims.lab[sel].astype(np.float64))
-    n = prims.normals[sel].astype(np.float64)
-    ak = a * prims.kappa[sel]
+    lab = wmean(prims.lab[sel][rows].astype(np.float64))
+    n = prims.normals[sel][rows].astype(np.float64)
+    ak = a * prims.kappa[sel][rows]
     tensor = np.zeros((v, 3, 3))
     for r in range(3):
         for s in range(r, 3):
@@ -173,10 +181,17 @@ def build_voxel_graph(
         dst.append(node[uniq[ok] + step])
     i0 = np.concatenate(src) if src else np.zeros(0, np.int64)
     i1 = np.concatenate(dst) if dst else np.zeros(0, np.int64)
-    weights = _affinity(i0, i1, centroid, lab, normal, tensor, kappa, m, h, config)
+    # the mass scale of a_m: the median over the voxels that hold a primitive's centre
+    # (the extents' faint tails would lower it, and then thin haze would link strongly)
+    if len(inv) > n_prim:
+        centre_voxels = np.bincount(inv[:n_prim], minlength=v) > 0
+        typical = float(np.median(m[centre_voxels])) if n_prim else 0.0
+    else:
+        typical = float(np.median(m)) if v else 0.0
+    weights = _affinity(i0, i1, centroid, lab, normal, tensor, kappa, m, typical, h, config)
     return VoxelGraph(
         prim=sel,
-        voxel_of=inv,
+        voxel_of=inv[:n_prim],
         centroid=centroid,
         lab=lab,
         normal=normal,
@@ -192,8 +207,98 @@ def build_voxel_graph(
     )
 
 
+def _extent_entries(
+    prims: ScenePrimitives,
+    sel: np.ndarray,
+    p: np.ndarray,
+    key: np.ndarray,
+    lo: np.ndarray,
+    h: float,
+    cells: int,
+    config: Graph3DConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The voxels the extent of a primitive wider than its voxel covers, besides its own.
+
+    A Gaussian with ``σ_max > extent_min_sigma · h`` (a narrower one reaches only its
+    voxel's neighbours, which the 26-neighbourhood links already) whose centre's voxel
+    has no occupied neighbour (the centres leave it unlinked; a densely sampled surface
+    is connected by its centres, and keeps its graph) is sampled on a lattice over its
+    ellipsoid ``|u| ≤ k`` in σ units (``k = extent_sigmas``): along each principal axis
+    ``m_i = min(⌈k s_i / h⌉, extent_max_steps)`` steps each way, ``min(k s_i / m_i, h)``
+    apart — neighbouring samples at most a voxel apart, so the covered voxels are
+    connected to the centre's; a Gaussian wider than the steps reach is truncated to
+    ``extent_max_steps`` voxels around its centre (bounded cost). Each sample carries
+    the Gaussian's falloff ``G = exp(−|u|² / 2)`` there, and a voxel it reaches gets
+    the largest ``G`` of its samples in it (the opacity ``α G`` the primitive has in
+    that voxel). The centre voxel keeps the primitive itself. Returns
+    ``(row [E], position [E,3], key [E], G [E])`` with ``row`` indexing ``sel``: the
+    voxel graph links such a primitive's centre voxel to what its footprint overlaps,
+    not only to what its centre happens to touch.
+    """
+    empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0))
+    k = float(config.extent_sigmas)
+    if prims.sigma is None or k <= 0.0 or len(sel) == 0:
+        return empty
+    big = np.flatnonzero(prims.sigma[sel].astype(np.float64) > config.extent_min_sigma * h)
+    if len(big) == 0:
+        return empty
+    # only where the centres leave a primitive unlinked: its voxel has no occupied
+    # neighbour (a densely sampled surface is already connected by its centres)
+    occupied = np.zeros(cells**3, bool)
+    occupied[key] = True
+    cb = np.stack([key[big] % cells, (key[big] // cells) % cells, key[big] // cells**2], 1)
+    linked = np.zeros(len(big), bool)
+    for off in np.r_[_OFFSETS, -_OFFSETS]:
+        nc = cb + off
+        ok = np.all((nc >= 0) & (nc < cells), axis=1)
+        nk = nc[:, 0] + cells * (nc[:, 1] + cells * nc[:, 2])
+        linked |= ok & occupied[np.where(ok, nk, 0)]
+    big = big[~linked]
+    if len(big) == 0:
+        return empty
+    axes = prims.extent_axes(sel[big])  # [n,3,3]: σ-scaled principal axes as rows
+    sig = np.linalg.norm(axes, axis=2)  # [n,3]
+    steps = np.minimum(np.ceil(k * sig / h - 1e-9), config.extent_max_steps).astype(np.int64)
+    # σ units per step along each axis: the whole extent in ``steps`` steps, never more
+    # than a voxel apart (a truncated extent for a Gaussian wider than the steps reach)
+    per = np.where(steps > 0, np.minimum(k * sig / np.maximum(steps, 1), h), 0.0)
+    per /= np.maximum(sig, 1e-12)
+    out_row, out_p, out_g = [], [], []
+    combos, group = np.unique(steps, axis=0, return_inverse=True)
+    for gi, m in enumerate(combos):
+        members = np.flatnonzero(group.ravel() == gi)
+        j = np.stack(np.meshgrid(*[np.arange(-mi, mi + 1) for mi in m], indexing="ij"), -1).reshape(
+            -1, 3
+        )
+        j = j[np.any(j != 0, axis=1)].astype(np.float64)
+        if len(j) == 0:
+            continue
+        u = j[None, :, :] * per[members][:, None, :]  # [n,L,3] σ units
+        r2 = np.sum(u * u, axis=2)
+        keep = r2 <= k * k + 1e-9
+        rows = big[members]
+        pts = p[rows][:, None, :] + np.einsum("nlk,nkc->nlc", u, axes[members])
+        out_row.append(np.broadcast_to(rows[:, None], r2.shape)[keep])
+        out_p.append(pts[keep])
+        out_g.append(np.exp(-0.5 * r2[keep]))
+    if not out_row:
+        return empty
+    row, pts, g = np.concatenate(out_row), np.concatenate(out_p), np.concatenate(out_g)
+    c = np.floor((pts - lo) / h).astype(np.int64)
+    inside = np.all((c >= 0) & (c < cells), axis=1)
+    kk = c[:, 0] + cells * (c[:, 1] + cells * c[:, 2])
+    inside &= kk != key[row]  # the centre voxel holds the primitive itself
+    row, pts, g, kk = row[inside], pts[inside], g[inside], kk[inside]
+    # one entry per (primitive, voxel): its sample of largest G
+    order = np.lexsort((-g, kk, row))
+    pair = row[order] * (cells**3) + kk[order]
+    first = np.r_[True, pair[1:] != pair[:-1]]
+    pick = order[first]
+    return row[pick], pts[pick], kk[pick], g[pick]
+
+
 def _affinity(
-    i0, i1, centroid, lab, normal, tensor, kappa, mass, h, config: Graph3DConfig
+    i0, i1, centroid, lab, normal, tensor, kappa, mass, typical, h, config: Graph3DConfig
 ) -> np.ndarray:
     if len(i0) == 0:
         return np.zeros(0)
@@ -208,6 +313,6 @@ def _affinity(
     agree = np.sqrt(np.clip(c01, 0.0, 1.0) * np.clip(c10, 0.0, 1.0))
     a_n = np.exp(-kappa[i0] * kappa[i1] * (1.0 - agree) / config.normal_sigma)
     mm = np.minimum(mass[i0], mass[i1])
-    floor = config.mass_floor * float(np.median(mass))
+    floor = config.mass_floor * typical
     a_m = mm / (mm + max(floor, 1e-12))
     return a_d * a_c * a_n * a_m
