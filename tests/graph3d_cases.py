@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from divas_engine.geometry import rotmat_to_quat
+from divas_engine.kinds import SceneKind
 from divas_engine.scene import SH_C0, DensityGrid, SurfelScene
 from divas_engine.synthetic.surfaces import Cylinder, Frame, Rect, Sphere, Surface, box
 
@@ -136,13 +137,14 @@ def box_and_hanging_plate() -> CaseScene:
     return build_case([floor(), Part(tuple(a), (0.8, 0.3, 0.2)), Part(tuple(b), (0.2, 0.35, 0.8))])
 
 
-def ball_with_leaves() -> CaseScene:
+def ball_with_leaves(kind: SceneKind = SceneKind.GS3D) -> CaseScene:
     """Parts: 0 floor, 1 the grey ball of :func:`ball_on_floor`, 2 four large round 3DGS
     Gaussians (σ 7 cm on all three axes, no sure normal, the ball's grey-green) around
     the ball like a plant's soft foliage — each centre 4 cm (≈ 3 voxels of a click's
     graph) off the ball's surface, so its 1 σ extent overlaps the ball while its
     centre's voxel touches no other occupied voxel —, 3 one more such Gaussian 30 cm off
-    the ball, overlapping nothing. The surfels of 0 and 1 are flat (``scale_n`` 0)."""
+    the ball, overlapping nothing. The surfels of 0 and 1 are flat (``scale_n`` 0). A
+    trained 3DGS scene by default (``kind``)."""
     base = build_case(
         [
             floor(spacing=0.012),
@@ -169,6 +171,7 @@ def ball_with_leaves() -> CaseScene:
         ),
         0,
         scale_n=np.r_[np.zeros(len(s), np.float32), np.full(k, 0.07, np.float32)],
+        kind=kind,
     )
     return CaseScene(scene, np.r_[base.part, [2, 2, 2, 2, 3]])
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from divas_engine.camera import Camera
+from divas_engine.kinds import SceneKind
 from divas_engine.scene import SurfelScene
 from divas_engine.segment import Graph3DSegmenter, SceneAwareSegmenter, SceneBinding
 from divas_engine.segment.factory import SegmenterKind, SegmenterSettings, build_segmenter
@@ -131,6 +132,12 @@ def test_a_large_gaussian_is_linked_by_its_extent_not_only_its_centre():
     # by centres only (extent_sigmas 0) the leaves' voxels are isolated and left out
     _, alone = _cut(case, [[0.0, -0.2, 0.2]], config=Graph3DConfig(extent_sigmas=0.0))
     assert not alone[:, case.of(2)].any() and _share(alone[1], case, 1) > 0.9
+    # the default links extents on a trained 3DGS scene only: the same primitives read as
+    # 2DGS surfels (an isolated centre: a sparsely sampled surface) keep centres only
+    _, default = _cut(case, [[0.0, -0.2, 0.2]])
+    assert np.array_equal(default, sel)
+    _, as_2dgs = _cut(ball_with_leaves(SceneKind.GS2D), [[0.0, -0.2, 0.2]])
+    assert np.array_equal(as_2dgs, alone)
 
 
 def test_extent_entries_cover_the_ellipse_with_the_gaussian_falloff():
@@ -148,6 +155,7 @@ def test_extent_entries_cover_the_ellipse_with_the_gaussian_falloff():
         np.array([0.8], np.float32),
         np.zeros((1, 1, 3), np.float32),
         0,
+        kind=SceneKind.GS3D,
     )
     prims = ScenePrimitives.from_scene(scene)
     g = build_voxel_graph(prims, np.zeros(3), 4 * h, Graph3DConfig(grid_cells=8, extent_sigmas=1.0))

@@ -31,18 +31,21 @@ class Graph3DConfig:
             segment's cut (0.35). R also grows when the medium score is < 0.5 and the
             walk potential next to the rim exceeds ``rim_reach`` (1e-3).
         grid_cells: voxels along the region's diameter, ``h = 2R / grid_cells`` (96).
-        extent_sigmas, extent_min_sigma: a Gaussian wider than a voxel
+        extent_sigmas, extent_min_sigma, extent_gs3d_only: a Gaussian wider than a voxel
             (``σ_max > extent_min_sigma · h``, 1.0; a narrower one reaches only its
             voxel's neighbours, which the 26-neighbourhood links anyway) whose centre's
             voxel has no occupied neighbour (its centre leaves it unlinked) also occupies
-            every voxel its ellipsoid ``|u| ≤ extent_sigmas`` (σ units) covers, with its
-            opacity there ``α exp(−|u|²/2)`` (0: centres only, the default; 1.0 is the
-            measured setting: lod1/plants 0.687 → 0.828, but the simulated user's plant
-            and occluded scenes 0.836 / 0.883 → 0.720 / 0.711 — off until that is
-            understood, BENCHMARKS "Primitive extents"), sampled a voxel
+            every voxel its ellipsoid ``|u| ≤ extent_sigmas`` (σ units, 1.0; 0: centres
+            only) covers, with its opacity there ``α exp(−|u|²/2)``, sampled a voxel
             apart at most ``extent_max_steps`` (4) steps each way along an axis
             (:func:`.voxel_graph._extent_entries`): a large foliage Gaussian whose centre
-            sits alone in its voxel is linked to what its footprint overlaps.
+            sits alone in its voxel is linked to what its footprint overlaps. Only on
+            trained 3DGS scenes (``extent_gs3d_only``, True), where a large isolated
+            Gaussian is a volume blob of the object (lod1/plants 0.687 → 0.828; the 3DGS
+            variants under the simulated user: occluded 0.377 → 0.575, ribs and plant
+            equal). On 2DGS surfels an isolated centre is a sparsely sampled surface, and
+            its extent bridged the synthetic vase to its plinth (simulated user: plant /
+            occluded 0.836 / 0.883 → 0.720 / 0.711; BENCHMARKS "Primitive extents").
         min_opacity: primitives below this opacity are left out of the graph (0.02;
             near-invisible haze neither bridges objects nor shows in a mask).
 
@@ -102,9 +105,10 @@ class Graph3DConfig:
     rim_reach: float = 1e-3
     grid_cells: int = 96
     min_opacity: float = 0.02
-    extent_sigmas: float = 0.0
+    extent_sigmas: float = 1.0
     extent_max_steps: int = 4
     extent_min_sigma: float = 1.0
+    extent_gs3d_only: bool = True
     sigma_d: float = 1.0
     colour_contrast: float = 0.5
     normal_sigma: float = 0.15

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...kinds import SceneKind
 from .config import Graph3DConfig
 from .primitives import ScenePrimitives
 
@@ -239,6 +240,8 @@ def _extent_entries(
     k = float(config.extent_sigmas)
     if prims.sigma is None or k <= 0.0 or len(sel) == 0:
         return empty
+    if config.extent_gs3d_only and getattr(prims.scene, "kind", None) != SceneKind.GS3D:
+        return empty  # 2DGS: an isolated centre is a sparse surface (config docstring)
     big = np.flatnonzero(prims.sigma[sel].astype(np.float64) > config.extent_min_sigma * h)
     if len(big) == 0:
         return empty
