@@ -6,7 +6,7 @@ device arrays are allocated and uploaded here too (:mod:`.device_arrays`).
 
 from . import render_defaults
 from ._launch import cpu_threads, resolve_device
-from .contrib import ContribOutput, accumulate_contributions, accumulate_contributions_window
+from .contrib import ContribOutput, accumulate_contributions
 from .coverage import (
     CoverageView,
     compact,
@@ -90,7 +90,6 @@ __all__: list[str] = [
     # per-surfel blending contributions (evaluation baselines)
     "ContribOutput",
     "accumulate_contributions",
-    "accumulate_contributions_window",
     # occupancy and fusion (divas_engine.fusion)
     "GridGeom",
     "surfel_codes",

@@ -50,7 +50,7 @@ from .tile_walk import ContribSink, launch_walk
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["ContribOutput", "accumulate_contributions", "accumulate_contributions_window"]
+__all__ = ["ContribOutput", "accumulate_contributions"]
 
 
 # --------------------------------------------------------------------------- kernels
@@ -89,6 +89,7 @@ def accumulate_contributions(
     settings: RasterSettings | None = None,
     *,
     binning: ViewBinning | None = None,
+    window: tuple[int, int, int, int] | None = None,
 ) -> ContribOutput:
     """A₁ / A₀ of every surfel of ``buf`` for one view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -100,34 +101,20 @@ def accumulate_contributions(
             (same buffers, camera and settings, :func:`~kernels.rasterize.binning_key`):
             its projection, depth order and tiles are reused and only the walk runs —
             the same kernels on the same inputs, so the sums are those of a fresh pass;
-            ignored when its key does not match.
+            ignored when its key does not match (and with a ``window``).
+        window: ``(x0, y0, x1, y1)`` (half-open): walk only these pixels, as
+            :func:`~kernels.rasterize.rasterize_surfels`' ``window`` — surfels whose
+            bounds miss it are culled and bounds are clipped to it, tiles keep their image
+            numbers. So each surfel's weights at the window's pixels are the whole pass's,
+            summed in the same per-thread rows and tile order (while both passes walk the
+            image in one band): a surfel whose footprint lies inside the window gets the
+            whole pass's A₁ / A₀ bit for bit; one reaching beyond it only its window's part.
     Returns:
         :class:`ContribOutput` on ``buf.device``.
     """
-    return _accumulate(buf, w2c, fx, fy, cx, cy, width, height, positive, settings, binning)
-
-
-def accumulate_contributions_window(
-    buf: SurfelBuffers,
-    w2c: np.ndarray,
-    fx: float,
-    fy: float,
-    cx: float,
-    cy: float,
-    width: int,
-    height: int,
-    positive: np.ndarray,
-    settings: RasterSettings | None,
-    window: tuple[int, int, int, int],
-) -> ContribOutput:
-    """:func:`accumulate_contributions` over the pixels of ``window`` ``(x0, y0, x1, y1)``
-    (half-open) only, as :func:`~kernels.rasterize.rasterize_surfels`' ``window``:
-    surfels whose bounds miss it are culled and bounds are clipped to it, tiles keep
-    their image numbers. So each surfel's weights at the window's pixels are the whole
-    pass's, summed in the same per-thread rows and tile order (while both passes walk the
-    image in one band): a surfel whose footprint lies inside the window gets the whole
-    pass's A₁ / A₀ bit for bit; one reaching beyond it gets only its window's part."""
-    return _accumulate(buf, w2c, fx, fy, cx, cy, width, height, positive, settings, None, window)
+    if window is not None:
+        binning = None
+    return _accumulate(buf, w2c, fx, fy, cx, cy, width, height, positive, settings, binning, window)
 
 
 def _accumulate(

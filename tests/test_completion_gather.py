@@ -227,11 +227,11 @@ def test_gather_config():
 
 
 def test_window_pass_is_the_full_pass_inside_the_window(ball):
-    """``accumulate_contributions_window``: a surfel whose footprint bound lies inside the
+    """``accumulate_contributions(window=…)``: a surfel whose footprint bound lies inside the
     window gets the whole pass's A₁ / A₀ bit for bit; one the window cuts gets less; one
     outside it nothing."""
     from divas_engine.render.surfel_blocks import ball_pixel_bounds
-    from divas_kernels import accumulate_contributions_window
+    from divas_kernels import accumulate_contributions
 
     scene, labels, parts, grid, act, views = ball
     sp, _ = _pair(ball)
@@ -244,8 +244,8 @@ def test_window_pass_is_the_full_pass_inside_the_window(ball):
     f1, f0 = full.a1.numpy(), full.a0.numpy()
     box = (20, 16, 70, 80)
     args = (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos)
-    out = accumulate_contributions_window(
-        r.surfel_buffers, *args, r.config.raster_settings(cam), box
+    out = accumulate_contributions(
+        r.surfel_buffers, *args, r.config.raster_settings(cam), window=box
     )
     w1, w0 = out.a1.numpy(), out.a0.numpy()
     lo, hi, front, _ = ball_pixel_bounds(cam, means, reach)

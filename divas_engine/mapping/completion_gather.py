@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from divas_kernels import accumulate_contributions, accumulate_contributions_window, surfel_rows
+from divas_kernels import accumulate_contributions, surfel_rows
 
 from ..camera import Camera
 from ..render.surfel_blocks import ball_pixel_bounds
@@ -201,10 +201,7 @@ def sparse_contributions(
         positive,
         renderer.config.raster_settings(camera),
     )
-    if box == "whole":
-        out = accumulate_contributions(*args)
-    else:
-        out = accumulate_contributions_window(*args, box)
+    out = accumulate_contributions(*args, window=None if box == "whole" else box)
     # a Gaussian of ``rows`` outside the sub-scene does not reach the image: weight 0
     pos = np.minimum(np.searchsorted(sub, rows), len(sub) - 1)
     hit = sub[pos] == rows
