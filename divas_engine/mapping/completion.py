@@ -469,9 +469,10 @@ class VolumetricCompletion:
         :meth:`complete` read) hold their sums, the others 0."""
         return self.q1 / QSCALE, self.q0 / QSCALE
 
-    def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:
-        """The completed selection from the DivAS selection ``selected`` ``[N]`` and the
-        fused voxel selection ``segmented`` ``[A]`` (module docstring)."""
+    def _decide(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:
+        """The decision of :meth:`complete` on the records as they are (module
+        docstring): ``selected`` ``[N]`` the DivAS selection, ``segmented`` ``[A]`` the
+        fused voxel selection."""
         cfg = self.config
         t = time.perf_counter()
         sel = np.asarray(selected, bool)
@@ -569,9 +570,7 @@ class VolumetricCompletion:
     # again — until no cover lacks a cell (the fill reads only the voxel counters,
     # complete in every record, so the second neighbourhood is the first's and one
     # round suffices; the loop makes sure). The decision itself is ``_decide``.
-    _decide = complete
-
-    def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:  # noqa: F811
+    def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:
         """The completed selection from the DivAS selection ``selected`` ``[N]`` and the
         fused voxel selection ``segmented`` ``[A]`` (module docstring): the decision on
         records that cover everything it reads (:meth:`cover`)."""
