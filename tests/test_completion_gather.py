@@ -13,8 +13,8 @@ import pytest
 from divas_engine.fusion import GridConfig, build_occupancy
 from divas_engine.mapping import CompletionConfig, SurfelMapper
 from divas_engine.mapping.completion import VolumetricCompletion
-from divas_engine.mapping.completion_gather import footprint_window, sparse_contributions
-from divas_engine.segment.graph3d.render_box import screen_box
+from divas_engine.mapping.completion_gather import sparse_contributions
+from divas_engine.render.surfel_blocks import screen_box
 
 from .test_completion import CPU, _ball_scene, _divas_like, _views
 
@@ -87,9 +87,7 @@ def test_sparse_sums_equal_the_full_pass(ball):
     means = sp._renderer.surfel_buffers.means.numpy()
     shown, boxes = [], []
     for v in views:
-        boxes.append(footprint_window(v.camera, means[rows], reach[rows], sp._renderer._margin_px))
-        # the graph3d mask windows' rule, the same window
-        assert boxes[-1] == screen_box(v.camera, means[rows], reach[rows], sp._renderer._margin_px)
+        boxes.append(screen_box(v.camera, means[rows], reach[rows], sp._renderer._margin_px))
         pos = np.asarray(v.mask) >= 0.5
         full = sp._renderer.contributions(v.camera, pos)
         a1, a0, n_sub = sparse_contributions(sp._renderer, v.camera, pos, rows, 1.0)

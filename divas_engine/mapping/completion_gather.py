@@ -38,9 +38,9 @@ import numpy as np
 from divas_kernels import accumulate_contributions, surfel_rows
 
 from ..camera import Camera
-from ..render.surfel_blocks import ball_pixel_bounds
+from ..render.surfel_blocks import WHOLE, screen_box
 
-__all__ = ["CoarseCells", "footprint_window", "sparse_contributions"]
+__all__ = ["CoarseCells", "sparse_contributions"]
 
 
 def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -186,7 +186,7 @@ def sparse_contributions(
     # only the pixels the footprints of ``rows`` can reach are walked (the window holds
     # each of them whole, so their A₀ too): the tiles the surfels in front spill over
     # elsewhere are skipped
-    box = footprint_window(camera, means[rows], reach[rows], renderer._margin_px + 2.0)
+    box = screen_box(camera, means[rows], reach[rows], renderer._margin_px + 2.0)
     if box is None:  # none of them can show
         return a1, a0, 0
     args = (
@@ -201,36 +201,10 @@ def sparse_contributions(
         positive,
         renderer.config.raster_settings(camera),
     )
-    out = accumulate_contributions(*args, window=None if box == "whole" else box)
+    out = accumulate_contributions(*args, window=None if box == WHOLE else box)
     # a Gaussian of ``rows`` outside the sub-scene does not reach the image: weight 0
     pos = np.minimum(np.searchsorted(sub, rows), len(sub) - 1)
     hit = sub[pos] == rows
     a1[hit] = out.a1.numpy()[pos[hit]]
     a0[hit] = out.a0.numpy()[pos[hit]]
     return a1, a0, len(sub)
-
-
-def footprint_window(
-    camera: Camera, points: np.ndarray, reach: np.ndarray, margin: float
-) -> tuple[int, int, int, int] | str | None:
-    """Pixel window ``(x0, y0, x1, y1)`` (half-open, clipped to the image) holding every
-    pixel the footprints ``points [K,3] ± reach [K]`` can reach in ``camera``, widened by
-    ``margin`` px (the renderer's low-pass disc and rounding) — the rule of the graph3d
-    mask windows (``segment.graph3d.render_box.screen_box``): each ball's box projected
-    through its corners (:func:`~divas_engine.render.surfel_blocks.ball_pixel_bounds`).
-    ``"whole"`` when a footprint reaches the camera plane; None when none can show."""
-    if len(points) == 0:
-        return None
-    lo_px, hi_px, front, cut = ball_pixel_bounds(camera, points, reach)
-    if cut.any():
-        return "whole"
-    if not front.any():
-        return None
-    lo = lo_px[front].min(axis=0) - margin
-    hi = hi_px[front].max(axis=0) + margin
-    x0, y0 = max(0, int(np.floor(lo[0]))), max(0, int(np.floor(lo[1])))
-    x1 = min(camera.width, int(np.floor(hi[0])) + 1)
-    y1 = min(camera.height, int(np.floor(hi[1])) + 1)
-    if x0 >= x1 or y0 >= y1:
-        return None
-    return x0, y0, x1, y1

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..camera import Camera
 
-__all__ = ["SurfelBlocks", "ball_pixel_bounds"]
+__all__ = ["WHOLE", "SurfelBlocks", "ball_pixel_bounds", "screen_box"]
 
 _BLOCKS_PER_SIDE = 64
 _CHUNK = 1 << 18  # surfels per chunk of the index's per-surfel passes
@@ -53,6 +53,37 @@ def ball_pixel_bounds(
         lo[:, k] = c + f * np.minimum(a / zl, a / zh)
         hi[:, k] = c + f * np.maximum(b / zl, b / zh)
     return lo, hi, front, cut
+
+
+#: a window that is the whole image (:func:`screen_box`)
+WHOLE = "whole"
+
+
+def screen_box(
+    camera: Camera, points: np.ndarray, reach: np.ndarray, margin: float
+) -> tuple[int, int, int, int] | str | None:
+    """Pixel window ``(x0, y0, x1, y1)`` (``x1``, ``y1`` exclusive, clipped to the image)
+    that holds every pixel the balls ``points [N,3] ± reach [N]`` can reach in
+    ``camera``, their :func:`ball_pixel_bounds` widened by ``margin`` pixels (the
+    renderer's screen-space low-pass and rounding); :data:`WHOLE` when a ball reaches the
+    camera plane; None when nothing can show (no ball in front of the camera, or all
+    beyond the image)."""
+    if len(points) == 0:
+        return None
+    lo_px, hi_px, front, cut = ball_pixel_bounds(camera, points, reach)
+    if cut.any():
+        return WHOLE
+    if not front.any():
+        return None
+    lo = lo_px[front].min(axis=0) - margin
+    hi = hi_px[front].max(axis=0) + margin
+    x0 = max(0, int(np.floor(lo[0])))
+    y0 = max(0, int(np.floor(lo[1])))
+    x1 = min(camera.width, int(np.floor(hi[0])) + 1)
+    y1 = min(camera.height, int(np.floor(hi[1])) + 1)
+    if x0 >= x1 or y0 >= y1:
+        return None
+    return x0, y0, x1, y1
 
 
 @dataclass(eq=False)
