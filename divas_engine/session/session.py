@@ -219,8 +219,10 @@ class Session(SelectionEditing, SessionCore):
             t1 = time.perf_counter()
         except DivasInputError as e:
             raise DivasInputError(None, f"anchor {anchor.index}: {e.problem}") from None
-        view = SessionView(vid, obj.index, anchor.index, ci, cv, _session=self)
-        _ = view.buffers
+        view = SessionView(
+            vid, obj.index, anchor.index, ci, cv, _buffers=cv.take_buffers(), _session=self
+        )
+        _ = view.buffers  # rendered here unless the planner's first probe was this render
         view.timings = {"centroid_s": t1 - t0, "render_s": time.perf_counter() - t1}
         clicks.append(AnchorClick(anchor.index, ci, xy, True, cv.target.copy(), vid))
         obj.views.append(view)

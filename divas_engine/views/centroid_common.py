@@ -48,6 +48,9 @@ class CentroidView:
         r_init: Strategy-1 radius (NeRF: the anchor distance to the target).
         neighbours: |N| of eq:neigh (0 for NeRF).
         probes: Strategy-2 log, largest radius first.
+
+    The planner may hand over the full render of ``camera`` it already made (the first
+    probe at full resolution, issue 20): :meth:`take_buffers` gives it once.
     """
 
     camera: Camera
@@ -60,6 +63,13 @@ class CentroidView:
     r_init: float
     neighbours: int = 0
     probes: list[ProbeRecord] = field(default_factory=list)
+    _buffers: Any = field(default=None, repr=False)
+
+    def take_buffers(self) -> Any:
+        """The full render of :attr:`camera` the planner made (a ``RenderBuffers``), or
+        None; given once, so a view that later drops its render really frees it."""
+        b, self._buffers = self._buffers, None
+        return b
 
     def to_dict(self) -> dict[str, Any]:
         return {

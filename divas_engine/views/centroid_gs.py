@@ -21,6 +21,17 @@ when none; O(r_k) = fraction of valid (> 0) patch depths below τ_occ (eq:occfra
 The first (largest) r_k with O < τ_O = 0.15 is taken; none → the smallest radius
 (the paper's fallback). A probe with no valid patch depth is skipped.
 
+Beyond the paper (issue 20, ``ViewConfig.probe_full_first``): the first radius r_0 is
+tested on the *full-resolution* render of its camera — exactly the render the view needs
+when r_0 is taken — instead of a low-resolution probe, so a click whose first candidate
+is accepted costs one render, not a probe plus a render; the render is handed to the
+session with the view (:meth:`CentroidView.take_buffers`). The same eq:occfrac, τ_occ and
+τ_O decide, over the same central patch at 16× the pixels. Measured on 120 clicks (the
+2DGS and 3DGS synthetic scenes, 16 per scene, and every hand-placed click of the real
+captures): r_0 was taken in 115; the full-resolution and the low-resolution tests
+decided the same in all 120 (|ΔO| ≤ 0.02). When r_0 is rejected the remaining radii are
+probed at low resolution as before, at the price of that one extra render.
+
 The view direction v̂ is the anchor ray through the click (anchor centre → x_w);
 BuildPose puts the camera at x_w − r v̂ with the anchor's intrinsics and up.
 
@@ -90,6 +101,7 @@ class GsCentroidPlanner:
         self.config = config or ViewConfig()
         self._opaque: np.ndarray | None = None
         self._centres: np.ndarray | None = None
+        self._xs: np.ndarray | None = None
 
     def _opaque_centres(self) -> tuple[np.ndarray, np.ndarray]:
         if self._centres is None:
@@ -97,6 +109,7 @@ class GsCentroidPlanner:
             c = np.asarray(self.scene.means[opaque], dtype=np.float64)
             by_x = np.argsort(c[:, 0], kind="stable")
             self._opaque, self._centres = opaque[by_x], np.ascontiguousarray(c[by_x])
+            self._xs = np.ascontiguousarray(self._centres[:, 0])
         return self._opaque, self._centres
 
     def neighbourhood(self, x_w: np.ndarray, radius: float) -> np.ndarray:
@@ -105,10 +118,14 @@ class GsCentroidPlanner:
         opaque, c = self._opaque_centres()
         x = np.asarray(x_w, dtype=np.float64)
         slab = abs(float(radius)) * (1.0 + 1e-9) + 1e-300
-        lo = np.searchsorted(c[:, 0], x[0] - slab, side="left")
-        hi = np.searchsorted(c[:, 0], x[0] + slab, side="right")
-        d = np.linalg.norm(c[lo:hi] - x, axis=1)
-        return np.sort(opaque[lo:hi][d < radius])
+        lo = np.searchsorted(self._xs, x[0] - slab, side="left")
+        hi = np.searchsorted(self._xs, x[0] + slab, side="right")
+        c = c[lo:hi]
+        # the y/z slabs first (a centre within the ball is within them), the norm on the
+        # rest: the same rows, each row's norm computed alone (issue 20: 9 → 2 ms at 1M)
+        near = np.flatnonzero((np.abs(c[:, 1] - x[1]) <= slab) & (np.abs(c[:, 2] - x[2]) <= slab))
+        d = np.linalg.norm(c[near] - x, axis=1)
+        return np.sort(opaque[lo:hi][near[d < radius]])
 
     def probe_scale(self, cam: Camera) -> float:
         cfg = self.config
@@ -154,9 +171,15 @@ class GsCentroidPlanner:
         s = self.probe_scale(anchor)
         probes: list[ProbeRecord] = []
         r_star, accepted = float(radii[-1]), False
-        for r_k in radii:
-            cam = build_pose(anchor, x_w, v, float(r_k), near_fraction=cfg.near_fraction)
-            d_med = _probe_depth(self.renderer, cam, s, cfg.f_fill)
+        full: RenderBuffers | None = None
+        for k, r_k in enumerate(radii):
+            if k == 0 and cfg.probe_full_first:
+                cam = build_pose(anchor, x_w, v, float(r_k), name, cfg.near_fraction)
+                full = self.renderer.render(cam)
+                d_med = full.D_med
+            else:
+                cam = build_pose(anchor, x_w, v, float(r_k), near_fraction=cfg.near_fraction)
+                d_med = _probe_depth(self.renderer, cam, s, cfg.f_fill)
             o, valid = occluded_fraction(d_med, 0.0, cfg.f_fill)  # validity only
             if valid == 0:
                 probes.append(
@@ -176,7 +199,16 @@ class GsCentroidPlanner:
             if ok:
                 r_star, accepted = float(r_k), True
                 break
-        cam = build_pose(anchor, x_w, v, r_star, name, cfg.near_fraction)
+        if full is not None and not (accepted and r_star == float(radii[0])):
+            release = getattr(self.renderer, "release", None)
+            if release is not None:  # the first candidate's render is not the view's
+                release(full.camera)
+            full = None
+        cam = (
+            full.camera
+            if full is not None
+            else build_pose(anchor, x_w, v, r_star, name, cfg.near_fraction)
+        )
         return CentroidView(
             cam,
             r_star,
@@ -188,4 +220,5 @@ class GsCentroidPlanner:
             float(r_init),
             int(len(nb)),
             probes,
+            _buffers=full,
         )

@@ -91,6 +91,9 @@ class ViewConfig:
         probe_scale: σ, probe renders at σ × the anchor resolution (not given by the
             paper; 0.25) …
         probe_min_size: … but at least this many pixels on each side (64).
+        probe_full_first: test the first radius r_0 on the full-resolution render of its
+            camera — the view's own render when r_0 is taken — instead of a low-resolution
+            probe (not in the paper; True; issue 20: a click then costs one render).
         near_fraction: a centroid view's own near clip, as a fraction of its orbit radius
             ``d_cam`` (not in the paper; 0.05). The paper's failure mode of a centroid
             camera placed *inside* a floater (App. C, Strategy 2) has a faint form that
@@ -155,6 +158,7 @@ class ViewConfig:
     tau_o: float = 0.15
     probe_scale: float = 0.25
     probe_min_size: int = 64
+    probe_full_first: bool = True
     near_fraction: float = 0.05
 
     def __post_init__(self) -> None:
