@@ -127,3 +127,22 @@ def test_session_click_renders_the_view_once(occluded, monkeypatch):
     assert counts[True][3] == 0 and counts[False][3] == 1
     assert np.array_equal(counts[True][1], counts[False][1])
     assert np.array_equal(counts[True][2], counts[False][2])
+
+
+def test_neighbourhood_and_its_centres_match_brute_force(occluded):
+    """eq:neigh through the x-sorted slab and the y/z pre-filter: the same surfels as a
+    brute-force distance pass, ascending, with their float64 centres in that order."""
+    s, r = occluded
+    planner = GsCentroidPlanner(s.scene, r)
+    mu = s.scene.means.astype(np.float64)
+    opaque = s.scene.opacities > planner.config.alpha_min
+    rng = np.random.default_rng(5)
+    for k in rng.choice(len(mu), 6, replace=False):
+        for radius in (0.02, 0.1, 0.4):
+            x = mu[k] + rng.normal(0, 0.01, 3)
+            want = np.flatnonzero((np.linalg.norm(mu - x, axis=1) < radius) & opaque)
+            idx, centres = planner._neighbours(x, radius)
+            assert np.array_equal(idx, want) and np.array_equal(
+                planner.neighbourhood(x, radius), want
+            )
+            assert centres.dtype == np.float64 and np.array_equal(centres, mu[want])
