@@ -77,7 +77,7 @@ def test_full_first_probe_gives_the_papers_views_and_hands_over_its_render(occlu
         o, valid = occluded_fraction(r.render(first).D_med, b.probes[0].tau_occ, cfg.f_fill)
         assert b.probes[0].occluded == o and b.probes[0].valid == valid
         assert valid > 10 * a.probes[0].valid  # 16× the pixels of the low-res probe
-        got = b.take_buffers()
+        got, seconds = b.take_buffers()
         if b.probes[0].accepted:
             taken += 1
             # that render is the view's: bit-equal to a fresh render of the view's camera
@@ -85,7 +85,7 @@ def test_full_first_probe_gives_the_papers_views_and_hands_over_its_render(occlu
             assert got is not None and got.camera is b.camera
             for name in ("rgb", "alpha", "D_min", "D_ref", "D_max", "D_mw", "D_exp", "D_med"):
                 assert np.array_equal(getattr(got, name), getattr(ref, name)), name
-            assert b.take_buffers() is None  # given once
+            assert seconds > 0 and b.take_buffers() == (None, 0.0)  # given once
         else:
             rejected += 1
             assert got is None and counting.depths > 0  # the later radii: low-res probes
@@ -120,6 +120,10 @@ def test_session_click_renders_the_view_once(occluded, monkeypatch):
         k = len(xs) // 2
         v = sess.click(a.index, (xs[k] + 0.5, ys[k] + 0.5))
         assert v.rendered and v.centroid.probes[0].accepted
+        # the view's render is reported as the render, not as the camera search
+        assert v.timings["render_s"] > 0 and v.timings["centroid_s"] >= 0
+        if flag:
+            assert v.timings["render_s"] > v.timings["centroid_s"]
         counts[flag] = (len(calls), v.camera.w2c.copy(), v.buffers.rgb.copy(), len(depths))
         sess.close()
     # the view rendered once; with the full first probe no low-res probe at all

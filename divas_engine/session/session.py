@@ -219,11 +219,11 @@ class Session(SelectionEditing, SessionCore):
             t1 = time.perf_counter()
         except DivasInputError as e:
             raise DivasInputError(None, f"anchor {anchor.index}: {e.problem}") from None
-        view = SessionView(
-            vid, obj.index, anchor.index, ci, cv, _buffers=cv.take_buffers(), _session=self
-        )
-        _ = view.buffers  # rendered here unless the planner's first probe was this render
-        view.timings = {"centroid_s": t1 - t0, "render_s": time.perf_counter() - t1}
+        buffers, handed_s = cv.take_buffers()  # the planner's first probe, when it is the view
+        view = SessionView(vid, obj.index, anchor.index, ci, cv, _buffers=buffers, _session=self)
+        _ = view.buffers  # rendered here otherwise
+        t2 = time.perf_counter()
+        view.timings = {"centroid_s": t1 - t0 - handed_s, "render_s": handed_s + t2 - t1}
         clicks.append(AnchorClick(anchor.index, ci, xy, True, cv.target.copy(), vid))
         obj.views.append(view)
         self._views[vid] = view

@@ -64,12 +64,14 @@ class CentroidView:
     neighbours: int = 0
     probes: list[ProbeRecord] = field(default_factory=list)
     _buffers: Any = field(default=None, repr=False)
+    _render_s: float = field(default=0.0, repr=False)
 
-    def take_buffers(self) -> Any:
-        """The full render of :attr:`camera` the planner made (a ``RenderBuffers``), or
-        None; given once, so a view that later drops its render really frees it."""
+    def take_buffers(self) -> tuple[Any, float]:
+        """The full render of :attr:`camera` the planner made (a ``RenderBuffers``, or
+        None) and the seconds it took; given once, so a view that later drops its render
+        really frees it."""
         b, self._buffers = self._buffers, None
-        return b
+        return b, (self._render_s if b is not None else 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         return {

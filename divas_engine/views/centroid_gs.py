@@ -42,6 +42,7 @@ renderer marks invalid depth with 0, so ``> 0`` is used (unit-free, NOTES "Units
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -182,7 +183,9 @@ class GsCentroidPlanner:
         for k, r_k in enumerate(radii):
             if k == 0 and cfg.probe_full_first:
                 cam = build_pose(anchor, x_w, v, float(r_k), name, cfg.near_fraction)
+                t_render = time.perf_counter()
                 full = self.renderer.render(cam)
+                t_render = time.perf_counter() - t_render
                 d_med = full.D_med
             else:
                 cam = build_pose(anchor, x_w, v, float(r_k), near_fraction=cfg.near_fraction)
@@ -228,4 +231,5 @@ class GsCentroidPlanner:
             int(len(nb)),
             probes,
             _buffers=full,
+            _render_s=t_render if full is not None else 0.0,
         )
