@@ -59,8 +59,11 @@ def _first_click(folder: Path, cameras):
     return by_name[ap.value], [c.xy for c in ap.clicks]
 
 
-def interactive(folder: Path, repeats: int) -> dict[str, float]:
-    """Median seconds of open / click / preview / accept / render on one scene."""
+def interactive(folder: Path, repeats: int, segmenter: str = "oracle") -> dict[str, float]:
+    """Median seconds of open / click / preview / accept / render on one scene, with the
+    oracle (a stand-in for SAM: a value render of the ground truth) or ``graph3d`` (the
+    product's default, weight-free)."""
+    from divas_engine.segment.graph3d import Graph3DSegmenter
     from divas_engine.segment.oracle import OracleSegmenter
     from divas_engine.session import Session, SessionConfig
 
@@ -82,10 +85,14 @@ def interactive(folder: Path, repeats: int) -> dict[str, float]:
 
     for _ in range(repeats):
         t = start()
-        s = Session.open(scene, cameras, SessionConfig(), OracleSegmenter(), "cpu", gt_values=gt)
+        seg = OracleSegmenter() if segmenter == "oracle" else Graph3DSegmenter()
+        truth = gt if segmenter == "oracle" else None
+        s = Session.open(scene, cameras, SessionConfig(), seg, "cpu", gt_values=truth)
         put("open", t)
         _ = s.grid  # waits for the background warm-up (fusion state, mapper)
         put("ready", t)
+        s.wait_warm_up()  # and the segmenter's part (none for the oracle)
+        put("warm", t)
         a = s.add_anchor(cam, "training", 0)
         t = start()
         _ = a.buffers
@@ -117,11 +124,11 @@ def interactive(folder: Path, repeats: int) -> dict[str, float]:
     return out
 
 
-def print_interactive(name: str, size: int, repeats: int) -> None:
+def print_interactive(name: str, size: int, repeats: int, segmenter: str = "oracle") -> None:
     folder = scene_files(name, size)
-    m = interactive(folder, repeats)
+    m = interactive(folder, repeats, segmenter)
     r = m["render"]
-    print(f"\n## Interactive loop, {name} {size:,} surfels (median of {repeats})\n")
+    print(f"\n## Interactive loop, {name} {size:,} surfels, {segmenter} (median of {repeats})\n")
     print(
         "| step | seconds | ratio to one render of the view | CPU s (all threads) "
         "| CPU ratio | target (ratio) |"
@@ -138,9 +145,10 @@ def print_interactive(name: str, size: int, repeats: int) -> None:
     label = {
         "open": "Session.open (returns, first anchor rendered)",
         "ready": "open → background warm-up done (fusion state, mapper)",
+        "warm": "open → the segmenter's warm-up done too (graph3d: its primitives)",
         "click": "click → centroid view (1st click)",
         "click2": "click → centroid view (2nd click)",
-        "preview": "preview (oracle segmenter: a value render)",
+        "preview": "preview (the segmenter's masks of the click's prompt)",
         "accept": "accept → selection (1st view)",
         "accept2": "accept → selection (2nd view)",
         "overlay": "overlay of the accepted view, when read",
@@ -164,6 +172,12 @@ def main() -> None:
     ap.add_argument("--views", default="5,10,20")
     ap.add_argument("--fusion-sizes", default="250000,1000000")
     ap.add_argument("--skip-interactive", action="store_true")
+    ap.add_argument(
+        "--segmenter",
+        default="oracle",
+        choices=("oracle", "graph3d"),
+        help="the interactive loop's segmenter (graph3d: the product's default)",
+    )
     ap.add_argument("--skip-fusion", action="store_true")
     ap.add_argument("--per-update", action="store_true", help="also the divas-segment table")
     ap.add_argument("--sizes", default="100000,500000,1000000", help="--per-update sizes")
@@ -174,7 +188,7 @@ def main() -> None:
         f"{datetime.date.today()}, device cpu"
     )
     if not args.skip_interactive:
-        print_interactive(args.scene, args.size, args.repeats)
+        print_interactive(args.scene, args.size, args.repeats, args.segmenter)
     if not args.skip_fusion:
         from bench_fusion_vs_flashsplat import print_fusion_vs_reaccumulation
 

@@ -91,3 +91,8 @@ class SceneAwareSegmenter(Segmenter):
     @abstractmethod
     def _on_bind(self, binding: SceneBinding) -> None:
         """Per-scene preparation (features of the primitives, support planes …)."""
+
+    def warm_up(self) -> None:  # noqa: B027 - optional hook
+        """Build the per-scene state the first prompt would build (the session calls it
+        in its background warm-up, after the fusion state, issue 20); the default does
+        nothing. A failure is left for the first prompt to raise."""

@@ -425,6 +425,13 @@ class SessionCore:
         """The fusion state is built (reading it would not wait for the warm-up)."""
         return self.backend.ready
 
+    def wait_warm_up(self, timeout: float | None = None) -> bool:
+        """Wait for the whole background warm-up of :meth:`Session.open` — the fusion
+        state, then the segmenter's per-scene state (graph3d's primitives) — for at most
+        ``timeout`` seconds; whether it is done. Nothing needs to call it: every step
+        waits for what it uses."""
+        return self.backend.wait_warm_up(timeout)
+
     def report(self) -> dict[str, Any]:
         """Timings, counts, views (with rejection reasons), memory, config, seed."""
         return session_report(self)

@@ -169,7 +169,9 @@ class Session(SelectionEditing, SessionCore):
         s.plan = plan
         if render_anchors and s.anchors:
             _ = s.anchors[0].buffers
-        s.backend.warm_up()
+        # after the fusion state, in the same background thread: the segmenter's per-scene
+        # state (graph3d's primitives: seconds of the first click at 3M, issue 20)
+        s.backend.warm_up(then=getattr(segmenter, "warm_up", None))
         s._autosave()  # the anchors are saved at once (issue 14)
         return s
 

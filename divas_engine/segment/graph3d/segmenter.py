@@ -30,6 +30,7 @@ and a render each.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections import OrderedDict
@@ -134,6 +135,13 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     def _on_bind(self, binding: SceneBinding) -> None:
         self.prims = None  # built on first use (the session opens without waiting)
         self._cuts.clear()
+
+    def warm_up(self) -> None:
+        """Build the scene's :class:`ScenePrimitives` now (the session's background
+        warm-up): at 3M splats they took seconds of the first click (issue 20). A prompt
+        made meanwhile waits for the same build (one lock), never builds twice."""
+        with contextlib.suppress(Exception):  # the first prompt builds again and raises
+            self.primitives()
 
     def primitives(self) -> ScenePrimitives:
         """The bound scene's :class:`ScenePrimitives` (built once)."""

@@ -12,8 +12,9 @@ implement the abstract methods and decorate the class with
 
 from __future__ import annotations
 
+import threading
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -62,10 +63,22 @@ class SessionBackend(ABC):
         """Reading the fusion state would not wait for a warm-up (default: always)."""
         return True
 
-    def warm_up(self) -> None:  # noqa: B027 - optional hook
-        """Start work that the first anchor does not need (e.g. a background thread
-        building the fusion state); the default does nothing. Called once by
-        :meth:`Session.open` after the first anchor is rendered (issue 20)."""
+    def warm_up(self, then: Callable[[], None] | None = None) -> None:
+        """Start work that the first anchor does not need in a background thread: the
+        backend's own (e.g. the fusion state), then ``then`` (the segmenter's warm-up) in
+        the same thread; the default has nothing of its own and runs ``then`` alone.
+        Called once by :meth:`Session.open` after the first anchor is rendered (issue 20)."""
+        if then is not None:
+            self._warm = threading.Thread(target=then, name="divas-warm-up", daemon=True)
+            self._warm.start()
+
+    def wait_warm_up(self, timeout: float | None = None) -> bool:
+        """Wait for the whole background warm-up (the segmenter's part too); whether it
+        is done."""
+        t = getattr(self, "_warm", None)
+        if t is not None:
+            t.join(timeout)
+        return t is None or not t.is_alive()
 
     def __init__(
         self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer

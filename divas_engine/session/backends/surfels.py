@@ -8,7 +8,7 @@ and the voxel-to-surfel mapping (Sec. 3.6); exports are surfel files.
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -79,6 +79,7 @@ class SurfelBackend(SessionBackend):
         self._state_error: BaseException | None = None
         self._state_lock = threading.Lock()
         self._warm: threading.Thread | None = None
+        self._warm_done = threading.Event()
 
     # --- deferred state ----------------------------------------------------------
     def _build_state(self) -> None:
@@ -103,12 +104,22 @@ class SurfelBackend(SessionBackend):
             if index is not None:
                 index()
 
-    def warm_up(self) -> None:
+    def warm_up(self, then: Callable[[], None] | None = None) -> None:
         if self._warm is None and self._state is None:
             self._warm = threading.Thread(
-                target=self._build_state, name="divas-warm-up", daemon=True
+                target=self._warm_up, args=(then,), name="divas-warm-up", daemon=True
             )
             self._warm.start()
+
+    def _warm_up(self, then: Callable[[], None] | None) -> None:
+        """The background thread: the fusion state (readers wait for this part only),
+        then the segmenter's warm-up."""
+        try:
+            self._build_state()
+        finally:
+            self._warm_done.set()
+        if then is not None:
+            then()
 
     @property
     def ready(self) -> bool:
@@ -116,7 +127,7 @@ class SurfelBackend(SessionBackend):
 
     def _ready(self) -> tuple:
         if self._warm is not None:
-            self._warm.join()
+            self._warm_done.wait()
         if self._state is None:
             self._build_state()
         if self._state_error is not None:
