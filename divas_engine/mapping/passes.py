@@ -222,6 +222,12 @@ class SurfelMapper:
         grid: the occupancy grid the fusion ran on (same device).
         config: default :class:`MappingConfig` for :meth:`map`.
         device: Warp device (default: the grid's).
+        surfels: the scene's :class:`divas_kernels.SurfelBuffers` on the same device (a
+            renderer's ``surfel_buffers``): their centres and scaled tangents are used
+            instead of a second upload. They hold the same float32 values: the renderer
+            rounds the float32 product ``R·s`` and this class the exact float64 product
+            of the same float32 factors, which rounds to the same float32 (issue 20:
+            0.1 GB at 3M surfels; tested bit for bit).
     """
 
     def __init__(
@@ -230,6 +236,7 @@ class SurfelMapper:
         grid: OccupancyGrid,
         config: MappingConfig = MappingConfig(),
         device=None,
+        surfels=None,
     ) -> None:
         self.device = grid.device if device is None else resolve_device(device)
         if self.device != grid.device:
@@ -238,12 +245,16 @@ class SurfelMapper:
         self.config = config
         self.n = n = len(scene)
         d = self.device
-        rot = scene.rotations().astype(np.float64)
-        sc = np.asarray(scene.scales, dtype=np.float64)
-        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
-        self._means = to_device(f32(scene.means), d, vec3=True)
-        self._tu = to_device(f32(rot[:, :, 0] * sc[:, :1]), d, vec3=True)
-        self._tv = to_device(f32(rot[:, :, 1] * sc[:, 1:2]), d, vec3=True)
+        if surfels is not None and surfels.device == d and len(surfels) == n:
+            self._means, self._tu, self._tv = surfels.means, surfels.tu, surfels.tv
+        else:
+            rot = scene.rotations().astype(np.float64)
+            sc = np.asarray(scene.scales, dtype=np.float64)
+            f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+            self._means = to_device(f32(scene.means), d, vec3=True)
+            self._tu = to_device(f32(rot[:, :, 0] * sc[:, :1]), d, vec3=True)
+            self._tv = to_device(f32(rot[:, :, 1] * sc[:, 1:2]), d, vec3=True)
+            del rot, sc
         codes = surfel_voxel_codes(self._means, grid.geometry, device=d)
         self._act = kocc.hash_query(
             grid.hash_keys, grid.hash_vals, grid.hash_shift, codes, device=d

@@ -57,6 +57,12 @@ class SurfelRenderer:
     #: of the scene: its visible splats, the colours and the pairs — 3 views of a
     #: 1M-surfel scene, 1 of a 3M one, none from ≈ 4M on)
     binning_cache_bytes: int = 256 << 20
+    #: keep an RGB render's per-surfel SH colours (``[N,3]`` float32, 12 bytes per surfel
+    #: of the scene) with its binning, for a second RGB render of the same camera. A
+    #: session never makes one (anchors and views keep their buffers; the value renders
+    #: that reuse a binning read no colours), so they are dropped: 34 MB at 3M surfels
+    #: (issue 20). A dropped colour set only means that RGB render projects afresh.
+    binning_keeps_colours: bool = False
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
@@ -84,6 +90,8 @@ class SurfelRenderer:
         window: tuple[int, int, int, int] | None = None,
     ):
         hit = self.kept_binning(cam) if window is None else None
+        if hit is not None and values is None and features and hit.colors is None:
+            hit = None  # an RGB render of a binning kept without its colours: afresh
         keep = keep and window is None and self.binning_cache > 0
         if keep and hit is None:
             self._make_room()
@@ -104,6 +112,8 @@ class SurfelRenderer:
         )
         b = r.binning
         if b is not None:
+            if not self.binning_keeps_colours:
+                b.colors = None
             kept = [b] + [x for x in self._binnings if x is not b and x.key != b.key]
             self._binnings, total = [], 0
             for x in kept[: self.binning_cache]:

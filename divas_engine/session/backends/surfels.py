@@ -93,7 +93,9 @@ class SurfelBackend(SessionBackend):
                 grid = build_occupancy(self.scene, self.grid_config, self.device, self._geometry)
                 cfg = self._build_config
                 fusion = GsFusion(grid, cfg.gs_fusion, self.device)
-                mapper = SurfelMapper(self.scene, grid, cfg.mapping, self.device)
+                # the renderer's surfel buffers: no second copy of the centres and tangents
+                bufs = getattr(self.renderer, "surfel_buffers", None)
+                mapper = SurfelMapper(self.scene, grid, cfg.mapping, self.device, surfels=bufs)
                 self._state = (grid, fusion, mapper)
             except BaseException as e:  # noqa: BLE001 - re-raised on first use
                 self._state_error = e
