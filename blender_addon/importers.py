@@ -30,7 +30,7 @@ from divas_engine.io.cameras import load_cameras
 from divas_engine.point_attributes import PointTable, grid_point_table, surfel_point_table
 from divas_engine.scene import DensityGrid, Scene, SurfelScene
 
-from . import blend_space, bridge, camera_objects, display, source
+from . import blend_space, bridge, camera_objects, display, memory, source
 
 __all__ = [
     "SplatImportSettings",
@@ -191,6 +191,7 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
             blend = not blend_space.has_other_renderables(context.scene, exclude=(obj,)) or None
         if blend is not None:
             blend_space.set_blend_display(context.scene, blend, context)
+        memory.release_freed()  # the parse's and the point table's freed transients
         return obj
     finally:
         wm.progress_end()

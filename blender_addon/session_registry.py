@@ -99,6 +99,9 @@ class LiveSession:
                 self.coverage.pop(view_id, None)
                 return None
             self.coverage[view_id] = (sel, ov)
+            from . import memory
+
+            memory.release_freed()  # the render's freed transients (issue 20)
         return ov.coverage
 
     def host_state(self) -> dict[str, Any]:

@@ -26,7 +26,7 @@ A step that fails halfway is rolled back (:func:`rollback`), so no partial chang
 
 from __future__ import annotations
 
-from .. import session_registry
+from .. import memory, session_registry
 from ..session_registry import STEP_PROP, LiveSession
 from .points import write_selection
 from .view_cameras import prune_anchor_cameras, prune_view_cameras, sync_camera_tables
@@ -67,6 +67,7 @@ def run_step(obj, live: LiveSession, what: str, fn, *args, **kwargs):
         rollback(obj, live)
         raise
     commit(obj, live, what)
+    memory.release_freed()  # the step's freed transients back to the system (issue 20)
     return out
 
 

@@ -39,11 +39,13 @@ PARTIAL_MAX = 1000
 @dataclass(eq=False)
 class Written:
     """What was last written to a point cloud: its identity, each point's primitive
-    (``pos``: index into the session's per-primitive arrays) and the values written."""
+    (``pos``: index into the session's per-primitive arrays; None when point ``i`` is
+    primitive ``i``, a fresh import: no ``[N]`` int64 map held, 23 MB at 3M points)
+    and the values written."""
 
     geometry: int
     count: int
-    pos: np.ndarray
+    pos: np.ndarray | None
     selected: np.ndarray
     labels: np.ndarray
 
@@ -58,15 +60,16 @@ class WriteBack:
     labels: np.ndarray
 
 
-def _primitive_of_points(live: LiveSession, geom) -> np.ndarray:
-    """Each point's index into the session's per-primitive arrays (flat for grids)."""
+def _primitive_of_points(live: LiveSession, geom) -> np.ndarray | None:
+    """Each point's index into the session's per-primitive arrays (flat for grids);
+    None when every primitive is there, in order (point ``i`` is primitive ``i``)."""
     s = live.session
     index = bridge.read_attribute(geom, INDEX)
     src = getattr(s.scene, "source", None)
     if not isinstance(s.scene, DensityGrid) and src is not None and src.kept_rows is not None:
         kept = src.kept_rows
         if len(index) == len(kept) and np.array_equal(index, kept):
-            return np.arange(len(kept))  # every primitive, in order (a fresh import)
+            return None  # every primitive, in order (a fresh import)
     try:
         if isinstance(s.scene, DensityGrid):
             return point_values(s.scene, index, np.arange(s.scene.density.size))
@@ -108,14 +111,17 @@ def write_selection(obj, live: LiveSession, *, full: bool = False) -> WriteBack:
         w = None
     else:
         pos = w.pos
-    selected = np.asarray(s.selection).reshape(-1)[pos].astype(bool)
-    labels = np.asarray(s.label_set()).reshape(-1)[pos].astype(np.int32)
+    selected = np.asarray(s.selection).reshape(-1)
+    labels = np.asarray(s.label_set()).reshape(-1)
+    if pos is not None:
+        selected, labels = selected[pos], labels[pos]
+    selected, labels = selected.astype(bool), labels.astype(np.int32)  # our own copies
     if w is None:
         bridge.write_attribute(geom, SELECTED, selected)
         bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)
         geom.update_tag()
-        live.written = Written(geom.as_pointer(), len(pos), pos, selected, labels)
-        everything = np.arange(len(pos))
+        live.written = Written(geom.as_pointer(), len(selected), pos, selected, labels)
+        everything = np.arange(len(selected))
         return WriteBack(True, everything, everything)
     out = []
     for name, new, old in ((SELECTED, selected, w.selected), (LABEL_ATTRIBUTE, labels, w.labels)):

@@ -21,7 +21,7 @@ from divas_engine.segment import SegmenterSettings, SegmenterSetupError, build_s
 from divas_engine.session import Session, SessionConfig, anchor_plan, load_prompts
 from divas_engine.session.prompts import resolve_anchors
 
-from .. import session_registry, source
+from .. import memory, session_registry, source
 from ..camera_objects import engine_camera
 from ..importers import TRAINING_CAMERAS
 from ..session_registry import STEP_PROP, LiveSession
@@ -157,6 +157,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
     wm = context.window_manager
     t0 = time.perf_counter()
     wm.progress_begin(0, 100)
+    memory.limit_heap()  # big transients give their pages back when freed (issue 20)
     try:
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
         wm.progress_update(10)
@@ -197,6 +198,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
         live.record({"what": "start", "update_s": live.open_s})
         if live.anchor_cameras:
             activate_camera(context, bpy.data.objects[live.anchor_cameras[0]])
+        memory.release_freed()  # the load's and first render's freed transients (issue 20)
         return live
     finally:
         wm.progress_end()
@@ -215,6 +217,7 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
             raise DivasInputError(
                 path, "no saved DivAS session is here: Start DivAS to begin a new one"
             )
+        memory.limit_heap()
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
         wm.progress_update(20)
         autosave = settings.config.autosave

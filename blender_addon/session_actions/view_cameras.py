@@ -25,7 +25,7 @@ from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.session import Session, SessionView
 
-from .. import overlays
+from .. import memory, overlays
 from ..camera_objects import (
     RESOLUTION_PROP,
     apply_render_settings,
@@ -235,6 +235,7 @@ def ensure_background(live: LiveSession, cam) -> bool:
     if i >= len(live.session.anchors):
         return False
     overlays.set_background(cam, live.session.anchors[i].rgb)
+    memory.release_freed()  # the render's freed transients back to the system (issue 20)
     return True
 
 
