@@ -17,6 +17,11 @@ drawn). With ``--profile``, a cProfile text profile of each step (sorted by cumu
 time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
 ``--fixed-colour``, *View-Dependent Colour* is switched off after the import (the display
 then runs its camera-free variant: a click's camera switch does not re-evaluate it).
+``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
+no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
+its figure stays the reference across rounds); the click then contains that segmenter's
+preview instead of the oracle's value render. The peak RSS column is the process's
+high-water mark after each step (``ru_maxrss``).
 """
 
 from __future__ import annotations
@@ -44,6 +49,12 @@ def main() -> None:
     ap.add_argument("--profile", type=Path, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/divas_bench_scenes"))
     ap.add_argument("--fixed-colour", action="store_true", help="View-Dependent Colour off")
+    ap.add_argument(
+        "--segmenter",
+        default="oracle",
+        choices=("oracle", "graph3d"),
+        help="oracle (ground truth, the default here) or graph3d (the product's default)",
+    )
     args = ap.parse_args()
 
     import bpy  # noqa: I001 - bpy first: addon_utils ships with it
@@ -111,11 +122,10 @@ def main() -> None:
         mod = obj.modifiers[display.MODIFIER]
         display.set_display_inputs(mod, **{display.DisplayInputs.VIEW_DEPENDENT: False})
         print(f"display group: {mod.node_group.name}")
+    gt = {"gt_labels": str(folder / "labels.npy")} if args.segmenter == "oracle" else {}
     step(
         "start",
-        lambda: bpy.ops.divas.start_session(
-            device="cpu", segmenter="oracle", gt_labels=str(folder / "labels.npy")
-        ),
+        lambda: bpy.ops.divas.start_session(device="cpu", segmenter=args.segmenter, **gt),
     )
     live = session_registry.get(obj)
     s = live.session
@@ -155,7 +165,8 @@ def main() -> None:
     load = os.getloadavg()
     print(
         f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
-        f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}\n"
+        f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}, "
+        f"segmenter {args.segmenter}\n"
     )
     print(
         f"Reference: one full engine render of the clicked view "
