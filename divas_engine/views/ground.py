@@ -160,6 +160,10 @@ def _coverage(rel: np.ndarray, w: np.ndarray, n: np.ndarray, inband: np.ndarray)
     return float((occupied & banded).sum() / max(int(occupied.sum()), 1))
 
 
+#: rows per block of the in-range test of :func:`ground_candidates`
+_CHUNK = 1 << 18
+
+
 def ground_candidates(
     points: np.ndarray,
     weights: np.ndarray,
@@ -177,15 +181,25 @@ def ground_candidates(
     """
     cfg = config or ViewConfig()
     c = np.asarray(center, np.float64)
-    p = np.asarray(points, np.float64)
-    w = np.asarray(weights, np.float64)
-    keep = np.linalg.norm(p - c, axis=1) <= r_fg
-    p, w = p[keep], w[keep]
-    if len(p) < 10 or w.sum() <= 0:
+    # the rows within r_fg, then the sample, in float64 only for the rows used: the same
+    # values as converting everything first (issue 20: no [N,3] float64 temporaries,
+    # ≈ 0.2 GB at 3M points)
+    pts, wts = np.asarray(points), np.asarray(weights)
+    keep = np.empty(len(pts), bool)
+    for s in range(0, len(pts), _CHUNK):
+        blk = np.asarray(pts[s : s + _CHUNK], np.float64)
+        keep[s : s + _CHUNK] = np.linalg.norm(blk - c, axis=1) <= r_fg
+    rows = np.flatnonzero(keep)
+    del keep
+    w = np.asarray(wts[rows], np.float64)
+    if len(rows) < 10 or w.sum() <= 0:
         return []
-    if len(p) > cfg.ground_points:
-        idx = np.random.default_rng(seed).choice(len(p), cfg.ground_points, replace=False)
-        p, w = p[np.sort(idx)], w[np.sort(idx)]
+    if len(rows) > cfg.ground_points:
+        idx = np.sort(
+            np.random.default_rng(seed).choice(len(rows), cfg.ground_points, replace=False)
+        )
+        rows, w = rows[idx], w[idx]
+    p = np.asarray(pts[rows], np.float64)
     w = w / w.sum()
     rel = p - c
     band = cfg.ground_band * float(r_fg)

@@ -165,7 +165,12 @@ class ScenePrimitives:
         """The ground plane and up: with a known ``up``, the strongest supporting plane
         within ``ground_convention_deg`` of it; else the shared scene-up estimate's ground
         (a one-sided dense plane elsewhere, such as the top of a box, is not a ground)."""
-        p, w = scene_points(self.scene)
+        if up is not None and isinstance(self.scene, SurfelScene):
+            # the scene's own float32 centres: ground_candidates takes the float64 of the
+            # rows it uses, the same values as scene_points' (no [N,3] float64 copy)
+            p, w = self.scene.means, self.scene.opacities
+        else:
+            p, w = scene_points(self.scene)
         # the shared ground search on a lighter sample than the anchor planner's (the
         # floor / table plane is dense; 1500 directions × 20k points take seconds)
         cfg = replace(ViewConfig(), ground_points=6000, ground_directions=500)
