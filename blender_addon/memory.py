@@ -10,10 +10,11 @@ Blender on the 3M-splat plant scene, the heap grew from 0.07 to 0.6 GB over a se
 top of it. Two glibc settings fix it without changing any result:
 
 * :func:`limit_heap` (when a session starts): a fixed mmap threshold of
-  :data:`MMAP_THRESHOLD` — arrays from 1 MB on get pages of their own and give them back
-  when freed, so the RSS follows what is in use (the peak of a look through a 3M anchor
-  2.53 → 2.41 GB in Blender; a 3M render + value render in a plain process: peak 1.38 →
-  1.30 GB, ≈ 2–5 % more CPU for the page faults; with 4 MB: 2.46 GB, 1.32 GB, 2–3 %);
+  :data:`MMAP_THRESHOLD` — arrays from 4 MB on get pages of their own and give them back
+  when freed, so the RSS follows what is in use. Measured at 3M (BENCHMARKS.md, branch
+  ``blender20b``): the session's peak in Blender 2.55–2.60 → 2.44–2.46 GB with the other
+  changes of that branch, the same with 1 MB (2.44–2.45) at a few % more CPU for the page
+  faults; in a plain process a 3M render + value render: peak 1.38 → 1.32 GB, +2–3 % CPU;
 * :func:`release_freed` (after the steps that render: import, Start, a click, an accept,
   a first look through an anchor, an overlay drawn the first time): ``malloc_trim(0)``
   hands the heap's free pages back.
@@ -31,7 +32,7 @@ import time
 __all__ = ["MMAP_THRESHOLD", "limit_heap", "release_freed", "last_seconds"]
 
 #: allocations from this size on are mapped on their own (glibc ``M_MMAP_THRESHOLD``)
-MMAP_THRESHOLD = 1 << 20
+MMAP_THRESHOLD = 4 << 20
 _M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter number
 
 _libc = None
