@@ -99,3 +99,24 @@ def test_blocks_cover_every_surfel():
     for k in range(len(b.start) - 1):
         m = p[b.order[b.start[k] : b.start[k + 1]]]
         assert np.all(np.linalg.norm(m - b.centre[k], axis=1) + 0.05 <= b.radius[k])
+
+
+def test_near_in_row_blocks_is_the_same_map(case, monkeypatch):
+    """``near`` takes the per-tile depth max over blocks of its rows (bounded memory at
+    3M surfels): the rows kept equal those of one pass over all of them."""
+    from divas_engine.render import surfel_blocks
+
+    sc, cam = case
+    r = SurfelRenderer(sc, device="cpu")
+    blocks, reach = r.sparse_index()
+    z = cam.world_to_camera(sc.means)[:, 2]
+    out = {}
+    for chunk in (1 << 30, 7):
+        monkeypatch.setattr(surfel_blocks, "_NEAR_CHUNK", chunk)
+        out[chunk] = [
+            blocks.near(cam, sc.means[rows], reach[rows], r._margin_px)
+            for rows in (np.flatnonzero((z > 2.0) & (z < 4.0)), np.flatnonzero(z > 5.0))
+        ]
+    for a, b in zip(out[1 << 30], out[7]):
+        assert 0 < len(a) < len(sc)
+        np.testing.assert_array_equal(a, b)

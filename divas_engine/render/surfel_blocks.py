@@ -30,6 +30,10 @@ _BLOCKS_PER_SIDE = 64
 _CHUNK = 1 << 18  # surfels per chunk of the index's per-surfel passes
 _REACH_CLASSES = 4  # footprint classes: ≤ 4×, ≤ 16×, ≤ 64×, more than the median's
 _TILE = 8  # pixels per side of the depth map's tiles
+#: rows of ``near``'s points per (item, tile) pass: the pairs of large footprints run to
+#: tens of millions (issue 20: the peak of graph3d's first click at 3M); a max per tile
+#: over blocks of rows is the same map
+_NEAR_CHUNK = 1 << 16
 
 
 def ball_pixel_bounds(
@@ -204,8 +208,10 @@ class SurfelBlocks:
         if np.any(cut & (z > 0.0)):
             zmap[:] = np.inf  # a footprint reaching the camera plane: no finite bound
         else:
-            item, tile = self._tiles(camera, lo, hi, front, margin_px)
-            np.maximum.at(zmap, tile, z[item])
+            for s in range(0, len(z), _NEAR_CHUNK):  # the max is exact in any order
+                sl = slice(s, s + _NEAR_CHUNK)
+                item, tile = self._tiles(camera, lo[sl], hi[sl], front[sl], margin_px)
+                np.maximum.at(zmap, tile, z[sl][item])
         if not np.any(zmap > -np.inf):  # none of them on the image
             return np.zeros(0, np.int64)
         keep = np.flatnonzero(self._needed(camera, self.centre, self.radius, zmap, margin_px))
