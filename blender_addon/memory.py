@@ -9,12 +9,15 @@ Blender on the 3M-splat plant scene, the heap grew from 0.07 to 0.6 GB over a se
 0.06–0.12 GB of the RSS after a click was free heap, and the peaks of the renders sat on
 top of it. Two glibc settings fix it without changing any result:
 
-* :func:`limit_heap` (when a session starts): a fixed mmap threshold of
+* :func:`limit_heap` (when a session of :data:`LIMIT_FROM` primitives or more starts:
+  :func:`limit_heap_for`): a fixed mmap threshold of
   :data:`MMAP_THRESHOLD` — arrays from 4 MB on get pages of their own and give them back
   when freed, so the RSS follows what is in use. Measured at 3M (BENCHMARKS.md, branch
   ``blender20b``): the session's peak in Blender 2.55–2.60 → 2.44–2.46 GB with the other
   changes of that branch, the same with 1 MB (2.44–2.45) at a few % more CPU for the page
   faults; in a plain process a 3M render + value render: peak 1.38 → 1.32 GB, +2–3 % CPU;
+  per click of a 3M session ≈ +0–8 % CPU. Smaller scenes are far from the memory limit
+  (1M splats: 1.4 GB), so they keep glibc's adaptive threshold and its speed;
 * :func:`release_freed` (after the steps that render: import, Start, a click, an accept,
   a first look through an anchor, an overlay drawn the first time): ``malloc_trim(0)``
   hands the heap's free pages back.
@@ -29,10 +32,19 @@ import ctypes.util
 import sys
 import time
 
-__all__ = ["MMAP_THRESHOLD", "limit_heap", "release_freed", "last_seconds"]
+__all__ = [
+    "MMAP_THRESHOLD",
+    "LIMIT_FROM",
+    "limit_heap",
+    "limit_heap_for",
+    "release_freed",
+    "last_seconds",
+]
 
 #: allocations from this size on are mapped on their own (glibc ``M_MMAP_THRESHOLD``)
 MMAP_THRESHOLD = 4 << 20
+#: sessions of this many primitives or more fix the threshold (:func:`limit_heap_for`)
+LIMIT_FROM = 2_000_000
 _M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter number
 
 _libc = None
@@ -69,6 +81,14 @@ def limit_heap() -> bool:
         return False
     if not _limited:
         _limited = bool(libc[1](_M_MMAP_THRESHOLD, MMAP_THRESHOLD))
+    return _limited
+
+
+def limit_heap_for(primitives: int) -> bool:
+    """:func:`limit_heap` when a session of ``primitives`` is large enough to need it
+    (:data:`LIMIT_FROM`); returns whether the threshold is fixed now."""
+    if int(primitives) >= LIMIT_FROM:
+        return limit_heap()
     return _limited
 
 

@@ -144,6 +144,12 @@ def _engine_inputs(context, obj, settings: StartSettings):
     return scene, cameras, gt, seg, device
 
 
+def _primitive_count(scene) -> int:
+    """Surfels of a surfel scene, cells of a density grid."""
+    density = getattr(scene, "density", None)
+    return int(density.size) if density is not None else len(scene)
+
+
 def _follow_undo_steps(context, session: Session) -> None:
     """Keep at least as many session steps as Blender keeps undo steps."""
     steps = int(getattr(context.preferences.edit, "undo_steps", 32))
@@ -157,9 +163,10 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
     wm = context.window_manager
     t0 = time.perf_counter()
     wm.progress_begin(0, 100)
-    memory.limit_heap()  # big transients give their pages back when freed (issue 20)
     try:
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
+        # a large scene's big transients give their pages back when freed (issue 20)
+        memory.limit_heap_for(_primitive_count(scene))
         wm.progress_update(10)
         config = settings.config
         anchors = None
@@ -217,8 +224,8 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
             raise DivasInputError(
                 path, "no saved DivAS session is here: Start DivAS to begin a new one"
             )
-        memory.limit_heap()
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
+        memory.limit_heap_for(_primitive_count(scene))
         wm.progress_update(20)
         autosave = settings.config.autosave
         session = Session.load(

@@ -4,9 +4,10 @@ memory leaves the process, with the written selection unchanged.
 * the write-back keeps no point → primitive map when point ``i`` is primitive ``i`` (a
   fresh import: 23 MB at 3M points), and writes what a full write from the session
   writes — with the map (a reordered point cloud) too;
-* glibc's fixed mmap threshold (:func:`blender_addon.memory.limit_heap`, set at Start)
-  gives a freed array's pages back at once, where the adaptive threshold leaves them on
-  the heap (checked in a fresh process, both ways, so the test can fail).
+* glibc's fixed mmap threshold (:func:`blender_addon.memory.limit_heap`, set when a
+  session of 2M+ primitives starts) gives a freed array's pages back at once, where the
+  adaptive threshold leaves them on the heap (checked in a fresh process, both ways, so
+  the test can fail); a small scene keeps the adaptive threshold.
 """
 
 from __future__ import annotations
@@ -63,7 +64,6 @@ def _some_selection(live):
 
 def test_fresh_import_keeps_no_point_map_and_writes_the_same(scene_dir):
     obj, live = _start(scene_dir)
-    assert memory.limit_heap() and memory._limited  # Start set it (glibc)
     assert live.written is not None and live.written.pos is None
     sel = _some_selection(live)
     wb = points.write_selection(obj, live)
@@ -129,3 +129,14 @@ def test_fixed_mmap_threshold_gives_freed_pages_back():
     assert drop["limit"] >= 0.9 * freed, (drop, freed)  # the 15 freed arrays leave at once
     assert drop["adaptive"] <= 10, drop  # they stay resident on the heap without it
     assert memory.release_freed() and memory.last_seconds >= 0.0
+
+
+def test_start_fixes_the_threshold_only_for_large_scenes(scene_dir, monkeypatch):
+    calls, asked = [], []
+    monkeypatch.setattr(memory, "_limited", False)
+    monkeypatch.setattr(memory, "limit_heap", lambda: calls.append(1) or True)
+    plain = memory.limit_heap_for
+    monkeypatch.setattr(memory, "limit_heap_for", lambda n: asked.append(n) or plain(n))
+    _start(scene_dir)
+    assert asked == [8_000] and calls == []  # 8k splats: glibc's adaptive threshold kept
+    assert memory.limit_heap_for(memory.LIMIT_FROM) and calls == [1]
