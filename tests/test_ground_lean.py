@@ -57,3 +57,26 @@ def test_lean_ground_search_equals_converting_everything(n, dtype):
     _same(got, ref)
     # the float32 scene arrays and their float64 copies give the same planes
     _same(got, ground_candidates(p.astype(np.float64), w.astype(np.float64), center, r_fg, cfg))
+
+
+def test_graph3d_primitives_share_the_scenes_arrays_when_all_are_kept(tmp_path):
+    """Every surfel above the opacity floor: the graph's positions and masses are the
+    scene's own float32 arrays (no copy); with some left out, a copy of those rows."""
+    from divas_engine.segment.graph3d.primitives import ScenePrimitives
+    from divas_engine.synthetic import generate_scene
+
+    sc = generate_scene("plant", tmp_path, size=4000, seed=3, sh_degree=1).scene
+    floor = float(sc.opacities.min())
+    every = ScenePrimitives.from_scene(sc, min_opacity=floor, up=np.array([0.0, 0.0, 1.0]))
+    assert len(every) == len(sc)
+    assert np.shares_memory(every.points, sc.means) and np.shares_memory(every.mass, sc.opacities)
+    np.testing.assert_array_equal(every.index, np.arange(len(sc)))
+    cut = float(np.median(sc.opacities))
+    some = ScenePrimitives.from_scene(sc, min_opacity=cut, up=np.array([0.0, 0.0, 1.0]))
+    assert 0 < len(some) < len(sc) and not np.shares_memory(some.points, sc.means)
+    np.testing.assert_array_equal(some.points, sc.means[some.index])
+    np.testing.assert_array_equal(some.mass, sc.opacities[some.index])
+    # the rows both keep have the same features
+    both = np.isin(every.index, some.index)
+    for f in ("points", "lab", "normals", "kappa", "mass", "reach", "sigma"):
+        np.testing.assert_array_equal(getattr(every, f)[both], getattr(some, f))
