@@ -253,8 +253,10 @@ def _target_slots(ids: wp.array, n_vis: int, n: int, targets, dev, threads: int)
     t = np.asarray(targets, np.int64)
     if len(t) and (t[0] < 0 or t[-1] >= n or np.any(t[1:] <= t[:-1])):
         raise ValueError("accumulate_contributions: targets must be ascending indices < N")
-    slot = np.full(n, len(t), np.int32)
-    slot[t] = np.arange(len(t), dtype=np.int32)
+    host = np.full(n, len(t), np.int32)
+    host[t] = np.arange(len(t), dtype=np.int32)
     out = wp.empty(max(n_vis, 1), dtype=wp.int32, device=dev)
-    launch_split(_slot_kernel, n_vis, [ids, wp.array(slot, dtype=wp.int32), out], dev, threads)
+    slot = wp.array(host, dtype=wp.int32, device=dev, copy=not dev.is_cpu)  # CPU: aliased
+    launch_split(_slot_kernel, n_vis, [ids, slot, out], dev, threads)
+    del host
     return out

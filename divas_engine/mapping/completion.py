@@ -302,7 +302,7 @@ class VolumetricCompletion:
         idx = np.flatnonzero(inside)
         x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
         y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
-        d = np.asarray(view.d_ref, np.float64)[y, x]  # D_med (2DGS D_ref)
+        d = np.asarray(view.d_ref)[y, x].astype(np.float64)  # D_med (2DGS D_ref)
         p = pos[y, x]
         zz = z[idx]
         margin = cfg.surface_margin * self.h

@@ -153,7 +153,7 @@ def gaussian_evidence(
     idx = np.flatnonzero(inside)
     x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
     y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
-    d = np.asarray(view.d_ref, np.float64)[y, x]
+    d = np.asarray(view.d_ref)[y, x].astype(np.float64)
     zz = z[idx]
     ok = pos[y, x] & (d > 0)
     cap = (
