@@ -46,7 +46,7 @@ from .rasterize import (
 )
 from .splat import make_raster_camera
 from .tile_binning import sort_visible, tile_bands, visible_splats
-from .tile_walk import ContribSink, launch_walk
+from .tile_walk import ContribSink, launch_walk, walk_tile_kernel
 
 wp.set_module_options({"enable_backward": False})
 
@@ -230,17 +230,31 @@ def _accumulate(
         for lo, nt, dvals, rstart, rend, total in bands:
             if total == 0:
                 continue
+            span = None
             if targets is not None:  # each tile's list up to its last target only
                 cut = wp.empty(nt, dtype=wp.int32)
                 launch_split(
                     _last_target_kernel, nt, [dvals, ids, k, rstart, rend, cut], dev, threads
                 )
                 rend = cut
-                walked += int((cut.numpy() - rstart.numpy()).sum())
+                left = cut.numpy() - rstart.numpy()
+                walked += int(left.sum())
+                busy = np.flatnonzero(left)
+                if len(busy) == 0:
+                    continue
+                span = (int(busy[0]), int(busy[-1]) + 1)  # the tiles that hold targets
             # interleave: CPU sub-launch j gets base = j, i.e. its own accumulator row
             args = (splats, ids, dvals, rstart, rend, cam, inv_var, float(s.alpha_max), bp, T,
                     tiles_x)  # fmt: skip
-            launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "interleave")
+            if span is not None and mode == "tile":
+                # only the range of tiles that hold targets, each tile in the sub-launch
+                # (accumulator row) and order it has in the whole walk
+                launch_split(
+                    walk_tile_kernel, nt, [*args, lo, states, sink], dev, threads,
+                    "interleave", items=span,
+                )  # fmt: skip
+            else:
+                launch_walk(mode, sink, *args, lo, nt, states, dev, threads, "interleave")
         stats["walked"] = walked if targets is not None else stats["pairs"]
         launch_split(_sum_rows_kernel, k, [rows1, a1], dev, threads)
         launch_split(_sum_rows_kernel, k, [rows0, a0], dev, threads)

@@ -311,3 +311,41 @@ def test_gather_from_the_kept_binning_equals_full(ball):
     res = sp.complete(*big)
     assert np.array_equal(res.selected, full.complete(*big).selected)
     _same_records(sp, full)
+
+
+def test_new_view_is_gathered_for_the_last_cover(ball):
+    """After a decision, a view added for the same selection is gathered at once for the
+    cover that decision needed (Gaussians and voxels): the next decision needs no
+    widening round, and its result is the full records' — the accept a user waits for
+    is one gather and one decision."""
+    scene, labels, parts, grid, act, views = ball
+    sp, full = _pair(ball)
+    sel, seg = _cap(labels, parts, act, len(grid), scene, 0.5)
+    for i, v in enumerate(views[:2]):
+        sp.add_view(i, v)
+        full.add_view(i, v)
+    first = sp.complete(sel, seg)
+    assert first.seconds["gathered"] >= 2
+    for i in (2, 3):
+        sp.add_view(i, views[i])
+        full.add_view(i, views[i])
+        rec = sp._records[i][1]
+        assert rec.cover is not None and rec.cover.any() and rec.mask is None
+        res = sp.complete(sel, seg)
+        assert res.seconds["gathered"] == 0 and res.seconds["rounds"] == 0
+        assert np.array_equal(res.selected, full.complete(sel, seg).selected)
+    _same_records(sp, full)
+    # the same view undone and added again (the bench's accept): the same records
+    before = {
+        k: (r.gauss.copy(), r.q1.copy(), r.voxels.copy()) for k, (_, r) in sp._records.items()
+    }
+    sp.remove_view(3)
+    sp.add_view(3, views[3])
+    res = sp.complete(sel, seg)
+    assert res.seconds["gathered"] == 0
+    g, q1, vox = before[3]
+    r = sp._records[3][1]
+    assert np.array_equal(np.sort(g), np.sort(r.gauss)) and np.array_equal(
+        np.sort(vox), np.sort(r.voxels)
+    )
+    assert np.array_equal(q1[np.argsort(g)], r.q1[np.argsort(r.gauss)])

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 
 from divas_engine.render import make_renderer
 from divas_kernels import accumulate_contributions
+from divas_kernels._launch import launch_split
 
 from .test_completion import CPU, _ball_scene, _views
 
@@ -106,3 +108,31 @@ def test_targets_must_be_ascending(ball):
         accumulate_contributions(
             r.surfel_buffers, *_args(views[0]), st, targets=np.array([len(scene)])
         )
+
+
+@wp.kernel
+def _row_of_item(out: wp.array(dtype=int), rows: int, base: int, stride: int):
+    i = base + wp.tid() * stride
+    out[i] = base % rows
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_item_range_keeps_each_items_sub_launch(threads):
+    """``launch_split(items=(a, b))`` runs items ``a … b−1`` only, each in the sub-launch
+    (``base`` residue: the contribution walk's accumulator row) of the whole launch."""
+    dev = wp.get_device("cpu")
+    n = 23
+    whole = wp.array(np.full(n, -1), dtype=int, device=dev)
+    launch_split(_row_of_item, n, [whole, threads], dev, threads, "interleave")
+    ref = whole.numpy()
+    assert (ref >= 0).all()
+    for a, b in ((0, n), (5, 6), (7, 19), (22, 30), (4, 4)):
+        part = wp.array(np.full(n, -1), dtype=int, device=dev)
+        launch_split(_row_of_item, n, [part, threads], dev, threads, "interleave", items=(a, b))
+        got = part.numpy()
+        b = min(b, n)
+        assert (
+            np.array_equal(got[a:b], ref[a:b]) and (got[:a] == -1).all() and (got[b:] == -1).all()
+        )
+    with pytest.raises(ValueError):
+        launch_split(_row_of_item, n, [whole, threads], dev, threads, "chunk", items=(1, 3))

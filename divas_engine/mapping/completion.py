@@ -46,7 +46,9 @@ the result stays 3D-consistent and floaters away from the object stay out:
   (``drop_inconsistent``: Pass 3's intent, with the renderer's weights).
 
 Incremental and exact under undo: adding a view computes only that view's records (one
-contribution gather and one projection of the active voxels) and adds them to integer
+contribution gather and one projection of the active voxels — with ``sparse_gather``
+only of the Gaussians and voxels of the cells the decision reads,
+:mod:`.completion_gather`, :mod:`.completion_records`) and adds them to integer
 accumulators — ``A₀, A₁`` in int64 fixed point (2⁻²⁴ pixel), the voxel counters in
 int32 — removing it subtracts the same integers, so any add/undo sequence equals the
 views added once (tests: ``tests/test_completion.py``). The per-update decision
@@ -203,7 +205,8 @@ class VolumetricCompletion:
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
         # the cover the last decision needed (with the gather margin): a new view's
         # records are made for it at once (usually all the next decision reads)
-        self._hint: np.ndarray | None = None
+        self._need: np.ndarray | None = None  # cells (indices)
+        self._hint: np.ndarray | None = None  # their rings, made when a view is added
 
     # ------------------------------------------------------------------ per view
     def view_record(self, view: FusionView, cover: np.ndarray | None = None) -> _ViewRecord:
@@ -355,8 +358,11 @@ class VolumetricCompletion:
         if key in self._records:
             raise ValueError(f"completion: view {key} is already added")
         if self.config.sparse_gather:
-            hint = self._hint if self._hint is not None else np.zeros(self.cells.n + 1, bool)
-            rec = self.view_record(view, hint.copy())
+            if self._hint is None:
+                self._hint = np.zeros(self.cells.n + 1, bool)
+                if self._need is not None:
+                    self._hint = self.cells.rings(self._need, int(self.config.gather_margin))
+            rec = self.view_record(view, self._hint.copy())
         else:
             rec = self.view_record(view)
         self._apply(rec, +1)
@@ -544,6 +550,9 @@ class VolumetricCompletion:
         gathered = rounds = 0
         if sparse:
             sel_cells = self.cells.of_gauss[np.flatnonzero(sel)]
+        if sparse and any(r.mask is not None for _, r in self._records.values()):
+            # a record that covers nothing yet (no decision before it): what any decision
+            # reads at least, before the first one (saves widening rounds)
             mark = np.zeros(self.cells.n + 1, bool)
             self.cells.dilate_into(mark, np.flatnonzero(seg))
             mark[sel_cells] = True
@@ -558,7 +567,8 @@ class VolumetricCompletion:
             got = self.cover(need, full=rounds >= self.config.fill_rounds + 2)
             t_gather += time.perf_counter() - t
             if not got:
-                self._hint = self.cells.rings(need, int(self.config.gather_margin))
+                if self._need is None or not np.array_equal(need, self._need):
+                    self._need, self._hint = need, None
                 break
             gathered += got
             rounds += 1

@@ -25,10 +25,19 @@ into bands hands band-local tile numbers to the CPU sub-launches, so a tile may 
 another accumulator row and a sum differ in its last float32 bit (one fixed-point unit
 of 2⁻²⁴ pixel).
 
+In either pass each tile's depth-ordered list is walked only up to its last Gaussian of
+``K`` (``accumulate_contributions(targets=…)``: what comes after it changes no weight of
+``K``; a tile without one is skipped), and when the renderer still keeps the view's
+binning — the session's accept: the view was rendered to be reviewed — that binning's
+lists are walked directly: no block look-up, projection, depth sort or tile binning, and
+the walk is the full pass's own, cut (so the sums are its sums with no condition on
+bands). What remains is the walk over the pixels the object covers, up to each pixel's
+saturation: the cost of a render of the object's part of the view.
+
 Which cells a record covers is remembered with it; the completion widens a record's cover
-(re-gathers it) when the selection's neighbourhood outgrows it, and falls back to the full
-pass when the cover's sub-scene holds most of the scene, or off the CPU (where the pass
-over the scene is cheap).
+(gathers the missing cells and adds them) when the selection's neighbourhood outgrows it,
+and falls back to the full pass when the cover's sub-scene holds most of the scene, or off
+the CPU (where the pass over the scene is cheap).
 """
 
 from __future__ import annotations
