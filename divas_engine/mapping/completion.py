@@ -408,8 +408,8 @@ class VolumetricCompletion:
                 self._apply(part, +1)
                 new = rec.merged(part)
                 new.mask = None
-            else:  # the full record replaces it
-                new = self._cover_record(view, None, pos, rho)
+            else:  # the full record replaces it (the fallback gather made it already)
+                new = part if part is not None else self._cover_record(view, None, pos, rho)
                 self._apply(rec, -1)
                 self._apply(new, +1)
             self._records[key] = (view, new)
