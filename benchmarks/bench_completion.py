@@ -17,8 +17,15 @@ silhouettes, depth from the renderer. What one accept adds to the update:
   them are projected and walked; ``cover`` / ``sub-scene`` are those Gaussians and
   surfels, ``mask %`` the mask's share of the view; ``equal`` checks the covered
   records against the full pass's;
-* ``accept ms`` — the whole update with the sparse gather: ``add_view`` (voxel
-  evidence) and ``complete`` (cover gather and decision);
+* ``kept gather ms`` — the same records when the completion shares the renderer and
+  the view was just rendered (the session's accept: the renderer keeps the view's
+  binning): that binning's tile lists are walked up to each tile's last covered
+  Gaussian, nothing is projected; ``walked`` the (tile, surfel) pairs that walk visits;
+* ``accept ms`` — the whole update with the sparse gather: ``add_view`` (the records of
+  the cover the last decision needed: Gaussians and voxels) and ``complete`` (widen
+  the covers if the decision needs more, decide), from the sub-scene pass;
+  ``kept accept ms`` the same from the kept binning (what the session's user waits
+  for);
 * ``add ms`` / ``undo ms`` — adding / subtracting a view's integer records;
 * ``decide ms`` — :meth:`VolumetricCompletion.complete` with S live views (fill rounds,
   neighbourhood, contribution test over all N Gaussians).
@@ -110,6 +117,25 @@ def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "
     cover = rec0.cover
     pos0, rho0 = sp._mask(views[0])
     sparse_ms = median_ms(lambda: sp._gauss_record(views[0], cover, pos0, rho0), reps)
+    # the session's case: the completion shares the renderer, the view was just rendered
+    kp = VolumetricCompletion(
+        scene, grid, mapper.active_index, CompletionConfig(), device=device, renderer=renderer
+    )
+    assert kp._renderer is renderer
+    renderer.render(cam)
+    kp.add_view(0, views[0])
+    kp.complete(sel, fused.segmented)
+    kept_ms = median_ms(lambda: kp._gauss_record(views[0], cover, pos0, rho0), reps)
+    from divas_kernels import accumulate_contributions
+
+    walked = accumulate_contributions(
+        renderer.surfel_buffers,
+        cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height,
+        pos,
+        renderer.config.raster_settings(cam),
+        binning=renderer.kept_binning(cam),
+        targets=np.sort(sp.cells.members(cover)),
+    ).stats["walked"]  # fmt: skip
     full0 = comp.view_record(views[0])
     covered = np.zeros(n, bool)
     covered[sp.cells.members(cover) if cover is not None else slice(None)] = True
@@ -117,6 +143,21 @@ def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "
     o = np.argsort(rec0.gauss)
     equal = all(
         np.array_equal(getattr(full0, f)[keep], getattr(rec0, f)[o])
+        for f in ("gauss", "q1", "q0", "seen", "deep")
+    )
+    vcov = np.ones(len(grid), bool)
+    if cover is not None:
+        vcov[:] = False
+        vcov[sp.cells.voxels_in(np.flatnonzero(cover))] = True
+    vk, vo = vcov[full0.voxels], np.argsort(rec0.voxels)
+    equal &= np.array_equal(full0.voxels[vk], rec0.voxels[vo])
+    equal &= np.array_equal(full0.flags[vk], rec0.flags[vo])
+    rk = kp._records[0][1]
+    ko = np.argsort(rk.gauss)
+    kc = np.zeros(n, bool)
+    kc[kp.cells.members(rk.cover) if rk.cover is not None else slice(None)] = True
+    equal &= all(
+        np.array_equal(getattr(full0, f)[kc[full0.gauss]], getattr(rk, f)[ko])
         for f in ("gauss", "q1", "q0", "seen", "deep")
     )
     from divas_engine.mapping.completion_gather import sparse_contributions
@@ -129,6 +170,13 @@ def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "
         sp.complete(sel, fused.segmented)
 
     accept_ms = median_ms(accept, reps)
+
+    def kept_accept() -> None:
+        kp.remove_view(0)
+        kp.add_view(0, views[0])
+        kp.complete(sel, fused.segmented)
+
+    kept_accept_ms = median_ms(kept_accept, reps)
     for s in view_counts:
         for k in list(comp.keys):
             comp.remove_view(k)
@@ -161,6 +209,9 @@ def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "
                 "gather_ms": gather_ms,
                 "gather_kept_ms": gather_kept_ms,
                 "sparse_gather_ms": sparse_ms,
+                "kept_gather_ms": kept_ms,
+                "walked": int(walked),
+                "kept_accept_ms": kept_accept_ms,
                 "cover": int(covered.sum()),
                 "sub_scene": int(sub),
                 "mask_share": float(pos.mean()),
@@ -176,8 +227,10 @@ def run(n: int, view_counts: list[int], reps: int, device: str, spheres: str = "
         print(
             f"| {n:,} | {s} | {r['active_voxels']:,} | {r['render_ms']:.0f} | "
             f"{r['record_ms']:.0f} | {r['gather_ms']:.0f} | {r['gather_kept_ms']:.0f} | "
-            f"{r['sparse_gather_ms']:.0f} | {r['cover']:,} | {r['sub_scene']:,} | "
+            f"{r['sparse_gather_ms']:.0f} | {r['kept_gather_ms']:.0f} | {r['walked']:,} | "
+            f"{r['cover']:,} | {r['sub_scene']:,} | "
             f"{100 * r['mask_share']:.1f} | {r['equal']} | {r['accept_ms']:.0f} | "
+            f"{r['kept_accept_ms']:.0f} | "
             f"{r['add_ms']:.1f} | "
             f"{r['undo_ms']:.1f} | {r['decide_ms']:.1f} | {r['setup_s']:.2f} |",
             flush=True,
@@ -197,10 +250,11 @@ def main() -> int:
     print(f"# bench_completion {datetime.date.today()} {cpu} ({os.cpu_count()} CPUs), {a.device}")
     print(
         "| Gaussians | views | active voxels | render ms | view records ms | of which gather "
-        "ms | gather, binning kept ms | sparse gather ms | cover | sub-scene | mask % | "
-        "equal | accept ms | add ms | undo ms | decide ms | setup s |"
+        "ms | gather, binning kept ms | sparse gather ms | kept gather ms | walked | cover | "
+        "sub-scene | mask % | equal | accept ms | kept accept ms | add ms | undo ms | "
+        "decide ms | setup s |"
     )
-    print("|" + "---:|" * 17)
+    print("|" + "---:|" * 20)
     for n in (int(x) for x in a.sizes.split(",")):
         run(n, [int(x) for x in a.views.split(",")], a.reps, a.device, a.spheres)
     return 0

@@ -123,6 +123,7 @@ def launch_split(
     device: wp.context.Device,
     threads: int = 1,
     mode: Literal["chunk", "interleave"] = "chunk",
+    items: tuple[int, int] | None = None,
 ) -> None:
     """Launch a split kernel over work items ``[0, n)``.
 
@@ -135,13 +136,23 @@ def launch_split(
         mode: ``"chunk"`` gives each thread a contiguous range (cache friendly for
             per-element work); ``"interleave"`` gives thread ``j`` items ``j, j+t, …``
             (load balance for uneven per-tile work).
+        items: ``(first, end)``: run only the items ``[first, end)`` of ``[0, n)``, each
+            in the sub-launch (``base``) it has in the whole launch (``"interleave"``
+            only): a kernel that picks a per-thread row by ``base`` sees each of them in
+            the same row and order as in the whole launch (the contribution walk over
+            the tiles that hold its targets, ``kernels.contrib``).
     """
     if n <= 0:
         return
     inputs = list(inputs)
     t = 1 if device.is_cuda else max(1, min(int(threads), n))
+    first, end = (0, n) if items is None else (max(0, items[0]), min(n, items[1]))
+    if items is not None and mode != "interleave":
+        raise ValueError("launch_split: an item range needs the interleaved split")
+    if end <= first:
+        return
     if t == 1:
-        wp.launch(kernel, dim=n, inputs=inputs + [0, 1], device=device)
+        wp.launch(kernel, dim=end - first, inputs=inputs + [first, 1], device=device)
         return
     ensure_loaded(kernel, device)
     jobs = []
@@ -153,7 +164,8 @@ def launch_split(
                 jobs.append((hi - lo, lo, 1))
     else:
         for j in range(t):
-            jobs.append(((n - j + t - 1) // t, j, t))
+            b = first + (j - first) % t  # its first item in the range (≡ j mod t)
+            jobs.append(((end - b + t - 1) // t, b, t))
     pool = _pool(t)
     futures = [
         pool.submit(wp.launch, kernel, dim=d, inputs=inputs + [b, s], device=device)

@@ -46,7 +46,9 @@ the result stays 3D-consistent and floaters away from the object stay out:
   (``drop_inconsistent``: Pass 3's intent, with the renderer's weights).
 
 Incremental and exact under undo: adding a view computes only that view's records (one
-contribution gather and one projection of the active voxels) and adds them to integer
+contribution gather and one projection of the active voxels — with ``sparse_gather``
+only of the Gaussians and voxels of the cells the decision reads,
+:mod:`.completion_gather`, :mod:`.completion_records`) and adds them to integer
 accumulators — ``A₀, A₁`` in int64 fixed point (2⁻²⁴ pixel), the voxel counters in
 int32 — removing it subtracts the same integers, so any add/undo sequence equals the
 views added once (tests: ``tests/test_completion.py``). The per-update decision
@@ -76,16 +78,15 @@ from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
 from .appearance import seen_through_like_object
 from .completion_gather import CoarseCells, sparse_contributions
+from .completion_records import HIDDEN as _HIDDEN
+from .completion_records import INCONSISTENT as _INCONSISTENT
+from .completion_records import QSCALE, _ViewRecord, gaussian_evidence, project_points
+from .completion_records import SURFACE as _SURFACE
+from .completion_records import chord_depth as _chord_depth
+from .completion_records import edge_distance as _edge_distance
 from .config import CompletionConfig
 
 __all__ = ["QSCALE", "CompletionResult", "VolumetricCompletion"]
-
-#: fixed-point scale of the contribution accumulators (2⁻²⁴ pixel)
-QSCALE = float(1 << 24)
-
-# per-view voxel evidence: seen on the surface inside the mask / hidden behind a
-# mask-positive surface within the object's depth / inconsistent
-_SURFACE, _INCONSISTENT, _HIDDEN = np.uint8(1), np.uint8(2), np.uint8(3)
 
 
 @dataclass(eq=False)
@@ -101,6 +102,8 @@ class CompletionResult:
             contribution-inconsistent (``drop_inconsistent``).
         near: ``[N] bool`` Gaussians in the neighbourhood of the final voxel selection.
         rounds: fill rounds run; seconds: ``views`` (new views' records) and ``decide``.
+        near_cells: ``[C+1] bool`` the coarse cells of that neighbourhood (the decision
+            read the counters of their voxels and Gaussians).
     """
 
     selected: np.ndarray
@@ -111,6 +114,7 @@ class CompletionResult:
     near: np.ndarray
     rounds: int
     seconds: dict = field(default_factory=dict)
+    near_cells: np.ndarray | None = None
 
     def counts(self) -> dict[str, int]:
         return {
@@ -120,45 +124,6 @@ class CompletionResult:
             "dropped": int(self.dropped.sum()),
             "selected": int(self.selected.sum()),
         }
-
-
-@dataclass(eq=False)
-class _ViewRecord:
-    gauss: np.ndarray  # [k] int32 Gaussians with a non-zero weight
-    q1: np.ndarray  # [k] int64 A₁ · QSCALE
-    q0: np.ndarray
-    seen: np.ndarray  # [k] bool: weight ≥ min_visibility × unoccluded footprint weight
-    deep: np.ndarray  # [k] int8: +1 centre within the solid depth, −1 beyond it, 0 none
-    voxels: np.ndarray  # [m] int32 active voxels with evidence
-    flags: np.ndarray  # [m] uint8 _SURFACE / _HIDDEN / _INCONSISTENT
-    # [C+1] bool coarse cells whose Gaussians the Gaussian part holds exactly (the
-    # sentinel's always); None: all N (the full pass)
-    cover: np.ndarray | None = None
-    # the view's (positive mask, edge distance) kept until its first gather
-    mask: tuple[np.ndarray, np.ndarray] | None = None
-
-
-def _edge_distance(mask: np.ndarray) -> np.ndarray:
-    """``[H,W]`` float64 distance (pixels) of each pixel of the mask, its holes filled,
-    to the silhouette's edge (0 outside; the image border counts as outside). Holes are
-    filled because a hole is usually an occluder in front of the object (a hand in front
-    of a helmet), not an edge of its silhouette."""
-    import cv2
-    from scipy.ndimage import binary_fill_holes
-
-    m = np.pad(binary_fill_holes(np.asarray(mask, bool)).astype(np.uint8), 1)
-    d = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return d[1:-1, 1:-1].astype(np.float64)
-
-
-def _chord_depth(rho: np.ndarray, y: np.ndarray, x: np.ndarray, extra: np.ndarray) -> np.ndarray:
-    """The depth (pixels) a solid of the silhouette can have behind pixels ``(y, x)``:
-    the chord ``2 √(ρ (2R − ρ))`` of a ball of the mask's inscribed radius R at the
-    pixel's distance ρ (+ ``extra`` pixels, capped at R) from the silhouette's edge
-    (``rho``: :func:`_edge_distance` of the mask)."""
-    big_r = float(rho.max()) if rho.size else 0.0
-    r_p = np.minimum(rho[y, x] + extra, big_r)
-    return 2.0 * np.sqrt(np.maximum(r_p * (2.0 * big_r - r_p), 0.0))
 
 
 class VolumetricCompletion:
@@ -238,17 +203,37 @@ class VolumetricCompletion:
         self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
+        # the cover the last decision needed (with the gather margin): a new view's
+        # records are made for it at once (usually all the next decision reads)
+        self._need: np.ndarray | None = None  # cells (indices)
+        self._hint: np.ndarray | None = None  # their rings, made when a view is added
 
     # ------------------------------------------------------------------ per view
     def view_record(self, view: FusionView, cover: np.ndarray | None = None) -> _ViewRecord:
         """The integer records of one fused view (its contribution gather and its voxel
-        evidence); with ``cover`` (``[C+1] bool`` coarse cells) the Gaussian part only
-        for the Gaussians of those cells (:meth:`_gauss_record`)."""
+        evidence); with ``cover`` (``[C+1] bool`` coarse cells) only for the Gaussians
+        and the active voxels of those cells (:meth:`_gauss_record`)."""
         pos, rho = self._mask(view)
-        rec = self._gauss_record(view, cover, pos, rho)
-        rec.voxels, rec.flags = self._voxel_evidence(view, pos, rho)
-        if cover is not None and not cover.any():
+        rec = self._cover_record(view, cover, pos, rho)
+        if rec.cover is not None and not rec.cover.any():
             rec.mask = (pos, rho)  # pending: gathered by the first decision
+        return rec
+
+    def _cover_record(
+        self,
+        view: FusionView,
+        cover: np.ndarray | None,
+        pos: np.ndarray,
+        rho: np.ndarray,
+        sentinel: bool = True,
+    ) -> _ViewRecord:
+        """:meth:`view_record` from the view's mask ``pos`` and its edge distance ``rho``
+        (``sentinel`` False: without the Gaussians of no cell). The voxel part follows
+        the Gaussian part's cover (all voxels when the gather fell back to the full
+        pass)."""
+        rec = self._gauss_record(view, cover, pos, rho, sentinel)
+        vox = None if rec.cover is None else self.cells.voxels_in(np.flatnonzero(rec.cover))
+        rec.voxels, rec.flags = self._voxel_evidence(view, pos, rho, vox)
         return rec
 
     def _mask(self, view: FusionView) -> tuple[np.ndarray, np.ndarray]:
@@ -258,7 +243,12 @@ class VolumetricCompletion:
         return pos, _edge_distance(pos)
 
     def _gauss_record(
-        self, view: FusionView, cover: np.ndarray | None, pos: np.ndarray, rho: np.ndarray
+        self,
+        view: FusionView,
+        cover: np.ndarray | None,
+        pos: np.ndarray,
+        rho: np.ndarray,
+        sentinel: bool = True,
     ) -> _ViewRecord:
         """The Gaussian part of a view's records (no voxels): ``A₁, A₀`` in fixed point,
         seen, deep — of every Gaussian (``cover`` None: one full rasterizer pass) or of
@@ -269,7 +259,7 @@ class VolumetricCompletion:
         cam = view.camera
         out = None
         if cover is not None:
-            rows = self.cells.members(cover)
+            rows = self.cells.members(cover, sentinel)
             out = sparse_contributions(
                 self._renderer, cam, pos, rows, self.config.gather_max_fraction
             )
@@ -287,58 +277,21 @@ class VolumetricCompletion:
         empty = np.zeros(0, np.int32)
         return _ViewRecord(g, q1[nz], q0[nz], seen, deep, empty, empty.astype(np.uint8), cover)
 
-    def _gaussian_evidence(
-        self, view: FusionView, pos: np.ndarray, rho: np.ndarray, g: np.ndarray, weight: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Per Gaussian ``g`` with blending weight ``weight`` in this view: *seen* (the
-        weight is ≥ ``min_visibility`` × its unoccluded footprint weight) and the depth
-        evidence of its centre (+1 on a mask-positive pixel within the solid depth
-        behind the surface, −1 beyond it when ``deep_is_inconsistent``, 0 otherwise)."""
-        cfg = self.config
-        cam = view.camera
-        if len(g) == 0:
-            return np.zeros(0, bool), np.zeros(0, np.int8)
-        mu = self.means[g]
-        uv, z = cam.project(mu)
-        ray = mu - np.asarray(cam.c2w, np.float64)[:3, 3]
-        dist = np.linalg.norm(ray, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cos = np.abs((self.normals[g] * ray).sum(axis=1)) / dist
-            full = self.footprint[g] * cos * float(cam.fx) * float(cam.fy) / (z * z)
-            # τ_vis = 0: every Gaussian with a weight is seen (the rule is off)
-            seen = (z > 0) & ((cfg.min_visibility <= 0) | (weight >= cfg.min_visibility * full))
-            inside = (
-                (z > 0)
-                & np.isfinite(uv).all(axis=1)
-                & (uv[:, 0] >= 0)
-                & (uv[:, 0] < cam.width)
-                & (uv[:, 1] >= 0)
-                & (uv[:, 1] < cam.height)
-            )
-        deep = np.zeros(len(g), np.int8)
-        idx = np.flatnonzero(inside)
-        x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
-        y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
-        d = np.asarray(view.d_ref, np.float64)[y, x]
-        zz = z[idx]
-        ok = pos[y, x] & (d > 0)
-        cap = (
-            cfg.depth_factor * _chord_depth(rho, y, x, np.zeros(len(idx))) * zz / float(cam.fx)
-            + cfg.surface_margin * self.h
-        )
-        deep[idx[ok & (zz - d <= cap)]] = 1
-        if cfg.deep_is_inconsistent:  # else deeper says nothing, as for the voxels
-            deep[idx[ok & (zz - d > cap)]] = -1
-        return np.asarray(seen, bool), deep
+    # seen / depth evidence of a record's Gaussians (:func:`.completion_records.gaussian_evidence`)
+    _gaussian_evidence = gaussian_evidence
 
     def _voxel_evidence(
-        self, view: FusionView, pos: np.ndarray, rho: np.ndarray
+        self, view: FusionView, pos: np.ndarray, rho: np.ndarray, subset: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
+        """Evidence flags of the active voxels (``subset``: of these only; each voxel's
+        flag depends on its own centre and the view alone): ``(voxels, flags)`` of the
+        voxels with evidence."""
         cfg = self.config
         cam = view.camera
-        if self.a == 0:
+        if self.a == 0 or (subset is not None and len(subset) == 0):
             return np.zeros(0, np.int32), np.zeros(0, np.uint8)
-        uv, z = cam.project(self.voxel_centers)
+        centres = self.voxel_centers if subset is None else self.voxel_centers[subset]
+        uv, z = project_points(cam, centres)
         near = cam.clip_near(self.render_config.near)
         with np.errstate(invalid="ignore"):
             inside = (
@@ -352,7 +305,7 @@ class VolumetricCompletion:
         idx = np.flatnonzero(inside)
         x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
         y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
-        d = np.asarray(view.d_ref, np.float64)[y, x]  # D_med (2DGS D_ref)
+        d = np.asarray(view.d_ref)[y, x].astype(np.float64)  # D_med (2DGS D_ref)
         p = pos[y, x]
         zz = z[idx]
         margin = cfg.surface_margin * self.h
@@ -376,7 +329,8 @@ class VolumetricCompletion:
             [on_surf, hidden, incons], [_SURFACE, _HIDDEN, _INCONSISTENT], np.uint8(0)
         )
         keep = flags != 0
-        return idx[keep].astype(np.int32), flags[keep].astype(np.uint8)
+        idx = idx[keep] if subset is None else np.asarray(subset)[idx[keep]]
+        return idx.astype(np.int32), flags[keep].astype(np.uint8)
 
     def _apply(self, rec: _ViewRecord, sign: int) -> None:
         self._apply_gauss(rec, sign)
@@ -397,14 +351,18 @@ class VolumetricCompletion:
         self.n_incons[rec.voxels] += sign * (rec.flags == _INCONSISTENT).astype(np.int32)
 
     def add_view(self, key: int, view: FusionView) -> None:
-        """Add one fused view under ``key`` (e.g. its fusion slot). Its voxel evidence is
-        computed now; with ``sparse_gather`` its Gaussian part covers no cell yet and is
-        gathered by :meth:`complete` for the cover the selection needs (the counters of
-        the Gaussians hold only what the live records cover)."""
+        """Add one fused view under ``key`` (e.g. its fusion slot). With
+        ``sparse_gather`` its records cover the cells the last decision needed (none
+        before the first decision) and :meth:`complete` widens them to what the selection
+        needs (the counters hold only what the live records cover)."""
         if key in self._records:
             raise ValueError(f"completion: view {key} is already added")
         if self.config.sparse_gather:
-            rec = self.view_record(view, np.zeros(self.cells.n + 1, bool))
+            if self._hint is None:
+                self._hint = np.zeros(self.cells.n + 1, bool)
+                if self._need is not None:
+                    self._hint = self.cells.rings(self._need, int(self.config.gather_margin))
+            rec = self.view_record(view, self._hint.copy())
         else:
             rec = self.view_record(view)
         self._apply(rec, +1)
@@ -428,11 +386,12 @@ class VolumetricCompletion:
         return time.perf_counter() - t
 
     def cover(self, need: np.ndarray, full: bool = False) -> int:
-        """Make every live record hold the Gaussians of the cells ``need`` (indices):
-        a record whose cover lacks one is re-gathered (its Gaussian part subtracted,
-        gathered again for its cover ∪ the cells within ``gather_margin`` of ``need``,
-        added — integers, so exact) or, when that cover is most of the scene, gathered
-        in full (always with ``full``). Returns the records gathered."""
+        """Make every live record hold the Gaussians and voxels of the cells ``need``
+        (indices): a record whose cover lacks one is widened by the cells within
+        ``gather_margin`` of ``need`` it lacks (their records gathered and added —
+        integers, and each value is the whole scene's, so exact) or, when their
+        sub-scene is most of the scene, replaced by the full record (always with
+        ``full``). Returns the records gathered."""
         need = np.asarray(need, np.int64)
         wide = None
         done = 0
@@ -442,10 +401,17 @@ class VolumetricCompletion:
             if wide is None:
                 wide = self.cells.rings(need, int(self.config.gather_margin))
             pos, rho = rec.mask if rec.mask is not None else self._mask(view)
-            new = self._gauss_record(view, None if full else rec.cover | wide, pos, rho)
-            self._apply_gauss(rec, -1)
-            self._apply_gauss(new, +1)
-            new.voxels, new.flags = rec.voxels, rec.flags
+            part = None
+            if not full:
+                part = self._cover_record(view, wide & ~rec.cover, pos, rho, sentinel=False)
+            if part is not None and part.cover is not None:
+                self._apply(part, +1)
+                new = rec.merged(part)
+                new.mask = None
+            else:  # the full record replaces it (the fallback gather made it already)
+                new = part if part is not None else self._cover_record(view, None, pos, rho)
+                self._apply(rec, -1)
+                self._apply(new, +1)
             self._records[key] = (view, new)
             done += 1
         return done
@@ -560,39 +526,54 @@ class VolumetricCompletion:
             near=near,
             rounds=rounds,
             seconds={"decide": time.perf_counter() - t},
+            near_cells=near_cells,
         )
 
     # ------------------------------------------------------------------ records' cover
     # The decision above reads the records of the Gaussians of the cells near the
     # selection (grown by the fill) and of the selected ones. With the sparse gather each
-    # live record holds only the Gaussians of its cover, so ``complete`` decides, widens
-    # the covers to what that decision read (re-gathers) and, if it had to, decides
-    # again — until no cover lacks a cell (the fill reads only the voxel counters,
-    # complete in every record, so the second neighbourhood is the first's and one
-    # round suffices; the loop makes sure). The decision itself is ``_decide``.
+    # live record holds only the Gaussians and voxels of its cover, so ``complete``
+    # first widens the covers to what any decision reads (the cells next to the
+    # segmented voxels, the selected Gaussians' cells), decides, widens them to what that
+    # decision read (the fill may have grown the neighbourhood) and, if it had to,
+    # decides again — until no cover lacks a cell. A decision whose reads were all
+    # covered saw the counters of the full records, so it is the full records' decision.
+    # The decision itself is ``_decide``.
     def complete(self, selected: np.ndarray, segmented: np.ndarray) -> CompletionResult:
         """The completed selection from the DivAS selection ``selected`` ``[N]`` and the
         fused voxel selection ``segmented`` ``[A]`` (module docstring): the decision on
         records that cover everything it reads (:meth:`cover`)."""
         sel = np.asarray(selected, bool)
         seg = np.asarray(segmented, bool)
-        res = self._decide(sel, seg)
+        sparse = self.config.sparse_gather and bool(self._records)
         t = time.perf_counter()
         gathered = rounds = 0
-        if self.config.sparse_gather and self._records:
+        if sparse:
+            sel_cells = self.cells.of_gauss[np.flatnonzero(sel)]
+        if sparse and any(r.mask is not None for _, r in self._records.values()):
+            # a record that covers nothing yet (no decision before it): what any decision
+            # reads at least, before the first one (saves widening rounds)
             mark = np.zeros(self.cells.n + 1, bool)
-            mark[self.cells.of_gauss[np.flatnonzero(sel)]] = True
-            sel_cells = np.flatnonzero(mark[: self.cells.n])
-            while True:
-                mark[:] = False
-                mark[sel_cells] = True
-                mark[self.cells.of_gauss[np.flatnonzero(res.near)]] = True
-                got = self.cover(np.flatnonzero(mark[: self.cells.n]), full=rounds >= 3)
-                if not got:
-                    break
-                gathered += got
-                rounds += 1
-                res = self._decide(sel, seg)
-        res.seconds["gather"] = time.perf_counter() - t - res.seconds["decide"] * (rounds > 0)
+            self.cells.dilate_into(mark, np.flatnonzero(seg))
+            mark[sel_cells] = True
+            gathered = self.cover(np.flatnonzero(mark[: self.cells.n]))
+        t_gather = time.perf_counter() - t
+        res = self._decide(sel, seg)
+        while sparse:
+            mark = res.near_cells.copy()
+            mark[sel_cells] = True
+            need = np.flatnonzero(mark[: self.cells.n])
+            t = time.perf_counter()
+            got = self.cover(need, full=rounds >= self.config.fill_rounds + 2)
+            t_gather += time.perf_counter() - t
+            if not got:
+                if self._need is None or not np.array_equal(need, self._need):
+                    self._need, self._hint = need, None
+                break
+            gathered += got
+            rounds += 1
+            res = self._decide(sel, seg)
+        res.seconds["gather"] = t_gather
+        res.seconds["rounds"] = rounds
         res.seconds["gathered"] = gathered
         return res

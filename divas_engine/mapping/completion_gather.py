@@ -25,17 +25,26 @@ into bands hands band-local tile numbers to the CPU sub-launches, so a tile may 
 another accumulator row and a sum differ in its last float32 bit (one fixed-point unit
 of 2⁻²⁴ pixel).
 
+In either pass each tile's depth-ordered list is walked only up to its last Gaussian of
+``K`` (``accumulate_contributions(targets=…)``: what comes after it changes no weight of
+``K``; a tile without one is skipped), and when the renderer still keeps the view's
+binning — the session's accept: the view was rendered to be reviewed — that binning's
+lists are walked directly: no block look-up, projection, depth sort or tile binning, and
+the walk is the full pass's own, cut (so the sums are its sums with no condition on
+bands). What remains is the walk over the pixels the object covers, up to each pixel's
+saturation: the cost of a render of the object's part of the view.
+
 Which cells a record covers is remembered with it; the completion widens a record's cover
-(re-gathers it) when the selection's neighbourhood outgrows it, and falls back to the full
-pass when the cover's sub-scene holds most of the scene, or off the CPU (where the pass
-over the scene is cheap).
+(gathers the missing cells and adds them) when the selection's neighbourhood outgrows it,
+and falls back to the full pass when the cover's sub-scene holds most of the scene, or off
+the CPU (where the pass over the scene is cheap).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from divas_kernels import accumulate_contributions, surfel_rows
+from divas_kernels import accumulate_contributions
 
 from ..camera import Camera
 from ..render.surfel_blocks import WHOLE, screen_box
@@ -150,23 +159,32 @@ class CoarseCells:
             fresh = self.dilate_cells(out, fresh)
         return out
 
-    def members(self, cover: np.ndarray) -> np.ndarray:
-        """The Gaussians of the cells set in ``cover`` (``[C+1] bool``) and those of the
-        sentinel (no finite cell: never in the neighbourhood, read only when selected)."""
+    def members(self, cover: np.ndarray, sentinel: bool = True) -> np.ndarray:
+        """The Gaussians of the cells set in ``cover`` (``[C+1] bool``) and, with
+        ``sentinel``, those of the sentinel (no finite cell: never in the
+        neighbourhood, read only when selected)."""
         g = self.gaussians_in(np.flatnonzero(cover[: self.n]))
+        if not sentinel:
+            return g
         return np.concatenate([g, self.g_order[self.g_start[self.n] :]])
 
 
 def sparse_contributions(
     renderer, camera: Camera, positive: np.ndarray, rows: np.ndarray, max_fraction: float
 ) -> tuple[np.ndarray, np.ndarray, int] | None:
-    """``(A₁, A₀, surfels)`` ``[len(rows)]`` float32 of the Gaussians ``rows`` in
-    ``camera`` split by the ``[H,W]`` bool mask ``positive`` — equal to those of the full
-    pass (:meth:`~divas_engine.render.surfel_renderer.SurfelRenderer.contributions`) —
-    from a pass over only the surfels that can blend before one of them (module
-    docstring); ``surfels`` the size of that sub-scene. None when that sub-scene holds
-    more than ``max_fraction`` of the scene or the renderer is not on the CPU: the full
-    pass is cheaper there."""
+    """``(A₁, A₀, surfels)`` ``[len(rows)]`` float32 of the Gaussians ``rows`` (distinct)
+    in ``camera`` split by the ``[H,W]`` bool mask ``positive`` — equal to those of the
+    full pass (:meth:`~divas_engine.render.surfel_renderer.SurfelRenderer.contributions`).
+
+    When the renderer keeps the view's binning (the session's accept: the view was just
+    rendered), that binning's tile lists are walked, each only up to its last Gaussian of
+    ``rows`` (``accumulate_contributions(targets=…)``: nothing is projected, sorted or
+    binned, and every Gaussian of ``rows`` sees what the full pass's walk gave it);
+    ``surfels`` is then the scene's size. Else the pass runs over only the surfels that
+    can blend before one of ``rows`` (module docstring; ``surfels`` the size of that
+    sub-scene), in the window their footprints reach, also cut after each tile's last
+    target. None when that sub-scene holds more than ``max_fraction`` of the scene or the
+    renderer is not on the CPU: the full pass is cheaper there."""
     buf = renderer.surfel_buffers
     n = len(buf)
     rows = np.asarray(rows, np.int64)
@@ -176,6 +194,17 @@ def sparse_contributions(
     a0 = np.zeros(len(rows), np.float32)
     if len(rows) == 0:
         return a1, a0, 0
+    view = (camera.w2c, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+    settings = renderer.config.raster_settings(camera)
+    kept = renderer.kept_binning(camera) if hasattr(renderer, "kept_binning") else None
+    if kept is not None and kept.bands is not None:
+        order = np.argsort(rows)
+        out = accumulate_contributions(
+            buf, *view, positive, settings, binning=kept, targets=rows[order]
+        )
+        a1[order] = out.a1.numpy()
+        a0[order] = out.a0.numpy()
+        return a1, a0, n
     blocks, reach = renderer.sparse_index()  # sets the screen margin of the bounds
     means = buf.means.numpy()
     sub = blocks.near(camera, means[rows], reach[rows], renderer._margin_px)
@@ -189,22 +218,20 @@ def sparse_contributions(
     box = screen_box(camera, means[rows], reach[rows], renderer._margin_px + 2.0)
     if box is None:  # none of them can show
         return a1, a0, 0
-    args = (
-        surfel_rows(buf, sub, colours=False),
-        camera.w2c,
-        camera.fx,
-        camera.fy,
-        camera.cx,
-        camera.cy,
-        camera.width,
-        camera.height,
-        positive,
-        renderer.config.raster_settings(camera),
-    )
-    out = accumulate_contributions(*args, window=None if box == WHOLE else box)
     # a Gaussian of ``rows`` outside the sub-scene does not reach the image: weight 0
     pos = np.minimum(np.searchsorted(sub, rows), len(sub) - 1)
     hit = sub[pos] == rows
-    a1[hit] = out.a1.numpy()[pos[hit]]
-    a0[hit] = out.a0.numpy()[pos[hit]]
+    hit = np.flatnonzero(hit)
+    hit = hit[np.argsort(pos[hit])]  # targets ascending
+    out = accumulate_contributions(
+        buf,
+        *view,
+        positive,
+        settings,
+        window=None if box == WHOLE else box,
+        rows=sub,
+        targets=pos[hit],
+    )
+    a1[hit] = out.a1.numpy()
+    a0[hit] = out.a0.numpy()
     return a1, a0, len(sub)

@@ -142,11 +142,13 @@ class CompletionConfig:
             the paper's selection needs more than the trace of weight an addition near
             the selection may rest on — a surface Gaussian at the silhouette's edge
             has a little weight, mostly just outside the mask).
-        sparse_gather: gather a view's contributions only for the Gaussians of a cover
-            of the selection's neighbourhood, from the surfels that can blend before
-            them (:mod:`.completion_gather`; the same records there, at a fraction of
-            the full pass's cost); re-gathered when the neighbourhood outgrows the cover
-            (True; CPU only — elsewhere the full pass).
+        sparse_gather: gather a view's records (contributions and voxel evidence)
+            only for the Gaussians and active voxels of a cover of the selection's
+            neighbourhood — from the view's kept binning when the renderer has one, else
+            from the surfels that can blend before them (:mod:`.completion_gather`; the
+            same records there, at a fraction of the full pass's cost); widened by the
+            missing cells when the neighbourhood outgrows the cover (True; CPU only —
+            elsewhere the full pass).
         gather_margin: coarse cells the cover reaches beyond the decision's first
             neighbourhood (the segmented voxels' cells dilated once and the selected
             Gaussians' cells), room for the fill to grow before a re-gather (2).
