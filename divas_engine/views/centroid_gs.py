@@ -180,6 +180,7 @@ class GsCentroidPlanner:
         probes: list[ProbeRecord] = []
         r_star, accepted = float(radii[-1]), False
         full: RenderBuffers | None = None
+        t_render = 0.0
         for k, r_k in enumerate(radii):
             if k == 0 and cfg.probe_full_first:
                 cam = build_pose(anchor, x_w, v, float(r_k), name, cfg.near_fraction)
@@ -231,5 +232,5 @@ class GsCentroidPlanner:
             int(len(nb)),
             probes,
             _buffers=full,
-            _render_s=t_render if full is not None else 0.0,
+            _render_s=t_render,
         )
