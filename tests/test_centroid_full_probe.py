@@ -150,3 +150,7 @@ def test_neighbourhood_and_its_centres_match_brute_force(occluded):
                 planner.neighbourhood(x, radius), want
             )
             assert centres.dtype == np.float64 and np.array_equal(centres, mu[want])
+            # the click's unordered form: the same rows, each with its own centre
+            u_idx, u_centres = planner._neighbours(x, radius, ordered=False)
+            assert np.array_equal(np.sort(u_idx), want)
+            assert np.array_equal(u_centres, mu[u_idx])

@@ -118,9 +118,13 @@ class GsCentroidPlanner:
         ascending."""
         return self._neighbours(x_w, radius)[0]
 
-    def _neighbours(self, x_w: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    def _neighbours(
+        self, x_w: np.ndarray, radius: float, ordered: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`neighbourhood` and its float64 centres (rows in the same order; the
-        kept copies of the scene's centres, so no second gather from the scene)."""
+        kept copies of the scene's centres, so no second gather from the scene).
+        ``ordered=False``: the same rows in the index's own order (the click reads only
+        |N| and order-free statistics of the centres: no sort)."""
         opaque, c = self._opaque_centres()
         x = np.asarray(x_w, dtype=np.float64)
         slab = abs(float(radius)) * (1.0 + 1e-9) + 1e-300
@@ -133,6 +137,8 @@ class GsCentroidPlanner:
         d = np.linalg.norm(c[near] - x, axis=1)
         rows = near[d < radius]
         idx = opaque[lo:hi][rows]
+        if not ordered:
+            return idx, c[rows]
         order = np.argsort(idx)
         return idx[order], c[rows[order]]
 
@@ -159,7 +165,9 @@ class GsCentroidPlanner:
         tan_half = math.tan(anchor.fov_x / 2.0)
         # Strategy 1
         r_phys = cfg.p_f * z * tan_half
-        nb, mu = self._neighbours(x_w, r_phys)  # mu: float64 centres of N
+        # mu: float64 centres of N; only |N|, a percentile, min/max and a min read them,
+        # so their order is free (no sort)
+        nb, mu = self._neighbours(x_w, r_phys, ordered=False)
         box = None
         if len(nb) < cfg.min_neighbours:
             r_init, s1 = z * cfg.p_f, "sparse"
