@@ -154,3 +154,15 @@ def test_neighbourhood_and_its_centres_match_brute_force(occluded):
             u_idx, u_centres = planner._neighbours(x, radius, ordered=False)
             assert np.array_equal(np.sort(u_idx), want)
             assert np.array_equal(u_centres, mu[u_idx])
+
+
+def test_row_norms_are_numpys_norm_bit_for_bit():
+    """eq:neigh's distances equal ``np.linalg.norm`` to the last bit, on components of
+    very different magnitudes (where another summation order differs)."""
+    from divas_engine.views.centroid_gs import _row_norms
+
+    rng = np.random.default_rng(1)
+    c = rng.normal(size=(50_000, 3)) * 10.0 ** rng.uniform(-8, 8, size=(50_000, 3))
+    x = rng.normal(size=3) * 1e-3
+    rows = np.sort(rng.choice(len(c), 20_000, replace=False))
+    assert np.array_equal(_row_norms(c, rows, x), np.linalg.norm(c[rows] - x, axis=1))

@@ -72,6 +72,15 @@ def occluded_fraction(d_med: np.ndarray, tau_occ: float, f_fill: float) -> tuple
     return float(np.count_nonzero(d < tau_occ) / d.size), int(d.size)
 
 
+def _row_norms(c: np.ndarray, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(c[rows] - x, axis=1)`` bit for bit — NumPy sums the squares of a
+    row left to right, ``(dx² + dy²) + dz²`` — from three columns instead of a gathered
+    ``[n,3]`` block and a length-3 reduction (issue 20: 4.3 → 2 ms of the click's
+    eq:neigh at 1M)."""
+    dx, dy, dz = (c[rows, k] - x[k] for k in range(3))
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 def _probe_depth(renderer, cam: Camera, scale: float, f_fill: float) -> np.ndarray:
     """D_med of a probe, read only over its central patch (eq:occfrac): the renderer's
     depth-only pass of that pixel window when it has one (no SH colours, no feature
@@ -134,7 +143,7 @@ class GsCentroidPlanner:
         # the y/z slabs first (a centre within the ball is within them), the norm on the
         # rest: the same rows, each row's norm computed alone (issue 20: 9 → 2 ms at 1M)
         near = np.flatnonzero((np.abs(c[:, 1] - x[1]) <= slab) & (np.abs(c[:, 2] - x[2]) <= slab))
-        d = np.linalg.norm(c[near] - x, axis=1)
+        d = _row_norms(c, near, x)
         rows = near[d < radius]
         idx = opaque[lo:hi][rows]
         if not ordered:
