@@ -166,3 +166,18 @@ def test_row_norms_are_numpys_norm_bit_for_bit():
     x = rng.normal(size=3) * 1e-3
     rows = np.sort(rng.choice(len(c), 20_000, replace=False))
     assert np.array_equal(_row_norms(c, rows, x), np.linalg.norm(c[rows] - x, axis=1))
+
+
+def test_lateral_distances_are_the_reference_bit_for_bit():
+    """eq:Rlat's ‖r⊥‖ equal the [n,3] reference to the last bit, so the percentile, r_init
+    and the camera are the same."""
+    from divas_engine.views.centroid_gs import _lateral_distances
+
+    rng = np.random.default_rng(2)
+    mu = rng.normal(size=(30_000, 3)) * 10.0 ** rng.uniform(-6, 6, size=(30_000, 3))
+    x = rng.normal(size=3)
+    v = rng.normal(size=3)
+    v /= np.linalg.norm(v)
+    r = mu - x
+    want = np.linalg.norm(r - np.outer(r @ v, v), axis=1)
+    assert np.array_equal(_lateral_distances(mu, x, v), want)

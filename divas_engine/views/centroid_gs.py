@@ -81,6 +81,16 @@ def _row_norms(c: np.ndarray, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+def _lateral_distances(mu: np.ndarray, x_w: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """eq:Rlat's ``‖r⊥‖`` per centre, ``r = μ − x_w``, ``r⊥ = r − (r·v) v``: bit for bit
+    ``np.linalg.norm(r - np.outer(r @ v, v), axis=1)`` (the same products, NumPy's row
+    order of the squares) from columns, without the ``[n,3]`` temporaries (issue 20)."""
+    r = mu - x_w
+    a = r @ v
+    px, py, pz = (r[:, k] - a * v[k] for k in range(3))
+    return np.sqrt(px * px + py * py + pz * pz)
+
+
 def _probe_depth(renderer, cam: Camera, scale: float, f_fill: float) -> np.ndarray:
     """D_med of a probe, read only over its central patch (eq:occfrac): the renderer's
     depth-only pass of that pixel window when it has one (no SH colours, no feature
@@ -181,9 +191,7 @@ class GsCentroidPlanner:
         if len(nb) < cfg.min_neighbours:
             r_init, s1 = z * cfg.p_f, "sparse"
         else:
-            r = mu - x_w
-            r_perp = r - np.outer(r @ v, v)
-            r_lat = float(np.percentile(np.linalg.norm(r_perp, axis=1), cfg.lat_percentile))
+            r_lat = float(np.percentile(_lateral_distances(mu, x_w, v), cfg.lat_percentile))
             r_init, s1 = r_lat / (cfg.f_fill * tan_half), "dense"
             uv, zz = anchor.project(mu)
             uv = uv[zz > 0]
