@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import binary_erosion
 
-from ...geometry import quat_rotation_entries, quat_to_rotmat
+from ...geometry import quat_to_rotmat
 from ...scene import SH_C0, DensityGrid, Scene, SurfelScene
 from ...scene_stats import robust_frame
 from ...views.config import ViewConfig
@@ -222,8 +222,13 @@ class ScenePrimitives:
         column 2 (:func:`~divas_engine.geometry.quat_to_rotmat`'s arithmetic)."""
         if self.normals is not None:
             return self.normals[idx]
-        e = quat_rotation_entries(self.scene.quats[self.rows_of(idx)])
-        return np.stack([e[0][2], e[1][2], e[2][2]], 1).astype(np.float32)
+        q = self.scene.quats[self.rows_of(idx)]
+        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        out = np.empty((len(q), 3), np.float32)  # column 2, each entry in q's dtype
+        out[:, 0] = 2 * (x * z + w * y)
+        out[:, 1] = 2 * (y * z - w * x)
+        out[:, 2] = 1 - 2 * (x * x + y * y)
+        return out
 
     def kappa_of(self, idx: np.ndarray) -> np.ndarray | None:
         """``[n]`` float32 normal confidence κ of primitives ``idx``; None when it is 1
