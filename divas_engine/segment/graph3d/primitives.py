@@ -122,7 +122,10 @@ class ScenePrimitives:
             pts = np.asarray(scene.means[keep], np.float32)
             mass = np.asarray(scene.opacities[keep], np.float32)
             index = keep
-        # colour, normal, κ, σ and reach are computed per row when a prompt reads them
+        # colour, normal, κ, σ and reach are computed per row when a prompt reads them;
+        # OpenCV builds its Lab tables at its first conversion (0.1-0.2 s): here, in the
+        # session's warm-up, not in the first click's prompt
+        _lab(np.full((1, 3), 0.5, np.float32))
         return cls._finish(scene, pts, None, None, None, mass, index)
 
     @classmethod
