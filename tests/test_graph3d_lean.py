@@ -207,3 +207,31 @@ def test_segmenter_results_are_the_reference(name, monkeypatch):
         np.testing.assert_array_equal(masks, old.render_masks(cam, want.selected))
         shown += int((masks.max(axis=0) > 0.5).any())
     assert shown > 0
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 8, 1001, 40000])
+def test_surfel_frame_is_the_robust_frame(n):
+    """The primitives' scene frame (centre, P99 radius) from float32 centres a column /
+    a block of rows at a time equals ``robust_frame`` of their float64 copy bit for bit
+    (even and odd counts, repeated values, blocks that do not divide the rows)."""
+    from divas_engine.scene_stats import robust_frame
+    from divas_engine.segment.graph3d.primitives import surfel_frame
+
+    rng = np.random.default_rng(n)
+    m = (rng.standard_normal((n, 3)) * [1.0, 3.0, 0.1] + [0.5, -2.0, 7.0]).astype(np.float32)
+    m[::5] = m[0]
+    want = robust_frame(np.asarray(m, np.float64))
+    for block in (1, 7, 1 << 18):
+        got = surfel_frame(m, block)
+        np.testing.assert_array_equal(got.center, want.center)
+        assert got.radius == want.radius
+
+
+def test_primitives_frame_is_the_scenes_robust_frame(scene):
+    from divas_engine.scene_stats import robust_frame
+    from divas_engine.views.ground import scene_points
+
+    prims = ScenePrimitives.from_scene(scene, 0.0, UP)
+    want = robust_frame(scene_points(scene)[0])
+    np.testing.assert_array_equal(prims.center, want.center)
+    assert prims.radius == want.radius
