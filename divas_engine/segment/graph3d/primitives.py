@@ -43,9 +43,11 @@ _GREY = np.float32(0.8)
 _REACH_SIGMAS = 4.0  # ≥ the 3.33 σ cutoff disc of α ≥ 1/255 (down to α_min ≈ 1/3000)
 
 
-def _lab(rgb: np.ndarray) -> np.ndarray:
-    """``[N,3]`` CIE-Lab (L 0–100) of ``[N,3]`` RGB in [0,1] (sRGB, no linearisation)."""
-    a = np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32).reshape(-1, 1, 3)
+def _lab(rgb: np.ndarray, clipped: bool = False) -> np.ndarray:
+    """``[N,3]`` CIE-Lab (L 0–100) of ``[N,3]`` RGB in [0,1] (sRGB, no linearisation);
+    ``clipped``: ``rgb`` is in [0,1] already (clipping again changes nothing)."""
+    a = rgb if clipped else np.clip(rgb, 0.0, 1.0)
+    a = np.ascontiguousarray(a, dtype=np.float32).reshape(-1, 1, 3)
     if len(a) == 0:  # (a region without primitives)
         return np.zeros((0, 3), np.float32)
     return cv2.cvtColor(a, cv2.COLOR_RGB2Lab).reshape(-1, 3)
@@ -238,8 +240,11 @@ class ScenePrimitives:
         rows), a grid cell's RGB."""
         if self.lab is not None:
             return self.lab[idx]
-        sh = self.scene.sh
-        return _lab(np.clip(0.5 + SH_C0 * sh[self.rows_of(idx), 0, :], 0.0, 1.0))
+        g = self.scene.sh[self.rows_of(idx), 0, :]  # a gathered copy: worked in place
+        g *= SH_C0  # clip(0.5 + SH_C0 · f_dc, 0, 1) in the SH's dtype, as base_colors
+        g += 0.5
+        np.clip(g, 0.0, 1.0, out=g)
+        return _lab(g, clipped=True)
 
     def normals_of(self, idx: np.ndarray) -> np.ndarray:
         """``[n,3]`` float32 unit normals of primitives ``idx``: a surfel's rotation

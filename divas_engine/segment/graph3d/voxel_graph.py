@@ -130,16 +130,23 @@ def build_voxel_graph(
     cells = g + 2
     sel = prims.in_box(lo, lo + cells * h)
     p = prims.points[sel].astype(np.float64)
-    # floor((p − lo) / h) in one scratch array (the same operations, no temporaries)
-    t = p - lo
-    t /= h
-    np.floor(t, out=t)
-    cell = t.astype(np.int64)
-    del t
-    np.clip(cell, 0, cells - 1, out=cell)
-    key = cell[:, 0] + cells * (cell[:, 1] + cells * cell[:, 2])
-    del cell
     n_prim = len(sel)
+    # each point's cell key c_0 + cells · (c_1 + cells · c_2), c = clip(floor((p − lo) / h)),
+    # a coordinate at a time in two scratch columns: the same operations as on the whole
+    # [n,3] array (issue 20: at 3M splats every large temporary is a fresh mapping whose
+    # pages fault in, in Blender's fixed-threshold heap)
+    key = np.zeros(n_prim, np.int64)
+    tf = np.empty(n_prim)
+    ci = np.empty(n_prim, np.int64)
+    for k in (2, 1, 0):
+        np.subtract(p[:, k], lo[k], out=tf)
+        tf /= h
+        np.floor(tf, out=tf)
+        np.copyto(ci, tf, casting="unsafe")  # astype(int64)'s cast
+        np.clip(ci, 0, cells - 1, out=ci)
+        key *= cells
+        key += ci
+    del tf, ci
     up_height = None if prims.up is None else p @ np.asarray(prims.up, np.float64)
     # a primitive wider than its voxel also occupies the voxels its extent covers, with
     # the opacity it has there (entries after the first n_prim: row, position, key)
@@ -163,12 +170,15 @@ def build_voxel_graph(
     m = np.bincount(inv, a, v)
     msafe = np.maximum(m, 1e-12)
 
+    buf = np.empty(len(inv))  # one scratch weight column for every sum below
+
     def wmean(x: np.ndarray) -> np.ndarray:
         # a float32 x: ``a * x[:, k]`` takes x's float64 value exactly (as astype would)
-        return (
-            np.stack([np.bincount(inv, a * x[:, k], v) for k in range(x.shape[1])], 1)
-            / (msafe[:, None])
-        )
+        out = np.empty((v, x.shape[1]))
+        for k in range(x.shape[1]):
+            np.multiply(a, x[:, k], out=buf)
+            out[:, k] = np.bincount(inv, buf, v)
+        return out / msafe[:, None]
 
     centroid = wmean(p)
     del p
@@ -179,14 +189,16 @@ def build_voxel_graph(
     up_dot = None
     if up_height is not None:
         up_dot = n[:n_prim].astype(np.float64) @ np.asarray(prims.up, np.float64)
-    akn = [ak * n[:, r] for r in range(3)]  # (ak · n_r) · n_s, the order of the sum
     tensor = np.zeros((v, 3, 3))
+    akr = np.empty(len(inv))
     for r in range(3):
+        np.multiply(ak, n[:, r], out=akr)  # (ak · n_r) · n_s, the order of the sum
         for s in range(r, 3):
-            t = np.bincount(inv, akn[r] * n[:, s], v)
+            np.multiply(akr, n[:, s], out=buf)
+            t = np.bincount(inv, buf, v)
             tensor[:, r, s] = t
             tensor[:, s, r] = t
-    del akn, n
+    del akr, n
     evals, evecs = np.linalg.eigh(tensor)  # ascending
     normal = evecs[:, :, 2]
     trace = np.trace(tensor, axis1=1, axis2=2)
