@@ -33,7 +33,7 @@ def _cut(case, positive, negative=(), config=None):
     seg = Graph3DSegmenter(config, binding=SceneBinding(case.scene, None, None))
     rc = seg.cut(Seeds(np.array(positive, float), np.array(negative, float).reshape(-1, 3)))
     full = np.zeros((3, len(case.scene)), bool)
-    full[:, seg.primitives().index] = rc.selected
+    full[:, seg.primitives().rows_of(np.arange(rc.selected.shape[1]))] = rc.selected
     return rc, full
 
 
@@ -90,7 +90,8 @@ def test_loose_specks_get_no_potential_and_stay_out():
     case = ball_and_specks()
     rc, sel = _cut(case, [[0.0, -0.2, 0.2]])
     g = rc.graph
-    idx = Graph3DSegmenter(binding=SceneBinding(case.scene, None, None)).primitives().index
+    prims = Graph3DSegmenter(binding=SceneBinding(case.scene, None, None)).primitives()
+    idx = prims.rows_of(np.arange(len(prims)))
     speck_nodes = np.unique(g.voxel_of[case.part[idx[g.prim]] == 2])
     assert len(speck_nodes) >= 3  # all three specks are in the examined region
     assert np.all(rc.cut.potential[speck_nodes] == 0.0)

@@ -177,7 +177,7 @@ def test_fast_masks_are_the_dense_full_render(boxes, alpha_min, monkeypatch):
     assert np.array_equal(seg.render_masks(cam, rc.selected), ref)  # window, sparse
     prims = seg.primitives()
     cols = rc.selected.any(axis=0)
-    box = screen_box(cam, prims.points[cols], prims.reach[cols], 4.0)
+    box = screen_box(cam, prims.points[cols], prims.reach_of(cols), 4.0)
     assert box not in (None, WHOLE)
     x0, y0, x1, y1 = box
     assert (x1 - x0) * (y1 - y0) < 0.6 * cam.width * cam.height  # a real window
@@ -213,7 +213,7 @@ def test_fast_masks_of_a_density_grid_are_the_dense_render():
     rc = seg.cut(Seeds(np.array([[0.0, 0.0, 0.36]]), np.zeros((0, 3))))
     prims = seg.primitives()
     cols = rc.selected.any(axis=0)
-    x0, y0, x1, y1 = screen_box(cam, prims.points[cols], prims.reach[cols], 4.0)
+    x0, y0, x1, y1 = screen_box(cam, prims.points[cols], prims.reach_of(cols), 4.0)
     assert (x1 - x0) * (y1 - y0) < 0.5 * cam.width * cam.height
     seg.fast_masks = False
     ref = seg.render_masks(cam, rc.selected)

@@ -70,13 +70,17 @@ def test_graph3d_primitives_share_the_scenes_arrays_when_all_are_kept(tmp_path):
     every = ScenePrimitives.from_scene(sc, min_opacity=floor, up=np.array([0.0, 0.0, 1.0]))
     assert len(every) == len(sc)
     assert np.shares_memory(every.points, sc.means) and np.shares_memory(every.mass, sc.opacities)
-    np.testing.assert_array_equal(every.index, np.arange(len(sc)))
+    assert every.index is None  # primitive i is surfel i
+    np.testing.assert_array_equal(every.rows_of(np.arange(len(every))), np.arange(len(sc)))
     cut = float(np.median(sc.opacities))
     some = ScenePrimitives.from_scene(sc, min_opacity=cut, up=np.array([0.0, 0.0, 1.0]))
     assert 0 < len(some) < len(sc) and not np.shares_memory(some.points, sc.means)
     np.testing.assert_array_equal(some.points, sc.means[some.index])
     np.testing.assert_array_equal(some.mass, sc.opacities[some.index])
     # the rows both keep have the same features
-    both = np.isin(every.index, some.index)
-    for f in ("points", "lab", "normals", "kappa", "mass", "reach", "sigma"):
-        np.testing.assert_array_equal(getattr(every, f)[both], getattr(some, f))
+    both = np.flatnonzero(np.isin(np.arange(len(sc)), some.index))
+    mine = np.arange(len(some))
+    np.testing.assert_array_equal(every.points[both], some.points)
+    np.testing.assert_array_equal(every.mass[both], some.mass)
+    for f in ("lab_of", "normals_of", "kappa_of", "reach_of", "sigma_of"):
+        np.testing.assert_array_equal(getattr(every, f)(both), getattr(some, f)(mine))

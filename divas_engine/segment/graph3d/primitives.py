@@ -10,6 +10,12 @@ One :class:`ScenePrimitives` per scene, built once when the segmenter is bound:
   the occupied set (an empty face neighbour), their RGB grid colour (or grey), the
   normal ``−∇σ`` with confidence from its magnitude.
 
+A surfel scene's per-primitive features (colour, normal, κ, extent) are not stored:
+they are computed for the rows a prompt reads (``lab_of``, ``normals_of``, …) with the
+same element-wise arithmetic as over the whole scene, so the values are the same bit
+for bit, and nothing but the scene's own arrays stays resident (issue 20: 0.17 GB at
+3M splats). Positions and masses are the scene's arrays when every surfel is kept.
+
 It also finds the scene's ground plane once — the one the shared
 :func:`~divas_engine.views.up_direction.estimate_scene_up` takes as the scene's up (a
 one-sided dense plane elsewhere, such as the top of a box, is not a ground) — and turns
@@ -25,22 +31,44 @@ import numpy as np
 from scipy.ndimage import binary_erosion
 
 from ...geometry import quat_to_rotmat
-from ...scene import DensityGrid, Scene, SurfelScene
-from ...scene_stats import robust_frame
+from ...scene import SH_C0, DensityGrid, Scene, SurfelScene
+from ...scene_stats import RobustFrame, robust_frame
 from ...views.config import ViewConfig
 from ...views.ground import GroundPlane, ground_candidates, scene_points
 from ...views.up_direction import UpSource, estimate_scene_up
 
-__all__ = ["ScenePrimitives"]
+__all__ = ["ScenePrimitives", "surfel_frame"]
 
 _GREY = np.float32(0.8)
 _REACH_SIGMAS = 4.0  # ≥ the 3.33 σ cutoff disc of α ≥ 1/255 (down to α_min ≈ 1/3000)
 
 
-def _lab(rgb: np.ndarray) -> np.ndarray:
-    """``[N,3]`` CIE-Lab (L 0–100) of ``[N,3]`` RGB in [0,1] (sRGB, no linearisation)."""
-    a = np.ascontiguousarray(np.clip(rgb, 0.0, 1.0), dtype=np.float32).reshape(-1, 1, 3)
+def _lab(rgb: np.ndarray, clipped: bool = False) -> np.ndarray:
+    """``[N,3]`` CIE-Lab (L 0–100) of ``[N,3]`` RGB in [0,1] (sRGB, no linearisation);
+    ``clipped``: ``rgb`` is in [0,1] already (clipping again changes nothing)."""
+    a = rgb if clipped else np.clip(rgb, 0.0, 1.0)
+    a = np.ascontiguousarray(a, dtype=np.float32).reshape(-1, 1, 3)
+    if len(a) == 0:  # (a region without primitives)
+        return np.zeros((0, 3), np.float32)
     return cv2.cvtColor(a, cv2.COLOR_RGB2Lab).reshape(-1, 3)
+
+
+def surfel_frame(means: np.ndarray, block: int = 1 << 18) -> RobustFrame:
+    """:func:`~divas_engine.scene_stats.robust_frame` of the surfel centres ``means``
+    (eq:scene-norm: median centre, P99 radius), bit for bit, without its float64
+    ``[N,3]`` copies (issue 20: ≈ 0.2 GB transient and 2 s at 3M, in the warm-up): the
+    median of each coordinate from its own contiguous float64 column (the same order
+    statistics and the same mean of the middle two), the distances by the same
+    ``np.linalg.norm`` on ``block`` rows at a time (row by row the same sums)."""
+    p = np.asarray(means)
+    n = len(p)
+    if n == 0:
+        return robust_frame(np.asarray(p, np.float64).reshape(0, 3))
+    c = np.array([np.median(np.asarray(p[:, k], np.float64)) for k in range(3)])
+    d = np.empty(n)
+    for i in range(0, n, block):
+        d[i : i + block] = np.linalg.norm(np.asarray(p[i : i + block], np.float64) - c, axis=1)
+    return RobustFrame(c, float(np.percentile(d, 99.0)))
 
 
 @dataclass(eq=False)
@@ -50,8 +78,11 @@ class ScenePrimitives:
     Attributes:
         points: ``[M,3]`` float32 positions; lab: ``[M,3]`` float32 colour;
         normals: ``[M,3]`` float32 unit normals (sign meaningless); kappa: ``[M]`` normal
-            confidence in [0,1]; mass: ``[M]`` float32 opacity.
-        index: ``[M]`` int64 primitive index in the scene (surfel row, or flat cell index).
+            confidence in [0,1]; mass: ``[M]`` float32 opacity. ``lab``, ``normals``,
+            ``kappa``, ``reach`` and ``sigma`` are None for a surfel scene: read them
+            for some rows with :meth:`lab_of` etc. (computed from the scene's arrays).
+        index: ``[M]`` int64 primitive index in the scene (surfel row, or flat cell
+            index); None when primitive ``i`` is surfel ``i`` (every surfel kept).
         center, radius: the robust frame ``c_scene``, ``r_fg`` (eq:scene-norm).
         grounds: the scene's ground plane (none, or one: the up's).
         up: the scene up (None when unknown: no local supports then).
@@ -70,11 +101,11 @@ class ScenePrimitives:
     """
 
     points: np.ndarray
-    lab: np.ndarray
-    normals: np.ndarray
-    kappa: np.ndarray
+    lab: np.ndarray | None
+    normals: np.ndarray | None
+    kappa: np.ndarray | None
     mass: np.ndarray
-    index: np.ndarray
+    index: np.ndarray | None
     center: np.ndarray
     radius: float
     grounds: tuple[GroundPlane, ...]
@@ -103,25 +134,19 @@ class ScenePrimitives:
     @classmethod
     def _from_surfels(cls, scene: SurfelScene, min_opacity: float) -> ScenePrimitives:
         keep = np.flatnonzero(scene.opacities >= min_opacity)
-        normals = scene.normals()[keep].astype(np.float32)
-        if scene.scale_n is None:
-            kappa = np.ones(len(keep), np.float32)
-        else:
-            s_min = np.maximum(scene.scales[keep].min(axis=1), 1e-12)
-            kappa = np.clip(1.0 - scene.scale_n[keep] / s_min, 0.0, 1.0).astype(np.float32)
         if len(keep) == len(scene):  # every surfel: the scene's own arrays, read only
             pts = np.asarray(scene.means, np.float32)  # (issue 20: 45 MB at 3M)
             mass = np.asarray(scene.opacities, np.float32)
+            index = None  # primitive i is surfel i (no [N] int64 arange)
         else:
             pts = np.asarray(scene.means[keep], np.float32)
             mass = np.asarray(scene.opacities[keep], np.float32)
-        out = cls._finish(scene, pts, _lab(scene.base_colors()[keep]), normals, kappa, mass, keep)
-        sigma = scene.scales[keep].max(axis=1)
-        if scene.scale_n is not None:
-            sigma = np.maximum(sigma, scene.scale_n[keep])
-        out.reach = (_REACH_SIGMAS * sigma).astype(np.float32)
-        out.sigma = sigma.astype(np.float32)
-        return out
+            index = keep
+        # colour, normal, κ, σ and reach are computed per row when a prompt reads them;
+        # OpenCV builds its Lab tables at its first conversion (0.1-0.2 s): here, in the
+        # session's warm-up, not in the first click's prompt
+        _lab(np.full((1, 3), 0.5, np.float32))
+        return cls._finish(scene, pts, None, None, None, mass, index)
 
     @classmethod
     def _from_grid(cls, grid: DensityGrid, min_opacity: float) -> ScenePrimitives:
@@ -160,7 +185,10 @@ class ScenePrimitives:
 
     @classmethod
     def _finish(cls, scene, pts, lab, normals, kappa, mass, index) -> ScenePrimitives:
-        frame = robust_frame(scene_points(scene)[0])
+        if isinstance(scene, SurfelScene):
+            frame = surfel_frame(scene.means)
+        else:
+            frame = robust_frame(scene_points(scene)[0])
         return cls(
             pts, lab, normals, kappa, mass, index, frame.center, float(frame.radius), (), scene
         )
@@ -200,6 +228,70 @@ class ScenePrimitives:
     def __len__(self) -> int:
         return len(self.points)
 
+    def rows_of(self, idx: np.ndarray) -> np.ndarray:
+        """The scene rows (surfel rows, or flat cell indices) of primitives ``idx``."""
+        idx = np.asarray(idx)
+        idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(np.int64, copy=False)
+        return idx if self.index is None else self.index[idx]
+
+    def lab_of(self, idx: np.ndarray) -> np.ndarray:
+        """``[n,3]`` float32 CIE-Lab colour of primitives ``idx``: a surfel's SH DC
+        colour (:meth:`~divas_engine.scene.SurfelScene.base_colors`' arithmetic on its
+        rows), a grid cell's RGB."""
+        if self.lab is not None:
+            return self.lab[idx]
+        g = self.scene.sh[self.rows_of(idx), 0, :]  # a gathered copy: worked in place
+        g *= SH_C0  # clip(0.5 + SH_C0 · f_dc, 0, 1) in the SH's dtype, as base_colors
+        g += 0.5
+        np.clip(g, 0.0, 1.0, out=g)
+        return _lab(g, clipped=True)
+
+    def normals_of(self, idx: np.ndarray) -> np.ndarray:
+        """``[n,3]`` float32 unit normals of primitives ``idx``: a surfel's rotation
+        column 2 (:func:`~divas_engine.geometry.quat_to_rotmat`'s arithmetic)."""
+        if self.normals is not None:
+            return self.normals[idx]
+        q = self.scene.quats[self.rows_of(idx)]
+        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        out = np.empty((len(q), 3), np.float32)  # column 2, each entry in q's dtype
+        out[:, 0] = 2 * (x * z + w * y)
+        out[:, 1] = 2 * (y * z - w * x)
+        out[:, 2] = 1 - 2 * (x * x + y * y)
+        return out
+
+    def kappa_of(self, idx: np.ndarray) -> np.ndarray | None:
+        """``[n]`` float32 normal confidence κ of primitives ``idx``; None when it is 1
+        for every primitive (native 2DGS surfels)."""
+        if self.kappa is not None:
+            return self.kappa[idx]
+        scene = self.scene
+        if scene.scale_n is None:
+            return None
+        i = self.rows_of(idx)
+        s_min = np.maximum(scene.scales[i].min(axis=1), 1e-12)
+        return np.clip(1.0 - scene.scale_n[i] / s_min, 0.0, 1.0).astype(np.float32)
+
+    def _sigma_rows(self, idx: np.ndarray) -> np.ndarray:
+        scene = self.scene
+        i = self.rows_of(idx)
+        sigma = scene.scales[i].max(axis=1)
+        if scene.scale_n is not None:
+            sigma = np.maximum(sigma, scene.scale_n[i])
+        return sigma
+
+    def sigma_of(self, idx: np.ndarray) -> np.ndarray | None:
+        """``[n]`` float32 largest standard deviation of surfels ``idx`` (attribute
+        ``sigma``); None for a density grid."""
+        if not isinstance(self.scene, SurfelScene):
+            return None if self.sigma is None else self.sigma[idx]
+        return self._sigma_rows(idx).astype(np.float32)
+
+    def reach_of(self, idx: np.ndarray) -> np.ndarray:
+        """``[n]`` float32 reach of primitives ``idx`` (attribute ``reach``)."""
+        if self.reach is not None:
+            return self.reach[idx]
+        return (_REACH_SIGMAS * self._sigma_rows(idx)).astype(np.float32)
+
     def in_box(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Indices (into these arrays) of the primitives inside the box ``[lo, hi]``."""
         p = self.points
@@ -215,7 +307,7 @@ class ScenePrimitives:
         ``rows`` (indices into these arrays) of a surfel scene."""
         scene = self.scene
         assert isinstance(scene, SurfelScene)
-        i = self.index[np.asarray(rows, np.int64)]
+        i = self.rows_of(rows)
         rot = quat_to_rotmat(np.asarray(scene.quats[i], np.float64))  # columns: t_u, t_v, n
         s = np.zeros((len(i), 3))
         s[:, :2] = scene.scales[i]
@@ -230,7 +322,7 @@ class ScenePrimitives:
         v = np.asarray(values, np.float32)
         if isinstance(self.scene, SurfelScene):
             out = np.zeros((len(self.scene), v.shape[1]), np.float32)
-            out[self.index] = v
+            out[self.rows_of(np.arange(len(v)))] = v
             return out
         shape = self.scene.density.shape
         out = np.zeros((int(np.prod(shape)), v.shape[1]), np.float32)

@@ -269,6 +269,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             break
         sel = np.zeros((3, len(prims)), bool)
         on_support = support_primitives(graph, prims, planes, cfg)
+        graph.up_height = graph.up_dot = None  # read once: not kept in the cut cache
         for k, lev in enumerate(res.levels):
             sel[k, graph.prim] = lev.nodes[graph.voxel_of] & ~on_support
         scores = np.array([lev.score for lev in res.levels], np.float32)
@@ -318,7 +319,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         cols = np.flatnonzero(selected.any(axis=0))
         box = WHOLE
         if self.fast_masks:
-            box = screen_box(cam, prims.points[cols], prims.reach[cols], _MASK_MARGIN_PX)
+            box = screen_box(cam, prims.points[cols], prims.reach_of(cols), _MASK_MARGIN_PX)
         if box is None:
             return cov
         x0, y0, x1, y1 = (0, 0, cam.width, cam.height) if box == WHOLE else box
@@ -326,7 +327,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         sparse = self.binding.render_sparse if self.fast_masks else None
         if sparse is not None and isinstance(prims.scene, SurfelScene):
             vals = selected[:, cols].T.astype(np.float32)
-            part = np.asarray(sparse(sub, prims.index[cols], vals), np.float32)
+            part = np.asarray(sparse(sub, prims.rows_of(cols), vals), np.float32)
         else:
             vals = prims.render_array(selected.T.astype(np.float32))
             part = np.asarray(self.binding.render_values(sub, vals), np.float32)

@@ -143,12 +143,20 @@ def support_primitives(
     up = prims.up
     h = graph.h
     levels = np.unique(np.round((graph.centroid[planes] @ up) / h))
-    idx = graph.prim
-    height = prims.points[idx].astype(np.float64) @ up / h
+    cos_min = np.cos(np.radians(config.ground_normal_deg))
+    # the graph's n · up and p · up of its primitives (the same float64 products as
+    # from the primitives' rows); the height test only where the normal is along up
+    if graph.up_dot is not None and graph.up_height is not None:
+        up_dot, up_height = graph.up_dot, graph.up_height
+    else:
+        idx = graph.prim
+        up_dot = prims.normals_of(idx).astype(np.float64) @ up
+        up_height = prims.points[idx].astype(np.float64) @ up
+    rows = np.flatnonzero(np.abs(up_dot) >= cos_min)
+    height = up_height[rows] / h
     j = np.clip(np.searchsorted(levels, height), 1, len(levels) - 1) if len(levels) > 1 else 0
     near = np.abs(height - levels[j]) <= 1.0
     if len(levels) > 1:
         near |= np.abs(height - levels[j - 1]) <= 1.0
-    cos_min = np.cos(np.radians(config.ground_normal_deg))
-    along = np.abs(prims.normals[idx].astype(np.float64) @ up) >= cos_min
-    return near & along
+    out[rows[near]] = True
+    return out

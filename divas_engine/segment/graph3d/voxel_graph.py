@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kinds import SceneKind
+from ...scene import SurfelScene
 from .config import Graph3DConfig
 from .primitives import ScenePrimitives
 
@@ -61,6 +62,9 @@ class VoxelGraph:
         rim: ``[V]`` bool, node in the rim layer.
         edges: ``[E,2]`` int node pairs; weights: ``[E]`` affinities.
         lo, h, cells: cube corner (rim included), voxel edge, cells per side (G + 2).
+        up_height, up_dot: ``[P]`` float64 ``p · up`` and ``n · up`` of the region's
+            primitives (position, normal) when the scene's up is known, for
+            :func:`~.supports.support_primitives` (which drops them: transient).
     """
 
     prim: np.ndarray
@@ -77,6 +81,8 @@ class VoxelGraph:
     lo: np.ndarray
     h: float
     cells: int
+    up_height: np.ndarray | None = None
+    up_dot: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.mass)
@@ -124,17 +130,34 @@ def build_voxel_graph(
     cells = g + 2
     sel = prims.in_box(lo, lo + cells * h)
     p = prims.points[sel].astype(np.float64)
-    cell = np.clip(np.floor((p - lo) / h).astype(np.int64), 0, cells - 1)
-    key = cell[:, 0] + cells * (cell[:, 1] + cells * cell[:, 2])
     n_prim = len(sel)
+    # each point's cell key c_0 + cells · (c_1 + cells · c_2), c = clip(floor((p − lo) / h)),
+    # a coordinate at a time in two scratch columns: the same operations as on the whole
+    # [n,3] array (issue 20: at 3M splats every large temporary is a fresh mapping whose
+    # pages fault in, in Blender's fixed-threshold heap)
+    key = np.zeros(n_prim, np.int64)
+    tf = np.empty(n_prim)
+    ci = np.empty(n_prim, np.int64)
+    for k in (2, 1, 0):
+        np.subtract(p[:, k], lo[k], out=tf)
+        tf /= h
+        np.floor(tf, out=tf)
+        np.copyto(ci, tf, casting="unsafe")  # astype(int64)'s cast
+        np.clip(ci, 0, cells - 1, out=ci)
+        key *= cells
+        key += ci
+    del tf, ci
+    up_height = None if prims.up is None else p @ np.asarray(prims.up, np.float64)
     # a primitive wider than its voxel also occupies the voxels its extent covers, with
     # the opacity it has there (entries after the first n_prim: row, position, key)
     ext_row, ext_p, ext_key, ext_g = _extent_entries(prims, sel, p, key, lo, h, cells, config)
     a = prims.mass[sel].astype(np.float64)
-    rows = np.r_[np.arange(n_prim), ext_row]
-    p = np.concatenate([p, ext_p])
-    key = np.r_[key, ext_key]
-    a = np.r_[a, a[ext_row] * ext_g]
+    src = sel  # the primitive of every entry (its centre's, then its extents')
+    if len(ext_row):
+        src = sel[np.r_[np.arange(n_prim), ext_row]]
+        p = np.concatenate([p, ext_p])
+        key = np.r_[key, ext_key]
+        a = np.r_[a, a[ext_row] * ext_g]
     # the occupied cells by a dense table over the cube (np.unique's sorted keys and
     # inverse, without its sort; the table also finds the neighbours below)
     occupied = np.zeros(cells**3, bool)
@@ -147,22 +170,35 @@ def build_voxel_graph(
     m = np.bincount(inv, a, v)
     msafe = np.maximum(m, 1e-12)
 
+    buf = np.empty(len(inv))  # one scratch weight column for every sum below
+
     def wmean(x: np.ndarray) -> np.ndarray:
-        return (
-            np.stack([np.bincount(inv, a * x[:, k], v) for k in range(x.shape[1])], 1)
-            / (msafe[:, None])
-        )
+        # a float32 x: ``a * x[:, k]`` takes x's float64 value exactly (as astype would)
+        out = np.empty((v, x.shape[1]))
+        for k in range(x.shape[1]):
+            np.multiply(a, x[:, k], out=buf)
+            out[:, k] = np.bincount(inv, buf, v)
+        return out / msafe[:, None]
 
     centroid = wmean(p)
-    lab = wmean(prims.lab[sel][rows].astype(np.float64))
-    n = prims.normals[sel][rows].astype(np.float64)
-    ak = a * prims.kappa[sel][rows]
+    del p
+    lab = wmean(prims.lab_of(src))
+    n = prims.normals_of(src)  # float32; its products below are taken in float64
+    kap = prims.kappa_of(src)
+    ak = a if kap is None else a * kap  # κ = 1 (None): a · 1 is a
+    up_dot = None
+    if up_height is not None:
+        up_dot = n[:n_prim].astype(np.float64) @ np.asarray(prims.up, np.float64)
     tensor = np.zeros((v, 3, 3))
+    akr = np.empty(len(inv))
     for r in range(3):
+        np.multiply(ak, n[:, r], out=akr)  # (ak · n_r) · n_s, the order of the sum
         for s in range(r, 3):
-            t = np.bincount(inv, ak * n[:, r] * n[:, s], v)
+            np.multiply(akr, n[:, s], out=buf)
+            t = np.bincount(inv, buf, v)
             tensor[:, r, s] = t
             tensor[:, s, r] = t
+    del akr, n
     evals, evecs = np.linalg.eigh(tensor)  # ascending
     normal = evecs[:, :, 2]
     trace = np.trace(tensor, axis1=1, axis2=2)
@@ -205,6 +241,8 @@ def build_voxel_graph(
         lo=lo,
         h=h,
         cells=cells,
+        up_height=up_height,
+        up_dot=up_dot,
     )
 
 
@@ -238,11 +276,12 @@ def _extent_entries(
     """
     empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0))
     k = float(config.extent_sigmas)
-    if prims.sigma is None or k <= 0.0 or len(sel) == 0:
-        return empty
+    if not isinstance(prims.scene, SurfelScene) or k <= 0.0 or len(sel) == 0:
+        return empty  # a grid cell has no extent beyond its voxel-sized cell
     if config.extent_gs3d_only and getattr(prims.scene, "kind", None) != SceneKind.GS3D:
         return empty  # 2DGS: an isolated centre is a sparse surface (config docstring)
-    big = np.flatnonzero(prims.sigma[sel].astype(np.float64) > config.extent_min_sigma * h)
+    sigma = prims.sigma_of(sel)
+    big = np.flatnonzero(sigma.astype(np.float64) > config.extent_min_sigma * h)
     if len(big) == 0:
         return empty
     # only where the centres leave a primitive unlinked: its voxel has no occupied
