@@ -21,6 +21,7 @@ from ..camera import Camera
 __all__ = [
     "QSCALE",
     "edge_distance",
+    "fill_holes",
     "chord_depth",
     "gaussian_evidence",
     "gaussian_geometry",
@@ -70,6 +71,24 @@ class _ViewRecord:
         )
 
 
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_fill_holes(mask)`` (its default 4-connectivity): the mask
+    plus every background component (4-connected) that touches no image border — one
+    labelling pass instead of growing the outside by repeated dilation (issue 15: the
+    per-update cost; equal, ``tests/test_completion_records.py``)."""
+    from scipy.ndimage import label
+
+    m = np.asarray(mask, bool)
+    if m.size == 0:
+        return m.copy()
+    lab, k = label(~m)
+    outside = np.zeros(k + 1, bool)
+    outside[0] = True  # the mask itself
+    for edge in (lab[0], lab[-1], lab[:, 0], lab[:, -1]):
+        outside[edge] = True
+    return ~outside[lab] | m
+
+
 def edge_distance(mask: np.ndarray) -> np.ndarray:
     """``[H,W]`` float64 distance (pixels) of each pixel of the mask, its holes filled,
     to the silhouette's edge (0 outside; the image border counts as outside). Holes are
@@ -87,7 +106,7 @@ def edge_distance(mask: np.ndarray) -> np.ndarray:
     transform used before gives it — OpenCV's own rounding depends on the image's size
     (its vectorised square root), off by one float32 step at some pixels, so it cannot
     be computed on a part of the image (``tests/test_completion_records.py``)."""
-    from scipy.ndimage import binary_fill_holes, distance_transform_edt
+    from scipy.ndimage import distance_transform_edt
 
     m = np.asarray(mask, bool)
     out = np.zeros(m.shape, np.float64)
@@ -97,7 +116,7 @@ def edge_distance(mask: np.ndarray) -> np.ndarray:
     cols = np.flatnonzero(m.any(axis=0))
     y0, y1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, m.shape[0])
     x0, x1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, m.shape[1])
-    box = np.pad(binary_fill_holes(m[y0:y1, x0:x1]), 1)
+    box = np.pad(fill_holes(m[y0:y1, x0:x1]), 1)
     d = distance_transform_edt(box)[1:-1, 1:-1]
     out[y0:y1, x0:x1] = d.astype(np.float32)
     return out
