@@ -11,6 +11,7 @@ from divas_engine.camera import Camera
 from divas_engine.mapping.completion_records import (
     _ViewRecord,
     edge_distance,
+    fill_holes,
     project_points,
 )
 
@@ -69,6 +70,28 @@ def test_edge_distance_on_the_box_is_the_whole_images(name):
     assert np.allclose(got, _whole_image_edge_distance(m, exact=False), rtol=0, atol=4e-6)
     if name == "ring":  # the hole is filled: its pixels have a distance
         assert got[30, 40] > 0
+
+
+def test_fill_holes_is_scipys():
+    """The labelling fill equals ``binary_fill_holes`` (the reference): holes, nested
+    holes with islands, holes open to a border or a corner, noise, degenerate shapes."""
+    from scipy.ndimage import binary_fill_holes
+
+    masks = dict(_masks())
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[:90, :70]
+    r2 = (yy - 45) ** 2 + (xx - 35) ** 2
+    masks["nested"] = ((r2 < 30**2) & (r2 > 22**2)) | ((r2 < 15**2) & (r2 > 8**2)) | (r2 < 9)
+    masks["open_corner"] = ~((yy < 5) & (xx < 5)) & (r2 < 60**2)
+    masks["row"] = np.ones((1, 9), bool)
+    masks["col_gap"] = np.array([[True], [False], [True]])
+    for k in range(8):
+        blobs = rng.random((90, 70)) < 0.3 + 0.08 * k
+        masks[f"blobs{k}"] = blobs
+    for name, m in masks.items():
+        got = fill_holes(m)
+        assert got.dtype == bool and np.array_equal(got, binary_fill_holes(m)), name
+    assert fill_holes(masks["nested"]).sum() > masks["nested"].sum()  # holes were filled
 
 
 def test_project_points_is_per_point():

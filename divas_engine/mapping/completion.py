@@ -77,12 +77,18 @@ from ..render.config import RenderConfig
 from ..render.surfel_renderer import SurfelRenderer
 from ..scene import SurfelScene
 from .appearance import seen_through_like_object
-from .completion_gather import CoarseCells, sparse_contributions
+from .completion_gather import CoarseCells, start_gather
 from .completion_records import HIDDEN as _HIDDEN
 from .completion_records import INCONSISTENT as _INCONSISTENT
-from .completion_records import QSCALE, _ViewRecord, gaussian_evidence, project_points
+from .completion_records import (
+    QSCALE,
+    _ViewRecord,
+    gaussian_evidence,
+    gaussian_geometry,
+    seen_by_weight,
+    voxel_evidence,
+)
 from .completion_records import SURFACE as _SURFACE
-from .completion_records import chord_depth as _chord_depth
 from .completion_records import edge_distance as _edge_distance
 from .config import CompletionConfig
 
@@ -213,8 +219,8 @@ class VolumetricCompletion:
         """The integer records of one fused view (its contribution gather and its voxel
         evidence); with ``cover`` (``[C+1] bool`` coarse cells) only for the Gaussians
         and the active voxels of those cells (:meth:`_gauss_record`)."""
-        pos, rho = self._mask(view)
-        rec = self._cover_record(view, cover, pos, rho)
+        pos = self._positive(view)
+        rec, rho = self._record(view, cover, pos, None)
         if rec.cover is not None and not rec.cover.any():
             rec.mask = (pos, rho)  # pending: gathered by the first decision
         return rec
@@ -228,18 +234,51 @@ class VolumetricCompletion:
         sentinel: bool = True,
     ) -> _ViewRecord:
         """:meth:`view_record` from the view's mask ``pos`` and its edge distance ``rho``
-        (``sentinel`` False: without the Gaussians of no cell). The voxel part follows
-        the Gaussian part's cover (all voxels when the gather fell back to the full
-        pass)."""
-        rec = self._gauss_record(view, cover, pos, rho, sentinel)
-        vox = None if rec.cover is None else self.cells.voxels_in(np.flatnonzero(rec.cover))
-        rec.voxels, rec.flags = self._voxel_evidence(view, pos, rho, vox)
-        return rec
+        (``sentinel`` False: without the Gaussians of no cell)."""
+        return self._record(view, cover, pos, rho, sentinel)[0]
 
-    def _mask(self, view: FusionView) -> tuple[np.ndarray, np.ndarray]:
-        pos = np.asarray(view.mask).astype(np.float32, copy=False) >= np.float32(
+    def _record(
+        self,
+        view: FusionView,
+        cover: np.ndarray | None,
+        pos: np.ndarray,
+        rho: np.ndarray | None,
+        sentinel: bool = True,
+    ) -> tuple[_ViewRecord, np.ndarray]:
+        """``(record, rho)``: :meth:`_cover_record`, with ``rho`` (None: computed here).
+        The voxel part follows the Gaussian part's cover (all voxels when the gather fell
+        back to the full pass). A sparse gather runs in the background
+        (:func:`.completion_gather.start_gather`) while the edge distance, the voxel
+        evidence and the Gaussians' geometry are made — none of them reads the walk, and
+        each value is the one made after it (the same functions on the same inputs)."""
+        rows, job = self._gauss_start(view, cover, pos, sentinel)
+        geo = vox = None
+        try:
+            if rho is None:
+                rho = _edge_distance(pos)
+            if job is not None:
+                cells = self.cells.voxels_in(np.flatnonzero(cover))
+                vox = self._voxel_evidence(view, pos, rho, cells)
+                geo = gaussian_geometry(self, view, pos, rho, rows)
+        finally:
+            out = None if job is None else job.result()
+        rec = self._gauss_finish(view, cover, pos, rho, rows, out, geo)
+        if rec.cover is None or vox is None:  # the full pass (or a fallback to it)
+            cells = None if rec.cover is None else np.flatnonzero(rec.cover)
+            vox = self._voxel_evidence(
+                view, pos, rho, None if cells is None else self.cells.voxels_in(cells)
+            )
+        rec.voxels, rec.flags = vox
+        return rec, rho
+
+    def _positive(self, view: FusionView) -> np.ndarray:
+        """The view's mask-positive pixels (``M̃ ≥ mask_threshold``)."""
+        return np.asarray(view.mask).astype(np.float32, copy=False) >= np.float32(
             self.config.mask_threshold
         )
+
+    def _mask(self, view: FusionView) -> tuple[np.ndarray, np.ndarray]:
+        pos = self._positive(view)
         return pos, _edge_distance(pos)
 
     def _gauss_record(
@@ -256,16 +295,25 @@ class VolumetricCompletion:
         them (:func:`.completion_gather.sparse_contributions`: the same sums, so the
         same records for those Gaussians). The cover falls back to all when that
         sub-scene is most of the scene (or off the CPU)."""
-        cam = view.camera
-        out = None
-        if cover is not None:
-            rows = self.cells.members(cover, sentinel)
-            out = sparse_contributions(
-                self._renderer, cam, pos, rows, self.config.gather_max_fraction
-            )
+        rows, job = self._gauss_start(view, cover, pos, sentinel)
+        out = None if job is None else job.result()
+        return self._gauss_finish(view, cover, pos, rho, rows, out, None)
+
+    def _gauss_start(self, view: FusionView, cover, pos: np.ndarray, sentinel: bool):
+        """``(rows, job)``: the cover's Gaussians and their sparse gather, started in the
+        background (None without a cover)."""
+        if cover is None:
+            return None, None
+        rows = self.cells.members(cover, sentinel)
+        job = start_gather(self._renderer, view.camera, pos, rows, self.config.gather_max_fraction)
+        return rows, job
+
+    def _gauss_finish(self, view, cover, pos, rho, rows, out, geo) -> _ViewRecord:
+        """:meth:`_gauss_record` from the sparse gather's output ``out`` (None: the full
+        pass runs here) and, optionally, the geometry of ``rows`` made meanwhile."""
         if out is None:
-            cover = None
-            full = self._renderer.contributions(cam, pos)
+            cover, geo = None, None
+            full = self._renderer.contributions(view.camera, pos)
             rows, out = None, (full.a1.numpy(), full.a0.numpy(), self.n)
         a1 = out[0].astype(np.float64)
         a0 = out[1].astype(np.float64)
@@ -273,64 +321,20 @@ class VolumetricCompletion:
         q0 = np.rint(a0 * QSCALE).astype(np.int64)
         nz = np.flatnonzero((q1 != 0) | (q0 != 0))
         g = (nz if rows is None else rows[nz]).astype(np.int32)
-        seen, deep = self._gaussian_evidence(view, pos, rho, g, a1[nz] + a0[nz])
+        weight = a1[nz] + a0[nz]
+        if geo is None:
+            seen, deep = self._gaussian_evidence(view, pos, rho, g, weight)
+        else:
+            seen = seen_by_weight(self, (geo[0][nz], geo[1][nz]), weight)
+            deep = geo[2][nz]
         empty = np.zeros(0, np.int32)
         return _ViewRecord(g, q1[nz], q0[nz], seen, deep, empty, empty.astype(np.uint8), cover)
 
     # seen / depth evidence of a record's Gaussians (:func:`.completion_records.gaussian_evidence`)
     _gaussian_evidence = gaussian_evidence
 
-    def _voxel_evidence(
-        self, view: FusionView, pos: np.ndarray, rho: np.ndarray, subset: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Evidence flags of the active voxels (``subset``: of these only; each voxel's
-        flag depends on its own centre and the view alone): ``(voxels, flags)`` of the
-        voxels with evidence."""
-        cfg = self.config
-        cam = view.camera
-        if self.a == 0 or (subset is not None and len(subset) == 0):
-            return np.zeros(0, np.int32), np.zeros(0, np.uint8)
-        centres = self.voxel_centers if subset is None else self.voxel_centers[subset]
-        uv, z = project_points(cam, centres)
-        near = cam.clip_near(self.render_config.near)
-        with np.errstate(invalid="ignore"):
-            inside = (
-                (z > near)
-                & np.isfinite(uv).all(axis=1)
-                & (uv[:, 0] >= 0)
-                & (uv[:, 0] < cam.width)
-                & (uv[:, 1] >= 0)
-                & (uv[:, 1] < cam.height)
-            )
-        idx = np.flatnonzero(inside)
-        x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
-        y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
-        d = np.asarray(view.d_ref)[y, x].astype(np.float64)  # D_med (2DGS D_ref)
-        p = pos[y, x]
-        zz = z[idx]
-        margin = cfg.surface_margin * self.h
-        # the depth a solid of this silhouette can have behind the pixel: the chord of a
-        # ball of the mask's inscribed radius R at the pixel's distance ρ from the
-        # silhouette's edge, 2 √(ρ (2R − ρ)) (pixels → world units at the voxel's depth)
-        # a voxel is a cube, not a point: its centre may sit half a diagonal off the solid
-        half_diag = 0.5 * np.sqrt(3.0) * self.h * float(cam.fx) / zz
-        chord = _chord_depth(rho, y, x, half_diag)
-        depth_cap = cfg.depth_factor * chord * zz / float(cam.fx) + margin
-        surf = d > 0
-        off = zz - d
-        visible = ~surf | (off <= margin)
-        on_surf = p & surf & (off >= -margin) & (off <= margin)
-        hidden = p & surf & (off > margin) & (off <= depth_cap)
-        too_deep = p & surf & (off > depth_cap)
-        incons = (~p & visible) | (p & surf & (off < -margin))
-        if cfg.deep_is_inconsistent:
-            incons |= too_deep
-        flags = np.select(
-            [on_surf, hidden, incons], [_SURFACE, _HIDDEN, _INCONSISTENT], np.uint8(0)
-        )
-        keep = flags != 0
-        idx = idx[keep] if subset is None else np.asarray(subset)[idx[keep]]
-        return idx.astype(np.int32), flags[keep].astype(np.uint8)
+    # evidence flags of (a subset of) the active voxels (:func:`.completion_records.voxel_evidence`)
+    _voxel_evidence = voxel_evidence
 
     def _apply(self, rec: _ViewRecord, sign: int) -> None:
         self._apply_gauss(rec, sign)

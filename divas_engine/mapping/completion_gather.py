@@ -42,6 +42,9 @@ the CPU (where the pass over the scene is cheap).
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import Future, ThreadPoolExecutor
+
 import numpy as np
 
 from divas_kernels import accumulate_contributions
@@ -49,7 +52,7 @@ from divas_kernels import accumulate_contributions
 from ..camera import Camera
 from ..render.surfel_blocks import WHOLE, screen_box
 
-__all__ = ["CoarseCells", "sparse_contributions"]
+__all__ = ["CoarseCells", "sparse_contributions", "start_gather"]
 
 
 def _csr(cell_of: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -235,3 +238,29 @@ def sparse_contributions(
     a1[hit] = out.a1.numpy()
     a0[hit] = out.a0.numpy()
     return a1, a0, len(sub)
+
+
+# one background thread for the gathers (its walk runs on the launch pool's threads), so
+# the completion makes what does not read the walk meanwhile (issue 15: the per-update
+# cost); a forked child starts its own
+_GATHER: ThreadPoolExecutor | None = None
+
+
+def _forget_gather_thread() -> None:
+    global _GATHER
+    _GATHER = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_gather_thread)
+
+
+def start_gather(
+    renderer, camera: Camera, positive: np.ndarray, rows: np.ndarray, max_fraction: float
+) -> Future:
+    """:func:`sparse_contributions` started in a background thread: its future (the
+    caller must not change ``positive`` / ``rows`` until it is done)."""
+    global _GATHER
+    if _GATHER is None:
+        _GATHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="divas-gather")
+    return _GATHER.submit(sparse_contributions, renderer, camera, positive, rows, max_fraction)

@@ -18,7 +18,17 @@ import numpy as np
 
 from ..camera import Camera
 
-__all__ = ["QSCALE", "edge_distance", "chord_depth", "gaussian_evidence", "project_points"]
+__all__ = [
+    "QSCALE",
+    "edge_distance",
+    "fill_holes",
+    "chord_depth",
+    "gaussian_evidence",
+    "gaussian_geometry",
+    "seen_by_weight",
+    "voxel_evidence",
+    "project_points",
+]
 
 #: fixed-point scale of the contribution accumulators (2⁻²⁴ pixel)
 QSCALE = float(1 << 24)
@@ -61,6 +71,24 @@ class _ViewRecord:
         )
 
 
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.binary_fill_holes(mask)`` (its default 4-connectivity): the mask
+    plus every background component (4-connected) that touches no image border — one
+    labelling pass instead of growing the outside by repeated dilation (issue 15: the
+    per-update cost; equal, ``tests/test_completion_records.py``)."""
+    from scipy.ndimage import label
+
+    m = np.asarray(mask, bool)
+    if m.size == 0:
+        return m.copy()
+    lab, k = label(~m)
+    outside = np.zeros(k + 1, bool)
+    outside[0] = True  # the mask itself
+    for edge in (lab[0], lab[-1], lab[:, 0], lab[:, -1]):
+        outside[edge] = True
+    return ~outside[lab] | m
+
+
 def edge_distance(mask: np.ndarray) -> np.ndarray:
     """``[H,W]`` float64 distance (pixels) of each pixel of the mask, its holes filled,
     to the silhouette's edge (0 outside; the image border counts as outside). Holes are
@@ -78,7 +106,7 @@ def edge_distance(mask: np.ndarray) -> np.ndarray:
     transform used before gives it — OpenCV's own rounding depends on the image's size
     (its vectorised square root), off by one float32 step at some pixels, so it cannot
     be computed on a part of the image (``tests/test_completion_records.py``)."""
-    from scipy.ndimage import binary_fill_holes, distance_transform_edt
+    from scipy.ndimage import distance_transform_edt
 
     m = np.asarray(mask, bool)
     out = np.zeros(m.shape, np.float64)
@@ -88,7 +116,7 @@ def edge_distance(mask: np.ndarray) -> np.ndarray:
     cols = np.flatnonzero(m.any(axis=0))
     y0, y1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, m.shape[0])
     x0, x1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, m.shape[1])
-    box = np.pad(binary_fill_holes(m[y0:y1, x0:x1]), 1)
+    box = np.pad(fill_holes(m[y0:y1, x0:x1]), 1)
     d = distance_transform_edt(box)[1:-1, 1:-1]
     out[y0:y1, x0:x1] = d.astype(np.float32)
     return out
@@ -120,18 +148,17 @@ def project_points(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.n
     return uv, zc
 
 
-def gaussian_evidence(
-    comp, view, pos: np.ndarray, rho: np.ndarray, g: np.ndarray, weight: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per Gaussian ``g`` of the completion ``comp`` (its config, centres, normals and
-    footprint weights) with blending weight ``weight`` in ``view``: *seen* (the
-    weight is ≥ ``min_visibility`` × its unoccluded footprint weight) and the depth
-    evidence of its centre (+1 on a mask-positive pixel within the solid depth
-    behind the surface, −1 beyond it when ``deep_is_inconsistent``, 0 otherwise)."""
+def gaussian_geometry(
+    comp, view, pos: np.ndarray, rho: np.ndarray, g: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`gaussian_evidence` needs of Gaussians ``g`` besides their weights (so
+    it can be made while the contribution walk runs): ``(in_front, full, deep)`` — centre
+    in front of the camera, unoccluded footprint weight, depth evidence. Elementwise:
+    each Gaussian's values depend on itself and the view alone."""
     cfg = comp.config
     cam = view.camera
     if len(g) == 0:
-        return np.zeros(0, bool), np.zeros(0, np.int8)
+        return np.zeros(0, bool), np.zeros(0), np.zeros(0, np.int8)
     mu = comp.means[g]
     uv, z = project_points(cam, mu)
     ray = mu - np.asarray(cam.c2w, np.float64)[:3, 3]
@@ -139,8 +166,6 @@ def gaussian_evidence(
     with np.errstate(invalid="ignore", divide="ignore"):
         cos = np.abs((comp.normals[g] * ray).sum(axis=1)) / dist
         full = comp.footprint[g] * cos * float(cam.fx) * float(cam.fy) / (z * z)
-        # τ_vis = 0: every Gaussian with a weight is seen (the rule is off)
-        seen = (z > 0) & ((cfg.min_visibility <= 0) | (weight >= cfg.min_visibility * full))
         inside = (
             (z > 0)
             & np.isfinite(uv).all(axis=1)
@@ -163,4 +188,76 @@ def gaussian_evidence(
     deep[idx[ok & (zz - d <= cap)]] = 1
     if cfg.deep_is_inconsistent:  # else deeper says nothing, as for the voxels
         deep[idx[ok & (zz - d > cap)]] = -1
-    return np.asarray(seen, bool), deep
+    return z > 0, full, deep
+
+
+def seen_by_weight(comp, geometry, weight: np.ndarray) -> np.ndarray:
+    """*seen*: the weight is ≥ ``min_visibility`` × the unoccluded footprint weight (of
+    :func:`gaussian_geometry`); τ_vis = 0: every Gaussian with a weight is seen."""
+    min_vis = comp.config.min_visibility
+    front, full = geometry[0], geometry[1]
+    with np.errstate(invalid="ignore"):
+        return np.asarray(front & ((min_vis <= 0) | (weight >= min_vis * full)), bool)
+
+
+def gaussian_evidence(
+    comp, view, pos: np.ndarray, rho: np.ndarray, g: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per Gaussian ``g`` of the completion ``comp`` (its config, centres, normals and
+    footprint weights) with blending weight ``weight`` in ``view``: *seen* (the
+    weight is ≥ ``min_visibility`` × its unoccluded footprint weight) and the depth
+    evidence of its centre (+1 on a mask-positive pixel within the solid depth
+    behind the surface, −1 beyond it when ``deep_is_inconsistent``, 0 otherwise)."""
+    geo = gaussian_geometry(comp, view, pos, rho, g)
+    return seen_by_weight(comp, geo, weight), geo[2]
+
+
+def voxel_evidence(
+    comp, view, pos: np.ndarray, rho: np.ndarray, subset: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Evidence flags of the active voxels (``subset``: of these only; each voxel's
+    flag depends on its own centre and the view alone): ``(voxels, flags)`` of the
+    voxels with evidence."""
+    cfg = comp.config
+    cam = view.camera
+    if comp.a == 0 or (subset is not None and len(subset) == 0):
+        return np.zeros(0, np.int32), np.zeros(0, np.uint8)
+    centres = comp.voxel_centers if subset is None else comp.voxel_centers[subset]
+    uv, z = project_points(cam, centres)
+    near = cam.clip_near(comp.render_config.near)
+    with np.errstate(invalid="ignore"):
+        inside = (
+            (z > near)
+            & np.isfinite(uv).all(axis=1)
+            & (uv[:, 0] >= 0)
+            & (uv[:, 0] < cam.width)
+            & (uv[:, 1] >= 0)
+            & (uv[:, 1] < cam.height)
+        )
+    idx = np.flatnonzero(inside)
+    x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
+    y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
+    d = np.asarray(view.d_ref)[y, x].astype(np.float64)  # D_med (2DGS D_ref)
+    p = pos[y, x]
+    zz = z[idx]
+    margin = cfg.surface_margin * comp.h
+    # the depth a solid of this silhouette can have behind the pixel: the chord of a
+    # ball of the mask's inscribed radius R at the pixel's distance ρ from the
+    # silhouette's edge, 2 √(ρ (2R − ρ)) (pixels → world units at the voxel's depth)
+    # a voxel is a cube, not a point: its centre may sit half a diagonal off the solid
+    half_diag = 0.5 * np.sqrt(3.0) * comp.h * float(cam.fx) / zz
+    chord = chord_depth(rho, y, x, half_diag)
+    depth_cap = cfg.depth_factor * chord * zz / float(cam.fx) + margin
+    surf = d > 0
+    off = zz - d
+    visible = ~surf | (off <= margin)
+    on_surf = p & surf & (off >= -margin) & (off <= margin)
+    hidden = p & surf & (off > margin) & (off <= depth_cap)
+    too_deep = p & surf & (off > depth_cap)
+    incons = (~p & visible) | (p & surf & (off < -margin))
+    if cfg.deep_is_inconsistent:
+        incons |= too_deep
+    flags = np.select([on_surf, hidden, incons], [SURFACE, HIDDEN, INCONSISTENT], np.uint8(0))
+    keep = flags != 0
+    idx = idx[keep] if subset is None else np.asarray(subset)[idx[keep]]
+    return idx.astype(np.int32), flags[keep].astype(np.uint8)
