@@ -159,13 +159,17 @@ def preprocess_kernel(
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
     colors: wp.array2d(dtype=float),
+    extra: wp.array2d(dtype=float),
+    n_extra: int,
     base: int,
     stride: int,
 ):
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
     splat and the colour only for surfels that are not culled). With ``use_rows``,
     item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel);
-    ``write_splat`` 0: the sort key (and colour) only (the culling pass)."""
+    ``write_splat`` 0: the sort key (and colour) only (the culling pass). With the
+    colour, the surfel's ``n_extra`` values ``extra[i]`` go to ``colors[i, 3 …]`` (value
+    channels blended with the RGB)."""
     j = base + wp.tid() * stride
     i = j
     if use_rows != 0:
@@ -246,6 +250,8 @@ def preprocess_kernel(
         colors[i, 0] = col[0]
         colors[i, 1] = col[1]
         colors[i, 2] = col[2]
+        for ch in range(n_extra):
+            colors[i, 3 + ch] = extra[i, ch]
 
 
 # --------------------------------------------------------------------------- wrapper
@@ -305,12 +311,14 @@ def project_splats(
     rows: wp.array | None = None,
     count: int | None = None,
     write_splats: bool = True,
+    extra: wp.array | None = None,
 ) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
     into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
     ``rows``: only these surfels (int32, their first ``count``; ascending, every other
     one culled — or the visible ones in depth order). ``write_splats`` False: the keys
-    (and colours) only (``splats`` is a placeholder).
+    (and colours) only (``splats`` is a placeholder). ``extra`` ``[N, C]`` (with
+    ``colors`` ``[N, 3 + C]``): copied after each visible surfel's colour.
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
@@ -322,6 +330,7 @@ def project_splats(
     splats = wp.empty(n if write_splats else 1, dtype=Splat, device=dev)
     keys = wp.empty(n, dtype=float, device=dev)
     with_color = 0 if colors is None else 1
+    n_extra = 0 if extra is None or not with_color else int(extra.shape[1])
     launch_split(
         preprocess_kernel,
         n,
@@ -342,6 +351,8 @@ def project_splats(
             splats,
             keys,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
+            extra if n_extra else wp.empty((1, 1), dtype=float, device=dev),
+            n_extra,
         ],
         dev,
         threads,
@@ -367,6 +378,7 @@ def rasterize_surfels(
     keep_binning: bool = False,
     window: tuple[int, int, int, int] | None = None,
     rows: np.ndarray | None = None,
+    extra: np.ndarray | wp.array | None = None,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -386,6 +398,11 @@ def rasterize_surfels(
         rows: ascending surfel indices, a superset of those the view keeps: only they are
             projected (the others would be culled; the survivors keep their index order
             for the stable depth sort): the same render at the rows' cost (issue 20).
+        extra: with an RGB render, ``[N]`` or ``[N, C]`` per-surfel values composited in
+            the same blend as channels ``3 … 3 + C − 1`` of ``feat`` (no background): each
+            channel bit for bit what ``values=extra`` composites, without a second blend
+            (issue 20: the oracle's ground truth at the view the session renders). A
+            ``binning`` is not reused then, nor are the colours kept with a new one.
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -395,8 +412,12 @@ def rasterize_surfels(
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     rgb = values is None and features
+    if extra is not None and not rgb:
+        raise ValueError("rasterize_surfels: extra value channels need an RGB render")
     key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s, window)
-    if binning is not None and (binning.key != key or (rgb and binning.colors is None)):
+    if binning is not None and (
+        binning.key != key or (rgb and (binning.colors is None or extra is not None))
+    ):
         binning = None
     cam = (
         binning.cam
@@ -408,9 +429,11 @@ def rasterize_surfels(
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
     with wp.ScopedDevice(dev):
+        ext = None if extra is None else _value_rows(extra, n, dev)
         if values is None:
-            C = 3 if features else 0
-            bg = np.asarray(background, dtype=np.float32).reshape(3)[:C]
+            C = (3 + (0 if ext is None else ext.shape[1])) if features else 0
+            bg = np.zeros(C, np.float32)  # the value channels: no background
+            bg[: min(C, 3)] = np.asarray(background, dtype=np.float32).reshape(3)[: min(C, 3)]
             feat = wp.empty((max(n, 1), C), dtype=float)
         else:
             v = np.asarray(values, dtype=np.float32)
@@ -441,13 +464,15 @@ def rasterize_surfels(
             rws = None if rows is None else wp.array(np.asarray(rows, np.int32), dtype=wp.int32)
             cols = feat if rgb else None
             if (n if rws is None else rws.shape[0]) < s.cull_pass_min:
-                splats, keys = project_splats(buf, cam, inv_var, cols, threads, rws)
+                splats, keys = project_splats(buf, cam, inv_var, cols, threads, rws, extra=ext)
                 tm.lap("preprocess")
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
             else:  # cull first (keys only), then project the visible ones in depth order
                 # the SH colours here, read in index order (the second pass reads in depth order)
-                _, keys = project_splats(buf, cam, inv_var, cols, threads, rws, write_splats=False)
+                _, keys = project_splats(
+                    buf, cam, inv_var, cols, threads, rws, write_splats=False, extra=ext
+                )
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 ids = take_rows(rws, order, n_vis, dev, threads)
                 keys = order = None  # freed before the splats are allocated
@@ -455,7 +480,8 @@ def rasterize_surfels(
                 tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            binning = ViewBinning(key, cam, splats, ids, n_vis, None, feat if rgb else None, {})
+            colours = feat if rgb and extra is None else None  # [N, 3]: reusable alone
+            binning = ViewBinning(key, cam, splats, ids, n_vis, None, colours, {})
             bands = tile_bands(
                 splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
             )
@@ -489,3 +515,17 @@ def rasterize_surfels(
     res = RasterOutput(out, W, H, stats)
     res.binning = binning if keep_binning else None
     return res
+
+
+def _value_rows(v, n: int, dev) -> wp.array:
+    """Per-surfel values ``[N]`` / ``[N, C]`` (NumPy or Warp) as a ``[N, C]`` float32
+    Warp array on ``dev`` (a CPU NumPy float32 array is wrapped, not copied)."""
+    if isinstance(v, wp.array):
+        a = v if v.ndim == 2 else v.reshape((v.shape[0], 1))
+    else:
+        h = np.ascontiguousarray(v, dtype=np.float32)
+        h = h.reshape(len(h), -1) if h.ndim > 1 else h.reshape(-1, 1)
+        a = wp.array(h, dtype=float, device=dev, copy=not dev.is_cpu)
+    if a.shape[0] != n or a.dtype != wp.float32:
+        raise ValueError(f"rasterize_surfels: extra has {a.shape[0]} rows for {n} surfels")
+    return a

@@ -176,6 +176,14 @@ class SessionCore:
 
         if isinstance(self.segmenter, OracleSegmenter) and self.segmenter.gt_render is None:
             self.segmenter.gt_render = self._gt_render
+        seg = self.segmenter
+        attach = getattr(self.renderer, "attach_values", None)
+        if attach is not None and isinstance(seg, OracleSegmenter):
+            # the oracle renders the truth at every view it segments: composited in the
+            # view's own RGB blend, its value render is read back, not blended again
+            # (issue 20; bit-identical — SurfelRenderer.attach_values)
+            with self._render_lock:
+                attach(v if seg.gt_render == self._gt_render else None)
 
     def _bind_segmenter(self, segmenter: Segmenter | None) -> None:
         """A scene-aware segmenter (issue 16) gets the scene, the renderer, the camera of
