@@ -102,9 +102,9 @@ class RasterSettings:
         max_duplicates: soft cap on (tile, surfel) pairs held at once (bands above it).
         blend: ``"auto"`` (``tile`` on CPU, ``pixel`` on CUDA), ``"tile"`` or ``"pixel"``.
         cull_pass_min: from this many projected surfels on, culling is a pass of its own
-            (sort keys only) and only the visible surfels are projected, in depth order:
-            no splat buffer of the scene's size (92 bytes a surfel; issue 20: the render
-            peak at 3M); the same render, at one more pass over the culled ones.
+            (sort keys only), then a second pass stores each visible surfel's splat at its
+            depth rank: no splat buffer of the scene's size (92 bytes a surfel; issue 20:
+            the render peak at 3M); the same render, at one more projection.
         threads: CPU launch threads (None: all usable cores).
         profile: synchronise after each stage and record stage seconds in ``stats``.
     """
@@ -156,6 +156,8 @@ def preprocess_kernel(
     rows: wp.array(dtype=wp.int32),
     use_rows: int,
     write_splat: int,
+    dest: wp.array(dtype=wp.int32),
+    use_dest: int,
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
     colors: wp.array2d(dtype=float),
@@ -167,7 +169,10 @@ def preprocess_kernel(
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
     splat and the colour only for surfels that are not culled). With ``use_rows``,
     item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel);
-    ``write_splat`` 0: the sort key (and colour) only (the culling pass). With the
+    ``write_splat`` 0: the sort key (and colour) only (the culling pass). With
+    ``use_dest`` the splat of a visible item ``j`` goes to ``splats[dest[j]]`` and no key
+    is written (the pass after the culling pass: items in index order, splats stored in
+    depth order). With the
     colour, the surfel's ``n_extra`` values ``extra[i]`` go to ``colors[i, 3 …]`` (value
     channels blended with the RGB)."""
     j = base + wp.tid() * stride
@@ -239,11 +244,16 @@ def preprocess_kernel(
         # culled: left out of the depth order and never read again (binning, blending
         # and every other pass read only the visible splats), so neither its splat nor
         # its SH colour is written (issue 20: most surfels of a zoomed view)
-        sort_keys[j] = BIG
+        if use_dest == 0:
+            sort_keys[j] = BIG
         return
     if write_splat != 0:
-        splats[j] = sp
-    sort_keys[j] = sp.depth
+        if use_dest != 0:
+            splats[dest[j]] = sp
+        else:
+            splats[j] = sp
+    if use_dest == 0:
+        sort_keys[j] = sp.depth
     if with_color != 0:
         d = wp.normalize(mu - cam.center)
         col = eval_sh(sh, i, sh_degree, d)
@@ -312,13 +322,19 @@ def project_splats(
     count: int | None = None,
     write_splats: bool = True,
     extra: wp.array | None = None,
+    dest: wp.array | None = None,
+    n_dest: int = 0,
 ) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
     into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
     ``rows``: only these surfels (int32, their first ``count``; ascending, every other
     one culled — or the visible ones in depth order). ``write_splats`` False: the keys
     (and colours) only (``splats`` is a placeholder). ``extra`` ``[N, C]`` (with
-    ``colors`` ``[N, 3 + C]``): copied after each visible surfel's colour.
+    ``colors`` ``[N, 3 + C]``): copied after each visible surfel's colour. ``dest``
+    (``[K]`` int32, the depth rank of every visible item): the ``n_dest`` visible splats
+    are written at their ranks, in a ``[n_dest]`` buffer, and no keys (``keys`` is a
+    placeholder): the items are read in index order (issue 20: reading them in depth
+    order, scattered over the scene's arrays, cost 3× the projection at 3M).
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
@@ -327,8 +343,10 @@ def project_splats(
     """
     n = len(buf) if rows is None else (rows.shape[0] if count is None else int(count))
     dev = buf.device
-    splats = wp.empty(n if write_splats else 1, dtype=Splat, device=dev)
-    keys = wp.empty(n, dtype=float, device=dev)
+    splats = wp.empty(
+        (n if dest is None else max(int(n_dest), 1)) if write_splats else 1, dtype=Splat, device=dev
+    )
+    keys = wp.empty(n if dest is None else 1, dtype=float, device=dev)
     with_color = 0 if colors is None else 1
     n_extra = 0 if extra is None or not with_color else int(extra.shape[1])
     launch_split(
@@ -348,6 +366,8 @@ def project_splats(
             rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev),
             0 if rows is None else 1,
             int(write_splats),
+            dest if dest is not None else wp.empty(1, dtype=wp.int32, device=dev),
+            0 if dest is None else 1,
             splats,
             keys,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
@@ -475,8 +495,14 @@ def rasterize_surfels(
                 )
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 ids = take_rows(rws, order, n_vis, dev, threads)
+                rank = depth_ranks(order, n_vis, keys.shape[0], dev, threads)
                 keys = order = None  # freed before the splats are allocated
-                splats, keys = project_splats(buf, cam, inv_var, None, threads, ids, n_vis)
+                # the second pass reads the surfels in index order and stores each visible
+                # splat at its depth rank: the same splats, in the same order
+                splats, keys = project_splats(
+                    buf, cam, inv_var, None, threads, rws, dest=rank, n_dest=n_vis
+                )
+                del rank
                 tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
@@ -515,6 +541,24 @@ def rasterize_surfels(
     res = RasterOutput(out, W, H, stats)
     res.binning = binning if keep_binning else None
     return res
+
+
+@wp.kernel
+def _rank_kernel(
+    order: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32), base: int, stride: int
+):
+    j = base + wp.tid() * stride
+    rank[order[j]] = j
+
+
+def depth_ranks(order: wp.array, n_vis: int, n: int, dev, threads: int) -> wp.array:
+    """``rank [n]``: ``rank[order[j]] = j`` for the ``n_vis`` visible items of the depth
+    order ``order`` (:func:`kernels.tile_binning.sort_visible`); culled items' entries
+    are left unset (never read: only visible items are written at their rank)."""
+    rank = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
+    if n_vis > 0:
+        launch_split(_rank_kernel, n_vis, [order, rank], dev, threads)
+    return rank
 
 
 def _value_rows(v, n: int, dev) -> wp.array:

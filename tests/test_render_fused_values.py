@@ -227,3 +227,27 @@ def test_no_truth_attached_without_the_sessions_oracle(tmp_path):
     )  # fmt: skip
     assert s.renderer._attached is None
     s.close()
+
+
+@pytest.mark.parametrize("kind", ["2dgs", "3dgs"])
+def test_second_pass_stores_the_same_splats_in_the_same_order(scenes, kind, device):
+    """The culling pass first (``cull_pass_min``), then the visible surfels projected in
+    index order with each splat stored at its depth rank: the kept binning's splats are
+    byte for byte those of one pass gathered in depth order, with and without rows."""
+    sc, cams = scenes[kind][:2]
+    buf = SurfelRenderer(sc, device=device).surfel_buffers
+    rng = np.random.default_rng(8)
+    for cam in cams:
+        args = (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+        one = RenderConfig().raster_settings(cam)
+        two = _with(one, cull_pass_min=0)
+        ref = rasterize_surfels(buf, *args, one, keep_binning=True).binning
+        vis = ref.ids.numpy()[: ref.n_visible]
+        rows = np.union1d(vis, rng.choice(len(sc), len(sc) // 3, replace=False))
+        for rw in (None, rows):
+            a = rasterize_surfels(buf, *args, one, keep_binning=True, rows=rw).binning
+            b = rasterize_surfels(buf, *args, two, keep_binning=True, rows=rw).binning
+            n = a.n_visible
+            assert n == b.n_visible == ref.n_visible > 0
+            assert a.splats.numpy()[:n].tobytes() == b.splats.numpy()[:n].tobytes()
+            assert np.array_equal(a.ids.numpy()[:n], b.ids.numpy()[:n])
