@@ -199,15 +199,21 @@ def test_the_oracle_reads_its_truth_from_the_views_render(tmp_path):
         )
         if not fused:
             s.renderer.attach_values(None)
+        # the anchor (rendered by open) is never segmented: no truth channel in its blend
+        assert s.anchors[0].rendered and s.renderer._images == []
         uv, _ = s.anchors[0].camera.project(np.array([c["xyz"]]))
         v = s.click(0, uv[0])
+        assert (len(s.renderer._images) > 0) == fused  # the view's render carries it
         calls = _counting(s.renderer)
         prev = s.prompt(v)
         assert (calls == []) == fused  # the oracle's truth: read back, or a value render
-        out.append((prev.mask.copy(), s.accept(v).selection.copy()))
+        out.append((s.anchors[0].buffers, v.buffers, prev.mask.copy()))
+        out[-1] += (s.accept(v).selection.copy(),)
         s.close()
-    assert np.array_equal(out[0][0], out[1][0]) and out[0][0].any()
-    assert np.array_equal(out[0][1], out[1][1])
+    for a, b in zip(out[0][:2], out[1][:2]):
+        _same_buffers(a, b)
+    assert np.array_equal(out[0][2], out[1][2]) and out[0][2].any()
+    assert np.array_equal(out[0][3], out[1][3])
 
 
 def test_no_truth_attached_without_the_sessions_oracle(tmp_path):

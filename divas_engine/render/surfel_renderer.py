@@ -166,9 +166,11 @@ class SurfelRenderer:
         ):
             self._binnings.pop()
 
-    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+    def render(self, camera: Camera, scale: float = 1.0, *, attached: bool = True) -> RenderBuffers:
+        """RGB and depth tuple; ``attached`` False: without the :meth:`attach_values`
+        channels (a view that will not be segmented, e.g. an anchor)."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
-        att = self._attached
+        att = self._attached if attached else None
         r = self._run(cam, None, extra=None if att is None else att[1])
         f = r.out.feat.numpy()
         if att is None:
@@ -202,6 +204,11 @@ class SurfelRenderer:
         v.flags.writeable = False
         # on the CPU the rasterizer wraps the host array; on CUDA it is uploaded once
         self._attached = (v, v if self.device.is_cpu else to_device(v, self.device))
+
+    @property
+    def attached_values(self) -> np.ndarray | None:
+        """The attached values (read-only ``[N, C]`` float32 copy), or None."""
+        return None if self._attached is None else self._attached[0]
 
     def _image_key(self, cam: Camera) -> tuple:
         """What a composite of the attached values at ``cam`` depends on: the view's

@@ -224,6 +224,10 @@ class SessionCore:
     # ------------------------------------------------------------------ rendering
     def _render(self, camera: Camera) -> RenderBuffers:
         with self._render_lock, self.timings.measure("render"):
+            if getattr(self.renderer, "attached_values", None) is not None and any(
+                a.camera is camera for a in self.anchors
+            ):  # an anchor is never segmented: no ground-truth channel in its blend
+                return self.renderer.render(camera, attached=False)
             return self.renderer.render(camera)
 
     def _render_values(self, camera: Camera, values: np.ndarray) -> np.ndarray:
