@@ -223,11 +223,16 @@ class SessionCore:
 
     # ------------------------------------------------------------------ rendering
     def _render(self, camera: Camera) -> RenderBuffers:
+        from ..render.surfel_renderer import SurfelRenderer
+
         with self._render_lock, self.timings.measure("render"):
-            if getattr(self.renderer, "attached_values", None) is not None and any(
-                a.camera is camera for a in self.anchors
+            r = self.renderer
+            if (
+                isinstance(r, SurfelRenderer)  # not a wrapper (its render takes no opt-out)
+                and r.attached_values is not None
+                and any(a.camera is camera for a in self.anchors)
             ):  # an anchor is never segmented: no ground-truth channel in its blend
-                return self.renderer.render(camera, attached=False)
+                return r.render(camera, attached=False)
             return self.renderer.render(camera)
 
     def _render_values(self, camera: Camera, values: np.ndarray) -> np.ndarray:
