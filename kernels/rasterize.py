@@ -59,6 +59,7 @@ from .splat import (
     make_raster_camera,
     splat_plane_rows,
 )
+from .surfel_buffers import SurfelBuffers, surfel_rows, upload_surfels
 from .tile_binning import (
     ViewBinning,
     binning_key,
@@ -77,6 +78,7 @@ __all__ = [
     "RasterOutput",
     "SurfelBuffers",
     "upload_surfels",
+    "surfel_rows",
     "rasterize_surfels",
     "make_raster_camera",
     "project_splats",
@@ -100,9 +102,9 @@ class RasterSettings:
         max_duplicates: soft cap on (tile, surfel) pairs held at once (bands above it).
         blend: ``"auto"`` (``tile`` on CPU, ``pixel`` on CUDA), ``"tile"`` or ``"pixel"``.
         cull_pass_min: from this many projected surfels on, culling is a pass of its own
-            (sort keys only) and only the visible surfels are projected, in depth order:
-            no splat buffer of the scene's size (92 bytes a surfel; issue 20: the render
-            peak at 3M); the same render, at one more pass over the culled ones.
+            (sort keys only), then a second pass stores each visible surfel's splat at its
+            depth rank: no splat buffer of the scene's size (92 bytes a surfel; issue 20:
+            the render peak at 3M); the same render, at one more projection.
         threads: CPU launch threads (None: all usable cores).
         profile: synchronise after each stage and record stage seconds in ``stats``.
     """
@@ -138,99 +140,6 @@ class _Timer:
             self.t = t
 
 
-@dataclass
-class SurfelBuffers:
-    """A surfel scene resident on one device (uploaded once).
-
-    Attributes:
-        means, tu, tv: ``[N]`` vec3 centre and scaled tangents ``s_1 R_0``, ``s_2 R_1``.
-        opacity: ``[N]`` opacity.
-        rho_cut: ``[N]`` ``2 ln(255·opacity)`` (≤ 0: never visible).
-        sh: ``[N, K]`` vec3 SH coefficients; ``sh_degree`` 0..3.
-    """
-
-    means: wp.array
-    tu: wp.array
-    tv: wp.array
-    opacity: wp.array
-    rho_cut: wp.array
-    sh: wp.array
-    sh_degree: int
-    device: wp.context.Device
-
-    def __len__(self) -> int:
-        return self.means.shape[0]
-
-
-def upload_surfels(
-    means: np.ndarray,
-    rotations: np.ndarray,
-    scales: np.ndarray,
-    opacities: np.ndarray,
-    sh: np.ndarray,
-    sh_degree: int,
-    device,
-    alpha_min: float = RD.ALPHA_MIN,
-) -> SurfelBuffers:
-    """A surfel scene on ``device`` (a copy on CUDA; on the CPU the float32 arrays are
-    shared, not copied). ``rotations`` ``[N,3,3]`` (columns t_u, t_v, n)."""
-    n = len(means)
-    if rotations.shape != (n, 3, 3) or scales.shape != (n, 2) or opacities.shape != (n,):
-        raise ValueError("upload_surfels: inconsistent array shapes")
-    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[1] != (sh_degree + 1) ** 2 or sh.shape[2] != 3:
-        raise ValueError(f"upload_surfels: sh must be [N,{(sh_degree + 1) ** 2},3], got {sh.shape}")
-    if not 0 <= sh_degree <= 3:
-        raise ValueError(f"upload_surfels: sh_degree {sh_degree} outside 0..3")
-    tu = rotations[:, :, 0] * scales[:, :1]
-    tv = rotations[:, :, 1] * scales[:, 1:2]
-    op = np.asarray(opacities, dtype=np.float64)
-    with np.errstate(divide="ignore"):
-        rho_cut = np.where(op * 255.0 > 1.0, 2.0 * np.log(np.maximum(op, 1e-30) / alpha_min), -1.0)
-    dev = wp.get_device(device)
-
-    def put(a: np.ndarray, dtype) -> wp.array:
-        # on the CPU the Warp array *is* the float32 NumPy array (no copy: the scene's
-        # means and SH are held once, issue 20); kernels only read these buffers
-        return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=dtype, device=dev,
-                        copy=not dev.is_cpu)  # fmt: skip
-
-    return SurfelBuffers(
-        means=put(means, wp.vec3),
-        tu=put(tu, wp.vec3),
-        tv=put(tv, wp.vec3),
-        opacity=put(op, float),
-        rho_cut=put(rho_cut, float),
-        sh=put(sh, wp.vec3),
-        sh_degree=int(sh_degree),
-        device=device,
-    )
-
-
-def surfel_rows(buf: SurfelBuffers, rows: np.ndarray, colours: bool = True) -> SurfelBuffers:
-    """The surfels ``rows`` of a CPU-resident ``buf`` as a scene of their own (a host
-    gather of the uploaded arrays: the same float32 values, so a render of the rows is
-    the render of those surfels in ``buf``). ``colours`` False: no SH (zero, degree 0),
-    for value renders only. CPU only: on CUDA render the whole scene."""
-    if not buf.device.is_cpu:
-        raise ValueError("surfel_rows: a host gather, for CPU-resident surfels only")
-    idx = np.asarray(rows, np.int64)
-    dev = buf.device
-
-    def take(a: wp.array, dtype) -> wp.array:
-        return wp.array(np.ascontiguousarray(a.numpy()[idx]), dtype=dtype, device=dev, copy=False)
-
-    return SurfelBuffers(
-        means=take(buf.means, wp.vec3),
-        tu=take(buf.tu, wp.vec3),
-        tv=take(buf.tv, wp.vec3),
-        opacity=take(buf.opacity, float),
-        rho_cut=take(buf.rho_cut, float),
-        sh=take(buf.sh, wp.vec3) if colours else wp.zeros((len(idx), 1), dtype=wp.vec3, device=dev),
-        sh_degree=buf.sh_degree if colours else 0,
-        device=dev,
-    )
-
-
 # --------------------------------------------------------------------------- kernels
 @wp.kernel
 def preprocess_kernel(
@@ -247,17 +156,29 @@ def preprocess_kernel(
     rows: wp.array(dtype=wp.int32),
     use_rows: int,
     write_splat: int,
+    dest: wp.array(dtype=wp.int32),
+    use_dest: int,
     splats: wp.array(dtype=Splat),
     sort_keys: wp.array(dtype=float),
     colors: wp.array2d(dtype=float),
+    extra: wp.array2d(dtype=float),
+    n_extra: int,
     base: int,
     stride: int,
 ):
     """Per surfel: splat rows, bounds, sort key (+inf when culled) and SH colour (the
     splat and the colour only for surfels that are not culled). With ``use_rows``,
     item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel);
-    ``write_splat`` 0: the sort key (and colour) only (the culling pass)."""
+    ``write_splat`` 0: the sort key (and colour) only (the culling pass). With
+    ``use_dest`` the splat of a visible item ``j`` goes to ``splats[dest[j]]`` (items with
+    ``dest[j] < 0`` are skipped) and no key is written (the pass after the culling pass:
+    items in index order, splats stored in depth order). With the colour, the surfel's
+    ``n_extra`` values ``extra[i]`` go to ``colors[i, 3 …]`` (value channels blended
+    with the RGB)."""
     j = base + wp.tid() * stride
+    if use_dest != 0:
+        if dest[j] < 0:
+            return  # culled by the culling pass: not projected again
     i = j
     if use_rows != 0:
         i = rows[j]
@@ -326,17 +247,24 @@ def preprocess_kernel(
         # culled: left out of the depth order and never read again (binning, blending
         # and every other pass read only the visible splats), so neither its splat nor
         # its SH colour is written (issue 20: most surfels of a zoomed view)
-        sort_keys[j] = BIG
+        if use_dest == 0:
+            sort_keys[j] = BIG
         return
     if write_splat != 0:
-        splats[j] = sp
-    sort_keys[j] = sp.depth
+        if use_dest != 0:
+            splats[dest[j]] = sp
+        else:
+            splats[j] = sp
+    if use_dest == 0:
+        sort_keys[j] = sp.depth
     if with_color != 0:
         d = wp.normalize(mu - cam.center)
         col = eval_sh(sh, i, sh_degree, d)
         colors[i, 0] = col[0]
         colors[i, 1] = col[1]
         colors[i, 2] = col[2]
+        for ch in range(n_extra):
+            colors[i, 3 + ch] = extra[i, ch]
 
 
 # --------------------------------------------------------------------------- wrapper
@@ -396,12 +324,20 @@ def project_splats(
     rows: wp.array | None = None,
     count: int | None = None,
     write_splats: bool = True,
+    extra: wp.array | None = None,
+    dest: wp.array | None = None,
+    n_dest: int = 0,
 ) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
     into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
     ``rows``: only these surfels (int32, their first ``count``; ascending, every other
     one culled — or the visible ones in depth order). ``write_splats`` False: the keys
-    (and colours) only (``splats`` is a placeholder).
+    (and colours) only (``splats`` is a placeholder). ``extra`` ``[N, C]`` (with
+    ``colors`` ``[N, 3 + C]``): copied after each visible surfel's colour. ``dest``
+    (``[K]`` int32, the depth rank of every visible item): the ``n_dest`` visible splats
+    are written at their ranks, in a ``[n_dest]`` buffer, and no keys (``keys`` is a
+    placeholder): the items are read in index order (issue 20: reading them in depth
+    order, scattered over the scene's arrays, cost 3× the projection at 3M).
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
@@ -410,9 +346,12 @@ def project_splats(
     """
     n = len(buf) if rows is None else (rows.shape[0] if count is None else int(count))
     dev = buf.device
-    splats = wp.empty(n if write_splats else 1, dtype=Splat, device=dev)
-    keys = wp.empty(n, dtype=float, device=dev)
+    splats = wp.empty(
+        (n if dest is None else max(int(n_dest), 1)) if write_splats else 1, dtype=Splat, device=dev
+    )
+    keys = wp.empty(n if dest is None else 1, dtype=float, device=dev)
     with_color = 0 if colors is None else 1
+    n_extra = 0 if extra is None or not with_color else int(extra.shape[1])
     launch_split(
         preprocess_kernel,
         n,
@@ -430,9 +369,13 @@ def project_splats(
             rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev),
             0 if rows is None else 1,
             int(write_splats),
+            dest if dest is not None else wp.empty(1, dtype=wp.int32, device=dev),
+            0 if dest is None else 1,
             splats,
             keys,
             colors if with_color else wp.empty((1, 3), dtype=float, device=dev),
+            extra if n_extra else wp.empty((1, 1), dtype=float, device=dev),
+            n_extra,
         ],
         dev,
         threads,
@@ -458,6 +401,7 @@ def rasterize_surfels(
     keep_binning: bool = False,
     window: tuple[int, int, int, int] | None = None,
     rows: np.ndarray | None = None,
+    extra: np.ndarray | wp.array | None = None,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -477,6 +421,11 @@ def rasterize_surfels(
         rows: ascending surfel indices, a superset of those the view keeps: only they are
             projected (the others would be culled; the survivors keep their index order
             for the stable depth sort): the same render at the rows' cost (issue 20).
+        extra: with an RGB render, ``[N]`` or ``[N, C]`` per-surfel values composited in
+            the same blend as channels ``3 … 3 + C − 1`` of ``feat`` (no background): each
+            channel bit for bit what ``values=extra`` composites, without a second blend
+            (issue 20: the oracle's ground truth at the view the session renders). A
+            ``binning`` is not reused then, nor are the colours kept with a new one.
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -486,8 +435,12 @@ def rasterize_surfels(
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     rgb = values is None and features
+    if extra is not None and not rgb:
+        raise ValueError("rasterize_surfels: extra value channels need an RGB render")
     key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s, window)
-    if binning is not None and (binning.key != key or (rgb and binning.colors is None)):
+    if binning is not None and (
+        binning.key != key or (rgb and (binning.colors is None or extra is not None))
+    ):
         binning = None
     cam = (
         binning.cam
@@ -499,9 +452,11 @@ def rasterize_surfels(
     inv_var = 1.0 / float(s.lowpass_sigma) ** 2
     P = W * H
     with wp.ScopedDevice(dev):
+        ext = None if extra is None else _value_rows(extra, n, dev)
         if values is None:
-            C = 3 if features else 0
-            bg = np.asarray(background, dtype=np.float32).reshape(3)[:C]
+            C = (3 + (0 if ext is None else ext.shape[1])) if features else 0
+            bg = np.zeros(C, np.float32)  # the value channels: no background
+            bg[: min(C, 3)] = np.asarray(background, dtype=np.float32).reshape(3)[: min(C, 3)]
             feat = wp.empty((max(n, 1), C), dtype=float)
         else:
             v = np.asarray(values, dtype=np.float32)
@@ -532,21 +487,30 @@ def rasterize_surfels(
             rws = None if rows is None else wp.array(np.asarray(rows, np.int32), dtype=wp.int32)
             cols = feat if rgb else None
             if (n if rws is None else rws.shape[0]) < s.cull_pass_min:
-                splats, keys = project_splats(buf, cam, inv_var, cols, threads, rws)
+                splats, keys = project_splats(buf, cam, inv_var, cols, threads, rws, extra=ext)
                 tm.lap("preprocess")
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
             else:  # cull first (keys only), then project the visible ones in depth order
                 # the SH colours here, read in index order (the second pass reads in depth order)
-                _, keys = project_splats(buf, cam, inv_var, cols, threads, rws, write_splats=False)
+                _, keys = project_splats(
+                    buf, cam, inv_var, cols, threads, rws, write_splats=False, extra=ext
+                )
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 ids = take_rows(rws, order, n_vis, dev, threads)
+                rank = depth_ranks(order, n_vis, keys.shape[0], dev, threads)
                 keys = order = None  # freed before the splats are allocated
-                splats, keys = project_splats(buf, cam, inv_var, None, threads, ids, n_vis)
+                # the second pass reads the surfels in index order and stores each visible
+                # splat at its depth rank: the same splats, in the same order
+                splats, keys = project_splats(
+                    buf, cam, inv_var, None, threads, rws, dest=rank, n_dest=n_vis
+                )
+                del rank
                 tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            binning = ViewBinning(key, cam, splats, ids, n_vis, None, feat if rgb else None, {})
+            colours = feat if rgb and extra is None else None  # [N, 3]: reusable alone
+            binning = ViewBinning(key, cam, splats, ids, n_vis, None, colours, {})
             bands = tile_bands(
                 splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
             )
@@ -580,3 +544,35 @@ def rasterize_surfels(
     res = RasterOutput(out, W, H, stats)
     res.binning = binning if keep_binning else None
     return res
+
+
+@wp.kernel
+def _rank_kernel(
+    order: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32), base: int, stride: int
+):
+    j = base + wp.tid() * stride
+    rank[order[j]] = j
+
+
+def depth_ranks(order: wp.array, n_vis: int, n: int, dev, threads: int) -> wp.array:
+    """``rank [n]``: ``rank[order[j]] = j`` for the ``n_vis`` visible items of the depth
+    order ``order`` (:func:`kernels.tile_binning.sort_visible`), −1 for the culled ones
+    (the second pass skips them before projecting: half of a wide 3M view)."""
+    rank = wp.full(max(n, 1), -1, dtype=wp.int32, device=dev)
+    if n_vis > 0:
+        launch_split(_rank_kernel, n_vis, [order, rank], dev, threads)
+    return rank
+
+
+def _value_rows(v, n: int, dev) -> wp.array:
+    """Per-surfel values ``[N]`` / ``[N, C]`` (NumPy or Warp) as a ``[N, C]`` float32
+    Warp array on ``dev`` (a CPU NumPy float32 array is wrapped, not copied)."""
+    if isinstance(v, wp.array):
+        a = v if v.ndim == 2 else v.reshape((v.shape[0], 1))
+    else:
+        h = np.ascontiguousarray(v, dtype=np.float32)
+        h = h.reshape(len(h), -1) if h.ndim > 1 else h.reshape(-1, 1)
+        a = wp.array(h, dtype=float, device=dev, copy=not dev.is_cpu)
+    if a.shape[0] != n or a.dtype != wp.float32:
+        raise ValueError(f"rasterize_surfels: extra has {a.shape[0]} rows for {n} surfels")
+    return a

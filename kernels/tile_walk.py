@@ -54,6 +54,10 @@ __all__ = [
 ]
 
 
+#: per-row counters of one tile (tiles are at most 64 pixels a side: ``check_view``)
+RowCounts = wp.types.vector(length=64, dtype=wp.int32)
+
+
 # --------------------------------------------------------------------------- sinks
 @wp.struct
 class BlendSink:
@@ -173,7 +177,11 @@ def walk_tile_kernel(
         for x in range(X0, X1 + 1):
             states[y * W + x] = state_init()
     npix = (X1 - X0 + 1) * (Y1 - Y0 + 1)
+    wrow = X1 - X0 + 1
     ndone = int(0)
+    # done pixels per row of the tile: a row whose pixels are all done is skipped before
+    # its span is solved (its pixels would all be skipped anyway)
+    rdone = RowCounts()
     for e in range(int(rstart[t]), int(rend[t])):
         j = vals[e]  # depth rank: the visible splats are stored in depth order
         sp = splats[j]
@@ -183,20 +191,24 @@ def walk_tile_kernel(
         ya = wp.max(sp.y0, Y0)
         yb = wp.min(sp.y1, Y1)
         for y in range(ya, yb + 1):
-            py = float(y) + 0.5
-            xs, xe = row_span(sp, py, cam.fx, cam.fy, xa, xb)
-            for x in range(xs, xe + 1):
-                p = y * W + x
-                s = states[p]
-                if (s.flags & FLAG_DONE) == 0:
-                    px = float(x) + 0.5
-                    alpha, z = splat_alpha(sp, px, py, cam.fx, cam.fy, inv_var, alpha_max, cam.near)
-                    if alpha >= bp.alpha_min:
-                        s, w = blend_step(s, alpha, z, bp)
-                        sink_pair(sink, base, i, p, w)
-                        states[p] = s
-                        if (s.flags & FLAG_DONE) != 0:
-                            ndone += 1
+            if rdone[y - Y0] < wrow:
+                py = float(y) + 0.5
+                xs, xe = row_span(sp, py, cam.fx, cam.fy, xa, xb)
+                for x in range(xs, xe + 1):
+                    p = y * W + x
+                    s = states[p]
+                    if (s.flags & FLAG_DONE) == 0:
+                        px = float(x) + 0.5
+                        alpha, z = splat_alpha(
+                            sp, px, py, cam.fx, cam.fy, inv_var, alpha_max, cam.near
+                        )
+                        if alpha >= bp.alpha_min:
+                            s, w = blend_step(s, alpha, z, bp)
+                            sink_pair(sink, base, i, p, w)
+                            states[p] = s
+                            if (s.flags & FLAG_DONE) != 0:
+                                ndone += 1
+                                rdone[y - Y0] = rdone[y - Y0] + 1
         if ndone == npix:
             break
     for y in range(Y0, Y1 + 1):

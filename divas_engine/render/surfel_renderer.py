@@ -13,6 +13,7 @@ from divas_kernels import (
     rasterize_surfels,
     resolve_device,
     surfel_rows,
+    to_device,
     upload_surfels,
 )
 
@@ -46,6 +47,11 @@ class SurfelRenderer:
     ``binning_cache`` views are kept (:class:`divas_kernels.ViewBinning`), so a value
     render (overlay, oracle target) of a camera just rendered in RGB only blends —
     bit-identical to a fresh render (issue 20). 0 turns the cache off.
+
+    Values known before a view is rendered (:meth:`attach_values`: the oracle's ground
+    truth) are composited in every RGB render's own blend, as extra channels; a later
+    :meth:`render_values` of that camera with the same values returns that image
+    without blending again — bit-identical to a separate value render (issue 20).
     """
 
     kind = SceneKind.GS2D
@@ -63,11 +69,16 @@ class SurfelRenderer:
     #: that reuse a binning read no colours), so they are dropped: 34 MB at 3M surfels
     #: (issue 20). A dropped colour set only means that RGB render projects afresh.
     binning_keeps_colours: bool = False
+    #: how many RGB renders' composites of the attached values are kept (an image each:
+    #: ``H·W·C`` floats, 1.2 MB for one channel at 640×480)
+    value_images_kept: int = 4
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
         self._binnings: list = []
         self._blocks: SurfelBlocks | None = None
+        self._attached: tuple[np.ndarray, object] | None = None  # (host [N,C], device)
+        self._images: list[tuple[tuple, np.ndarray]] = []  # (key, [P, C]) newest first
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
         self._buf = upload_surfels(
@@ -88,9 +99,11 @@ class SurfelRenderer:
         features: bool = True,
         keep: bool = True,
         window: tuple[int, int, int, int] | None = None,
+        extra=None,
     ):
         hit = self.kept_binning(cam) if window is None else None
-        if hit is not None and values is None and features and hit.colors is None:
+        rgb = values is None and features
+        if hit is not None and rgb and (hit.colors is None or extra is not None):
             hit = None  # an RGB render of a binning kept without its colours: afresh
         keep = keep and window is None and self.binning_cache > 0
         if keep and hit is None:
@@ -109,6 +122,7 @@ class SurfelRenderer:
             keep_binning=keep,
             window=window,
             rows=rows,
+            extra=extra,
         )
         b = r.binning
         if b is not None:
@@ -152,11 +166,75 @@ class SurfelRenderer:
         ):
             self._binnings.pop()
 
-    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+    def render(self, camera: Camera, scale: float = 1.0, *, attached: bool = True) -> RenderBuffers:
+        """RGB and depth tuple; ``attached`` False: without the :meth:`attach_values`
+        channels (a view that will not be segmented, e.g. an anchor)."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
-        r = self._run(cam, None)
-        rgb = r.out.feat.numpy().reshape(cam.height, cam.width, 3)
+        att = self._attached if attached else None
+        r = self._run(cam, None, extra=None if att is None else att[1])
+        f = r.out.feat.numpy()
+        if att is None:
+            rgb = f.reshape(cam.height, cam.width, 3)
+        else:  # the attached values' channels follow the RGB: kept for render_values
+            rgb = np.ascontiguousarray(f[:, :3]).reshape(cam.height, cam.width, 3)
+            key = self._image_key(cam)
+            rest = [x for x in self._images if x[0] != key]
+            self._images = [(key, f[:, 3:].copy())] + rest[: max(self.value_images_kept - 1, 0)]
         return self._buffers(r.out, cam, rgb, r.stats)
+
+    def attach_values(self, values: np.ndarray | None) -> None:
+        """Per-surfel values ``[N]`` or ``[N, C]`` that every later :meth:`render`
+        composites in its own blend (extra channels of the same per-pixel loop, no
+        background), so that :meth:`render_values` of a camera rendered since, given
+        values equal to these bit for bit (as float32), returns that composite without
+        blending again: the same image bit for bit (issue 20: the oracle's ground truth
+        at each view the session shows; a separate value render costs a blend as long as
+        the RGB one). A private float32 copy is held; None detaches."""
+        self._images = []
+        if values is None:
+            self._attached = None
+            return
+        v = np.array(values, dtype=np.float32)  # a copy: the caller may change theirs
+        if v.ndim not in (1, 2) or v.shape[0] != self.num_primitives:
+            raise ValueError(
+                f"attach_values: expected [{self.num_primitives}] or "
+                f"[{self.num_primitives}, C] values, got {v.shape}"
+            )
+        v = np.ascontiguousarray(v[:, None] if v.ndim == 1 else v)
+        v.flags.writeable = False
+        # on the CPU the rasterizer wraps the host array; on CUDA it is uploaded once
+        self._attached = (v, v if self.device.is_cpu else to_device(v, self.device))
+
+    @property
+    def attached_values(self) -> np.ndarray | None:
+        """The attached values (read-only ``[N, C]`` float32 copy), or None."""
+        return None if self._attached is None else self._attached[0]
+
+    def _image_key(self, cam: Camera) -> tuple:
+        """What a composite of the attached values at ``cam`` depends on: the view's
+        binning and the blend constants."""
+        s = self.config.raster_settings(cam)
+        blend = (float(s.tau_sig), float(s.tau_cw), float(s.t_min), float(s.alpha_min))
+        return binning_key(self._buf, *_projection(cam), s) + (blend, float(s.alpha_max))
+
+    def _composited(self, cam: Camera, values: np.ndarray) -> np.ndarray | None:
+        """The kept composite of ``values`` at ``cam`` (``[H,W]`` for ``[N]`` values,
+        else ``[H,W,C]``) when the attached values equal them bit for bit, else None."""
+        if self._attached is None or not self._images:
+            return None
+        key = self._image_key(cam)
+        img = next((im for k, im in self._images if k == key), None)
+        if img is None:
+            return None
+        att = self._attached[0]
+        v = np.asarray(values, dtype=np.float32)  # what a value render composites
+        v2 = v[:, None] if v.ndim == 1 else v
+        if v.ndim not in (1, 2) or v2.shape != att.shape:
+            return None
+        if not np.array_equal(v2.view(np.uint32), att.view(np.uint32)):
+            return None
+        H, W = cam.height, cam.width
+        return (img.reshape(H, W) if v.ndim == 1 else img.reshape(H, W, -1)).copy()
 
     def render_depth(
         self,
@@ -238,8 +316,10 @@ class SurfelRenderer:
         return True
 
     def clear_cache(self) -> None:
-        """Drop the kept view binnings (frees their device memory)."""
+        """Drop the kept view binnings (frees their device memory) and the kept
+        composites of the attached values."""
         self._binnings = []
+        self._images = []
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)
@@ -249,6 +329,9 @@ class SurfelRenderer:
                 f"[{self.num_primitives}, C] values, got {values.shape}"
             )
         cam = camera if scale == 1.0 else camera.scaled(scale)
+        kept = self._composited(cam, values)
+        if kept is not None:  # composited in the RGB render's blend (attach_values)
+            return kept
         r = self._run(cam, values)
         f = r.out.feat.numpy()
         H, W = cam.height, cam.width

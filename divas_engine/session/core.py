@@ -176,6 +176,14 @@ class SessionCore:
 
         if isinstance(self.segmenter, OracleSegmenter) and self.segmenter.gt_render is None:
             self.segmenter.gt_render = self._gt_render
+        seg = self.segmenter
+        attach = getattr(self.renderer, "attach_values", None)
+        if attach is not None and isinstance(seg, OracleSegmenter):
+            # the oracle renders the truth at every view it segments: composited in the
+            # view's own RGB blend, its value render is read back, not blended again
+            # (issue 20; bit-identical — SurfelRenderer.attach_values)
+            with self._render_lock:
+                attach(v if seg.gt_render == self._gt_render else None)
 
     def _bind_segmenter(self, segmenter: Segmenter | None) -> None:
         """A scene-aware segmenter (issue 16) gets the scene, the renderer, the camera of
@@ -215,7 +223,16 @@ class SessionCore:
 
     # ------------------------------------------------------------------ rendering
     def _render(self, camera: Camera) -> RenderBuffers:
+        from ..render.surfel_renderer import SurfelRenderer
+
         with self._render_lock, self.timings.measure("render"):
+            r = self.renderer
+            if (
+                isinstance(r, SurfelRenderer)  # not a wrapper (its render takes no opt-out)
+                and r.attached_values is not None
+                and any(a.camera is camera for a in self.anchors)
+            ):  # an anchor is never segmented: no ground-truth channel in its blend
+                return r.render(camera, attached=False)
             return self.renderer.render(camera)
 
     def _render_values(self, camera: Camera, values: np.ndarray) -> np.ndarray:
