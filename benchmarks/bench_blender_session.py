@@ -185,7 +185,9 @@ def main() -> None:
             f"| {name} | {dt:.2f} | {dc:.2f} | {dgs:.2f} | {dt / render_s:.2f} | "
             f"{dc / render_cpu:.2f} | {rss:.2f} | {peak:.2f} |"
         )
-    print(f"\npeak RSS {_peak_gb():.2f} GB")
+    # the session's peak is the table's last column; this one adds the reference render's
+    # own renderer (a second copy of the scene's surfel buffers, not part of a session)
+    print(f"\npeak RSS with the bench's reference renderer {_peak_gb():.2f} GB")
 
 
 def _look_through(bpy, live, i: int):
