@@ -235,6 +235,19 @@ class Camera:
             uv = np.stack([self.fx * pc[:, 0] / z + self.cx, self.fy * pc[:, 1] / z + self.cy], -1)
         return uv, z
 
+    def in_image(self, uv: np.ndarray, z: np.ndarray, near: float = 0.0) -> np.ndarray:
+        """``[N]`` bool: projected points (:meth:`project`) in front of ``near`` whose
+        finite pixel coordinates fall inside the image."""
+        with np.errstate(invalid="ignore"):
+            return (
+                (z > near)
+                & np.isfinite(uv).all(axis=1)
+                & (uv[:, 0] >= 0)
+                & (uv[:, 0] < self.width)
+                & (uv[:, 1] >= 0)
+                & (uv[:, 1] < self.height)
+            )
+
     def ray_directions(self, uv: np.ndarray) -> np.ndarray:
         """Unit world-space ray directions ``[N,3]`` through continuous pixel points ``uv``."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)

@@ -612,3 +612,21 @@ def test_camera_near_clip_is_carried_and_validated():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="near clip"):
             cam.with_near(bad)
+
+
+def test_in_image_by_hand():
+    """Points in front of ``near`` with finite pixels inside [0, W) × [0, H) only."""
+    cam = Camera.look_at(
+        np.array([0.0, 0.0, -2.0]),
+        np.zeros(3),
+        np.array([0.0, 1.0, 0.0]),
+        width=4,
+        height=3,
+        fx=4.0,
+    )
+    uv = np.array(
+        [[0.0, 0.0], [3.99, 2.99], [4.0, 1.0], [1.0, 3.0], [-0.01, 1], [np.nan, 1], [1, 1]]
+    )
+    z = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5])
+    assert cam.in_image(uv, z).tolist() == [True, True, False, False, False, False, True]
+    assert cam.in_image(uv, z, near=0.5).tolist()[-1] is False

@@ -155,15 +155,7 @@ def centre_vote(
                 r = make_renderer(scene, device=device)
             d_med = r.render(cam).D_med
         uv, z = cam.project(means)
-        with np.errstate(invalid="ignore"):
-            inside = (
-                (z > cam.clip_near(config.near))
-                & np.isfinite(uv).all(axis=1)
-                & (uv[:, 0] >= 0)
-                & (uv[:, 0] < cam.width)
-                & (uv[:, 1] >= 0)
-                & (uv[:, 1] < cam.height)
-            )
+        inside = cam.in_image(uv, z, cam.clip_near(config.near))
         idx = np.flatnonzero(inside)
         x = np.floor(uv[idx, 0]).astype(np.int64)
         y = np.floor(uv[idx, 1]).astype(np.int64)

@@ -166,14 +166,7 @@ def gaussian_geometry(
     with np.errstate(invalid="ignore", divide="ignore"):
         cos = np.abs((comp.normals[g] * ray).sum(axis=1)) / dist
         full = comp.footprint[g] * cos * float(cam.fx) * float(cam.fy) / (z * z)
-        inside = (
-            (z > 0)
-            & np.isfinite(uv).all(axis=1)
-            & (uv[:, 0] >= 0)
-            & (uv[:, 0] < cam.width)
-            & (uv[:, 1] >= 0)
-            & (uv[:, 1] < cam.height)
-        )
+    inside = cam.in_image(uv, z)
     deep = np.zeros(len(g), np.int8)
     idx = np.flatnonzero(inside)
     x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
@@ -224,16 +217,7 @@ def voxel_evidence(
         return np.zeros(0, np.int32), np.zeros(0, np.uint8)
     centres = comp.voxel_centers if subset is None else comp.voxel_centers[subset]
     uv, z = project_points(cam, centres)
-    near = cam.clip_near(comp.render_config.near)
-    with np.errstate(invalid="ignore"):
-        inside = (
-            (z > near)
-            & np.isfinite(uv).all(axis=1)
-            & (uv[:, 0] >= 0)
-            & (uv[:, 0] < cam.width)
-            & (uv[:, 1] >= 0)
-            & (uv[:, 1] < cam.height)
-        )
+    inside = cam.in_image(uv, z, cam.clip_near(comp.render_config.near))
     idx = np.flatnonzero(inside)
     x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
     y = np.minimum(np.floor(uv[idx, 1]).astype(np.int64), cam.height - 1)
