@@ -16,6 +16,7 @@ from divas_engine.render import make_renderer
 from divas_kernels.contrib import _accumulate, _SlotTable
 
 from .test_completion import CPU, _ball_scene, _views
+from .test_contrib_targets import _args
 
 
 @pytest.fixture(scope="module")
@@ -23,12 +24,6 @@ def ball():
     scene, labels, parts = _ball_scene()
     views = _views(scene, labels, [(0, 0, -1), (1, 0, -0.3), (-1, 0.2, -0.3), (0, 1, -0.5)])
     return scene, labels, parts, views
-
-
-def _args(v):
-    cam = v.camera
-    pos = np.asarray(v.mask) >= 0.5
-    return (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, pos)
 
 
 def _same(a, b) -> bool:
