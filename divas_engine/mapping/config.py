@@ -134,6 +134,14 @@ class CompletionConfig:
             only when at least this many fused views are consistent with it (2: the
             intersection of two visual cones is bounded in 3D, one cone alone is not);
             a voxel seen on the surface inside a mask needs one view.
+        centre_evidence: a Gaussian that is not contribution-positive and joins only
+            because its centre voxel is segmented or filled must also pass the fill's
+            test at its own centre: on or within the solid depth behind a mask-positive
+            surface in some fused view, inconsistent in none. A voxel is ``h_v`` wide
+            (7.2 cm on the guitar capture) and its centre alone speaks for it: one view
+            where that centre falls on a thin object's mask (the stand's 3 cm tubes)
+            fills it, and the voxel then adds what else it holds — the guitar body's
+            hidden interior behind the stand (stand15, issue 15).
         drop_inconsistent: also drop Gaussians of the paper's selection whose blending
             weight over the fused views lies mostly outside the masks (the same test,
             the other way: not ``A₁ − A₀ > γ ‖A‖`` with evidence ``≥ drop_min_weight``;
@@ -169,6 +177,7 @@ class CompletionConfig:
     deep_is_inconsistent: bool = False
     fill_rounds: int = 8
     fill_min_views: int = 2
+    centre_evidence: bool = False
     drop_inconsistent: bool = True
     drop_min_weight: float = 0.5
     sparse_gather: bool = True
