@@ -138,8 +138,8 @@ class CompletionConfig:
             because its centre voxel is segmented or filled must also pass the fill's
             test at its own centre: on or within the solid depth behind a mask-positive
             surface in some fused view, inconsistent in none. A voxel is ``h_v`` wide
-            (7.2 cm on the guitar capture) and its centre alone speaks for it: one view
-            where that centre falls on a thin object's mask (the stand's 3 cm tubes)
+            (0.072 scene units on the guitar capture, a stand tube's width) and its centre
+            alone speaks for it: one view where that centre falls on a thin object's mask
             fills it, and the voxel then adds what else it holds — the guitar body's
             hidden interior behind the stand (stand15, issue 15). Measured (oracle,
             BENCHMARKS.md "guitar/stand false positives (stand15)"): op-IoU stand 0.743 →
