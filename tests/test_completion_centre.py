@@ -103,3 +103,37 @@ def test_centre_evidence_by_hand():
     # a point good in one view and inconsistent in another fails
     ok2 = centre_evidence(_C, [(view, disc, rho), (view, ~disc, edge_distance(~disc))], pts[:1])
     assert ok2.tolist() == [False]
+
+
+def test_centre_masks_follow_undo_and_sync():
+    """The per-view masks the rule reads are those of the live views after any add / undo
+    / sync (a key whose view changed gets the new view's mask), and the decision with the
+    rule on equals the one of the same views added once."""
+    scene, labels, parts = _ball_scene()
+    grid = build_occupancy(scene, GridConfig(), CPU)
+    act = SurfelMapper(scene, grid, device=CPU).active_index
+    views = _views(scene, labels, [(0, 0, -1), (1, 0, -0.3), (-1, 0.2, -0.3)])
+    cfg = CompletionConfig(centre_evidence=True)
+    means = np.asarray(scene.means, np.float64)
+    k = parts["surface"].stop
+    sel = np.zeros(len(labels), bool)
+    sel[:k] = means[:k, 2] < 0
+    seg = np.zeros(len(grid), bool)
+    seg[act[sel]] = True
+    inc = VolumetricCompletion(scene, grid, act, cfg, device=CPU)
+    inc.add_view(0, views[0])
+    inc.add_view(1, views[1])
+    assert len(inc._live_masks()) == 2
+    inc.complete(sel, seg)
+    inc.sync([(0, views[0]), (1, views[2])])  # key 1 now holds another view
+    for (v, pos, rho), key in zip(inc._live_masks(), inc.keys):
+        ref_pos, ref_rho = inc._mask(v)
+        assert np.array_equal(pos, ref_pos) and np.array_equal(rho, ref_rho)
+        assert v is inc._records[key][0]
+    inc.remove_view(0)
+    assert 0 not in inc._masks
+    inc.add_view(0, views[0])
+    batch = VolumetricCompletion(scene, grid, act, cfg, device=CPU)
+    batch.add_view(0, views[0])
+    batch.add_view(1, views[2])
+    assert np.array_equal(inc.complete(sel, seg).selected, batch.complete(sel, seg).selected)
