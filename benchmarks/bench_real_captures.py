@@ -21,7 +21,7 @@ the ground truth itself (the metrics' ceiling: the NOTES image IoU of the truth 
 
     python benchmarks/bench_real_captures.py [--targets biker/helmet,guitar/neck]
         [--segmenters oracle,classic] [--scale 1] [--eval-scale 1] [--seed 0]
-        [--device cpu] [--json OUT.json] [--export DIR]
+        [--device cpu] [--json OUT.json] [--export DIR] [--breakdown]
 
 ``--export DIR`` also writes, per target, ``DIR/<capture>_<target>/prompts.json`` and
 ``gt.npy`` (bool per file row) so the same run can be made with the CLI:
@@ -44,6 +44,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from divas_engine.evaluation.baselines import ContributionVoter, centre_vote  # noqa: E402
+from divas_engine.evaluation.breakdown import completion_sources, source_breakdown  # noqa: E402
 from divas_engine.evaluation.fidelity import FidelityEvaluator  # noqa: E402
 from divas_engine.evaluation.metrics import EvalConfig, ViewEvaluator  # noqa: E402
 from divas_engine.evaluation.pipeline import make_segmenter, run_session  # noqa: E402
@@ -82,6 +83,18 @@ METHODS = {
     "contrib_vote": "(b) contribution vote (FlashSplat-style)",
     "truth": "the ground truth itself (the metrics' ceiling)",
 }
+
+
+def _breakdown_line(br: dict) -> str:
+    """One line of :func:`source_breakdown`: per source TP / FP counts, FP opacity and the
+    opacity-weighted IoU without that source's false Gaussians."""
+    parts = [
+        f"{k} tp {v['tp']} fp {v['fp']} (op {v['fp_w']:.1f}, IoU w/o {v['iou_without_fp']:.3f})"
+        for k, v in br.items()
+        if k != "missed"
+    ]
+    m = br["missed"]
+    return "breakdown: " + "; ".join(parts) + f"; missed {m['fn']} (op {m['fn_w']:.1f})"
 
 
 def run(args: argparse.Namespace) -> list[dict]:
@@ -168,6 +181,15 @@ def run(args: argparse.Namespace) -> list[dict]:
                         flush=True,
                     )
                 print(f"  session {t_session:.1f} s, completion {out.completion}", flush=True)
+                if args.breakdown and out.completion_masks is not None:
+                    br = source_breakdown(
+                        out.selection,
+                        labels,
+                        np.asarray(scene.opacities, np.float64),
+                        completion_sources(out.mapped, **out.completion_masks),
+                    )
+                    rows[-len(sels)]["breakdown"] = br  # the DivAS row
+                    print("  " + _breakdown_line(br), flush=True)
     return rows
 
 
@@ -215,6 +237,11 @@ def main() -> int:
     )
     p.add_argument("--save-selections", type=Path, default=None, help="npz per target")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="also split DivAS's true / false Gaussians by source (paper, contribution, fill)",
+    )
     p.add_argument("--export", type=Path, default=None)
     args = p.parse_args()
     cpu = platform.processor() or platform.machine()

@@ -310,6 +310,37 @@ def test_session_completes_3dgs_only(ball):
     assert not sel3[parts["floater"]].any()
 
 
+def _plain_centre_ok(comp: VolumetricCompletion, point: np.ndarray) -> bool:
+    """One point against every live view, written plainly (module docstring): on the
+    surface of / within the solid depth behind a mask-positive pixel in some view, and
+    neither on a negative pixel it is visible at nor floating in front in any."""
+    from scipy.ndimage import binary_fill_holes, distance_transform_edt
+
+    cfg, good, bad = comp.config, False, False
+    margin = cfg.surface_margin * comp.h
+    for view, _ in comp._records.values():
+        cam = view.camera
+        uv, z = cam.project(point[None])
+        if not cam.in_image(uv, z, cam.clip_near(comp.render_config.near))[0]:
+            continue
+        x = min(int(np.floor(uv[0, 0])), cam.width - 1)
+        y = min(int(np.floor(uv[0, 1])), cam.height - 1)
+        m = np.asarray(view.mask) >= cfg.mask_threshold
+        rho = distance_transform_edt(np.pad(binary_fill_holes(m), 1))[1:-1, 1:-1]
+        rho = rho.astype(np.float32).astype(np.float64)
+        big_r = rho.max()
+        r_p = min(rho[y, x], big_r)
+        cap = cfg.depth_factor * 2 * np.sqrt(max(r_p * (2 * big_r - r_p), 0)) * z[0] / cam.fx
+        d = float(np.asarray(view.d_ref)[y, x])
+        off = z[0] - d
+        if m[y, x] and d > 0:
+            good |= -margin <= off <= cap + margin
+            bad |= off < -margin
+        else:
+            bad |= d <= 0 or off <= margin
+    return good and not bad
+
+
 def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.ndarray):
     """The decision written plainly over all N Gaussians and all voxels (module
     docstring), independent of the per-cell member lists the engine walks."""
@@ -364,7 +395,11 @@ def _reference_complete(comp: VolumetricCompletion, sel: np.ndarray, seg: np.nda
     in_vox = np.zeros(comp.n, bool)
     ok = comp.active_index >= 0
     in_vox[ok] = cur[comp.active_index[ok]]
-    out = sel | (near & (add | (in_vox & ~(seen & ~pos) & ~through)))
+    by_vox = in_vox & ~(seen & ~pos) & ~through
+    if cfg.centre_evidence:  # joining by its voxel alone: the fill's test at its centre
+        for i in np.flatnonzero(near & ~sel & by_vox & ~add):
+            by_vox[i] = _plain_centre_ok(comp, comp.means[i])
+    out = sel | (near & (add | by_vox))
     if cfg.drop_inconsistent:
         ev = a1 + a0 >= cfg.drop_min_weight * QSCALE
         out &= ~(sel & ev & ~(a1 - a0 > cfg.gamma * np.hypot(a1, a0)))
@@ -381,6 +416,7 @@ def test_decision_matches_plain_reference(ball, seed):
         CompletionConfig(),
         CompletionConfig(neighbourhood_log2=0, gamma=0.2),
         CompletionConfig(appearance_k=8),
+        CompletionConfig(centre_evidence=True),
     ):
         comp = VolumetricCompletion(scene, grid, act, cfg, device=CPU)
         for i, v in enumerate(views[:3]):

@@ -202,6 +202,8 @@ class SessionOutcome:
         mapped: the paper's selection f (Pass 3) before the 3DGS completion (the
             same as ``selection`` when no completion ran; None for NeRF).
         completion: counts of the 3DGS completion (None when it did not run).
+        completion_masks: its ``[N] bool`` parts ``contrib_added``, ``fill_added`` and
+            ``dropped`` (None when it did not run; :mod:`.breakdown`).
         views: the fused views as :class:`MaskView` with the *raw* accepted masks (the
             segmenter's chosen channel before depth weighting) and their ``D_med``.
         weighted_views: the same with the depth-weighted masks that were fused.
@@ -225,6 +227,7 @@ class SessionOutcome:
     timings: dict = field(default_factory=dict)
     user_log: UserLog | None = None
     anchors: list = field(default_factory=list)
+    completion_masks: dict[str, np.ndarray] | None = None
 
 
 def run_session(
@@ -300,7 +303,7 @@ def run_session(
             views.append(MaskView(v.camera, raw, b.D_med))
             weighted.append(MaskView(v.camera, v.mask, b.D_med))
         sel = s.selection.copy()
-        p1 = p2 = mapped = comp = None
+        p1 = p2 = mapped = comp = comp_masks = None
         if s.kind == SceneKind.GS2D:
             m = s.last_mapping if views else None  # no fused view: empty chain
             p1 = np.zeros_like(sel) if m is None else m.pass1.copy()
@@ -308,6 +311,11 @@ def run_session(
             mapped = np.zeros_like(sel) if m is None else m.selected.copy()
             c = getattr(s.backend, "last_completion", None) if views else None
             comp = None if c is None else {**c.counts(), "rounds": c.rounds, **c.seconds}
+            if c is not None:
+                comp_masks = {
+                    k: np.asarray(getattr(c, k), bool).copy()
+                    for k in ("contrib_added", "fill_added", "dropped")
+                }
         return SessionOutcome(
             selection=sel,
             pass1=p1,
@@ -322,6 +330,7 @@ def run_session(
             timings=s.timings.summary(),
             user_log=user_log,
             anchors=[(a.full_camera.name, a.source, a.source_index) for a in s.anchors],
+            completion_masks=comp_masks,
         )
     finally:
         s.close()

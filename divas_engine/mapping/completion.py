@@ -41,8 +41,10 @@ the result stays 3D-consistent and floaters away from the object stay out:
   masks, carved by every view that sees them; one cone is unbounded, two intersect in a
   bounded region — are grown from the segmented voxels through the neighbourhood
   (``fill_rounds`` rounds); a Gaussian whose centre voxel is segmented or filled is
-  added unless its own contribution says it renders mostly outside the masks, and a
-  Gaussian of the paper's selection whose contribution says so is dropped
+  added unless its own contribution says it renders mostly outside the masks (with
+  ``centre_evidence``, one with no contribution of its own must pass the voxels' test at
+  its own centre), and a Gaussian of the paper's selection whose contribution says so
+  is dropped
   (``drop_inconsistent``: Pass 3's intent, with the renderer's weights).
 
 Incremental and exact under undo: adding a view computes only that view's records (one
@@ -83,6 +85,7 @@ from .completion_records import INCONSISTENT as _INCONSISTENT
 from .completion_records import (
     QSCALE,
     _ViewRecord,
+    centre_evidence,
     gaussian_evidence,
     gaussian_geometry,
     seen_by_weight,
@@ -209,6 +212,7 @@ class VolumetricCompletion:
         self.n_hidden = np.zeros(self.a, np.int32)
         self.n_incons = np.zeros(self.a, np.int32)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
+        self._masks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # centre_evidence
         # the cover the last decision needed (with the gather margin): a new view's
         # records are made for it at once (usually all the next decision reads)
         self._need: np.ndarray | None = None  # cells (indices)
@@ -375,6 +379,7 @@ class VolumetricCompletion:
     def remove_view(self, key: int) -> None:
         """Undo a view exactly (subtracts the integers its add and gathers added)."""
         _, rec = self._records.pop(key)
+        self._masks.pop(key, None)
         self._apply(rec, -1)
 
     def sync(self, views: Sequence[tuple[int, FusionView]]) -> float:
@@ -432,6 +437,13 @@ class VolumetricCompletion:
         ns, nh = self.n_surf[vox], self.n_hidden[vox]
         ok = (ns >= 1) | (ns + nh >= self.config.fill_min_views)
         return ok & (self.n_incons[vox] == 0)
+
+    def _live_masks(self) -> list[tuple[FusionView, np.ndarray, np.ndarray]]:
+        """``(view, pos, rho)`` of the live views (made once per view, for centre_evidence)."""
+        for k, (v, _) in self._records.items():
+            if k not in self._masks:
+                self._masks[k] = self._mask(v)
+        return [(v, *self._masks[k]) for k, (v, _) in self._records.items()]
 
     def contributions(self) -> tuple[np.ndarray, np.ndarray]:
         """``(A₁, A₀)`` ``[N]`` float64 summed over the live views (pixels); with
@@ -509,6 +521,10 @@ class VolumetricCompletion:
         fill_add = np.zeros(self.n, bool)
         contrib_add[idx[positive]] = True
         by_voxel = in_voxels & ~negative & ~through
+        if cfg.centre_evidence:  # the voxel's claim, tested at the Gaussian's own centre
+            j = np.flatnonzero(by_voxel & ~positive)
+            if len(j):
+                by_voxel[j[~centre_evidence(self, self._live_masks(), self.means[idx[j]])]] = False
         fill_add[idx[by_voxel & ~positive]] = True
         out = sel.copy()
         out[idx[positive | by_voxel]] = True

@@ -205,18 +205,16 @@ def gaussian_evidence(
     return seen_by_weight(comp, geo, weight), geo[2]
 
 
-def voxel_evidence(
-    comp, view, pos: np.ndarray, rho: np.ndarray, subset: np.ndarray | None = None
+def point_flags(
+    comp, view, pos: np.ndarray, rho: np.ndarray, points: np.ndarray, half_extent: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Evidence flags of the active voxels (``subset``: of these only; each voxel's
-    flag depends on its own centre and the view alone): ``(voxels, flags)`` of the
-    voxels with evidence."""
+    """Evidence flags of ``points`` in ``view`` (``SURFACE`` / ``HIDDEN`` /
+    ``INCONSISTENT``): ``(indices, flags)`` of the points with evidence. A point stands
+    for a body of half diagonal ``half_extent`` (world units; a voxel: ``√3/2 h_v``, a
+    Gaussian's centre: 0) — the solid depth may reach that much further in."""
     cfg = comp.config
     cam = view.camera
-    if comp.a == 0 or (subset is not None and len(subset) == 0):
-        return np.zeros(0, np.int32), np.zeros(0, np.uint8)
-    centres = comp.voxel_centers if subset is None else comp.voxel_centers[subset]
-    uv, z = project_points(cam, centres)
+    uv, z = project_points(cam, points)
     inside = cam.in_image(uv, z, cam.clip_near(comp.render_config.near))
     idx = np.flatnonzero(inside)
     x = np.minimum(np.floor(uv[idx, 0]).astype(np.int64), cam.width - 1)
@@ -229,7 +227,7 @@ def voxel_evidence(
     # ball of the mask's inscribed radius R at the pixel's distance ρ from the
     # silhouette's edge, 2 √(ρ (2R − ρ)) (pixels → world units at the voxel's depth)
     # a voxel is a cube, not a point: its centre may sit half a diagonal off the solid
-    half_diag = 0.5 * np.sqrt(3.0) * comp.h * float(cam.fx) / zz
+    half_diag = half_extent * float(cam.fx) / zz
     chord = chord_depth(rho, y, x, half_diag)
     depth_cap = cfg.depth_factor * chord * zz / float(cam.fx) + margin
     surf = d > 0
@@ -243,5 +241,34 @@ def voxel_evidence(
         incons |= too_deep
     flags = np.select([on_surf, hidden, incons], [SURFACE, HIDDEN, INCONSISTENT], np.uint8(0))
     keep = flags != 0
-    idx = idx[keep] if subset is None else np.asarray(subset)[idx[keep]]
-    return idx.astype(np.int32), flags[keep].astype(np.uint8)
+    return idx[keep], flags[keep].astype(np.uint8)
+
+
+def voxel_evidence(
+    comp, view, pos: np.ndarray, rho: np.ndarray, subset: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Evidence flags of the active voxels (``subset``: of these only; each voxel's
+    flag depends on its own centre and the view alone): ``(voxels, flags)`` of the
+    voxels with evidence (:func:`point_flags` of the voxel centres)."""
+    if comp.a == 0 or (subset is not None and len(subset) == 0):
+        return np.zeros(0, np.int32), np.zeros(0, np.uint8)
+    centres = comp.voxel_centers if subset is None else comp.voxel_centers[subset]
+    idx, flags = point_flags(comp, view, pos, rho, centres, 0.5 * np.sqrt(3.0) * comp.h)
+    idx = idx if subset is None else np.asarray(subset)[idx]
+    return idx.astype(np.int32), flags
+
+
+def centre_evidence(comp, views, points: np.ndarray) -> np.ndarray:
+    """``[K] bool``: the fill's test at the points themselves — each point is on the
+    surface of or hidden within the solid depth behind a mask-positive pixel in some
+    view of ``views`` (``(view, pos, rho)``) and inconsistent in none
+    (:func:`point_flags` with no extent)."""
+    good = np.zeros(len(points), bool)
+    bad = np.zeros(len(points), bool)
+    if len(points) == 0:
+        return good
+    for view, pos, rho in views:
+        idx, flags = point_flags(comp, view, pos, rho, points, 0.0)
+        good[idx[flags != INCONSISTENT]] = True
+        bad[idx[flags == INCONSISTENT]] = True
+    return good & ~bad
