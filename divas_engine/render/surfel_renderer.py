@@ -7,6 +7,7 @@ import numpy as np
 
 from divas_kernels import (
     ContribOutput,
+    ScratchPool,
     accumulate_contributions,
     binning_key,
     pixel_window,
@@ -79,6 +80,8 @@ class SurfelRenderer:
         self._blocks: SurfelBlocks | None = None
         self._attached: tuple[np.ndarray, object] | None = None  # (host [N,C], device)
         self._images: list[tuple[tuple, np.ndarray]] = []  # (key, [P, C]) newest first
+        #: the transient arrays of :meth:`render_values_sparse`, reused call to call
+        self._scratch = ScratchPool()
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
         self._buf = upload_surfels(
@@ -316,10 +319,11 @@ class SurfelRenderer:
         return True
 
     def clear_cache(self) -> None:
-        """Drop the kept view binnings (frees their device memory) and the kept
-        composites of the attached values."""
+        """Drop the kept view binnings (frees their device memory), the kept
+        composites of the attached values and the sparse renders' scratch buffers."""
         self._binnings = []
         self._images = []
+        self._scratch.release()
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)
@@ -363,13 +367,16 @@ class SurfelRenderer:
             hit = sub[pos] == rows
             vs = np.zeros((len(sub), v.shape[1]), np.float32)
             vs[pos[hit]] = v[hit]
-            r = rasterize_surfels(
-                surfel_rows(self._buf, sub, colours=False),
-                *_projection(camera),
-                self.config.raster_settings(camera),
-                values=vs,
-                background=self.config.background,
-            )
+            # the gather and the rasterizer's working arrays in buffers kept from the last
+            # call (kernels.scratch: no fresh pages to fault in; the output is not one)
+            with self._scratch.active():
+                r = rasterize_surfels(
+                    surfel_rows(self._buf, sub, colours=False),
+                    *_projection(camera),
+                    self.config.raster_settings(camera),
+                    values=vs,
+                    background=self.config.background,
+                )
             out = r.out.feat.numpy().reshape(camera.height, camera.width, -1)
         return out[..., 0] if flat else out
 

@@ -1,0 +1,98 @@
+"""The sparse value render's working arrays come from buffers kept across calls
+(:mod:`divas_kernels.scratch`, issue 20: no fresh pages to fault in per mask render):
+the images are the dense render's bit for bit, call after call, as the row sets grow and
+shrink; a repeated call allocates nothing new; nothing that outlives a call (a kept
+binning) may come from a pool."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from divas_engine.camera import Camera
+from divas_engine.render.surfel_renderer import SurfelRenderer
+from divas_kernels import ScratchPool, rasterize_surfels
+from divas_kernels.scratch import scratch_active, scratch_empty
+from tests.reference_render import random_surfel_scene
+
+
+@pytest.fixture(scope="module")
+def case():
+    sc = random_surfel_scene(4000, seed=7, z_range=(0.5, 6.0), scale_range=(0.01, 0.25))
+    cam = Camera.look_at(
+        [0.1, -0.2, -0.4], [0, 0, 4], [0, -1, 0], width=90, height=70, fx=75, cx=45.2, cy=34.6
+    )
+    return sc, cam
+
+
+def _dense(n: int, rows: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    out = np.zeros((n, vals.shape[1]), np.float32)
+    out[rows] = vals
+    return out
+
+
+def test_repeated_sparse_renders_are_the_dense_renders(case):
+    sc, cam = case
+    r = SurfelRenderer(sc, device="cpu")
+    ref = SurfelRenderer(sc, device="cpu")  # dense renders: no pool in play
+    rng = np.random.default_rng(3)
+    sizes = []
+    for frac, c in [(0.02, 1), (0.4, 3), (0.05, 2), (0.6, 1), (0.01, 3)]:
+        rows = np.flatnonzero(rng.random(len(sc)) < frac)
+        vals = rng.uniform(0.1, 1.0, (len(rows), c)).astype(np.float32)
+        for cc in (cam, cam.cropped(11, 7, 50, 41)):
+            got = r.render_values_sparse(cc, rows, vals)
+            want = ref.render_values(cc, _dense(len(sc), rows, vals))
+            assert np.abs(want).max() > 1e-4
+            assert np.array_equal(got, want)
+        sizes.append(r._scratch.nbytes)
+    assert sizes[0] > 0 and sizes == sorted(sizes)  # grown to the largest, never shrunk
+    r.clear_cache()
+    assert r._scratch.nbytes == 0
+
+
+def test_a_repeated_call_allocates_nothing_new(case):
+    sc, cam = case
+    r = SurfelRenderer(sc, device="cpu")
+    rows = np.arange(0, len(sc), 3)
+    vals = np.linspace(0.1, 1.0, len(rows), dtype=np.float32)
+    first = r.render_values_sparse(cam, rows, vals)
+    held = [b.ctypes.data for b in r._scratch._buffers]
+    assert len(held) > 5
+    second = r.render_values_sparse(cam, rows, vals)
+    assert [b.ctypes.data for b in r._scratch._buffers] == held
+    assert np.array_equal(first, second) and first is not second
+
+
+def test_the_pool_hands_out_distinct_buffers_in_order_and_only_in_scope():
+    pool = ScratchPool()
+    assert not scratch_active()
+    outside = scratch_empty(1000, wp.float32, "cpu")
+    with pool.active():
+        assert scratch_active()
+        a = scratch_empty(1000, wp.float32, "cpu")
+        b = scratch_empty((10, 3), wp.vec3, "cpu")
+        a.numpy()[:] = 1.0
+        b.numpy()[:] = 2.0
+        assert np.all(a.numpy() == 1.0) and b.shape == (10, 3)  # no overlap
+        with pytest.raises(RuntimeError), pool.active():
+            pass
+        with pytest.raises(RuntimeError):
+            pool.release()
+    assert pool.nbytes >= 1000 * 4 + 30 * 12 and outside.ptr not in (a.ptr, b.ptr)
+    with pool.active():  # the k-th array of a scope reuses the k-th buffer
+        a2 = scratch_empty(800, wp.float32, "cpu")
+        b2 = scratch_empty(20, wp.vec3, "cpu")
+    assert a2.ptr == a.ptr and b2.ptr == b.ptr
+
+
+def test_a_kept_binning_never_uses_a_pool(case):
+    sc, cam = case
+    r = SurfelRenderer(sc, device="cpu")
+    with ScratchPool().active(), pytest.raises(ValueError, match="kept binning"):
+        rasterize_surfels(r.surfel_buffers, *_proj(cam), keep_binning=True)
+
+
+def _proj(cam: Camera) -> tuple:
+    return cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height
