@@ -95,7 +95,8 @@ def surfel_rows(buf: SurfelBuffers, rows: np.ndarray, colours: bool = True) -> S
 
     def take(a: wp.array, dtype) -> wp.array:
         out = scratch_empty((len(idx), *a.shape[1:]), dtype, dev)  # a pool's, in its scope
-        np.take(a.numpy(), idx, axis=0, out=out.numpy())
+        # mode 'clip' (the rows are valid): 'raise' would buffer a copy of the output
+        np.take(a.numpy(), idx, axis=0, out=out.numpy(), mode="clip")
         return out
 
     if not colours:

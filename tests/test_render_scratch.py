@@ -96,3 +96,26 @@ def test_a_kept_binning_never_uses_a_pool(case):
 
 def _proj(cam: Camera) -> tuple:
     return cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height
+
+
+def test_ball_bounds_in_row_blocks_are_the_one_pass_bounds(case, monkeypatch):
+    """:func:`ball_pixel_bounds` in blocks of rows (small temporaries) gives the bounds
+    of one pass over every row, bit for bit — and so does ``near``'s depth map."""
+    from divas_engine.render import surfel_blocks as sb
+
+    sc, cam = case
+    rng = np.random.default_rng(5)
+    centres = sc.means.astype(np.float64) + rng.normal(0, 0.01, sc.means.shape)
+    radii = rng.uniform(0.0, 2.0, len(centres))  # some reach the camera plane
+    monkeypatch.setattr(sb, "_BOUNDS_CHUNK", 1 << 30)
+    whole = sb.ball_pixel_bounds(cam, centres, radii)
+    r = SurfelRenderer(sc, device="cpu")
+    blocks, reach = r.sparse_index()
+    rows = np.flatnonzero(rng.random(len(sc)) < 0.3)
+    near = blocks.near(cam, sc.means[rows], reach[rows], r._margin_px)
+    monkeypatch.setattr(sb, "_BOUNDS_CHUNK", 37)
+    parts = sb.ball_pixel_bounds(cam, centres, radii)
+    assert whole[3].any() and whole[2].any()
+    for a, b in zip(whole, parts):
+        assert np.array_equal(a, b)
+    assert np.array_equal(blocks.near(cam, sc.means[rows], reach[rows], r._margin_px), near)
