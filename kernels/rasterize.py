@@ -347,8 +347,11 @@ def project_splats(
     """
     n = len(buf) if rows is None else (rows.shape[0] if count is None else int(count))
     dev = buf.device
-    splats = scratch_empty(
-        (n if dest is None else max(int(n_dest), 1)) if write_splats else 1, Splat, dev
+    splats = scratch_empty(  # the ranked ones (``dest``) are a binning's
+        (n if dest is None else max(int(n_dest), 1)) if write_splats else 1,
+        Splat,
+        dev,
+        kept=dest is not None,
     )
     keys = scratch_empty(n if dest is None else 1, float, dev)
     with_color = 0 if colors is None else 1
@@ -403,6 +406,7 @@ def rasterize_surfels(
     window: tuple[int, int, int, int] | None = None,
     rows: np.ndarray | None = None,
     extra: np.ndarray | wp.array | None = None,
+    keep_colours: bool = True,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -427,6 +431,9 @@ def rasterize_surfels(
             channel bit for bit what ``values=extra`` composites, without a second blend
             (issue 20: the oracle's ground truth at the view the session renders). A
             ``binning`` is not reused then, nor are the colours kept with a new one.
+        keep_colours: False: a kept binning holds no SH colours (an RGB render of its
+            camera then projects afresh); their array may then come from an active
+            :class:`~kernels.scratch.ScratchPool` (it does not outlive the call).
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -436,7 +443,7 @@ def rasterize_surfels(
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     rgb = values is None and features
-    if keep_binning and scratch_active():
+    if keep_binning and scratch_active(everything=True):
         raise ValueError("rasterize_surfels: a kept binning cannot use scratch buffers")
     if extra is not None and not rgb:
         raise ValueError("rasterize_surfels: extra value channels need an RGB render")
@@ -460,7 +467,7 @@ def rasterize_surfels(
             C = (3 + (0 if ext is None else ext.shape[1])) if features else 0
             bg = np.zeros(C, np.float32)  # the value channels: no background
             bg[: min(C, 3)] = np.asarray(background, dtype=np.float32).reshape(3)[: min(C, 3)]
-            feat = wp.empty((max(n, 1), C), dtype=float)
+            feat = scratch_empty((max(n, 1), C), float, dev, kept=keep_colours)
         else:
             v = np.asarray(values, dtype=np.float32)
             v = v.reshape(len(v), -1) if v.ndim > 1 else v.reshape(-1, 1)
@@ -513,7 +520,8 @@ def rasterize_surfels(
                 tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            colours = feat if rgb and extra is None else None  # [N, 3]: reusable alone
+            # [N, 3]: reusable alone
+            colours = feat if rgb and extra is None and keep_colours else None
             binning = ViewBinning(key, cam, splats, ids, n_vis, None, colours, {})
             bands = tile_bands(
                 splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap

@@ -11,14 +11,20 @@ similar size touches pages it already owns. The values are the same: an array fr
 :func:`scratch_empty` is as uninitialised as ``wp.empty``'s and every wrapper writes
 before it reads.
 
-Only arrays that do not outlive the scope may come from a pool (a kept binning, a
-returned image do not): the caller opts in per render; nothing else changes.
+Only arrays that do not outlive the scope may come from a pool (a returned image never
+does): a scope that keeps nothing (``everything=True``: a value render) pools every
+:func:`scratch_empty`; one whose render keeps its binning (``everything=False``) pools
+only the arrays not marked ``kept`` (sort keys, scans, ranks, tile keys, pixel states),
+while the splats, ids and tile ranges a binning keeps are allocated afresh. The caller
+opts in per render; nothing else changes. A pool in use in another thread's scope is
+not shared: that scope allocates afresh.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+import threading
 from collections.abc import Iterator
 from contextvars import ContextVar
 
@@ -29,7 +35,7 @@ __all__ = ["ScratchPool", "scratch_active", "scratch_empty"]
 
 _ACTIVE: ContextVar[ScratchPool | None] = ContextVar("divas_scratch_pool", default=None)
 #: a grown buffer gets this much headroom (the next render's arrays are a little larger)
-_GROWTH = 1.25
+_GROWTH = 1.125
 _ALIGN = 64
 
 
@@ -42,6 +48,8 @@ class ScratchPool:
         self._buffers: list[np.ndarray] = []
         self._next = 0
         self._depth = 0
+        self._busy = threading.Lock()
+        self.everything = True
 
     @property
     def nbytes(self) -> int:
@@ -55,17 +63,23 @@ class ScratchPool:
         self._buffers = []
 
     @contextlib.contextmanager
-    def active(self) -> Iterator[ScratchPool]:
-        """Within this scope :func:`scratch_empty` takes this pool's buffers, in order."""
-        if self._depth:
-            raise RuntimeError("ScratchPool scopes do not nest")
-        self._next, self._depth = 0, 1
+    def active(self, everything: bool = True) -> Iterator[ScratchPool | None]:
+        """Within this scope :func:`scratch_empty` takes this pool's buffers, in order
+        (``everything`` False: only arrays not marked ``kept``). Yields None, pooling
+        nothing, when the pool is in use by another scope (another thread)."""
+        if not self._busy.acquire(blocking=False):
+            if _ACTIVE.get() is self:
+                raise RuntimeError("ScratchPool scopes do not nest")
+            yield None
+            return
+        self._next, self._depth, self.everything = 0, 1, bool(everything)
         token = _ACTIVE.set(self)
         try:
             yield self
         finally:
             _ACTIVE.reset(token)
             self._depth = 0
+            self._busy.release()
 
     def _take(self, nbytes: int) -> np.ndarray:
         k = self._next
@@ -81,17 +95,20 @@ class ScratchPool:
         return buf
 
 
-def scratch_active() -> bool:
-    """Whether a :class:`ScratchPool` scope is active in this context."""
-    return _ACTIVE.get() is not None
+def scratch_active(everything: bool = True) -> bool:
+    """Whether a :class:`ScratchPool` scope is active in this context (``everything``:
+    one that pools the arrays marked ``kept`` too)."""
+    pool = _ACTIVE.get()
+    return pool is not None and (pool.everything or not everything)
 
 
-def scratch_empty(shape, dtype, device=None) -> wp.array:
+def scratch_empty(shape, dtype, device=None, kept: bool = False) -> wp.array:
     """``wp.empty(shape, dtype, device)``, from the active :class:`ScratchPool` when there
-    is one and the device is the CPU."""
+    is one, the device is the CPU and the array is not ``kept`` beyond the render (or
+    the scope keeps nothing)."""
     pool = _ACTIVE.get()
     dev = wp.get_device(device)
-    if pool is None or not dev.is_cpu:
+    if pool is None or not dev.is_cpu or (kept and not pool.everything):
         return wp.empty(shape, dtype=dtype, device=dev)
     shape = (int(shape),) if np.isscalar(shape) else tuple(int(s) for s in shape)
     count = int(np.prod(shape)) if shape else 1

@@ -200,7 +200,7 @@ def _take_kernel(
 def take_rows(rows: wp.array | None, order: wp.array, n_vis: int, dev, threads: int) -> wp.array:
     """``ids [n_vis]``: the surfel indices of the visible prefix of the depth order
     ``order`` (``rows[order[j]]`` when the keys were those of the surfels ``rows``)."""
-    ids = scratch_empty(max(n_vis, 1), wp.int32, dev)
+    ids = scratch_empty(max(n_vis, 1), wp.int32, dev, kept=True)
     if n_vis > 0:
         use = 0 if rows is None else 1
         r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
@@ -216,8 +216,8 @@ def visible_splats(
     splats are those of the surfels ``rows``). Binning and walks read these, so a kept
     view holds only its visible splats (issue 20: a third of a 3M scene's 92-byte splats
     in a centroid view) and reads them in order."""
-    out = scratch_empty(max(n_vis, 1), Splat, dev)
-    ids = scratch_empty(max(n_vis, 1), wp.int32, dev)
+    out = scratch_empty(max(n_vis, 1), Splat, dev, kept=True)
+    ids = scratch_empty(max(n_vis, 1), wp.int32, dev, kept=True)
     if n_vis > 0:
         use = 0 if rows is None else 1
         r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
@@ -272,7 +272,7 @@ def tile_bands(
         rend = wp.zeros(nt, dtype=wp.int32)
         if total > 0:
             dkeys = scratch_empty(2 * total, wp.int32)
-            dvals = scratch_empty(2 * total, wp.int32)
+            dvals = scratch_empty(2 * total, wp.int32, kept=True)  # a binning's bands
             launch_split(
                 duplicate_kernel,
                 n,

@@ -119,3 +119,26 @@ def test_ball_bounds_in_row_blocks_are_the_one_pass_bounds(case, monkeypatch):
     for a, b in zip(whole, parts):
         assert np.array_equal(a, b)
     assert np.array_equal(blocks.near(cam, sc.means[rows], reach[rows], r._margin_px), near)
+
+
+def test_kept_binnings_survive_the_renders_that_reuse_the_pool(case):
+    """RGB renders reuse the pool for what no binning keeps: a camera's kept binning,
+    read after other cameras' renders refilled the pool, still gives the value render
+    of a fresh renderer bit for bit, and every render equals a fresh renderer's."""
+    sc, cam = case
+    other = Camera.look_at(
+        [0.6, 0.3, -0.2], [0, 0, 4], [0, -1, 0], width=80, height=64, fx=70, cx=40.1, cy=31.9
+    )
+    r = SurfelRenderer(sc, device="cpu")
+    vals = np.random.default_rng(2).uniform(0, 1, (len(sc), 2)).astype(np.float32)
+    first = r.render(cam)
+    assert r.kept_binning(cam) is not None and r._scratch.nbytes > 0
+    for c in (other, cam.cropped(5, 5, 40, 30)):
+        r.render(c)
+        r.render_depth(c, scale=0.5)
+    assert r.kept_binning(cam) is not None  # still kept: its value render only blends
+    fresh = SurfelRenderer(sc, device="cpu")
+    assert np.array_equal(r.render_values(cam, vals), fresh.render_values(cam, vals))
+    again = fresh.render(cam)
+    for name in ("rgb", "alpha", "D_min", "D_med", "D_max", "D_mw", "D_exp", "N_samp"):
+        assert np.array_equal(getattr(first, name), getattr(again, name)), name

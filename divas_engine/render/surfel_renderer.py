@@ -80,7 +80,8 @@ class SurfelRenderer:
         self._blocks: SurfelBlocks | None = None
         self._attached: tuple[np.ndarray, object] | None = None  # (host [N,C], device)
         self._images: list[tuple[tuple, np.ndarray]] = []  # (key, [P, C]) newest first
-        #: the transient arrays of :meth:`render_values_sparse`, reused call to call
+        #: the transient arrays of every CPU render (all of :meth:`render_values_sparse`'s;
+        #: those no binning keeps of the others), reused render to render
         self._scratch = ScratchPool()
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
@@ -114,19 +115,23 @@ class SurfelRenderer:
         rows = None
         if hit is None and self.device.is_cpu and (window is not None or self._blocks is not None):
             rows = self._candidates(cam, window)
-        r = rasterize_surfels(
-            self._buf,
-            *_projection(cam),
-            self.config.raster_settings(cam),
-            values=values,
-            background=self.config.background,
-            features=features,
-            binning=hit,
-            keep_binning=keep,
-            window=window,
-            rows=rows,
-            extra=extra,
-        )
+        # the working arrays no binning keeps in buffers kept from the last render
+        # (kernels.scratch: no fresh pages to fault in, issue 20)
+        with self._scratch.active(everything=False):
+            r = rasterize_surfels(
+                self._buf,
+                *_projection(cam),
+                self.config.raster_settings(cam),
+                values=values,
+                background=self.config.background,
+                features=features,
+                binning=hit,
+                keep_binning=keep,
+                window=window,
+                rows=rows,
+                extra=extra,
+                keep_colours=self.binning_keeps_colours,
+            )
         b = r.binning
         if b is not None:
             if not self.binning_keeps_colours:
