@@ -55,6 +55,8 @@ def test_repeated_sparse_renders_are_the_dense_renders(case):
 def test_a_repeated_call_allocates_nothing_new(case):
     sc, cam = case
     r = SurfelRenderer(sc, device="cpu")
+    r.render(cam)
+    assert r._scratch.nbytes == 0  # a view render pools nothing by default
     rows = np.arange(0, len(sc), 3)
     vals = np.linspace(0.1, 1.0, len(rows), dtype=np.float32)
     first = r.render_values_sparse(cam, rows, vals)
@@ -130,6 +132,7 @@ def test_kept_binnings_survive_the_renders_that_reuse_the_pool(case):
         [0.6, 0.3, -0.2], [0, 0, 4], [0, -1, 0], width=80, height=64, fx=70, cx=40.1, cy=31.9
     )
     r = SurfelRenderer(sc, device="cpu")
+    r.scratch_renders = True  # off by default (memory held between renders)
     vals = np.random.default_rng(2).uniform(0, 1, (len(sc), 2)).astype(np.float32)
     first = r.render(cam)
     assert r.kept_binning(cam) is not None and r._scratch.nbytes > 0

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import numpy as np
 
 from divas_kernels import (
@@ -73,6 +75,14 @@ class SurfelRenderer:
     #: how many RGB renders' composites of the attached values are kept (an image each:
     #: ``H·W·C`` floats, 1.2 MB for one channel at 640×480)
     value_images_kept: int = 4
+    #: :meth:`render_values_sparse` takes its working arrays from buffers kept across
+    #: calls (``kernels.scratch``; graph3d's mask render: 52–61k → 9k page faults a call
+    #: at 3M in Blender's heap) — memory held between calls: ≈ 150 MB at 3M
+    scratch_sparse: bool = True
+    #: the other renders (views, anchors, probes) too, for what no binning keeps (75k →
+    #: 45k page faults a 3M view) — another ≈ 110 MB held at 3M, so off by default: at 3M
+    #: in Blender it took the peak RSS to the issue's 2.5 GB limit (issue 20)
+    scratch_renders: bool = False
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
@@ -116,8 +126,9 @@ class SurfelRenderer:
         if hit is None and self.device.is_cpu and (window is not None or self._blocks is not None):
             rows = self._candidates(cam, window)
         # the working arrays no binning keeps in buffers kept from the last render
-        # (kernels.scratch: no fresh pages to fault in, issue 20)
-        with self._scratch.active(everything=False):
+        # (kernels.scratch: no fresh pages to fault in, issue 20), when switched on
+        pool = self._scratch.active(everything=False) if self.scratch_renders else nullcontext()
+        with pool:
             r = rasterize_surfels(
                 self._buf,
                 *_projection(cam),
@@ -374,7 +385,7 @@ class SurfelRenderer:
             vs[pos[hit]] = v[hit]
             # the gather and the rasterizer's working arrays in buffers kept from the last
             # call (kernels.scratch: no fresh pages to fault in; the output is not one)
-            with self._scratch.active():
+            with self._scratch.active() if self.scratch_sparse else nullcontext():
                 r = rasterize_surfels(
                     surfel_rows(self._buf, sub, colours=False),
                     *_projection(camera),
