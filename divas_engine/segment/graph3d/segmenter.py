@@ -25,8 +25,9 @@ Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
    on what leaked in, a positive click on what is missing).
 
 The cut of a seed set is cached, so the views of one object (same clicks) cost one cut
-and a render each; :meth:`Graph3DSegmenter.prefetch` starts it in the background from
-the object's 3D clicks alone, before the view is rendered (:mod:`.cut_cache`, issue 20).
+and a render each; :meth:`Graph3DSegmenter.prefetch` can start it in the background from
+the object's 3D clicks alone, before the view is rendered (:mod:`.cut_cache`, issue 20;
+off by default: :attr:`Graph3DSegmenter.prefetch_cuts`).
 """
 
 from __future__ import annotations
@@ -120,8 +121,11 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: with only the surfels in front of it; False: the dense render of the whole image
     #: (the reference the tests compare with)
     fast_masks: bool = True
-    #: :meth:`prefetch` starts the cut in a background thread (False: it does nothing)
-    prefetch_cuts: bool = True
+    #: :meth:`prefetch` starts the cut in a background thread (False: it does nothing).
+    #: Off by default: on this 2-core CPU the view's render already keeps both cores
+    #: busy, and a cut beside it measured no gain headless and a loss in Blender (issue
+    #: 20, BENCHMARKS.md "prefetched cut"); a machine with a spare core gains the cut
+    prefetch_cuts: bool = False
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
