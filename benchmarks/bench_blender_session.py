@@ -64,7 +64,8 @@ def main() -> None:
         "--scratch",
         choices=("sparse", "none", "all"),
         default="sparse",
-        help="renders whose working arrays reuse kept buffers (SurfelRenderer.scratch_*)",
+        help="renders whose working arrays reuse kept buffers (SurfelRenderer.scratch_*; "
+        "sparse: what the add-on does with its heap limit at 3M)",
     )
     args = ap.parse_args()
 
@@ -88,6 +89,10 @@ def main() -> None:
     meta_clicks = __import__("json").loads((folder / "scene.json").read_text())["clicks"]
 
     addon_utils.enable("blender_addon", default_set=True)
+    if args.scratch == "none":  # the add-on's own switch (with its heap limit) off too
+        from blender_addon.session_actions import start as start_actions
+
+        start_actions._reuse_scratch = lambda session, limited: None
     bpy.ops.wm.read_homefile(app_template="")
     rows: list[tuple[str, float, float, float, float, float]] = []
     # time Blender's view-layer (depsgraph) updates that bpy.ops runs around an operator

@@ -35,6 +35,8 @@ def _dense(n: int, rows: np.ndarray, vals: np.ndarray) -> np.ndarray:
 def test_repeated_sparse_renders_are_the_dense_renders(case):
     sc, cam = case
     r = SurfelRenderer(sc, device="cpu")
+    assert not r.scratch_sparse  # off by default (the add-on switches it on at 3M)
+    r.scratch_sparse = True
     ref = SurfelRenderer(sc, device="cpu")  # dense renders: no pool in play
     rng = np.random.default_rng(3)
     sizes = []
@@ -55,6 +57,7 @@ def test_repeated_sparse_renders_are_the_dense_renders(case):
 def test_a_repeated_call_allocates_nothing_new(case):
     sc, cam = case
     r = SurfelRenderer(sc, device="cpu")
+    r.scratch_sparse = True
     r.render(cam)
     assert r._scratch.nbytes == 0  # a view render pools nothing by default
     rows = np.arange(0, len(sc), 3)

@@ -76,9 +76,12 @@ class SurfelRenderer:
     #: ``H·W·C`` floats, 1.2 MB for one channel at 640×480)
     value_images_kept: int = 4
     #: :meth:`render_values_sparse` takes its working arrays from buffers kept across
-    #: calls (``kernels.scratch``; graph3d's mask render: 52–61k → 9k page faults a call
-    #: at 3M in Blender's heap) — memory held between calls: ≈ 150 MB at 3M
-    scratch_sparse: bool = True
+    #: calls (``kernels.scratch``) — memory held between calls, ≈ 140 MB at 3M. Pays
+    #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold
+    #: at 3M: 43–63k → 4–12k page faults and ≈ 0.56 → 0.47 s CPU a mask render; the
+    #: add-on switches it on there); with glibc's adaptive threshold the freed arrays
+    #: are reused anyway and the first call costs more (every array its own buffer)
+    scratch_sparse: bool = False
     #: the other renders (views, anchors, probes) too, for what no binning keeps (75k →
     #: 45k page faults a 3M view) — another ≈ 110 MB held at 3M, so off by default: at 3M
     #: in Blender it took the peak RSS to the issue's 2.5 GB limit (issue 20)
