@@ -89,10 +89,6 @@ def main() -> None:
     meta_clicks = __import__("json").loads((folder / "scene.json").read_text())["clicks"]
 
     addon_utils.enable("blender_addon", default_set=True)
-    if args.scratch == "none":  # the add-on's own switch (with its heap limit) off too
-        from blender_addon.session_actions import start as start_actions
-
-        start_actions._reuse_scratch = lambda session, limited: None
     bpy.ops.wm.read_homefile(app_template="")
     rows: list[tuple[str, float, float, float, float, float]] = []
     # time Blender's view-layer (depsgraph) updates that bpy.ops runs around an operator
@@ -152,6 +148,8 @@ def main() -> None:
     )
     live = session_registry.get(obj)
     s = live.session
+    if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
+        s.renderer.scratch_sparse = args.scratch != "none"
     # Start returns before the engine's background warm-up (fusion state, mapper) ends;
     # a user looks at the first anchor meanwhile. Timed apart, so the click is measured
     # on a warm session in both versions (before issue 20's add-on work Start waited)

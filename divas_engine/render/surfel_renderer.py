@@ -144,7 +144,8 @@ class SurfelRenderer:
                 window=window,
                 rows=rows,
                 extra=extra,
-                keep_colours=self.binning_keeps_colours,
+                # the colours' array is a scratch one only when it is not kept
+                keep_colours=self.binning_keeps_colours or not self.scratch_renders,
             )
         b = r.binning
         if b is not None:
