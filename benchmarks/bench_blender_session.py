@@ -56,9 +56,9 @@ def main() -> None:
         help="oracle (ground truth, the default here) or graph3d (the product's default)",
     )
     ap.add_argument(
-        "--prefetch",
+        "--no-prefetch",
         action="store_true",
-        help="graph3d: start the cut while the clicked view renders (off by default)",
+        help="graph3d: no cut started while the clicked view renders (A/B of issue 20)",
     )
     ap.add_argument(
         "--scratch",
@@ -78,7 +78,7 @@ def main() -> None:
     from divas_engine.render.surfel_renderer import SurfelRenderer
     from divas_engine.segment.graph3d import Graph3DSegmenter
 
-    Graph3DSegmenter.prefetch_cuts = args.prefetch
+    Graph3DSegmenter.prefetch_cuts = not args.no_prefetch
     SurfelRenderer.scratch_sparse = args.scratch != "none"
     SurfelRenderer.scratch_renders = args.scratch == "all"
 
@@ -189,7 +189,7 @@ def main() -> None:
     print(
         f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
         f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}, "
-        f"segmenter {args.segmenter}, prefetch {'on' if args.prefetch else 'off'}, "
+        f"segmenter {args.segmenter}, prefetch {'off' if args.no_prefetch else 'on'}, "
         f"scratch {args.scratch}\n"
     )
     print(

@@ -27,7 +27,7 @@ Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
 The cut of a seed set is cached, so the views of one object (same clicks) cost one cut
 and a render each; :meth:`Graph3DSegmenter.prefetch` can start it in the background from
 the object's 3D clicks alone, before the view is rendered (:mod:`.cut_cache`, issue 20;
-off by default: :attr:`Graph3DSegmenter.prefetch_cuts`).
+:attr:`Graph3DSegmenter.prefetch_cuts`).
 """
 
 from __future__ import annotations
@@ -122,10 +122,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: (the reference the tests compare with)
     fast_masks: bool = True
     #: :meth:`prefetch` starts the cut in a background thread (False: it does nothing).
-    #: Off by default: on this 2-core CPU the view's render already keeps both cores
-    #: busy, and a cut beside it measured no gain headless and a loss in Blender (issue
-    #: 20, BENCHMARKS.md "prefetched cut"); a machine with a spare core gains the cut
-    prefetch_cuts: bool = False
+    #: On an idle 2-core CPU the 3M click in Blender went 2.45 / 2.46 → 2.04 / 2.18 s
+    #: with it; with another job holding a core it lost 0.3–1 s (nothing to overlap
+    #: into, the GIL shared with the render's launches): BENCHMARKS.md, issue 20 g3d20d
+    prefetch_cuts: bool = True
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
