@@ -55,6 +55,18 @@ def main() -> None:
         choices=("oracle", "graph3d"),
         help="oracle (ground truth, the default here) or graph3d (the product's default)",
     )
+    ap.add_argument(
+        "--no-prefetch",
+        action="store_true",
+        help="graph3d: no cut started while the clicked view renders (A/B of issue 20)",
+    )
+    ap.add_argument(
+        "--scratch",
+        choices=("sparse", "none", "all"),
+        default="sparse",
+        help="renders whose working arrays reuse kept buffers (SurfelRenderer.scratch_*; "
+        "sparse: what the add-on does with its heap limit at 3M)",
+    )
     args = ap.parse_args()
 
     import bpy  # noqa: I001 - bpy first: addon_utils ships with it
@@ -62,6 +74,13 @@ def main() -> None:
     import addon_utils
 
     from divas_engine.synthetic import generate_scene
+
+    from divas_engine.render.surfel_renderer import SurfelRenderer
+    from divas_engine.segment.graph3d import Graph3DSegmenter
+
+    Graph3DSegmenter.prefetch_cuts = not args.no_prefetch
+    SurfelRenderer.scratch_sparse = args.scratch != "none"
+    SurfelRenderer.scratch_renders = args.scratch == "all"
 
     folder = args.cache / f"plant_{args.size}_sh3"
     if not (folder / "scene.ply").exists():
@@ -129,6 +148,8 @@ def main() -> None:
     )
     live = session_registry.get(obj)
     s = live.session
+    if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
+        s.renderer.scratch_sparse = args.scratch != "none"
     # Start returns before the engine's background warm-up (fusion state, mapper) ends;
     # a user looks at the first anchor meanwhile. Timed apart, so the click is measured
     # on a warm session in both versions (before issue 20's add-on work Start waited)
@@ -168,7 +189,8 @@ def main() -> None:
     print(
         f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
         f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}, "
-        f"segmenter {args.segmenter}\n"
+        f"segmenter {args.segmenter}, prefetch {'off' if args.no_prefetch else 'on'}, "
+        f"scratch {args.scratch}\n"
     )
     print(
         f"Reference: one full engine render of the clicked view "

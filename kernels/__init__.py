@@ -58,6 +58,7 @@ from .rasterize import (
     upload_surfels,
 )
 from .raymarch import GridBuffers, MarchSettings, raymarch_grid, upload_grid
+from .scratch import ScratchPool
 from .splat import pixel_window
 
 __all__: list[str] = [
@@ -81,6 +82,7 @@ __all__: list[str] = [
     "pixel_window",
     "binning_key",
     "rasterize_surfels",
+    "ScratchPool",
     "surfel_rows",
     "upload_surfels",
     "GridBuffers",

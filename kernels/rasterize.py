@@ -50,6 +50,7 @@ import warp as wp
 from . import render_defaults as RD
 from ._launch import cpu_threads, launch_split
 from .composite import ANCHOR_MED, BlendParams, PixelOut, PixState
+from .scratch import scratch_active, scratch_empty
 from .sh import eval_sh
 from .splat import (
     BIG,
@@ -346,10 +347,13 @@ def project_splats(
     """
     n = len(buf) if rows is None else (rows.shape[0] if count is None else int(count))
     dev = buf.device
-    splats = wp.empty(
-        (n if dest is None else max(int(n_dest), 1)) if write_splats else 1, dtype=Splat, device=dev
+    splats = scratch_empty(  # the ranked ones (``dest``) are a binning's
+        (n if dest is None else max(int(n_dest), 1)) if write_splats else 1,
+        Splat,
+        dev,
+        kept=dest is not None,
     )
-    keys = wp.empty(n if dest is None else 1, dtype=float, device=dev)
+    keys = scratch_empty(n if dest is None else 1, float, dev)
     with_color = 0 if colors is None else 1
     n_extra = 0 if extra is None or not with_color else int(extra.shape[1])
     launch_split(
@@ -402,6 +406,7 @@ def rasterize_surfels(
     window: tuple[int, int, int, int] | None = None,
     rows: np.ndarray | None = None,
     extra: np.ndarray | wp.array | None = None,
+    keep_colours: bool = True,
 ) -> RasterOutput:
     """Rasterize ``buf`` into a ``width × height`` view (OpenCV pinhole, ``w2c`` 4×4).
 
@@ -426,6 +431,9 @@ def rasterize_surfels(
             channel bit for bit what ``values=extra`` composites, without a second blend
             (issue 20: the oracle's ground truth at the view the session renders). A
             ``binning`` is not reused then, nor are the colours kept with a new one.
+        keep_colours: False: a kept binning holds no SH colours (an RGB render of its
+            camera then projects afresh); their array may then come from an active
+            :class:`~kernels.scratch.ScratchPool` (it does not outlive the call).
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """
@@ -435,6 +443,8 @@ def rasterize_surfels(
     W, H = int(width), int(height)
     mode, T, threads = check_view("rasterize_surfels", W, H, s, dev)
     rgb = values is None and features
+    if keep_binning and scratch_active(everything=True):
+        raise ValueError("rasterize_surfels: a kept binning cannot use scratch buffers")
     if extra is not None and not rgb:
         raise ValueError("rasterize_surfels: extra value channels need an RGB render")
     key = binning_key(buf, w2c, fx, fy, cx, cy, W, H, s, window)
@@ -457,20 +467,21 @@ def rasterize_surfels(
             C = (3 + (0 if ext is None else ext.shape[1])) if features else 0
             bg = np.zeros(C, np.float32)  # the value channels: no background
             bg[: min(C, 3)] = np.asarray(background, dtype=np.float32).reshape(3)[: min(C, 3)]
-            feat = wp.empty((max(n, 1), C), dtype=float)
+            feat = scratch_empty((max(n, 1), C), float, dev, kept=keep_colours)
         else:
             v = np.asarray(values, dtype=np.float32)
             v = v.reshape(len(v), -1) if v.ndim > 1 else v.reshape(-1, 1)
             if v.shape[0] != n:
                 raise ValueError(f"rasterize_surfels: values has {v.shape[0]} rows for {n} surfels")
             C, bg = v.shape[1], np.zeros(v.shape[1], np.float32)
-            feat = wp.array(np.ascontiguousarray(v), dtype=float)
+            feat = scratch_empty(v.shape, float, dev)  # a copy: kept with no binning
+            feat.numpy()[...] = v
         out = alloc_pixel_out(P, C, bg, dev)
         sink = BlendSink()
         sink.out = out
         stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode}
         tiles_x, tiles_y = -(-W // T), -(-H // T)
-        states = wp.empty(P, dtype=PixState) if mode == "tile" else None
+        states = scratch_empty(P, PixState, dev) if mode == "tile" else None
         bp = blend_params(s)
         alpha_max = float(s.alpha_max)
         if n == 0:  # every pixel gets the empty tuple and the background
@@ -509,7 +520,8 @@ def rasterize_surfels(
                 tm.lap("preprocess")
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            colours = feat if rgb and extra is None else None  # [N, 3]: reusable alone
+            # [N, 3]: reusable alone
+            colours = feat if rgb and extra is None and keep_colours else None
             binning = ViewBinning(key, cam, splats, ids, n_vis, None, colours, {})
             bands = tile_bands(
                 splats, n_vis, T, tiles_x, tiles_y, s.max_duplicates, stats, dev, threads, tm.lap
@@ -558,7 +570,8 @@ def depth_ranks(order: wp.array, n_vis: int, n: int, dev, threads: int) -> wp.ar
     """``rank [n]``: ``rank[order[j]] = j`` for the ``n_vis`` visible items of the depth
     order ``order`` (:func:`kernels.tile_binning.sort_visible`), −1 for the culled ones
     (the second pass skips them before projecting: half of a wide 3M view)."""
-    rank = wp.full(max(n, 1), -1, dtype=wp.int32, device=dev)
+    rank = scratch_empty(max(n, 1), wp.int32, dev)
+    rank.fill_(-1)
     if n_vis > 0:
         launch_split(_rank_kernel, n_vis, [order, rank], dev, threads)
     return rank

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from . import render_defaults as RD
+from .scratch import scratch_empty
 
 __all__ = ["SurfelBuffers", "upload_surfels", "surfel_rows"]
 
@@ -93,7 +94,14 @@ def surfel_rows(buf: SurfelBuffers, rows: np.ndarray, colours: bool = True) -> S
     dev = buf.device
 
     def take(a: wp.array, dtype) -> wp.array:
-        return wp.array(np.ascontiguousarray(a.numpy()[idx]), dtype=dtype, device=dev, copy=False)
+        out = scratch_empty((len(idx), *a.shape[1:]), dtype, dev)  # a pool's, in its scope
+        # mode 'clip' (the rows are valid): 'raise' would buffer a copy of the output
+        np.take(a.numpy(), idx, axis=0, out=out.numpy(), mode="clip")
+        return out
+
+    if not colours:
+        sh = scratch_empty((len(idx), 1), wp.vec3, dev)
+        sh.zero_()
 
     return SurfelBuffers(
         means=take(buf.means, wp.vec3),
@@ -101,7 +109,7 @@ def surfel_rows(buf: SurfelBuffers, rows: np.ndarray, colours: bool = True) -> S
         tv=take(buf.tv, wp.vec3),
         opacity=take(buf.opacity, float),
         rho_cut=take(buf.rho_cut, float),
-        sh=take(buf.sh, wp.vec3) if colours else wp.zeros((len(idx), 1), dtype=wp.vec3, device=dev),
+        sh=take(buf.sh, wp.vec3) if colours else sh,
         sh_degree=buf.sh_degree if colours else 0,
         device=dev,
     )

@@ -17,6 +17,7 @@ import numpy as np
 import warp as wp
 
 from ._launch import launch_split
+from .scratch import scratch_empty
 from .splat import BIG, RasterCamera, Splat, pixel_window
 
 wp.set_module_options({"enable_backward": False})
@@ -145,15 +146,15 @@ def sort_visible(keys: wp.array, n: int, dev, threads: int) -> tuple[wp.array, i
     radix-sorted — the prefix a stable sort of all ``n`` keys would give (culled keys are
     ``BIG``, after every depth), at the cost of the visible ones (issue 20: a probe sees a
     few percent of a 3M scene; the radix sort runs on one CPU thread)."""
-    flags = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
-    incl = wp.empty(max(n, 1), dtype=wp.int32, device=dev)
+    flags = scratch_empty(max(n, 1), wp.int32, dev)
+    incl = scratch_empty(max(n, 1), wp.int32, dev)
     n_vis = 0
     if n > 0:
         launch_split(_flag_kernel, n, [keys, flags], dev, threads)
         wp.utils.array_scan(flags, incl, inclusive=True)
         n_vis = int(incl[n - 1 : n].numpy()[0])
-    out_keys = wp.empty(2 * max(n_vis, 1), dtype=float, device=dev)
-    order = wp.empty(2 * max(n_vis, 1), dtype=wp.int32, device=dev)
+    out_keys = scratch_empty(2 * max(n_vis, 1), float, dev)
+    order = scratch_empty(2 * max(n_vis, 1), wp.int32, dev)
     if n_vis > 0:
         launch_split(_scatter_kernel, n, [keys, flags, incl, out_keys, order], dev, threads)
         wp.utils.radix_sort_pairs(out_keys, order, n_vis)
@@ -199,7 +200,7 @@ def _take_kernel(
 def take_rows(rows: wp.array | None, order: wp.array, n_vis: int, dev, threads: int) -> wp.array:
     """``ids [n_vis]``: the surfel indices of the visible prefix of the depth order
     ``order`` (``rows[order[j]]`` when the keys were those of the surfels ``rows``)."""
-    ids = wp.empty(max(n_vis, 1), dtype=wp.int32, device=dev)
+    ids = scratch_empty(max(n_vis, 1), wp.int32, dev, kept=True)
     if n_vis > 0:
         use = 0 if rows is None else 1
         r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
@@ -215,8 +216,8 @@ def visible_splats(
     splats are those of the surfels ``rows``). Binning and walks read these, so a kept
     view holds only its visible splats (issue 20: a third of a 3M scene's 92-byte splats
     in a centroid view) and reads them in order."""
-    out = wp.empty(max(n_vis, 1), dtype=Splat, device=dev)
-    ids = wp.empty(max(n_vis, 1), dtype=wp.int32, device=dev)
+    out = scratch_empty(max(n_vis, 1), Splat, dev, kept=True)
+    ids = scratch_empty(max(n_vis, 1), wp.int32, dev, kept=True)
     if n_vis > 0:
         use = 0 if rows is None else 1
         r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
@@ -249,8 +250,8 @@ def tile_bands(
     ranks ``j`` (the walks map them to surfels through ``ids``).
     """
     lap = lap or (lambda _stage: None)
-    counts = wp.empty(max(n, 1), dtype=wp.int32)
-    incl = wp.empty(max(n, 1), dtype=wp.int32)
+    counts = scratch_empty(max(n, 1), wp.int32)
+    incl = scratch_empty(max(n, 1), wp.int32)
     bands = [(0, tiles_y)]
     while bands:
         lo, hi = bands.pop(0)
@@ -270,8 +271,8 @@ def tile_bands(
         rstart = wp.zeros(nt, dtype=wp.int32)
         rend = wp.zeros(nt, dtype=wp.int32)
         if total > 0:
-            dkeys = wp.empty(2 * total, dtype=wp.int32)
-            dvals = wp.empty(2 * total, dtype=wp.int32)
+            dkeys = scratch_empty(2 * total, wp.int32)
+            dvals = scratch_empty(2 * total, wp.int32, kept=True)  # a binning's bands
             launch_split(
                 duplicate_kernel,
                 n,

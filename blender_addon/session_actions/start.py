@@ -150,6 +150,15 @@ def _primitive_count(scene) -> int:
     return int(density.size) if density is not None else len(scene)
 
 
+def _reuse_scratch(session: Session, limited: bool) -> None:
+    """With the heap's fixed mmap threshold (a large scene, :mod:`..memory`) every large
+    transient array is fresh pages: the mask renders of a scene-aware segmenter then
+    keep their working arrays between calls (``SurfelRenderer.scratch_sparse``, issue
+    20: 43–63k → 4–12k page faults a mask render at 3M, ≈ 0.1 s, ≈ 140 MB held)."""
+    if limited and hasattr(session.renderer, "scratch_sparse"):
+        session.renderer.scratch_sparse = True
+
+
 def _follow_undo_steps(context, session: Session) -> None:
     """Keep at least as many session steps as Blender keeps undo steps."""
     steps = int(getattr(context.preferences.edit, "undo_steps", 32))
@@ -166,7 +175,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
     try:
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
         # a large scene's big transients give their pages back when freed (issue 20)
-        memory.limit_heap_for(_primitive_count(scene))
+        limited = memory.limit_heap_for(_primitive_count(scene))
         wm.progress_update(10)
         config = settings.config
         anchors = None
@@ -181,6 +190,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
         # the first anchor renders now (the user looks through it first); the others
         # when the user looks through them (:func:`.view_cameras.ensure_background`)
         session = Session.open(scene, cameras, config, seg, device, anchors=anchors, gt_values=gt)
+        _reuse_scratch(session, limited)
         wm.progress_update(80)
         try:
             live = LiveSession(
@@ -225,12 +235,13 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
                 path, "no saved DivAS session is here: Start DivAS to begin a new one"
             )
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
-        memory.limit_heap_for(_primitive_count(scene))
+        limited = memory.limit_heap_for(_primitive_count(scene))
         wm.progress_update(20)
         autosave = settings.config.autosave
         session = Session.load(
             path, scene, seg, device, cameras=cameras, gt_values=gt, autosave=autosave
         )
+        _reuse_scratch(session, limited)
         wm.progress_update(70)
         try:
             live = LiveSession(

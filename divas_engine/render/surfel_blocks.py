@@ -32,8 +32,14 @@ _REACH_CLASSES = 4  # footprint classes: ≤ 4×, ≤ 16×, ≤ 64×, more than 
 _TILE = 8  # pixels per side of the depth map's tiles
 #: rows of ``near``'s points per (item, tile) pass: the pairs of large footprints run to
 #: tens of millions (issue 20: the peak of graph3d's first click at 3M); a max per tile
-#: over blocks of rows is the same map
-_NEAR_CHUNK = 1 << 16
+#: over blocks of rows is the same map; 8192 rows keep each pass's pair arrays small
+#: enough for the heap's free memory (4k instead of 18k page faults a mask render at 3M)
+_NEAR_CHUNK = 1 << 13
+#: rows per pass of :func:`ball_pixel_bounds` and the depths of ``near``: its dozen
+#: per-row temporaries stay small enough to come from the heap's free memory, not from
+#: fresh mappings whose pages fault in (issue 20: 17k page faults, ≈ 40 ms, of each mask
+#: render at 3M in Blender's fixed-threshold heap); row by row the same arithmetic
+_BOUNDS_CHUNK = 1 << 15
 
 
 def ball_pixel_bounds(
@@ -44,6 +50,20 @@ def ball_pixel_bounds(
     wholly beyond the camera plane), ``cut`` (it reaches the plane: no finite bound).
     The ball lies in its box ``p ± ρ`` (camera frame); ``u = c_x + f_x x / z`` is extreme
     over the box at its corners ``x = X ± ρ``, ``z = Z ± ρ`` when ``Z − ρ > 0``."""
+    n = len(centres)
+    if n <= _BOUNDS_CHUNK:
+        return _ball_pixel_bounds(camera, centres, radii)
+    rho = np.broadcast_to(np.asarray(radii, np.float64), (n,))
+    lo, hi = np.empty((n, 2)), np.empty((n, 2))
+    front, cut = np.empty(n, bool), np.empty(n, bool)
+    for s in range(0, n, _BOUNDS_CHUNK):
+        sl = slice(s, s + _BOUNDS_CHUNK)
+        lo[sl], hi[sl], front[sl], cut[sl] = _ball_pixel_bounds(camera, centres[sl], rho[sl])
+    return lo, hi, front, cut
+
+
+def _ball_pixel_bounds(camera: Camera, centres: np.ndarray, radii: np.ndarray):
+    """:func:`ball_pixel_bounds` of one block of rows."""
     pc = camera.world_to_camera(centres)
     rho = np.asarray(radii, np.float64)
     z_lo, z_hi = pc[:, 2] - rho, pc[:, 2] + rho
@@ -204,7 +224,9 @@ class SurfelBlocks:
         tiles_y = -(-camera.height // _TILE)
         zmap = np.full(tiles_x * tiles_y, -np.inf)
         lo, hi, front, cut = ball_pixel_bounds(camera, points, reach)
-        z = camera.world_to_camera(points)[:, 2]
+        z = np.empty(len(points))
+        for s in range(0, len(z), _BOUNDS_CHUNK):  # small temporaries (_BOUNDS_CHUNK)
+            z[s : s + _BOUNDS_CHUNK] = camera.world_to_camera(points[s : s + _BOUNDS_CHUNK])[:, 2]
         if np.any(cut & (z > 0.0)):
             zmap[:] = np.inf  # a footprint reaching the camera plane: no finite bound
         else:

@@ -3,10 +3,13 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import numpy as np
 
 from divas_kernels import (
     ContribOutput,
+    ScratchPool,
     accumulate_contributions,
     binning_key,
     pixel_window,
@@ -72,6 +75,17 @@ class SurfelRenderer:
     #: how many RGB renders' composites of the attached values are kept (an image each:
     #: ``H·W·C`` floats, 1.2 MB for one channel at 640×480)
     value_images_kept: int = 4
+    #: :meth:`render_values_sparse` takes its working arrays from buffers kept across
+    #: calls (``kernels.scratch``) — memory held between calls, ≈ 140 MB at 3M. Pays
+    #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold
+    #: at 3M: 43–63k → 4–12k page faults and ≈ 0.56 → 0.47 s CPU a mask render; the
+    #: add-on switches it on there); with glibc's adaptive threshold the freed arrays
+    #: are reused anyway and the first call costs more (every array its own buffer)
+    scratch_sparse: bool = False
+    #: the other renders (views, anchors, probes) too, for what no binning keeps (75k →
+    #: 45k page faults a 3M view) — another ≈ 110 MB held at 3M, so off by default: at 3M
+    #: in Blender it took the peak RSS to the issue's 2.5 GB limit (issue 20)
+    scratch_renders: bool = False
 
     def __init__(self, scene: SurfelScene, device=None, config: RenderConfig | None = None):
         self.config = config or RenderConfig()
@@ -79,6 +93,9 @@ class SurfelRenderer:
         self._blocks: SurfelBlocks | None = None
         self._attached: tuple[np.ndarray, object] | None = None  # (host [N,C], device)
         self._images: list[tuple[tuple, np.ndarray]] = []  # (key, [P, C]) newest first
+        #: the transient arrays of every CPU render (all of :meth:`render_values_sparse`'s;
+        #: those no binning keeps of the others), reused render to render
+        self._scratch = ScratchPool()
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
         self._buf = upload_surfels(
@@ -111,19 +128,25 @@ class SurfelRenderer:
         rows = None
         if hit is None and self.device.is_cpu and (window is not None or self._blocks is not None):
             rows = self._candidates(cam, window)
-        r = rasterize_surfels(
-            self._buf,
-            *_projection(cam),
-            self.config.raster_settings(cam),
-            values=values,
-            background=self.config.background,
-            features=features,
-            binning=hit,
-            keep_binning=keep,
-            window=window,
-            rows=rows,
-            extra=extra,
-        )
+        # the working arrays no binning keeps in buffers kept from the last render
+        # (kernels.scratch: no fresh pages to fault in, issue 20), when switched on
+        pool = self._scratch.active(everything=False) if self.scratch_renders else nullcontext()
+        with pool:
+            r = rasterize_surfels(
+                self._buf,
+                *_projection(cam),
+                self.config.raster_settings(cam),
+                values=values,
+                background=self.config.background,
+                features=features,
+                binning=hit,
+                keep_binning=keep,
+                window=window,
+                rows=rows,
+                extra=extra,
+                # the colours' array is a scratch one only when it is not kept
+                keep_colours=self.binning_keeps_colours or not self.scratch_renders,
+            )
         b = r.binning
         if b is not None:
             if not self.binning_keeps_colours:
@@ -316,10 +339,11 @@ class SurfelRenderer:
         return True
 
     def clear_cache(self) -> None:
-        """Drop the kept view binnings (frees their device memory) and the kept
-        composites of the attached values."""
+        """Drop the kept view binnings (frees their device memory), the kept
+        composites of the attached values and the sparse renders' scratch buffers."""
         self._binnings = []
         self._images = []
+        self._scratch.release()
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)
@@ -363,13 +387,16 @@ class SurfelRenderer:
             hit = sub[pos] == rows
             vs = np.zeros((len(sub), v.shape[1]), np.float32)
             vs[pos[hit]] = v[hit]
-            r = rasterize_surfels(
-                surfel_rows(self._buf, sub, colours=False),
-                *_projection(camera),
-                self.config.raster_settings(camera),
-                values=vs,
-                background=self.config.background,
-            )
+            # the gather and the rasterizer's working arrays in buffers kept from the last
+            # call (kernels.scratch: no fresh pages to fault in; the output is not one)
+            with self._scratch.active() if self.scratch_sparse else nullcontext():
+                r = rasterize_surfels(
+                    surfel_rows(self._buf, sub, colours=False),
+                    *_projection(camera),
+                    self.config.raster_settings(camera),
+                    values=vs,
+                    background=self.config.background,
+                )
             out = r.out.feat.numpy().reshape(camera.height, camera.width, -1)
         return out[..., 0] if flat else out
 

@@ -215,6 +215,7 @@ class Session(SelectionEditing, SessionCore):
                 self._autosave()
                 return rec
             vid = f"o{obj.index}:a{anchor.index}:c{ci}"
+            self._prefetch(anchor, xy, obj)
             t0 = time.perf_counter()
             with self._render_lock, self.timings.measure("centroid"):
                 cv = self.backend.centroid_view(anchor.camera, xy, anchor.buffers, vid)
@@ -231,6 +232,22 @@ class Session(SelectionEditing, SessionCore):
         self._views[vid] = view
         self._autosave()
         return view
+
+    def _prefetch(self, anchor: AnchorView, xy: tuple[float, float], obj: ObjectRecord) -> None:
+        """Hand the object's 3D clicks with this positive click's point (the centroid
+        view's target: the same back-projection) to a segmenter that can start work for
+        the view's prompt before the view is rendered (``prefetch``: graph3d's cut, issue
+        20). SAM and the oracle have no such hook. A point that differs from the view's
+        target only costs the unused work: the segmenter keys it by its inputs."""
+        fn = getattr(self.segmenter, "prefetch", None)
+        if fn is None:
+            return
+        from ..segment.scene_aware import ObjectClicks
+
+        _, point = self._back_project(anchor, xy)  # raises as the centroid view would
+        known = [c for cs in obj.clicks.values() for c in cs if c.point is not None]
+        pts = [np.asarray(c.point, np.float64) for c in known] + [np.asarray(point, np.float64)]
+        fn(ObjectClicks(np.stack(pts), np.array([bool(c.positive) for c in known] + [True])))
 
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
         """The click's 3D point projected into the view (positive) plus the anchor's

@@ -140,3 +140,15 @@ def test_start_fixes_the_threshold_only_for_large_scenes(scene_dir, monkeypatch)
     _start(scene_dir)
     assert asked == [8_000] and calls == []  # 8k splats: glibc's adaptive threshold kept
     assert memory.limit_heap_for(memory.LIMIT_FROM) and calls == [1]
+
+
+def test_the_mask_renders_reuse_their_buffers_only_with_the_fixed_threshold(scene_dir, monkeypatch):
+    """Issue 20: with the fixed mmap threshold (a large scene) the session's renderer keeps
+    its sparse value renders' working arrays between calls; with glibc's adaptive one
+    (what a small scene keeps) it does not (freed arrays are reused there anyway)."""
+    monkeypatch.setattr(memory, "_limited", False)
+    _, live = _start(scene_dir)
+    assert live.session.renderer.scratch_sparse is False
+    monkeypatch.setattr(memory, "limit_heap_for", lambda n: True)
+    _, live = _start(scene_dir)
+    assert live.session.renderer.scratch_sparse is True

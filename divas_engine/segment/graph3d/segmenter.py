@@ -25,7 +25,9 @@ Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
    on what leaked in, a positive click on what is missing).
 
 The cut of a seed set is cached, so the views of one object (same clicks) cost one cut
-and a render each.
+and a render each; :meth:`Graph3DSegmenter.prefetch` can start it in the background from
+the object's 3D clicks alone, before the view is rendered (:mod:`.cut_cache`, issue 20;
+:attr:`Graph3DSegmenter.prefetch_cuts`).
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,6 +49,7 @@ from ..sam_common import sigmoid
 from ..scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
 from .config import Graph3DConfig
 from .cut import CutResult, sweep_cut
+from .cut_cache import CutCache
 from .primitives import ScenePrimitives
 from .render_box import WHOLE, screen_box
 from .supports import support_nodes, support_primitives
@@ -119,6 +121,11 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: with only the surfels in front of it; False: the dense render of the whole image
     #: (the reference the tests compare with)
     fast_masks: bool = True
+    #: :meth:`prefetch` starts the cut in a background thread (False: it does nothing).
+    #: On an idle 2-core CPU the 3M click in Blender went 2.45 / 2.46 → 2.04 / 2.18 s
+    #: with it; with another job holding a core it lost 0.3–1 s (nothing to overlap
+    #: into, the GIL shared with the render's launches): BENCHMARKS.md, issue 20 g3d20d
+    prefetch_cuts: bool = True
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
@@ -126,7 +133,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         self.prims: ScenePrimitives | None = None
         self.last_message: str | None = None
         self.last_cut: RegionCut | None = None
-        self._cuts: OrderedDict[bytes, RegionCut] = OrderedDict()
+        self.cuts: CutCache[RegionCut] = CutCache(_CUT_CACHE)
         self._prims_lock = threading.Lock()
         if binding is not None:
             self.bind_scene(binding)
@@ -134,7 +141,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     # ------------------------------------------------------------------ binding
     def _on_bind(self, binding: SceneBinding) -> None:
         self.prims = None  # built on first use (the session opens without waiting)
-        self._cuts.clear()
+        self.cuts.clear()
 
     def warm_up(self) -> None:
         """Build the scene's :class:`ScenePrimitives` now (the session's background
@@ -154,6 +161,28 @@ class Graph3DSegmenter(SceneAwareSegmenter):
                     self.binding.scene, self.config.min_opacity, up
                 )
             return self.prims
+
+    def prefetch(self, clicks: ObjectClicks) -> bool:
+        """Start, in a background thread, the cut a prompt of the default prompts on any
+        view of the object with these 3D ``clicks`` will use (:meth:`seeds` maps each
+        default prompt back to its click, so those seeds are :meth:`seeds_of` the
+        clicks): the session calls it as soon as a click's 3D point is known, and the
+        view renders meanwhile (issue 20). The prompt then takes the same
+        :class:`RegionCut` from the cache, or waits for it (:mod:`.cut_cache`). Whether
+        a cut was started (not when it is kept or running already, or there is no
+        positive click)."""
+        seeds = self.seeds_of(clicks)
+        if not self.prefetch_cuts or self.binding is None or len(seeds.positive) == 0:
+            return False
+        return self.cuts.start(seeds.key(), lambda: self._cut(seeds))
+
+    @staticmethod
+    def seeds_of(clicks: ObjectClicks) -> Seeds:
+        """The seeds of an object's 3D clicks alone (what :meth:`seeds` gives for
+        prompts that are all known clicks)."""
+        pts = np.asarray(clicks.points)
+        pos = np.asarray(clicks.positive, bool)
+        return _seeds([pts[pos]] if len(pts) else [], [pts[~pos]] if len(pts) else [])
 
     # ------------------------------------------------------------------ Segmenter hooks
     def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id: Hashable | None) -> Any:
@@ -217,24 +246,12 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         if len(oc.points):
             pos.append(np.asarray(oc.points)[oc.positive])
             neg.append(np.asarray(oc.points)[~oc.positive])
-        p = np.concatenate(pos) if pos else np.zeros((0, 3))
-        q = np.concatenate(neg) if neg else np.zeros((0, 3))
-        p = np.unique(np.round(p.reshape(-1, 3), 6), axis=0)
-        q = np.unique(np.round(q.reshape(-1, 3), 6), axis=0)
-        return Seeds(p, q), missed
+        return _seeds(pos, neg), missed
 
     def cut(self, seeds: Seeds) -> RegionCut:
-        """Steps 2–3 (cached per seed set): the three nested 3D selections."""
-        key = seeds.key()
-        hit = self._cuts.get(key)
-        if hit is not None:
-            self._cuts.move_to_end(key)
-            return hit
-        rc = self._cut(seeds)
-        self._cuts[key] = rc
-        while len(self._cuts) > _CUT_CACHE:
-            self._cuts.popitem(last=False)
-        return rc
+        """Steps 2–3 (cached per seed set; a cut :meth:`prefetch` started is waited
+        for): the three nested 3D selections."""
+        return self.cuts.get(seeds.key(), lambda: self._cut(seeds))
 
     def _cut(self, seeds: Seeds) -> RegionCut:
         t0 = time.perf_counter()
@@ -337,6 +354,16 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             full = self.binding.render_values(cam, vals)
             cov = np.asarray(full, np.float32).reshape(cam.height, cam.width, 3)
         return cov
+
+
+def _seeds(pos: list[np.ndarray], neg: list[np.ndarray]) -> Seeds:
+    """The :class:`Seeds` of positive and negative 3D point sets: rounded to 1e-6, unique
+    (sorted), so equal point sets in any order give one key."""
+    p = np.concatenate(pos) if pos else np.zeros((0, 3))
+    q = np.concatenate(neg) if neg else np.zeros((0, 3))
+    p = np.unique(np.round(p.reshape(-1, 3), 6), axis=0)
+    q = np.unique(np.round(q.reshape(-1, 3), 6), axis=0)
+    return Seeds(p, q)
 
 
 def _border_shows(cov: np.ndarray, box: tuple[int, int, int, int]) -> bool:

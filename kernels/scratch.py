@@ -1,0 +1,119 @@
+"""Host memory reused by the transient arrays of repeated CPU renders (issue 20).
+
+Every CPU render allocates its working arrays afresh (splats, sort keys, tile pairs …):
+megabytes that the C heap maps anew each time — in Blender's fixed-threshold heap every
+allocation over 4 MB — and whose pages fault in on first touch (≈ 2 µs a page here:
+graph3d's mask render at 3M splats touched 40–45k fresh pages a call). Inside
+``with pool.active():`` the wrappers that call :func:`scratch_empty` get their arrays
+from a :class:`ScratchPool` instead: the ``k``-th allocation of the scope reuses the
+``k``-th buffer of the previous scopes (grown when too small), so a repeated render of
+similar size touches pages it already owns. The values are the same: an array from
+:func:`scratch_empty` is as uninitialised as ``wp.empty``'s and every wrapper writes
+before it reads.
+
+Only arrays that do not outlive the scope may come from a pool (a returned image never
+does): a scope that keeps nothing (``everything=True``: a value render) pools every
+:func:`scratch_empty`; one whose render keeps its binning (``everything=False``) pools
+only the arrays not marked ``kept`` (sort keys, scans, ranks, tile keys, pixel states),
+while the splats, ids and tile ranges a binning keeps are allocated afresh. The caller
+opts in per render; nothing else changes. A pool in use in another thread's scope is
+not shared: that scope allocates afresh.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+from collections.abc import Iterator
+from contextvars import ContextVar
+
+import numpy as np
+import warp as wp
+
+__all__ = ["ScratchPool", "scratch_active", "scratch_empty"]
+
+_ACTIVE: ContextVar[ScratchPool | None] = ContextVar("divas_scratch_pool", default=None)
+#: a grown buffer gets this much headroom (the next render's arrays are a little larger)
+_GROWTH = 1.125
+_ALIGN = 64
+
+
+class ScratchPool:
+    """Reusable host buffers for the transient Warp arrays of one renderer's repeated CPU
+    renders (module docstring). Not shared between threads at once (a renderer is used
+    under its session's render lock)."""
+
+    def __init__(self) -> None:
+        self._buffers: list[np.ndarray] = []
+        self._next = 0
+        self._depth = 0
+        self._busy = threading.Lock()
+        self.everything = True
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the pool holds."""
+        return sum(b.nbytes for b in self._buffers)
+
+    def release(self) -> None:
+        """Give the buffers back (the next scope allocates afresh)."""
+        if self._depth:
+            raise RuntimeError("ScratchPool.release inside an active scope")
+        self._buffers = []
+
+    @contextlib.contextmanager
+    def active(self, everything: bool = True) -> Iterator[ScratchPool | None]:
+        """Within this scope :func:`scratch_empty` takes this pool's buffers, in order
+        (``everything`` False: only arrays not marked ``kept``). Yields None, pooling
+        nothing, when the pool is in use by another scope (another thread)."""
+        if not self._busy.acquire(blocking=False):
+            if _ACTIVE.get() is self:
+                raise RuntimeError("ScratchPool scopes do not nest")
+            yield None
+            return
+        self._next, self._depth, self.everything = 0, 1, bool(everything)
+        token = _ACTIVE.set(self)
+        try:
+            yield self
+        finally:
+            _ACTIVE.reset(token)
+            self._depth = 0
+            self._busy.release()
+
+    def _take(self, nbytes: int) -> np.ndarray:
+        k = self._next
+        self._next += 1
+        if k == len(self._buffers):
+            self._buffers.append(np.empty(0, np.uint8))
+        buf = self._buffers[k]
+        if buf.nbytes < nbytes:
+            size = -(-int(math.ceil(nbytes * _GROWTH)) // _ALIGN) * _ALIGN
+            del buf
+            self._buffers[k] = np.empty(0, np.uint8)  # the old one goes before the new one
+            buf = self._buffers[k] = np.empty(size, np.uint8)
+        return buf
+
+
+def scratch_active(everything: bool = True) -> bool:
+    """Whether a :class:`ScratchPool` scope is active in this context (``everything``:
+    one that pools the arrays marked ``kept`` too)."""
+    pool = _ACTIVE.get()
+    return pool is not None and (pool.everything or not everything)
+
+
+def scratch_empty(shape, dtype, device=None, kept: bool = False) -> wp.array:
+    """``wp.empty(shape, dtype, device)``, from the active :class:`ScratchPool` when there
+    is one, the device is the CPU and the array is not ``kept`` beyond the render (or
+    the scope keeps nothing)."""
+    pool = _ACTIVE.get()
+    dev = wp.get_device(device)
+    if pool is None or not dev.is_cpu or (kept and not pool.everything):
+        return wp.empty(shape, dtype=dtype, device=dev)
+    shape = (int(shape),) if np.isscalar(shape) else tuple(int(s) for s in shape)
+    count = int(np.prod(shape)) if shape else 1
+    nbytes = max(count * wp.types.type_size_in_bytes(dtype), 1)
+    buf = pool._take(nbytes)
+    arr = wp.array(ptr=buf.ctypes.data, dtype=dtype, shape=shape, device=dev, capacity=nbytes)
+    arr._divas_scratch = buf  # the buffer lives as long as the array
+    return arr
