@@ -76,9 +76,7 @@ def main() -> None:
     from divas_engine.synthetic import generate_scene
 
     from divas_engine.render.surfel_renderer import SurfelRenderer
-    from divas_engine.segment.graph3d import Graph3DSegmenter
 
-    Graph3DSegmenter.prefetch_cuts = not args.no_prefetch
     SurfelRenderer.scratch_sparse = args.scratch != "none"
     SurfelRenderer.scratch_renders = args.scratch == "all"
 
@@ -150,6 +148,8 @@ def main() -> None:
     s = live.session
     if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
         s.renderer.scratch_sparse = args.scratch != "none"
+    if hasattr(s.segmenter, "prefetch_cuts"):  # over the add-on's own choice
+        s.segmenter.prefetch_cuts = not args.no_prefetch
     # Start returns before the engine's background warm-up (fusion state, mapper) ends;
     # a user looks at the first anchor meanwhile. Timed apart, so the click is measured
     # on a warm session in both versions (before issue 20's add-on work Start waited)

@@ -25,7 +25,7 @@ def plant():
 
 def _open(sc, prefetch: bool) -> tuple[Session, Graph3DSegmenter]:
     seg = Graph3DSegmenter()
-    assert seg.prefetch_cuts  # on by default
+    assert not seg.prefetch_cuts  # off in the engine (the add-on switches it on)
     seg.prefetch_cuts = prefetch
     s = Session.open(sc.scene, sc.cameras, SessionConfig(render_scale=0.5), seg, "cpu")
     assert s.wait_warm_up(120)

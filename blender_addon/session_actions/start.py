@@ -159,6 +159,14 @@ def _reuse_scratch(session: Session, limited: bool) -> None:
         session.renderer.scratch_sparse = True
 
 
+def _prefetch_cuts(session: Session) -> None:
+    """The click operator previews the view's mask before it returns: a segmenter that
+    can start its work for that prompt while the view renders (graph3d's cut,
+    ``Graph3DSegmenter.prefetch_cuts``, issue 20) is told to."""
+    if hasattr(session.segmenter, "prefetch_cuts"):
+        session.segmenter.prefetch_cuts = True
+
+
 def _follow_undo_steps(context, session: Session) -> None:
     """Keep at least as many session steps as Blender keeps undo steps."""
     steps = int(getattr(context.preferences.edit, "undo_steps", 32))
@@ -191,6 +199,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
         # when the user looks through them (:func:`.view_cameras.ensure_background`)
         session = Session.open(scene, cameras, config, seg, device, anchors=anchors, gt_values=gt)
         _reuse_scratch(session, limited)
+        _prefetch_cuts(session)
         wm.progress_update(80)
         try:
             live = LiveSession(
@@ -242,6 +251,7 @@ def resume(context, obj, path: Path, settings: StartSettings) -> LiveSession:
             path, scene, seg, device, cameras=cameras, gt_values=gt, autosave=autosave
         )
         _reuse_scratch(session, limited)
+        _prefetch_cuts(session)
         wm.progress_update(70)
         try:
             live = LiveSession(

@@ -95,6 +95,9 @@ def test_start_renders_the_first_anchor_only_and_reads_no_file(scene_dir, monkey
     live = session_registry.get(obj)
     s = live.session
     assert s.scene is cached  # one engine copy: the importer's
+    # the click operator previews the mask at once: graph3d's cut starts while the view
+    # renders (issue 20; the engine's own default is off)
+    assert type(s.segmenter).__name__ == "Graph3DSegmenter" and s.segmenter.prefetch_cuts
     assert len(s.anchors) >= 3
     assert [a.rendered for a in s.anchors] == [True] + [False] * (len(s.anchors) - 1)
     cams = [bpy.data.objects[n] for n in live.anchor_cameras]

@@ -122,10 +122,13 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: (the reference the tests compare with)
     fast_masks: bool = True
     #: :meth:`prefetch` starts the cut in a background thread (False: it does nothing).
-    #: On an idle 2-core CPU the 3M click in Blender went 2.45 / 2.46 → 2.04 / 2.18 s
-    #: with it; with another job holding a core it lost 0.3–1 s (nothing to overlap
-    #: into, the GIL shared with the render's launches): BENCHMARKS.md, issue 20 g3d20d
-    prefetch_cuts: bool = True
+    #: It trades a later view for an earlier mask: on 2 cores the cut competes with the
+    #: view's render (1M, idle: click → view 0.37 → 0.50 s, click + preview 0.74 →
+    #: 0.68 s), so it pays only where the caller previews right after the click — the
+    #: add-on switches it on (its click operator returns view and mask together: 3M,
+    #: idle, 2.27–2.43 → 2.18–2.28 s); with another job holding a core it lost 0.3–1 s
+    #: (BENCHMARKS.md, issue 20, g3d20d and the lead's section after it)
+    prefetch_cuts: bool = False
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
