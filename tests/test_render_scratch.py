@@ -15,6 +15,7 @@ from divas_engine.render.surfel_renderer import SurfelRenderer
 from divas_kernels import ScratchPool, rasterize_surfels
 from divas_kernels.scratch import scratch_active, scratch_empty
 from tests.reference_render import random_surfel_scene
+from tests.test_render_sparse import _dense
 
 
 @pytest.fixture(scope="module")
@@ -24,12 +25,6 @@ def case():
         [0.1, -0.2, -0.4], [0, 0, 4], [0, -1, 0], width=90, height=70, fx=75, cx=45.2, cy=34.6
     )
     return sc, cam
-
-
-def _dense(n: int, rows: np.ndarray, vals: np.ndarray) -> np.ndarray:
-    out = np.zeros((n, vals.shape[1]), np.float32)
-    out[rows] = vals
-    return out
 
 
 def test_repeated_sparse_renders_are_the_dense_renders(case):
