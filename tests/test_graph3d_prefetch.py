@@ -8,6 +8,7 @@ counting stand-in."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -120,6 +121,22 @@ def test_a_failed_background_cut_is_computed_again_by_the_prompt(plant, monkeypa
     assert calls[0] == "divas-graph3d-prefetch" and len(calls) == 2
     assert calls[1] == threading.current_thread().name and seg.cuts.prefetch_hits == 0
     _same((prev, seg.last_cut), _loop(plant, False)[:2])
+
+
+def test_closing_the_session_waits_for_the_cut_a_click_started(plant, monkeypatch):
+    """No prefetch thread outlives its session (in Blender: past a file close or exit)."""
+    s, seg = _open(plant, True)
+    real = seg._cut
+
+    def slow(seeds):
+        time.sleep(1.0)
+        return real(seeds)
+
+    monkeypatch.setattr(seg, "_cut", slow)
+    s.click(*_on_object(s, plant, 0))
+    s.close()
+    alive = [t for t in threading.enumerate() if t.name == "divas-graph3d-prefetch"]
+    assert not alive and len(seg.cuts) == 1
 
 
 # ---------------------------------------------------------------------- the cache's rules

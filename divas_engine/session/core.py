@@ -481,6 +481,9 @@ class SessionCore:
         if self._closed:
             return
         self._closed = True
+        wait = getattr(self.segmenter, "wait_prefetch", None)  # work a click started
+        if wait is not None:
+            wait(60.0)
         if self._worker is not None:
             self._worker.close()
 

@@ -165,6 +165,11 @@ class Graph3DSegmenter(SceneAwareSegmenter):
                 )
             return self.prims
 
+    def wait_prefetch(self, timeout: float | None = None) -> bool:
+        """Wait for the cuts :meth:`prefetch` started (a closing session: no thread may
+        outlive it, e.g. into Blender's exit); whether all ended within ``timeout``."""
+        return self.cuts.wait(timeout)
+
     def prefetch(self, clicks: ObjectClicks) -> bool:
         """Start, in a background thread, the cut a prompt of the default prompts on any
         view of the object with these 3D ``clicks`` will use (:meth:`seeds` maps each
