@@ -206,16 +206,23 @@ class SessionCore:
         return self._views[str(view_id)].camera
 
     def _object_clicks(self, view_id: Hashable):
+        return self._clicks_of(self.objects[self._views[str(view_id)].object_index])
+
+    @staticmethod
+    def _clicks_of(obj, new_positive: np.ndarray | None = None):
+        """The object's 3D clicks as :class:`~..segment.scene_aware.ObjectClicks`, with
+        ``new_positive`` a positive click not recorded yet (the click being made)."""
         from ..segment.scene_aware import ObjectClicks
 
-        obj = self.objects[self._views[str(view_id)].object_index]
         clicks = [c for cs in obj.clicks.values() for c in cs if c.point is not None]
-        if not clicks:
+        pts = [np.asarray(c.point, np.float64) for c in clicks]
+        pos = [bool(c.positive) for c in clicks]
+        if new_positive is not None:
+            pts.append(np.asarray(new_positive, np.float64))
+            pos.append(True)
+        if not pts:
             return ObjectClicks.empty()
-        return ObjectClicks(
-            np.stack([np.asarray(c.point, np.float64) for c in clicks]),
-            np.array([bool(c.positive) for c in clicks]),
-        )
+        return ObjectClicks(np.stack(pts), np.array(pos))
 
     def _gt_render(self, view_id: Hashable) -> np.ndarray:
         cam = self._views[str(view_id)].camera

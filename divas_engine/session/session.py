@@ -242,12 +242,8 @@ class Session(SelectionEditing, SessionCore):
         fn = getattr(self.segmenter, "prefetch", None)
         if fn is None:
             return
-        from ..segment.scene_aware import ObjectClicks
-
         _, point = self._back_project(anchor, xy)  # raises as the centroid view would
-        known = [c for cs in obj.clicks.values() for c in cs if c.point is not None]
-        pts = [np.asarray(c.point, np.float64) for c in known] + [np.asarray(point, np.float64)]
-        fn(ObjectClicks(np.stack(pts), np.array([bool(c.positive) for c in known] + [True])))
+        fn(self._clicks_of(obj, point))
 
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
         """The click's 3D point projected into the view (positive) plus the anchor's
