@@ -11,8 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from divas_engine.fusion import GridConfig, build_occupancy
-from divas_engine.mapping import CompletionConfig, SurfelMapper
+from divas_engine.mapping import CompletionConfig
 from divas_engine.mapping.completion import VolumetricCompletion
 from divas_engine.mapping.completion_gather import sparse_contributions
 from divas_engine.mapping.completion_records import (
@@ -23,17 +22,11 @@ from divas_engine.mapping.completion_records import (
 )
 from divas_engine.render import make_renderer
 
-from .test_completion import CPU, _ball_scene, _views
+from . import test_completion
+from .test_completion import CPU
 from .test_completion_gather import _cap
 
-
-@pytest.fixture(scope="module")
-def ball():
-    scene, labels, parts = _ball_scene()
-    grid = build_occupancy(scene, GridConfig(), CPU)
-    act = SurfelMapper(scene, grid, device=CPU).active_index
-    views = _views(scene, labels, [(0, 0, -1), (1, 0, -0.3), (-1, 0.2, -0.3), (0, 1, -0.5)])
-    return scene, labels, parts, grid, act, views
+ball = test_completion.ball  # the same module-scoped fixture: the ball scene and its 4 views
 
 
 def _reference(comp, view, cover):
