@@ -44,6 +44,8 @@ class SourceInfo:
             every row is kept in order (a density grid: no per-cell index is held, so the
             bookkeeping does not grow with the grid — issue 14).
         dropped_nonfinite: rows dropped because a value was NaN/Inf.
+        file_sh_degree: the SH degree stored in the file when the scene was loaded with
+            fewer bands (``load_scene(..., max_sh_degree=…)``); None when it keeps them all.
     """
 
     path: Path
@@ -51,6 +53,7 @@ class SourceInfo:
     num_rows: int
     kept: np.ndarray | None
     dropped_nonfinite: int = 0
+    file_sh_degree: int | None = None
 
     @property
     def kept_rows(self) -> np.ndarray:

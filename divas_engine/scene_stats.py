@@ -35,15 +35,31 @@ def robust_frame(
 
     With ``weights`` (e.g. grid densities) the median and percentile are weighted.
     """
-    p = np.asarray(points, dtype=np.float64)
+    p = np.asarray(points)
     if weights is None:
-        c = np.median(p, axis=0)
-        r = float(np.percentile(np.linalg.norm(p - c, axis=1), percentile))
+        # one contiguous float64 column at a time: the median of each column and the
+        # squared distance summed x, y, z in that order are np.median(p, axis=0) and
+        # np.linalg.norm(p - c, axis=1) exactly, without the [N,3] float64 copies
+        # (6M Gaussians: 2.9 → ~1 s, issue 20's `divas info`)
+        c = np.array([np.median(p[:, k].astype(np.float64)) for k in range(3)])
+        r = float(np.percentile(np.sqrt(_squared_distance(p, c)), percentile))
         return RobustFrame(c, r)
+    p = np.asarray(p, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
     c = np.array([_weighted_quantile(p[:, k], w, 0.5) for k in range(3)])
     r = _weighted_quantile(np.linalg.norm(p - c, axis=1), w, percentile / 100.0)
     return RobustFrame(c, float(r))
+
+
+def _squared_distance(p: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``[N]`` float64 ``Σ_k (p[:, k] − c_k)²``, summed k = 0, 1, 2."""
+    d2 = np.zeros(len(p), np.float64)
+    for k in range(p.shape[1]):
+        d = p[:, k].astype(np.float64)
+        d -= c[k]
+        d *= d
+        d2 += d
+    return d2
 
 
 def _weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
@@ -63,8 +79,9 @@ def _pct(x: np.ndarray) -> dict[str, float]:
     }
 
 
-def scene_summary(scene: Scene) -> dict:
-    """JSON-ready description of a scene (what ``divas info`` prints)."""
+def scene_summary(scene: Scene, frame: RobustFrame | None = None) -> dict:
+    """JSON-ready description of a scene (what ``divas info`` prints); ``frame``: the
+    scene's :func:`robust_frame` when the caller has it already."""
     info: dict = {}
     if scene.source is not None:
         info["file"] = str(scene.source.path)
@@ -72,14 +89,14 @@ def scene_summary(scene: Scene) -> dict:
         info["rows_in_file"] = scene.source.num_rows
         info["dropped_nonfinite"] = scene.source.dropped_nonfinite
     if isinstance(scene, SurfelScene):
-        frame = robust_frame(scene.means)
+        frame = frame or robust_frame(scene.means)
         smax = scene.scales.max(axis=1)
         aspect = smax / (scene.scales.min(axis=1) + 1e-12)
         info.update(
             {
                 "kind": scene.kind,
                 "count": len(scene),
-                "sh_degree": scene.sh_degree,
+                "sh_degree": _file_sh_degree(scene),
                 "bounds_min": scene.means.min(0).tolist(),
                 "bounds_max": scene.means.max(0).tolist(),
                 "center": frame.center.tolist(),
@@ -93,7 +110,7 @@ def scene_summary(scene: Scene) -> dict:
         occupied = scene.density > 0
         idx = np.argwhere(occupied)[:, ::-1]  # (ix, iy, iz)
         centres = scene.aabb[0] + (idx + 0.5) * scene.voxel_size
-        frame = robust_frame(centres, scene.density[occupied])
+        frame = frame or robust_frame(centres, scene.density[occupied])
         info.update(
             {
                 "kind": "nerf_grid",
@@ -112,3 +129,11 @@ def scene_summary(scene: Scene) -> dict:
             }
         )
     return info
+
+
+def _file_sh_degree(scene: SurfelScene) -> int:
+    """The SH degree of the scene's file (a scene loaded with fewer bands says so)."""
+    src = scene.source
+    if src is not None and src.file_sh_degree is not None:
+        return int(src.file_sh_degree)
+    return int(scene.sh_degree)

@@ -51,12 +51,12 @@ def _cameras_info(path: Path) -> dict:
     }
 
 
-def _up_info(scene, cameras_path: Path | None, up) -> dict:
+def _up_info(scene, cameras_path: Path | None, up, frame) -> dict:
     """``up``, ``up_source``, ``up_confidence`` (None with cameras), ``up_reason``."""
     import numpy as np
 
     from ..io.cameras import load_cameras
-    from ..views import estimate_scene_up, estimate_up, scene_frame, scene_points
+    from ..views import estimate_scene_up, estimate_up, scene_points
 
     if cameras_path is not None and up is None:
         est = estimate_up(load_cameras(cameras_path))
@@ -67,9 +67,10 @@ def _up_info(scene, cameras_path: Path | None, up) -> dict:
             "up_confidence": None,
             "up_reason": f"training cameras ({kind})",
         }
-    fr = scene_frame(scene)
     pts, w = scene_points(scene)
-    su = estimate_scene_up(pts, w, fr.center, fr.radius, up=None if up is None else np.asarray(up))
+    su = estimate_scene_up(
+        pts, w, frame.center, frame.radius, up=None if up is None else np.asarray(up)
+    )
     return {
         "up": su.up.tolist(),
         "up_source": str(su.source),
@@ -81,11 +82,14 @@ def _up_info(scene, cameras_path: Path | None, up) -> dict:
 def run(args: argparse.Namespace) -> int:
     from ..io.load import load_scene
     from ..scene_stats import scene_summary
+    from ..views import scene_frame
     from .anchors import parse_up
 
     up = parse_up(args.up)
-    scene = load_scene(args.path)
-    info = scene_summary(scene)
+    # nothing here reads the SH beyond the DC: a 6M SH-3 PLY is 1.1 GB less (issue 20)
+    scene = load_scene(args.path, max_sh_degree=0)
+    frame = scene_frame(scene)  # once, for the summary and the up estimate
+    info = scene_summary(scene, frame)
     cams = args.cameras
     if cams is None and (args.path.parent / "cameras.json").is_file():
         cams = args.path.parent / "cameras.json"
@@ -93,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         info.update(_cameras_info(cams))
     else:
         info["camera_count"] = 0
-    info.update(_up_info(scene, cams, up))
+    info.update(_up_info(scene, cams, up, frame))
     if args.json:
         print(json.dumps(info))
         return 0

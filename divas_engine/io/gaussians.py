@@ -79,11 +79,13 @@ def scene_from_rows(
     extras: dict | None = None,
     invalid_what: str = "NaN/Inf values (or out-of-range scales, rotations, opacities)",
     scale_n: np.ndarray | None = None,
+    file_sh_degree: int | None = None,
 ) -> SurfelScene:
     """The scene of every decoder: drop the rows where ``valid`` is False, count them.
 
     ``arrays`` = ``(means, quats, scales, opacities, sh)`` over all file rows, in file order;
-    ``scale_n`` the dropped normal-axis scale of 3DGS rows (:attr:`SurfelScene.scale_n`).
+    ``scale_n`` the dropped normal-axis scale of 3DGS rows (:attr:`SurfelScene.scale_n`);
+    ``file_sh_degree`` the file's SH degree when ``sh`` keeps fewer bands.
     Whatever the decoder checked, rows whose decoded values are unusable are dropped
     too (:func:`sane_rows`): so every format drops-and-counts the same things.
 
@@ -99,7 +101,7 @@ def scene_from_rows(
     if n_bad:
         arrays = tuple(a[kept] for a in arrays)
         scale_n = None if scale_n is None else scale_n[kept]
-    src = SourceInfo(path, fmt, total, kept.astype(np.int64), n_bad)
+    src = SourceInfo(path, fmt, total, kept.astype(np.int64), n_bad, file_sh_degree)
     return SurfelScene(*arrays, sh_degree, kind, src, dict(extras or {}), scale_n)
 
 

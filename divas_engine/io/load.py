@@ -8,11 +8,14 @@ bytes first and its suffix second, so a misnamed file still loads.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from os import PathLike
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import DivasInputError
-from ..scene import Scene
+from ..scene import Scene, SurfelScene, sh_coeff_count
 from .limits import input_guard, require_input_file
 
 __all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
@@ -56,24 +59,44 @@ def detect_format(path: str | PathLike) -> str:
     raise DivasInputError(path, "unknown scene format: expected .ply, .splat, .spz, .sog or .npz")
 
 
-def load_scene(path: str | PathLike, *, fmt: str | None = None) -> Scene:
+def load_scene(
+    path: str | PathLike, *, fmt: str | None = None, max_sh_degree: int | None = None
+) -> Scene:
     """Load a scene file into a :class:`SurfelScene` or :class:`DensityGrid`.
 
     Args:
         path: the scene file.
         fmt: force a format from :data:`SCENE_FORMATS` instead of detecting it.
+        max_sh_degree: keep the SH bands up to this degree only (a standard PLY never
+            allocates the others; other formats drop them after decoding). The same
+            rows are kept; ``scene.source.file_sh_degree`` records the file's degree.
     """
     path = Path(path)
     with input_guard(path, "scene file"):
         fmt = fmt or detect_format(path)
-        return _load(path, fmt)
+        scene = _load(path, fmt, max_sh_degree)
+    if max_sh_degree is not None and isinstance(scene, SurfelScene):
+        scene = _keep_sh_bands(scene, max_sh_degree)
+    return scene
 
 
-def _load(path: Path, fmt: str) -> Scene:
+def _keep_sh_bands(scene: SurfelScene, max_degree: int) -> SurfelScene:
+    """``scene`` with its SH cut to ``max_degree`` (itself when it has no more)."""
+    deg = max(0, int(max_degree))
+    if scene.sh_degree <= deg:
+        return scene
+    src = scene.source
+    if src is not None:
+        src = replace(src, file_sh_degree=scene.sh_degree)
+    sh = np.ascontiguousarray(scene.sh[:, : sh_coeff_count(deg)])
+    return replace(scene, sh=sh, sh_degree=deg, source=src)
+
+
+def _load(path: Path, fmt: str, max_sh_degree: int | None = None) -> Scene:
     if fmt == "ply":
         from .ply import read_gaussian_ply
 
-        return read_gaussian_ply(path)
+        return read_gaussian_ply(path, max_sh_degree=max_sh_degree)
     if fmt == "compressed_ply":
         from .compressed_ply import read_compressed_ply
         from .ply import read_ply_header

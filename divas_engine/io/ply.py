@@ -228,12 +228,19 @@ def _sh_layout(path: Path, names: list[str]) -> int:
     )
 
 
-def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> SurfelScene:
+def read_gaussian_ply(
+    path: str | PathLike, layout: PlyLayout | None = None, *, max_sh_degree: int | None = None
+) -> SurfelScene:
     """Load a 2DGS (``scale_0,1``) or 3DGS (``scale_0..2``) PLY into a :class:`SurfelScene`.
 
     Activations are applied (``exp`` scales, ``sigmoid`` opacity, normalised
     quaternions); 3DGS Gaussians are flattened to surfels. Rows with a NaN/Inf in
     any used property are dropped and counted in ``scene.source.dropped_nonfinite``.
+
+    ``max_sh_degree``: keep only the SH bands up to this degree (``divas info`` keeps
+    the DC: the SH rest of 6M SH-3 Gaussians is 1.1 GB it never reads). The other
+    bands are still read and checked, so the same rows are dropped; the file's degree
+    is kept in ``scene.source.file_sh_degree``.
     """
     path = Path(path)
     layout = layout or read_ply_header(path)
@@ -246,8 +253,9 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     if used:
         raise DivasInputError(path, f"properties {used} are lists; Gaussian properties are scalars")
     kind = SceneKind.GS3D if "scale_2" in names else SceneKind.GS2D
-    deg = _sh_layout(path, names)
-    k = sh_coeff_count(deg)
+    file_deg = _sh_layout(path, names)
+    deg = file_deg if max_sh_degree is None else max(0, min(file_deg, int(max_sh_degree)))
+    k, k_file = sh_coeff_count(deg), sh_coeff_count(file_deg)
     n_scale = 3 if kind == SceneKind.GS3D else 2
     total = layout.vertex.count
     if total == 0:
@@ -260,7 +268,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     opac = np.empty(total, np.float32)
     sh = np.empty((total, k, 3), np.float32)
     finite = np.empty(total, bool)
-    rest_names = [f"f_rest_{i}" for i in range(3 * (k - 1))]
+    rest_names = [f"f_rest_{i}" for i in range(3 * (k_file - 1))]
 
     # column positions of each output, so a chunk is converted with one gather per
     # output (SH straight into its rows) instead of a copy per property
@@ -269,10 +277,14 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
     idx_q = [pos[f"rot_{i}"] for i in range(4)]
     idx_s = [pos[f"scale_{i}"] for i in range(n_scale)]
     sh_names = [
-        [f"f_dc_{ch}" if j == 0 else rest_names[ch * (k - 1) + j - 1] for ch in range(3)]
-        for j in range(k)
+        [f"f_dc_{ch}" if j == 0 else rest_names[ch * (k_file - 1) + j - 1] for ch in range(3)]
+        for j in range(k_file)
     ]  # sh[:, j, ch] comes from sh_names[j][ch]
-    idx_sh = np.array([[pos[nm] for nm in row] for row in sh_names]).reshape(-1)
+    idx_sh = np.array([[pos[nm] for nm in row] for row in sh_names[:k]]).reshape(-1)
+    unkept = [nm for row in sh_names[k:] for nm in row]  # read for the finite check only
+    idx_unkept = np.array(sorted(pos[nm] for nm in unkept), np.intp)
+    if len(idx_unkept) and idx_unkept[-1] - idx_unkept[0] + 1 == len(idx_unkept):
+        idx_unkept = slice(int(idx_unkept[0]), int(idx_unkept[-1]) + 1)  # a view, no gather
 
     for start, rows in iter_vertex_chunks(layout, CHUNK_ROWS, reuse=True):
         n = len(rows)
@@ -282,6 +294,7 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
             m, q, s = table[:, idx_m], table[:, idx_q], table[:, idx_s]
             o = table[:, pos["opacity"]]
             np.take(table, idx_sh, axis=1, out=sh[sl].reshape(n, 3 * k))
+            rest_ok = _finite_rows(table[:, idx_unkept]) if unkept else None
         else:  # other property types: converted one property at a time
 
             def cols(want: list[str]) -> np.ndarray:
@@ -291,7 +304,8 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
             q = cols([f"rot_{i}" for i in range(4)])
             s = cols([f"scale_{i}" for i in range(n_scale)])
             o = rows["opacity"].astype(np.float32)
-            sh[sl] = cols([nm for row in sh_names for nm in row]).reshape(n, k, 3)
+            sh[sl] = cols([nm for row in sh_names[:k] for nm in row]).reshape(n, k, 3)
+            rest_ok = _finite_rows(cols(unkept)) if unkept else None
         ok = (
             np.isfinite(m).all(1)
             & np.isfinite(q).all(1)
@@ -299,6 +313,8 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
             & np.isfinite(o)
             & np.isfinite(sh[sl]).all((1, 2))
         )
+        if rest_ok is not None:
+            ok &= rest_ok
         with np.errstate(over="ignore", invalid="ignore"):
             s_act = np.exp(np.clip(s, -80.0, 80.0)).astype(np.float32)
         ok &= np.linalg.norm(q, axis=1) > 0
@@ -309,8 +325,22 @@ def read_gaussian_ply(path: str | PathLike, layout: PlyLayout | None = None) -> 
         means[sl], quats[sl], scales[sl], opac[sl], finite[sl] = m, q2, s2, sigmoid(o), ok
 
     return scene_from_rows(
-        path, "ply", (means, quats, scales, opac, sh), finite, deg, kind, scale_n=scale_n
+        path,
+        "ply",
+        (means, quats, scales, opac, sh),
+        finite,
+        deg,
+        kind,
+        scale_n=scale_n,
+        file_sh_degree=file_deg if deg < file_deg else None,
     )
+
+
+def _finite_rows(values: np.ndarray) -> np.ndarray:
+    """``[n]`` True where every value of the row is finite (one float64 row sum: finite
+    iff every float32 value is, as :func:`~.gaussians.sane_rows` checks)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.isfinite(np.add.reduce(values, axis=1, dtype=np.float64))
 
 
 def write_surfel_ply(path: str | PathLike, scene: SurfelScene) -> None:
