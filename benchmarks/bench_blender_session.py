@@ -20,7 +20,9 @@ then runs its camera-free variant: a click's camera switch does not re-evaluate 
 ``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
 no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
 its figure stays the reference across rounds); the click then contains that segmenter's
-preview instead of the oracle's value render. The peak RSS column is the process's
+preview instead of the oracle's value render. Each step after Start includes the
+session counts the add-on's panel reads in the redraw that follows it (counted on that
+first read since branch ``blender20c``). The peak RSS column is the process's
 high-water mark after each step (``ru_maxrss``).
 """
 
@@ -101,6 +103,8 @@ def main() -> None:
 
     ops_cls._view_layer_update = staticmethod(timed_update)
 
+    shown = [None]  # the live session whose panel redraws after each step
+
     def step(name: str, fn):
         prof = None
         bpy.context.view_layer.update()  # nothing pending from the step before
@@ -112,6 +116,8 @@ def main() -> None:
         dg[0] = 0.0
         t, c = time.perf_counter(), time.process_time()
         out = fn()
+        if shown[0] is not None:  # what the panel's redraw after the step reads
+            shown[0].counts()
         dt, dc = time.perf_counter() - t, time.process_time() - c
         if prof is not None:
             import io
@@ -145,6 +151,8 @@ def main() -> None:
         lambda: bpy.ops.divas.start_session(device="cpu", segmenter=args.segmenter, **gt),
     )
     live = session_registry.get(obj)
+    live.counts()  # (Start's own redraw)
+    shown[0] = live
     s = live.session
     if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
         s.renderer.scratch_sparse = args.scratch != "none"
