@@ -17,6 +17,10 @@ drawn). With ``--profile``, a cProfile text profile of each step (sorted by cumu
 time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
 ``--fixed-colour``, *View-Dependent Colour* is switched off after the import (the display
 then runs its camera-free variant: a click's camera switch does not re-evaluate it).
+Headless there is no 3D view, so the display's *Viewport Colours* input is off (as with
+every 3D view in Solid mode, Blender's default, which draws the point display without
+its colours: the viewport skips the SH colour, branch ``blender20c``); with
+``--viewport-colours`` it is on, as with a 3D view in Material Preview or Rendered.
 ``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
 no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
 its figure stays the reference across rounds); the click then contains that segmenter's
@@ -51,6 +55,12 @@ def main() -> None:
     ap.add_argument("--profile", type=Path, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/divas_bench_scenes"))
     ap.add_argument("--fixed-colour", action="store_true", help="View-Dependent Colour off")
+    ap.add_argument(
+        "--viewport-colours",
+        action="store_true",
+        help="as with a 3D view in Material Preview: the viewport evaluates the points' SH "
+        "colour (the display's Viewport Colours input on; headless it is off)",
+    )
     ap.add_argument(
         "--segmenter",
         default="oracle",
@@ -139,6 +149,12 @@ def main() -> None:
     )
     obj = bpy.context.active_object
     bpy.context.scene.divas.autosave = False
+    if args.viewport_colours:
+        from blender_addon import display
+
+        mod = obj.modifiers[display.MODIFIER]
+        if display.DisplayInputs.VIEWPORT_COLOURS in display.display_inputs(mod):
+            display.set_display_inputs(mod, **{display.DisplayInputs.VIEWPORT_COLOURS: True})
     if args.fixed_colour:
         from blender_addon import display
 
@@ -197,6 +213,7 @@ def main() -> None:
     print(
         f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
         f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}, "
+        f"Viewport Colours {'on' if args.viewport_colours else 'off'}, "
         f"segmenter {args.segmenter}, prefetch {'off' if args.no_prefetch else 'on'}, "
         f"scratch {args.scratch}\n"
     )
