@@ -113,7 +113,7 @@ def main() -> None:
 
     ops_cls._view_layer_update = staticmethod(timed_update)
 
-    shown = [None]  # the live session whose panel redraws after each step
+    panel = [None]  # the live session whose panel redraws after each step
 
     def step(name: str, fn):
         prof = None
@@ -126,8 +126,8 @@ def main() -> None:
         dg[0] = 0.0
         t, c = time.perf_counter(), time.process_time()
         out = fn()
-        if shown[0] is not None:  # what the panel's redraw after the step reads
-            shown[0].counts()
+        if panel[0] is not None:  # what the panel's redraw after the step reads
+            panel[0].counts()
         dt, dc = time.perf_counter() - t, time.process_time() - c
         if prof is not None:
             import io
@@ -153,8 +153,9 @@ def main() -> None:
         from blender_addon import display
 
         mod = obj.modifiers[display.MODIFIER]
-        if display.DisplayInputs.VIEWPORT_COLOURS in display.display_inputs(mod):
-            display.set_display_inputs(mod, **{display.DisplayInputs.VIEWPORT_COLOURS: True})
+        vc = getattr(display.DisplayInputs, "VIEWPORT_COLOURS", None)  # (older add-ons)
+        if vc in display.display_inputs(mod):
+            display.set_display_inputs(mod, **{vc: True})
     if args.fixed_colour:
         from blender_addon import display
 
@@ -168,7 +169,7 @@ def main() -> None:
     )
     live = session_registry.get(obj)
     live.counts()  # (Start's own redraw)
-    shown[0] = live
+    panel[0] = live
     s = live.session
     if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
         s.renderer.scratch_sparse = args.scratch != "none"
