@@ -165,10 +165,12 @@ def main() -> None:
     gt = {"gt_labels": str(folder / "labels.npy")} if args.segmenter == "oracle" else {}
     step(
         "start",
-        lambda: bpy.ops.divas.start_session(device="cpu", segmenter=args.segmenter, **gt),
+        lambda: (
+            bpy.ops.divas.start_session(device="cpu", segmenter=args.segmenter, **gt),
+            session_registry.get(obj).counts(),  # the panel's redraw after Start
+        ),
     )
     live = session_registry.get(obj)
-    live.counts()  # (Start's own redraw)
     panel[0] = live
     s = live.session
     if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
