@@ -17,10 +17,16 @@ drawn). With ``--profile``, a cProfile text profile of each step (sorted by cumu
 time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
 ``--fixed-colour``, *View-Dependent Colour* is switched off after the import (the display
 then runs its camera-free variant: a click's camera switch does not re-evaluate it).
+Headless there is no 3D view, so the display's *Viewport Colours* input is off (as with
+every 3D view in Solid mode, Blender's default, which draws the point display without
+its colours: the viewport skips the SH colour, branch ``blender20c``); with
+``--viewport-colours`` it is on, as with a 3D view in Material Preview or Rendered.
 ``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
 no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
 its figure stays the reference across rounds); the click then contains that segmenter's
-preview instead of the oracle's value render. The peak RSS column is the process's
+preview instead of the oracle's value render. Each step after Start includes the
+session counts the add-on's panel reads in the redraw that follows it (counted on that
+first read since branch ``blender20c``). The peak RSS column is the process's
 high-water mark after each step (``ru_maxrss``).
 """
 
@@ -49,6 +55,12 @@ def main() -> None:
     ap.add_argument("--profile", type=Path, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/divas_bench_scenes"))
     ap.add_argument("--fixed-colour", action="store_true", help="View-Dependent Colour off")
+    ap.add_argument(
+        "--viewport-colours",
+        action="store_true",
+        help="as with a 3D view in Material Preview: the viewport evaluates the points' SH "
+        "colour (the display's Viewport Colours input on; headless it is off)",
+    )
     ap.add_argument(
         "--segmenter",
         default="oracle",
@@ -101,6 +113,8 @@ def main() -> None:
 
     ops_cls._view_layer_update = staticmethod(timed_update)
 
+    panel = [None]  # the live session whose panel redraws after each step
+
     def step(name: str, fn):
         prof = None
         bpy.context.view_layer.update()  # nothing pending from the step before
@@ -112,6 +126,8 @@ def main() -> None:
         dg[0] = 0.0
         t, c = time.perf_counter(), time.process_time()
         out = fn()
+        if panel[0] is not None:  # what the panel's redraw after the step reads
+            panel[0].counts()
         dt, dc = time.perf_counter() - t, time.process_time() - c
         if prof is not None:
             import io
@@ -133,6 +149,13 @@ def main() -> None:
     )
     obj = bpy.context.active_object
     bpy.context.scene.divas.autosave = False
+    if args.viewport_colours:
+        from blender_addon import display
+
+        mod = obj.modifiers[display.MODIFIER]
+        vc = getattr(display.DisplayInputs, "VIEWPORT_COLOURS", None)  # (older add-ons)
+        if vc in display.display_inputs(mod):
+            display.set_display_inputs(mod, **{vc: True})
     if args.fixed_colour:
         from blender_addon import display
 
@@ -142,9 +165,13 @@ def main() -> None:
     gt = {"gt_labels": str(folder / "labels.npy")} if args.segmenter == "oracle" else {}
     step(
         "start",
-        lambda: bpy.ops.divas.start_session(device="cpu", segmenter=args.segmenter, **gt),
+        lambda: (
+            bpy.ops.divas.start_session(device="cpu", segmenter=args.segmenter, **gt),
+            session_registry.get(obj).counts(),  # the panel's redraw after Start
+        ),
     )
     live = session_registry.get(obj)
+    panel[0] = live
     s = live.session
     if hasattr(s.renderer, "scratch_sparse"):  # over the add-on's own choice
         s.renderer.scratch_sparse = args.scratch != "none"
@@ -189,6 +216,7 @@ def main() -> None:
     print(
         f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
         f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}, "
+        f"Viewport Colours {'on' if args.viewport_colours else 'off'}, "
         f"segmenter {args.segmenter}, prefetch {'off' if args.no_prefetch else 'on'}, "
         f"scratch {args.scratch}\n"
     )

@@ -7,7 +7,16 @@ Geometry Nodes group, per splat (fields on the imported point cloud ``P``):
    group: the *fixed-colour* variant (``view_dependent=False``) has no camera node at
    all, so a change of scene camera does not re-evaluate the modifier (issue 20: 0.7 CPU
    s per camera switch at 3M points); its colour is the same ``max(divas_color, 0)``
-   nodes the view-dependent group switches to when the SH are off or absent.
+   nodes the view-dependent group switches to when the SH are off or absent. The
+   view-dependent group also takes that colour in the *viewport* for the point display
+   while *Viewport Colours* is off (*Is Viewport* ∧ *Points* ⇒ *Viewport Colours*, a
+   single value, so the SH nodes are not evaluated at all): Solid mode draws point
+   clouds in their material colour, so no splat colour is seen there (a Workbench
+   render of the points is pixel-identical with the SH colour on and off), and the
+   add-on switches the input on while a 3D view shows material colours
+   (:func:`.display.sync_viewport_colours`). Renders (*Is Viewport* false) always
+   evaluate the SH colour. Issue 20: a camera switch at 3M points then re-evaluates
+   only the camera-free part of the group (≈ 0.1 s instead of 0.33 s).
 2. Colour: ``divas_color`` is linear; with view-dependent colour it is re-encoded to
    sRGB (the SH DC colour), the ``divas_sh_k`` codes are decoded (``(c − 128)/127 ·
    range_band``) and added as ``Y_k(d) c_k`` (:data:`divas_engine.sh_rotation.
@@ -80,6 +89,13 @@ def _interface(ng) -> None:
     )
     add("SH Range", "NodeSocketVector", (0.0, 0.0, 0.0), desc="Per-band range of divas_sh_*")
     add("Max Radius", "NodeSocketFloat", 0.0, 0.0, 1e9, "Point radius clip (0: none)")
+    add(
+        "Viewport Colours",
+        "NodeSocketBool",
+        True,
+        desc="Evaluate the view-dependent colour of the point display in the viewport too "
+        "(the add-on sets it: on while a 3D view shows material colours; renders always do)",
+    )
     ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
 
 
@@ -264,16 +280,29 @@ def _view_dependent_rgb(b: NodeBuilder, gin, lin_dc, version):
         {0: b.out(gin, "View-Dependent Colour"), 1: b.out(sh, "Exists")},
         operation="AND",
     )
+    dc_only = b.vmath("MAXIMUM", lin_dc, (0.0,) * 3)
     rgb = b.node(
         "GeometryNodeSwitch",
-        {
-            "Switch": b.out(use_sh, 0),
-            "False": b.vmath("MAXIMUM", lin_dc, (0.0,) * 3),
-            "True": lin_sh,
-        },
+        {"Switch": b.out(use_sh, 0), "False": dc_only, "True": lin_sh},
         input_type="VECTOR",
     ).outputs[0]
-    return rgb
+    # step 1's gate: a single value, so the Switch evaluates only the branch it passes
+    is_viewport = b.out(b.node("GeometryNodeIsViewport"), 0)
+    hidden = b.node(
+        "FunctionNodeBooleanMath",
+        {0: is_viewport, 1: b.out(gin, "Points")},
+        operation="AND",
+    )
+    shown = b.node(
+        "FunctionNodeBooleanMath",
+        {0: b.out(hidden, 0), 1: b.out(gin, "Viewport Colours")},
+        operation="IMPLY",
+    )
+    return b.node(
+        "GeometryNodeSwitch",
+        {"Switch": b.out(shown, 0), "False": dc_only, "True": rgb},
+        input_type="VECTOR",
+    ).outputs[0]
 
 
 def _shade_field(b: NodeBuilder, gin, tint, version, view_dependent: bool):

@@ -14,7 +14,12 @@
   *View-Dependent Colour* was toggled in the modifier panel), a one-shot timer swaps it
   (:func:`.display.sync_display_group`: no camera dependency with the SH colour off);
 * ``render_pre`` — no display-space decode for Workbench renders
-  (:func:`.blend_space.on_render_pre`).
+  (:func:`.blend_space.on_render_pre`);
+* a 3D-view draw handler (``PRE_VIEW``) — when whether some 3D view shows material
+  colours changed since the last check (a shading switch, a workspace or screen change),
+  a one-shot timer sets the display modifiers' *Viewport Colours*
+  (:func:`.display.sync_viewport_colours`: with Solid shading the point display's
+  colours are not drawn, so the viewport skips the SH colour — issue 20).
 
 Every handler is ``@persistent`` (it outlives file loads) and registered once.
 """
@@ -36,6 +41,7 @@ __all__ = [
     "on_undo_redo",
     "request_background_fill",
     "request_display_sync",
+    "request_viewport_colours_sync",
 ]
 
 
@@ -93,6 +99,38 @@ def request_display_sync(depsgraph) -> bool:
     return True
 
 
+#: what :func:`request_viewport_colours_sync` last saw (None: not checked since a load)
+_viewport_colours: list[bool | None] = [None]
+
+
+def _viewport_colours_timer() -> None:
+    shows = display.viewport_shows_colours()
+    try:
+        display.sync_viewport_colours(shows)
+        _viewport_colours[0] = shows
+    except (AttributeError, ReferenceError, KeyError) as e:
+        print(f"DivAS: could not set the viewport colours ({e})", file=sys.stderr)
+    return None  # one shot
+
+
+def request_viewport_colours_sync(wm=None) -> bool:
+    """Schedule :func:`.display.sync_viewport_colours` when whether a 3D view shows
+    material colours changed since the last sync; returns whether one was scheduled
+    (ID data is not written while drawing)."""
+    try:
+        shows = display.viewport_shows_colours(wm)
+    except (AttributeError, ReferenceError):
+        return False
+    if shows == _viewport_colours[0] or bpy.app.timers.is_registered(_viewport_colours_timer):
+        return False
+    bpy.app.timers.register(_viewport_colours_timer, first_interval=0.0)
+    return True
+
+
+def _on_view_draw() -> None:
+    request_viewport_colours_sync()
+
+
 @persistent
 def _on_depsgraph_update(_scene=None, depsgraph=None, *_args) -> None:
     request_background_fill()
@@ -114,6 +152,7 @@ def on_undo_redo(*_args) -> None:
 @persistent
 def _on_load_pre(*args) -> None:
     session_registry.on_load_pre(*args)
+    _viewport_colours[0] = None  # the next file's modifiers are checked on its first draw
     draw.touch()
 
 
@@ -129,15 +168,24 @@ _HANDLERS = (
 )
 
 
+_view_draw: list = []
+
+
 def register() -> None:
     for name, fn in _HANDLERS:
         handlers = getattr(bpy.app.handlers, name)
         if fn not in handlers:
             handlers.append(fn)
     draw.register()
+    if not _view_draw:
+        space = bpy.types.SpaceView3D
+        _view_draw.append(space.draw_handler_add(_on_view_draw, (), "WINDOW", "PRE_VIEW"))
 
 
 def unregister() -> None:
+    while _view_draw:
+        bpy.types.SpaceView3D.draw_handler_remove(_view_draw.pop(), "WINDOW")
+    _viewport_colours[0] = None
     draw.unregister()
     for name, fn in _HANDLERS:
         handlers = getattr(bpy.app.handlers, name)

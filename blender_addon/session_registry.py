@@ -122,13 +122,17 @@ class LiveSession:
         self.changed()
 
     def changed(self) -> None:
-        """The session changed: recount (never waiting for the engine's background
-        warm-up: its voxel counts come when it is done), redraw."""
-        self._counts = self.session.counts(wait=False)
+        """The session changed: recount when the counts are next read, redraw. (The
+        panel reads them in the redraw after every step; counting here made an accept,
+        which records and commits, count twice: the engine's count of the labelled
+        points copies the ``[N]`` labels each time — issue 20.)"""
+        self._counts = None
         self.version += 1
 
     def counts(self) -> dict[str, Any]:
-        """The session's counts as of the last update (cheap: the panel redraws often)."""
+        """The session's counts as of the last update, counted on the first read after
+        it (never waiting for the engine's background warm-up: its voxel counts come
+        when it is done); cheap afterwards: the panel redraws often."""
         c = self._counts
         if c is None or (c.get("active_voxels") is None and self.session.warmed_up):
             self._counts = self.session.counts(wait=False)

@@ -6,11 +6,20 @@ the splats live.
 Only what changed is written (issue 20): the point → primitive map and the values last
 written are kept on the live session (:class:`Written`), so an accept compares the new
 selection with them and writes just the points that changed — one element at a time
-while they are few, one bulk ``foreach_set`` when that is cheaper
-(:data:`PARTIAL_MAX`) — and leaves an unchanged attribute (the labels, at every accept)
-alone. The result is the same as a full write (tested); anything that may have changed
-the points behind the session's back (Blender's undo, a rebuilt point cloud) makes the
-next write a full one.
+while they are few, one bulk ``foreach_set`` from the kept array when that is cheaper
+(:data:`PARTIAL_MAX`) — and leaves an unchanged attribute alone. Between two writes
+where only the current selection changed (a click's accept, an undo of it) no array of
+every point is made: the comparison goes into a kept buffer, the labels are worked out
+at the changed points only (the engine's ``label_set`` rule: the committed label, or
+the current object's where it is selected and — unless labels may be overwritten —
+unlabelled) and the kept arrays are updated in place. A fresh ``[N]`` array per accept
+cost 0.03 s or 0.07–0.34 s at 3M points on the benchmark VM: its pages come from the
+kernel, and pages freed a few seconds earlier have been handed back to the hypervisor
+(virtio-balloon free page reporting), so touching them again is a host fault
+(BENCHMARKS.md, branch ``blender20c``). The result is the same as a full write
+(tested); anything that may have changed the points behind the session's back
+(Blender's undo, a rebuilt point cloud) or the committed labels (finishing an object, a
+reset, erasing, a history jump) makes the next write a full one.
 """
 
 from __future__ import annotations
@@ -48,6 +57,14 @@ class Written:
     pos: np.ndarray | None
     selected: np.ndarray
     labels: np.ndarray
+    #: the label rule's inputs when ``labels`` was made (module docstring): the
+    #: session's committed-labels array (the object itself: the engine replaces it
+    #: whenever it changes), the current object's label and the overwrite switch
+    committed: np.ndarray | None = None
+    label: int = 0
+    overwrite: bool = False
+    #: kept ``[N]`` bool buffer for the comparison (no fresh pages per accept)
+    scratch: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -99,6 +116,67 @@ def _valid(w: Written | None, geom) -> bool:
     return True
 
 
+def _label_inputs(s) -> tuple[np.ndarray, int, bool]:
+    return s.labels, int(s.current.label), bool(s.config.overwrite_labels)
+
+
+def _same_labels(w: Written, s) -> bool:
+    """Only the current selection can have changed the labels since ``w`` was written."""
+    committed, label, overwrite = _label_inputs(s)
+    return w.committed is committed and w.label == label and w.overwrite == overwrite
+
+
+def _write(geom, name: str, values: np.ndarray, changed: np.ndarray) -> None:
+    if 0 < len(changed) <= PARTIAL_MAX:
+        _write_changed(geom, name, values, changed)
+    elif len(changed):
+        bridge.write_attribute(geom, name, values)
+
+
+def _write_full(geom, live: LiveSession, pos: np.ndarray | None) -> WriteBack:
+    s = live.session
+    selected = np.asarray(s.selection).reshape(-1)
+    labels = np.asarray(s.label_set()).reshape(-1)
+    if pos is not None:
+        selected, labels = selected[pos], labels[pos]
+    selected, labels = selected.astype(bool), labels.astype(np.int32)  # our own copies
+    bridge.write_attribute(geom, SELECTED, selected)
+    bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)
+    geom.update_tag()
+    committed, label, overwrite = _label_inputs(s)
+    live.written = Written(
+        geom.as_pointer(), len(selected), pos, selected, labels, committed, label, overwrite
+    )
+    everything = np.arange(len(selected))
+    return WriteBack(True, everything, everything)
+
+
+def _write_selection_changes(geom, live: LiveSession, w: Written) -> WriteBack:
+    """The current selection changed, nothing else (:func:`_same_labels`): compare into
+    the kept buffer, work the labels out at the changed points, update in place."""
+    s = live.session
+    selected = np.asarray(s.selection).reshape(-1)
+    if w.pos is not None:
+        selected = selected[w.pos]
+    if w.scratch is None:
+        w.scratch = np.empty(w.count, bool)
+    changed = np.flatnonzero(np.not_equal(selected, w.selected, out=w.scratch))
+    if len(changed) == 0:
+        return WriteBack(False, changed, changed)
+    now = selected[changed]
+    prim = changed if w.pos is None else w.pos[changed]
+    committed = np.asarray(w.committed).reshape(-1)[prim]
+    take = now if w.overwrite else now & (committed == 0)  # Session.label_set's rule
+    labels = np.where(take, w.label, committed).astype(np.int32)
+    relabelled = np.flatnonzero(labels != w.labels[changed])
+    w.selected[changed] = now
+    w.labels[changed[relabelled]] = labels[relabelled]
+    _write(geom, SELECTED, w.selected, changed)
+    _write(geom, LABEL_ATTRIBUTE, w.labels, changed[relabelled])
+    geom.update_tag()
+    return WriteBack(False, changed, changed[relabelled])
+
+
 def write_selection(obj, live: LiveSession, *, full: bool = False) -> WriteBack:
     """``divas_selected`` and ``divas_label`` of ``obj``'s points from the session: only
     the changed points (module docstring), or every point with ``full`` or when what
@@ -107,31 +185,21 @@ def write_selection(obj, live: LiveSession, *, full: bool = False) -> WriteBack:
     geom = obj.data
     w = live.written
     if full or not _valid(w, geom):
-        pos = _primitive_of_points(live, geom)
-        w = None
-    else:
-        pos = w.pos
+        return _write_full(geom, live, _primitive_of_points(live, geom))
+    if _same_labels(w, s):
+        return _write_selection_changes(geom, live, w)
     selected = np.asarray(s.selection).reshape(-1)
     labels = np.asarray(s.label_set()).reshape(-1)
-    if pos is not None:
-        selected, labels = selected[pos], labels[pos]
+    if w.pos is not None:
+        selected, labels = selected[w.pos], labels[w.pos]
     selected, labels = selected.astype(bool), labels.astype(np.int32)  # our own copies
-    if w is None:
-        bridge.write_attribute(geom, SELECTED, selected)
-        bridge.write_attribute(geom, LABEL_ATTRIBUTE, labels)
-        geom.update_tag()
-        live.written = Written(geom.as_pointer(), len(selected), pos, selected, labels)
-        everything = np.arange(len(selected))
-        return WriteBack(True, everything, everything)
     out = []
     for name, new, old in ((SELECTED, selected, w.selected), (LABEL_ATTRIBUTE, labels, w.labels)):
         changed = np.flatnonzero(new != old)
-        if 0 < len(changed) <= PARTIAL_MAX:
-            _write_changed(geom, name, new, changed)
-        elif len(changed):
-            bridge.write_attribute(geom, name, new)
+        _write(geom, name, new, changed)
         out.append(changed)
     if any(len(c) for c in out):
         geom.update_tag()
     w.selected, w.labels = selected, labels
+    w.committed, w.label, w.overwrite = _label_inputs(s)
     return WriteBack(False, out[0], out[1])

@@ -89,7 +89,11 @@ def test_fixed_colour_group_shows_the_same_display(sh3, points):
     sel = np.zeros(len(obj.data.points), bool)
     sel[::3] = True  # the selection tint goes through both variants too
     bridge.write_attribute(obj.data, SELECTED, sel)
-    display.set_display_inputs(mod, **{"Points": points, "Opacity Threshold": 0.0})
+    # (Viewport Colours: a 3D view shows material colours, so the points' SH colour is
+    # evaluated in the viewport too; test_viewport_colours has it off)
+    display.set_display_inputs(
+        mod, **{"Points": points, "Opacity Threshold": 0.0, "Viewport Colours": True}
+    )
     with_sh = _evaluated(obj)
     # View-Dependent Colour off, still on the view-dependent group (its DC branch)
     _raw_set(mod, display.DisplayInputs.VIEW_DEPENDENT, False)

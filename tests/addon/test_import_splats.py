@@ -152,7 +152,10 @@ def test_view_dependent_colour_is_the_engines_sh_colour(real_data):
     obj.rotation_euler = (0.4, -0.2, 1.1)  # any object transform: d is taken in its frame
     obj.location = (0.5, 0.2, -0.3)
     mod = obj.modifiers[display.MODIFIER]
-    display.set_display_inputs(mod, **{"Points": True, "Opacity Threshold": 0.0})
+    # a 3D view in Material Preview: the viewport evaluates the points' SH colour
+    display.set_display_inputs(
+        mod, **{"Points": True, "Opacity Threshold": 0.0, "Viewport Colours": True}
+    )
     cam = bpy.data.objects.new("view", bpy.data.cameras.new("view"))
     bpy.context.scene.collection.objects.link(cam)
     bpy.context.scene.camera = cam
