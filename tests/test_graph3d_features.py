@@ -1,8 +1,8 @@
 """graph3d's scene-only work made once per scene (issue 20, click20g): every primitive's
-colour, normal and κ computed by the segmenter's warm-up (:meth:`ScenePrimitives.
-cache_features`) give the same features, voxel graphs, cuts, masks and selections as
-computing them from the scene's arrays in each cut — after a negative click and after an
-undone click too."""
+colour and κ computed by the segmenter's warm-up (:meth:`ScenePrimitives.cache_features`)
+give the same features, voxel graphs, cuts, masks and selections as computing them from
+the scene's arrays in each cut — after a negative click and after an undone click too;
+and the normals' column-wise arithmetic is the plain expressions' bit for bit."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def scene(request):
 def test_cached_features_are_the_rows_features(scene, floor):
     """With the cache, ``lab_of`` / ``normals_of`` / ``kappa_of`` of any rows (sorted,
     shuffled, repeated, a mask, none, in blocks that do not divide the scene) equal the
-    per-row computation bit for bit; the cache holds 24 bytes a primitive (28 with κ)."""
+    per-row computation bit for bit; the cache holds 12 bytes a primitive (16 with κ)."""
     op = scene.opacities
     cut = float(op.min()) if floor == "all" else float(np.quantile(op, 0.3))
     prims = ScenePrimitives.from_scene(scene, cut, UP)
@@ -46,7 +46,7 @@ def test_cached_features_are_the_rows_features(scene, floor):
     assert prims.features is None
     held = prims.cache_features(block=997)
     kap = scene.scale_n is not None
-    assert held == m * (28 if kap else 24) and (prims.features[2] is not None) == kap
+    assert held == m * (16 if kap else 12) and (prims.features[1] is not None) == kap
     for r, (lab, nrm, k) in zip(rows_sets, want, strict=True):
         for got, ref in ((prims.lab_of(r), lab), (prims.normals_of(r), nrm)):
             assert got.dtype == ref.dtype and np.array_equal(
@@ -112,3 +112,19 @@ def test_session_results_are_the_same_with_the_cache(plant, monkeypatch, negativ
     for a, b in zip(on, off, strict=True):
         assert np.array_equal(a, b)
     assert on[-1].any()  # something was selected
+
+
+def test_normals_are_the_plain_expressions(scene):
+    """``normals_of``'s column-wise float32 arithmetic equals the expressions
+    ``2(xz + wy), 2(yz − wx), 1 − 2(xx + yy)`` on the quaternion rows bit for bit, as a
+    C-ordered ``[n,3]`` (how the voxel graph's BLAS products read it); so does the
+    float64 quaternions' path."""
+    prims = ScenePrimitives.from_scene(scene, 0.0, UP)
+    rng = np.random.default_rng(7)
+    for rows in (np.arange(len(prims)), rng.integers(0, len(prims), 333), np.zeros(0, int)):
+        q = scene.quats[prims.rows_of(rows)]
+        w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        want = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], 1)
+        got = prims.normals_of(rows)
+        assert got.dtype == np.float32 and got.flags["C_CONTIGUOUS"]
+        assert np.array_equal(got.view(np.uint32), want.astype(np.float32).view(np.uint32))

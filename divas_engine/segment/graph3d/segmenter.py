@@ -129,9 +129,9 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: idle, 2.27–2.43 → 2.18–2.28 s); with another job holding a core it lost 0.3–1 s
     #: (BENCHMARKS.md, issue 20, g3d20d and the lead's section after it)
     prefetch_cuts: bool = False
-    #: :meth:`warm_up` also computes every primitive's colour, normal and κ once
-    #: (:meth:`ScenePrimitives.cache_features`: the scene-only part of each cut, ≈ 0.1 s
-    #: of a 3M click's cut; 24 bytes a primitive held, 72 MB at 3M); the cuts are the
+    #: :meth:`warm_up` also computes every primitive's colour (and κ) once
+    #: (:meth:`ScenePrimitives.cache_features`: the scene-only part of each cut, ≈ 0.08 s
+    #: of a 3M click's cut; 12 bytes a primitive held, 36 MB at 3M); the cuts are the
     #: same bit for bit with and without it (issue 20)
     cache_features: bool = True
 
@@ -155,8 +155,8 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         """Build the scene's :class:`ScenePrimitives` now (the session's background
         warm-up): at 3M splats they took seconds of the first click (issue 20). A prompt
         made meanwhile waits for the same build (one lock), never builds twice. Then,
-        with :attr:`cache_features`, every primitive's colour / normal / κ (the cut's
-        scene-only work; a prompt made meanwhile computes its own rows)."""
+        with :attr:`cache_features`, every primitive's colour / κ (the cut's scene-only
+        work; a prompt made meanwhile computes its own rows)."""
         with contextlib.suppress(Exception):  # the first prompt builds again and raises
             prims = self.primitives()
             if self.cache_features:
