@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ..blas_threads import BlasThreads
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..kinds import ViewStatus
@@ -73,6 +74,7 @@ class SessionCore:
         from divas_kernels import resolve_device
 
         backend_cls = backend_class_for(scene)
+        self._blas = False
         self.scene = scene
         self.kind = backend_cls.kind
         self.cameras = list(cameras or [])
@@ -122,6 +124,10 @@ class SessionCore:
         self.replay_matches: bool | None = None
         self.plan: AnchorPlan | None = None
         self._closed = False
+        # one BLAS thread while the session is open: no core left spinning after each of
+        # its tall, thin NumPy products (the same bits; :mod:`divas_engine.blas_threads`)
+        BlasThreads.acquire()
+        self._blas = True
 
     # ------------------------------------------------------------------ backend state
     @property
@@ -493,6 +499,9 @@ class SessionCore:
             wait(60.0)
         if self._worker is not None:
             self._worker.close()
+        if self._blas:
+            self._blas = False
+            BlasThreads.release()
 
     def __enter__(self) -> SessionCore:
         return self

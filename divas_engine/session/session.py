@@ -240,8 +240,8 @@ class Session(SelectionEditing, SessionCore):
         20). SAM and the oracle have no such hook. A point that differs from the view's
         target only costs the unused work: the segmenter keys it by its inputs."""
         fn = getattr(self.segmenter, "prefetch", None)
-        if fn is None:
-            return
+        if fn is None or not getattr(self.segmenter, "prefetch_cuts", True):
+            return  # (graph3d's switch off: nothing would start; no back-projection)
         _, point = self._back_project(anchor, xy)  # raises as the centroid view would
         fn(self._clicks_of(obj, point))
 

@@ -129,6 +129,11 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: idle, 2.27–2.43 → 2.18–2.28 s); with another job holding a core it lost 0.3–1 s
     #: (BENCHMARKS.md, issue 20, g3d20d and the lead's section after it)
     prefetch_cuts: bool = False
+    #: :meth:`warm_up` also computes every primitive's colour (and κ) once
+    #: (:meth:`ScenePrimitives.cache_features`: the scene-only part of each cut, ≈ 0.08 s
+    #: of a 3M click's cut; 12 bytes a primitive held, 36 MB at 3M); the cuts are the
+    #: same bit for bit with and without it (issue 20)
+    cache_features: bool = True
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
@@ -149,9 +154,14 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     def warm_up(self) -> None:
         """Build the scene's :class:`ScenePrimitives` now (the session's background
         warm-up): at 3M splats they took seconds of the first click (issue 20). A prompt
-        made meanwhile waits for the same build (one lock), never builds twice."""
+        made meanwhile waits for the same build (one lock), never builds twice. Then,
+        with :attr:`cache_features`, every primitive's colour / κ (the cut's scene-only
+        work; a prompt made meanwhile computes its own rows)."""
         with contextlib.suppress(Exception):  # the first prompt builds again and raises
-            self.primitives()
+            prims = self.primitives()
+            if self.cache_features:
+                # prompts meanwhile compute their rows' features (the same values)
+                prims.cache_features()
 
     def primitives(self) -> ScenePrimitives:
         """The bound scene's :class:`ScenePrimitives` (built once)."""
