@@ -63,6 +63,7 @@ PINNED = {
     "plyfile": "1.1.3",
     "zstandard": "0.25.0",
     "psutil": "7.2.2",
+    "threadpoolctl": "3.8.0",
 }
 #: left out by ``--without-sam`` (only the SAM ONNX segmenter imports it).
 SAM_ONLY = ("onnxruntime",)

@@ -15,65 +15,29 @@ result does depend on the thread count (``ddot``) the engine already avoids (gra
 solver sums with NumPy). Tested: ``tests/test_blas_threads.py`` and the session results
 with one and two threads.
 
-:class:`BlasThreads` sets the OpenBLAS libraries loaded in the process (NumPy's, SciPy's)
-to :data:`SESSION_BLAS_THREADS` threads while at least one session is open and puts back
-what they had when the last one closes (the host, e.g. Blender, keeps its own setting
-otherwise). Linux only (the libraries are found in ``/proc/self/maps``); elsewhere a no-op.
+:class:`BlasThreads` limits the BLAS libraries loaded in the process (NumPy's, SciPy's) to
+:data:`SESSION_BLAS_THREADS` threads while at least one session is open and puts back what
+they had when the last one closes (the host, e.g. Blender, keeps its own setting
+otherwise). The libraries are found and set by ``threadpoolctl`` (OpenBLAS, MKL, BLIS on
+Linux, Windows and macOS; a BLAS it cannot set, e.g. Accelerate, is left as it is).
 """
 
 from __future__ import annotations
 
-import ctypes
 import threading
-from pathlib import Path
 
-__all__ = ["SESSION_BLAS_THREADS", "BlasThreads", "openblas_libraries"]
+from threadpoolctl import ThreadpoolController
+
+__all__ = ["SESSION_BLAS_THREADS", "BlasThreads", "limit_blas"]
 
 #: BLAS threads while a session is open (None: leave the libraries' own setting)
 SESSION_BLAS_THREADS: int | None = 1
 
-_SETTERS = ("openblas_set_num_threads64_", "openblas_set_num_threads")
-_GETTERS = ("openblas_get_num_threads64_", "openblas_get_num_threads")
 
-
-class _Lib:
-    """One loaded OpenBLAS: its thread-count getter and setter."""
-
-    def __init__(self, path: str, get, put) -> None:
-        self.path, self._get, self._put = path, get, put
-
-    def get(self) -> int:
-        return int(self._get())
-
-    def set(self, n: int) -> None:
-        self._put(int(n))
-
-
-def openblas_libraries() -> list[_Lib]:
-    """The OpenBLAS libraries mapped into this process (NumPy's and SciPy's wheels each
-    bundle one) that export a thread-count setter; empty when none is found."""
-    maps = Path("/proc/self/maps")
-    if not maps.exists():
-        return []
-    paths = []
-    for line in maps.read_text().splitlines():
-        parts = line.split(maxsplit=5)  # address, perms, offset, dev, inode, path
-        path = parts[5].strip() if len(parts) == 6 else ""
-        if "openblas" in Path(path).name.lower() and path not in paths:
-            paths.append(path)
-    out = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        put = next((getattr(lib, s) for s in _SETTERS if hasattr(lib, s)), None)
-        get = next((getattr(lib, g) for g in _GETTERS if hasattr(lib, g)), None)
-        if put is None or get is None:
-            continue
-        put.argtypes, put.restype, get.restype = [ctypes.c_int], None, ctypes.c_int
-        out.append(_Lib(path, get, put))
-    return out
+def limit_blas(threads: int):
+    """Limit every BLAS loaded now to ``threads``; returns the limiter whose
+    ``restore_original_limits()`` puts the previous counts back."""
+    return ThreadpoolController().limit(limits=int(threads), user_api="blas")
 
 
 class BlasThreads:
@@ -83,7 +47,7 @@ class BlasThreads:
 
     _lock = threading.Lock()
     _users = 0
-    _saved: list[tuple[_Lib, int]] = []
+    _limiter = None
 
     @classmethod
     def acquire(cls) -> None:
@@ -91,10 +55,7 @@ class BlasThreads:
             cls._users += 1
             if cls._users > 1 or SESSION_BLAS_THREADS is None:
                 return
-            cls._saved = []
-            for lib in openblas_libraries():
-                cls._saved.append((lib, lib.get()))
-                lib.set(SESSION_BLAS_THREADS)
+            cls._limiter = limit_blas(SESSION_BLAS_THREADS)
 
     @classmethod
     def release(cls) -> None:
@@ -102,7 +63,6 @@ class BlasThreads:
             if cls._users == 0:
                 return
             cls._users -= 1
-            if cls._users == 0:
-                for lib, n in cls._saved:
-                    lib.set(n)
-                cls._saved = []
+            if cls._users == 0 and cls._limiter is not None:
+                cls._limiter.restore_original_limits()
+                cls._limiter = None

@@ -8,53 +8,71 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from threadpoolctl import ThreadpoolController
 
 from divas_engine import blas_threads
-from divas_engine.blas_threads import BlasThreads, openblas_libraries
+from divas_engine.blas_threads import BlasThreads
 from divas_engine.segment.graph3d import Graph3DSegmenter
 from divas_engine.session import Session, SessionConfig
 from divas_engine.synthetic import generate_scene
 
 
-class _FakeLib:
-    def __init__(self, n: int) -> None:
-        self.n, self.calls = n, []
+class _FakeLimiter:
+    def __init__(self, libs: list[list[int]], n: int) -> None:
+        self.libs, self.saved = libs, [x[0] for x in libs]
+        for x in libs:
+            x[0] = n
 
-    def get(self) -> int:
-        return self.n
-
-    def set(self, n: int) -> None:
-        self.n = n
-        self.calls.append(n)
+    def restore_original_limits(self) -> None:
+        for x, n in zip(self.libs, self.saved, strict=True):
+            x[0] = n
 
 
 def test_first_open_sets_one_thread_and_last_close_restores(monkeypatch):
-    libs = [_FakeLib(2), _FakeLib(4)]
-    monkeypatch.setattr(blas_threads, "openblas_libraries", lambda: libs)
+    libs = [[2], [4]]
+    made = []
+    monkeypatch.setattr(
+        blas_threads, "limit_blas", lambda n: made.append(n) or _FakeLimiter(libs, n)
+    )
     monkeypatch.setattr(BlasThreads, "_users", 0)
-    monkeypatch.setattr(BlasThreads, "_saved", [])
+    monkeypatch.setattr(BlasThreads, "_limiter", None)
     BlasThreads.acquire()
-    assert [x.n for x in libs] == [1, 1]
+    assert libs == [[1], [1]]
     BlasThreads.acquire()  # a second session: nothing changes
     BlasThreads.release()
-    assert [x.n for x in libs] == [1, 1]
+    assert libs == [[1], [1]]
     BlasThreads.release()  # the last one: each library's own count back
-    assert [x.n for x in libs] == [2, 4]
+    assert libs == [[2], [4]]
     BlasThreads.release()  # an extra release changes nothing
-    assert [x.n for x in libs] == [2, 4] and libs[0].calls == [1, 2]
+    assert libs == [[2], [4]] and made == [1]
     monkeypatch.setattr(blas_threads, "SESSION_BLAS_THREADS", None)
     BlasThreads.acquire()
     BlasThreads.release()
-    assert [x.n for x in libs] == [2, 4]  # None: left alone
+    assert libs == [[2], [4]] and made == [1]  # None: left alone
 
 
-def _numpy_blas():
-    libs = [x for x in openblas_libraries() if x.get() > 0]
+class _NumpyBlas:
+    """The thread count of NumPy's BLAS, read and set through threadpoolctl."""
 
-    mine = [x for x in libs if "numpy" in x.path] or libs
+    def __init__(self, info: dict) -> None:
+        self.prefix = info["prefix"]
+
+    def _pool(self):
+        return ThreadpoolController().select(prefix=self.prefix)
+
+    def get(self) -> int:
+        return int(self._pool().info()[0]["num_threads"])
+
+    def set(self, n: int) -> None:
+        self._pool().limit(limits=int(n))
+
+
+def _numpy_blas() -> _NumpyBlas:
+    libs = [i for i in ThreadpoolController().info() if i["user_api"] == "blas"]
+    mine = [i for i in libs if "numpy" in i["filepath"]] or libs
     if not mine:
-        pytest.skip("no OpenBLAS loaded in this process")
-    return mine[0]
+        pytest.skip("no BLAS threadpoolctl can set is loaded in this process")
+    return _NumpyBlas(mine[0])
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +102,7 @@ def test_session_results_are_the_same_with_one_and_two_blas_threads(plant, monke
     before = lib.get()
     # sessions other tests left open hold the count: this test's own from zero
     monkeypatch.setattr(BlasThreads, "_users", 0)
-    monkeypatch.setattr(BlasThreads, "_saved", [])
+    monkeypatch.setattr(BlasThreads, "_limiter", None)
     lib.set(2)
     try:
         x = np.random.default_rng(0).normal(size=400_003)
