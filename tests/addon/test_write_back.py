@@ -14,10 +14,13 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_addon import bridge, session_registry
+from blender_addon import bridge
 from blender_addon.session_actions import LABEL_ATTRIBUTE, loop_steps, points
 from divas_engine.point_attributes import INDEX, SELECTED, point_values
 from divas_engine.session import Session
+
+from .test_persistence import _click
+from .test_session_memory import _start
 
 
 @pytest.fixture(scope="module")
@@ -27,30 +30,6 @@ def scene_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("ribs_write_back")
     sc = generate_scene("ribs", out, size=12_000, seed=4, grid_resolution=24)
     return out, sc
-
-
-def _start(scene_dir):
-    out, _ = scene_dir
-    assert bpy.ops.divas.import_splats(filepath=str(out / "scene.ply")) == {"FINISHED"}
-    obj = bpy.context.active_object
-    bpy.context.scene.divas.render_scale = 0.5
-    bpy.context.scene.divas.autosave = False
-    ok = bpy.ops.divas.start_session(
-        device="cpu", segmenter="oracle", gt_labels=str(out / "labels.npy")
-    )
-    assert ok == {"FINISHED"}
-    return obj, session_registry.get(obj)
-
-
-def _click(live, sc, i: int = 0) -> None:
-    cam = live.session.anchors[i].camera
-    for c in sc.metadata["clicks"]:
-        uv, z = cam.project(np.array([c["xyz"]]))
-        if z[0] > 0 and 0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height:
-            xy = f"{float(uv[0, 0])!r} {float(uv[0, 1])!r}"
-            assert bpy.ops.divas.session_click(anchor=i, xy=xy) == {"FINISHED"}
-            return
-    pytest.skip("no click point visible in this anchor")
 
 
 def _assert_matches_engine(obj, live) -> None:
@@ -123,7 +102,7 @@ def test_accept_and_undo_write_back_in_place(scene_dir, monkeypatch, overwrite, 
         _assert_matches_engine(obj, live)
         return wb
 
-    _click(live, sc)
+    _click(live, 0, sc)
     wb = accept_in_place()
     assert len(wb.labels) == len(wb.selected)  # nothing labelled yet: all relabelled
     assert bpy.ops.divas.session_undo() == {"FINISHED"}
@@ -138,7 +117,7 @@ def test_accept_and_undo_write_back_in_place(scene_dir, monkeypatch, overwrite, 
     _assert_matches_engine(obj, live)
     assert calls[-1][1] == 1
     # a second object over the first: its labels are kept, or overwritten
-    _click(live, sc)
+    _click(live, 0, sc)
     wb = accept_in_place()
     second = bridge.read_attribute(obj.data, SELECTED)
     both = first & second
@@ -156,7 +135,7 @@ def test_accept_and_undo_write_back_in_place(scene_dir, monkeypatch, overwrite, 
 def test_an_accept_counts_once_when_the_panel_reads(scene_dir, monkeypatch):
     _, sc = scene_dir
     obj, live = _start(scene_dir)
-    _click(live, sc)
+    _click(live, 0, sc)
     live.counts()
     spy = _Spy(monkeypatch)
     assert bpy.ops.divas.session_accept() == {"FINISHED"}
