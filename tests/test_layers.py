@@ -16,7 +16,7 @@ ENGINE = REPO / "divas_engine"
 #: its own package and any lower layer, never a higher one or another package of its own
 #: layer. Mirrors the table in docs/ARCHITECTURE.md.
 LAYERS: list[set[str]] = [
-    {"kinds", "errors", "geometry", "sh_rotation"},
+    {"kinds", "errors", "geometry", "sh_rotation", "blas_threads"},
     {"camera", "scene", "output_paths"},
     {"scene_stats", "blender_convention", "viewport", "selection_tools"},
     {"io", "render"},
