@@ -15,7 +15,7 @@ from divas_engine.segment.graph3d.primitives import ScenePrimitives
 from divas_engine.segment.graph3d.voxel_graph import build_voxel_graph
 from divas_engine.session import Session, SessionConfig
 from divas_engine.synthetic import generate_scene
-from tests.test_graph3d_lean import UP, _clicks, _same_graph, _scene
+from tests.test_graph3d_lean import UP, _clicks, _same_graph, _scene, row_selections
 from tests.test_graph3d_prefetch import _on_object
 
 
@@ -33,15 +33,7 @@ def test_cached_features_are_the_rows_features(scene, floor):
     cut = float(op.min()) if floor == "all" else float(np.quantile(op, 0.3))
     prims = ScenePrimitives.from_scene(scene, cut, UP)
     m = len(prims)
-    rng = np.random.default_rng(2)
-    rows_sets = [
-        np.arange(m),
-        np.sort(rng.choice(m, m // 3, replace=False)),
-        rng.permutation(m)[: m // 2],
-        rng.integers(0, m, 50),
-        rng.random(m) < 0.4,
-        np.zeros(0, np.int64),
-    ]
+    rows_sets = row_selections(m, seed=2)
     want = [(prims.lab_of(r), prims.normals_of(r), prims.kappa_of(r)) for r in rows_sets]
     assert prims.features is None
     held = prims.cache_features(block=997)

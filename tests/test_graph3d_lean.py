@@ -32,6 +32,20 @@ from tests.graph3d_reference import (
 UP = np.array([0.0, 0.0, 1.0])
 
 
+def row_selections(m: int, seed: int) -> list[np.ndarray]:
+    """Ways a prompt reads rows of ``m`` primitives: all, sorted, shuffled, repeated, a
+    bool mask, none."""
+    rng = np.random.default_rng(seed)
+    return [
+        np.arange(m),
+        np.sort(rng.choice(m, m // 3, replace=False)),
+        rng.permutation(m)[: m // 2],
+        rng.integers(0, m, 50),
+        rng.random(m) < 0.4,
+        np.zeros(0, np.int64),
+    ]
+
+
 def _scene(name: str):
     if name == "gs3d":  # 3DGS: κ from scale_n, extents of the large Gaussians
         return ball_with_leaves(SceneKind.GS3D).scene
@@ -61,16 +75,7 @@ def test_features_of_rows_are_the_whole_scenes(scene, floor):
     else:
         assert prims.index is not None and len(prims) < len(scene)
     assert all(getattr(prims, f) is None for f in ("lab", "normals", "kappa", "reach", "sigma"))
-    rng = np.random.default_rng(5)
-    m = len(prims)
-    for rows in (
-        np.arange(m),
-        np.sort(rng.choice(m, m // 3, replace=False)),
-        rng.permutation(m)[: m // 2],
-        rng.integers(0, m, 50),
-        rng.random(m) < 0.4,
-        np.zeros(0, np.int64),
-    ):
+    for rows in row_selections(len(prims), seed=5):
         np.testing.assert_array_equal(prims.rows_of(rows), ref.index[rows])
         np.testing.assert_array_equal(prims.lab_of(rows), ref.lab[rows])
         np.testing.assert_array_equal(prims.normals_of(rows), ref.normals[rows])
