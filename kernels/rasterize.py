@@ -64,6 +64,8 @@ from .surfel_buffers import SurfelBuffers, surfel_rows, upload_surfels
 from .tile_binning import (
     ViewBinning,
     binning_key,
+    depth_ranks,
+    gather_rows,
     sort_visible,
     take_rows,
     tile_bands,
@@ -172,10 +174,10 @@ def preprocess_kernel(
     item ``j`` is surfel ``rows[j]`` (splat and key at ``j``, colour at the surfel);
     ``write_splat`` 0: the sort key (and colour) only (the culling pass). With
     ``use_dest`` the splat of a visible item ``j`` goes to ``splats[dest[j]]`` (items with
-    ``dest[j] < 0`` are skipped) and no key is written (the pass after the culling pass:
-    items in index order, splats stored in depth order). With the colour, the surfel's
-    ``n_extra`` values ``extra[i]`` go to ``colors[i, 3 …]`` (value channels blended
-    with the RGB)."""
+    ``dest[j] < 0`` are skipped), its colour to ``colors[dest[j]]``, and no key is written
+    (the pass after the culling pass: items in index order, splats and colours stored in
+    depth order). With the colour, the surfel's ``n_extra`` values ``extra[i]`` go to the
+    same row's ``3 …`` columns (value channels blended with the RGB)."""
     j = base + wp.tid() * stride
     if use_dest != 0:
         if dest[j] < 0:
@@ -259,13 +261,16 @@ def preprocess_kernel(
     if use_dest == 0:
         sort_keys[j] = sp.depth
     if with_color != 0:
+        ci = i  # the colour row: the surfel's, or its depth rank after the culling pass
+        if use_dest != 0:
+            ci = dest[j]
         d = wp.normalize(mu - cam.center)
         col = eval_sh(sh, i, sh_degree, d)
-        colors[i, 0] = col[0]
-        colors[i, 1] = col[1]
-        colors[i, 2] = col[2]
+        colors[ci, 0] = col[0]
+        colors[ci, 1] = col[1]
+        colors[ci, 2] = col[2]
         for ch in range(n_extra):
-            colors[i, 3 + ch] = extra[i, ch]
+            colors[ci, 3 + ch] = extra[i, ch]
 
 
 # --------------------------------------------------------------------------- wrapper
@@ -463,11 +468,18 @@ def rasterize_surfels(
     P = W * H
     with wp.ScopedDevice(dev):
         ext = None if extra is None else _value_rows(extra, n, dev)
+        # many surfels to project: a culling pass first (keys only), then the visible ones
+        two_pass = (
+            binning is None and n > 0 and (n if rows is None else len(rows)) >= s.cull_pass_min
+        )
         if values is None:
             C = (3 + (0 if ext is None else ext.shape[1])) if features else 0
             bg = np.zeros(C, np.float32)  # the value channels: no background
             bg[: min(C, 3)] = np.asarray(background, dtype=np.float32).reshape(3)[: min(C, 3)]
-            feat = scratch_empty((max(n, 1), C), float, dev, kept=keep_colours)
+            # [N, C] by surfel index, or (the culling pass first) [n_visible, C] by depth
+            # rank, made with the splats below
+            late = two_pass and rgb
+            feat = None if late else scratch_empty((max(n, 1), C), float, dev, kept=False)
         else:
             v = np.asarray(values, dtype=np.float32)
             v = v.reshape(len(v), -1) if v.ndim > 1 else v.reshape(-1, 1)
@@ -479,6 +491,7 @@ def rasterize_surfels(
         out = alloc_pixel_out(P, C, bg, dev)
         sink = BlendSink()
         sink.out = out
+        sink.by_rank = 0
         stats = {"surfels": n, "pairs": 0, "bands": 0, "mode": mode}
         tiles_x, tiles_y = -(-W // T), -(-H // T)
         states = scratch_empty(P, PixState, dev) if mode == "tile" else None
@@ -497,30 +510,34 @@ def rasterize_surfels(
         if binning is None:
             rws = None if rows is None else wp.array(np.asarray(rows, np.int32), dtype=wp.int32)
             cols = feat if rgb else None
-            if (n if rws is None else rws.shape[0]) < s.cull_pass_min:
+            if not two_pass:
                 splats, keys = project_splats(buf, cam, inv_var, cols, threads, rws, extra=ext)
                 tm.lap("preprocess")
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 splats, ids = visible_splats(splats, order, n_vis, dev, threads, rws)
+                if rgb:  # the colours in depth order, read so by the blend
+                    feat = gather_rows(feat, ids, n_vis, dev, threads, kept=keep_colours)
             else:  # cull first (keys only), then project the visible ones in depth order
-                # the SH colours here, read in index order (the second pass reads in depth order)
-                _, keys = project_splats(
-                    buf, cam, inv_var, cols, threads, rws, write_splats=False, extra=ext
-                )
+                _, keys = project_splats(buf, cam, inv_var, None, threads, rws, write_splats=False)
                 order, n_vis = sort_visible(keys, keys.shape[0], dev, threads)
                 ids = take_rows(rws, order, n_vis, dev, threads)
                 rank = depth_ranks(order, n_vis, keys.shape[0], dev, threads)
                 keys = order = None  # freed before the splats are allocated
                 # the second pass reads the surfels in index order and stores each visible
-                # splat at its depth rank: the same splats, in the same order
+                # splat and its SH colour at its depth rank: the same splats, in the same
+                # order, and the colours as the blend reads them
+                if rgb:
+                    feat = scratch_empty((max(n_vis, 1), C), float, dev, kept=keep_colours)
                 splats, keys = project_splats(
-                    buf, cam, inv_var, None, threads, rws, dest=rank, n_dest=n_vis
-                )
+                    buf, cam, inv_var, feat if rgb else None, threads, rws, dest=rank,
+                    n_dest=n_vis, extra=ext,
+                )  # fmt: skip
                 del rank
                 tm.lap("preprocess")
+            sink.by_rank = int(rgb)
             del keys, order, rws  # the full-size arrays are not kept
             tm.lap("depth_sort")
-            # [N, 3]: reusable alone
+            # [n_visible, 3] in depth order: reusable alone
             colours = feat if rgb and extra is None and keep_colours else None
             binning = ViewBinning(key, cam, splats, ids, n_vis, None, colours, {})
             bands = tile_bands(
@@ -530,7 +547,8 @@ def rasterize_surfels(
         else:
             splats, ids = binning.splats, binning.ids
             if rgb:
-                feat = binning.colors
+                feat = binning.colors  # in depth order
+                sink.by_rank = 1
             if binning.bands is not None:
                 bands = iter(binning.bands)
                 stats["pairs"], stats["bands"] = binning.stats["pairs"], binning.stats["bands"]
@@ -556,25 +574,6 @@ def rasterize_surfels(
     res = RasterOutput(out, W, H, stats)
     res.binning = binning if keep_binning else None
     return res
-
-
-@wp.kernel
-def _rank_kernel(
-    order: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32), base: int, stride: int
-):
-    j = base + wp.tid() * stride
-    rank[order[j]] = j
-
-
-def depth_ranks(order: wp.array, n_vis: int, n: int, dev, threads: int) -> wp.array:
-    """``rank [n]``: ``rank[order[j]] = j`` for the ``n_vis`` visible items of the depth
-    order ``order`` (:func:`kernels.tile_binning.sort_visible`), −1 for the culled ones
-    (the second pass skips them before projecting: half of a wide 3M view)."""
-    rank = scratch_empty(max(n, 1), wp.int32, dev)
-    rank.fill_(-1)
-    if n_vis > 0:
-        launch_split(_rank_kernel, n_vis, [order, rank], dev, threads)
-    return rank
 
 
 def _value_rows(v, n: int, dev) -> wp.array:

@@ -26,6 +26,8 @@ __all__ = [
     "ViewBinning",
     "band_tiles",
     "binning_key",
+    "depth_ranks",
+    "gather_rows",
     "sort_visible",
     "take_rows",
     "tile_bands",
@@ -223,6 +225,47 @@ def visible_splats(
         r = rows if rows is not None else wp.empty(1, dtype=wp.int32, device=dev)
         launch_split(_gather_kernel, n_vis, [splats, order, r, use, out, ids], dev, threads)
     return out, ids
+
+
+@wp.kernel
+def _gather_rows_kernel(
+    src: wp.array2d(dtype=float),
+    ids: wp.array(dtype=wp.int32),
+    out: wp.array2d(dtype=float),
+    base: int,
+    stride: int,
+):
+    j = base + wp.tid() * stride
+    i = ids[j]
+    for c in range(src.shape[1]):
+        out[j, c] = src[i, c]
+
+
+def gather_rows(src: wp.array, ids: wp.array, n_vis: int, dev, threads: int, kept: bool):
+    """``out [n_vis, C]``: ``out[j] = src[ids[j]]`` — per-surfel rows in depth order."""
+    out = scratch_empty((max(n_vis, 1), src.shape[1]), float, dev, kept=kept)
+    if n_vis > 0 and src.shape[1] > 0:
+        launch_split(_gather_rows_kernel, n_vis, [src, ids, out], dev, threads)
+    return out
+
+
+@wp.kernel
+def _rank_kernel(
+    order: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32), base: int, stride: int
+):
+    j = base + wp.tid() * stride
+    rank[order[j]] = j
+
+
+def depth_ranks(order: wp.array, n_vis: int, n: int, dev, threads: int) -> wp.array:
+    """``rank [n]``: ``rank[order[j]] = j`` for the ``n_vis`` visible items of the depth
+    order ``order`` (:func:`kernels.tile_binning.sort_visible`), −1 for the culled ones
+    (the second pass skips them before projecting: half of a wide 3M view)."""
+    rank = scratch_empty(max(n, 1), wp.int32, dev)
+    rank.fill_(-1)
+    if n_vis > 0:
+        launch_split(_rank_kernel, n_vis, [order, rank], dev, threads)
+    return rank
 
 
 def tile_bands(
