@@ -73,6 +73,11 @@ def main() -> None:
         help="graph3d: no cut started while the clicked view renders (A/B of issue 20)",
     )
     ap.add_argument(
+        "--no-mask-prefetch",
+        action="store_true",
+        help="graph3d: the masks rendered after the view, not beside it (A/B of issue 20)",
+    )
+    ap.add_argument(
         "--scratch",
         choices=("sparse", "none", "all"),
         default="sparse",
@@ -177,6 +182,7 @@ def main() -> None:
         s.renderer.scratch_sparse = args.scratch != "none"
     if hasattr(s.segmenter, "prefetch_cuts"):  # over the add-on's own choice
         s.segmenter.prefetch_cuts = not args.no_prefetch
+        s.segmenter.prefetch_masks = not args.no_mask_prefetch
     # Start returns before the engine's background warm-up (fusion state, mapper) ends;
     # a user looks at the first anchor meanwhile. Timed apart, so the click is measured
     # on a warm session in both versions (before issue 20's add-on work Start waited)
@@ -217,7 +223,8 @@ def main() -> None:
         f"\n## Blender (bpy {bpy.app.version_string}), plant {args.size:,} surfels, SH 3, "
         f"View-Dependent Colour {'off' if args.fixed_colour else 'on'}, "
         f"Viewport Colours {'on' if args.viewport_colours else 'off'}, "
-        f"segmenter {args.segmenter}, prefetch {'off' if args.no_prefetch else 'on'}, "
+        f"segmenter {args.segmenter}, prefetch {'off' if args.no_prefetch else 'on'}"
+        f"{' (masks after the view)' if args.no_mask_prefetch else ''}, "
         f"scratch {args.scratch}\n"
     )
     print(

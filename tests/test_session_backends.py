@@ -60,9 +60,9 @@ def test_a_registered_backend_drives_the_unchanged_loop(ribs, monkeypatch, tmp_p
             calls.append("click_depth")
             return super().click_depth(buffers)
 
-        def centroid_view(self, camera, xy, buffers, name):
+        def centroid_view(self, camera, xy, buffers, name, on_camera=None):
             calls.append("centroid_view")
-            return super().centroid_view(camera, xy, buffers, name)
+            return super().centroid_view(camera, xy, buffers, name, on_camera)
 
         def depth_weight(self, mask, buffers, points, labels):
             calls.append("depth_weight")

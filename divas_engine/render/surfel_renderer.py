@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import threading
 from contextlib import nullcontext
+from dataclasses import replace
 
 import numpy as np
 
@@ -96,6 +98,8 @@ class SurfelRenderer:
         #: the transient arrays of every CPU render (all of :meth:`render_values_sparse`'s;
         #: those no binning keeps of the others), reused render to render
         self._scratch = ScratchPool()
+        self._sparse_lock = threading.Lock()  # sparse renders (they may run beside others)
+        self._index_lock = threading.Lock()  # the block index, built once
         self.device = resolve_device(device)
         self.num_primitives = len(scene)
         self._buf = upload_surfels(
@@ -343,7 +347,8 @@ class SurfelRenderer:
         composites of the attached values and the sparse renders' scratch buffers."""
         self._binnings = []
         self._images = []
-        self._scratch.release()
+        with self._sparse_lock:  # not while a sparse render holds the buffers
+            self._scratch.release()
 
     def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
         values = np.asarray(values)
@@ -361,15 +366,25 @@ class SurfelRenderer:
         H, W = cam.height, cam.width
         return f.reshape(H, W) if values.ndim == 1 else f.reshape(H, W, -1)
 
+    @property
+    def sparse_renders_concurrent(self) -> bool:
+        """Whether :meth:`render_values_sparse` may run in one thread while another
+        renders (CPU: it reads the scene's buffers and block index and keeps nothing but
+        its scratch buffers, under a lock of its own; on a GPU it is the dense render,
+        which shares the kept binnings)."""
+        return self.device.is_cpu
+
     def render_values_sparse(
-        self, camera: Camera, rows: np.ndarray, values: np.ndarray
+        self, camera: Camera, rows: np.ndarray, values: np.ndarray, threads: int | None = None
     ) -> np.ndarray:
         """:meth:`render_values` of per-surfel values that are 0 off the surfels ``rows``
         (sorted, unique; ``values [K]`` or ``[K,C]`` theirs), rendered with only the
         surfels that can blend before the deepest of them and reach the image
         (:mod:`.surfel_blocks`): the same composite bit for bit, at the cost of those
         surfels instead of the scene's. The dense render on a GPU (where the pass over
-        the scene is cheap)."""
+        the scene is cheap). ``threads``: the CPU launch threads of this render (1: the
+        calling thread only — a render beside another one, issue 20; every split is per
+        item, so the image is the same bit for bit)."""
         rows = np.asarray(rows, np.int64)
         v = np.asarray(values, np.float32)
         flat = v.ndim == 1
@@ -379,9 +394,18 @@ class SurfelRenderer:
             dense[rows] = v
             out = self.render_values(camera, dense)
             return out.reshape(camera.height, camera.width, -1)[..., 0] if flat else out
+        with self._sparse_lock:
+            return self._render_sparse_cpu(camera, rows, v, flat, threads)
+
+    def _render_sparse_cpu(
+        self, camera: Camera, rows: np.ndarray, v: np.ndarray, flat: bool, threads: int | None
+    ) -> np.ndarray:
         out = np.zeros((camera.height, camera.width, v.shape[1]), np.float32)
         blocks, reach = self.sparse_index()
         sub = blocks.near(camera, self._buf.means.numpy()[rows], reach[rows], self._margin_px)
+        settings = self.config.raster_settings(camera)
+        if threads is not None:
+            settings = replace(settings, threads=int(threads))
         if len(sub):
             pos = np.minimum(np.searchsorted(sub, rows), len(sub) - 1)
             hit = sub[pos] == rows
@@ -393,7 +417,7 @@ class SurfelRenderer:
                 r = rasterize_surfels(
                     surfel_rows(self._buf, sub, colours=False),
                     *_projection(camera),
-                    self.config.raster_settings(camera),
+                    settings,
                     values=vs,
                     background=self.config.background,
                 )
@@ -405,23 +429,28 @@ class SurfelRenderer:
         ``sqrt(ρ_cut) · max(s_1, s_2)`` (built once, on first use: a per-scene cost), and
         the screen margin of their bounds: the low-pass disc ``sqrt(ρ_cut) σ_lp`` plus
         rounding."""
-        if self._blocks is None:
-            b = self._buf
-            k2 = np.maximum(b.rho_cut.numpy().astype(np.float64), 0.0)
-            tu, tv = b.tu.numpy(), b.tv.numpy()
-            reach = np.empty(len(k2))
-            for c in range(0, len(k2), 1 << 18):  # in chunks: little transient memory
-                sl = slice(c, c + (1 << 18))
-                s = np.maximum(
-                    np.linalg.norm(tu[sl].astype(np.float64), axis=1),
-                    np.linalg.norm(tv[sl].astype(np.float64), axis=1),
-                )
-                reach[sl] = np.sqrt(k2[sl]) * s
-            self._reach = reach
-            self._blocks = SurfelBlocks.build(b.means.numpy(), self._reach)
-            k2max = float(k2.max()) if len(k2) else 0.0
-            self._margin_px = np.sqrt(k2max) * float(self.config.lowpass_sigma) + 1.5
+        with self._index_lock:
+            if self._blocks is None:
+                self._build_sparse_index()
         return self._blocks, self._reach
+
+    def _build_sparse_index(self) -> None:
+        """Every surfel's footprint radius, the blocks over them and the screen margin."""
+        b = self._buf
+        k2 = np.maximum(b.rho_cut.numpy().astype(np.float64), 0.0)
+        tu, tv = b.tu.numpy(), b.tv.numpy()
+        reach = np.empty(len(k2))
+        for c in range(0, len(k2), 1 << 18):  # in chunks: little transient memory
+            sl = slice(c, c + (1 << 18))
+            s = np.maximum(
+                np.linalg.norm(tu[sl].astype(np.float64), axis=1),
+                np.linalg.norm(tv[sl].astype(np.float64), axis=1),
+            )
+            reach[sl] = np.sqrt(k2[sl]) * s
+        self._reach = reach
+        k2max = float(k2.max()) if len(k2) else 0.0
+        self._margin_px = np.sqrt(k2max) * float(self.config.lowpass_sigma) + 1.5
+        self._blocks = SurfelBlocks.build(b.means.numpy(), self._reach)  # last: "built"
 
 
 def _projection(cam: Camera) -> tuple:

@@ -62,6 +62,8 @@ class SceneBinding:
             values that are 0 off the primitives ``rows`` (sorted), computed with only
             the primitives that can blend before them
             (:meth:`~divas_engine.render.SurfelRenderer.render_values_sparse`), or None.
+            It may take ``threads=`` (CPU launch threads) and run beside the session's
+            other renders (the session's binding: on the CPU).
     """
 
     scene: Scene
@@ -69,7 +71,7 @@ class SceneBinding:
     camera_of: Callable[[Hashable], Camera]
     clicks_of: Callable[[Hashable], ObjectClicks] | None = None
     up: Callable[[], np.ndarray | None] | None = None
-    render_sparse: Callable[[Camera, np.ndarray, np.ndarray], np.ndarray] | None = None
+    render_sparse: Callable[..., np.ndarray] | None = None
 
 
 class SceneAwareSegmenter(Segmenter):

@@ -9,6 +9,7 @@ interaction loop on top.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 import warnings
@@ -252,9 +253,18 @@ class SessionCore:
         with self._render_lock:
             return self.renderer.render_values(camera, values)
 
-    def _render_sparse(self, camera: Camera, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
-        with self._render_lock:
-            return self.renderer.render_values_sparse(camera, rows, values)
+    def _render_sparse(
+        self, camera: Camera, rows: np.ndarray, values: np.ndarray, threads: int | None = None
+    ) -> np.ndarray:
+        """A sparse value render; beside the session's other renders (no render lock)
+        where the renderer allows it (CPU: graph3d's masks while the view renders,
+        issue 20)."""
+        r = self.renderer
+        concurrent = bool(getattr(r, "sparse_renders_concurrent", False))
+        with contextlib.nullcontext() if concurrent else self._render_lock:
+            if threads is None:
+                return r.render_values_sparse(camera, rows, values)
+            return r.render_values_sparse(camera, rows, values, threads=threads)
 
     def working_camera(self, camera: Camera) -> Camera:
         """``camera`` at the session's render scale."""

@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from os import PathLike
 from typing import Any
 
@@ -215,10 +215,10 @@ class Session(SelectionEditing, SessionCore):
                 self._autosave()
                 return rec
             vid = f"o{obj.index}:a{anchor.index}:c{ci}"
-            self._prefetch(anchor, xy, obj)
+            on_camera = self._prefetch(anchor, xy, obj)
             t0 = time.perf_counter()
             with self._render_lock, self.timings.measure("centroid"):
-                cv = self.backend.centroid_view(anchor.camera, xy, anchor.buffers, vid)
+                cv = self.backend.centroid_view(anchor.camera, xy, anchor.buffers, vid, on_camera)
             t1 = time.perf_counter()
         except DivasInputError as e:
             raise DivasInputError(None, f"anchor {anchor.index}: {e.problem}") from None
@@ -233,17 +233,29 @@ class Session(SelectionEditing, SessionCore):
         self._autosave()
         return view
 
-    def _prefetch(self, anchor: AnchorView, xy: tuple[float, float], obj: ObjectRecord) -> None:
+    def _prefetch(
+        self, anchor: AnchorView, xy: tuple[float, float], obj: ObjectRecord
+    ) -> Callable[[Camera], object] | None:
         """Hand the object's 3D clicks with this positive click's point (the centroid
         view's target: the same back-projection) to a segmenter that can start work for
         the view's prompt before the view is rendered (``prefetch``: graph3d's cut, issue
         20). SAM and the oracle have no such hook. A point that differs from the view's
-        target only costs the unused work: the segmenter keys it by its inputs."""
-        fn = getattr(self.segmenter, "prefetch", None)
-        if fn is None or not getattr(self.segmenter, "prefetch_cuts", True):
-            return  # (graph3d's switch off: nothing would start; no back-projection)
+        target only costs the unused work: the segmenter keys it by its inputs.
+
+        Returns the callback the centroid view calls with the view's camera before
+        rendering it (``prefetch_view``: graph3d's masks of the default prompt, rendered
+        while the view renders), or None."""
+        seg = self.segmenter
+        fn = getattr(seg, "prefetch", None)
+        if fn is None or not getattr(seg, "prefetch_cuts", True):
+            return None  # (graph3d's switch off: nothing would start; no back-projection)
         _, point = self._back_project(anchor, xy)  # raises as the centroid view would
-        fn(self._clicks_of(obj, point))
+        clicks = self._clicks_of(obj, point)
+        fn(clicks)
+        view_fn = getattr(seg, "prefetch_view", None)
+        if view_fn is None or not getattr(seg, "prefetch_masks", True):
+            return None
+        return lambda camera: view_fn(camera, clicks)
 
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
         """The click's 3D point projected into the view (positive) plus the anchor's

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -175,11 +176,22 @@ class GsCentroidPlanner:
         return max(cfg.probe_scale, cfg.probe_min_size / cam.width, cfg.probe_min_size / cam.height)
 
     def centroid_view(
-        self, anchor: Camera, click, buffers: RenderBuffers | None = None, *, name: str = ""
+        self,
+        anchor: Camera,
+        click,
+        buffers: RenderBuffers | None = None,
+        *,
+        name: str = "",
+        on_camera: Callable[[Camera], None] | None = None,
     ) -> CentroidView:
         """alg:centroid-gs for one click (continuous pixel point) on ``anchor``.
 
         ``buffers``: the anchor's full-resolution render (rendered here when None).
+        ``on_camera``: called with a candidate view camera before its full-resolution
+        render starts — the first radius's (``probe_full_first``), then, when that one is
+        rejected, the final camera before returning (the caller renders it) — so work
+        that needs only the view's camera runs while the view renders (issue 20:
+        graph3d's masks). A rejected first candidate only wastes that work.
 
         Raises:
             DivasInputError: no surface under the click.
@@ -218,6 +230,8 @@ class GsCentroidPlanner:
         for k, r_k in enumerate(radii):
             if k == 0 and cfg.probe_full_first:
                 cam = build_pose(anchor, x_w, v, float(r_k), name, cfg.near_fraction)
+                if on_camera is not None:
+                    on_camera(cam)
                 t_render = time.perf_counter()
                 full = self.renderer.render(cam)
                 t_render = time.perf_counter() - t_render
@@ -249,11 +263,12 @@ class GsCentroidPlanner:
             if release is not None:  # the first candidate's render is not the view's
                 release(full.camera)
             full = None
-        cam = (
-            full.camera
-            if full is not None
-            else build_pose(anchor, x_w, v, r_star, name, cfg.near_fraction)
-        )
+        if full is not None:
+            cam = full.camera
+        else:
+            cam = build_pose(anchor, x_w, v, r_star, name, cfg.near_fraction)
+            if on_camera is not None:
+                on_camera(cam)
         return CentroidView(
             cam,
             r_star,

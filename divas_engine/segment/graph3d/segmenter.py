@@ -27,7 +27,9 @@ Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
 The cut of a seed set is cached, so the views of one object (same clicks) cost one cut
 and a render each; :meth:`Graph3DSegmenter.prefetch` can start it in the background from
 the object's 3D clicks alone, before the view is rendered (:mod:`.cut_cache`, issue 20;
-:attr:`Graph3DSegmenter.prefetch_cuts`).
+:attr:`Graph3DSegmenter.prefetch_cuts`), and :meth:`Graph3DSegmenter.prefetch_view` the
+default prompt's masks as soon as the view's camera is known, while the view renders
+(:attr:`Graph3DSegmenter.prefetch_masks`).
 """
 
 from __future__ import annotations
@@ -61,6 +63,7 @@ __all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice"]
 NO_SURFACE = "no surface under the click: click on the object itself"
 
 _CUT_CACHE = 8
+_MASK_CACHE = 4
 _SAME_CLICK_PX = 2.0
 #: the mask render's window margin, pixels: the renderer's screen-space low-pass disc
 #: (σ √2/2 px, cut off at 3.33 σ = 2.4 px) and rounding
@@ -129,6 +132,13 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: idle, 2.27–2.43 → 2.18–2.28 s); with another job holding a core it lost 0.3–1 s
     #: (BENCHMARKS.md, issue 20, g3d20d and the lead's section after it)
     prefetch_cuts: bool = False
+    #: with :attr:`prefetch_cuts`, :meth:`prefetch_view` also renders the masks of the
+    #: view's default prompt in the background once the view's camera is known (the
+    #: session calls it before the view renders): the mask render (≈ 0.2 s at 3M) then
+    #: overlaps the view's render instead of following it. The masks are the same bits
+    #: (the same function of the seeds and the camera; a split is per item, so one
+    #: launch thread gives the same image)
+    prefetch_masks: bool = True
     #: :meth:`warm_up` also computes every primitive's colour (and κ) once
     #: (:meth:`ScenePrimitives.cache_features`: the scene-only part of each cut, ≈ 0.08 s
     #: of a 3M click's cut; 12 bytes a primitive held, 36 MB at 3M); the cuts are the
@@ -142,6 +152,8 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         self.last_message: str | None = None
         self.last_cut: RegionCut | None = None
         self.cuts: CutCache[RegionCut] = CutCache(_CUT_CACHE)
+        #: masks of a default prompt by (seeds, camera), rendered ahead (prefetch_view)
+        self.masks: CutCache[np.ndarray] = CutCache(_MASK_CACHE)
         self._prims_lock = threading.Lock()
         if binding is not None:
             self.bind_scene(binding)
@@ -150,6 +162,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     def _on_bind(self, binding: SceneBinding) -> None:
         self.prims = None  # built on first use (the session opens without waiting)
         self.cuts.clear()
+        self.masks.clear()
 
     def warm_up(self) -> None:
         """Build the scene's :class:`ScenePrimitives` now (the session's background
@@ -176,9 +189,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             return self.prims
 
     def wait_prefetch(self, timeout: float | None = None) -> bool:
-        """Wait for the cuts :meth:`prefetch` started (a closing session: no thread may
-        outlive it, e.g. into Blender's exit); whether all ended within ``timeout``."""
-        return self.cuts.wait(timeout)
+        """Wait for the cuts and masks :meth:`prefetch` / :meth:`prefetch_view` started (a
+        closing session: no thread may outlive it, e.g. into Blender's exit); whether all
+        ended within ``timeout``."""
+        return self.masks.wait(timeout) and self.cuts.wait(timeout)
 
     def prefetch(self, clicks: ObjectClicks) -> bool:
         """Start, in a background thread, the cut a prompt of the default prompts on any
@@ -193,6 +207,24 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         if not self.prefetch_cuts or self.binding is None or len(seeds.positive) == 0:
             return False
         return self.cuts.start(seeds.key(), lambda: self._cut(seeds))
+
+    def prefetch_view(self, camera: Camera, clicks: ObjectClicks) -> bool:
+        """Start, in a background thread, the masks a prompt of the default prompts on
+        the view with ``camera`` will return (the object's 3D ``clicks`` as seeds:
+        :meth:`prefetch`), rendered with one launch thread beside the view's own render
+        (issue 20). The prompt takes them (:meth:`_predict`), or waits for them; they are
+        what it would render (the same seeds' cut, the same camera). Whether a render
+        was started (:attr:`prefetch_cuts` and :attr:`prefetch_masks` on, a positive
+        click, not kept or running already)."""
+        seeds = self.seeds_of(clicks)
+        if not (self.prefetch_cuts and self.prefetch_masks) or self.binding is None:
+            return False
+        if len(seeds.positive) == 0:
+            return False
+        return self.masks.start(
+            _masks_key(seeds, camera),
+            lambda: self.render_masks(camera, self.cut(seeds).selected, threads=1),
+        )
 
     @staticmethod
     def seeds_of(clicks: ObjectClicks) -> Seeds:
@@ -231,7 +263,13 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             return np.zeros((3, h, w), np.float32), np.zeros(3, np.float32)
         rc = self.cut(seeds)
         self.last_cut, self.last_message = rc, rc.message
-        return self.render_masks(state.camera, rc.selected), rc.scores.astype(np.float32)
+        key = _masks_key(seeds, state.camera)
+        if self.masks.peek(key) is None and self.masks.in_flight(key) is None:
+            masks = self.render_masks(state.camera, rc.selected)
+        else:  # rendered ahead (prefetch_view) or rendering: a copy of the kept ones
+            masks = self.masks.get(key, lambda: self.render_masks(state.camera, rc.selected))
+            masks = masks.copy()
+        return masks, rc.scores.astype(np.float32)
 
     # ------------------------------------------------------------------ steps
     def seeds(self, state: _ViewState, points: np.ndarray, labels: np.ndarray) -> tuple[Seeds, int]:
@@ -330,19 +368,24 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     def _advice(self, res: CutResult, score: float, n_negative: int) -> str | None:
         return advice(res, score, n_negative, self.config.rim_share)
 
-    def render_masks(self, camera: Camera, selected: np.ndarray) -> np.ndarray:
-        """Step 4: ``[3,H,W]`` probabilities of three primitive selections in ``camera``."""
+    def render_masks(
+        self, camera: Camera, selected: np.ndarray, threads: int | None = None
+    ) -> np.ndarray:
+        """Step 4: ``[3,H,W]`` probabilities of three primitive selections in ``camera``
+        (``threads``: the sparse render's CPU launch threads; None: the renderer's)."""
         cfg = self.config
         h, w = camera.height, camera.width
         s = min(1.0, cfg.low_res / max(h, w))
         cam = camera if s == 1.0 else camera.scaled(s)
-        cov = self._coverage(cam, selected)
+        cov = self._coverage(cam, selected, threads)
         logits = np.float32(cfg.logit_scale) * (cov - np.float32(0.5))
         if (cam.height, cam.width) != (h, w):
             logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(sigmoid(logits).transpose(2, 0, 1), dtype=np.float32)
 
-    def _coverage(self, cam: Camera, selected: np.ndarray) -> np.ndarray:
+    def _coverage(
+        self, cam: Camera, selected: np.ndarray, threads: int | None = None
+    ) -> np.ndarray:
         """``[H,W,3]`` coverage of the selections in ``cam``: rendered in the window their
         footprints can reach (:mod:`.render_box`), 0 elsewhere, with only the surfels
         that can blend before them when the binding offers that render
@@ -362,7 +405,8 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         sparse = self.binding.render_sparse if self.fast_masks else None
         if sparse is not None and isinstance(prims.scene, SurfelScene):
             vals = selected[:, cols].T.astype(np.float32)
-            part = np.asarray(sparse(sub, prims.rows_of(cols), vals), np.float32)
+            kw = {} if threads is None else {"threads": threads}
+            part = np.asarray(sparse(sub, prims.rows_of(cols), vals, **kw), np.float32)
         else:
             vals = prims.render_array(selected.T.astype(np.float32))
             part = np.asarray(self.binding.render_values(sub, vals), np.float32)
@@ -372,6 +416,13 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             full = self.binding.render_values(cam, vals)
             cov = np.asarray(full, np.float32).reshape(cam.height, cam.width, 3)
         return cov
+
+
+def _masks_key(seeds: Seeds, camera: Camera) -> bytes:
+    """What a default prompt's masks depend on beyond the scene: the seeds and the camera."""
+    c = camera
+    intr = np.array([c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.near], np.float64)
+    return seeds.key() + b"|" + np.asarray(c.c2w, np.float64).tobytes() + intr.tobytes()
 
 
 def _seeds(pos: list[np.ndarray], neg: list[np.ndarray]) -> Seeds:

@@ -107,9 +107,16 @@ class SessionBackend(ABC):
 
     @abstractmethod
     def centroid_view(
-        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers, name: str
+        self,
+        camera: Camera,
+        xy: tuple[float, float],
+        buffers: RenderBuffers,
+        name: str,
+        on_camera: Callable[[Camera], None] | None = None,
     ) -> CentroidView:
-        """The centroid view a positive click spawns (Sec. 3.3)."""
+        """The centroid view a positive click spawns (Sec. 3.3). ``on_camera`` is called
+        with the view's camera before the view is rendered (here or by the session):
+        the session starts work that needs only the camera meanwhile (issue 20)."""
 
     # ---------------------------------------------------------------- masks and fusion
     @abstractmethod

@@ -7,7 +7,7 @@ fusion (Sec. 3.4) and the segmented voxels as the selection; exports are masked 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -70,11 +70,16 @@ class DensityGridBackend(SessionBackend):
         return buffers.D_mw
 
     def centroid_view(
-        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers, name: str
+        self,
+        camera: Camera,
+        xy: tuple[float, float],
+        buffers: RenderBuffers,
+        name: str,
+        on_camera: Callable[[Camera], None] | None = None,
     ) -> CentroidView:
         from ...views import nerf_centroid_view
 
-        return nerf_centroid_view(
+        cv = nerf_centroid_view(
             camera,
             xy,
             buffers,
@@ -83,6 +88,9 @@ class DensityGridBackend(SessionBackend):
             config=self.config.view,
             name=name,
         )
+        if on_camera is not None:  # the session renders the view next
+            on_camera(cv.camera)
+        return cv
 
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray

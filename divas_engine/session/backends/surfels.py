@@ -164,9 +164,14 @@ class SurfelBackend(SessionBackend):
         return buffers.D_med
 
     def centroid_view(
-        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers, name: str
+        self,
+        camera: Camera,
+        xy: tuple[float, float],
+        buffers: RenderBuffers,
+        name: str,
+        on_camera: Callable[[Camera], None] | None = None,
     ) -> CentroidView:
-        return self.planner.centroid_view(camera, xy, buffers, name=name)
+        return self.planner.centroid_view(camera, xy, buffers, name=name, on_camera=on_camera)
 
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
