@@ -52,13 +52,16 @@ def test_first_open_sets_one_thread_and_last_close_restores(monkeypatch):
 
 
 class _NumpyBlas:
-    """The thread count of NumPy's BLAS, read and set through threadpoolctl."""
+    """The thread count of NumPy's BLAS, read and set through threadpoolctl — picked by
+    its file: another OpenBLAS may share its prefix (OpenCV's wheel bundles a one-thread
+    ``libopenblas``; which of the two came first in a prefix selection depended on the
+    import order, and the test read OpenCV's count)."""
 
     def __init__(self, info: dict) -> None:
-        self.prefix = info["prefix"]
+        self.filepath = info["filepath"]
 
     def _pool(self):
-        return ThreadpoolController().select(prefix=self.prefix)
+        return ThreadpoolController().select(filepath=self.filepath)
 
     def get(self) -> int:
         return int(self._pool().info()[0]["num_threads"])
