@@ -134,10 +134,12 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     prefetch_cuts: bool = False
     #: with :attr:`prefetch_cuts`, :meth:`prefetch_view` also renders the masks of the
     #: view's default prompt in the background once the view's camera is known (the
-    #: session calls it before the view renders): the mask render (≈ 0.2 s at 3M) then
-    #: overlaps the view's render instead of following it. The masks are the same bits
-    #: (the same function of the seeds and the camera; a split is per item, so one
-    #: launch thread gives the same image)
+    #: session calls it before the view renders): the mask render (≈ 0.3 s at 3M) then
+    #: runs beside the view's render instead of after it. On 2 cores it only fills the
+    #: render's serial phases (the work is CPU-bound): Blender 3M click, four
+    #: alternating pairs, median 1.64 → 1.55 s (BENCHMARKS.md, issue 20, 2026-12-04).
+    #: The masks are the same bits (the same function of the seeds and the camera; a
+    #: split is per item, so one launch thread gives the same image)
     prefetch_masks: bool = True
     #: :meth:`warm_up` also computes every primitive's colour (and κ) once
     #: (:meth:`ScenePrimitives.cache_features`: the scene-only part of each cut, ≈ 0.08 s
