@@ -15,26 +15,8 @@ from divas_engine.render import RenderConfig
 from divas_engine.render.surfel_renderer import SurfelRenderer
 from divas_kernels import rasterize_surfels
 
-from .reference_render import random_surfel_scene, sh_colors
-
-
-@pytest.fixture(scope="module")
-def case():
-    sc = random_surfel_scene(4000, seed=21, z_range=(0.5, 6.0), scale_range=(0.01, 0.2))
-    cams = [
-        Camera.look_at(
-            [0.3 * k - 0.3, -0.1, -0.4],
-            [0.1 * k, 0.0, 4.0],
-            [0, -1, 0],
-            width=80,
-            height=60,
-            fx=70 * (1 + k),
-            cx=40.2,
-            cy=29.9,
-        )  # fmt: skip
-        for k in range(3)
-    ]
-    return sc, cams
+from .reference_render import sh_colors
+from .test_render_fused_values import scenes  # noqa: F401  (2DGS and 3DGS-derived cases)
 
 
 def _settings(cam: Camera, two_pass: bool):
@@ -44,16 +26,22 @@ def _settings(cam: Camera, two_pass: bool):
     return s
 
 
+@pytest.mark.parametrize("kind", ["2dgs", "3dgs"])
 @pytest.mark.parametrize("two_pass", [False, True])
-def test_kept_colours_are_the_visible_splats_colours_in_depth_order(case, two_pass, device):
-    sc, cams = case
+def test_kept_colours_are_the_visible_splats_colours_in_depth_order(
+    scenes,  # noqa: F811
+    kind,
+    two_pass,
+    device,
+):
+    sc, cams = scenes[kind][:2]
     buf = SurfelRenderer(sc, device=device).surfel_buffers
     rng = np.random.default_rng(2)
     for cam in cams:
         args = (cam.w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
         s = _settings(cam, two_pass)
         full = rasterize_surfels(buf, *args, s, keep_binning=True).binning
-        rows = np.union1d(full.ids.numpy()[: full.n_visible], rng.choice(len(sc), 900))
+        rows = np.union1d(full.ids.numpy()[: full.n_visible], rng.choice(len(sc), len(sc) // 4))
         for rw in (None, rows):
             b = rasterize_surfels(buf, *args, s, keep_binning=True, rows=rw).binning
             n = b.n_visible
@@ -65,9 +53,15 @@ def test_kept_colours_are_the_visible_splats_colours_in_depth_order(case, two_pa
             np.testing.assert_allclose(b.colors.numpy()[:n], ref, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.parametrize("kind", ["2dgs", "3dgs"])
 @pytest.mark.parametrize("two_pass", [False, True])
-def test_one_and_two_passes_and_a_reused_binning_render_the_same_bits(case, two_pass, device):
-    sc, cams = case
+def test_one_and_two_passes_and_a_reused_binning_render_the_same_bits(
+    scenes,  # noqa: F811
+    kind,
+    two_pass,
+    device,
+):
+    sc, cams = scenes[kind][:2]
     buf = SurfelRenderer(sc, device=device).surfel_buffers
     extra = np.random.default_rng(3).random((len(sc), 2), dtype=np.float32)
     for cam in cams:
