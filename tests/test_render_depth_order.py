@@ -18,6 +18,12 @@ from divas_kernels import rasterize_surfels
 from .reference_render import sh_colors
 from .test_render_fused_values import scenes  # noqa: F401  (2DGS and 3DGS-derived cases)
 
+#: every test on both scene kinds, in one pass and with the culling pass first
+pytestmark = [
+    pytest.mark.parametrize("kind", ["2dgs", "3dgs"]),
+    pytest.mark.parametrize("two_pass", [False, True]),
+]
+
 
 def _settings(cam: Camera, two_pass: bool):
     s = RenderConfig().raster_settings(cam)
@@ -26,14 +32,7 @@ def _settings(cam: Camera, two_pass: bool):
     return s
 
 
-@pytest.mark.parametrize("kind", ["2dgs", "3dgs"])
-@pytest.mark.parametrize("two_pass", [False, True])
-def test_kept_colours_are_the_visible_splats_colours_in_depth_order(
-    scenes,  # noqa: F811
-    kind,
-    two_pass,
-    device,
-):
+def test_kept_colours_are_the_visible_splats_colours(scenes, kind, two_pass, device):  # noqa: F811
     sc, cams = scenes[kind][:2]
     buf = SurfelRenderer(sc, device=device).surfel_buffers
     rng = np.random.default_rng(2)
@@ -53,14 +52,7 @@ def test_kept_colours_are_the_visible_splats_colours_in_depth_order(
             np.testing.assert_allclose(b.colors.numpy()[:n], ref, rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("kind", ["2dgs", "3dgs"])
-@pytest.mark.parametrize("two_pass", [False, True])
-def test_one_and_two_passes_and_a_reused_binning_render_the_same_bits(
-    scenes,  # noqa: F811
-    kind,
-    two_pass,
-    device,
-):
+def test_one_two_passes_and_reuse_render_the_same_bits(scenes, kind, two_pass, device):  # noqa: F811
     sc, cams = scenes[kind][:2]
     buf = SurfelRenderer(sc, device=device).surfel_buffers
     extra = np.random.default_rng(3).random((len(sc), 2), dtype=np.float32)
