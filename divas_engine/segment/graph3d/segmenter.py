@@ -63,7 +63,7 @@ __all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice"]
 NO_SURFACE = "no surface under the click: click on the object itself"
 
 _CUT_CACHE = 8
-_MASK_CACHE = 4
+_MASK_CACHE = 2  # masks rendered ahead are taken once: 3 × H × W floats each
 _SAME_CLICK_PX = 2.0
 #: the mask render's window margin, pixels: the renderer's screen-space low-pass disc
 #: (σ √2/2 px, cut off at 3.33 σ = 2.4 px) and rounding
