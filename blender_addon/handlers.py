@@ -3,8 +3,9 @@
 * ``load_pre`` — the file's objects are going away: close every session
   (:func:`.session_registry.on_load_pre`);
 * ``load_post`` — resume the opened file's saved sessions (preference);
-* ``save_pre`` / ``save_post`` — scene paths relative to the .blend, each session
-  written beside it (:mod:`.session_actions.files`);
+* ``save_pre`` / ``save_post`` — scene paths relative to the .blend, the anchor and view
+  images not packed yet packed (:func:`.bridge.pack_pending`), each session written
+  beside it (:mod:`.session_actions.files`);
 * ``undo_post`` / ``redo_post`` — move each session to the step Blender's undo restored
   (:mod:`.session_actions.history`);
 * ``depsgraph_update_post`` — when the scene camera or the active object becomes an
@@ -31,7 +32,7 @@ import sys
 import bpy
 from bpy.app.handlers import persistent
 
-from . import blend_space, display, draw, session_registry
+from . import blend_space, bridge, display, draw, session_registry
 from .session_actions import files, sync_after_undo
 from .session_actions.view_cameras import cameras_needing_background, fill_backgrounds
 
@@ -152,6 +153,7 @@ def on_undo_redo(*_args) -> None:
 @persistent
 def _on_load_pre(*args) -> None:
     session_registry.on_load_pre(*args)
+    bridge.forget_pending()  # the images to pack were the old file's
     _viewport_colours[0] = None  # the next file's modifiers are checked on its first draw
     draw.touch()
 
@@ -186,6 +188,7 @@ def unregister() -> None:
     while _view_draw:
         bpy.types.SpaceView3D.draw_handler_remove(_view_draw.pop(), "WINDOW")
     _viewport_colours[0] = None
+    bridge.forget_pending()
     draw.unregister()
     for name, fn in _HANDLERS:
         handlers = getattr(bpy.app.handlers, name)

@@ -16,7 +16,8 @@ shading mode:
 Camera images map to the region through the camera frame's corners
 (:func:`divas_engine.viewport.camera_pixel_to_region`), so a marker lies on the pixel it
 was clicked at. A camera's *background* image is the engine's plain render
-(:func:`set_background`), packed into the .blend so it survives saving.
+(:func:`set_background`), packed into the .blend so it survives saving (at the next idle
+moment, and at the latest before a save).
 """
 
 from __future__ import annotations
@@ -212,11 +213,12 @@ def image_name(cam_obj) -> str:
 def set_background(cam_obj, rgb: np.ndarray, *, alpha: float = 1.0):
     """Show the engine render ``rgb`` (``[H,W,3]``, top row first) behind ``cam_obj``'s
     view: one image per camera, packed into the .blend (so it survives saving and
-    reopening; the feedback is drawn over it by :mod:`.draw`)."""
+    reopening: at the next idle moment and at the latest before a save,
+    :func:`.bridge.pack_soon`; the feedback is drawn over it by :mod:`.draw`)."""
     rgb = np.asarray(rgb, np.float32)
     rgba = np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)
     img = bridge.write_image(image_name(cam_obj), rgba)
-    img.pack()
+    bridge.pack_soon(img)
     data = cam_obj.data
     bg = data.background_images[0] if len(data.background_images) else data.background_images.new()
     bg.source = "IMAGE"

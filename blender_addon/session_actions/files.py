@@ -7,7 +7,7 @@
   written beside it, in ``<blend stem>.divas/<key>.json`` (+ ``.npz``): the sidecar of
   *that* file, so Save As leaves the old file's sidecar as it was and starts the new
   one. The anchor and view images are packed into the .blend itself
-  (:func:`..overlays.set_background`).
+  (:func:`..overlays.set_background`; those not packed yet at ``save_pre``).
 * **Between saves** the engine autosaves after every accept to a recovery file keyed
   only by the key, in the extension's user directory
   (``bpy.utils.extension_path_user``; Blender's user data folder when the add-on is not
@@ -32,7 +32,7 @@ from pathlib import Path
 import bpy
 from bpy.app.handlers import persistent
 
-from .. import session_registry, source
+from .. import bridge, session_registry, source
 from ..preferences import ADDON_ID, get_preferences
 from ..session_registry import KEY_PROP
 
@@ -144,9 +144,14 @@ def _relative_sources(blend_path: str | Path) -> None:
 
 @persistent
 def on_save_pre(filepath="", *_args) -> None:
-    """Scene-file paths relative to where the .blend is being saved."""
+    """Scene-file paths relative to where the .blend is being saved; the anchor and view
+    images not packed yet packed now (:func:`..bridge.pack_soon`)."""
     if filepath:
         _relative_sources(filepath)
+    try:
+        bridge.pack_pending()
+    except (ReferenceError, RuntimeError) as e:  # a handler must not break the save
+        print(f"DivAS: could not pack the view images ({e})", file=sys.stderr)
 
 
 @persistent

@@ -137,7 +137,9 @@ def test_start_session_cameras_images_projection(scene_dir):
             a.camera.width,
             a.camera.height,
         )
-        assert bg.frame_method == "STRETCH" and bg.image.packed_file is not None
+        assert bg.frame_method == "STRETCH"
+        bridge.pack_pending()  # what the idle timer does (no event loop runs here)
+        assert bg.image.packed_file is not None
         np.testing.assert_allclose(_image_rgb(bg.image), np.clip(a.rgb, 0, 1), atol=1.0 / 254)
         assert _projection_error(bpy.context.scene, cam, a.camera, rng) < 0.5
     # a centroid view's camera is exact too
