@@ -27,7 +27,10 @@ its figure stays the reference across rounds); the click then contains that segm
 preview instead of the oracle's value render. Each step after Start includes the
 session counts the add-on's panel reads in the redraw that follows it (counted on that
 first read since branch ``blender20c``). The peak RSS column is the process's
-high-water mark after each step (``ru_maxrss``).
+high-water mark after each step (``ru_maxrss``). With ``--runs N`` the bench runs N times,
+each in a fresh process (every click is a session's first, as a user's is), and prints
+each step's N wall times, their median and the median CPU and largest peak (the machine's
+noise is ±0.1 s on a 1.5 s click: one run is not a figure).
 """
 
 from __future__ import annotations
@@ -84,7 +87,13 @@ def main() -> None:
         help="renders whose working arrays reuse kept buffers (SurfelRenderer.scratch_*; "
         "sparse: what the add-on does with its heap limit at 3M)",
     )
+    ap.add_argument(
+        "--runs", type=int, default=1, help="fresh processes to run; the medians printed"
+    )
     args = ap.parse_args()
+    if args.runs > 1:
+        _runs(args.runs)
+        return
 
     import bpy  # noqa: I001 - bpy first: addon_utils ships with it
 
@@ -245,6 +254,48 @@ def main() -> None:
     # the session's peak is the table's last column; this one adds the reference render's
     # own renderer (a second copy of the scene's surfel buffers, not part of a session)
     print(f"\npeak RSS with the bench's reference renderer {_peak_gb():.2f} GB")
+
+
+def _runs(n: int) -> None:
+    """Run this bench ``n`` times in fresh processes (the same arguments without
+    ``--runs``); print each run's header once and a table of medians per step."""
+    import subprocess
+
+    argv, skip = [], False
+    for a in sys.argv[1:]:
+        if skip or a == "--runs" or a.startswith("--runs="):
+            skip = a == "--runs"
+            continue
+        argv.append(a)
+    steps: dict[str, list[list[float]]] = {}
+    refs: list[float] = []
+    for k in range(n):
+        out = subprocess.run(
+            [sys.executable, __file__, *argv], capture_output=True, text=True, check=True
+        ).stdout
+        for line in out.splitlines():
+            if line.startswith("## ") and k == 0:
+                print(line + f", {n} runs\n")
+            elif line.startswith("Reference:"):
+                refs.append(float(line.split(") ")[1].split(" s wall")[0]))
+            cells = [c.strip() for c in line.strip("|").split("|")] if line.startswith("| ") else []
+            if len(cells) == 8 and cells[0] != "step":
+                vals = [float(c) for c in cells[1:]]
+                steps.setdefault(cells[0], []).append(vals)
+        print(f"run {k + 1}/{n} done", file=sys.stderr)
+    print(f"Reference render of the clicked view, wall s: median {np.median(refs):.2f} ({refs})\n")
+    print(
+        "| step | wall s, each run | median wall s | median CPU s | median depsgraph s "
+        "| largest peak RSS, GB |"
+    )
+    print("|---|---|---:|---:|---:|---:|")
+    for name, rows in steps.items():
+        a = np.array(rows)
+        walls = ", ".join(f"{w:.2f}" for w in a[:, 0])
+        print(
+            f"| {name} | {walls} | {np.median(a[:, 0]):.2f} | {np.median(a[:, 1]):.2f} "
+            f"| {np.median(a[:, 2]):.2f} | {a[:, 6].max():.2f} |"
+        )
 
 
 def _look_through(bpy, live, i: int):
