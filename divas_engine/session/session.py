@@ -252,10 +252,8 @@ class Session(SelectionEditing, SessionCore):
         _, point = self._back_project(anchor, xy)  # raises as the centroid view would
         clicks = self._clicks_of(obj, point)
         fn(clicks)
-        view_fn = getattr(seg, "prefetch_view", None)
-        if view_fn is None or not getattr(seg, "prefetch_masks", True):
-            return None
-        return lambda camera: view_fn(camera, clicks)
+        view_fn = getattr(seg, "prefetch_view", None)  # (it checks its own switches)
+        return None if view_fn is None else lambda camera: view_fn(camera, clicks)
 
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
         """The click's 3D point projected into the view (positive) plus the anchor's
