@@ -58,7 +58,7 @@ from .rasterize import (
     upload_surfels,
 )
 from .raymarch import GridBuffers, MarchSettings, raymarch_grid, upload_grid
-from .scratch import ScratchPool
+from .scratch import ScratchPool, recycling
 from .splat import pixel_window
 
 __all__: list[str] = [
@@ -83,6 +83,7 @@ __all__: list[str] = [
     "binning_key",
     "rasterize_surfels",
     "ScratchPool",
+    "recycling",
     "surfel_rows",
     "upload_surfels",
     "GridBuffers",

@@ -66,7 +66,13 @@ def test_kept_binnings_make_room_before_the_next_render(case):
     r.binning_cache_bytes = int(1.5 * one)
     seen = []
     plain = r._make_room
-    r._make_room = lambda: (plain(), seen.append(len(r._binnings)))
+
+    def make_room() -> list:
+        donors = plain()
+        seen.append(len(r._binnings))
+        return donors
+
+    r._make_room = make_room
     for cam in cams[1:]:
         _same(r.render(cam), fresh.render(cam))
         assert len(r._binnings) == 1 and r.kept_binning(cam) is not None
