@@ -115,6 +115,9 @@ def interactive(folder: Path, repeats: int, segmenter: str = "oracle") -> dict[s
         for _ in range(3):  # the reference: three fresh renders (the machine is noisy)
             if hasattr(s.renderer, "clear_cache"):  # the reference render shares nothing
                 s.renderer.clear_cache()
+                # … but follows the anchor's render, as the click does (a binning the
+                # view's render may replace and recycle: SurfelRenderer.recycle_binnings)
+                s.renderer.render(cam, attached=False)
             t = start()
             s.renderer.render(views[0].camera)
             put("render", t)
