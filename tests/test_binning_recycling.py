@@ -130,3 +130,25 @@ def test_a_recycled_array_recycled_again_keeps_the_first_owner():
         with recycling(donors):
             arr = scratch_empty(90, wp.vec3, "cpu", kept=True)
         assert arr.ptr == ptr and arr._divas_scratch is owner
+
+
+def test_the_reference_count_test_takes_only_what_nothing_else_holds():
+    from divas_engine.render.surfel_renderer import _UNSHARED, _Probe, _take_unshared_splats
+
+    # (outside the asserts: pytest's rewriting of an assert holds its temporaries)
+    got = _take_unshared_splats(_Probe(), _UNSHARED)  # a temporary: taken
+    assert got is not None
+    held = _Probe()
+    got = _take_unshared_splats(held, _UNSHARED)
+    assert got is None and held.splats is not None
+    kept = object()
+
+    def probe_of(splats) -> _Probe:
+        probe = _Probe()
+        probe.splats = splats
+        return probe
+
+    got = _take_unshared_splats(probe_of(object()), _UNSHARED)  # the same, made apart
+    assert got is not None
+    got = _take_unshared_splats(probe_of(kept), _UNSHARED)  # a temporary; its splats held
+    assert got is None

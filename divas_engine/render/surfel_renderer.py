@@ -34,6 +34,31 @@ from .surfel_blocks import SurfelBlocks
 __all__ = ["SurfelRenderer"]
 
 
+def _take_unshared_splats(binning, unshared: tuple[int, int] | None = None):
+    """``binning.splats``, taken from it, when this call's argument is the binning's only
+    reference and the binning the array's: no other thread is walking it, and no view of
+    its memory is out. The test reads CPython's reference counts, as NumPy's ``resize``
+    does. Returns None otherwise. ``unshared``: the counts of such a binning, which
+    differ between Python versions; None calibrates them (returns the counts)."""
+    counts = (sys.getrefcount(binning), sys.getrefcount(binning.splats))
+    if unshared is None:
+        return counts
+    if counts[0] > unshared[0] or counts[1] > unshared[1]:
+        return None
+    splats, binning.splats = binning.splats, None
+    return splats
+
+
+class _Probe:
+    def __init__(self) -> None:
+        self.splats = object()
+
+
+#: the counts of a binning nothing else holds, passed as :meth:`SurfelRenderer._make_room`
+#: passes one (a temporary argument)
+_UNSHARED: tuple[int, int] = _take_unshared_splats(_Probe())
+
+
 class SurfelRenderer:
     """Renders a :class:`SurfelScene`; the scene is uploaded to ``device`` once.
 
@@ -203,23 +228,13 @@ class SurfelRenderer:
             len(self._binnings) >= self.binning_cache
             or sum(x.nbytes for x in self._binnings) + est > self.binning_cache_bytes
         ):
-            splats = self._unshared_splats(self._binnings.pop())
+            if not (self.recycle_binnings and self.device.is_cpu):
+                self._binnings.pop()
+                continue
+            splats = _take_unshared_splats(self._binnings.pop(), _UNSHARED)
             if splats is not None:
                 donors.append(splats)
         return donors
-
-    def _unshared_splats(self, binning):
-        """``binning.splats``, taken from it, when this call's argument is the binning's
-        only reference and the binning the array's (no other thread is walking it, no
-        view of its memory is out: CPython's reference counts, the check NumPy's
-        ``resize`` makes); else None."""
-        if not (self.recycle_binnings and self.device.is_cpu):
-            return None
-        # the references counted: the argument, and getrefcount's own argument
-        if sys.getrefcount(binning) > 2 or sys.getrefcount(binning.splats) > 2:
-            return None
-        splats, binning.splats = binning.splats, None
-        return splats
 
     def render(self, camera: Camera, scale: float = 1.0, *, attached: bool = True) -> RenderBuffers:
         """RGB and depth tuple; ``attached`` False: without the :meth:`attach_values`
