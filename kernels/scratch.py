@@ -20,7 +20,7 @@ opts in per render; nothing else changes. A pool in use in another thread's scop
 not shared: that scope allocates afresh.
 
 A render that keeps its binning may also take over the memory of the binning it
-replaces (:func:`recycling`): the dropped binning's splat array (≈ 100 bytes per visible
+replaces (:func:`recycling`): the dropped binning's splat array (92 bytes per visible
 splat: 168 MB, 41k fresh pages, for a 3M view) becomes the new binning's, so the pages
 the old view touched are written again instead of unmapped and faulted in anew. The
 caller hands over only arrays nothing else holds (the renderer checks the reference
