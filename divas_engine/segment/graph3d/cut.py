@@ -259,9 +259,10 @@ def _narrowness(
     """Boundary voxels of the region (those with a cut edge, supporting planes left out) over
     the perimeter of a disc of as many voxels, ``2 sqrt(π n)``: 1 for a patch cut out of a
     continuing surface, well below 1 at a neck (a head on its shoulders, a pot's handle),
-    whose cut is a real boundary even where the affinities across it stay high. A boundary
-    of fewer than ``min_ring`` voxels is no neck but a gap of a sparse sampling (a patch
-    of a thinly sampled floor hangs on a few voxels): 1."""
+    whose cut is a real boundary even where the affinities across it stay high — the
+    smallest being a contact: an object leaning on another touches it in a few voxels. A
+    boundary of fewer than ``min_ring`` voxels counts as none (1; the default 0 counts
+    every one, :class:`~.config.Graph3DConfig`)."""
     e = graph.edges
     a, b = nodes[e[:, 0]], nodes[e[:, 1]]
     other = np.where(a, e[:, 1], e[:, 0])
@@ -270,7 +271,7 @@ def _narrowness(
     n = int(np.count_nonzero(nodes))
     ring = len(np.unique(inner[cut]))
     if n == 0 or ring < min_ring:
-        return 1.0  # a gap in a sparse sampling, not a neck
+        return 1.0
     return float(ring / (2.0 * np.sqrt(np.pi * n)))
 
 
