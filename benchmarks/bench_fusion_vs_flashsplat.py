@@ -52,19 +52,21 @@ def _views(scene, cameras, labels, renderer, n_views: int):
     return out
 
 
-def measure(folder, views_at: list[int]) -> dict:
+def measure(folder, views_at: list[int], device: str = "cpu") -> dict:
+    from bench_session import sync
+
     scene = load_scene(folder / "scene.ply")
     cameras = load_cameras(folder / "cameras.json")
     labels = np.load(folder / "labels.npy").astype(np.float32)
-    renderer = make_renderer(scene, device="cpu")
+    renderer = make_renderer(scene, device=device)
     vmax = max(views_at)
     views = _views(scene, cameras, labels, renderer, vmax)
     if len(views) < vmax:
         raise SystemExit(f"only {len(views)} training cameras see the target (need {vmax})")
     # DivAS: incremental
-    grid = build_occupancy(scene, GridConfig(), "cpu")
+    grid = build_occupancy(scene, GridConfig(), device)
     fusion = GsFusion(grid)
-    mapper = SurfelMapper(scene, grid, MappingConfig(), "cpu")
+    mapper = SurfelMapper(scene, grid, MappingConfig(), device)
     live, slots, divas = [], [], []
     for k, (cam, m, b, d_cam) in enumerate(views):
         fv = FusionView(cam, m, b.D_min, b.D_ref, b.D_max, b.N_samp, d_cam, f"v{k}")
@@ -72,9 +74,10 @@ def measure(folder, views_at: list[int]) -> dict:
         slots.append(fusion.add_view(fv))
         live.append(fv)
         res = mapper.map(fusion.result(), live, slots)
+        sync(device)
         divas.append(time.perf_counter() - t)
     # FlashSplat-style: re-accumulate over all fused views at every update
-    voter = ContributionVoter(scene, "cpu")
+    voter = ContributionVoter(scene, device)
     a1 = np.zeros(len(scene))
     a0 = np.zeros(len(scene))
     passes = []
@@ -83,6 +86,7 @@ def measure(folder, views_at: list[int]) -> dict:
         p, q = voter.contributions(MaskView(cam, m))
         a1 += p
         a0 += q
+        sync(device)
         passes.append(time.perf_counter() - t)
     t = time.perf_counter()
     fs_sel = a1 > a0
@@ -96,17 +100,19 @@ def measure(folder, views_at: list[int]) -> dict:
     }
 
 
-def print_fusion_vs_reaccumulation(scene: str, sizes: list[int], views_at: list[int], files):
+def print_fusion_vs_reaccumulation(
+    scene: str, sizes: list[int], views_at: list[int], files, device: str = "cpu"
+):
     print(
         f"\n## Per-update cost: incremental fusion vs FlashSplat-style re-accumulation "
-        f"({scene}, CPU)\n"
+        f"({scene}, {device})\n"
     )
     print(
         "| surfels | active voxels | fused views | DivAS update ms | re-accumulation ms | ratio |"
     )
     print("|---:|---:|---:|---:|---:|---:|")
     for n in sizes:
-        r = measure(files(scene, n), views_at)
+        r = measure(files(scene, n), views_at, device)
         for k in views_at:
             d, f = r["divas"][k - 1] * 1e3, r["fs"][k - 1] * 1e3
             print(f"| {r['n']:,} | {r['active']:,} | {k} | {d:.0f} | {f:.0f} | {f / d:.1f}× |")

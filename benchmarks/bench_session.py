@@ -15,7 +15,7 @@ fused view at each update), at growing view counts and scene sizes.
 Part 3 (``--per-update``) — the older per-update table of ``divas segment`` reports.
 
     python benchmarks/bench_session.py [--size 1000000] [--scene plant] [--views 5,10,20]
-        [--fusion-sizes 250000,1000000] [--per-update]
+        [--fusion-sizes 250000,1000000] [--per-update] [--device cuda]
 """
 
 from __future__ import annotations
@@ -40,6 +40,14 @@ COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "update_s")
 CACHE = Path(os.environ.get("DIVAS_BENCH_CACHE", tempfile.gettempdir())) / "divas_bench_scenes"
 
 
+def sync(device: str) -> None:
+    """Wait for ``device``'s queued kernels (a CUDA launch returns before it runs)."""
+    if device != "cpu":
+        import warp as wp
+
+        wp.synchronize_device(device)
+
+
 def scene_files(name: str, size: int) -> Path:
     """Generate (once, cached under ``CACHE``) a synthetic scene; returns its folder."""
     out = CACHE / f"{name}_{size}"
@@ -59,10 +67,12 @@ def _first_click(folder: Path, cameras):
     return by_name[ap.value], [c.xy for c in ap.clicks]
 
 
-def interactive(folder: Path, repeats: int, segmenter: str = "oracle") -> dict[str, float]:
+def interactive(
+    folder: Path, repeats: int, segmenter: str = "oracle", device: str = "cpu"
+) -> dict[str, float]:
     """Median seconds of open / click / preview / accept / render on one scene, with the
     oracle (a stand-in for SAM: a value render of the ground truth) or ``graph3d`` (the
-    product's default, weight-free)."""
+    product's default, weight-free), on ``device`` (each step waits for its kernels)."""
     from divas_engine.segment.graph3d import Graph3DSegmenter
     from divas_engine.segment.oracle import OracleSegmenter
     from divas_engine.session import Session, SessionConfig
@@ -76,6 +86,7 @@ def interactive(folder: Path, repeats: int, segmenter: str = "oracle") -> dict[s
     c0 = [0.0]
 
     def put(k: str, t0: float) -> None:
+        sync(device)
         rows.setdefault(k, []).append(time.perf_counter() - t0)
         cpu.setdefault(k, []).append(time.process_time() - c0[0])
 
@@ -87,7 +98,7 @@ def interactive(folder: Path, repeats: int, segmenter: str = "oracle") -> dict[s
         t = start()
         seg = OracleSegmenter() if segmenter == "oracle" else Graph3DSegmenter()
         truth = gt if segmenter == "oracle" else None
-        s = Session.open(scene, cameras, SessionConfig(), seg, "cpu", gt_values=truth)
+        s = Session.open(scene, cameras, SessionConfig(), seg, device, gt_values=truth)
         put("open", t)
         _ = s.grid  # waits for the background warm-up (fusion state, mapper)
         put("ready", t)
@@ -127,9 +138,11 @@ def interactive(folder: Path, repeats: int, segmenter: str = "oracle") -> dict[s
     return out
 
 
-def print_interactive(name: str, size: int, repeats: int, segmenter: str = "oracle") -> None:
+def print_interactive(
+    name: str, size: int, repeats: int, segmenter: str = "oracle", device: str = "cpu"
+) -> None:
     folder = scene_files(name, size)
-    m = interactive(folder, repeats, segmenter)
+    m = interactive(folder, repeats, segmenter, device)
     r = m["render"]
     print(f"\n## Interactive loop, {name} {size:,} surfels, {segmenter} (median of {repeats})\n")
     print(
@@ -185,13 +198,14 @@ def main() -> None:
     ap.add_argument("--per-update", action="store_true", help="also the divas-segment table")
     ap.add_argument("--sizes", default="100000,500000,1000000", help="--per-update sizes")
     ap.add_argument("--segmenters", default="oracle,classic", help="--per-update segmenters")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda[:N] (Warp device)")
     args = ap.parse_args()
     print(
         f"# Session latency — {platform.machine()}, {os.cpu_count()} cores, "
-        f"{datetime.date.today()}, device cpu"
+        f"{datetime.date.today()}, device {args.device}"
     )
     if not args.skip_interactive:
-        print_interactive(args.scene, args.size, args.repeats, args.segmenter)
+        print_interactive(args.scene, args.size, args.repeats, args.segmenter, args.device)
     if not args.skip_fusion:
         from bench_fusion_vs_flashsplat import print_fusion_vs_reaccumulation
 
@@ -200,6 +214,7 @@ def main() -> None:
             [int(s) for s in args.fusion_sizes.split(",")],
             [int(v) for v in args.views.split(",")],
             scene_files,
+            args.device,
         )
     if args.per_update:
         per_update(args)
@@ -224,7 +239,7 @@ def per_update(args) -> None:
                     out=Path(tmp) / "sel.ply",
                     segmenter=seg,
                     gt_labels=out / "labels.npy",
-                    device="cpu",
+                    device=args.device,
                     progress=False,
                 )
                 fused = [u for u in report["updates"] if u["status"] == "fused"]
