@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import platform
 import sys
 import time
@@ -91,7 +92,7 @@ def main() -> int:
     config = SessionConfig(render_scale=args.scale, seed=args.seed)
     print(
         f"# bench_click_robustness {datetime.date.today()} {platform.machine()} "
-        f"({__import__('os').cpu_count()} CPUs), scale {args.scale}, ±{args.radius} px, "
+        f"({os.cpu_count()} CPUs), scale {args.scale}, ±{args.radius} px, "
         f"{args.draws} draws, graph3d neck_min_voxels {g3d.neck_min_voxels}"
     )
     print("| target | views fused per draw | Gaussian IoU mean | min | unmoved clicks |")
