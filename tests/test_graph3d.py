@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from divas_engine.camera import Camera
+from divas_engine.evaluation.real_targets import target_scene_labels
 from divas_engine.kinds import SceneKind
 from divas_engine.scene import SurfelScene
 from divas_engine.segment import Graph3DSegmenter, SceneAwareSegmenter, SceneBinding
@@ -303,20 +304,27 @@ def test_nerf_grid_ball_is_cut_from_its_floor_and_a_neighbour():
     assert s[1][1] > 0.97 and s[1][2] < 0.001 and s[0][2] < 0.001
 
 
-def test_the_region_grows_when_the_cut_fills_it_and_the_walk_runs_out():
+@pytest.fixture(scope="module")
+def guitar():
+    """The guitar capture and its rule-made targets (tests/data), loaded once."""
+    from pathlib import Path
+
+    from divas_engine.evaluation.real_targets import read_targets
+    from divas_engine.io.load import load_scene
+
+    data = Path(__file__).resolve().parent / "data"
+    scene = load_scene(data / "playcanvas-splats" / "guitar.compressed.ply")
+    return scene, read_targets(data / "targets" / "guitar")
+
+
+def test_the_region_grows_when_the_cut_fills_it_and_the_walk_runs_out(guitar):
     # the guitar capture, the neck target's two clicks (headstock, fretboard): the first
     # box around them stops above the body, the neck runs out through its rim and the
     # headstock + upper neck fill most of it — so conductance, measured against the
     # little left over, cut at the fretboard click. The box grows and the cut reaches
     # down the neck towards the body joint
-    from pathlib import Path
-
-    from divas_engine.evaluation.real_targets import read_targets, target_scene_labels
-    from divas_engine.io.load import load_scene
-
-    data = Path(__file__).resolve().parent / "data"
-    scene = load_scene(data / "playcanvas-splats" / "guitar.compressed.ply")
-    neck = target_scene_labels(scene, read_targets(data / "targets" / "guitar"), "neck") > 0.5
+    scene, targets = guitar
+    neck = target_scene_labels(scene, targets, "neck") > 0.5
     seg = Graph3DSegmenter(binding=SceneBinding(scene, None, None, None, lambda: (0, -1.0, 0)))
     clicks = np.array([[-0.020152, -3.039453, 0.176003], [-0.363333, -4.0003, 0.038261]])
     rc = seg.cut(Seeds(clicks, np.zeros((0, 3))))
@@ -327,7 +335,7 @@ def test_the_region_grows_when_the_cut_fills_it_and_the_walk_runs_out():
     assert np.mean(neck[sel]) > 0.95
 
 
-def test_the_guitar_leaning_on_its_stand_is_a_clear_object():
+def test_the_guitar_leaning_on_its_stand_is_a_clear_object(guitar):
     # the guitar capture, the guitar target's five clicks as a session rendering its
     # anchors at 320×240 (render scale 0.5) puts them in 3D (each from that render's
     # depth: millimetres off the full-size ones, where the cut was sure). Their cut is the
@@ -336,14 +344,8 @@ def test_the_guitar_leaning_on_its_stand_is_a_clear_object():
     # own (φ 0.002). That contact is the guitar's boundary, so the cut is sure of itself:
     # it scored 0.16 when boundaries under 8 voxels did not count as narrow, and every
     # view of the guitar was rejected ("No clear edge around your click")
-    from pathlib import Path
-
-    from divas_engine.evaluation.real_targets import read_targets, target_scene_labels
-    from divas_engine.io.load import load_scene
-
-    data = Path(__file__).resolve().parent / "data"
-    scene = load_scene(data / "playcanvas-splats" / "guitar.compressed.ply")
-    guitar = target_scene_labels(scene, read_targets(data / "targets" / "guitar"), "guitar") > 0.5
+    scene, targets = guitar
+    truth = target_scene_labels(scene, targets, "guitar") > 0.5
     seg = Graph3DSegmenter(binding=SceneBinding(scene, None, None, None, lambda: (0, -1.0, 0)))
     clicks = np.array(
         [
@@ -357,7 +359,7 @@ def test_the_guitar_leaning_on_its_stand_is_a_clear_object():
     rc = seg.cut(Seeds(clicks, np.zeros((0, 3))))
     sel = np.zeros(len(scene), bool)
     sel[seg.primitives().index] = rc.selected[1]
-    assert np.mean(sel[guitar]) > 0.9 and np.mean(guitar[sel]) > 0.9
+    assert np.mean(sel[truth]) > 0.9 and np.mean(truth[sel]) > 0.9
     assert rc.scores[1] > 0.9 and rc.message is None
     # the guard that counted such contacts as no boundary: the same cut, unsure
     guarded = Graph3DSegmenter(
