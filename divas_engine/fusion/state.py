@@ -1,7 +1,7 @@
 """Incremental, exactly undoable fusion state (eq:compact-fusion, eq:vmask).
 
 Per active voxel the state keeps int64 fixed-point accumulators (scale 2⁵², see
-``kernels.fusion_common.QSCALE``): numerator W, denominator Z, the thin part of W,
+``divas_kernels.fusion_common.QSCALE``): numerator W, denominator Z, the thin part of W,
 thick/thin vote counts and the view-coverage bitmask. Adding a view runs its kernel
 once over the active voxels, compacts the non-zero contributions into a sparse
 record (active index + float32 num/den + kind) that is kept per view, and adds the

@@ -1,4 +1,4 @@
-"""NeRF density-grid renderer: the ray-marcher of ``kernels.raymarch`` behind the
+"""NeRF density-grid renderer: the ray-marcher of ``divas_kernels.raymarch`` behind the
 :class:`~divas_engine.render.protocol.Renderer` protocol."""
 
 from __future__ import annotations
