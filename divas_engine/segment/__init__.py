@@ -29,7 +29,13 @@ from .depth_weighting import (
     gs_bandpass_weight,
     nerf_depth_weight,
 )
-from .factory import SegmenterKind, SegmenterSettings, SegmenterSetupError, build_segmenter
+from .factory import (
+    DEFAULT_SEGMENTER,
+    SegmenterKind,
+    SegmenterSettings,
+    SegmenterSetupError,
+    build_segmenter,
+)
 from .flood_fill import FloodFillConfig, FloodFillSegmenter
 from .graph3d import Graph3DConfig, Graph3DSegmenter
 from .oracle import OracleConfig, OracleSegmenter
@@ -66,6 +72,7 @@ __all__ = [
     "apply_gs_bandpass",
     "SamWorker",
     "SegmentationJobError",
+    "DEFAULT_SEGMENTER",
     "SegmenterKind",
     "SegmenterSettings",
     "SegmenterSetupError",
