@@ -160,7 +160,7 @@ def _reuse_scratch(session: Session, limited: bool) -> None:
     transient array is fresh pages: the mask renders of a scene-aware segmenter then
     keep their working arrays between calls (``SurfelRenderer.scratch_sparse``, issue
     20: 43–63k → 4–12k page faults a mask render at 3M, ≈ 0.1 s, ≈ 140 MB held)."""
-    if limited and hasattr(session.renderer, "scratch_sparse"):
+    if limited:
         session.renderer.scratch_sparse = True
 
 
@@ -168,8 +168,7 @@ def _prefetch_cuts(session: Session) -> None:
     """The click operator previews the view's mask before it returns: a segmenter that
     can start its work for that prompt while the view renders (graph3d's cut,
     ``Graph3DSegmenter.prefetch_cuts``, issue 20) is told to."""
-    if hasattr(session.segmenter, "prefetch_cuts"):
-        session.segmenter.prefetch_cuts = True
+    session.segmenter.prefetch_cuts = True
 
 
 def _follow_undo_steps(context, session: Session) -> None:

@@ -29,6 +29,7 @@ from ..kinds import SceneKind
 from ..scene import SurfelScene
 from .buffers import RenderBuffers
 from .config import RenderConfig
+from .protocol import Renderer
 from .surfel_blocks import SurfelBlocks
 
 __all__ = ["SurfelRenderer"]
@@ -59,7 +60,7 @@ class _Probe:
 _UNSHARED: tuple[int, int] = _take_unshared_splats(_Probe())
 
 
-class SurfelRenderer:
+class SurfelRenderer(Renderer):
     """Renders a :class:`SurfelScene`; the scene is uploaded to ``device`` once.
 
     Depth tuple per NOTES "Depth tuple", ``D_ref = D_med``. Points NOTES leaves open,
@@ -411,6 +412,10 @@ class SurfelRenderer:
         f = r.out.feat.numpy()
         H, W = cam.height, cam.width
         return f.reshape(H, W) if values.ndim == 1 else f.reshape(H, W, -1)
+
+    @property
+    def renders_sparse(self) -> bool:
+        return True
 
     @property
     def sparse_renders_concurrent(self) -> bool:

@@ -19,6 +19,7 @@ sync 2DGS scheduling).
 
 from .base import MaskSelection, Segmenter, SegResult, select_mask
 from .classic import ClassicConfig, ClassicSegmenter
+from .context import ObjectClicks, SceneBinding, ViewContext
 from .depth_weighting import (
     DepthBand,
     GsBandpassConfig,
@@ -41,7 +42,7 @@ from .graph3d import Graph3DConfig, Graph3DSegmenter
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
-from .scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
+from .scene_aware import SceneAwareSegmenter
 from .worker import SamWorker, SegmentationJobError
 
 __all__ = [
@@ -53,6 +54,7 @@ __all__ = [
     "Graph3DSegmenter",
     "SceneAwareSegmenter",
     "SceneBinding",
+    "ViewContext",
     "ObjectClicks",
     "ClassicConfig",
     "ClassicSegmenter",

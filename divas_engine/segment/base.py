@@ -20,6 +20,12 @@ Conventions shared by all implementations:
 The embedding cache is keyed by the explicit ``view_id`` when given (the caller
 promises a view id is never reused for a different image) and otherwise by a
 BLAKE2 hash of the image and depth bytes.
+
+A session calls :meth:`Segmenter.segment_view` with a :class:`~.context.ViewContext`
+(the view's render, camera and object clicks) and the optional hooks the base class
+declares with no-op defaults (:meth:`~Segmenter.bind_scene`, :meth:`~Segmenter.warm_up`,
+the prefetch hooks, :attr:`~Segmenter.wants_ground_truth`); a segmenter overrides the ones
+it uses.
 """
 
 from __future__ import annotations
@@ -30,9 +36,14 @@ from abc import ABC, abstractmethod
 from collections import OrderedDict
 from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from .context import ObjectClicks, SceneBinding, ViewContext
+
+if TYPE_CHECKING:
+    from ..camera import Camera
 
 __all__ = [
     "Segmenter",
@@ -176,6 +187,10 @@ class Segmenter(ABC):
     """
 
     name: str = "segmenter"
+    #: start a click's work before its view is rendered (:meth:`prefetch`,
+    #: :meth:`prefetch_view`): a host that previews right after every click switches it
+    #: on; a segmenter with nothing to start early ignores it
+    prefetch_cuts: bool = False
 
     def __init__(self, cache_size: int = 8):
         self.cache_size = int(cache_size)
@@ -239,9 +254,52 @@ class Segmenter(ABC):
             masks, scores = self.predict(points, labels)
         return SegResult(masks, scores)
 
+    def segment_view(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> SegResult:
+        """The session's call: masks and scores for a prompt set on one of its views.
+        The default segments the view's image and depth (:meth:`segment`, cached by the
+        view's id); a segmenter that reads more of the view overrides it."""
+        return self.segment(view.rgb, view.depth, points, labels, view_id=view.id)
+
     def clear_cache(self) -> None:
         with self._lock:
             self._cache.clear()
+
+    # -- optional hooks a session calls (no-op defaults) -------------------------------
+    def bind_scene(self, binding: SceneBinding) -> None:  # noqa: B027 - optional hook
+        """The session's scene, once when it opens; image-only segmenters ignore it."""
+
+    def warm_up(self) -> None:  # noqa: B027 - optional hook
+        """Build the per-scene state the first prompt would build (the session calls it
+        in its background warm-up, after the fusion state); the default has none. A
+        failure is left for the first prompt to raise."""
+
+    @property
+    def wants_ground_truth(self) -> bool:
+        """Whether the session should hand it each view's ground truth
+        (:attr:`ViewContext.truth`, evaluation only); the default does not read it."""
+        return False
+
+    @property
+    def prefetches(self) -> bool:
+        """Whether :meth:`prefetch` would start anything: the session back-projects a
+        click for it only then."""
+        return False
+
+    def prefetch(self, clicks: ObjectClicks) -> bool:
+        """Start, in the background, the work the prompt of a view of the object with
+        these 3D ``clicks`` will need (before the view is rendered); whether anything
+        was started. The default starts nothing."""
+        return False
+
+    def prefetch_view(self, camera: Camera, clicks: ObjectClicks) -> bool:
+        """Like :meth:`prefetch`, once the view's ``camera`` is known (while the view
+        renders); whether anything was started. The default starts nothing."""
+        return False
+
+    def wait_prefetch(self, timeout: float | None = None) -> bool:
+        """Wait for the work :meth:`prefetch` / :meth:`prefetch_view` started (a closing
+        session: no thread may outlive it); whether all of it ended in ``timeout``."""
+        return True
 
     @property
     def cached_views(self) -> int:
