@@ -122,7 +122,8 @@ def _draw_session(layout, live) -> None:
         sub.alert = True
         sub.label(text=f"{len(rejected)} view(s) not added. Last one:", icon="ERROR")
         last_rejected = rejected[-1]
-        msg = rejection_message(last_rejected.reason, last_rejected.score, last_rejected.advice)
+        r = last_rejected
+        msg = rejection_message(r.rejection, r.score, r.advice, reason=r.reason)
         for line in _wrap(msg):
             sub.label(text=line)
     hinted = [v for v in live.session.views if v.status == "open" and v.advice]

@@ -42,7 +42,11 @@ __all__ = ["IncrementalFusion", "FusionResult", "FusionCapacityError"]
 
 
 class FusionCapacityError(RuntimeError):
-    """More live views than the view-coverage bitmask can hold."""
+    """More live views than the view-coverage bitmask can hold (``max_views``, when known)."""
+
+    def __init__(self, message: str, max_views: int | None = None):
+        super().__init__(message)
+        self.max_views = max_views
 
 
 @dataclass(eq=False)
@@ -117,7 +121,8 @@ class IncrementalFusion:
                 return s
         raise FusionCapacityError(
             f"the view-coverage bitmask holds {self.max_views} views and all are in use; "
-            f"undo a view or raise max_views"
+            f"undo a view or raise max_views",
+            self.max_views,
         )
 
     def upload(self, view: FusionView) -> ViewData:
@@ -133,7 +138,7 @@ class IncrementalFusion:
             raise ValueError(f"view id {view_id} is already fused")
         elif self.max_views is not None and not 0 <= view_id < self.max_views:
             raise FusionCapacityError(
-                f"view id {view_id} outside the bitmask [0, {self.max_views})"
+                f"view id {view_id} outside the bitmask [0, {self.max_views})", self.max_views
             )
         vd = self.upload(view)
         self._launch(vd)

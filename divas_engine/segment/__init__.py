@@ -17,7 +17,7 @@ eq:nerf-depthweight / eq:gs-bandpass, and :class:`SamWorker` (async NeRF /
 sync 2DGS scheduling).
 """
 
-from .base import MaskSelection, Segmenter, SegResult, select_mask
+from .base import MaskSelection, Rejection, Segmenter, SegResult, select_mask
 from .classic import ClassicConfig, ClassicSegmenter
 from .context import ObjectClicks, SceneBinding, ViewContext
 from .depth_weighting import (
@@ -46,6 +46,7 @@ from .scene_aware import SceneAwareSegmenter
 from .worker import SamWorker, SegmentationJobError
 
 __all__ = [
+    "Rejection",
     "Segmenter",
     "SegResult",
     "MaskSelection",

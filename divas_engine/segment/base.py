@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..kinds import RejectReason
 from .context import ObjectClicks, SceneBinding, ViewContext
 
 if TYPE_CHECKING:
@@ -48,6 +49,7 @@ if TYPE_CHECKING:
 __all__ = [
     "Segmenter",
     "SegResult",
+    "Rejection",
     "MaskSelection",
     "select_mask",
     "as_rgb_float",
@@ -67,6 +69,54 @@ class SegResult:
     message: str | None = None
 
 
+@dataclass(frozen=True)
+class Rejection:
+    """Why a view was rejected, with its numbers.
+
+    Attributes:
+        reason: the :class:`~divas_engine.kinds.RejectReason`.
+        score, threshold, channel: ``LOW_SCORE``: the channel's score, the least score
+            accepted and the channel kept.
+        cause: ``SEGMENTATION_FAILED``: the segmenter's error.
+    """
+
+    reason: RejectReason
+    score: float | None = None
+    threshold: float | None = None
+    channel: int | None = None
+    cause: str | None = None
+
+    @property
+    def message(self) -> str:
+        """The engine's sentence (reports, the CLI)."""
+        r = self.reason
+        if r is RejectReason.LOW_SCORE:
+            score = float("nan") if self.score is None else self.score
+            return f"channel-{self.channel} score {score:.3f} < {self.threshold}"
+        if r is RejectReason.SEGMENTATION_FAILED:
+            return f"segmentation failed: {self.cause}"
+        return _REJECTION_TEXT[r]
+
+    def to_dict(self) -> dict[str, Any]:
+        score = None if self.score is None or not np.isfinite(self.score) else self.score
+        d = {"reason": str(self.reason), "score": score, "threshold": self.threshold}
+        return {**d, "channel": self.channel, "cause": self.cause}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Rejection:
+        return cls(
+            RejectReason(d["reason"]), d.get("score"), d.get("threshold"), d.get("channel"),
+            d.get("cause"),
+        )  # fmt: skip
+
+
+_REJECTION_TEXT = {
+    RejectReason.NO_POSITIVE_PROMPT: "no positive prompt",
+    RejectReason.EMPTY_MASK: "empty mask after depth weighting",
+    RejectReason.SEGMENTATION_MISSING: "segmentation result missing",
+}
+
+
 @dataclass(frozen=True, eq=False)
 class MaskSelection:
     """Outcome of :func:`select_mask`.
@@ -74,16 +124,21 @@ class MaskSelection:
     Attributes:
         mask: ``[H,W]`` float32 probabilities of the chosen channel, None when rejected.
         score: the chosen channel's score (nan when there is none).
-        reason: None when accepted, else why the view is rejected.
+        rejection: None when accepted, else why the view is rejected.
     """
 
     mask: np.ndarray | None
     score: float
-    reason: str | None
+    rejection: Rejection | None
 
     @property
     def accepted(self) -> bool:
-        return self.reason is None
+        return self.rejection is None
+
+    @property
+    def reason(self) -> str | None:
+        """The rejection's sentence, None when accepted."""
+        return None if self.rejection is None else self.rejection.message
 
 
 def select_mask(
@@ -108,9 +163,10 @@ def select_mask(
         )
     score = float(scores[channel])
     if not np.any(labels == 1):
-        return MaskSelection(None, score, "no positive prompt")
+        return MaskSelection(None, score, Rejection(RejectReason.NO_POSITIVE_PROMPT))
     if not score >= min_score:  # also rejects nan
-        return MaskSelection(None, score, f"channel-{channel} score {score:.3f} < {min_score}")
+        low = Rejection(RejectReason.LOW_SCORE, score, min_score, channel)
+        return MaskSelection(None, score, low)
     return MaskSelection(np.asarray(masks[channel], dtype=np.float32), score, None)
 
 

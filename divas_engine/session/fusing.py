@@ -12,13 +12,17 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from ..kinds import ViewStatus
+from ..kinds import RejectReason, ViewStatus
 from ..render.buffers import RenderBuffers
-from ..segment.base import SegResult
+from ..segment.base import Rejection, SegResult
 from ..segment.worker import SamWorker, SegmentationJobError
 from .records import MaskPreview, SessionView
 from .timing import Timings
+
+if TYPE_CHECKING:
+    from ..fusion import FusionCapacityError
 
 __all__ = ["FusedSome", "collect", "drain", "fuse_views", "fusion_view", "reconcile"]
 
@@ -27,7 +31,7 @@ class FusedSome(Exception):
     """The fusion ran out of room in a group: ``fused`` views of the group were fused
     (they stay), the others are back to open; ``cause`` is the fusion's error."""
 
-    def __init__(self, fused: list[str], cause: Exception):
+    def __init__(self, fused: list[str], cause: FusionCapacityError):
         super().__init__(str(cause))
         self.fused, self.cause = fused, cause
 
@@ -43,15 +47,15 @@ def fusion_view(v: SessionView, mask, b: RenderBuffers):
 
 
 def fuse_views(
-    items: Sequence[tuple[SessionView, MaskPreview | str]],
+    items: Sequence[tuple[SessionView, MaskPreview | Rejection]],
     buffers: dict[str, RenderBuffers],
     fusion,
     timings: Timings,
     accept_order: list[str],
 ) -> tuple[list[str], list[tuple[str, str]], float]:
     """Fuse each ``(view, preview)`` whose preview is accepted into a free slot; record
-    the others as rejected (a ``str`` item: why the segmentation failed). Returns the
-    fused ids, the ``(id, reason)`` of the rejected ones and the kernel seconds.
+    the others as rejected (a :class:`Rejection` item: the segmentation failed). Returns
+    the fused ids, the ``(id, reason)`` of the rejected ones and the kernel seconds.
 
     Raises:
         FusedSome: no slot left; this view and the rest of the group go back to open
@@ -61,12 +65,13 @@ def fuse_views(
 
     fused, rejected, kernel_s = [], [], 0.0
     for k, (v, prev) in enumerate(items):
-        reason = prev if isinstance(prev, str) else prev.reason
-        if reason is not None:
-            v.status, v.reason = ViewStatus.REJECTED, reason
-            v.score = float("nan") if isinstance(prev, str) else prev.score
-            v.advice = None if isinstance(prev, str) else prev.advice
-            rejected.append((v.id, reason))
+        failed = isinstance(prev, Rejection)
+        rejection = prev if failed else prev.rejection
+        if rejection is not None:
+            v.status, v.reason, v.rejection = ViewStatus.REJECTED, rejection.message, rejection
+            v.score = float("nan") if failed else prev.score
+            v.advice = None if failed else prev.advice
+            rejected.append((v.id, rejection.message))
             continue
         fv = fusion_view(v, prev.mask, buffers[v.id])
         t = time.perf_counter()
@@ -74,14 +79,15 @@ def fuse_views(
             fid = fusion.add_view(fv)
         except FusionCapacityError as e:
             for w, _ in items[k:]:
-                w.status, w.reason = ViewStatus.OPEN, None
+                w.status, w.reason, w.rejection = ViewStatus.OPEN, None, None
                 if w.id in accept_order:
                     accept_order.remove(w.id)
             raise FusedSome(fused, e) from None
         dt = time.perf_counter() - t
         timings.add("kernel", dt)
         kernel_s += dt
-        v.status, v.reason, v.score, v.advice = ViewStatus.FUSED, None, prev.score, None
+        v.status, v.reason, v.rejection = ViewStatus.FUSED, None, None
+        v.score, v.advice = prev.score, None
         v.mask, v.fusion_id, v.fusion_view = prev.mask, fid, fv
         fused.append(v.id)
     return fused, rejected, kernel_s
@@ -89,7 +95,7 @@ def fuse_views(
 
 def collect(
     worker: SamWorker | None, group: Sequence[SessionView]
-) -> list[tuple[SessionView, SegResult | str]]:
+) -> list[tuple[SessionView, SegResult | Rejection]]:
     """The worker's result for each view of ``group``, or why there is none."""
     results: dict = {}
     failures: dict = {}
@@ -97,16 +103,17 @@ def collect(
         results = worker.sync() if worker is not None else {}
     except SegmentationJobError as e:
         results, failures = dict(e.results), dict(e.failures)
-    out: list[tuple[SessionView, SegResult | str]] = []
+    out: list[tuple[SessionView, SegResult | Rejection]] = []
     for v in group:
         res = results.get(v.id)
         if res is None and worker is not None:
             res = worker.result(v.id)
         if res is None:
             cause = failures.get(v.id)
-            out.append(
-                (v, f"segmentation failed: {cause}" if cause else "segmentation result missing")
-            )
+            if cause:
+                out.append((v, Rejection(RejectReason.SEGMENTATION_FAILED, cause=str(cause))))
+            else:
+                out.append((v, Rejection(RejectReason.SEGMENTATION_MISSING)))
         else:
             out.append((v, res))
     return out

@@ -16,8 +16,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import DivasInputError
+from ..kinds import RejectReason
 from ..render.buffers import RenderBuffers
-from ..segment.base import Segmenter, SegResult, select_mask
+from ..segment.base import Rejection, Segmenter, SegResult, select_mask
 from ..segment.context import ViewContext
 from .backends import SessionBackend
 from .config import SessionConfig
@@ -104,12 +105,12 @@ def mask_preview(
     """The :class:`MaskPreview` of a segmenter result on ``v`` (rendered as ``buffers``)
     for prompts ``p``/``lab``."""
     sel = select_mask(res.masks, res.scores, lab, config.min_score, config.mask_channel)
-    weighted, band, reason = None, None, sel.reason
+    weighted, band, rejection = None, None, sel.rejection
     if sel.accepted:
         weighted, band = backend.depth_weight(sel.mask, buffers, p, lab)
         weighted = np.clip(weighted, 0.0, 1.0).astype(np.float32)
         if int(np.count_nonzero(weighted >= 0.5)) < config.min_mask_pixels:
-            reason = "empty mask after depth weighting"
+            rejection = Rejection(RejectReason.EMPTY_MASK)
     return MaskPreview(
-        v.id, p, lab, res.masks, res.scores, sel, weighted, band, reason, seconds, res.message
+        v.id, p, lab, res.masks, res.scores, sel, weighted, band, rejection, seconds, res.message
     )

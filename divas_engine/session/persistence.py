@@ -21,11 +21,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..camera import Camera
-from ..errors import DivasInputError
+from ..errors import DivasInputError, InputErrorCode
 from ..io.limits import PARSE_ERRORS, input_guard
 from ..kinds import ViewStatus
 from ..scene import Scene
-from ..segment.base import Segmenter
+from ..segment.base import Rejection, Segmenter
 from ..views.centroid_common import CentroidView
 from .backends import backend_class_for
 from .edits import edit_arrays, saved_edits
@@ -136,7 +136,9 @@ def load_session(
         )
     except DivasInputError as e:
         if e.source is None:  # a check deep in the replay that does not know the file
-            raise DivasInputError(path, f"bad session file: {e.problem}") from None
+            raise DivasInputError(
+                path, f"bad session file: {e.problem}", code=e.code, details=e.details
+            ) from None
         raise
     except PARSE_ERRORS as e:  # validated above; whatever still fails comes from the file
         raise DivasInputError(
@@ -154,9 +156,15 @@ def _replay(
         raise DivasInputError(
             path,
             f"session was saved on a {sd['kind']} scene of {sd['count']} primitives, not this one",
+            code=InputErrorCode.OTHER_SCENE_SIZE,
+            details={"count": sd["count"]},
         )
     if sd.get("fingerprint") and sd["fingerprint"] != scene_fingerprint(scene):
-        raise DivasInputError(path, "session was saved on a different scene (fingerprint mismatch)")
+        raise DivasInputError(
+            path,
+            "session was saved on a different scene (fingerprint mismatch)",
+            code=InputErrorCode.OTHER_SCENE,
+        )
     anchors = [
         (Camera.from_dict(a["camera"]), a["source"], int(a["index"])) for a in doc["anchors"]
     ]
@@ -224,6 +232,8 @@ def saved_object(
         v = SessionView(vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv)
         v.status, v.reason = _view_status(vd["status"], path), vd["reason"]
         v.advice = vd.get("advice")  # absent in older sessions
+        if vd.get("rejection"):  # absent in older sessions
+            v.rejection = Rejection.from_dict(vd["rejection"])
         v.score = float("nan") if vd["score"] is None else float(vd["score"])
         if vd["points"] is not None:
             v.points = np.asarray(vd["points"], np.float64).reshape(-1, 2)

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..blas_threads import BlasThreads
 from ..camera import Camera
-from ..errors import DivasInputError
+from ..errors import DivasInputError, InputErrorCode
 from ..kinds import SceneKind, ViewStatus
 from ..render import make_renderer
 from ..render.buffers import RenderBuffers
@@ -253,13 +253,24 @@ class SessionReader:
     def _resolve(self, view: SessionView | str) -> SessionView:
         v = self.view(view) if isinstance(view, str) else view
         if v.object_index != self.current.index:
-            raise ValueError(f"view {v.id} belongs to a finished object")
+            raise DivasInputError(
+                None,
+                f"view {v.id} belongs to a finished object",
+                code=InputErrorCode.VIEW_FINISHED,
+                details={"view": v.id},
+            )
         return v
 
     def anchor(self, i: int) -> AnchorView:
         """Anchor ``i`` (:class:`DivasInputError` naming the range when there is none)."""
         if not 0 <= int(i) < len(self.anchors):
-            raise DivasInputError(None, f"anchor {i} does not exist ({len(self.anchors)} anchors)")
+            n = len(self.anchors)
+            raise DivasInputError(
+                None,
+                f"anchor {i} does not exist ({n} anchors)",
+                code=InputErrorCode.NO_ANCHOR,
+                details={"anchor": int(i), "anchors": n},
+            )
         return self.anchors[int(i)]
 
     def next_view(self) -> SessionView | None:

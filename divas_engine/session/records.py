@@ -16,7 +16,7 @@ import numpy as np
 from ..camera import Camera
 from ..kinds import ViewStatus
 from ..render.buffers import RenderBuffers
-from ..segment.base import MaskSelection
+from ..segment.base import MaskSelection, Rejection
 from ..segment.depth_weighting import DepthBand
 from ..views.centroid_common import CentroidView
 
@@ -102,7 +102,8 @@ class MaskPreview:
         selection: :func:`~divas_engine.segment.select_mask` outcome.
         mask: the depth-weighted mask M̃ (None when rejected by ``select_mask``).
         band: the 2DGS depth band (eq:depthband), None for NeRF.
-        reason: why the view would be rejected, None when it would be fused.
+        rejection: why the view would be rejected (:class:`Rejection`), None when it
+            would be fused; ``reason`` is its sentence.
         advice: the segmenter's plain-language hint when it was unsure (what to click
             next: a click on what is missing, a negative click on what spilled over),
             None when it is confident or gives no hints (SAM, the oracle).
@@ -116,13 +117,17 @@ class MaskPreview:
     selection: MaskSelection
     mask: np.ndarray | None
     band: DepthBand | None
-    reason: str | None
+    rejection: Rejection | None
     seconds: float = 0.0
     advice: str | None = None
 
     @property
     def accepted(self) -> bool:
-        return self.reason is None
+        return self.rejection is None
+
+    @property
+    def reason(self) -> str | None:
+        return None if self.rejection is None else self.rejection.message
 
     @property
     def score(self) -> float:
@@ -139,8 +144,10 @@ class SessionView(_Rendered):
             anchor box …).
         status: a :class:`~divas_engine.kinds.ViewStatus` — ``"open"`` (spawned),
             ``"pending"`` (NeRF: accepted, SAM running), ``"fused"`` or ``"rejected"``.
-        reason: why it was rejected; advice: the segmenter's hint of its last preview
-            or rejection (what to click next), None once fused or when it was sure.
+        reason: why it was rejected (the engine's sentence); rejection: the same as data
+            (:class:`Rejection`; None in sessions saved before it was kept); advice: the
+            segmenter's hint of its last preview or rejection (what to click next), None
+            once fused or when it was sure.
         points, labels: the prompt set of the last preview / accept.
         mask: the depth-weighted mask that was fused.
         raw_mask: the segmenter's own mask of that accept, restored from a saved
@@ -157,6 +164,7 @@ class SessionView(_Rendered):
     centroid: CentroidView
     status: ViewStatus = ViewStatus.OPEN
     reason: str | None = None
+    rejection: Rejection | None = None
     advice: str | None = None
     score: float = float("nan")
     points: np.ndarray | None = None
@@ -189,6 +197,7 @@ class SessionView(_Rendered):
             "click": self.click,
             "status": self.status,
             "reason": self.reason,
+            "rejection": None if self.rejection is None else self.rejection.to_dict(),
             "advice": self.advice,
             "score": None if not np.isfinite(self.score) else float(self.score),
             "camera": c.camera.to_dict(),

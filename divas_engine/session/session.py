@@ -41,10 +41,10 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera
-from ..errors import DivasInputError
+from ..errors import DivasInputError, InputErrorCode
 from ..kinds import ViewStatus
 from ..scene import Scene
-from ..segment.base import Segmenter, SegResult
+from ..segment.base import Rejection, Segmenter, SegResult
 from ..segment.factory import SegmenterSettings, build_segmenter
 from ..segment.worker import SamWorker
 from ..views import Anchor
@@ -71,6 +71,16 @@ from .state import StateSnapshot
 __all__ = ["Session", "anchor_plan", "scene_kind"]
 
 _ACCEPTED = (ViewStatus.FUSED, ViewStatus.PENDING)
+
+
+def _check_open(v: SessionView) -> None:
+    if v.status in _ACCEPTED:
+        raise DivasInputError(
+            None,
+            f"view {v.id} is already accepted ({v.status}); undo it first",
+            code=InputErrorCode.VIEW_ACCEPTED,
+            details={"view": v.id},
+        )
 
 
 class Session(SessionReader):
@@ -205,7 +215,9 @@ class Session(SessionReader):
                 cv = self.backend.centroid_view(anchor.camera, xy, b, vid, on_camera)
             t1 = time.perf_counter()
         except DivasInputError as e:
-            raise DivasInputError(None, f"anchor {anchor.index}: {e.problem}") from None
+            raise DivasInputError(
+                None, f"anchor {anchor.index}: {e.problem}", code=e.code, details=e.details
+            ) from None
         buffers, handed_s = cv.take_buffers()  # the planner's first probe, when it is the view
         view = SessionView(vid, obj.index, anchor.index, ci, cv, buffers=buffers)
         self.render(view)  # rendered here when the planner's probe is not the view
@@ -254,8 +266,7 @@ class Session(SessionReader):
     ) -> MaskPreview:
         """Mask preview for a prompt set (default prompts + ``points``), synchronous."""
         v = self._resolve(view)
-        if v.status in _ACCEPTED:
-            raise ValueError(f"view {v.id} is already accepted ({v.status}); undo it first")
+        _check_open(v)
         p, lab = self._prompt_set(v, points, labels, include_default)
         seg = self._require_segmenter()
         ctx = self.view_context(v)
@@ -275,8 +286,7 @@ class Session(SessionReader):
         are recorded with their reason and change nothing.
         """
         v = self._resolve(view)
-        if v.status in _ACCEPTED:
-            raise ValueError(f"view {v.id} is already accepted ({v.status}); undo it first")
+        _check_open(v)
         if points is not None or labels is not None:
             p, lab = self._prompt_set(
                 v,
@@ -355,9 +365,9 @@ class Session(SessionReader):
         t0 = time.perf_counter()
         segmented = fusing.collect(self._worker, group)
         self.timings.add("segmenter_wait", time.perf_counter() - t0)
-        items: list[tuple[SessionView, MaskPreview | str]] = []
+        items: list[tuple[SessionView, MaskPreview | Rejection]] = []
         for v, res in segmented:
-            if isinstance(res, str):
+            if isinstance(res, Rejection):
                 items.append((v, res))
                 continue
             prev = self._mask_from(v, res, v.points, v.labels)
@@ -369,7 +379,7 @@ class Session(SessionReader):
 
     def _fuse_group(self, items, view: SessionView | None) -> AcceptResult:
         """Fuse (or reject) each ``(view, preview or failure)``, then update the selection."""
-        buffers = {v.id: self.render(v) for v, prev in items if not isinstance(prev, str)}
+        buffers = {v.id: self.render(v) for v, prev in items if isinstance(prev, MaskPreview)}
         try:
             fused, rejected, kernel_s = fusing.fuse_views(
                 items, buffers, self.fusion, self.timings, self.current.accept_order
@@ -377,7 +387,10 @@ class Session(SessionReader):
         except fusing.FusedSome as e:
             if e.fused:
                 self._update_selection()
-            raise DivasInputError(None, str(e.cause)) from None
+            views = e.cause.max_views
+            raise DivasInputError(
+                None, str(e.cause), code=InputErrorCode.FUSION_FULL, details={"views": views}
+            ) from None
         timings: dict[str, float] = {"kernel_s": kernel_s}
         ov = nov = nxt = None
         if fused:

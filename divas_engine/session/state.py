@@ -31,6 +31,7 @@ __all__ = ["SessionState", "StateSnapshot"]
 _VIEW_FIELDS = (
     "status",
     "reason",
+    "rejection",
     "advice",
     "score",
     "points",
