@@ -1,5 +1,5 @@
 """NeRF density-grid renderer: the ray-marcher of ``divas_kernels.raymarch`` behind the
-:class:`~divas_engine.render.protocol.Renderer` protocol."""
+:class:`~divas_engine.render.protocol.Renderer` base class."""
 
 from __future__ import annotations
 

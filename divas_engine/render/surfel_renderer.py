@@ -1,5 +1,5 @@
 """2DGS surfel renderer: the tile rasterizer of ``divas_kernels.rasterize`` behind the
-:class:`~divas_engine.render.protocol.Renderer` protocol."""
+:class:`~divas_engine.render.protocol.Renderer` base class."""
 
 from __future__ import annotations
 
