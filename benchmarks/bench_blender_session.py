@@ -212,7 +212,7 @@ def main() -> None:
     step("click", lambda: bpy.ops.divas.session_click(anchor=xy[0], xy=f"{xy[1]!r} {xy[2]!r}"))
     step("accept", lambda: bpy.ops.divas.session_accept())
     v = s.views[-1]
-    nxt = next((i for i, a in enumerate(s.anchors) if a._buffers is None), None)
+    nxt = next((i for i, a in enumerate(s.anchors) if not a.rendered), None)
     if nxt is not None:  # the first look through an anchor not rendered yet
         step("look through another anchor (first time)", lambda: _look_through(bpy, live, nxt))
     shown = next((vid for vid in live.coverage if callable(live.coverage[vid][1])), None)

@@ -91,13 +91,12 @@ def cost(sizes: list[int], walk_solver: str | None = None) -> None:
     for n in sizes:
         scene = surfel_scene(n)
         r = SurfelRenderer(scene, device="cpu")
-        sparse = getattr(r, "render_values_sparse", None)  # (absent before issue 16's speed-up)
-        bind = SceneBinding(scene, r.render_values, lambda _v: cam, render_sparse=sparse)
+        sparse = r.render_values_sparse
+        bind = SceneBinding(scene, r.render_values, render_sparse=sparse)
         seg = Graph3DSegmenter(cfg, binding=bind)
         t = time.perf_counter()
         seg.primitives()
-        if sparse is not None:
-            r.sparse_index()  # the renderer's block index: once per scene, like the features
+        r.sparse_index()  # the renderer's block index: once per scene, like the features
         prep = time.perf_counter() - t
         view = r.render(cam)
         cuts, renders, vox, classic, cpu = [], [], [], [], []

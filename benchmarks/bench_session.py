@@ -106,7 +106,7 @@ def interactive(
         put("warm", t)
         a = s.add_anchor(cam, "training", 0)
         t = start()
-        _ = a.buffers
+        s.render(a)
         put("render_anchor", t)
         views = []
         for k, xy in enumerate(clicks[:2]):

@@ -130,7 +130,8 @@ def camera_items(
             return items
         size = (v.camera.width, v.camera.height)
         if show_render:
-            rgba = np.concatenate([v.rgb, np.ones((*v.rgb.shape[:2], 1), np.float32)], 2)
+            rgb = s.render(v).rgb
+            rgba = np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], 2)
             items.append(ImageQuad(frame, rgba, ("render", v.id)))
         mask = v.mask if v.status == ViewStatus.FUSED else (v.preview and v.preview.mask)
         if mask is not None:
@@ -148,7 +149,8 @@ def camera_items(
         a = s.anchors[target.anchor]
         size = (a.camera.width, a.camera.height)
         if show_render:
-            rgba = np.concatenate([a.rgb, np.ones((*a.rgb.shape[:2], 1), np.float32)], 2)
+            rgb = s.render(a).rgb
+            rgba = np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], 2)
             items.append(ImageQuad(frame, rgba, ("render", "anchor", target.anchor)))
         clicks = s.current.clicks.get(target.anchor, [])
         m = _markers([c.xy for c in clicks], [int(c.positive) for c in clicks], frame, size, radius)
@@ -198,7 +200,7 @@ def scene_items(live, positions: np.ndarray, matrix_world: np.ndarray) -> list[P
         prev = v.preview
         if v.status == ViewStatus.FUSED or prev is None or prev.mask is None:
             continue
-        under = points_under_mask(positions, v.camera, prev.mask, v.buffers.D_ref)
+        under = points_under_mask(positions, v.camera, prev.mask, s.render(v).D_ref)
         if under.any():
             pts = _world(np.asarray(positions)[under], matrix_world)
             items.append(Points3D(pts, (*PREVIEW_COLOR, 0.9), 3.0, ("preview", v.id, id(prev))))

@@ -21,6 +21,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 from bpy.types import AddonPreferences
 
+from divas_engine.segment.factory import DEFAULT_SEGMENTER, SegmenterKind
+
 __all__ = [
     "ADDON_ID",
     "DIVAS_AddonPreferences",
@@ -29,6 +31,7 @@ __all__ = [
     "get_settings",
     "DEVICES",
     "SEGMENTERS",
+    "SAM_SEGMENTERS",
     "SAM_MODEL_TYPES",
     "ANCHOR_RESOLUTION",
 ]
@@ -39,16 +42,34 @@ DEVICES = (
     ("cpu", "CPU", "Run the kernels on the CPU (always available)"),
     ("cuda", "CUDA", "Run the kernels on the first CUDA GPU (needs an NVIDIA driver)"),
 )
+#: The segmenters offered, named as the engine and the CLI name them
+#: (:class:`~divas_engine.segment.SegmenterKind`). Blender keeps an enum in a .blend or in
+#: the saved preferences as its item's position, so the order stays as it is: preferences
+#: saved when SAM was spelled ``sam_onnx`` read back as ``sam-onnx``.
 SEGMENTERS = (
-    ("graph3d", "3D graph", "Weight-free 3D cut over the scene's own splats (no model files)"),
-    ("classic", "Classic", "Weight-free GrabCut on colour + depth (no model files)"),
-    ("sam_onnx", "SAM (ONNX)", "SAM / MobileSAM encoder + decoder .onnx files via onnxruntime"),
     (
-        "sam_torch",
+        SegmenterKind.GRAPH3D.value,
+        "3D graph",
+        "Weight-free 3D cut over the scene's own splats (no model files)",
+    ),
+    (
+        SegmenterKind.CLASSIC.value,
+        "Classic",
+        "Weight-free GrabCut on colour + depth (no model files)",
+    ),
+    (
+        SegmenterKind.SAM_ONNX.value,
+        "SAM (ONNX)",
+        "SAM / MobileSAM encoder + decoder .onnx files via onnxruntime",
+    ),
+    (
+        SegmenterKind.SAM_TORCH.value,
         "SAM (PyTorch)",
         "A segment-anything checkpoint (needs torch in Blender's Python)",
     ),
 )
+#: the segmenters that need model files
+SAM_SEGMENTERS = (SegmenterKind.SAM_ONNX.value, SegmenterKind.SAM_TORCH.value)
 SAM_MODEL_TYPES = (
     ("vit_h", "ViT-H", "sam_vit_h_4b8939.pth"),
     ("vit_l", "ViT-L", "sam_vit_l_0b3195.pth"),
@@ -64,7 +85,7 @@ ANCHOR_RESOLUTION = 640
 @dataclass(frozen=True)
 class DivasSettings:
     device: str = "cpu"
-    segmenter: str = "graph3d"
+    segmenter: str = DEFAULT_SEGMENTER.value
     sam_encoder_path: str = ""
     sam_decoder_path: str = ""
     sam_checkpoint_path: str = ""
@@ -76,7 +97,7 @@ class DIVAS_AddonPreferences(AddonPreferences):
     bl_idname = ADDON_ID
 
     device: EnumProperty(name="Device", items=DEVICES, default="cpu")
-    segmenter: EnumProperty(name="Segmenter", items=SEGMENTERS, default="graph3d")
+    segmenter: EnumProperty(name="Segmenter", items=SEGMENTERS, default=DEFAULT_SEGMENTER.value)
     sam_encoder_path: StringProperty(name="SAM Encoder (.onnx)", subtype="FILE_PATH")
     sam_decoder_path: StringProperty(name="SAM Decoder (.onnx)", subtype="FILE_PATH")
     sam_checkpoint_path: StringProperty(name="SAM Checkpoint (.pth)", subtype="FILE_PATH")
@@ -156,10 +177,10 @@ def active_model(prefs) -> str:
 
     enc, dec = prefs.sam_encoder_path, prefs.sam_decoder_path
     ckpt = bpy.path.abspath(prefs.sam_checkpoint_path) if prefs.sam_checkpoint_path else ""
-    if prefs.segmenter not in ("sam_onnx", "sam_torch"):
+    if prefs.segmenter not in SAM_SEGMENTERS:
         names = {key: name for key, name, _ in SEGMENTERS}
         return f"{names.get(prefs.segmenter, prefs.segmenter)} (no model files)"
-    if prefs.segmenter == "sam_torch":
+    if prefs.segmenter == SegmenterKind.SAM_TORCH:
         return f"{Path(ckpt).name} ({prefs.sam_model_type}) via PyTorch" if ckpt else "none"
     if enc and dec:
         return f"ONNX pair {Path(enc).name} + {Path(dec).name}"
@@ -179,9 +200,11 @@ def active_model_ready(prefs) -> bool:
     checkpoint already converted or convertible here (torch installed)."""
     from divas_engine.segment.sam_export import find_cached_conversion, torch_available
 
-    if prefs.segmenter == "sam_torch":
+    if prefs.segmenter == SegmenterKind.SAM_TORCH:
         return bool(prefs.sam_checkpoint_path)
-    if prefs.segmenter != "sam_onnx" or (prefs.sam_encoder_path and prefs.sam_decoder_path):
+    if prefs.segmenter != SegmenterKind.SAM_ONNX or (
+        prefs.sam_encoder_path and prefs.sam_decoder_path
+    ):
         return True
     if not prefs.sam_checkpoint_path:
         return False
@@ -217,7 +240,7 @@ def with_converted_checkpoint(settings: DivasSettings) -> DivasSettings:
     """SAM (ONNX) with a checkpoint and no pair: the engine's cached conversion of it (the
     first time this converts, minutes on a CPU; raises a clear error without torch)."""
     s = settings
-    if s.segmenter != "sam_onnx" or (s.sam_encoder_path and s.sam_decoder_path):
+    if s.segmenter != SegmenterKind.SAM_ONNX or (s.sam_encoder_path and s.sam_decoder_path):
         return s
     if not s.sam_checkpoint_path:
         return s

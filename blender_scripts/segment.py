@@ -29,8 +29,8 @@ REPO = Path(__file__).resolve().parents[1]
 SEGMENTERS = {
     "graph3d": "graph3d",
     "classic": "classic",
-    "sam-onnx": "sam_onnx",
-    "sam-torch": "sam_torch",
+    "sam-onnx": "sam-onnx",
+    "sam-torch": "sam-torch",
     "oracle": "oracle",
 }
 

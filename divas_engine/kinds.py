@@ -1,4 +1,5 @@
-"""The engine's fixed vocabularies as enums: scene kinds and view statuses.
+"""The engine's fixed vocabularies as enums: scene kinds, view statuses and why a view
+was rejected.
 
 Both are :class:`enum.StrEnum`, so a member equals its string value and serialises to
 it: session files, reports and prompts files keep the strings they always had.
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-__all__ = ["SceneKind", "ViewStatus"]
+__all__ = ["SceneKind", "ViewStatus", "RejectReason"]
 
 
 class SceneKind(StrEnum):
@@ -42,3 +43,20 @@ class ViewStatus(StrEnum):
     def accepted(self) -> bool:
         """Accepted by the user (fused, or fusing once its mask arrives)."""
         return self in (ViewStatus.FUSED, ViewStatus.PENDING)
+
+
+class RejectReason(StrEnum):
+    """Why an accepted view was not fused (the numbers travel in
+    :class:`~divas_engine.segment.base.Rejection`).
+
+    ``NO_POSITIVE_PROMPT`` its prompts hold no positive point; ``LOW_SCORE`` the kept
+    mask channel scored below the threshold (Sec. 3.4); ``EMPTY_MASK`` too few pixels
+    left after depth weighting; ``SEGMENTATION_FAILED`` the segmenter raised;
+    ``SEGMENTATION_MISSING`` the segmenter returned nothing for the view.
+    """
+
+    NO_POSITIVE_PROMPT = "no-positive-prompt"
+    LOW_SCORE = "low-score"
+    EMPTY_MASK = "empty-mask"
+    SEGMENTATION_FAILED = "segmentation-failed"
+    SEGMENTATION_MISSING = "segmentation-missing"

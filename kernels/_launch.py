@@ -140,7 +140,7 @@ def launch_split(
             in the sub-launch (``base``) it has in the whole launch (``"interleave"``
             only): a kernel that picks a per-thread row by ``base`` sees each of them in
             the same row and order as in the whole launch (the contribution walk over
-            the tiles that hold its targets, ``kernels.contrib``).
+            the tiles that hold its targets, ``divas_kernels.contrib``).
     """
     if n <= 0:
         return

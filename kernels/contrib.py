@@ -11,16 +11,17 @@ voting in the style of FlashSplat (ECCV 2024): a Gaussian is foreground when it
 contributes more to mask-positive than to mask-negative pixels.
 
 It reuses the rasterizer entirely: its preprocessing and depth sort
-(:func:`kernels.rasterize.project_splats`), its tile binning (:mod:`kernels.tile_binning`)
-and its tile walk (:mod:`kernels.tile_walk`: the ray–splat evaluation and the compositing
-step, so early termination and ``α_min`` skipping are the renderer's). Only the per-pair
-action differs (the walk's :class:`~kernels.tile_walk.ContribSink`): instead of adding
-``w · feat`` to the pixel, ``w`` is atomically added to the surfel's ``A₁`` or ``A₀``.
+(:func:`divas_kernels.rasterize.project_splats`), its tile binning
+(:mod:`divas_kernels.tile_binning`) and its tile walk (:mod:`divas_kernels.tile_walk`:
+the ray–splat evaluation and the compositing step, so early termination and ``α_min``
+skipping are the renderer's). Only the per-pair action differs (the walk's
+:class:`~divas_kernels.tile_walk.ContribSink`): instead of adding ``w · feat`` to the
+pixel, ``w`` is atomically added to the surfel's ``A₁`` or ``A₀``.
 
 Two walk forms, as in the rasterizer: ``pixel`` (one thread per pixel, the GPU form,
 ``wp.atomic_add`` into ``[1, N]`` accumulators) and ``tile`` (one thread per tile, the
 CPU form). Warp's CPU ``atomic_add`` is a plain add and the CPU wrapper runs several
-sub-launches concurrently (:func:`kernels._launch.launch_split`, ``interleave``: the
+sub-launches concurrently (:func:`divas_kernels._launch.launch_split`, ``interleave``: the
 sub-launch ``j`` gets ``base = j``), so on the CPU each sub-launch owns the row
 ``base`` of ``[threads, N]`` accumulators; the rows are summed at the end.
 Results are float32 and, up to float rounding of the sums, independent of the form.
@@ -131,10 +132,10 @@ def _walk_weights_kernel(
     base: int,
     stride: int,
 ):
-    """The tile walk (:data:`kernels.tile_walk.walk_tile_kernel`, CPU form) reduced to
+    """The tile walk (:data:`divas_kernels.tile_walk.walk_tile_kernel`, CPU form) reduced to
     what a contribution needs: per pixel only the transmittance ``T`` (``trans``; ``-1``
     once the pixel is done), not the depth tuple's state. The pair's weight ``w = α T``
-    and the update ``T ← T (1 − α)`` are :func:`kernels.composite.blend_step`'s float
+    and the update ``T ← T (1 − α)`` are :func:`divas_kernels.composite.blend_step`'s float
     operations on the same operands, and a pixel is done exactly when that step sets
     ``FLAG_DONE`` (``T < T_min`` after a blend; ``T`` starts at 1 and never grows), so
     every ``w`` is the generic walk's bit for bit. ``w`` is added to row ``base`` of
@@ -221,13 +222,13 @@ def accumulate_contributions(
         positive: ``[H, W]`` (or ``[H·W]``) mask, nonzero = mask-positive pixel.
         settings: the rasterizer's settings (same defaults: α_min, α_max, T_min, near,
             low-pass σ, tile, blend form, threads).
-        binning: a :class:`~kernels.rasterize.ViewBinning` a render of this view kept
-            (same buffers, camera and settings, :func:`~kernels.rasterize.binning_key`):
+        binning: a :class:`~divas_kernels.rasterize.ViewBinning` a render of this view kept
+            (same buffers, camera and settings, :func:`~divas_kernels.rasterize.binning_key`):
             its projection, depth order and tiles are reused and only the walk runs —
             the same kernels on the same inputs, so the sums are those of a fresh pass;
             ignored when its key does not match (and with a ``window``).
         window: ``(x0, y0, x1, y1)`` (half-open): walk only these pixels, as
-            :func:`~kernels.rasterize.rasterize_surfels`' ``window`` — surfels whose
+            :func:`~divas_kernels.rasterize.rasterize_surfels`' ``window`` — surfels whose
             bounds miss it are culled and bounds are clipped to it, tiles keep their image
             numbers. So each surfel's weights at the window's pixels are the whole pass's,
             summed in the same per-thread rows and tile order (while both passes walk the

@@ -2,7 +2,7 @@
 eq:final-F; App. B "Voxel-to-Surfel Mapping: Implementation Details"; alg:vox2surfel).
 
 * :data:`pass1_kernel` — ``f¹_i = B^seg[m_i]``: the surfel's voxel (the Morton code of
-  the grid build, ``kernels.occupancy.point_voxel_code``, resolved once to an active
+  the grid build, ``divas_kernels.occupancy.point_voxel_code``, resolved once to an active
   index by the grid's hash table) is segmented.
 * :data:`pass2_kernel` — ``f²_i = f¹_i ∧ (a_i ≤ τ_a)`` (needle flag precomputed once
   per scene) and the stream-compaction flag of the Pass-3 candidates.
@@ -12,7 +12,7 @@ eq:final-F; App. B "Voxel-to-Surfel Mapping: Implementation Details"; alg:vox2su
   ``[c_x ± e_x] × [c_y ± e_y]``, ``e_x = max |π_x(μ ± t_k) − c_x|`` over the four
   projected 1σ tangent tips (alg:vox2surfel (ii)), are visited; a pixel is counted
   when the pixel ray meets the surfel plane at tangent coordinates ``u² + v² ≤ 9``
-  (the rasterizer's ray–splat intersection, :class:`kernels.splat.Splat` rows);
+  (the rasterizer's ray–splat intersection, :class:`divas_kernels.splat.Splat` rows);
   ``κ_s = mask_fp / max(total_fp, 1)``, ``κ = max_s κ_s``.
 * :data:`select_kernel` — ``f_i = f²_i ∧ (κ_i ≥ τ_κ)`` (eq:final-F).
 
@@ -117,7 +117,7 @@ def upload_coverage_views(views: list[CoverageView], device) -> wp.array:
 @wp.func
 def project_surfel(mu: wp.vec3, tu: wp.vec3, tv: wp.vec3, cam: RasterCamera) -> Splat:
     """Camera-space splat rows of a surfel (the rasterizer's preprocess, same formulas:
-    ``kernels.rasterize.preprocess_kernel``); bounds/opacity fields are unused here.
+    ``divas_kernels.rasterize.preprocess_kernel``); bounds/opacity fields are unused here.
     Requires ``pc.z > 0`` (checked by the caller)."""
     pc = cam.R * mu + cam.t
     a = cam.R * tu
@@ -142,7 +142,7 @@ def project_surfel(mu: wp.vec3, tu: wp.vec3, tv: wp.vec3, cam: RasterCamera) -> 
 @wp.func
 def splat_rho3(sp: Splat, px: float, py: float, fx: float, fy: float) -> float:
     """``u² + v²`` of the pixel ray through ``(px, py)`` on the surfel plane, in units of
-    the tangent scales (the ``ρ_3`` of ``kernels.splat.splat_alpha``, same operations;
+    the tangent scales (the ``ρ_3`` of ``divas_kernels.splat.splat_alpha``, same operations;
     no low-pass term). Edge-on (``p_z = 0``) → 1e30."""
     return plane_hit(sp, (px - sp.center[0]) / fx, (py - sp.center[1]) / fy)[0]
 

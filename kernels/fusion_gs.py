@@ -4,7 +4,7 @@ eq:thin-tthin-gs).
 
 Per (voxel x, view i) the kernel writes the view's contribution to eq:compact-fusion:
 ``kind = 1`` thick vote (num m·w, den w), ``kind = 2`` thin vote (num t, den 1) when
-t ≥ τ_thin, else nothing. Accumulation is done by ``kernels.fusion_accum``.
+t ≥ τ_thin, else nothing. Accumulation is done by ``divas_kernels.fusion_accum``.
 
 Choices where the paper is silent (also listed in ``divas_engine.fusion.gs_fusion``):
 * nearest-pixel sampling; the ray of eq:planar-to-ray and of the spatial gate goes

@@ -18,7 +18,7 @@ Pipeline per view (the 2DGS rasterizer structure, re-derived here):
 3. per band of tile rows: tile counts in depth order, exclusive scan, duplication
    into (tile, surfel) pairs, stable radix sort on the tile bits, tile ranges.
    Bands are split so the duplicate count stays under ``max_duplicates``.
-4. blending, front to back per pixel (``kernels.composite`` rules), in one of two
+4. blending, front to back per pixel (``divas_kernels.composite`` rules), in one of two
    equivalent Warp kernels that call the same per-pair function:
    ``pixel`` (one thread per pixel, loops its tile's list — the GPU form) and
    ``tile`` (one thread per tile, walks each surfel's exact row spans ∩ tile —
@@ -28,7 +28,7 @@ Ray–splat intersection (NOTES): for pixel ray ``r = ((x−c_x)/f_x, (y−c_y)/
 and the surfel plane ``X(u,v) = μ + u t_u + v t_v`` in camera space (``t_u, t_v``
 scaled by ``s_1, s_2``), with rows ``m_x = (t_u.x, t_v.x, μ.x)`` (likewise ``m_y, m_z``)
 the hit satisfies ``(u, v, 1) ∝ p = (r_x m_z − m_x) × (r_y m_z − m_y)``, which is
-linear in ``r``: ``p = Q r`` (:class:`kernels.splat.Splat`, evaluated from the offset
+linear in ``r``: ``p = Q r`` (:class:`divas_kernels.splat.Splat`, evaluated from the offset
 to the projected centre's ray). So ``ρ_3 = u² + v²`` with ``u = p_x/p_z, v = p_y/p_z``
 and the planar depth is ``z = m_z·(u, v, 1) = det[m]/p_z``. Low-pass: ``ρ_2 = d² / σ²`` with
 ``d`` the pixel
@@ -335,7 +335,7 @@ def project_splats(
     n_dest: int = 0,
 ) -> tuple[wp.array, wp.array]:
     """Preprocess every surfel for ``cam`` (splat rows, exact bounds, culling; SH colours
-    into ``colors`` when given); the depth order is :func:`kernels.tile_binning.sort_visible`.
+    into ``colors`` when given); the depth order is :func:`divas_kernels.tile_binning.sort_visible`.
     ``rows``: only these surfels (int32, their first ``count``; ascending, every other
     one culled — or the visible ones in depth order). ``write_splats`` False: the keys
     (and colours) only (``splats`` is a placeholder). ``extra`` ``[N, C]`` (with
@@ -347,7 +347,7 @@ def project_splats(
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
-    (only the visible ones are read: :func:`kernels.tile_binning.sort_visible`, then
+    (only the visible ones are read: :func:`divas_kernels.tile_binning.sort_visible`, then
     ``visible_splats``).
     """
     n = len(buf) if rows is None else (rows.shape[0] if count is None else int(count))
@@ -438,7 +438,7 @@ def rasterize_surfels(
             ``binning`` is not reused then, nor are the colours kept with a new one.
         keep_colours: False: a kept binning holds no SH colours (an RGB render of its
             camera then projects afresh); their array may then come from an active
-            :class:`~kernels.scratch.ScratchPool` (it does not outlive the call).
+            :class:`~divas_kernels.scratch.ScratchPool` (it does not outlive the call).
     Returns:
         :class:`RasterOutput` on ``buf.device``.
     """

@@ -6,7 +6,7 @@ slab test (and to the near plane), then cut into segments of length
 shorter, ending at the exit). Each segment is sampled at its midpoint:
 trilinear density σ (cell-centred samples, clamp to edge), ``α_k = 1 − exp(−σ δ_k)``,
 planar depth ``z_k = t_mid · cos θ``. Samples are composited front to back with
-:mod:`kernels.composite` (``N_samp`` anchored at ``D_max``; every sample with
+:mod:`divas_kernels.composite` (``N_samp`` anchored at ``D_max``; every sample with
 ``α > 0`` is blended, ``α ≥ 1/255`` ones are *contributing*); traversal stops once
 ``T < T_min``.
 
@@ -306,7 +306,7 @@ def raymarch_grid(
         values: ``None`` → RGB (the grid's, else ``color``) over ``background``; else
             per-voxel ``[D,H,W]`` or ``[D,H,W,C]`` values composited with the same
             weights (no background).
-    Returns: :class:`kernels.composite.PixelOut` on ``buf.device``.
+    Returns: :class:`divas_kernels.composite.PixelOut` on ``buf.device``.
     """
     from .rasterize import alloc_pixel_out
 

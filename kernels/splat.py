@@ -1,6 +1,6 @@
 """Per-view splat geometry of the 2DGS rasterizer: camera struct, projected splat
 struct, conic screen bounds and the exact ray–splat evaluation (see
-``kernels.rasterize`` for the formulas)."""
+``divas_kernels.rasterize`` for the formulas)."""
 
 from __future__ import annotations
 

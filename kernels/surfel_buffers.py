@@ -1,6 +1,6 @@
 """A surfel scene resident on one Warp device (:func:`upload_surfels`, once per scene)
 and host gathers of some of its rows (:func:`surfel_rows`), shared by the rasterizer
-(``kernels.rasterize``) and the passes over its binnings."""
+(``divas_kernels.rasterize``) and the passes over its binnings."""
 
 from __future__ import annotations
 

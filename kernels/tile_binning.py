@@ -1,6 +1,6 @@
 """Tile binning of depth-sorted splats, shared by every pass that walks tiles
-(the rasterizer's blend, ``kernels.rasterize``, and the contribution pass,
-``kernels.contrib``), so all of them see the same (tile, surfel) lists.
+(the rasterizer's blend, ``divas_kernels.rasterize``, and the contribution pass,
+``divas_kernels.contrib``), so all of them see the same (tile, surfel) lists.
 
 Per band of tile rows: count the tiles each splat touches (in depth order), exclusive
 scan, duplicate into (band-local tile id, surfel) pairs, stable radix sort on the tile
@@ -259,7 +259,7 @@ def _rank_kernel(
 
 def depth_ranks(order: wp.array, n_vis: int, n: int, dev, threads: int) -> wp.array:
     """``rank [n]``: ``rank[order[j]] = j`` for the ``n_vis`` visible items of the depth
-    order ``order`` (:func:`kernels.tile_binning.sort_visible`), −1 for the culled ones
+    order ``order`` (:func:`divas_kernels.tile_binning.sort_visible`), −1 for the culled ones
     (the second pass skips them before projecting: half of a wide 3M view)."""
     rank = scratch_empty(max(n, 1), wp.int32, dev)
     rank.fill_(-1)
@@ -286,7 +286,7 @@ def tile_bands(
     holds more than ``max_duplicates`` (splat, tile) pairs (bounded memory), duplicate
     keys, sort them by tile (stable, so depth order survives) and find each tile's range.
     Yields ``(band_lo, n_tiles, sorted_splat_ids, range_start, range_end, pairs)``; also
-    used by the contribution pass (``kernels.contrib``) so both see the same binning.
+    used by the contribution pass (``divas_kernels.contrib``) so both see the same binning.
 
     ``splats[:n]``: the visible splats in depth order (:func:`visible_splats`; culled
     splats touch no tile, so leaving them out changes no pair); the pairs hold depth
@@ -342,9 +342,10 @@ class ViewBinning:
     Attributes:
         key: what the binning depends on (scene buffers, camera, settings).
         splats, ids: the visible splats in depth order and their surfel indices
-            (:func:`kernels.tile_binning.visible_splats`; only these are kept).
-        n_visible: how many surfels are not culled (:func:`~kernels.tile_binning.sort_visible`).
-        bands: the band list of :func:`kernels.tile_binning.tile_bands` when the view
+            (:func:`divas_kernels.tile_binning.visible_splats`; only these are kept).
+        n_visible: how many surfels are not culled
+            (:func:`~divas_kernels.tile_binning.sort_visible`).
+        bands: the band list of :func:`divas_kernels.tile_binning.tile_bands` when the view
             fits in one band, else None (each pass re-bins band by band: bounded memory).
         colors: ``[N, 3]`` SH colours when an RGB render made it, else None.
         stats: pairs and bands.

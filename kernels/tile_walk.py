@@ -1,14 +1,15 @@
 """The one tile walk of the 2DGS rasterizer, shared by every pass over the binned
-(tile, surfel) lists of ``kernels.tile_binning``: the blend (``kernels.rasterize``)
-and the per-surfel contribution pass (``kernels.contrib``).
+(tile, surfel) lists of ``divas_kernels.tile_binning``: the blend (``divas_kernels.rasterize``)
+and the per-surfel contribution pass (``divas_kernels.contrib``).
 
 For every pixel, the surfels of its tile are visited in the sorted (centre depth,
-index) order; :func:`kernels.splat.splat_alpha` then :func:`kernels.composite.blend_step`
-give the pair's weight ``w = α T``, and a *sink* says what the pass does with it:
+index) order; :func:`divas_kernels.splat.splat_alpha` then
+:func:`divas_kernels.composite.blend_step` give the pair's weight ``w = α T``, and a
+*sink* says what the pass does with it:
 
 * :class:`BlendSink` — adds ``w · feat[i]`` (``feat[j]``, the depth rank, when the
   features were stored in depth order: ``by_rank``) to the pixel's features and, at the
-  end, writes the depth tuple (:func:`kernels.composite.finish_pixel`);
+  end, writes the depth tuple (:func:`divas_kernels.composite.finish_pixel`);
 * :class:`ContribSink` — adds ``w`` to surfel ``i``'s A₁ (mask-positive pixel) or A₀
   accumulator, row ``base`` of a ``[rows, N]`` array (one row per CPU sub-launch).
 
@@ -17,7 +18,7 @@ operations in the same order, so their outputs are bit-identical):
 
 * :data:`walk_pixel_kernel` — one thread per pixel, loops its tile's list (GPU form);
 * :data:`walk_tile_kernel` — one thread per tile; for each surfel of the tile it walks
-  only the surfel's row spans (:func:`kernels.splat.row_span`) ∩ tile and keeps the pixel
+  only the surfel's row spans (:func:`divas_kernels.splat.row_span`) ∩ tile and keeps the pixel
   states in a scratch array (CPU form: Warp runs CPU launches serially per thread, so
   the work should scale with covered pixels, not with list length × tile area).
 
@@ -255,7 +256,7 @@ def launch_walk(
 ) -> None:
     """Walk one band's ``n_tiles`` tiles in ``mode`` (``"pixel"``/``"tile"``) with ``sink``.
 
-    ``split``: how CPU sub-launches share the work (:func:`kernels._launch.launch_split`;
+    ``split``: how CPU sub-launches share the work (:func:`divas_kernels._launch.launch_split`;
     a sink with per-thread rows needs ``"interleave"``: sub-launch ``j`` gets ``base = j``).
     """
     common = [splats, ids, vals, rstart, rend, cam, inv_var, alpha_max, bp, tile, tiles_x, band_lo]

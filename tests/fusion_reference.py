@@ -1,7 +1,7 @@
 """NumPy references of the fusion kernels, written straight from alg:gs-fusion /
 alg:gs-thin and alg:nerf-fusion / alg:nerf-thin (float64, vectorised over voxels,
 one view at a time), with the same resolutions of the paper's open points as the
-kernels (see ``divas_engine.fusion.gs_fusion`` and ``kernels.fusion_nerf``).
+kernels (see ``divas_engine.fusion.gs_fusion`` and ``divas_kernels.fusion_nerf``).
 
 Every threshold decision also records its *margin* (relative distance of the two
 sides) per voxel, so tests compare the float32 Warp kernels with this float64

@@ -114,7 +114,7 @@ def test_session_click_renders_the_view_once(occluded, monkeypatch):
             render_anchors=False,
         )  # fmt: skip
         a = sess.add_anchor(anchor, "training", 0)
-        _ = a.buffers
+        sess.render(a)
         calls, depths = _spy(monkeypatch, sess.renderer)
         ys, xs = np.nonzero((a.buffers.alpha > 0.9) & (a.buffers.D_med > 0))
         k = len(xs) // 2

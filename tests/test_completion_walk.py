@@ -1,7 +1,7 @@
 """The completion's contribution walk on the CPU (issue 15, walk15c): the tile walk of
 ``accumulate_contributions`` that keeps per pixel only the transmittance (not the depth
 tuple's state) and looks the targets' slots up in a kept ``[N]`` table. Reference: the
-generic tile walk of :mod:`kernels.tile_walk` (``ContribSink``; the path before this
+generic tile walk of :mod:`divas_kernels.tile_walk` (``ContribSink``; the path before this
 change, still used on CUDA) — every A₁ / A₀ must be equal bit for bit, for the full pass,
 target subsets, a sub-scene (``rows``), a window and a kept view binning."""
 

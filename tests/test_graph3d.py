@@ -31,7 +31,7 @@ from tests.graph3d_cases import (
 
 
 def _cut(case, positive, negative=(), config=None):
-    seg = Graph3DSegmenter(config, binding=SceneBinding(case.scene, None, None))
+    seg = Graph3DSegmenter(config, binding=SceneBinding(case.scene))
     rc = seg.cut(Seeds(np.array(positive, float), np.array(negative, float).reshape(-1, 3)))
     full = np.zeros((3, len(case.scene)), bool)
     full[:, seg.primitives().rows_of(np.arange(rc.selected.shape[1]))] = rc.selected
@@ -91,7 +91,7 @@ def test_loose_specks_get_no_potential_and_stay_out():
     case = ball_and_specks()
     rc, sel = _cut(case, [[0.0, -0.2, 0.2]])
     g = rc.graph
-    prims = Graph3DSegmenter(binding=SceneBinding(case.scene, None, None)).primitives()
+    prims = Graph3DSegmenter(binding=SceneBinding(case.scene)).primitives()
     idx = prims.rows_of(np.arange(len(prims)))
     speck_nodes = np.unique(g.voxel_of[case.part[idx[g.prim]] == 2])
     assert len(speck_nodes) >= 3  # all three specks are in the examined region
@@ -221,7 +221,7 @@ def test_session_binds_scene_and_the_preview_is_the_3d_region():
         sel = s.selection  # one view: the ball's side it sees, nothing of the floor
         assert np.mean(sel[case.of(1)]) > 0.25 and np.mean(sel[case.of(0)]) < 0.001
         # the object's clicks reach the segmenter in 3D
-        oc = seg.binding.clicks_of(v.id)
+        oc = s.view_context(v).clicks
         assert oc.positive.tolist() == [True] and np.allclose(oc.points[0], v.centroid.target)
     finally:
         s.close()
@@ -287,7 +287,7 @@ def test_nerf_grid_ball_is_cut_from_its_floor_and_a_neighbour():
     # on the box takes the box alone; a negative click on the box keeps it out of the
     # medium (fused) region
     case = grid_ball_and_box()
-    seg = Graph3DSegmenter(binding=SceneBinding(case.grid, None, None))
+    seg = Graph3DSegmenter(binding=SceneBinding(case.grid))
     part = case.part.reshape(-1)[seg.primitives().index]  # the cut's cells: the shell
 
     def share(pos, neg=()):
@@ -325,7 +325,7 @@ def test_the_region_grows_when_the_cut_fills_it_and_the_walk_runs_out(guitar):
     # down the neck towards the body joint
     scene, targets = guitar
     neck = target_scene_labels(scene, targets, "neck") > 0.5
-    seg = Graph3DSegmenter(binding=SceneBinding(scene, None, None, None, lambda: (0, -1.0, 0)))
+    seg = Graph3DSegmenter(binding=SceneBinding(scene, up=lambda: (0, -1.0, 0)))
     clicks = np.array([[-0.020152, -3.039453, 0.176003], [-0.363333, -4.0003, 0.038261]])
     rc = seg.cut(Seeds(clicks, np.zeros((0, 3))))
     sel = np.zeros(len(scene), bool)
@@ -346,7 +346,7 @@ def test_the_guitar_leaning_on_its_stand_is_a_clear_object(guitar):
     # view of the guitar was rejected ("No clear edge around your click")
     scene, targets = guitar
     truth = target_scene_labels(scene, targets, "guitar") > 0.5
-    seg = Graph3DSegmenter(binding=SceneBinding(scene, None, None, None, lambda: (0, -1.0, 0)))
+    seg = Graph3DSegmenter(binding=SceneBinding(scene, up=lambda: (0, -1.0, 0)))
     clicks = np.array(
         [
             [0.556615, -0.904618, -0.453366],
@@ -364,6 +364,6 @@ def test_the_guitar_leaning_on_its_stand_is_a_clear_object(guitar):
     # the guard that counted such contacts as no boundary: the same cut, unsure
     guarded = Graph3DSegmenter(
         Graph3DConfig(neck_min_voxels=8),
-        binding=SceneBinding(scene, None, None, None, lambda: (0, -1.0, 0)),
+        binding=SceneBinding(scene, up=lambda: (0, -1.0, 0)),
     ).cut(Seeds(clicks, np.zeros((0, 3))))
     assert np.array_equal(guarded.selected, rc.selected) and guarded.scores[1] < 0.5

@@ -179,7 +179,7 @@ def test_segmenter_results_are_the_reference(name, monkeypatch):
 
     def segmenter() -> Graph3DSegmenter:
         bind = SceneBinding(
-            scene, r.render_values, lambda _v: cam, None, lambda: UP, r.render_values_sparse
+            scene, r.render_values, up=lambda: UP, render_sparse=r.render_values_sparse
         )
         return Graph3DSegmenter(binding=bind)
 

@@ -70,7 +70,7 @@ def test_the_planner_hands_over_the_camera_it_renders(plant):  # noqa: F811
     s, _ = _open(plant, False)
     a, xy = _on_object(s, plant, 0)
     anchor = s.anchor(a)
-    buf = anchor.buffers
+    buf = s.render(anchor)
     for cfg, calls in ((ViewConfig(), 1), (ViewConfig(tau_o=0.0), 2)):
         seen = []
         planner = GsCentroidPlanner(s.scene, s.renderer, cfg)

@@ -161,7 +161,7 @@ def test_fast_masks_are_the_dense_full_render(boxes, alpha_min, monkeypatch):
     wide = alpha_min < 1e-3
     cam = _camera()
     r = SurfelRenderer(boxes.scene, device="cpu", config=RenderConfig(alpha_min=alpha_min))
-    bind = SceneBinding(boxes.scene, r.render_values, lambda _v: cam)
+    bind = SceneBinding(boxes.scene, r.render_values)
     seg = Graph3DSegmenter(binding=bind)
     rc = seg.cut(Seeds(np.array([[0.12, -0.12, 0.1]]), np.zeros((0, 3))))
     assert rc.selected.any()
@@ -169,11 +169,7 @@ def test_fast_masks_are_the_dense_full_render(boxes, alpha_min, monkeypatch):
     ref = seg.render_masks(cam, rc.selected)
     seg.fast_masks = True
     assert np.array_equal(seg.render_masks(cam, rc.selected), ref)  # window, dense
-    seg.bind_scene(
-        SceneBinding(
-            boxes.scene, r.render_values, lambda _v: cam, None, None, r.render_values_sparse
-        )
-    )
+    seg.bind_scene(SceneBinding(boxes.scene, r.render_values, render_sparse=r.render_values_sparse))
     assert np.array_equal(seg.render_masks(cam, rc.selected), ref)  # window, sparse
     prims = seg.primitives()
     cols = rc.selected.any(axis=0)
@@ -209,7 +205,7 @@ def test_fast_masks_of_a_density_grid_are_the_dense_render():
         fx=200.0,
     )
     r = NerfRenderer(case.grid, device="cpu")
-    seg = Graph3DSegmenter(binding=SceneBinding(case.grid, r.render_values, lambda _v: cam))
+    seg = Graph3DSegmenter(binding=SceneBinding(case.grid, r.render_values))
     rc = seg.cut(Seeds(np.array([[0.0, 0.0, 0.36]]), np.zeros((0, 3))))
     prims = seg.primitives()
     cols = rc.selected.any(axis=0)

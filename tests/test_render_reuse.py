@@ -11,7 +11,7 @@ import warp as wp
 from scipy.spatial import cKDTree
 
 from divas_engine.camera import Camera
-from divas_engine.render import RenderConfig
+from divas_engine.render import RenderConfig, Renderer
 from divas_engine.render.surfel_renderer import SurfelRenderer
 from divas_engine.views.centroid_gs import GsCentroidPlanner
 
@@ -126,8 +126,12 @@ def test_windowed_probes_give_the_same_centroid_views():
     s = generate_scene("occluded", None, size=20_000, seed=0)
     r = SurfelRenderer(s.scene, device="cpu")
 
-    class WholeImage:  # the probes' fallback: a full render of the whole probe image
-        render = r.render
+    class WholeImage(Renderer):  # the probes' fallback: a full render of the whole image
+        def render(self, camera, scale=1.0, *, attached=True):  # (Renderer.render_depth's)
+            return r.render(camera, scale)
+
+        def render_values(self, camera, values, scale=1.0):
+            return r.render_values(camera, values, scale)
 
     windowed, whole = GsCentroidPlanner(s.scene, r), GsCentroidPlanner(s.scene, WholeImage())
     rejected = 0
@@ -165,7 +169,7 @@ def test_accept_overlays_are_lazy_and_show_the_accepted_selection(tmp_path):
         scene, sc.cameras, SessionConfig(render_scale=0.5), OracleSegmenter(), "cpu",
         anchors=[cam], gt_values=sc.labels,
     )  # fmt: skip
-    assert s.anchors[0]._buffers is not None  # the first anchor is rendered by open
+    assert s.anchors[0].rendered  # the first anchor is rendered by open
     a = s.anchors[0]
     uv, _ = a.camera.project(np.array([c["xyz"]]))
     views = [s.click(0, uv[0]), s.click(0, uv[0] + 6.0)]

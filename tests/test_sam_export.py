@@ -178,7 +178,7 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
     monkeypatch.setattr(prefs_mod, "sam_cache_dir", lambda: tmp_path / "cache")
     path, _ = tiny_ckpt
     prefs = SimpleNamespace(
-        segmenter="sam_onnx",
+        segmenter="sam-onnx",
         sam_encoder_path="",
         sam_decoder_path="",
         sam_checkpoint_path=str(path),
@@ -187,7 +187,7 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
     assert prefs_mod.active_model(prefs).endswith("converted to ONNX at the next Start")
     assert prefs_mod.active_model_ready(prefs)  # a checkpoint alone is enough: no warning
     settings = prefs_mod.DivasSettings(
-        segmenter="sam_onnx", sam_checkpoint_path=str(path), sam_model_type="vit_b"
+        segmenter="sam-onnx", sam_checkpoint_path=str(path), sam_model_type="vit_b"
     )
     s = prefs_mod.with_converted_checkpoint(settings)
     assert s.sam_encoder_path.startswith(str(tmp_path / "cache")) and s.sam_decoder_path
@@ -199,7 +199,7 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
     prefs.sam_encoder_path, prefs.sam_decoder_path = "/m/enc.onnx", "/m/dec.onnx"
     assert prefs_mod.active_model(prefs) == "ONNX pair enc.onnx + dec.onnx"
     paired = prefs_mod.DivasSettings(
-        segmenter="sam_onnx",
+        segmenter="sam-onnx",
         sam_encoder_path="/m/e.onnx",
         sam_decoder_path="/m/d.onnx",
         sam_checkpoint_path=str(path),
@@ -214,7 +214,7 @@ def test_addon_preferences_use_a_checkpoint_converted_once(
     assert prefs_mod.active_model_ready(prefs)
     prefs.sam_checkpoint_path = ""
     assert not prefs_mod.active_model_ready(prefs)
-    prefs.segmenter = "sam_torch"
+    prefs.segmenter = "sam-torch"
     assert not prefs_mod.active_model_ready(prefs)
 
 

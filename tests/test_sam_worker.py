@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from divas_engine.segment import SamWorker, SegmentationJobError, Segmenter
+from divas_engine.segment import SamWorker, SegmentationJobError, Segmenter, ViewContext
 from divas_engine.segment.worker import SYNC_PENDING
 
 
@@ -50,7 +50,7 @@ def test_async_results_in_submission_order_and_in_background():
     with SamWorker(seg) as w:
         t = time.perf_counter()
         for i, v in enumerate("abc"):
-            w.submit(v, _rgb(0.1 * (i + 1)), None, P1, L1)
+            w.submit(ViewContext(v, _rgb(0.1 * (i + 1))), P1, L1)
         assert time.perf_counter() - t < 0.1  # submit does not wait for SAM
         assert w.pending() == 3
         res = w.sync()
@@ -65,12 +65,12 @@ def test_async_results_in_submission_order_and_in_background():
 def test_should_sync_rule():
     with SamWorker(FakeSegmenter()) as w:
         assert not w.should_sync(end_of_group=True)  # nothing pending
-        w.submit(0, _rgb(0.1), None, P1, L1)
+        w.submit(ViewContext(0, _rgb(0.1)), P1, L1)
         assert not w.should_sync(end_of_group=False)
         assert w.should_sync(end_of_group=True)  # (i) last view of the anchor group
-        w.submit(1, _rgb(0.2), None, P1, L1)
+        w.submit(ViewContext(1, _rgb(0.2)), P1, L1)
         assert not w.should_sync()
-        w.submit(2, _rgb(0.3), None, P1, L1)
+        w.submit(ViewContext(2, _rgb(0.3)), P1, L1)
         assert SYNC_PENDING == 3 and w.should_sync()  # (ii) three pending masks
         assert len(w.sync()) == 3 and not w.should_sync(True)
 
@@ -78,12 +78,12 @@ def test_should_sync_rule():
 def test_result_cache_and_embedding_reuse():
     seg = FakeSegmenter()
     with SamWorker(seg) as w:
-        w.submit("v", _rgb(0.5), None, P1, L1)
+        w.submit(ViewContext("v", _rgb(0.5)), P1, L1)
         first = w.sync()["v"]
-        w.submit("v", _rgb(0.5), None, P1.copy(), L1.copy())  # same prompts: cached result
+        w.submit(ViewContext("v", _rgb(0.5)), P1.copy(), L1.copy())  # same prompts: cached result
         again = w.sync()["v"]
         assert again is first and w.runs == 1 and w.result("v") is first
-        w.submit("v", _rgb(0.5), None, np.array([[1.0, 1.0], [2.0, 2.0]]), np.array([1, 0]))
+        w.submit(ViewContext("v", _rgb(0.5)), np.array([[1.0, 1.0], [2.0, 2.0]]), np.array([1, 0]))
         new = w.sync()["v"]
         assert w.runs == 2 and new.masks[2, 0, 0] == 2.0
         assert seg.encodes == 1 and seg.predicts == 2  # the view's embedding was reused
@@ -94,11 +94,11 @@ def test_result_cache_and_embedding_reuse():
 def test_resubmitting_a_pending_view_replaces_it():
     seg = FakeSegmenter(delays={"slow": 0.1})
     with SamWorker(seg) as w:
-        w.submit("slow", _rgb(0.1), None, P1, L1)
-        w.submit("x", _rgb(0.2), None, P1, L1)
-        w.submit("x", _rgb(0.2), None, np.array([[1.0, 1.0], [3.0, 3.0]]), np.array([1, 1]))
-        w.submit("y", _rgb(0.3), None, P1, L1)
-        w.submit("x", _rgb(0.2), None, np.array([[1.0, 1.0], [3.0, 3.0]]), np.array([1, 1]))
+        w.submit(ViewContext("slow", _rgb(0.1)), P1, L1)
+        w.submit(ViewContext("x", _rgb(0.2)), P1, L1)
+        w.submit(ViewContext("x", _rgb(0.2)), np.array([[1.0, 1.0], [3.0, 3.0]]), np.array([1, 1]))
+        w.submit(ViewContext("y", _rgb(0.3)), P1, L1)
+        w.submit(ViewContext("x", _rgb(0.2)), np.array([[1.0, 1.0], [3.0, 3.0]]), np.array([1, 1]))
         assert w.pending() == 3
         res = w.sync()
     assert list(res) == ["slow", "y", "x"] and res["x"].masks[2, 0, 0] == 2.0
@@ -106,9 +106,9 @@ def test_resubmitting_a_pending_view_replaces_it():
 
 def test_errors_reraised_at_sync_with_view_id():
     with SamWorker(FakeSegmenter()) as w:
-        w.submit("ok1", _rgb(0.1), None, P1, L1)
-        w.submit("bad", _rgb(0.2), None, P1, L1)  # fails in the thread, not here
-        w.submit("ok2", _rgb(0.3), None, P1, L1)
+        w.submit(ViewContext("ok1", _rgb(0.1)), P1, L1)
+        w.submit(ViewContext("bad", _rgb(0.2)), P1, L1)  # fails in the thread, not here
+        w.submit(ViewContext("ok2", _rgb(0.3)), P1, L1)
         with pytest.raises(SegmentationJobError, match="'bad'.*broken view") as info:
             w.sync()
         err = info.value
@@ -116,42 +116,42 @@ def test_errors_reraised_at_sync_with_view_id():
         assert isinstance(err.__cause__, ValueError)
         assert list(err.results) == ["ok1", "ok2"] and w.result("ok2") is not None
         assert w.pending() == 0
-        w.submit("ok3", _rgb(0.4), None, P1, L1)
+        w.submit(ViewContext("ok3", _rgb(0.4)), P1, L1)
         assert list(w.sync()) == ["ok3"]
 
 
 def test_synchronous_mode_same_api():
     seg = FakeSegmenter()
     w = SamWorker(seg, asynchronous=False)
-    w.submit("a", _rgb(0.1), None, P1, L1)
+    w.submit(ViewContext("a", _rgb(0.1)), P1, L1)
     assert seg.threads == {threading.get_ident()}  # ran inside submit
     assert w.should_sync(end_of_group=False)  # 2DGS: every view is fused at once
-    w.submit("bad", _rgb(0.2), None, P1, L1)  # error kept for sync(), like async
+    w.submit(ViewContext("bad", _rgb(0.2)), P1, L1)  # error kept for sync(), like async
     with pytest.raises(SegmentationJobError) as info:
         w.sync()
     assert list(info.value.results) == ["a"]
     w.close()
     with pytest.raises(RuntimeError, match="closed"):
-        w.submit("b", _rgb(0.1), None, P1, L1)
+        w.submit(ViewContext("b", _rgb(0.1)), P1, L1)
 
 
 def test_close_cancels_queued_jobs():
     seg = FakeSegmenter(delays={0: 0.2})
     w = SamWorker(seg)
     for i in range(4):
-        w.submit(i, _rgb(0.1), None, P1, L1)
+        w.submit(ViewContext(i, _rgb(0.1)), P1, L1)
     time.sleep(0.05)
     w.close()
     w.close()  # idempotent
     assert seg.encodes == 1 and w.pending() == 0
     with pytest.raises(RuntimeError):
-        w.submit(9, _rgb(0.1), None, P1, L1)
+        w.submit(ViewContext(9, _rgb(0.1)), P1, L1)
 
 
 def test_inputs_are_copied_for_the_background_thread():
     seg = FakeSegmenter(delays={"a": 0.05})
     with SamWorker(seg) as w:
         buf = _rgb(0.25)
-        w.submit("a", buf, None, P1, L1)
+        w.submit(ViewContext("a", buf), P1, L1)
         buf[:] = 0.75  # the caller reuses its render buffer
         assert w.sync()["a"].masks[1, 0, 0] == pytest.approx(0.25)

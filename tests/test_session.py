@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from divas_engine import Camera, DivasInputError, load_scene
+from divas_engine.errors import InputErrorCode
 from divas_engine.io.ply import iter_vertex_chunks, read_ply_header
-from divas_engine.segment import OracleSegmenter
+from divas_engine.kinds import RejectReason
+from divas_engine.segment import OracleSegmenter, Rejection
 from divas_engine.session import LABEL_PROPERTY, Session, SessionConfig
 from divas_engine.synthetic import generate_scene
 
@@ -249,27 +251,41 @@ def test_bad_clicks_and_rejected_views(ribs):
         gt_values=np.zeros(len(scene), bool),
         render_anchors=False,
     )
-    with pytest.raises(DivasInputError, match="anchor 1: no surface under the click"):
+    with pytest.raises(DivasInputError, match="anchor 1: no surface under the click") as e:
         s.click(1, (50, 40))
-    with pytest.raises(DivasInputError, match="outside"):
+    assert e.value.code is InputErrorCode.NO_SURFACE and e.value.details == {"x": 50, "y": 40}
+    with pytest.raises(DivasInputError, match="outside") as e:
         s.click(0, (10_000, 5))
-    with pytest.raises(DivasInputError, match="anchor 7 does not exist"):
+    assert e.value.code is InputErrorCode.CLICK_OUTSIDE
+    with pytest.raises(DivasInputError, match="anchor 7 does not exist") as e:
         s.click(7, (5, 5))
+    assert e.value.code is InputErrorCode.NO_ANCHOR and e.value.details == {
+        "anchor": 7,
+        "anchors": 2,
+    }
     v = s.click(0, _click_xy(s, 0, clicks[0]))
     with pytest.raises(DivasInputError, match="outside"):
         s.prompt(v, [[1e4, 1.0]], [1])
     # ground truth absent from the view: the oracle's mask is empty → rejected, not a crash
     r = s.accept(v)
     assert r.status == "rejected" and "score 0.200 < 0.5" in r.reason
+    low = Rejection(RejectReason.LOW_SCORE, pytest.approx(0.2), 0.5, 1)
+    assert v.rejection == low and v.rejection.message == r.reason
     assert not s.selection.any() and s.undo() is None
+    with pytest.raises(DivasInputError, match="already accepted") as e:
+        v.status = "fused"  # (as an accept would leave it)
+        s.prompt(v)
+    v.status = "rejected"
+    assert e.value.code is InputErrorCode.VIEW_ACCEPTED
     # no positive prompt
     r = s.accept(v, [[10.0, 10.0]], [0], include_default=False)
     assert r.status == "rejected" and r.reason == "no positive prompt"
+    assert v.rejection == Rejection(RejectReason.NO_POSITIVE_PROMPT)
     assert s.report()["counts"]["rejected"] == 1
     s.close()
 
 
-def test_empty_mask_is_rejected_with_reason(ribs):
+def test_empty_mask_is_rejected_with_reason(ribs, tmp_path):
     sc, scene, anchors, clicks, _ = ribs
     s = Session.open(
         scene,
@@ -283,8 +299,22 @@ def test_empty_mask_is_rejected_with_reason(ribs):
     v = s.click(0, _click_xy(s, 0, clicks[0]))
     r = s.accept(v)
     assert r.status == "rejected" and r.reason == "empty mask after depth weighting"
+    assert v.rejection == Rejection(RejectReason.EMPTY_MASK)
     assert s.fusion.view_ids == []
+    # the rejection is saved as data and read back; a save without it (older) still loads
+    path = tmp_path / "s.json"
+    s.save(path)
     s.close()
+    back = Session.load(path, scene, ConstantSegmenter(0.0), "cpu")
+    assert back.view(v.id).rejection == v.rejection and back.view(v.id).reason == r.reason
+    back.close()
+    doc = json.loads(path.read_text())
+    for vd in doc["objects"][0]["views"]:
+        del vd["rejection"]
+    path.write_text(json.dumps(doc))
+    old = Session.load(path, scene, ConstantSegmenter(0.0), "cpu")
+    assert old.view(v.id).rejection is None and old.view(v.id).reason == r.reason
+    old.close()
 
 
 def test_negative_anchor_click_becomes_negative_prompt(ribs):

@@ -254,9 +254,9 @@ def test_nerf_pending_views_follow_the_history(ribs):
     assert r.status == ViewStatus.PENDING and not r.synced
     h.record("accept (pending)")
     h.undo()
-    assert v0.status == ViewStatus.OPEN and s._pending == []
+    assert v0.status == ViewStatus.OPEN and s.state.pending == []
     h.redo()
-    assert v0.status == ViewStatus.PENDING and s._pending == [v0]
+    assert v0.status == ViewStatus.PENDING and s.state.pending == [v0]
     r = s.accept(v1)  # ends the anchor group: both are segmented and fused together
     assert r.synced and sorted(r.fused) == sorted([v0.id, v1.id])
     sel = s.selection.copy()

@@ -192,7 +192,7 @@ class ModalController:
             res = run_step(obj, live, what, accept, context, obj, live, step.view_id)
             v = res.view
             if v.status == ViewStatus.REJECTED:
-                msg = rejection_message(v.reason, v.score, v.advice)
+                msg = rejection_message(v.rejection, v.score, v.advice, reason=v.reason)
                 self.report({"WARNING"}, "View not added. " + msg)
         hint = advice_message(getattr(hinted, "advice", None))
         if hint:

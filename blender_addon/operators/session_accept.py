@@ -36,7 +36,8 @@ def accept_message(live, res) -> tuple[set[str], str]:
     """The report (level, text) of an accept: what happened, what to do next."""
     v = res.view
     if v.status == ViewStatus.REJECTED:
-        return {"WARNING"}, "View not added. " + rejection_message(v.reason, v.score, v.advice)
+        msg = rejection_message(v.rejection, v.score, v.advice, reason=v.reason)
+        return {"WARNING"}, "View not added. " + msg
     if v.status == ViewStatus.PENDING:
         return {"INFO"}, (
             f"View accepted; the segmenter is working on it in the background "

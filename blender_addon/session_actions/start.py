@@ -17,7 +17,12 @@ import bpy
 from divas_engine.errors import DivasInputError
 from divas_engine.evaluation.ground_truth import load_ground_truth
 from divas_engine.io.cameras import load_cameras
-from divas_engine.segment import SegmenterSettings, SegmenterSetupError, build_segmenter
+from divas_engine.segment import (
+    DEFAULT_SEGMENTER,
+    SegmenterSettings,
+    SegmenterSetupError,
+    build_segmenter,
+)
 from divas_engine.session import Session, SessionConfig, anchor_plan, load_prompts
 from divas_engine.session.prompts import resolve_anchors
 
@@ -59,8 +64,8 @@ class StartSettings:
     Attributes:
         config: the engine session config (:func:`..properties.session_config`).
         device: ``auto`` / ``cpu`` / ``cuda``.
-        segmenter: ``classic`` / ``sam_onnx`` / ``sam_torch`` / ``oracle`` (evaluation):
-            a :class:`~divas_engine.segment.SegmenterKind` name.
+        segmenter: a :class:`~divas_engine.segment.SegmenterKind` value (``graph3d``,
+            ``classic``, ``sam-onnx``, ``sam-torch``, ``oracle`` for evaluation).
         sam_*: model files of the SAM segmenters.
         cameras_path: training cameras; None → ``cameras.json`` beside the scene file,
             else the cameras in the "DivAS Cameras" collection, else none.
@@ -70,7 +75,7 @@ class StartSettings:
 
     config: SessionConfig
     device: str = "cpu"
-    segmenter: str = "classic"
+    segmenter: str = DEFAULT_SEGMENTER.value
     sam_encoder: Path | None = None
     sam_decoder: Path | None = None
     sam_checkpoint: Path | None = None
@@ -155,7 +160,7 @@ def _reuse_scratch(session: Session, limited: bool) -> None:
     transient array is fresh pages: the mask renders of a scene-aware segmenter then
     keep their working arrays between calls (``SurfelRenderer.scratch_sparse``, issue
     20: 43–63k → 4–12k page faults a mask render at 3M, ≈ 0.1 s, ≈ 140 MB held)."""
-    if limited and hasattr(session.renderer, "scratch_sparse"):
+    if limited:
         session.renderer.scratch_sparse = True
 
 
@@ -163,8 +168,7 @@ def _prefetch_cuts(session: Session) -> None:
     """The click operator previews the view's mask before it returns: a segmenter that
     can start its work for that prompt while the view renders (graph3d's cut,
     ``Graph3DSegmenter.prefetch_cuts``, issue 20) is told to."""
-    if hasattr(session.segmenter, "prefetch_cuts"):
-        session.segmenter.prefetch_cuts = True
+    session.segmenter.prefetch_cuts = True
 
 
 def _follow_undo_steps(context, session: Session) -> None:

@@ -234,7 +234,7 @@ def ensure_background(live: LiveSession, cam) -> bool:
     i = live.anchor_cameras.index(cam.name)
     if i >= len(live.session.anchors):
         return False
-    overlays.set_background(cam, live.session.anchors[i].rgb)
+    overlays.set_background(cam, live.session.render(live.session.anchors[i]).rgb)
     memory.release_freed()  # the render's freed transients back to the system (issue 20)
     return True
 
@@ -271,7 +271,7 @@ def _view_camera(context, obj, live: LiveSession, v: SessionView):
         cam = _new_camera(context, obj, v.camera, f"{obj.name} View {v.id}", live.session)
         cam[VIEW_PROP], cam[ANCHOR_PROP] = v.id, int(v.anchor)
         live.view_cameras[v.id] = cam.name
-        overlays.set_background(cam, v.rgb)
+        overlays.set_background(cam, live.session.render(v).rgb)
     return cam
 
 

@@ -11,7 +11,7 @@ from divas_engine.kinds import SceneKind
 from .. import session_registry, source
 from ..blend_space import BLEND_FLAG
 from ..camera_objects import RESOLUTION_PROP
-from ..preferences import active_model, active_model_ready, get_preferences
+from ..preferences import SAM_SEGMENTERS, active_model, active_model_ready, get_preferences
 from ..properties import scene_settings
 from ..reporting import advice_message, rejection_message
 from ..selection import selected_count
@@ -53,7 +53,7 @@ def _draw_settings(layout, context, ref) -> None:
     else:
         box.prop(prefs, "device")
         box.prop(prefs, "segmenter")
-        if prefs.segmenter in ("sam_onnx", "sam_torch"):
+        if prefs.segmenter in SAM_SEGMENTERS:
             # one rule for what a Start would use: a checkpoint alone is enough for SAM
             # (ONNX), it is converted once (issue 21)
             ready = active_model_ready(prefs)
@@ -122,7 +122,8 @@ def _draw_session(layout, live) -> None:
         sub.alert = True
         sub.label(text=f"{len(rejected)} view(s) not added. Last one:", icon="ERROR")
         last_rejected = rejected[-1]
-        msg = rejection_message(last_rejected.reason, last_rejected.score, last_rejected.advice)
+        r = last_rejected
+        msg = rejection_message(r.rejection, r.score, r.advice, reason=r.reason)
         for line in _wrap(msg):
             sub.label(text=line)
     hinted = [v for v in live.session.views if v.status == "open" and v.advice]

@@ -322,7 +322,7 @@ def segment_scene(
         )
     try:
         for a in _progress(session.anchors, desc="anchors", enabled=progress):
-            _ = a.buffers
+            session.render(a)
         t_open = time.perf_counter() - t
         # spawn every centroid view first (bad clicks fail before the expensive part)
         spawned = []

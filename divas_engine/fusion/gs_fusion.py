@@ -1,5 +1,5 @@
 """2DGS surfel-voxel fusion, incremental and exactly undoable (paper Sec. 3.5,
-alg:gs-fusion, alg:gs-thin, App. B; kernel in ``kernels.fusion_gs``).
+alg:gs-fusion, alg:gs-thin, App. B; kernel in ``divas_kernels.fusion_gs``).
 
 Usage::
 

@@ -1,4 +1,4 @@
-"""Host-side (NumPy) 3D Morton codes, the same layout as ``kernels.occupancy``.
+"""Host-side (NumPy) 3D Morton codes, the same layout as ``divas_kernels.occupancy``.
 
 Bit ``3k`` of a code is bit ``k`` of ``ix``, ``3k+1`` of ``iy``, ``3k+2`` of ``iz``;
 up to 21 bits per axis, codes in ``int64``.

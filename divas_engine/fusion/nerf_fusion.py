@@ -1,5 +1,5 @@
 """NeRF fusion, incremental and exactly undoable (paper App. A, alg:nerf-fusion,
-alg:nerf-thin; kernel in ``kernels.fusion_nerf``).
+alg:nerf-thin; kernel in ``divas_kernels.fusion_nerf``).
 
 Usage::
 
@@ -10,7 +10,7 @@ Usage::
     P = occ.to_dense(fusion.result().P)   # [D,H,W] probability grid
 
 The NeRF path has no view-coverage bitmask (eq:vmask has no NeRF analogue), so the
-number of live views is unbounded. See ``kernels.fusion_nerf`` for the decisions on
+number of live views is unbounded. See ``divas_kernels.fusion_nerf`` for the decisions on
 points the paper leaves open.
 """
 

@@ -151,7 +151,7 @@ def aabb_filter(means: np.ndarray, center: np.ndarray, half: float) -> np.ndarra
 def voxel_codes_numpy(
     means: np.ndarray, center: np.ndarray, half: float, h: float, g: int
 ) -> np.ndarray:
-    """NumPy twin of ``kernels.occupancy.point_voxel_code`` (−1 = filtered).
+    """NumPy twin of ``divas_kernels.occupancy.point_voxel_code`` (−1 = filtered).
 
     Same float64 operations in the same order, so voxel assignments agree bit for bit.
     """

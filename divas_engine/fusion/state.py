@@ -1,7 +1,7 @@
 """Incremental, exactly undoable fusion state (eq:compact-fusion, eq:vmask).
 
 Per active voxel the state keeps int64 fixed-point accumulators (scale 2⁵², see
-``kernels.fusion_common.QSCALE``): numerator W, denominator Z, the thin part of W,
+``divas_kernels.fusion_common.QSCALE``): numerator W, denominator Z, the thin part of W,
 thick/thin vote counts and the view-coverage bitmask. Adding a view runs its kernel
 once over the active voxels, compacts the non-zero contributions into a sparse
 record (active index + float32 num/den + kind) that is kept per view, and adds the
@@ -42,7 +42,11 @@ __all__ = ["IncrementalFusion", "FusionResult", "FusionCapacityError"]
 
 
 class FusionCapacityError(RuntimeError):
-    """More live views than the view-coverage bitmask can hold."""
+    """More live views than the view-coverage bitmask can hold (``max_views``, when known)."""
+
+    def __init__(self, message: str, max_views: int | None = None):
+        super().__init__(message)
+        self.max_views = max_views
 
 
 @dataclass(eq=False)
@@ -117,7 +121,8 @@ class IncrementalFusion:
                 return s
         raise FusionCapacityError(
             f"the view-coverage bitmask holds {self.max_views} views and all are in use; "
-            f"undo a view or raise max_views"
+            f"undo a view or raise max_views",
+            self.max_views,
         )
 
     def upload(self, view: FusionView) -> ViewData:
@@ -133,7 +138,7 @@ class IncrementalFusion:
             raise ValueError(f"view id {view_id} is already fused")
         elif self.max_views is not None and not 0 <= view_id < self.max_views:
             raise FusionCapacityError(
-                f"view id {view_id} outside the bitmask [0, {self.max_views})"
+                f"view id {view_id} outside the bitmask [0, {self.max_views})", self.max_views
             )
         vd = self.upload(view)
         self._launch(vd)

@@ -184,12 +184,11 @@ class VolumetricCompletion:
         # share the renderer (and so its kept per-view binnings: the gather of a view
         # just rendered only walks its tiles) when it renders this scene with the same
         # constants; else a renderer of our own, used for the gather only
-        rb = getattr(renderer, "surfel_buffers", None)
+        rb = None if renderer is None else renderer.surfel_buffers  # a surfel renderer's
         if (
             rb is not None
-            and hasattr(renderer, "contributions")
             and len(rb) == n
-            and getattr(renderer, "config", None) == self.render_config
+            and renderer.config == self.render_config
             and rb.device == self.device
         ):
             self._renderer = renderer

@@ -191,7 +191,7 @@ def sparse_contributions(
     buf = renderer.surfel_buffers
     n = len(buf)
     rows = np.asarray(rows, np.int64)
-    if not buf.device.is_cpu or not hasattr(renderer, "sparse_index"):
+    if not buf.device.is_cpu or not renderer.renders_sparse:
         return None
     a1 = np.zeros(len(rows), np.float32)
     a0 = np.zeros(len(rows), np.float32)
@@ -199,7 +199,7 @@ def sparse_contributions(
         return a1, a0, 0
     view = (camera.w2c, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
     settings = renderer.config.raster_settings(camera)
-    kept = renderer.kept_binning(camera) if hasattr(renderer, "kept_binning") else None
+    kept = renderer.kept_binning(camera)
     if kept is not None and kept.bands is not None:
         order = np.argsort(rows)
         out = accumulate_contributions(

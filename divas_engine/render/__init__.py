@@ -1,4 +1,4 @@
-"""Renderers: one protocol, a 2DGS rasterizer and a NeRF ray-marcher (paper Sec. 3.1).
+"""Renderers: one base class, a 2DGS rasterizer and a NeRF ray-marcher (paper Sec. 3.1).
 
 ``make_renderer(scene, device)`` picks the adapter for the scene type; everything
 downstream sees only :class:`Renderer` and :class:`RenderBuffers`.

@@ -1,5 +1,5 @@
-"""NeRF density-grid renderer: the ray-marcher of ``kernels.raymarch`` behind the
-:class:`~divas_engine.render.protocol.Renderer` protocol."""
+"""NeRF density-grid renderer: the ray-marcher of ``divas_kernels.raymarch`` behind the
+:class:`~divas_engine.render.protocol.Renderer` base class."""
 
 from __future__ import annotations
 
@@ -12,11 +12,12 @@ from ..kinds import SceneKind
 from ..scene import DensityGrid
 from .buffers import RenderBuffers
 from .config import RenderConfig
+from .protocol import Renderer
 
 __all__ = ["NerfRenderer"]
 
 
-class NerfRenderer:
+class NerfRenderer(Renderer):
     """Renders a :class:`DensityGrid`; the grid is uploaded to ``device`` once.
 
     Depth tuple per NOTES with ``D_ref = D_exp`` and ``N_samp`` anchored at ``D_max``;
@@ -52,7 +53,7 @@ class NerfRenderer:
             background=self.config.background,
         )
 
-    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+    def render(self, camera: Camera, scale: float = 1.0, *, attached: bool = True) -> RenderBuffers:
         cam = camera if scale == 1.0 else camera.scaled(scale)
         o = self._run(cam, None)
         H, W = cam.height, cam.width

@@ -1,5 +1,5 @@
-"""2DGS surfel renderer: the tile rasterizer of ``kernels.rasterize`` behind the
-:class:`~divas_engine.render.protocol.Renderer` protocol."""
+"""2DGS surfel renderer: the tile rasterizer of ``divas_kernels.rasterize`` behind the
+:class:`~divas_engine.render.protocol.Renderer` base class."""
 
 from __future__ import annotations
 
@@ -29,6 +29,7 @@ from ..kinds import SceneKind
 from ..scene import SurfelScene
 from .buffers import RenderBuffers
 from .config import RenderConfig
+from .protocol import Renderer
 from .surfel_blocks import SurfelBlocks
 
 __all__ = ["SurfelRenderer"]
@@ -59,7 +60,7 @@ class _Probe:
 _UNSHARED: tuple[int, int] = _take_unshared_splats(_Probe())
 
 
-class SurfelRenderer:
+class SurfelRenderer(Renderer):
     """Renders a :class:`SurfelScene`; the scene is uploaded to ``device`` once.
 
     Depth tuple per NOTES "Depth tuple", ``D_ref = D_med``. Points NOTES leaves open,
@@ -105,7 +106,7 @@ class SurfelRenderer:
     #: ``H·W·C`` floats, 1.2 MB for one channel at 640×480)
     value_images_kept: int = 4
     #: :meth:`render_values_sparse` takes its working arrays from buffers kept across
-    #: calls (``kernels.scratch``) — memory held between calls, ≈ 140 MB at 3M. Pays
+    #: calls (``divas_kernels.scratch``) — memory held between calls, ≈ 140 MB at 3M. Pays
     #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold
     #: at 3M: 43–63k → 4–12k page faults and ≈ 0.56 → 0.47 s CPU a mask render; the
     #: add-on switches it on there); with glibc's adaptive threshold the freed arrays
@@ -166,7 +167,7 @@ class SurfelRenderer:
         if hit is None and self.device.is_cpu and (window is not None or self._blocks is not None):
             rows = self._candidates(cam, window)
         # the working arrays no binning keeps in buffers kept from the last render
-        # (kernels.scratch: no fresh pages to fault in, issue 20), when switched on
+        # (divas_kernels.scratch: no fresh pages to fault in, issue 20), when switched on
         pool = self._scratch.active(everything=False) if self.scratch_renders else nullcontext()
         with pool, recycling(donors):
             r = rasterize_surfels(
@@ -413,6 +414,10 @@ class SurfelRenderer:
         return f.reshape(H, W) if values.ndim == 1 else f.reshape(H, W, -1)
 
     @property
+    def renders_sparse(self) -> bool:
+        return True
+
+    @property
     def sparse_renders_concurrent(self) -> bool:
         """Whether :meth:`render_values_sparse` may run in one thread while another
         renders (CPU: it reads the scene's buffers and block index and keeps nothing but
@@ -458,7 +463,7 @@ class SurfelRenderer:
             vs = np.zeros((len(sub), v.shape[1]), np.float32)
             vs[pos[hit]] = v[hit]
             # the gather and the rasterizer's working arrays in buffers kept from the last
-            # call (kernels.scratch: no fresh pages to fault in; the output is not one)
+            # call (divas_kernels.scratch: no fresh pages to fault in; the output is not one)
             with self._scratch.active() if self.scratch_sparse else nullcontext():
                 r = rasterize_surfels(
                     surfel_rows(self._buf, sub, colours=False),

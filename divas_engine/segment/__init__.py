@@ -17,8 +17,9 @@ eq:nerf-depthweight / eq:gs-bandpass, and :class:`SamWorker` (async NeRF /
 sync 2DGS scheduling).
 """
 
-from .base import MaskSelection, Segmenter, SegResult, select_mask
+from .base import MaskSelection, Rejection, Segmenter, SegResult, select_mask
 from .classic import ClassicConfig, ClassicSegmenter
+from .context import ObjectClicks, SceneBinding, ViewContext
 from .depth_weighting import (
     DepthBand,
     GsBandpassConfig,
@@ -29,16 +30,23 @@ from .depth_weighting import (
     gs_bandpass_weight,
     nerf_depth_weight,
 )
-from .factory import SegmenterKind, SegmenterSettings, SegmenterSetupError, build_segmenter
+from .factory import (
+    DEFAULT_SEGMENTER,
+    SegmenterKind,
+    SegmenterSettings,
+    SegmenterSetupError,
+    build_segmenter,
+)
 from .flood_fill import FloodFillConfig, FloodFillSegmenter
 from .graph3d import Graph3DConfig, Graph3DSegmenter
 from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
-from .scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
+from .scene_aware import SceneAwareSegmenter
 from .worker import SamWorker, SegmentationJobError
 
 __all__ = [
+    "Rejection",
     "Segmenter",
     "SegResult",
     "MaskSelection",
@@ -47,6 +55,7 @@ __all__ = [
     "Graph3DSegmenter",
     "SceneAwareSegmenter",
     "SceneBinding",
+    "ViewContext",
     "ObjectClicks",
     "ClassicConfig",
     "ClassicSegmenter",
@@ -66,6 +75,7 @@ __all__ = [
     "apply_gs_bandpass",
     "SamWorker",
     "SegmentationJobError",
+    "DEFAULT_SEGMENTER",
     "SegmenterKind",
     "SegmenterSettings",
     "SegmenterSetupError",

@@ -20,6 +20,12 @@ Conventions shared by all implementations:
 The embedding cache is keyed by the explicit ``view_id`` when given (the caller
 promises a view id is never reused for a different image) and otherwise by a
 BLAKE2 hash of the image and depth bytes.
+
+A session calls :meth:`Segmenter.segment_view` with a :class:`~.context.ViewContext`
+(the view's render, camera and object clicks) and the optional hooks the base class
+declares with no-op defaults (:meth:`~Segmenter.bind_scene`, :meth:`~Segmenter.warm_up`,
+the prefetch hooks, :attr:`~Segmenter.wants_ground_truth`); a segmenter overrides the ones
+it uses.
 """
 
 from __future__ import annotations
@@ -30,13 +36,20 @@ from abc import ABC, abstractmethod
 from collections import OrderedDict
 from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from ..kinds import RejectReason
+from .context import ObjectClicks, SceneBinding, ViewContext
+
+if TYPE_CHECKING:
+    from ..camera import Camera
 
 __all__ = [
     "Segmenter",
     "SegResult",
+    "Rejection",
     "MaskSelection",
     "select_mask",
     "as_rgb_float",
@@ -56,6 +69,54 @@ class SegResult:
     message: str | None = None
 
 
+@dataclass(frozen=True)
+class Rejection:
+    """Why a view was rejected, with its numbers.
+
+    Attributes:
+        reason: the :class:`~divas_engine.kinds.RejectReason`.
+        score, threshold, channel: ``LOW_SCORE``: the channel's score, the least score
+            accepted and the channel kept.
+        cause: ``SEGMENTATION_FAILED``: the segmenter's error.
+    """
+
+    reason: RejectReason
+    score: float | None = None
+    threshold: float | None = None
+    channel: int | None = None
+    cause: str | None = None
+
+    @property
+    def message(self) -> str:
+        """The engine's sentence (reports, the CLI)."""
+        r = self.reason
+        if r is RejectReason.LOW_SCORE:
+            score = float("nan") if self.score is None else self.score
+            return f"channel-{self.channel} score {score:.3f} < {self.threshold}"
+        if r is RejectReason.SEGMENTATION_FAILED:
+            return f"segmentation failed: {self.cause}"
+        return _REJECTION_TEXT[r]
+
+    def to_dict(self) -> dict[str, Any]:
+        score = None if self.score is None or not np.isfinite(self.score) else self.score
+        d = {"reason": str(self.reason), "score": score, "threshold": self.threshold}
+        return {**d, "channel": self.channel, "cause": self.cause}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Rejection:
+        return cls(
+            RejectReason(d["reason"]), d.get("score"), d.get("threshold"), d.get("channel"),
+            d.get("cause"),
+        )  # fmt: skip
+
+
+_REJECTION_TEXT = {
+    RejectReason.NO_POSITIVE_PROMPT: "no positive prompt",
+    RejectReason.EMPTY_MASK: "empty mask after depth weighting",
+    RejectReason.SEGMENTATION_MISSING: "segmentation result missing",
+}
+
+
 @dataclass(frozen=True, eq=False)
 class MaskSelection:
     """Outcome of :func:`select_mask`.
@@ -63,16 +124,21 @@ class MaskSelection:
     Attributes:
         mask: ``[H,W]`` float32 probabilities of the chosen channel, None when rejected.
         score: the chosen channel's score (nan when there is none).
-        reason: None when accepted, else why the view is rejected.
+        rejection: None when accepted, else why the view is rejected.
     """
 
     mask: np.ndarray | None
     score: float
-    reason: str | None
+    rejection: Rejection | None
 
     @property
     def accepted(self) -> bool:
-        return self.reason is None
+        return self.rejection is None
+
+    @property
+    def reason(self) -> str | None:
+        """The rejection's sentence, None when accepted."""
+        return None if self.rejection is None else self.rejection.message
 
 
 def select_mask(
@@ -97,9 +163,10 @@ def select_mask(
         )
     score = float(scores[channel])
     if not np.any(labels == 1):
-        return MaskSelection(None, score, "no positive prompt")
+        return MaskSelection(None, score, Rejection(RejectReason.NO_POSITIVE_PROMPT))
     if not score >= min_score:  # also rejects nan
-        return MaskSelection(None, score, f"channel-{channel} score {score:.3f} < {min_score}")
+        low = Rejection(RejectReason.LOW_SCORE, score, min_score, channel)
+        return MaskSelection(None, score, low)
     return MaskSelection(np.asarray(masks[channel], dtype=np.float32), score, None)
 
 
@@ -176,6 +243,10 @@ class Segmenter(ABC):
     """
 
     name: str = "segmenter"
+    #: start a click's work before its view is rendered (:meth:`prefetch`,
+    #: :meth:`prefetch_view`): a host that previews right after every click switches it
+    #: on; a segmenter with nothing to start early ignores it
+    prefetch_cuts: bool = False
 
     def __init__(self, cache_size: int = 8):
         self.cache_size = int(cache_size)
@@ -239,9 +310,52 @@ class Segmenter(ABC):
             masks, scores = self.predict(points, labels)
         return SegResult(masks, scores)
 
+    def segment_view(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> SegResult:
+        """The session's call: masks and scores for a prompt set on one of its views.
+        The default segments the view's image and depth (:meth:`segment`, cached by the
+        view's id); a segmenter that reads more of the view overrides it."""
+        return self.segment(view.rgb, view.depth, points, labels, view_id=view.id)
+
     def clear_cache(self) -> None:
         with self._lock:
             self._cache.clear()
+
+    # -- optional hooks a session calls (no-op defaults) -------------------------------
+    def bind_scene(self, binding: SceneBinding) -> None:  # noqa: B027 - optional hook
+        """The session's scene, once when it opens; image-only segmenters ignore it."""
+
+    def warm_up(self) -> None:  # noqa: B027 - optional hook
+        """Build the per-scene state the first prompt would build (the session calls it
+        in its background warm-up, after the fusion state); the default has none. A
+        failure is left for the first prompt to raise."""
+
+    @property
+    def wants_ground_truth(self) -> bool:
+        """Whether the session should hand it each view's ground truth
+        (:attr:`ViewContext.truth`, evaluation only); the default does not read it."""
+        return False
+
+    @property
+    def prefetches(self) -> bool:
+        """Whether :meth:`prefetch` would start anything: the session back-projects a
+        click for it only then."""
+        return False
+
+    def prefetch(self, clicks: ObjectClicks) -> bool:
+        """Start, in the background, the work the prompt of a view of the object with
+        these 3D ``clicks`` will need (before the view is rendered); whether anything
+        was started. The default starts nothing."""
+        return False
+
+    def prefetch_view(self, camera: Camera, clicks: ObjectClicks) -> bool:
+        """Like :meth:`prefetch`, once the view's ``camera`` is known (while the view
+        renders); whether anything was started. The default starts nothing."""
+        return False
+
+    def wait_prefetch(self, timeout: float | None = None) -> bool:
+        """Wait for the work :meth:`prefetch` / :meth:`prefetch_view` started (a closing
+        session: no thread may outlive it); whether all of it ended in ``timeout``."""
+        return True
 
     @property
     def cached_views(self) -> int:

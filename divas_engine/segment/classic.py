@@ -1,6 +1,6 @@
-"""Weight-free default segmenter: seeded GrabCut on colour *and* rendered depth.
+"""A weight-free fallback segmenter: seeded GrabCut on colour *and* rendered depth.
 
-No model file, no network — the fallback when no SAM export is configured. It
+No model file, no network (the default is the scene-aware :mod:`.graph3d`). It
 keeps SAM's contract (3 granularities, probabilities, a score per channel) so
 the rest of DivAS cannot tell the difference.
 

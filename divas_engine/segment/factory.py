@@ -22,7 +22,13 @@ from .oracle import OracleConfig, OracleSegmenter
 from .sam_onnx import SamOnnxSegmenter
 from .sam_torch import SamTorchSegmenter
 
-__all__ = ["SegmenterKind", "SegmenterSettings", "SegmenterSetupError", "build_segmenter"]
+__all__ = [
+    "DEFAULT_SEGMENTER",
+    "SegmenterKind",
+    "SegmenterSettings",
+    "SegmenterSetupError",
+    "build_segmenter",
+]
 
 
 class SegmenterKind(StrEnum):
@@ -55,6 +61,9 @@ class SegmenterKind(StrEnum):
         return _LABELS[self]
 
 
+#: The segmenter every host starts with when none is named (weight-free, scene-aware).
+DEFAULT_SEGMENTER = SegmenterKind.GRAPH3D
+
 _LABELS = {
     SegmenterKind.GRAPH3D: "3D graph",
     SegmenterKind.CLASSIC: "classic",
@@ -81,7 +90,7 @@ class SegmenterSettings:
             CUDA when torch sees one, else CPU).
     """
 
-    kind: SegmenterKind = SegmenterKind.GRAPH3D
+    kind: SegmenterKind = DEFAULT_SEGMENTER
     seed: int = 0
     sam_encoder: Path | None = None
     sam_decoder: Path | None = None

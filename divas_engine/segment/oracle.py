@@ -44,6 +44,7 @@ import numpy as np
 from scipy import ndimage
 
 from .base import Segmenter, SegResult, _fingerprint
+from .context import ViewContext
 from .sam_common import sigmoid
 
 __all__ = ["OracleConfig", "OracleSegmenter"]
@@ -80,7 +81,8 @@ class OracleSegmenter(Segmenter):
 
     Args:
         gt_render: ``view_id -> [H,W]`` label coverage in [0,1]; used when
-            ``set_image`` gets no ``gt``.
+            ``set_image`` gets no ``gt``. Without it, a session hands the oracle each
+            view's ground truth (:attr:`~.context.ViewContext.truth`).
         config: :class:`OracleConfig`.
     """
 
@@ -129,6 +131,15 @@ class OracleSegmenter(Segmenter):
             self.set_image(rgb, depth, view_id=view_id, gt=gt)
             masks, scores = self.predict(points, labels)
         return SegResult(masks, scores)
+
+    @property
+    def wants_ground_truth(self) -> bool:
+        return self.gt_render is None
+
+    def segment_view(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> SegResult:
+        """:meth:`segment` of the view's image with its ground truth (the context's, else
+        ``gt_render``'s)."""
+        return self.segment(view.rgb, view.depth, points, labels, view_id=view.id, gt=view.truth)
 
     def report(self) -> dict[str, Any]:
         """Config (incl. seed) and the errors drawn for the last view."""

@@ -6,7 +6,7 @@ fuses the pending masks together — when (i) the current view ends its anchor
 group or (ii) at least three masks are pending. DivAS-GS calls SAM
 synchronously. :class:`SamWorker` offers both behind one API::
 
-    worker.submit(view_id, rgb, depth, points, labels)
+    worker.submit(view, points, labels)            # view: a ViewContext
     if worker.should_sync(end_of_group):
         for view_id, res in worker.sync().items():   # submission order
             fuse(view_id, res.masks, res.scores)
@@ -28,11 +28,13 @@ import hashlib
 import threading
 from collections.abc import Hashable
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from .base import Segmenter, SegResult, as_prompts
+from .context import ViewContext
 
 __all__ = ["SamWorker", "SegmentationJobError", "SYNC_PENDING"]
 
@@ -64,7 +66,7 @@ def _prompt_key(points: np.ndarray, labels: np.ndarray) -> str:
 
 
 class SamWorker:
-    """Runs ``segmenter.segment`` jobs asynchronously (NeRF) or synchronously (2DGS).
+    """Runs ``segmenter.segment_view`` jobs asynchronously (NeRF) or synchronously (2DGS).
 
     Args:
         segmenter: any :class:`.base.Segmenter`.
@@ -90,15 +92,10 @@ class SamWorker:
         self.runs = 0  # segmenter calls actually made (cache hits excluded)
 
     # -- API -----------------------------------------------------------------------
-    def submit(
-        self,
-        view_id: Hashable,
-        rgb: np.ndarray,
-        depth: np.ndarray | None,
-        points: np.ndarray,
-        labels: np.ndarray,
-    ) -> None:
-        """Queue (or, synchronous, run) SAM on one view with its prompts."""
+    def submit(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> None:
+        """Queue (or, synchronous, run) SAM on one view (keyed by ``view.id``) with its
+        prompts."""
+        view_id = view.id
         if self._closed:
             raise RuntimeError("SamWorker is closed")
         key = _prompt_key(points, labels)
@@ -116,16 +113,16 @@ class SamWorker:
                 self._pending[view_id] = (key, fut)
                 return
         if self._pool is not None:
-            args = (
-                np.array(rgb, copy=True),
-                None if depth is None else np.array(depth, copy=True),
-                np.array(points, copy=True),
-                np.array(labels, copy=True),
+            own = replace(
+                view,
+                rgb=np.array(view.rgb, copy=True),
+                depth=None if view.depth is None else np.array(view.depth, copy=True),
             )
-            fut = self._pool.submit(self._run, view_id, *args)
+            args = (np.array(points, copy=True), np.array(labels, copy=True))
+            fut = self._pool.submit(self._run, own, *args)
         else:
             try:
-                fut.set_result(self._run(view_id, rgb, depth, points, labels))
+                fut.set_result(self._run(view, points, labels))
             except Exception as exc:  # re-raised at sync(), like the async path
                 fut.set_exception(exc)
         with self._lock:
@@ -201,13 +198,6 @@ class SamWorker:
         self.close()
 
     # -- internals -------------------------------------------------------------------
-    def _run(
-        self,
-        view_id: Hashable,
-        rgb: np.ndarray,
-        depth: np.ndarray | None,
-        points: np.ndarray,
-        labels: np.ndarray,
-    ) -> SegResult:
+    def _run(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> SegResult:
         self.runs += 1
-        return self.segmenter.segment(rgb, depth, points, labels, view_id=view_id)
+        return self.segmenter.segment_view(view, points, labels)

@@ -22,10 +22,13 @@ a splat removed by hand stays removed, one added stays added. A manual edit that
 An :class:`EditLayer` is immutable: every edit returns a new one (its arrays are never
 written in place), so the session history (:mod:`.history`) keeps references, not
 copies. Masks have the session's selection shape (``[N]`` surfels, ``[D,H,W]`` voxels).
+The edit steps (:func:`apply_selection`, :func:`delete_primitives`, :func:`hide_primitives`,
+:func:`reveal_primitives`) change a :class:`~.state.SessionState`; the session calls them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import TYPE_CHECKING
@@ -35,16 +38,19 @@ import numpy as np
 from ..errors import DivasInputError
 
 if TYPE_CHECKING:
-    from .core import SessionCore
+    from .state import SessionState
 
 __all__ = [
     "ObjectEdits",
     "EditLayer",
     "compose",
     "edit_arrays",
-    "restore_session_edits",
-    "restore_object_edits",
-    "SelectionEditing",
+    "saved_edits",
+    "check_mask",
+    "apply_selection",
+    "delete_primitives",
+    "hide_primitives",
+    "reveal_primitives",
 ]
 
 
@@ -125,92 +131,72 @@ def _mask(arrays: dict[str, np.ndarray], key: str, shape) -> np.ndarray | None:
     return _any(np.asarray(a, dtype=bool))
 
 
-def restore_session_edits(session: SessionCore, arrays: dict[str, np.ndarray]) -> None:
-    """Deleted and hidden primitives of a saved session (before its objects replay)."""
-    shape = session.backend.selection_shape
-    session.edits = replace(
-        session.edits,
-        deleted=_mask(arrays, "edits_deleted", shape),
-        hidden=_mask(arrays, "edits_hidden", shape),
-    )
+def saved_edits(
+    arrays: dict[str, np.ndarray], shape: tuple[int, ...], objects: Sequence[int]
+) -> EditLayer:
+    """The manual layers of a saved session: deleted and hidden primitives, and those of
+    each object index in ``objects``."""
+    layer = EditLayer(deleted=_mask(arrays, "edits_deleted", shape))
+    layer = replace(layer, hidden=_mask(arrays, "edits_hidden", shape))
+    for k in objects:
+        o = ObjectEdits(
+            _mask(arrays, f"edits_added_{k}", shape), _mask(arrays, f"edits_removed_{k}", shape)
+        )
+        layer = layer.with_object(k, o)
+    return layer
 
 
-def restore_object_edits(session: SessionCore, obj_index: int, arrays) -> None:
-    """Object ``obj_index``'s manual layers of a saved session."""
-    shape = session.backend.selection_shape
-    o = ObjectEdits(
-        _mask(arrays, f"edits_added_{obj_index}", shape),
-        _mask(arrays, f"edits_removed_{obj_index}", shape),
-    )
-    session.edits = session.edits.with_object(obj_index, o)
+# ----------------------------------------------------------------------------- edit steps
+def check_mask(mask, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """``mask`` as bool of the selection ``shape`` (:class:`DivasInputError` otherwise)."""
+    m = np.asarray(mask)
+    if m.shape != shape:
+        raise DivasInputError(None, f"{what}: a mask of shape {shape} is needed, got {m.shape}")
+    return m.astype(bool, copy=False)
 
 
-# ----------------------------------------------------------------------------- session API
-class SelectionEditing:
-    """The manual-edit steps of :class:`~divas_engine.session.Session` (a mixin over
-    :class:`~.core.SessionCore`, which holds ``edits``, ``_semantic`` and ``_selection``)."""
+def apply_selection(state: SessionState, new: np.ndarray, within: np.ndarray | None) -> np.ndarray:
+    """Make the current selection ``new`` by hand (checked masks; ``within``: only these
+    primitives change); deleted ones stay unselected. Returns the new selection."""
+    old = state.selection
+    if within is not None:
+        new = np.where(within, new, old)
+    if state.edits.deleted is not None:
+        new = new & ~state.edits.deleted
+    k = state.current.index
+    state.edits = state.edits.with_object(k, _delta(state.edits.of(k), old, new))
+    state.selection = compose(state.semantic, state.edits, k)
+    return state.selection
 
-    def _check_mask(self: SessionCore, mask, what: str) -> np.ndarray:
-        m = np.asarray(mask)
-        shape = self.backend.selection_shape
-        if m.shape != shape:
-            raise DivasInputError(None, f"{what}: a mask of shape {shape} is needed, got {m.shape}")
-        return m.astype(bool, copy=False)
 
-    def apply_selection(self: SessionCore, new, within=None, *, autosave: bool = True):
-        """Make the current selection ``new`` by hand (a manual edit, composed with the
-        semantic selection as in the module docstring); ``within``: only these primitives
-        change (e.g. the ones a host shows). Deleted ones stay unselected. ``autosave``:
-        False while a brush stroke is still going (the host saves at its end). Returns
-        the new selection."""
-        new = self._check_mask(new, "apply_selection")
-        old = self._selection
-        if within is not None:
-            new = np.where(self._check_mask(within, "apply_selection within"), new, old)
-        if self.edits.deleted is not None:
-            new = new & ~self.edits.deleted
-        k = self.current.index
-        self.edits = self.edits.with_object(k, _delta(self.edits.of(k), old, new))
-        self._selection = compose(self._semantic, self.edits, k)
-        if autosave:
-            self._autosave()
-        return self._selection
+def delete_primitives(state: SessionState, m: np.ndarray) -> int:
+    """Delete primitives (a checked mask): out of every selection and label from now on,
+    and out of every export. Returns how many were new."""
+    old = state.edits.deleted
+    new = m.copy() if old is None else (old | m)
+    count = int(new.sum()) - (0 if old is None else int(old.sum()))
+    state.edits = replace(state.edits, deleted=_any(new))
+    if count:
+        if state.labels[m].any():
+            state.labels = np.where(m, 0, state.labels).astype(state.labels.dtype)
+        for o in state.objects[:-1]:
+            if o.selection is not None and o.selection[m].any():
+                o.selection = o.selection & ~m
+        state.selection = compose(state.semantic, state.edits, state.current.index)
+    return count
 
-    def delete_primitives(self: SessionCore, mask) -> int:
-        """Delete primitives: out of every selection and label from now on, and out of
-        every export (the scene file is never changed). Returns how many were new."""
-        m = self._check_mask(mask, "delete_primitives")
-        old = self.edits.deleted
-        new = m.copy() if old is None else (old | m)
-        count = int(new.sum()) - (0 if old is None else int(old.sum()))
-        self.edits = replace(self.edits, deleted=_any(new))
-        if count:
-            if self.labels[m].any():
-                self.labels = np.where(m, 0, self.labels).astype(self.labels.dtype)
-            for o in self.objects[:-1]:
-                if o.selection is not None and o.selection[m].any():
-                    o.selection = o.selection & ~m
-            self._selection = compose(self._semantic, self.edits, self.current.index)
-        self._autosave()
-        return count
 
-    def hide_primitives(self: SessionCore, mask) -> None:
-        """Hide primitives until :meth:`reveal_primitives`; hidden ones are deselected
-        by hand (a manual removal that stays, module docstring)."""
-        m = self._check_mask(mask, "hide_primitives")
-        old = self.edits.hidden
-        self.edits = replace(self.edits, hidden=_any(m.copy() if old is None else (old | m)))
-        self.apply_selection(self._selection & ~m)  # autosaves
+def hide_primitives(state: SessionState, m: np.ndarray) -> None:
+    """Hide primitives (a checked mask); hidden ones are deselected by hand (a manual
+    removal that stays, module docstring)."""
+    old = state.edits.hidden
+    state.edits = replace(state.edits, hidden=_any(m.copy() if old is None else (old | m)))
+    apply_selection(state, state.selection & ~m, None)
 
-    def reveal_primitives(self: SessionCore) -> np.ndarray:
-        """Show every hidden primitive again (still deselected); returns the mask of
-        the revealed ones."""
-        old = self.edits.hidden
-        self.edits = replace(self.edits, hidden=None)
-        self._autosave()
-        return np.zeros(self.backend.selection_shape, bool) if old is None else old
 
-    @property
-    def semantic_selection(self: SessionCore) -> np.ndarray:
-        """The fused-and-mapped selection of the current object, before manual edits."""
-        return self._semantic
+def reveal_primitives(state: SessionState) -> np.ndarray | None:
+    """Show every hidden primitive again (still deselected); the mask of the revealed
+    ones (None: none)."""
+    old = state.edits.hidden
+    state.edits = replace(state.edits, hidden=None)
+    return old

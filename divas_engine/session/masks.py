@@ -11,12 +11,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from ..errors import DivasInputError
-from ..segment.base import Segmenter, SegResult, select_mask
+from ..kinds import RejectReason
+from ..render.buffers import RenderBuffers
+from ..segment.base import Rejection, Segmenter, SegResult, select_mask
+from ..segment.context import ViewContext
 from .backends import SessionBackend
 from .config import SessionConfig
 from .records import AnchorClick, MaskPreview, SessionView
@@ -26,14 +29,14 @@ __all__ = ["TimedSegmenter", "as_prompt_arrays", "default_prompts", "prompt_set"
 
 
 class TimedSegmenter:
-    """What the worker and the previews call: ``segment`` under the session's timer."""
+    """What the worker and the previews call: ``segment_view`` under the session's timer."""
 
     def __init__(self, seg: Segmenter, timings: Timings):
         self.seg, self.timings = seg, timings
 
-    def segment(self, rgb, depth, points, labels, *, view_id: Hashable | None = None) -> SegResult:
+    def segment_view(self, view: ViewContext, points, labels) -> SegResult:
         with self.timings.measure("segmenter"):
-            return self.seg.segment(rgb, depth, points, labels, view_id=view_id)
+            return self.seg.segment_view(view, points, labels)
 
 
 def as_prompt_arrays(points, labels) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +59,7 @@ def default_prompts(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The click's 3D point projected into ``v`` (positive) plus the negative clicks of
     its anchor that are visible there: in the image, in front, and at a depth
-    ≤ (1 + ``occlusion_tol``) · the view's D_ref (negative)."""
+    ≤ (1 + ``occlusion_tol``) · the view's D_ref (negative; ``v`` rendered then)."""
     cam = v.camera
     uv, _ = cam.project(v.centroid.target[None])
     pts, labs = [uv[0]], [1]
@@ -91,6 +94,7 @@ def prompt_set(v: SessionView, points, labels) -> tuple[np.ndarray, np.ndarray]:
 
 def mask_preview(
     v: SessionView,
+    buffers: RenderBuffers,
     res: SegResult,
     p: np.ndarray,
     lab: np.ndarray,
@@ -98,14 +102,15 @@ def mask_preview(
     backend: SessionBackend,
     seconds: float = 0.0,
 ) -> MaskPreview:
-    """The :class:`MaskPreview` of a segmenter result on ``v`` for prompts ``p``/``lab``."""
+    """The :class:`MaskPreview` of a segmenter result on ``v`` (rendered as ``buffers``)
+    for prompts ``p``/``lab``."""
     sel = select_mask(res.masks, res.scores, lab, config.min_score, config.mask_channel)
-    weighted, band, reason = None, None, sel.reason
+    weighted, band, rejection = None, None, sel.rejection
     if sel.accepted:
-        weighted, band = backend.depth_weight(sel.mask, v.buffers, p, lab)
+        weighted, band = backend.depth_weight(sel.mask, buffers, p, lab)
         weighted = np.clip(weighted, 0.0, 1.0).astype(np.float32)
         if int(np.count_nonzero(weighted >= 0.5)) < config.min_mask_pixels:
-            reason = "empty mask after depth weighting"
+            rejection = Rejection(RejectReason.EMPTY_MASK)
     return MaskPreview(
-        v.id, p, lab, res.masks, res.scores, sel, weighted, band, reason, seconds, res.message
+        v.id, p, lab, res.masks, res.scores, sel, weighted, band, rejection, seconds, res.message
     )

@@ -1,12 +1,13 @@
 """A session as a saved document and back (the file layer is :mod:`.store`).
 
-:func:`session_state` turns a :class:`~divas_engine.session.Session` into the JSON
+:func:`session_document` turns a :class:`~divas_engine.session.Session` into the JSON
 document plus the arrays (the accepted, depth-weighted masks, the segmenter's raw
 masks the 3DGS completion reads, the labels and the selection); :func:`load_session`
-rebuilds a session from them by *replaying* it: the stored camera poses are
-re-rendered and the stored masks fused in their slots, so the replayed labels equal
-the saved ones without running SAM again. Views that were still
-pending (NeRF) are re-submitted to the segmenter.
+parses them back into plain records (:func:`saved_object`) and has a new session
+*replay* them (:meth:`~divas_engine.session.Session.replay`): the stored camera poses are
+re-rendered and the stored masks fused in their slots, so the replayed labels equal the
+saved ones without running SAM again. Views that were still pending (NeRF) are
+re-submitted to the segmenter.
 """
 
 from __future__ import annotations
@@ -20,14 +21,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..camera import Camera
-from ..errors import DivasInputError
+from ..errors import DivasInputError, InputErrorCode
 from ..io.limits import PARSE_ERRORS, input_guard
 from ..kinds import ViewStatus
 from ..scene import Scene
-from ..segment.base import Segmenter
+from ..segment.base import Rejection, Segmenter
 from ..views.centroid_common import CentroidView
 from .backends import backend_class_for
-from .edits import edit_arrays, restore_object_edits, restore_session_edits
+from .edits import edit_arrays, saved_edits
 from .records import AnchorClick, ObjectRecord, SessionView
 from .store import SESSION_FORMAT, SESSION_VERSION, load_state
 from .validate import check_session_doc
@@ -35,7 +36,7 @@ from .validate import check_session_doc
 if TYPE_CHECKING:
     from .session import Session
 
-__all__ = ["scene_fingerprint", "session_state", "load_session", "restore_object"]
+__all__ = ["scene_fingerprint", "session_document", "load_session", "saved_object"]
 
 
 def scene_fingerprint(scene: Scene) -> str:
@@ -47,7 +48,7 @@ def scene_fingerprint(scene: Scene) -> str:
     return h.hexdigest()
 
 
-def session_state(session: Session) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def session_document(session: Session) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The saved document and arrays of ``session``."""
     arrays: dict[str, np.ndarray] = {}
     objs = []
@@ -135,7 +136,9 @@ def load_session(
         )
     except DivasInputError as e:
         if e.source is None:  # a check deep in the replay that does not know the file
-            raise DivasInputError(path, f"bad session file: {e.problem}") from None
+            raise DivasInputError(
+                path, f"bad session file: {e.problem}", code=e.code, details=e.details
+            ) from None
         raise
     except PARSE_ERRORS as e:  # validated above; whatever still fails comes from the file
         raise DivasInputError(
@@ -153,9 +156,15 @@ def _replay(
         raise DivasInputError(
             path,
             f"session was saved on a {sd['kind']} scene of {sd['count']} primitives, not this one",
+            code=InputErrorCode.OTHER_SCENE_SIZE,
+            details={"count": sd["count"]},
         )
     if sd.get("fingerprint") and sd["fingerprint"] != scene_fingerprint(scene):
-        raise DivasInputError(path, "session was saved on a different scene (fingerprint mismatch)")
+        raise DivasInputError(
+            path,
+            "session was saved on a different scene (fingerprint mismatch)",
+            code=InputErrorCode.OTHER_SCENE,
+        )
     anchors = [
         (Camera.from_dict(a["camera"]), a["source"], int(a["index"])) for a in doc["anchors"]
     ]
@@ -169,17 +178,9 @@ def _replay(
         bool(doc["forward_facing"]),
         gt_values=gt_values,
     )
-    s.plan = None
-    s.objects = []
-    restore_session_edits(s, arrays)
-    for od in doc["objects"]:
-        restore_object(s, od, arrays, path)
-        if od["finished"]:
-            s.finish_object(od["name"])
-            s.objects.pop()  # finish_object opened the next one; the doc lists it
-    if not s.objects or s.objects[-1].finished:
-        k = len(s.objects)
-        s.objects.append(ObjectRecord(k, k + 1, f"object_{k + 1}"))
+    objects = [saved_object(od, arrays, path) for od in doc["objects"]]
+    edits = saved_edits(arrays, s.backend.selection_shape, [o.index for o in objects])
+    s.replay(objects, edits)
     saved = arrays.get("labels")
     s.replay_matches = bool(
         saved is not None
@@ -197,17 +198,13 @@ def _view_status(value: Any, path: str | PathLike | None) -> ViewStatus:
         raise DivasInputError(path, f"unknown view status {value!r} in the session") from None
 
 
-def restore_object(
-    session: Session,
-    od: dict[str, Any],
-    arrays: dict[str, np.ndarray],
-    path: str | PathLike | None = None,
-) -> None:
-    """Append one saved object to ``session``: its clicks and views, the fused masks
-    fused again in their slots, the pending views re-submitted and synchronised."""
+def saved_object(
+    od: dict[str, Any], arrays: dict[str, np.ndarray], path: str | PathLike | None = None
+) -> ObjectRecord:
+    """One saved object as plain records: its clicks and views (fused views with their
+    mask and slot, as saved)."""
     obj = ObjectRecord(int(od["index"]), int(od["label"]), str(od["name"]))
-    session.objects.append(obj)
-    restore_object_edits(session, obj.index, arrays)
+    obj.finished = bool(od["finished"])
     for a, cs in od["clicks"].items():
         obj.clicks[int(a)] = [
             AnchorClick(
@@ -220,11 +217,9 @@ def restore_object(
             )
             for c in cs
         ]
-    pending = []
     for vd in od["views"]:
-        cam = Camera.from_dict(vd["camera"])
         cv = CentroidView(
-            cam,
+            Camera.from_dict(vd["camera"]),
             float(vd["d_cam"]),
             np.asarray(vd["target"], np.float64),
             (float(vd["xy"][0]), float(vd["xy"][1])),
@@ -234,33 +229,19 @@ def restore_object(
             float(vd["r_init"]),
             int(vd["neighbours"]),
         )
-        v = SessionView(
-            vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv, _session=session
-        )
+        v = SessionView(vd["id"], obj.index, int(vd["anchor"]), int(vd["click"]), cv)
         v.status, v.reason = _view_status(vd["status"], path), vd["reason"]
-        v.advice = vd.get("advice")  # absent in sessions saved before issue 16
+        v.advice = vd.get("advice")  # absent in older sessions
+        if vd.get("rejection"):  # absent in older sessions
+            v.rejection = Rejection.from_dict(vd["rejection"])
         v.score = float("nan") if vd["score"] is None else float(vd["score"])
         if vd["points"] is not None:
             v.points = np.asarray(vd["points"], np.float64).reshape(-1, 2)
             v.labels = np.asarray(vd["labels"], np.int64)
-        obj.views.append(v)
-        session._views[v.id] = v
         if v.status == ViewStatus.FUSED:
-            from ..fusion import FusionView
-
-            mask = arrays[vd["mask"]]
-            b = v.buffers
-            fv = FusionView(cam, mask, b.D_min, b.D_ref, b.D_max, b.N_samp, float(cv.d_cam), v.id)
-            with session.timings.measure("kernel"):
-                v.fusion_id = session.fusion.add_view(fv, int(vd["fusion_id"]))
-            v.mask, v.fusion_view = mask, fv
+            v.mask, v.fusion_id = arrays[vd["mask"]], int(vd["fusion_id"])
             if vd.get("raw_mask"):  # absent in older files: the fused mask stands in
                 v.raw_mask = arrays[vd["raw_mask"]]
-        elif v.status == ViewStatus.PENDING:
-            pending.append(v)
+        obj.views.append(v)
     obj.accept_order = list(od["accept_order"])
-    session._update_selection()  # the fused views (if any) with the manual edits
-    for v in pending:
-        session._accept_async(v, v.points, v.labels)
-    if pending:
-        session.sync()
+    return obj

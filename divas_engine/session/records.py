@@ -1,27 +1,24 @@
 """The records of an interactive session: anchors, clicks, centroid views, previews,
-overlays, accept results and objects (the loop itself is :mod:`.session`).
+overlays, accept results and objects — plain data (the loop is :mod:`.session`).
 
-Views render their camera on first use through the session that made them
-(:class:`_RenderedOnDemand`); everything else is plain data.
+An anchor or a view holds its render once the session has rendered it
+(:meth:`~divas_engine.session.Session.render`); reading a record never renders.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..camera import Camera
 from ..kinds import ViewStatus
 from ..render.buffers import RenderBuffers
-from ..segment.base import MaskSelection
+from ..segment.base import MaskSelection, Rejection
 from ..segment.depth_weighting import DepthBand
 from ..views.centroid_common import CentroidView
-
-if TYPE_CHECKING:
-    from .session import Session
 
 __all__ = [
     "AnchorView",
@@ -34,35 +31,33 @@ __all__ = [
 ]
 
 
-class _RenderedOnDemand:
-    """``buffers``/``rgb`` of a view's ``camera``, rendered by its session on first use
-    (the dataclass provides ``camera``, ``_buffers`` and ``_session``)."""
+class _Rendered:
+    """``rendered`` and ``rgb`` of a record with a ``buffers`` field."""
 
-    @property
-    def buffers(self) -> RenderBuffers:
-        if self._buffers is None:
-            assert self._session is not None
-            self._buffers = self._session._render(self.camera)
-        return self._buffers
-
-    @property
-    def rgb(self) -> np.ndarray:
-        return self.buffers.rgb
+    buffers: RenderBuffers | None
 
     @property
     def rendered(self) -> bool:
-        """Whether the view is rendered already (reading ``buffers`` would not render)."""
-        return self._buffers is not None
+        """Whether the session has rendered it (``buffers`` is set)."""
+        return self.buffers is not None
+
+    @property
+    def rgb(self) -> np.ndarray:
+        """The render's RGB (the session renders it: ``Session.render``)."""
+        if self.buffers is None:
+            raise RuntimeError(f"{self!r} is not rendered yet: Session.render() it first")
+        return self.buffers.rgb
 
 
-@dataclass(eq=False)
-class AnchorView(_RenderedOnDemand):
+@dataclass(eq=False, repr=False)
+class AnchorView(_Rendered):
     """An anchor offered to the user.
 
     Attributes:
         index: position in :attr:`Session.anchors`.
         camera: the rendered (working-resolution) camera; full_camera: as given.
         source: ``"fibonacci"``, ``"training"`` or ``"camera"``; source_index: its index.
+        buffers: its render, once rendered.
     """
 
     index: int
@@ -70,8 +65,10 @@ class AnchorView(_RenderedOnDemand):
     full_camera: Camera
     source: str
     source_index: int
-    _buffers: RenderBuffers | None = None
-    _session: Session | None = None
+    buffers: RenderBuffers | None = None
+
+    def __repr__(self) -> str:
+        return f"anchor {self.index}"
 
 
 @dataclass(eq=False)
@@ -105,7 +102,8 @@ class MaskPreview:
         selection: :func:`~divas_engine.segment.select_mask` outcome.
         mask: the depth-weighted mask M̃ (None when rejected by ``select_mask``).
         band: the 2DGS depth band (eq:depthband), None for NeRF.
-        reason: why the view would be rejected, None when it would be fused.
+        rejection: why the view would be rejected (:class:`Rejection`), None when it
+            would be fused; ``reason`` is its sentence.
         advice: the segmenter's plain-language hint when it was unsure (what to click
             next: a click on what is missing, a negative click on what spilled over),
             None when it is confident or gives no hints (SAM, the oracle).
@@ -119,21 +117,25 @@ class MaskPreview:
     selection: MaskSelection
     mask: np.ndarray | None
     band: DepthBand | None
-    reason: str | None
+    rejection: Rejection | None
     seconds: float = 0.0
     advice: str | None = None
 
     @property
     def accepted(self) -> bool:
-        return self.reason is None
+        return self.rejection is None
+
+    @property
+    def reason(self) -> str | None:
+        return None if self.rejection is None else self.rejection.message
 
     @property
     def score(self) -> float:
         return self.selection.score
 
 
-@dataclass(eq=False)
-class SessionView(_RenderedOnDemand):
+@dataclass(eq=False, repr=False)
+class SessionView(_Rendered):
     """A centroid view of the session.
 
     Attributes:
@@ -142,14 +144,17 @@ class SessionView(_RenderedOnDemand):
             anchor box …).
         status: a :class:`~divas_engine.kinds.ViewStatus` — ``"open"`` (spawned),
             ``"pending"`` (NeRF: accepted, SAM running), ``"fused"`` or ``"rejected"``.
-        reason: why it was rejected; advice: the segmenter's hint of its last preview
-            or rejection (what to click next), None once fused or when it was sure.
+        reason: why it was rejected (the engine's sentence); rejection: the same as data
+            (:class:`Rejection`; None in sessions saved before it was kept); advice: the
+            segmenter's hint of its last preview or rejection (what to click next), None
+            once fused or when it was sure.
         points, labels: the prompt set of the last preview / accept.
         mask: the depth-weighted mask that was fused.
         raw_mask: the segmenter's own mask of that accept, restored from a saved
             session (a live view reads it from ``preview``); the 3DGS completion's
             evidence, so a replay completes exactly as the live session did.
         fusion_id: the fusion slot (2DGS: view-bitmask bit).
+        buffers: its render, once rendered.
     """
 
     id: str
@@ -159,6 +164,7 @@ class SessionView(_RenderedOnDemand):
     centroid: CentroidView
     status: ViewStatus = ViewStatus.OPEN
     reason: str | None = None
+    rejection: Rejection | None = None
     advice: str | None = None
     score: float = float("nan")
     points: np.ndarray | None = None
@@ -169,8 +175,10 @@ class SessionView(_RenderedOnDemand):
     fusion_id: int | None = None
     fusion_view: Any = None
     timings: dict = field(default_factory=dict)
-    _buffers: RenderBuffers | None = None
-    _session: Session | None = None
+    buffers: RenderBuffers | None = None
+
+    def __repr__(self) -> str:
+        return f"view {self.id}"
 
     @property
     def camera(self) -> Camera:
@@ -189,6 +197,7 @@ class SessionView(_RenderedOnDemand):
             "click": self.click,
             "status": self.status,
             "reason": self.reason,
+            "rejection": None if self.rejection is None else self.rejection.to_dict(),
             "advice": self.advice,
             "score": None if not np.isfinite(self.score) else float(self.score),
             "camera": c.camera.to_dict(),

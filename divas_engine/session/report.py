@@ -36,7 +36,7 @@ def session_counts(session: Session, *, wait: bool = True) -> dict[str, Any]:
         "segmented_voxels": None
         if not voxels
         else int(session.fusion.result().segmented.sum())
-        if session._live_views()
+        if session.state.live_views()
         else 0,
     }
 

@@ -5,38 +5,18 @@ Loop (Sec. 3.1 "Overview"): anchors → a click on an anchor spawns a centroid v
 the view fuses it (Sec. 3.5) and, for 2DGS, maps the voxels to surfels (Sec. 3.6) →
 the selection is overlaid on the current and the next pending view (Sec. 3.7).
 
-Scheduling (Sec. 3.4 "Execution scheduling", Sec. 3.7):
-
-* 2DGS — synchronous: :meth:`Session.accept` runs SAM (or reuses the preview of the
-  same prompts), fuses, maps and returns the overlays at once.
-* NeRF — asynchronous: :meth:`Session.accept` hands the view to a background
-  :class:`~divas_engine.segment.SamWorker` and returns; the pending masks are
-  collected and fused together when the view ends its anchor group (no other open
-  centroid view of the same anchor in the current object) or ``sync_pending`` (3)
-  masks are pending. Propagation feedback (selection, overlays) happens at that sync.
-  :meth:`Session.sync` forces it (``finish_object``, ``export`` and ``save`` of the
-  final state call it).
+Scheduling (Sec. 3.4 "Execution scheduling"): 2DGS segments synchronously at
+:meth:`Session.accept`; NeRF hands the view to a background
+:class:`~divas_engine.segment.SamWorker` and fuses the pending masks together when the
+view ends its anchor group or ``sync_pending`` (3) masks are pending (:meth:`Session.sync`
+forces it; ``finish_object``, ``export`` and ``save`` of the final state call it).
 
 Coordinates: every pixel coordinate of this API is in the images the session renders
 (the cameras scaled by ``SessionConfig.render_scale``).
 
-Undo is exact (fixed-point fusion ``remove_view``; the mapping is recomputed from the
-same live views and slots). A session is serialised as JSON + npz (the accepted,
-depth-weighted masks), autosaved after open, every click and every accept when
-``config.autosave`` is set (one atomic unit, :mod:`.store`), and :meth:`Session.load`
-replays it — re-rendering the stored camera poses and fusing
-the stored masks — to identical labels, without running SAM again.
-
-Multiple objects: :meth:`Session.finish_object` commits the selection as the next
-integer label (0 = unlabelled; earlier labels are kept unless
-``overwrite_labels``) and starts an empty object.
-
-Structure: this module holds the loop steps; what differs per scene representation
-(occupancy, click depth, centroid view, depth weighting, scheduling, selection, export)
-is the session's :class:`~divas_engine.session.backends.SessionBackend`, picked from the
-scene by the backend registry. State, rendering and outputs: :mod:`.core`; records:
-:mod:`.records`; prompts and mask previews: :mod:`.masks`; save / replay:
-:mod:`.persistence`; counts and the report: :mod:`.report`.
+Shape: :class:`Session` holds the steps that change its :class:`~.state.SessionState`
+(it is the state's only writer); its parts and every read of them are
+:class:`~.reader.SessionReader`'s (module ``divas_engine.session.__init__`` maps the rest).
 
 Decisions not in the paper:
 
@@ -46,73 +26,69 @@ Decisions not in the paper:
   a negative prompt of every centroid view of that anchor where its 3D point is
   visible (in the image, in front, not hidden by more than ``negative_occlusion_tol``);
 * the default prompt of a centroid view is the click's 3D point projected into it
-  (NOTES "Headless prompts file"); extra points are added to it.
+  (NOTES "Headless prompts file"); extra points are added to it;
+* multiple objects: :meth:`Session.finish_object` commits the selection as the next
+  integer label (0 = unlabelled; earlier labels kept unless ``overwrite_labels``).
 """
 
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Sequence
 from os import PathLike
 from typing import Any
 
 import numpy as np
 
 from ..camera import Camera
-from ..errors import DivasInputError
-from ..kinds import SceneKind, ViewStatus
+from ..errors import DivasInputError, InputErrorCode
+from ..kinds import ViewStatus
 from ..scene import Scene
-from ..segment.base import Segmenter, SegResult
-from ..segment.worker import SamWorker, SegmentationJobError
-from ..views import Anchor, AnchorPlan, plan_scene_anchors
+from ..segment.base import Rejection, Segmenter, SegResult
+from ..segment.factory import SegmenterSettings, build_segmenter
+from ..segment.worker import SamWorker
+from ..views import Anchor
 from ..views.centroid_common import click_point
-from .backends import backend_class_for
+from . import edits as edit_steps
+from . import fusing
 from .config import SessionConfig
-from .core import SessionCore
-from .edits import SelectionEditing
+from .edits import EditLayer
 from .history import SessionHistory
-from .masks import TimedSegmenter, default_prompts, mask_preview, prompt_set
+from .masks import TimedSegmenter, mask_preview, prompt_set
+from .outputs import export_objects
 from .persistence import load_session
-from .records import AcceptResult, AnchorClick, AnchorView, MaskPreview, ObjectRecord, SessionView
+from .reader import SessionReader, anchor_plan, scene_kind
+from .records import (
+    AcceptResult,
+    AnchorClick,
+    AnchorView,
+    MaskPreview,
+    ObjectRecord,
+    SessionView,
+)
+from .state import StateSnapshot
 
 __all__ = ["Session", "anchor_plan", "scene_kind"]
 
 _ACCEPTED = (ViewStatus.FUSED, ViewStatus.PENDING)
 
 
-def scene_kind(scene: Scene) -> SceneKind:
-    """The session kind of a scene (its backend's; both Gaussian kinds are ``GS2D``)."""
-    return backend_class_for(scene).kind
+def _check_open(v: SessionView) -> None:
+    if v.status in _ACCEPTED:
+        raise DivasInputError(
+            None,
+            f"view {v.id} is already accepted ({v.status}); undo it first",
+            code=InputErrorCode.VIEW_ACCEPTED,
+            details={"view": v.id},
+        )
 
 
-def anchor_plan(
-    scene: Scene, cameras: Sequence[Camera] | None, config: SessionConfig | None = None
-) -> AnchorPlan:
-    """The anchor plan of a scene (Sec. 3.2): what :meth:`Session.open` offers by default."""
-    cfg = config or SessionConfig()
-    return plan_scene_anchors(
-        scene, list(cameras or []), kind=scene_kind(scene), config=cfg.view, all_views=cfg.all_views
-    )
-
-
-class Session(SelectionEditing, SessionCore):
-    """One interactive segmentation session over a scene (module docstring): the loop
-    steps, over the state, rendering and outputs of :class:`~.core.SessionCore`.
+class Session(SessionReader):
+    """One interactive segmentation session over a scene (module docstring): the steps
+    that change its state, over the parts and reads of :class:`~.reader.SessionReader`.
 
     Create with :meth:`open` (fresh) or :meth:`load` (saved session, replayed).
-    Manual edits of the selection: :class:`~.edits.SelectionEditing`; undo / redo of any
-    step: :attr:`history`.
     """
-
-    @property
-    def history(self) -> SessionHistory:
-        """The undo / redo history of this session (:mod:`.history`); made on first use,
-        with the current state as its first step. Steps are recorded by the caller
-        (:meth:`SessionHistory.record`), once per user-level step."""
-        if self._history is None:
-            self._history = SessionHistory(self)
-        return self._history
 
     @classmethod
     def open(
@@ -133,23 +109,18 @@ class Session(SelectionEditing, SessionCore):
         Args:
             scene: a :class:`SurfelScene` (2DGS/3DGS) or :class:`DensityGrid` (NeRF).
             cameras: training cameras (anchor planning, capture type); may be empty.
-            segmenter: the mask source (default: the weight-free :class:`Graph3DSegmenter`).
+            segmenter: the mask source (default: :data:`~divas_engine.segment.DEFAULT_SEGMENTER`).
             device: Warp device (None/"auto": CUDA when present).
             anchors: the anchors to offer instead of the planned ones — each an
                 :class:`~divas_engine.views.Anchor`, a :class:`Camera`, or a
                 ``(camera, source, index)`` tuple (full-resolution cameras).
-            gt_values: evaluation only — ground-truth per surfel ``[N]`` (NeRF ``[D,H,W]``);
-                wired into an :class:`OracleSegmenter` that has no ``gt_render``.
-            render_anchors: render the first anchor now — what the user looks at first;
-                the others render on first use (``AnchorView.buffers``), so opening a
-                session does no work the first anchor does not need (issue 20). False:
-                none now.
+            gt_values: evaluation only — ground truth per surfel ``[N]`` (NeRF
+                ``[D,H,W]``) for a segmenter that reads it (the oracle).
+            render_anchors: render the first anchor now (the others when first used).
         """
         cfg = config or SessionConfig()
         if segmenter is None:
-            from ..segment import Graph3DSegmenter
-
-            segmenter = Graph3DSegmenter()
+            segmenter = build_segmenter(SegmenterSettings())
         plan = anchor_plan(scene, cameras, cfg)
         if anchors is None:
             items = [(a.camera, a.source, a.index) for a in plan.anchors]
@@ -168,12 +139,15 @@ class Session(SelectionEditing, SessionCore):
         )
         s.plan = plan
         if render_anchors and s.anchors:
-            _ = s.anchors[0].buffers
+            s.render(s.anchors[0])
         # after the fusion state, in the same background thread: the segmenter's per-scene
-        # state (graph3d's primitives: seconds of the first click at 3M, issue 20)
-        s.backend.warm_up(then=getattr(segmenter, "warm_up", None))
-        s._autosave()  # the anchors are saved at once (issue 14)
+        # state (graph3d's primitives: seconds of the first click at 3M)
+        s.backend.warm_up(then=segmenter.warm_up)
+        s.autosave()  # the anchors are saved at once
         return s
+
+    #: Rebuild a saved session by replaying it (:func:`.persistence.load_session`).
+    load = classmethod(load_session)
 
     @staticmethod
     def _anchor_item(a: Any) -> tuple[Camera, str, int]:
@@ -186,9 +160,28 @@ class Session(SelectionEditing, SessionCore):
         cam, src, idx = a
         return cam, str(src), int(idx)
 
-    # ------------------------------------------------------------------ clicks and prompts
+    def add_anchor(self, camera: Camera, source: str = "camera", index: int = -1) -> AnchorView:
+        """Offer one more anchor — manual anchor selection (paper Sec. 1 and its
+        limitations: when the planned views miss an off-centre or occluded target, the
+        user picks a training camera or the current viewport).
+
+        Args:
+            camera: full-resolution camera (OpenCV convention); rendered at the session's
+                ``render_scale`` when first used.
+            source: ``"training"``, ``"viewport"`` or ``"camera"`` (kept in the saved
+                session); index: e.g. the training-camera index.
+
+        Returns the new :class:`AnchorView` (its ``index`` is the position to click).
+        """
+        if not isinstance(camera, Camera):
+            raise TypeError(f"add_anchor: expected a Camera, got {type(camera).__name__}")
+        a = self._new_anchor(len(self.anchors), camera, source, index)
+        self.state.anchors.append(a)
+        self.autosave()
+        return a
+
     def _back_project(self, anchor: AnchorView, xy) -> tuple[float, np.ndarray]:
-        b = anchor.buffers
+        b = self.render(anchor)
         depth = self.backend.click_depth(b)
         return click_point(anchor.camera, xy, depth, b.alpha, self.config.view.min_alpha_click)
 
@@ -212,55 +205,42 @@ class Session(SelectionEditing, SessionCore):
                 _, point = self._back_project(anchor, xy)
                 rec = AnchorClick(anchor.index, ci, xy, False, point)
                 clicks.append(rec)
-                self._autosave()
+                self.autosave()
                 return rec
             vid = f"o{obj.index}:a{anchor.index}:c{ci}"
             on_camera = self._prefetch(anchor, xy, obj)
             t0 = time.perf_counter()
-            with self._render_lock, self.timings.measure("centroid"):
-                cv = self.backend.centroid_view(anchor.camera, xy, anchor.buffers, vid, on_camera)
+            with self.rendering.lock, self.timings.measure("centroid"):
+                b = self.render(anchor)
+                cv = self.backend.centroid_view(anchor.camera, xy, b, vid, on_camera)
             t1 = time.perf_counter()
         except DivasInputError as e:
-            raise DivasInputError(None, f"anchor {anchor.index}: {e.problem}") from None
+            raise DivasInputError(
+                None, f"anchor {anchor.index}: {e.problem}", code=e.code, details=e.details
+            ) from None
         buffers, handed_s = cv.take_buffers()  # the planner's first probe, when it is the view
-        view = SessionView(vid, obj.index, anchor.index, ci, cv, _buffers=buffers, _session=self)
-        _ = view.buffers  # rendered here otherwise
+        view = SessionView(vid, obj.index, anchor.index, ci, cv, buffers=buffers)
+        self.render(view)  # rendered here when the planner's probe is not the view
         t2 = time.perf_counter()
         view.timings = {"centroid_s": t1 - t0 - handed_s, "render_s": handed_s + t2 - t1}
         clicks.append(AnchorClick(anchor.index, ci, xy, True, cv.target.copy(), vid))
-        obj.views.append(view)
-        self._views[vid] = view
-        self._autosave()
+        self.state.add_view(view)
+        self.autosave()
         return view
 
     def _prefetch(
         self, anchor: AnchorView, xy: tuple[float, float], obj: ObjectRecord
     ) -> Callable[[Camera], object] | None:
-        """Hand the object's 3D clicks with this positive click's point (the centroid
-        view's target: the same back-projection) to a segmenter that can start work for
-        the view's prompt before the view is rendered (``prefetch``: graph3d's cut, issue
-        20). SAM and the oracle have no such hook. A point that differs from the view's
-        target only costs the unused work: the segmenter keys it by its inputs.
-
-        Returns the callback the centroid view calls with the view's camera before
-        rendering it (``prefetch_view``: graph3d's masks of the default prompt, rendered
-        while the view renders), or None."""
+        """Hand the object's 3D clicks with this click's point (the view's target) to a
+        segmenter that starts work before the view renders (:meth:`Segmenter.prefetch`);
+        the callback the centroid view calls with its camera (``prefetch_view``), or None."""
         seg = self.segmenter
-        fn = getattr(seg, "prefetch", None)
-        if fn is None or not getattr(seg, "prefetch_cuts", True):
-            return None  # (graph3d's switch off: nothing would start; no back-projection)
+        if not seg.prefetches:
+            return None  # nothing would start: no back-projection
         _, point = self._back_project(anchor, xy)  # raises as the centroid view would
-        clicks = self._clicks_of(obj, point)
-        fn(clicks)
-        view_fn = getattr(seg, "prefetch_view", None)  # (it checks its own switches)
-        return None if view_fn is None else lambda camera: view_fn(camera, clicks)
-
-    def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
-        """The click's 3D point projected into the view (positive) plus the anchor's
-        visible negative clicks (negative)."""
-        v = self.view(view) if isinstance(view, str) else view
-        clicks = self.objects[v.object_index].clicks.get(v.anchor, [])
-        return default_prompts(v, clicks, self.config.negative_occlusion_tol)
+        clicks = self.state.object_clicks(obj, point)
+        seg.prefetch(clicks)
+        return lambda camera: seg.prefetch_view(camera, clicks)
 
     def _prompt_set(
         self, v: SessionView, points, labels, include_default: bool
@@ -274,7 +254,7 @@ class Session(SelectionEditing, SessionCore):
     def _mask_from(
         self, v: SessionView, res: SegResult, p: np.ndarray, lab: np.ndarray, seconds: float = 0.0
     ) -> MaskPreview:
-        return mask_preview(v, res, p, lab, self.config, self.backend, seconds)
+        return mask_preview(v, self.render(v), res, p, lab, self.config, self.backend, seconds)
 
     def _require_segmenter(self) -> TimedSegmenter:
         if self._seg is None:
@@ -286,23 +266,15 @@ class Session(SelectionEditing, SessionCore):
     ) -> MaskPreview:
         """Mask preview for a prompt set (default prompts + ``points``), synchronous."""
         v = self._resolve(view)
-        if v.status in _ACCEPTED:
-            raise ValueError(f"view {v.id} is already accepted ({v.status}); undo it first")
+        _check_open(v)
         p, lab = self._prompt_set(v, points, labels, include_default)
         seg = self._require_segmenter()
-        b = v.buffers
+        ctx = self.view_context(v)
         t0 = time.perf_counter()
-        res = seg.segment(b.rgb, b.D_ref, p, lab, view_id=v.id)
+        res = seg.segment_view(ctx, p, lab)
         prev = self._mask_from(v, res, p, lab, time.perf_counter() - t0)
         v.preview, v.points, v.labels, v.advice = prev, p, lab, prev.advice
         return prev
-
-    # ------------------------------------------------------------------ accept / sync
-    def _end_of_group(self, v: SessionView) -> bool:
-        return not any(
-            o.anchor == v.anchor and o.status == ViewStatus.OPEN and o is not v
-            for o in self.current.views
-        )
 
     def accept(
         self, view: SessionView | str, points=None, labels=None, *, include_default: bool = True
@@ -314,8 +286,7 @@ class Session(SelectionEditing, SessionCore):
         are recorded with their reason and change nothing.
         """
         v = self._resolve(view)
-        if v.status in _ACCEPTED:
-            raise ValueError(f"view {v.id} is already accepted ({v.status}); undo it first")
+        _check_open(v)
         if points is not None or labels is not None:
             p, lab = self._prompt_set(
                 v,
@@ -343,11 +314,15 @@ class Session(SelectionEditing, SessionCore):
             result = self._fuse_group([(v, prev)], view=v)
         else:
             self._accept_async(v, p, lab)
-            if self._end_of_group(v) or len(self._pending) >= self.config.sync_pending:
+            end_of_group = not any(
+                o.anchor == v.anchor and o.status == ViewStatus.OPEN and o is not v
+                for o in self.current.views
+            )
+            if end_of_group or len(self.state.pending) >= self.config.sync_pending:
                 result = self.sync(view=v)
             else:
                 result = AcceptResult(
-                    v, v.status, None, [], [], len(self._pending), False, self._selection
+                    v, v.status, None, [], [], len(self.state.pending), False, self.selection
                 )
         seg_calls = self.timings.calls("segmenter")[n_seg:]
         result.timings.setdefault("segmenter_s", float(sum(seg_calls)))
@@ -363,51 +338,37 @@ class Session(SelectionEditing, SessionCore):
                 **result.timings,
             }
         )
-        self._autosave()
+        self.autosave()
         return result
 
-    def _accept_async(self, v: SessionView, p: np.ndarray, lab: np.ndarray) -> None:
+    def _submit(self, v: SessionView, p: np.ndarray, lab: np.ndarray) -> None:
+        """Hand a view to the background segmentation worker (NeRF)."""
         if self._worker is None:
             self._worker = SamWorker(
                 self._require_segmenter(), asynchronous=True, sync_pending=self.config.sync_pending
             )
-        b = v.buffers
-        self._worker.submit(v.id, b.rgb, b.D_ref, p, lab)
+        self._worker.submit(self.view_context(v), p, lab)
+
+    def _accept_async(self, v: SessionView, p: np.ndarray, lab: np.ndarray) -> None:
+        self._submit(v, p, lab)
         v.status = ViewStatus.PENDING
-        self._pending.append(v)
+        self.state.pending.append(v)
 
     def sync(self, view: SessionView | None = None) -> AcceptResult:
         """Collect every pending NeRF mask and fuse them together (no-op when none)."""
-        if not self._pending:
-            return AcceptResult(
-                view,
-                None if view is None else view.status,
-                None if view is None else view.reason,
-                [],
-                [],
-                0,
-                False,
-                self._selection,
-            )
-        group, self._pending = self._pending, []
+        st = self.state
+        if not st.pending:
+            status = None if view is None else view.status
+            reason = None if view is None else view.reason
+            return AcceptResult(view, status, reason, [], [], 0, False, st.selection)
+        group, st.pending = st.pending, []
         t0 = time.perf_counter()
-        results: dict[Hashable, SegResult] = {}
-        failures: dict[Hashable, BaseException] = {}
-        try:
-            results = self._worker.sync() if self._worker is not None else {}
-        except SegmentationJobError as e:
-            results, failures = dict(e.results), dict(e.failures)
+        segmented = fusing.collect(self._worker, group)
         self.timings.add("segmenter_wait", time.perf_counter() - t0)
-        items: list[tuple[SessionView, MaskPreview | str]] = []
-        for v in group:
-            res = results.get(v.id)
-            if res is None and self._worker is not None:
-                res = self._worker.result(v.id)
-            if res is None:
-                cause = failures.get(v.id)
-                items.append(
-                    (v, f"segmentation failed: {cause}" if cause else "segmentation result missing")
-                )
+        items: list[tuple[SessionView, MaskPreview | Rejection]] = []
+        for v, res in segmented:
+            if isinstance(res, Rejection):
+                items.append((v, res))
                 continue
             prev = self._mask_from(v, res, v.points, v.labels)
             v.preview = prev
@@ -417,56 +378,26 @@ class Session(SelectionEditing, SessionCore):
         return out
 
     def _fuse_group(self, items, view: SessionView | None) -> AcceptResult:
-        from ..fusion import FusionCapacityError, FusionView
-
-        fused, rejected, kernel_s = [], [], 0.0
-        for k, (v, prev) in enumerate(items):
-            reason = prev if isinstance(prev, str) else prev.reason
-            if reason is not None:
-                v.status, v.reason = ViewStatus.REJECTED, reason
-                v.score = float("nan") if isinstance(prev, str) else prev.score
-                v.advice = None if isinstance(prev, str) else prev.advice
-                rejected.append((v.id, reason))
-                continue
-            b = v.buffers
-            fv = FusionView(
-                v.camera,
-                prev.mask,
-                b.D_min,
-                b.D_ref,
-                b.D_max,
-                b.N_samp,
-                float(v.centroid.d_cam),
-                v.id,
+        """Fuse (or reject) each ``(view, preview or failure)``, then update the selection."""
+        buffers = {v.id: self.render(v) for v, prev in items if isinstance(prev, MaskPreview)}
+        try:
+            fused, rejected, kernel_s = fusing.fuse_views(
+                items, buffers, self.fusion, self.timings, self.current.accept_order
             )
-            t = time.perf_counter()
-            try:
-                fid = self.fusion.add_view(fv)
-            except FusionCapacityError as e:
-                # the views fused before stay fused and selected; this one and the rest
-                # of the group go back to open (their previews kept, so a retry is cheap)
-                for w, _ in items[k:]:
-                    w.status, w.reason = ViewStatus.OPEN, None
-                    if w.id in self.current.accept_order:
-                        self.current.accept_order.remove(w.id)
-                if fused:
-                    self._update_selection()
-                raise DivasInputError(None, str(e)) from None
-            dt = time.perf_counter() - t
-            self.timings.add("kernel", dt)
-            kernel_s += dt
-            v.status, v.reason, v.score, v.advice = ViewStatus.FUSED, None, prev.score, None
-            v.mask, v.fusion_id, v.fusion_view = prev.mask, fid, fv
-            fused.append(v.id)
+        except fusing.FusedSome as e:
+            if e.fused:
+                self._update_selection()
+            views = e.cause.max_views
+            raise DivasInputError(
+                None, str(e.cause), code=InputErrorCode.FUSION_FULL, details={"views": views}
+            ) from None
         timings: dict[str, float] = {"kernel_s": kernel_s}
         ov = nov = nxt = None
         if fused:
             timings["mapping_s"] = self._update_selection()
-            release = getattr(self.renderer, "release", None)
-            for vid in fused if release is not None else ():  # segmented: binning done
-                release(self._views[vid].camera)
-            # overlays of this selection, rendered when first read (AcceptResult.overlay)
-            ov, nxt, nov = self._lazy_overlays(view)
+            for vid in fused:  # segmented: what the renderer kept for it is done with
+                self.renderer.release(self.view(vid).camera)
+            ov, nxt, nov = self._lazy_overlays(view)  # rendered when first read
         timings["fuse_s"] = sum(timings.values())
         return AcceptResult(
             view,
@@ -474,105 +405,199 @@ class Session(SelectionEditing, SessionCore):
             None if view is None else view.reason,
             fused,
             rejected,
-            len(self._pending),
+            len(self.state.pending),
             True,
-            self._selection,
+            self.selection,
             ov,
             nxt,
             nov,
             timings,
         )
 
-    # ------------------------------------------------------------------ undo / reset / objects
+    def _update_selection(self) -> float:
+        """The semantic selection of the fused live views (the backend's mapping)."""
+        t = time.perf_counter()
+        live = self.state.live_views()
+        if not live:
+            self.state.set_semantic(np.zeros_like(self.selection))
+            return 0.0
+        self.state.set_semantic(self.backend.selection(self.fusion.result(), live))
+        dt = time.perf_counter() - t
+        self.timings.add("mapping", dt)
+        return dt
+
     def undo(self) -> SessionView | None:
         """Undo the last accepted view of the current object (exact); returns it, or None."""
         obj = self.current
         while obj.accept_order:
-            vid = obj.accept_order.pop()
-            v = self._views[vid]
+            v = self.view(obj.accept_order.pop())
             if v.status == ViewStatus.FUSED:
                 with self.timings.measure("undo"):
                     self.fusion.remove_view(int(v.fusion_id))
                 v.status, v.fusion_id, v.fusion_view, v.mask = ViewStatus.OPEN, None, None, None
                 self._update_selection()
-                self._autosave()
+                self.autosave()
                 return v
             if v.status == ViewStatus.PENDING:
-                self._pending.remove(v)
+                self.state.pending.remove(v)
                 if self._worker is not None:
                     self._worker.forget(v.id)
                 v.status = ViewStatus.OPEN
-                self._autosave()
+                self.autosave()
                 return v
             # rejected accepts changed nothing: keep looking
         return None
 
     def reset(self, all_objects: bool = False) -> None:
         """Drop the current object's views and selection (``all_objects``: every label too)."""
-        self._drain_worker()
+        st = self.state
+        st.pending = []
+        fusing.drain(self._worker)
         self.fusion.reset()
-        for v in self.current.views:
-            self._views.pop(v.id, None)
+        dropped = st.objects if all_objects else [st.current]
+        for o in dropped:
+            for v in o.views:
+                st.views.pop(v.id, None)
         if all_objects:
-            for o in self.objects[:-1]:
-                for v in o.views:
-                    self._views.pop(v.id, None)
-            self.objects = [ObjectRecord(0, 1, "object_1")]
-            self.labels = np.zeros_like(self.labels)
-            for k in list(self.edits.objects):
-                self.edits = self.edits.with_object(k, None)
+            st.objects = [ObjectRecord(0, 1, "object_1")]
+            st.labels = np.zeros_like(st.labels)
+            for k in list(st.edits.objects):
+                st.edits = st.edits.with_object(k, None)
         else:
-            cur = self.current
-            self.objects[-1] = ObjectRecord(cur.index, cur.label, f"object_{cur.label}")
-            self.edits = self.edits.with_object(cur.index, None)
-        self._set_semantic(np.zeros_like(self._selection))
-        self._autosave()
+            cur = st.current
+            st.objects[-1] = ObjectRecord(cur.index, cur.label, f"object_{cur.label}")
+            st.edits = st.edits.with_object(cur.index, None)
+        st.set_semantic(np.zeros_like(st.selection))
+        self.autosave()
 
-    def _drain_worker(self) -> None:
-        self._pending = []
-        if self._worker is not None:
-            with contextlib.suppress(SegmentationJobError):
-                self._worker.sync()
+    def _sync_pending(self) -> None:
+        if self.state.pending:
+            self.sync()
 
     def finish_object(self, name: str | None = None) -> ObjectRecord:
         """Commit the current selection as the next label and start a new object."""
-        if self._pending:
-            self.sync()
-        cur = self.current
+        self._sync_pending()
+        st = self.state
+        cur = st.current
         if name:
             cur.name = str(name)
-        cur.selection = self._selection.copy()
-        take = cur.selection if self.config.overwrite_labels else cur.selection & (self.labels == 0)
-        self.labels = np.where(take, cur.label, self.labels).astype(self.labels.dtype)
+        cur.selection = st.selection.copy()
+        take = cur.selection if self.config.overwrite_labels else cur.selection & (st.labels == 0)
+        st.labels = np.where(take, cur.label, st.labels).astype(st.labels.dtype)
         cur.finished = True
-        # open views of the finished object are dropped from the id table
-        for v in cur.views:
+        for v in cur.views:  # open views of the finished object leave the id table
             if v.status == ViewStatus.OPEN:
-                self._views.pop(v.id, None)
+                st.views.pop(v.id, None)
         cur.views = [v for v in cur.views if v.status != ViewStatus.OPEN]
         self.fusion.reset()
-        k = len(self.objects)
-        self.objects.append(ObjectRecord(k, k + 1, f"object_{k + 1}"))
-        self._set_semantic(np.zeros_like(self._selection))
-        self._autosave()
+        st.new_object()
+        st.set_semantic(np.zeros_like(st.selection))
+        self.autosave()
         return cur
 
-    # ------------------------------------------------------------------ export
+    @property
+    def history(self) -> SessionHistory:
+        """The undo / redo history (:mod:`.history`); made on first use, with the current
+        state as its first step. The caller records each user-level step."""
+        if self._history is None:
+            self._history = SessionHistory(self)
+        return self._history
+
+    def restore(self, snapshot: StateSnapshot, *, autosave: bool = True) -> None:
+        """Put the session in the state of ``snapshot`` (:meth:`SessionState.snapshot`):
+        the fusion is reconciled slot by slot (exact, no render), pending views are
+        forgotten or submitted again; the snapshot's selection is kept (no mapping)."""
+        st = self.state
+        before_fused, before_pending = st.fused_slots(), list(st.pending)
+        st.restore(snapshot)
+        fusing.reconcile(self.fusion, before_fused, st.fused_slots())
+        keep = set(map(id, st.pending))
+        for v in before_pending:
+            if id(v) not in keep and self._worker is not None:
+                self._worker.forget(v.id)
+        had = set(map(id, before_pending))
+        for v in st.pending:
+            if id(v) not in had:
+                self._submit(v, v.points, v.labels)
+        if autosave:
+            self.autosave()
+
+    def replay(self, objects: Sequence[ObjectRecord], edits: EditLayer) -> None:
+        """Rebuild the state of saved ``objects`` (:mod:`.persistence`): in order, each
+        one's fused views fused again in their slots (rendered again), its pending views
+        segmented again, finished ones finished (their labels committed)."""
+        st = self.state
+        st.objects, st.views, st.edits = [], {}, edits
+        for saved in objects:
+            obj = ObjectRecord(saved.index, saved.label, saved.name, clicks=saved.clicks)
+            st.objects.append(obj)
+            pending = []
+            for v in saved.views:
+                obj.views.append(v)
+                st.views[v.id] = v
+                if v.status == ViewStatus.FUSED:
+                    fv = fusing.fusion_view(v, v.mask, self.render(v))
+                    with self.timings.measure("kernel"):
+                        v.fusion_id = self.fusion.add_view(fv, int(v.fusion_id))
+                    v.fusion_view = fv
+                elif v.status == ViewStatus.PENDING:
+                    pending.append(v)
+            obj.accept_order = list(saved.accept_order)
+            self._update_selection()  # the fused views (if any) with the manual edits
+            for v in pending:
+                self._accept_async(v, v.points, v.labels)
+            if pending:
+                self.sync()
+            if saved.finished:
+                self.finish_object(saved.name)
+                st.objects.pop()  # finish_object opened the next one; the save lists it
+        if not st.objects or st.objects[-1].finished:
+            st.new_object()
+
+    def apply_selection(self, new, within=None, *, autosave: bool = True) -> np.ndarray:
+        """Make the current selection ``new`` by hand (a manual edit composed with the
+        semantic selection, :mod:`.edits`); ``within``: only these primitives change.
+        Deleted ones stay unselected. ``autosave``: False while a brush stroke goes on
+        (the host saves at its end). Returns the new selection."""
+        shape = self.backend.selection_shape
+        new = edit_steps.check_mask(new, shape, "apply_selection")
+        if within is not None:
+            within = edit_steps.check_mask(within, shape, "apply_selection within")
+        out = edit_steps.apply_selection(self.state, new, within)
+        if autosave:
+            self.autosave()
+        return out
+
+    def delete_primitives(self, mask) -> int:
+        """Delete primitives: out of every selection and label from now on, and out of
+        every export (the scene file is never changed). Returns how many were new."""
+        m = edit_steps.check_mask(mask, self.backend.selection_shape, "delete_primitives")
+        count = edit_steps.delete_primitives(self.state, m)
+        self.autosave()
+        return count
+
+    def hide_primitives(self, mask) -> None:
+        """Hide primitives until :meth:`reveal_primitives`; hidden ones are deselected by
+        hand (a manual removal that stays, :mod:`.edits`)."""
+        m = edit_steps.check_mask(mask, self.backend.selection_shape, "hide_primitives")
+        edit_steps.hide_primitives(self.state, m)
+        self.autosave()
+
+    def reveal_primitives(self) -> np.ndarray:
+        """Show every hidden primitive again (still deselected); the mask of them."""
+        old = edit_steps.reveal_primitives(self.state)
+        self.autosave()
+        return np.zeros(self.backend.selection_shape, bool) if old is None else old
+
     def export(self, path: str | PathLike, labels_path: str | PathLike | None = None):
         """Write the current selection in the input's format (PLY subset / masked npz grid)."""
         from ..export import export_selection
 
-        if self._pending:
-            self.sync()
-        return export_selection(self.scene, self._selection, path, labels_path=labels_path)
+        self._sync_pending()
+        return export_selection(self.scene, self.selection, path, labels_path=labels_path)
 
     def export_objects(self, out_dir: str | PathLike) -> dict[str, Any]:
         """One file per object (:func:`~divas_engine.export.export_selection`) plus the label
         set: ``labelled.ply`` with ``divas_label`` (surfels) or ``labels.npy`` (NeRF grid)."""
-        if self._pending:
-            self.sync()
-        return self._write_objects(out_dir)
-
-    # ------------------------------------------------------------------ persistence
-    #: Rebuild a saved session by replaying it (:func:`.persistence.load_session`).
-    load = classmethod(load_session)
+        self._sync_pending()
+        return export_objects(self.scene, self.backend, self.state, self.label_set(), out_dir)

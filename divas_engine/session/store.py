@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DivasInputError
+from ..errors import DivasInputError, InputErrorCode
 from ..io.json_file import read_json
 from ..output_paths import TEMP_SUFFIX, remove_stale_temps, write_bytes_atomic
 
@@ -155,7 +155,11 @@ def load_state(path: str | PathLike) -> tuple[dict[str, Any], dict[str, np.ndarr
     except OSError as e:
         raise DivasInputError(ap, f"cannot read the session arrays ({e.strerror})") from None
     if meta.get("sha256") and hashlib.sha256(blob).hexdigest() != meta["sha256"]:
-        raise DivasInputError(ap, "session arrays do not match the session file (torn save?)")
+        raise DivasInputError(
+            ap,
+            "session arrays do not match the session file (torn save?)",
+            code=InputErrorCode.TORN_SAVE,
+        )
     try:
         with np.load(io.BytesIO(blob), allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}

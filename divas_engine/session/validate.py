@@ -17,7 +17,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import DivasInputError
-from ..kinds import ViewStatus
+from ..kinds import RejectReason, ViewStatus
 from .config import SessionConfig, config_to_dict
 
 __all__ = ["check_session_doc"]
@@ -71,6 +71,19 @@ def _short(v: Any) -> str:
     return r if len(r) <= 60 else r[:57] + "..."
 
 
+def _rejection(v: Any, where: str) -> None:
+    try:
+        RejectReason(_get(v, "reason", where))
+    except (ValueError, TypeError):
+        raise _Bad(f"{where}.reason", f"unknown rejection {_short(v['reason'])}") from None
+    for k in ("score", "threshold"):
+        if v.get(k) is not None:
+            _kind(v[k], (int, float), f"{where}.{k}", "a number or null")
+    if v.get("channel") is not None:
+        _int(v["channel"], f"{where}.channel", 0, 16)
+    _kind(v.get("cause"), (str, type(None)), f"{where}.cause", "a string or null")
+
+
 def _camera(v: Any, where: str) -> Camera:
     _kind(v, dict, where, "a camera object")
     try:
@@ -112,6 +125,8 @@ def _view(v: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -> 
     _kind(_get(v, "reason", where), (str, type(None)), f"{where}.reason", "a string or null")
     # the segmenter's hint (issue 16); absent in sessions saved before it
     _kind(v.get("advice"), (str, type(None)), f"{where}.advice", "a string or null")
+    if v.get("rejection") is not None:  # absent in older sessions
+        _rejection(v["rejection"], f"{where}.rejection")
     score = _get(v, "score", where)
     if score is not None:
         _num(score, f"{where}.score")

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera
-from ..errors import DivasInputError
+from ..errors import DivasInputError, InputErrorCode
 
 __all__ = ["CentroidView", "ProbeRecord", "click_point", "build_pose"]
 
@@ -111,12 +111,20 @@ def click_point(
         )
     name = anchor.name or "view"
     if not (0.0 <= x < w and 0.0 <= y < h):
-        raise DivasInputError(None, f"click at ({x:g}, {y:g}) is outside anchor {name} ({w}x{h})")
+        raise DivasInputError(
+            None,
+            f"click at ({x:g}, {y:g}) is outside anchor {name} ({w}x{h})",
+            code=InputErrorCode.CLICK_OUTSIDE,
+            details={"x": x, "y": y},
+        )
     j, i = int(x), int(y)
     z = float(depth_map[i, j])
     if not np.isfinite(z) or z <= 0.0 or float(alpha[i, j]) < min_alpha:
         raise DivasInputError(
-            None, f"no surface under the click at ({x:g}, {y:g}) in anchor {name}"
+            None,
+            f"no surface under the click at ({x:g}, {y:g}) in anchor {name}",
+            code=InputErrorCode.NO_SURFACE,
+            details={"x": x, "y": y},
         )
     return z, anchor.unproject(np.array([[x, y]]), np.array([z]))[0]
 

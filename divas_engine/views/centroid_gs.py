@@ -97,12 +97,9 @@ def _probe_depth(renderer, cam: Camera, scale: float, f_fill: float) -> np.ndarr
     depth-only pass of that pixel window when it has one (no SH colours, no feature
     compositing, the surfels that miss the patch culled; the patch's depths are the
     whole render's bit for bit — issue 20), else a full render."""
-    depth = getattr(renderer, "render_depth", None)
-    if depth is None:
-        return renderer.render(cam, scale=scale).D_med
     probe = cam if scale == 1.0 else cam.scaled(scale)
     rs, cs = central_patch(probe.height, probe.width, f_fill)
-    return depth(probe, window=(cs.start, rs.start, cs.stop, rs.stop)).D_med
+    return renderer.render_depth(probe, window=(cs.start, rs.start, cs.stop, rs.stop)).D_med
 
 
 class GsCentroidPlanner:
@@ -259,9 +256,7 @@ class GsCentroidPlanner:
                 r_star, accepted = float(r_k), True
                 break
         if full is not None and not (accepted and r_star == float(radii[0])):
-            release = getattr(self.renderer, "release", None)
-            if release is not None:  # the first candidate's render is not the view's
-                release(full.camera)
+            self.renderer.release(full.camera)  # the first candidate's render is not the view's
             full = None
         if full is not None:
             cam = full.camera

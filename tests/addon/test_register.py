@@ -42,10 +42,10 @@ def test_preferences_keyed_by_package():
     rna = type(prefs).bl_rna.properties["anchor_resolution"]
     assert rna.default == DivasSettings().anchor_resolution >= 640
     assert get_settings() == DivasSettings(anchor_resolution=prefs.anchor_resolution)
-    prefs.device, prefs.segmenter = "cuda", "sam_onnx"
+    prefs.device, prefs.segmenter = "cuda", "sam-onnx"
     prefs.sam_encoder_path = "/models/enc.onnx"
     s = get_settings()
-    assert (s.device, s.segmenter, s.sam_encoder_path) == ("cuda", "sam_onnx", "/models/enc.onnx")
+    assert (s.device, s.segmenter, s.sam_encoder_path) == ("cuda", "sam-onnx", "/models/enc.onnx")
     prefs.device, prefs.segmenter, prefs.sam_encoder_path = "cpu", "classic", ""
 
 
@@ -68,3 +68,39 @@ def test_unregister_register_twice():
         blender_addon.register()
         assert all(_registered())
     assert bpy.ops.divas.import_splats.poll()
+
+
+def test_segmenter_names_and_default_are_the_engines():
+    """One spelling (the CLI's ``sam-onnx``) and one default everywhere."""
+    from blender_addon.preferences import SEGMENTERS
+    from blender_addon.session_actions import StartSettings
+    from divas_engine.segment import DEFAULT_SEGMENTER, SegmenterKind, SegmenterSettings
+    from divas_engine.session import SessionConfig
+
+    assert {key for key, _, _ in SEGMENTERS} <= {k.value for k in SegmenterKind}
+    prefs = get_preferences()
+    rna = type(prefs).bl_rna.properties["segmenter"]
+    assert rna.default == DivasSettings().segmenter == DEFAULT_SEGMENTER.value
+    assert StartSettings(SessionConfig()).segmenter == DEFAULT_SEGMENTER.value
+    assert SegmenterSettings().kind is DEFAULT_SEGMENTER is SegmenterKind.GRAPH3D
+
+
+def test_segmenter_saved_with_the_old_spelling_reads_back(tmp_path):
+    """Blender saves an enum property as its item's position (in a .blend, and so in the
+    saved preferences): a value saved when the SAM items were spelled ``sam_onnx`` /
+    ``sam_torch`` reads back as the engine's names."""
+    from bpy.props import EnumProperty
+
+    from blender_addon.preferences import SEGMENTERS
+
+    old = [(k.replace("-", "_"), name, doc) for k, name, doc in SEGMENTERS]
+    path = str(tmp_path / "old.blend")
+    bpy.types.Scene.divas_test_segmenter = EnumProperty(items=old)
+    try:
+        bpy.context.scene.divas_test_segmenter = "sam_onnx"
+        bpy.ops.wm.save_as_mainfile(filepath=path)
+        bpy.types.Scene.divas_test_segmenter = EnumProperty(items=SEGMENTERS)
+        bpy.ops.wm.open_mainfile(filepath=path)
+        assert bpy.context.scene.divas_test_segmenter == "sam-onnx"
+    finally:
+        del bpy.types.Scene.divas_test_segmenter

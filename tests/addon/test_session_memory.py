@@ -58,7 +58,7 @@ def _some_selection(live):
     n = len(s.scene)
     sel = np.zeros(n, bool)
     sel[np.random.default_rng(0).choice(n, n // 5, replace=False)] = True
-    s._set_semantic(sel)  # as an accept would (no render needed for the write-back)
+    s.state.set_semantic(sel)  # as an accept would (no render needed for the write-back)
     return sel
 
 
@@ -89,7 +89,7 @@ def test_reordered_points_keep_their_map_and_write_the_same(scene_dir):
     # the next change is written through the map as well
     sel2 = sel.copy()
     sel2[perm[:7]] = ~sel2[perm[:7]]
-    live.session._set_semantic(sel2)
+    live.session.state.set_semantic(sel2)
     wb = points.write_selection(obj, live)
     assert not wb.full and sorted(wb.selected.tolist()) == list(range(7))
     np.testing.assert_array_equal(_attrs(obj)[0], sel2[perm])

@@ -333,9 +333,9 @@ def test_segmenter_errors_come_from_the_engine_and_say_where(scene_dir):
     bpy.context.scene.divas.autosave = False
     msg = r"SAM \(ONNX\) segmenter needs the encoder and decoder.*add-on preferences"
     with pytest.raises(RuntimeError, match=msg):
-        bpy.ops.divas.start_session(segmenter="sam_onnx", device="cpu")
+        bpy.ops.divas.start_session(segmenter="sam-onnx", device="cpu")
     with pytest.raises(RuntimeError, match=r"SAM \(PyTorch\).*add-on preferences"):
-        bpy.ops.divas.start_session(segmenter="sam_torch", device="cpu")
+        bpy.ops.divas.start_session(segmenter="sam-torch", device="cpu")
     assert session_registry.get(bpy.context.active_object) is None
 
 

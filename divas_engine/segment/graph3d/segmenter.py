@@ -5,8 +5,9 @@ Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
 
 1. **Seeds.** Every prompt point is back-projected with the view's depth (``D_ref``,
    the depth tuple's surface estimate); the object's clicks on every anchor
-   (:class:`~..scene_aware.ObjectClicks`, the session's 3D click points) are added, so
-   every view of an object cuts with the same seeds.
+   (:class:`~..context.ObjectClicks`, the session's 3D click points in the view's
+   :class:`~..context.ViewContext`) are added, so every view of an object cuts with the
+   same seeds.
 2. **Local graph.** The active voxels of the cube ``c ± R`` around the positive seeds
    (:mod:`.voxel_graph`), ``R = max(region_min · r_fg, region_seed_factor · spread)``.
 3. **Cut.** Random walk from the seeds and a sweep cut by conductance
@@ -37,8 +38,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Hashable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -46,9 +46,10 @@ import numpy as np
 
 from ...camera import Camera
 from ...scene import SurfelScene
-from ..base import SegResult
+from ..base import SegResult, as_depth, as_prompts
+from ..context import ObjectClicks, SceneBinding, ViewContext
 from ..sam_common import sigmoid
-from ..scene_aware import ObjectClicks, SceneAwareSegmenter, SceneBinding
+from ..scene_aware import SceneAwareSegmenter
 from .config import Graph3DConfig
 from .cut import CutResult, sweep_cut
 from .cut_cache import CutCache
@@ -102,13 +103,6 @@ class RegionCut:
     grows: int
     seconds: float = 0.0
     info: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True, eq=False)
-class _ViewState:
-    camera: Camera
-    depth: np.ndarray | None
-    view_id: Hashable | None
 
 
 class Graph3DSegmenter(SceneAwareSegmenter):
@@ -190,6 +184,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
                 )
             return self.prims
 
+    @property
+    def prefetches(self) -> bool:
+        return self.prefetch_cuts
+
     def wait_prefetch(self, timeout: float | None = None) -> bool:
         """Wait for the cuts and masks :meth:`prefetch` / :meth:`prefetch_view` started (a
         closing session: no thread may outlive it, e.g. into Blender's exit); whether all
@@ -237,67 +235,70 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         return _seeds([pts[pos]] if len(pts) else [], [pts[~pos]] if len(pts) else [])
 
     # ------------------------------------------------------------------ Segmenter hooks
-    def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id: Hashable | None) -> Any:
+    def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id) -> Any:
+        raise ValueError(f"{self.name}: segments a view of its scene: call segment_view")
+
+    def segment_view(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> SegResult:
+        """Masks and scores of a prompt set on ``view`` (its camera, depth and the
+        object's 3D clicks; module docstring); ``message``: the advice of a low score."""
         if self.binding is None:
             raise RuntimeError(f"{self.name}: bind_scene() first (the session does it)")
-        if view_id is None:
-            raise ValueError(f"{self.name}: needs the view id of a bound view")
-        cam = self.binding.camera_of(view_id)
-        if (cam.height, cam.width) != rgb.shape[:2]:
+        cam = view.camera
+        if cam is None:
+            raise ValueError(f"{self.name}: needs the camera of view {view.id!r}")
+        hw = np.shape(view.rgb)[:2]
+        if (cam.height, cam.width) != hw:
             raise ValueError(
-                f"{self.name}: view {view_id!r} camera is {cam.width}x{cam.height}, "
-                f"the image {rgb.shape[1]}x{rgb.shape[0]}"
+                f"{self.name}: view {view.id!r} camera is {cam.width}x{cam.height}, "
+                f"the image {hw[1]}x{hw[0]}"
             )
-        return _ViewState(cam, depth, view_id)
-
-    def segment(self, rgb, depth, points, labels, *, view_id=None) -> SegResult:
+        p, lab = as_prompts(points, labels)
+        view = replace(view, depth=as_depth(view.depth, hw))
         with self._lock:
-            res = super().segment(rgb, depth, points, labels, view_id=view_id)
-            return SegResult(res.masks, res.scores, self.last_message)
+            masks, scores = self._predict(view, p, lab)
+            return SegResult(masks, scores.astype(np.float32), self.last_message)
 
     def _predict(
-        self, state: _ViewState, points: np.ndarray, labels: np.ndarray
+        self, view: ViewContext, points: np.ndarray, labels: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        seeds, missed = self.seeds(state, points, labels)
-        h, w = state.camera.height, state.camera.width
+        seeds, missed = self.seeds(view, points, labels)
+        h, w = view.camera.height, view.camera.width
         if len(seeds.positive) == 0:
             self.last_message = NO_SURFACE if missed else None
             return np.zeros((3, h, w), np.float32), np.zeros(3, np.float32)
         rc = self.cut(seeds)
         self.last_cut, self.last_message = rc, rc.message
-        key = _masks_key(seeds, state.camera)
+        key = _masks_key(seeds, view.camera)
         if self.masks.peek(key) is None and self.masks.in_flight(key) is None:
-            masks = self.render_masks(state.camera, rc.selected)
+            masks = self.render_masks(view.camera, rc.selected)
         else:  # rendered ahead (prefetch_view) or rendering: a copy of the kept ones
-            masks = self.masks.get(key, lambda: self.render_masks(state.camera, rc.selected))
+            masks = self.masks.get(key, lambda: self.render_masks(view.camera, rc.selected))
             masks = masks.copy()
         return masks, rc.scores.astype(np.float32)
 
     # ------------------------------------------------------------------ steps
-    def seeds(self, state: _ViewState, points: np.ndarray, labels: np.ndarray) -> tuple[Seeds, int]:
+    def seeds(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> tuple[Seeds, int]:
         """Step 1: the 3D seeds of a prompt set on a view (and how many prompt points
         had no surface under them). A prompt point within ``_SAME_CLICK_PX`` of a known 3D
         click's projection is that click (the session's default prompt is the click's
         point projected): its exact 3D point is used, not the view's depth there, which
         at a silhouette or behind a floater can be another surface."""
         pos, neg, missed = [], [], 0
-        oc = ObjectClicks.empty()
-        if self.binding is not None and self.binding.clicks_of is not None:
-            oc = self.binding.clicks_of(state.view_id) or oc
+        oc = view.clicks
         if len(points) and len(oc.points):
-            uv, zc = state.camera.project(np.asarray(oc.points, np.float64))
+            uv, zc = view.camera.project(np.asarray(oc.points, np.float64))
             d = np.linalg.norm(points[:, None, :] - uv[None], axis=2)
             known = np.any((d <= _SAME_CLICK_PX) & (zc[None] > 0), axis=1)
             points, labels = points[~known], labels[~known]
-        if len(points) and state.depth is not None:
-            hgt, wid = state.depth.shape
+        if len(points) and view.depth is not None:
+            hgt, wid = view.depth.shape
             cols = np.clip(np.floor(points[:, 0]).astype(np.int64), 0, wid - 1)
             rows = np.clip(np.floor(points[:, 1]).astype(np.int64), 0, hgt - 1)
-            z = state.depth[rows, cols]
+            z = view.depth[rows, cols]
             ok = np.isfinite(z) & (z > 0)
             missed = int(np.count_nonzero(~ok & (labels == 1)))
             if ok.any():
-                xyz = state.camera.unproject(points[ok], z[ok].astype(np.float64))
+                xyz = view.camera.unproject(points[ok], z[ok].astype(np.float64))
                 lab = labels[ok]
                 pos.append(xyz[lab == 1])
                 neg.append(xyz[lab == 0])

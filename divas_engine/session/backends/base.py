@@ -57,6 +57,15 @@ class SessionBackend(ABC):
 
     grid: Any
     fusion: Any
+    #: surfel scenes: the occupancy :class:`~divas_engine.fusion.GridConfig`; else None
+    grid_config: Any = None
+    #: density grids: the :class:`~divas_engine.fusion.NerfFusionConfig`; else None
+    nerf_config: Any = None
+    #: surfel scenes: the latest voxel-to-surfel mapping result; else None
+    last_mapping: Any = None
+    #: 3DGS scenes with the completion on: its latest result; else None
+    last_completion: Any = None
+    _warm: threading.Thread | None = None
 
     @property
     def ready(self) -> bool:
@@ -75,7 +84,7 @@ class SessionBackend(ABC):
     def wait_warm_up(self, timeout: float | None = None) -> bool:
         """Wait for the whole background warm-up (the segmenter's part too); whether it
         is done."""
-        t = getattr(self, "_warm", None)
+        t = self._warm
         if t is not None:
             t.join(timeout)
         return t is None or not t.is_alive()

@@ -94,7 +94,7 @@ class SurfelBackend(SessionBackend):
                 cfg = self._build_config
                 fusion = GsFusion(grid, cfg.gs_fusion, self.device)
                 # the renderer's surfel buffers: no second copy of the centres and tangents
-                bufs = getattr(self.renderer, "surfel_buffers", None)
+                bufs = self.renderer.surfel_buffers
                 mapper = SurfelMapper(self.scene, grid, cfg.mapping, self.device, surfels=bufs)
                 self._state = (grid, fusion, mapper)
             except BaseException as e:  # noqa: BLE001 - re-raised on first use
@@ -102,9 +102,7 @@ class SurfelBackend(SessionBackend):
         if self._state is not None:
             self.planner._opaque_centres()
             # the block index the renderer culls zoomed views and probes with (issue 20)
-            index = getattr(self.renderer, "sparse_index", None)
-            if index is not None:
-                index()
+            self.renderer.sparse_index()
 
     def warm_up(self, then: Callable[[], None] | None = None) -> None:
         if self._warm is None and self._state is None:
