@@ -39,27 +39,22 @@ def device(request) -> str:
     return request.param
 
 
-# Test tiers by folder and file (``make test-engine`` etc.): the add-on tests need the
-# ``bpy`` module; the kernel tests exercise the Warp kernels against NumPy references.
-KERNEL_TESTS = {
-    "test_device_arrays.py",
-    "test_fusion_gs.py",
-    "test_fusion_incremental.py",
-    "test_fusion_nerf.py",
-    "test_fusion_ribs.py",
-    "test_mapping.py",
-    "test_occupancy.py",
-    "test_render_nerf.py",
-    "test_render_surfel.py",
-}
+# Test tiers (``make test-engine`` etc.): the add-on tests (folder ``addon``) need the
+# ``bpy`` module; a kernel test module is one with a test that takes the ``device``
+# fixture or carries the ``cuda`` marker (Warp kernels against NumPy references, on every
+# available device): all its tests are in the kernels tier; every other test is an
+# engine test.
+def _is_kernel_test(item) -> bool:
+    return "device" in getattr(item, "fixturenames", ()) or item.get_closest_marker("cuda")
 
 
 def pytest_collection_modifyitems(config, items) -> None:
+    kernel_modules = {Path(str(i.fspath)) for i in items if _is_kernel_test(i)}
     for item in items:
         path = Path(str(item.fspath))
         if "addon" in path.parts:
             item.add_marker(pytest.mark.addon)
-        elif path.name in KERNEL_TESTS:
+        elif path in kernel_modules:
             item.add_marker(pytest.mark.kernels)
         else:
             item.add_marker(pytest.mark.engine)

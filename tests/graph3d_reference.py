@@ -1,179 +1,263 @@
-"""The 3D graph segmenter's per-prompt graph as it was before issue 20's lean
-primitives: every feature stored for every primitive (colour, normal, κ, σ), the
-voxel aggregates taken from float64 copies of them, the supports' per-primitive test
-from the primitives' rows. The tests of :mod:`tests.test_graph3d_lean` compare the
-lean code with it bit for bit (a reference, not used by the engine)."""
+"""An independent reference of the 3D graph segmenter's per-prompt voxel graph and of its
+supports' primitive test, written from their documented definitions (the module
+docstring of ``divas_engine/segment/graph3d/voxel_graph.py``, ``_extent_entries``'
+docstring, :class:`~divas_engine.segment.graph3d.config.Graph3DConfig`) and not from the
+code: loops over primitives and their extents' lattice samples, dictionaries keyed by
+integer cell, ``np.add.at`` sums, a sorted lookup of neighbour cells, per-edge formulas
+as written. Slow (small test scenes only); it shares nothing with graph3d but the
+:class:`Graph3DConfig` values and the :class:`VoxelGraph` container it fills.
+
+Definitions used:
+
+* primitives: a surfel scene's Gaussians with opacity ``α ≥ min_opacity``, in row
+  order: centre ``p``, mass ``α``, colour = OpenCV's CIE-Lab of the SH DC colour
+  ``clip(0.5 + SH_C0 f_dc, 0, 1)``, normal = rotation column 2 of the (normalised)
+  quaternion, ``κ = clip(1 − s_n / min(s_1, s_2), 0, 1)`` (1 for 2DGS), principal axes
+  ``s_1 t_u, s_2 t_v, s_n n``, ``σ = max(s_1, s_2, s_n)``; a density grid's are the
+  segmenter's own cells (their features are not the graph's definition);
+* region: ``G`` voxels a side (``grid_cells``; on a grid at most ``2R / cell``, at least
+  4), ``h = 2R / G``, one rim layer: corner ``lo = c − R − h``, ``G + 2`` cells a side;
+  the primitives inside the closed box; a centre's cell ``clip(⌊(p − lo) / h⌋)``;
+* extents (3DGS, or every surfel scene when ``extent_gs3d_only`` is off): a primitive
+  with ``σ > extent_min_sigma · h`` whose centre cell has no 26-neighbour holding a
+  centre is sampled at ``u = j · min(k s_i / m_i, h) / s_i`` (σ units) for integer
+  ``|j_i| ≤ m_i = min(⌈k s_i / h⌉, extent_max_steps)``, ``j ≠ 0``, ``|u| ≤ k``; a cell of
+  the cube other than its centre's gets mass ``α exp(−|u|²/2)`` at the sample of largest
+  falloff there (the first in lattice order on a tie);
+* nodes: occupied cells, in ascending ``x + n (y + n z)``; mass, α-weighted centroid and
+  colour, structure tensor ``T = Σ α κ n nᵀ`` → principal eigenvector, ``ν = tr T / m``;
+* edges: 26-neighbour node pairs, ``w = a_d a_c a_n a_m`` (config docstring), ``β`` from
+  the mean squared colour difference over the edges, the mass scale the median mass of
+  the nodes that hold a centre;
+* supports: a primitive with ``|n · up| ≥ cos(ground_normal_deg)`` within one voxel of
+  height (``p · up / h``) of a support node's rounded height ``round(μ · up / h)``.
+"""
 
 from __future__ import annotations
 
+import itertools
+import math
+import statistics
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from divas_engine.kinds import SceneKind
-from divas_engine.scene import SurfelScene
+from divas_engine.scene import SH_C0, SurfelScene
 from divas_engine.segment.graph3d.config import Graph3DConfig
-from divas_engine.segment.graph3d.primitives import _REACH_SIGMAS, ScenePrimitives, _lab
-from divas_engine.segment.graph3d.voxel_graph import _OFFSETS, VoxelGraph, _affinity
+from divas_engine.segment.graph3d.voxel_graph import VoxelGraph
 
-__all__ = ["ReferenceFeatures", "reference_voxel_graph", "reference_support_primitives"]
+__all__ = [
+    "ReferencePrimitives",
+    "reference_primitives",
+    "reference_voxel_graph",
+    "reference_support_primitives",
+    "graph_by_cell",
+]
+
+#: a primitive's reach in σ: its cutoff disc (α ≥ 1/255 down to α ≈ 1/3000) lies within 4 σ
+REACH_SIGMAS = 4.0
+_NEIGHBOURS = [d for d in itertools.product((-1, 0, 1), repeat=3) if d != (0, 0, 0)]
 
 
 @dataclass(eq=False)
-class ReferenceFeatures:
-    """Every primitive's features as whole arrays, computed from the whole scene."""
+class ReferencePrimitives:
+    """Per-primitive features (float64), in the segmenter's primitive order."""
 
+    index: np.ndarray  # scene row of each primitive
     points: np.ndarray
+    mass: np.ndarray
     lab: np.ndarray
     normals: np.ndarray
     kappa: np.ndarray
-    mass: np.ndarray
-    index: np.ndarray
+    axes: np.ndarray | None  # [M,3,3] rows: σ-scaled principal axes (surfels)
     sigma: np.ndarray | None
-    reach: np.ndarray
-    scene: object
-    up: np.ndarray | None
-    cell: float
-    prims: ScenePrimitives
+    gs3d: bool
+    cell: float  # a density grid's cell edge, 0 for surfels
 
-    @classmethod
-    def of(cls, prims: ScenePrimitives) -> ReferenceFeatures:
-        scene = prims.scene
-        if not isinstance(scene, SurfelScene):
-            return cls(
-                prims.points,
-                prims.lab,
-                prims.normals,
-                prims.kappa,
-                prims.mass,
-                prims.index,
-                None,
-                prims.reach,
-                scene,
-                prims.up,
-                prims.cell,
-                prims,
-            )
-        keep = np.arange(len(scene)) if prims.index is None else prims.index
-        normals = scene.normals()[keep].astype(np.float32)
-        if scene.scale_n is None:
-            kappa = np.ones(len(keep), np.float32)
-        else:
-            s_min = np.maximum(scene.scales[keep].min(axis=1), 1e-12)
-            kappa = np.clip(1.0 - scene.scale_n[keep] / s_min, 0.0, 1.0).astype(np.float32)
-        sigma = scene.scales[keep].max(axis=1)
-        if scene.scale_n is not None:
-            sigma = np.maximum(sigma, scene.scale_n[keep])
-        return cls(
-            np.asarray(scene.means[keep], np.float32),
-            _lab(scene.base_colors()[keep]),
-            normals,
-            kappa,
-            np.asarray(scene.opacities[keep], np.float32),
-            keep,
-            sigma.astype(np.float32),
-            (_REACH_SIGMAS * sigma).astype(np.float32),
-            scene,
-            prims.up,
-            prims.cell,
-            prims,
+    @property
+    def reach(self) -> np.ndarray:
+        return REACH_SIGMAS * self.sigma
+
+
+def _unit_quaternion_matrices(q: np.ndarray) -> np.ndarray:
+    """``[N,3,3]``: the rotation of each quaternion (w, x, y, z), normalised first."""
+    out = np.empty((len(q), 3, 3))
+    for i, row in enumerate(np.asarray(q, np.float64)):
+        w, x, y, z = row / math.sqrt(float(row @ row))
+        out[i] = [
+            [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
+        ]
+    return out
+
+
+def reference_primitives(scene, min_opacity: float, grid_prims=None) -> ReferencePrimitives:
+    """Features of a surfel ``scene`` (module docstring); for a density grid pass the
+    segmenter's ``grid_prims`` (:class:`ScenePrimitives`), whose cells are taken as they are."""
+    if not isinstance(scene, SurfelScene):
+        gp = grid_prims
+        return ReferencePrimitives(
+            np.asarray(gp.index),
+            gp.points.astype(np.float64),
+            gp.mass.astype(np.float64),
+            gp.lab.astype(np.float64),
+            gp.normals.astype(np.float64),
+            gp.kappa.astype(np.float64),
+            None,
+            None,
+            False,
+            float(gp.cell),
         )
+    keep = np.flatnonzero(scene.opacities >= min_opacity)
+    rgb = np.clip(0.5 + SH_C0 * scene.sh[keep, 0, :], 0.0, 1.0).astype(np.float32)
+    lab = cv2.cvtColor(rgb.reshape(-1, 1, 3), cv2.COLOR_RGB2Lab).reshape(-1, 3)
+    rot = _unit_quaternion_matrices(scene.quats[keep])
+    s = np.zeros((len(keep), 3))
+    s[:, :2] = scene.scales[keep]
+    if scene.scale_n is None:
+        kappa = np.ones(len(keep))
+    else:
+        s[:, 2] = scene.scale_n[keep]
+        kappa = np.clip(1.0 - s[:, 2] / np.maximum(s[:, :2].min(axis=1), 1e-12), 0.0, 1.0)
+    axes = np.stack([rot[:, :, k] * s[:, k : k + 1] for k in range(3)], axis=1)
+    return ReferencePrimitives(
+        keep,
+        scene.means[keep].astype(np.float64),
+        scene.opacities[keep].astype(np.float64),
+        lab.astype(np.float64),
+        rot[:, :, 2],
+        kappa,
+        axes,
+        s.max(axis=1),
+        scene.kind == SceneKind.GS3D,
+        0.0,
+    )
 
-    def in_box(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        return self.prims.in_box(lo, hi)
 
-    def extent_axes(self, rows: np.ndarray) -> np.ndarray:
-        return self.prims.extent_axes(rows)
-
-
-def reference_voxel_graph(
-    ref: ReferenceFeatures, center: np.ndarray, radius: float, config: Graph3DConfig
-) -> VoxelGraph:
+def _region(ref: ReferencePrimitives, center, radius: float, config: Graph3DConfig):
     g = int(config.grid_cells)
     if ref.cell > 0.0:
         g = max(4, min(g, int(2.0 * float(radius) / ref.cell)))
     h = 2.0 * float(radius) / g
-    lo = np.asarray(center, np.float64) - radius - h  # one rim layer on each side
-    cells = g + 2
-    sel = ref.in_box(lo, lo + cells * h)
-    p = ref.points[sel].astype(np.float64)
-    cell = np.clip(np.floor((p - lo) / h).astype(np.int64), 0, cells - 1)
-    key = cell[:, 0] + cells * (cell[:, 1] + cells * cell[:, 2])
-    n_prim = len(sel)
-    # a primitive wider than its voxel also occupies the voxels its extent covers, with
-    # the opacity it has there (entries after the first n_prim: row, position, key)
-    ext_row, ext_p, ext_key, ext_g = _reference_extents(ref, sel, p, key, lo, h, cells, config)
-    a = ref.mass[sel].astype(np.float64)
-    rows = np.r_[np.arange(n_prim), ext_row]
-    p = np.concatenate([p, ext_p])
-    key = np.r_[key, ext_key]
-    a = np.r_[a, a[ext_row] * ext_g]
-    # the occupied cells by a dense table over the cube (np.unique's sorted keys and
-    # inverse, without its sort; the table also finds the neighbours below)
-    occupied = np.zeros(cells**3, bool)
-    occupied[key] = True
-    uniq = np.flatnonzero(occupied)
-    v = len(uniq)
-    node = np.empty(cells**3, np.int64)
-    node[uniq] = np.arange(v)
-    inv = node[key]
-    m = np.bincount(inv, a, v)
-    msafe = np.maximum(m, 1e-12)
+    lo = np.asarray(center, np.float64) - float(radius) - h
+    return g + 2, h, lo
 
-    def wmean(x: np.ndarray) -> np.ndarray:
-        return (
-            np.stack([np.bincount(inv, a * x[:, k], v) for k in range(x.shape[1])], 1)
-            / (msafe[:, None])
-        )
 
-    centroid = wmean(p)
-    lab = wmean(ref.lab[sel][rows].astype(np.float64))
-    n = ref.normals[sel][rows].astype(np.float64)
-    ak = a * ref.kappa[sel][rows]
-    tensor = np.zeros((v, 3, 3))
-    for r in range(3):
-        for s in range(r, 3):
-            t = np.bincount(inv, ak * n[:, r] * n[:, s], v)
-            tensor[:, r, s] = t
-            tensor[:, s, r] = t
-    evals, evecs = np.linalg.eigh(tensor)  # ascending
+def _extent_samples(ref, i, centre_cell, lo, h, cells, config) -> dict:
+    """``{cell: (falloff, position)}`` of primitive ``i``'s extent (module docstring)."""
+    k = float(config.extent_sigmas)
+    s = np.linalg.norm(ref.axes[i], axis=1)
+    dirs = ref.axes[i] / np.where(s > 0, s, 1.0)[:, None]
+    steps = [min(math.ceil(k * si / h), config.extent_max_steps) if si > 0 else 0 for si in s]
+    per = np.array([min(k * si / m, h) / si if m > 0 else 0.0 for si, m in zip(s, steps)])
+    # the lattice in lexicographic order of j (the tie rule), without j = 0
+    j = np.array(list(itertools.product(*[range(-m, m + 1) for m in steps])), np.float64)
+    j = j[np.any(j != 0, axis=1)]
+    u = j * per  # σ units
+    r2 = np.sum(u * u, axis=1)
+    u, r2 = u[r2 <= k * k + 1e-9], r2[r2 <= k * k + 1e-9]
+    pos = ref.points[i] + (u * s) @ dirs
+    best: dict[tuple, tuple[float, np.ndarray]] = {}
+    for p, q in zip(pos, r2):
+        c = tuple(math.floor((p[a] - lo[a]) / h) for a in range(3))
+        if not all(0 <= x < cells for x in c) or c == centre_cell:
+            continue
+        falloff = math.exp(-0.5 * q)
+        if c not in best or falloff > best[c][0]:
+            best[c] = (falloff, p)
+    return best
+
+
+def reference_voxel_graph(
+    ref: ReferencePrimitives,
+    center,
+    radius: float,
+    config: Graph3DConfig,
+    normal_gaps: dict | None = None,
+) -> VoxelGraph:
+    """The voxel graph of the cube ``center ± radius`` (module docstring).
+    ``normal_gaps``: filled with each node cell's relative gap between the two largest
+    eigenvalues of its tensor (near 0: its principal normal is not defined — a voxel
+    where two faces carry the same mass — and any unit vector of the plane is one)."""
+    cells, h, lo = _region(ref, center, radius, config)
+    hi = lo + cells * h
+    inside = np.flatnonzero(np.all((ref.points >= lo) & (ref.points <= hi), axis=1))
+    centre_cells = np.clip(np.floor((ref.points[inside] - lo) / h), 0, cells - 1).astype(int)
+    centre = {int(i): tuple(int(x) for x in c) for i, c in zip(inside, centre_cells)}
+    with_centre = set(centre.values())
+    # entries (primitive, mass, position, cell): every centre, then the extents' samples
+    rows, masses, points, where = list(inside), list(ref.mass[inside]), [ref.points[inside]], []
+    where += [centre[int(i)] for i in inside]
+    k = float(config.extent_sigmas)
+    extents = ref.axes is not None and k > 0.0 and (ref.gs3d or not config.extent_gs3d_only)
+    for i in inside if extents else ():
+        if not ref.sigma[i] > config.extent_min_sigma * h:
+            continue
+        c = centre[int(i)]
+        if any(tuple(x + d for x, d in zip(c, off)) in with_centre for off in _NEIGHBOURS):
+            continue
+        for cell, (falloff, pos) in _extent_samples(ref, i, c, lo, h, cells, config).items():
+            rows.append(i)
+            masses.append(ref.mass[i] * falloff)
+            points.append(pos[None])
+            where.append(cell)
+    rows, a, p = np.array(rows, np.int64), np.array(masses), np.concatenate(points)
+
+    # nodes: the occupied cells in ascending z, y, x; the sums per node by np.add.at
+    order = sorted(set(where), key=lambda c: (c[2], c[1], c[0]))
+    node = {c: n for n, c in enumerate(order)}
+    of = np.array([node[c] for c in where], np.int64)
+    v = len(order)
+    mass = np.zeros(v)
+    np.add.at(mass, of, a)
+    safe = np.maximum(mass, 1e-12)[:, None]
+    centroid, lab, tensor = np.zeros((v, 3)), np.zeros((v, 3)), np.zeros((v, 3, 3))
+    np.add.at(centroid, of, a[:, None] * p)
+    np.add.at(lab, of, a[:, None] * ref.lab[rows])
+    n = ref.normals[rows]
+    np.add.at(tensor, of, (a * ref.kappa[rows])[:, None, None] * n[:, :, None] * n[:, None, :])
+    centroid /= safe
+    lab /= safe
+    evals, evecs = np.linalg.eigh(tensor)
     normal = evecs[:, :, 2]
     trace = np.trace(tensor, axis1=1, axis2=2)
-    kappa = np.clip(trace / msafe, 0.0, 1.0)  # ν: confident share of the voxel's mass
+    nu = np.clip(trace / safe[:, 0], 0.0, 1.0)
     tensor /= np.maximum(trace, 1e-12)[:, None, None]
-    vcell = np.stack([uniq % cells, (uniq // cells) % cells, uniq // (cells * cells)], 1)
-    rim = np.any((vcell == 0) | (vcell == cells - 1), axis=1)
+    if normal_gaps is not None:
+        gap = (evals[:, 2] - evals[:, 1]) / np.maximum(evals[:, 2], 1e-300)
+        normal_gaps.update(zip(order, gap.tolist()))
 
-    # neighbours: 13 half-offsets, looked up in the table
-    src, dst = [], []
-    for off in _OFFSETS:
-        nc = vcell + off
-        ok = np.all((nc >= 0) & (nc < cells), axis=1)
-        step = int(off[0] + cells * (off[1] + cells * off[2]))  # key of vcell + off
-        ok[ok] = occupied[uniq[ok] + step]
-        src.append(np.flatnonzero(ok))
-        dst.append(node[uniq[ok] + step])
-    i0 = np.concatenate(src) if src else np.zeros(0, np.int64)
-    i1 = np.concatenate(dst) if dst else np.zeros(0, np.int64)
-    # the mass scale of a_m: the median over the voxels that hold a primitive's centre
-    # (the extents' faint tails would lower it, and then thin haze would link strongly)
-    if len(inv) > n_prim:
-        centre_voxels = np.bincount(inv[:n_prim], minlength=v) > 0
-        typical = float(np.median(m[centre_voxels])) if n_prim else 0.0
-    else:
-        typical = float(np.median(m)) if v else 0.0
-    weights = _affinity(i0, i1, centroid, lab, normal, tensor, kappa, m, typical, h, config)
+    # 26-neighbour pairs, each once (to the later node): a sorted lookup of cell codes
+    cell = np.array(order, np.int64).reshape(-1, 3)
+    span = cells + 2  # room for a neighbour one cell outside the cube
+
+    def cell_code(c: np.ndarray) -> np.ndarray:
+        return ((c[:, 2] + 1) * span + c[:, 1] + 1) * span + c[:, 0] + 1
+
+    code = cell_code(cell)  # ascending: the node order
+    pairs = []
+    for off in _NEIGHBOURS:
+        other = np.searchsorted(code, cell_code(cell + np.array(off)))
+        other = np.minimum(other, max(v - 1, 0))
+        hit = (code[other] == cell_code(cell + np.array(off))) & (other > np.arange(v))
+        pairs.append(np.stack([np.flatnonzero(hit), other[hit]], 1))
+    e = np.concatenate(pairs) if v else np.zeros((0, 2), np.int64)
+    typical = statistics.median(mass[node[c]] for c in with_centre) if with_centre else 0.0
+    weights = _weights(e, centroid, lab, normal, tensor, nu, mass, typical, h, config)
     return VoxelGraph(
-        prim=sel,
-        voxel_of=inv[:n_prim],
+        prim=inside.astype(np.int64),
+        voxel_of=np.array([node[centre[int(i)]] for i in inside], np.int64),
         centroid=centroid,
         lab=lab,
         normal=normal,
-        kappa=kappa,
-        mass=m,
-        cell=vcell,
-        rim=rim,
-        edges=np.stack([i0, i1], 1),
+        kappa=nu,
+        mass=mass,
+        cell=cell,
+        rim=np.any((cell == 0) | (cell == cells - 1), axis=1),
+        edges=e,
         weights=weights,
         lo=lo,
         h=h,
@@ -181,95 +265,62 @@ def reference_voxel_graph(
     )
 
 
-def _reference_extents(
-    ref: ReferenceFeatures,
-    sel: np.ndarray,
-    p: np.ndarray,
-    key: np.ndarray,
-    lo: np.ndarray,
-    h: float,
-    cells: int,
-    config: Graph3DConfig,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0))
-    k = float(config.extent_sigmas)
-    if ref.sigma is None or k <= 0.0 or len(sel) == 0:
-        return empty
-    if config.extent_gs3d_only and getattr(ref.scene, "kind", None) != SceneKind.GS3D:
-        return empty  # 2DGS: an isolated centre is a sparse surface (config docstring)
-    big = np.flatnonzero(ref.sigma[sel].astype(np.float64) > config.extent_min_sigma * h)
-    if len(big) == 0:
-        return empty
-    # only where the centres leave a primitive unlinked: its voxel has no occupied
-    # neighbour (a densely sampled surface is already connected by its centres)
-    occupied = np.zeros(cells**3, bool)
-    occupied[key] = True
-    cb = np.stack([key[big] % cells, (key[big] // cells) % cells, key[big] // cells**2], 1)
-    linked = np.zeros(len(big), bool)
-    for off in np.r_[_OFFSETS, -_OFFSETS]:
-        nc = cb + off
-        ok = np.all((nc >= 0) & (nc < cells), axis=1)
-        nk = nc[:, 0] + cells * (nc[:, 1] + cells * nc[:, 2])
-        linked |= ok & occupied[np.where(ok, nk, 0)]
-    big = big[~linked]
-    if len(big) == 0:
-        return empty
-    axes = ref.extent_axes(sel[big])  # [n,3,3]: σ-scaled principal axes as rows
-    sig = np.linalg.norm(axes, axis=2)  # [n,3]
-    steps = np.minimum(np.ceil(k * sig / h - 1e-9), config.extent_max_steps).astype(np.int64)
-    # σ units per step along each axis: the whole extent in ``steps`` steps, never more
-    # than a voxel apart (a truncated extent for a Gaussian wider than the steps reach)
-    per = np.where(steps > 0, np.minimum(k * sig / np.maximum(steps, 1), h), 0.0)
-    per /= np.maximum(sig, 1e-12)
-    out_row, out_p, out_g = [], [], []
-    combos, group = np.unique(steps, axis=0, return_inverse=True)
-    for gi, m in enumerate(combos):
-        members = np.flatnonzero(group.ravel() == gi)
-        j = np.stack(np.meshgrid(*[np.arange(-mi, mi + 1) for mi in m], indexing="ij"), -1).reshape(
-            -1, 3
-        )
-        j = j[np.any(j != 0, axis=1)].astype(np.float64)
-        if len(j) == 0:
-            continue
-        u = j[None, :, :] * per[members][:, None, :]  # [n,L,3] σ units
-        r2 = np.sum(u * u, axis=2)
-        keep = r2 <= k * k + 1e-9
-        rows = big[members]
-        pts = p[rows][:, None, :] + np.einsum("nlk,nkc->nlc", u, axes[members])
-        out_row.append(np.broadcast_to(rows[:, None], r2.shape)[keep])
-        out_p.append(pts[keep])
-        out_g.append(np.exp(-0.5 * r2[keep]))
-    if not out_row:
-        return empty
-    row, pts, g = np.concatenate(out_row), np.concatenate(out_p), np.concatenate(out_g)
-    c = np.floor((pts - lo) / h).astype(np.int64)
-    inside = np.all((c >= 0) & (c < cells), axis=1)
-    kk = c[:, 0] + cells * (c[:, 1] + cells * c[:, 2])
-    inside &= kk != key[row]  # the centre voxel holds the primitive itself
-    row, pts, g, kk = row[inside], pts[inside], g[inside], kk[inside]
-    # one entry per (primitive, voxel): its sample of largest G
-    order = np.lexsort((-g, kk, row))
-    pair = row[order] * (cells**3) + kk[order]
-    first = np.r_[True, pair[1:] != pair[:-1]]
-    pick = order[first]
-    return row[pick], pts[pick], kk[pick], g[pick]
+def _weights(e, centroid, lab, normal, tensor, nu, mass, typical, h, config) -> np.ndarray:
+    """``w = a_d a_c a_n a_m`` per edge ``e [E,2]`` (Graph3DConfig's definitions)."""
+    if len(e) == 0:
+        return np.zeros(0)
+    i, j = e[:, 0], e[:, 1]
+    d2 = np.sum((centroid[i] - centroid[j]) ** 2, axis=1)
+    a_d = np.exp(-d2 / (2.0 * (config.sigma_d * h) ** 2))
+    dc2 = np.sum((lab[i] - lab[j]) ** 2, axis=1)
+    a_c = np.exp(-config.colour_contrast / max(float(dc2.mean()), 1e-6) * dc2)
+    # the share of j's normal mass along i's principal normal, and of i's along j's
+    along_i = np.clip(
+        np.matmul(normal[i][:, None, :], np.matmul(tensor[j], normal[i][:, :, None])), 0, 1
+    )
+    along_j = np.clip(
+        np.matmul(normal[j][:, None, :], np.matmul(tensor[i], normal[j][:, :, None])), 0, 1
+    )
+    agree = np.sqrt(along_i * along_j).reshape(-1)
+    a_n = np.exp(-nu[i] * nu[j] * (1.0 - agree) / config.normal_sigma)
+    mm = np.minimum(mass[i], mass[j])
+    return a_d * a_c * a_n * mm / (mm + max(config.mass_floor * typical, 1e-12))
 
 
 def reference_support_primitives(
-    graph: VoxelGraph, ref: ReferenceFeatures, planes: np.ndarray, config: Graph3DConfig
+    graph: VoxelGraph,
+    ref: ReferencePrimitives,
+    up: np.ndarray | None,
+    planes: np.ndarray,
+    config: Graph3DConfig,
 ) -> np.ndarray:
+    """Bool per ``graph.prim``: a support's primitive in a kept voxel (module docstring)."""
     out = np.zeros(len(graph.prim), bool)
-    if ref.up is None or not planes.any():
+    if up is None or not planes.any():
         return out
-    up = ref.up
-    h = graph.h
-    levels = np.unique(np.round((graph.centroid[planes] @ up) / h))
-    idx = graph.prim
-    height = ref.points[idx].astype(np.float64) @ up / h
-    j = np.clip(np.searchsorted(levels, height), 1, len(levels) - 1) if len(levels) > 1 else 0
-    near = np.abs(height - levels[j]) <= 1.0
-    if len(levels) > 1:
-        near |= np.abs(height - levels[j - 1]) <= 1.0
-    cos_min = np.cos(np.radians(config.ground_normal_deg))
-    along = np.abs(ref.normals[idx].astype(np.float64) @ up) >= cos_min
-    return near & along
+    up = np.asarray(up, np.float64)
+    levels = {float(np.round(c @ up / graph.h)) for c in graph.centroid[planes]}
+    cos_min = math.cos(math.radians(config.ground_normal_deg))
+    for r, i in enumerate(graph.prim):
+        if abs(float(ref.normals[i] @ up)) < cos_min:
+            continue
+        height = float(ref.points[i] @ up) / graph.h
+        out[r] = any(abs(height - level) <= 1.0 for level in levels)
+    return out
+
+
+def graph_by_cell(g: VoxelGraph) -> dict:
+    """A graph in node-order-free form: per cell its node's attributes, per primitive its
+    centre's cell, per undirected cell pair its weight."""
+    cells = [tuple(int(x) for x in c) for c in g.cell]
+    return {
+        "nodes": {
+            c: (g.mass[n], g.centroid[n], g.lab[n], g.normal[n], g.kappa[n], bool(g.rim[n]))
+            for n, c in enumerate(cells)
+        },
+        "prims": {int(p): cells[int(v)] for p, v in zip(g.prim, g.voxel_of)},
+        "edges": {
+            frozenset((cells[int(a)], cells[int(b)])): float(w)
+            for (a, b), w in zip(g.edges, g.weights)
+        },
+    }
