@@ -89,8 +89,8 @@ def _up_info(scene, cameras_path: Path | None, up, frame) -> dict:
 def run(args: argparse.Namespace) -> int:
     from ..io.load import load_scene
     from ..scene_stats import scene_summary
+    from ..segment_request import parse_up
     from ..views import scene_frame
-    from .anchors import parse_up
 
     up = parse_up(args.up)
     # nothing here reads the SH beyond the DC: a 6M SH-3 PLY is 1.1 GB less (issue 20)
