@@ -155,6 +155,11 @@ def run(args: argparse.Namespace) -> dict:
     except DivasInputError as e:
         raise ScriptError(str(e)) from None
     prompts = load_prompts(req.prompts)
+    if prompts.points:
+        raise ScriptError(
+            f"{req.prompts}: 3D 'points' are clicked by `divas segment` / `divas batch`; "
+            "this script clicks the file's anchors only"
+        )
     ops = bpy.ops.divas
     is_grid = req.scene.suffix.lower() == ".npz"
     t = time.perf_counter()

@@ -21,6 +21,8 @@ Report (``--report``) keys:
   segmenter's hint: what to click next), score, strategy;
 * ``memory``: ``peak_rss_bytes`` (and ``rss_bytes``);
 * ``config``: the full session config; ``outputs``: files written;
+* ``points`` (prompts files with 3D points): where each point was clicked
+  (:func:`points_report`);
 * ``evaluation`` (with ``--gt-labels``): 3D precision / recall / IoU of the selection;
   on surfel scenes ``render``: image IoU, alpha fidelity, opacity-weighted IoU and
   extracted-object PSNR at test views around the ground truth (also
@@ -115,9 +117,10 @@ def segment_scene(
     from ..evaluation.session_scores import session_evaluation
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
+    from ..render import make_renderer
     from ..segment import SegmenterSettings
     from ..session import Session, SessionConfig, anchor_plan, load_prompts
-    from ..session.prompts import resolve_anchors
+    from ..session.point_prompts import resolve_prompts
     from ..views import ViewConfig
 
     req = request
@@ -177,8 +180,21 @@ def segment_scene(
                 config.mapping, completion=replace(config.mapping.completion, enabled=False)
             ),
         )
-    resolved = resolve_anchors(
-        prompts, cameras, lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates]
+    renderer = None
+
+    def render(camera):  # the session's renderer, made here when points need renders
+        nonlocal renderer
+        if renderer is None:
+            renderer = make_renderer(scene, device=dev, config=config.render)
+        return renderer.render(camera)
+
+    resolved = resolve_prompts(
+        prompts,
+        scene,
+        cameras,
+        config,
+        render,
+        lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates],
     )
     t_load = time.perf_counter() - t_start
     t = time.perf_counter()
@@ -202,6 +218,7 @@ def segment_scene(
             anchors=[(r.camera, r.source, r.index) for r in resolved],
             gt_values=gt,
             render_anchors=False,
+            renderer=renderer,
         )
     try:
         for a in _progress(session.anchors, desc="anchors", enabled=progress):
@@ -223,9 +240,7 @@ def segment_scene(
                     else:
                         v = session.click(i, xy, positive=c.positive)
                 except DivasInputError as e:
-                    raise DivasInputError(
-                        prompts.source, f"anchors[{i}].clicks[{k}]: {e.problem}"
-                    ) from None
+                    raise DivasInputError(prompts.source, f"{r.where(i, k)}: {e.problem}") from None
                 if c.positive:
                     extra = prompts.extra_points(i, k)
                     pts = a.full_camera.pixels_to(
@@ -290,6 +305,8 @@ def segment_scene(
         }
         if session.kind == SceneKind.NERF:
             report["preset"] = session.preset
+        if prompts.points:
+            report["points"] = points_report(prompts, resolved)
         if gt is not None:
             report["evaluation"] = session_evaluation(session, sel, gt, dev)
         if req.segmenter == "oracle":
@@ -305,6 +322,22 @@ def segment_scene(
     finally:
         if not keep_session:
             session.close()
+
+
+def points_report(prompts, resolved) -> list[dict[str, Any]]:
+    """Where each 3D point of the prompts file was clicked: ``{point, xyz, positive,
+    clicks: [{anchor, source, index, xy}]}`` (a negative point no picked anchor sees has
+    no click)."""
+    out = [
+        {"point": j, "xyz": list(p.xyz), "positive": p.positive, "clicks": []}
+        for j, p in enumerate(prompts.points)
+    ]
+    for i, r in enumerate(resolved):
+        for j, c in zip(r.points or (), r.prompt.clicks):
+            out[j]["clicks"].append(
+                {"anchor": i, "source": r.source, "index": r.index, "xy": list(c.xy)}
+            )
+    return out
 
 
 def advice_suffix(advice: str | None) -> str:
