@@ -82,6 +82,25 @@ def test_points_seen_by_depth_agreement():
     assert s.tolist() == [True]
 
 
+def test_a_radius_lets_an_objects_centre_be_seen_through_its_own_surface():
+    cam = _down(0, 0, "a")
+    centre = np.array([[0.5, 0.5, 0.0]])  # a ball of radius 0.6 around it: its top is 0.6 nearer
+    d = _depth(cam, (-5, 5, -5, 5, 0.6))
+    assert points_seen(cam, d, centre, 0.05)[1].tolist() == [False]
+    assert points_seen(cam, d, centre, 0.05, radius=np.array([0.6]))[1].tolist() == [True]
+    # an occluder well in front of the ball is still one
+    d = _depth(cam, (-5, 5, -5, 5, 2.0))
+    assert points_seen(cam, d, centre, 0.05, radius=np.array([0.6]))[1].tolist() == [False]
+    picked = choose_point_anchors(
+        centre,
+        np.array([True]),
+        [cam],
+        lambda i: (cam, _depth(cam, (-5, 5, -5, 5, 0.6))),
+        radius=np.array([0.6]),
+    )
+    assert picked[0].clicks[0].point == 0
+
+
 def test_an_occluded_camera_is_passed_over_and_the_cover_is_minimal():
     b, a, c = _down(0.3, 0, "b"), _down(0, 0, "a"), _down(6, 0, "c")
     box = (0.6, 1.4, -0.4, 0.4, 2.0)  # its top hides (1, 0, 0) from b, not from a
@@ -131,12 +150,16 @@ def test_unseen_points_are_one_error_naming_them():
         _run([(0, 0, 0)], [True], many, blocked, config=PointAnchorConfig(max_renders=2))
 
 
-POINTS_DOC = {"version": 1, "points": [{"xyz": [1, 2, 3]}, {"xyz": [0, 0, 0], "positive": False}]}
+POINTS_DOC = {
+    "version": 1,
+    "points": [{"xyz": [1, 2, 3], "radius": 0.5}, {"xyz": [0, 0, 0], "positive": False}],
+}
 
 
 def test_points_parse_and_round_trip():
     p = parse_prompts(POINTS_DOC, "p.json")
     assert p.anchors == () and [q.positive for q in p.points] == [True, False]
+    assert [q.radius for q in p.points] == [0.5, 0.0]
     assert parse_prompts(json.loads(json.dumps(p.to_dict()))).points == p.points
 
 
@@ -147,6 +170,7 @@ def test_points_parse_and_round_trip():
         ({"version": 1, "points": [{"xyz": [1, 2, "a"]}]}, "points[0].xyz"),
         ({"version": 1, "points": [{"xyz": [1, 2, 3], "label": 1}]}, "points[0]: unknown keys"),
         ({"version": 1, "points": [{"xyz": [1, 2, 3], "positive": 1}]}, "points[0].positive"),
+        ({"version": 1, "points": [{"xyz": [1, 2, 3], "radius": -1}]}, "points[0].radius"),
         ({"version": 1, "points": {"xyz": [1, 2, 3]}}, "points: must be a list"),
         ({"version": 1, "points": []}, "anchors: must be a non-empty list"),
     ],

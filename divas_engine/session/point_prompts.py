@@ -70,6 +70,7 @@ def resolve_points(
         cands,
         depth_of,
         PointAnchorConfig(tol=config.negative_occlusion_tol),
+        radius=np.array([p.radius for p in prompts.points], np.float64),
         source=prompts.source,
     )
     out = []

@@ -65,7 +65,7 @@ PROMPTS_VERSION = 1
 _TOP_KEYS = {"version", "anchors", "centroid_prompts", "points"}
 _ANCHOR_KINDS = ("camera", "training_camera", "fibonacci")
 _CLICK_KEYS = {"xy", "positive"}
-_POINT_KEYS = {"xyz", "positive"}
+_POINT_KEYS = {"xyz", "positive", "radius"}
 
 
 @dataclass(frozen=True)
@@ -84,15 +84,19 @@ class Click:
 
 @dataclass(frozen=True)
 class PointPrompt:
-    """A prompt in 3D: world point ``xyz`` (the scene's frame) and its label."""
+    """A prompt in 3D: world point ``xyz`` (the scene's frame), its label, and how far
+    inside its object it may lie (``radius``, scene units: an object's centre)."""
 
     xyz: tuple[float, float, float]
     positive: bool = True
+    radius: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"xyz": list(self.xyz)}
         if not self.positive:
             d["positive"] = False
+        if self.radius:
+            d["radius"] = self.radius
         return d
 
 
@@ -170,14 +174,17 @@ def _parse_point(d: Any, where: str, src: str | None) -> PointPrompt:
         )
     unknown = set(d) - _POINT_KEYS
     if unknown:
-        raise _fail(src, where, f"unknown keys {sorted(unknown)} (allowed: xyz, positive)")
+        raise _fail(src, where, f"unknown keys {sorted(unknown)} (allowed: xyz, positive, radius)")
     xyz = d.get("xyz")
     if not (isinstance(xyz, list) and len(xyz) == 3 and all(_number(v) for v in xyz)):
         raise _fail(src, f"{where}.xyz", f"must be three finite numbers [x, y, z], got {xyz!r}")
     pos = d.get("positive", True)
     if not isinstance(pos, bool):
         raise _fail(src, f"{where}.positive", f"must be true or false, got {pos!r}")
-    return PointPrompt((float(xyz[0]), float(xyz[1]), float(xyz[2])), pos)
+    r = d.get("radius", 0.0)
+    if not (_number(r) and r >= 0):
+        raise _fail(src, f"{where}.radius", f"must be a finite number ≥ 0, got {r!r}")
+    return PointPrompt((float(xyz[0]), float(xyz[1]), float(xyz[2])), pos, float(r))
 
 
 def _parse_clicks(v: Any, where: str, src: str | None) -> tuple[Click, ...]:

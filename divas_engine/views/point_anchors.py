@@ -4,9 +4,12 @@ A point prompt ``(xyz, positive)`` in the scene's frame becomes a click on an an
 that sees it. A candidate camera *sees* a point when the point projects inside its
 image, lies in front of it, and the rendered depth ``d`` at that pixel (the depth a
 click there is back-projected with) agrees with the point's planar depth ``z``:
-``(1 - tol) · d ≤ z ≤ (1 + tol) · d``. The upper bound is the occlusion rule of the
-session's negative clicks (not hidden by more than ``tol``); the lower one keeps the
-click on the point's own surface rather than on one far behind a point in free space.
+``z - max(r · (1 + tol), z · tol / (1 + tol)) ≤ d ≤ z / (1 - tol)``. ``r`` (0 by
+default) is how far inside its object the point may lie — a detector's object centre:
+the object's own surface up to ``r`` in front of it is not an occluder. With ``r = 0``
+the lower bound is the occlusion rule of the session's negative clicks (not hidden by
+more than ``tol``, ``z ≤ (1 + tol) · d``); the upper one keeps the click on the point's
+own surface rather than on one far behind a point in free space.
 
 Choice (:func:`choose_point_anchors`): candidates are ranked by how many positive
 points project into them (then how central they fall), rendered in that order until
@@ -71,11 +74,18 @@ class PointAnchor:
 
 
 def points_seen(
-    camera: Camera, depth: np.ndarray, points: np.ndarray, tol: float, border: float = 0.0
+    camera: Camera,
+    depth: np.ndarray,
+    points: np.ndarray,
+    tol: float,
+    border: float = 0.0,
+    radius: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``([N,2] pixels, [N] seen)`` of world points in ``camera`` whose render gave
-    ``depth`` ``[H,W]`` (module docstring)."""
+    """``([N,2] pixels, [N] seen)`` of world points (each inside ``radius`` of its
+    object, 0 by default) in ``camera`` whose render gave ``depth`` ``[H,W]`` (module
+    docstring)."""
     uv, z = camera.project(np.asarray(points, np.float64).reshape(-1, 3))
+    r = np.zeros(len(z)) if radius is None else np.asarray(radius, np.float64).reshape(-1)
     m = border * min(camera.width, camera.height)
     inside = camera.in_image(uv, z, camera.near)
     with np.errstate(invalid="ignore"):
@@ -89,7 +99,8 @@ def points_seen(
     for i in np.flatnonzero(inside):
         x, y = int(uv[i, 0]), int(uv[i, 1])
         d = float(depth[min(y, depth.shape[0] - 1), min(x, depth.shape[1] - 1)])
-        seen[i] = d > 0 and (1.0 - tol) * d <= z[i] <= (1.0 + tol) * d
+        front = max(r[i] * (1.0 + tol), z[i] * tol / (1.0 + tol))
+        seen[i] = d > 0 and z[i] - front <= d <= z[i] / (1.0 - tol)
     return uv, seen
 
 
@@ -107,12 +118,14 @@ def choose_point_anchors(
     depth_of: Callable[[int], tuple[Camera, np.ndarray]],
     config: PointAnchorConfig | None = None,
     *,
+    radius: np.ndarray | None = None,
     source: str | None = None,
 ) -> list[PointAnchor]:
     """The anchors, among ``candidates`` (full-resolution cameras), that see the points.
 
     Args:
-        points: ``[N,3]`` world points; positive: ``[N]`` bool labels.
+        points: ``[N,3]`` world points; positive: ``[N]`` bool labels; radius: ``[N]``
+            how far inside its object each point may lie (None: on its surface).
         depth_of: candidate index → (the camera it was rendered with, its click depth
             map); called at most ``config.max_renders`` times.
         source: names the points in errors (the prompts file).
@@ -153,7 +166,7 @@ def choose_point_anchors(
         if not (inside[c] & pos & ~covered).any():
             continue
         cam, depth = depth_of(c)
-        uv, s = points_seen(cam, depth, pts, cfg.tol, cfg.border)
+        uv, s = points_seen(cam, depth, pts, cfg.tol, cfg.border, radius)
         seen[c] = s
         xy[c] = cam.pixels_to(candidates[c], uv)
     covered = np.zeros(n, bool)
