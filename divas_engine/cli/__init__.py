@@ -36,6 +36,7 @@ _COMMANDS = (
     "render",
     "anchors",
     "segment",
+    "batch",
     "session",
     "demo",
     "eval",
