@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DivasInputError
-from ..io.json_file import read_json
-from ..io.limits import limits, require_input_file
+from ..io.json_file import read_json, read_text
+from ..io.limits import require_input_file
 from ..segment_request import SegmentRequest, request_path
 from .batch_jobs import BatchJob
 
@@ -119,16 +119,7 @@ def _cell(column: str, text: str) -> Any:
 
 
 def _csv_rows(path: Path) -> list[dict[str, Any]]:
-    cap = limits().max_json_bytes
-    try:
-        raw = path.read_bytes()
-        if len(raw) > cap:
-            raise DivasInputError(path, f"manifest is larger than {cap} bytes (LoadLimits)")
-        text = raw.decode("utf-8-sig")
-    except OSError as e:
-        raise DivasInputError(path, f"cannot read the manifest ({e.strerror or e})") from None
-    except UnicodeDecodeError as e:
-        raise DivasInputError(path, f"not UTF-8 text ({e})") from None
+    text = read_text(path, "manifest").removeprefix("\ufeff")  # a spreadsheet's BOM
     try:
         table = list(csv.reader(io.StringIO(text)))
     except csv.Error as e:
