@@ -32,7 +32,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "batch",
         help="segment many scenes from a manifest (JSON or CSV), on Ray or local processes",
-        description=__doc__.split("\n\n")[1],
+        description="Run each manifest row as its own `divas segment` job (selection, "
+        "labels.npy and report.json in the row's output folder), on Ray (pip install "
+        "'divas[cluster]': a local Ray, or a cluster with --address) or in local "
+        "processes. A rerun skips finished jobs. One JSON line per job on stdout.",
     )
     p.add_argument(
         "manifest", type=Path, help="jobs: .json, or CSV (docs: divas_engine/cli/batch_manifest.py)"

@@ -22,7 +22,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     e = cmds.add_parser(
         "export-points",
         help="write a session's clicks as the 3D points of a prompts file",
-        description=__doc__.split("\n\n")[1],
+        description="Write a prompts file (docs/prompts-file.md) whose 'points' are the "
+        "clicks of one object of a saved session: each click's back-projected 3D point, in "
+        "the scene's frame, with its label.",
     )
     e.add_argument("session", type=Path, help="a saved session (its .json)")
     e.add_argument("--out", type=Path, required=True, help="the prompts file to write")
