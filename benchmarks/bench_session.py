@@ -34,6 +34,7 @@ from divas_engine.cli.segment import segment_scene
 from divas_engine.evaluation import demo_prompts
 from divas_engine.io.cameras import load_cameras
 from divas_engine.io.load import load_scene
+from divas_engine.segment_request import SegmentRequest
 from divas_engine.synthetic import generate_scene
 
 COLS = ("render_s", "segmenter_s", "kernel_s", "mapping_s", "update_s")
@@ -233,13 +234,15 @@ def per_update(args) -> None:
         with tempfile.TemporaryDirectory() as tmp:
             for seg in args.segmenters.split(","):
                 report, _ = segment_scene(
-                    out / "scene.ply",
-                    out / "prompts.json",
-                    cameras_path=out / "cameras.json",
-                    out=Path(tmp) / "sel.ply",
-                    segmenter=seg,
-                    gt_labels=out / "labels.npy",
-                    device=args.device,
+                    SegmentRequest(
+                        out / "scene.ply",
+                        out / "prompts.json",
+                        cameras=out / "cameras.json",
+                        out=Path(tmp) / "sel.ply",
+                        segmenter=seg,
+                        gt_labels=out / "labels.npy",
+                        device=args.device,
+                    ),
                     progress=False,
                 )
                 fused = [u for u in report["updates"] if u["status"] == "fused"]

@@ -95,6 +95,7 @@ def snapshot(path: Path) -> None:
     from divas_engine.cli.segment import segment_scene
     from divas_engine.evaluation import demo_prompts
     from divas_engine.io.load import load_scene
+    from divas_engine.segment_request import SegmentRequest
     from divas_engine.session import anchor_plan
     from divas_engine.synthetic import generate_scene
 
@@ -107,14 +108,16 @@ def snapshot(path: Path) -> None:
             _renders(out, name, sc.scene, sc.cameras[:2])
             for seg in ("oracle", "classic"):
                 rep, _ = segment_scene(
-                    d / "scene.ply",
-                    d / "prompts.json",
-                    cameras_path=d / "cameras.json",
-                    out=d / f"{seg}.ply",
-                    labels_out=d / f"{seg}.npy",
-                    segmenter=seg,
-                    gt_labels=d / "labels.npy",
-                    device="cpu",
+                    SegmentRequest(
+                        d / "scene.ply",
+                        d / "prompts.json",
+                        cameras=d / "cameras.json",
+                        out=d / f"{seg}.ply",
+                        labels_out=d / f"{seg}.npy",
+                        segmenter=seg,
+                        gt_labels=d / "labels.npy",
+                        device="cpu",
+                    ),
                     progress=False,
                 )
                 out[f"{name}/segment_{seg}"] = np.load(d / f"{seg}.npy")

@@ -39,55 +39,29 @@ class ScriptError(Exception):
     """A failure reported as one line (exit status 1)."""
 
 
+def _request_module():
+    """``divas_engine.segment_request``: the engine beside the add-on, else this repository's."""
+    try:
+        return importlib.import_module("divas_engine.segment_request")
+    except ImportError:
+        sys.path.append(str(REPO))
+        return importlib.import_module("divas_engine.segment_request")
+
+
+#: ``divas segment`` arguments the add-on's operators do not take.
+_NOT_OFFERED = frozenset({"resume", "up", "completion", "lod"})
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
+    """``divas segment``'s arguments (``--scene`` for the scene), ``--min-opacity``, and
+    the :class:`SegmentRequest` they make as ``request``."""
+    requests = _request_module()
     p = argparse.ArgumentParser(
         prog="blender -b --python blender_scripts/segment.py --",
         description="Segment a scene headless through the DivAS "
         "add-on's operators (mirrors `divas segment`).",
     )
-    p.add_argument(
-        "--scene",
-        type=Path,
-        required=True,
-        help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz density grid",
-    )
-    p.add_argument(
-        "--cameras",
-        type=Path,
-        default=None,
-        help="training cameras (default: cameras.json beside the scene, if any)",
-    )
-    p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
-    p.add_argument("--out", type=Path, required=True, help="output: the selected primitives")
-    p.add_argument("--labels-out", type=Path, default=None, help="bool .npy per input row")
-    p.add_argument("--segmenter", choices=tuple(SEGMENTERS), default="graph3d")
-    p.add_argument("--sam-encoder", type=Path, default=None)
-    p.add_argument("--sam-decoder", type=Path, default=None)
-    p.add_argument("--sam-checkpoint", type=Path, default=None)
-    p.add_argument("--sam-model-type", default="vit_h")
-    p.add_argument(
-        "--gt-labels",
-        type=Path,
-        default=None,
-        help="ground truth .npy: the oracle's target and a 3D score in the report",
-    )
-    p.add_argument(
-        "--preset",
-        choices=("llff", "mip360"),
-        default=None,
-        help="NeRF fusion preset (default: from the training cameras)",
-    )
-    p.add_argument("--scale", type=float, default=1.0, help="render scale (default 1)")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    p.add_argument("--report", type=Path, default=None, help="write a JSON report here")
-    p.add_argument(
-        "--session",
-        type=Path,
-        default=None,
-        help="save the session here (autosaved after every accept)",
-    )
-    p.add_argument("--mask-channel", type=int, default=1, choices=(0, 1, 2))
-    p.add_argument("--seed", type=int, default=0)
+    requests.add_request_arguments(p, scene_option=True, omit=_NOT_OFFERED)
     p.add_argument(
         "--min-opacity",
         type=float,
@@ -95,7 +69,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help="NeRF grids: voxels imported as points (0, every voxel, keeps the "
         "export identical to `divas segment`)",
     )
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    args.request = requests.SegmentRequest.from_args(args)
+    return args
 
 
 def script_argv(argv: list[str]) -> list[str]:
@@ -137,6 +113,7 @@ def _xy(xy) -> str:
 
 def run(args: argparse.Namespace) -> dict:
     t_start = time.perf_counter()
+    req = args.request
     import bpy
 
     addon = enable_addon()
@@ -154,65 +131,70 @@ def run(args: argparse.Namespace) -> dict:
     properties = importlib.import_module(f"{addon.__name__}.properties")
     view_prop = importlib.import_module(f"{addon.__name__}.modal_logic").VIEW_PROP
     scale_prop = properties.DIVAS_PG_session_settings.bl_rna.properties["render_scale"]
-    if not scale_prop.hard_min <= args.scale <= scale_prop.hard_max:
+    if not scale_prop.hard_min <= req.scale <= scale_prop.hard_max:
         raise ScriptError(
             f"--scale must be in [{scale_prop.hard_min:g}, "
-            f"{scale_prop.hard_max:g}], got {args.scale}"
+            f"{scale_prop.hard_max:g}], got {req.scale}"
         )
-    if args.segmenter == "sam-onnx" and (args.sam_encoder is None or args.sam_decoder is None):
+    if req.segmenter == "sam-onnx" and (req.sam_encoder is None or req.sam_decoder is None):
         raise ScriptError("--segmenter sam-onnx needs --sam-encoder and --sam-decoder")
-    if args.segmenter == "sam-torch" and args.sam_checkpoint is None:
+    if req.segmenter == "sam-torch" and req.sam_checkpoint is None:
         raise ScriptError("--segmenter sam-torch needs --sam-checkpoint")
-    if args.seed < 0:
-        raise ScriptError(f"--seed must be ≥ 0, got {args.seed}")
+    if req.seed < 0:
+        raise ScriptError(f"--seed must be ≥ 0, got {req.seed}")
     try:  # every output checked before anything is loaded, as `divas segment` (issue 14)
         check_outputs(
             [
-                ("--out", args.out),
-                ("--labels-out", args.labels_out),
-                ("--session", args.session),
-                ("--report", args.report),
+                ("--out", req.out),
+                ("--labels-out", req.labels_out),
+                ("--session", req.session),
+                ("--report", req.report),
             ],
-            [args.scene, args.cameras, args.prompts, args.gt_labels],
+            [req.scene, req.cameras, req.prompts, req.gt_labels],
         )
     except DivasInputError as e:
         raise ScriptError(str(e)) from None
-    prompts = load_prompts(args.prompts)
+    prompts = load_prompts(req.prompts)
+    if prompts.points:
+        raise ScriptError(
+            f"{req.prompts}: 3D 'points' are clicked by `divas segment` / `divas batch`; "
+            "this script clicks the file's anchors only"
+        )
     ops = bpy.ops.divas
-    is_grid = args.scene.suffix.lower() == ".npz"
+    is_grid = req.scene.suffix.lower() == ".npz"
     t = time.perf_counter()
     if is_grid:
         _op(
             ops.import_density_grid,
             "import",
-            filepath=str(args.scene),
+            filepath=str(req.scene),
             display=False,
             min_opacity=args.min_opacity,
         )
     else:
-        _op(ops.import_splats, "import", filepath=str(args.scene), display=False)
+        _op(ops.import_splats, "import", filepath=str(req.scene), display=False)
     t_import = time.perf_counter() - t
     obj = bpy.context.active_object
     props = bpy.context.scene.divas
-    props.render_scale, props.seed, props.mask_channel = args.scale, args.seed, args.mask_channel
-    props.preset = properties.preset_from_cli(args.preset if is_grid else None)
-    props.autosave = args.session is not None
+    props.render_scale, props.seed, props.mask_channel = req.scale, req.seed, req.mask_channel
+    props.preset = properties.preset_from_cli(req.preset if is_grid else None)
+    props.autosave = req.session is not None
     prefs = addon.preferences.get_preferences(bpy.context)
-    if args.segmenter.startswith("sam") and prefs is not None:
-        prefs.sam_encoder_path = str(args.sam_encoder or "")
-        prefs.sam_decoder_path = str(args.sam_decoder or "")
-        prefs.sam_checkpoint_path = str(args.sam_checkpoint or "")
-        prefs.sam_model_type = args.sam_model_type
+    if req.segmenter.startswith("sam") and prefs is not None:
+        prefs.sam_encoder_path = str(req.sam_encoder or "")
+        prefs.sam_decoder_path = str(req.sam_decoder or "")
+        prefs.sam_checkpoint_path = str(req.sam_checkpoint or "")
+        prefs.sam_model_type = req.sam_model_type
     t = time.perf_counter()
     _op(
         ops.start_session,
         "start",
-        segmenter=SEGMENTERS[args.segmenter],
-        device=args.device,
-        cameras=str(args.cameras or ""),
-        prompts=str(args.prompts),
-        gt_labels=str(args.gt_labels or ""),
-        autosave=str(args.session or ""),
+        segmenter=SEGMENTERS[req.segmenter],
+        device=req.device,
+        cameras=str(req.cameras or ""),
+        prompts=str(req.prompts),
+        gt_labels=str(req.gt_labels or ""),
+        autosave=str(req.session or ""),
     )
     t_start_session = time.perf_counter() - t
     live = registry.get(obj)
@@ -255,25 +237,25 @@ def run(args: argparse.Namespace) -> dict:
         _op(
             ops.export_selection,
             "export",
-            filepath=str(args.out),
-            write_labels=args.labels_out is not None,
+            filepath=str(req.out),
+            write_labels=req.labels_out is not None,
         )
         out = (
-            args.out
-            if args.out.suffix
-            else args.out.with_suffix(
+            req.out
+            if req.out.suffix
+            else req.out.with_suffix(
                 addon.source.FORMAT_SUFFIX.get(obj.get(addon.source.FORMAT_PROP, ""), ".ply")
             )
         )
         outputs.update({"out": str(out), "count": int(session.selection.sum())})
-        if args.labels_out is not None:
+        if req.labels_out is not None:
             made = out.with_name(out.name.split(".")[0] + "_labels.npy")
-            if made.resolve() != args.labels_out.resolve():
-                shutil.move(str(made), str(args.labels_out))
-            outputs["labels_out"] = str(args.labels_out)
-    if args.session is not None:
-        session.save(args.session)
-        outputs["session"] = str(args.session)
+            if made.resolve() != req.labels_out.resolve():
+                shutil.move(str(made), str(req.labels_out))
+            outputs["labels_out"] = str(req.labels_out)
+    if req.session is not None:
+        session.save(req.session)
+        outputs["session"] = str(req.session)
     t_export = time.perf_counter() - t
     rep = session.report()
     timings = rep.pop("timings")
@@ -289,25 +271,25 @@ def run(args: argparse.Namespace) -> dict:
         "version": 1,
         "command": "blender segment",
         "blender": bpy.app.version_string,
-        "scene": str(args.scene),
-        "cameras": None if args.cameras is None else str(args.cameras),
-        "prompts": str(args.prompts),
+        "scene": str(req.scene),
+        "cameras": None if req.cameras is None else str(req.cameras),
+        "prompts": str(req.prompts),
         "kind": rep["kind"],
-        "segmenter": args.segmenter,
-        "seed": args.seed,
+        "segmenter": req.segmenter,
+        "seed": req.seed,
         "device": rep["device"],
-        "render_scale": args.scale,
+        "render_scale": req.scale,
         "timings": timings,
         **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
         "outputs": outputs,
     }
     if session.kind == SceneKind.NERF:
         report["preset"] = session.preset
-    if args.gt_labels is not None:
-        gt = load_ground_truth(args.gt_labels, session.scene)
+    if req.gt_labels is not None:
+        gt = load_ground_truth(req.gt_labels, session.scene)
         report["evaluation"] = session_evaluation(session, session.selection, gt, session.device)
-    if args.report is not None:
-        write_report(args.report, report)
+    if req.report is not None:
+        write_report(req.report, report)
     if error is not None:
         raise ScriptError(error)
     return report
@@ -328,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{c['accepted']} of {c['centroid_views']} centroid views fused "
         f"({c['rejected']} rejected); {c['selected']} "
-        f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.out} "
+        f"{'surfels' if report['kind'] == '2dgs' else 'voxels'} selected → {args.request.out} "
         f"({report['timings']['T_pipe_s']:.1f} s)"
     )
     return 0

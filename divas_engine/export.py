@@ -4,7 +4,8 @@
   standard PLY rows are copied byte-for-byte (every property, order, type);
   ``.splat``/``.spz``/compressed PLY are written in their own format; SOG as SOG
   (bundled ``.sog`` or a ``meta.json`` folder, the source's codebooks and texels
-  kept, :mod:`.io.sog_subset`).
+  kept, :mod:`.io.sog_subset`); a streamed LOD level as a one-level ``lod-meta.json``
+  folder (:mod:`.io.lod_subset`).
 * ``labels.npy``: bool per *input* primitive (file row order; rows dropped on
   load for NaN/Inf are False).
 * Density grids: a masked ``.npz`` (density zeroed outside the selection, plus
@@ -65,7 +66,7 @@ def export_selection(
     out_path = Path(out_path)
     sel = _check_selection(scene, selection)
     src = getattr(scene, "source", None)
-    sog = src is not None and src.format == "sog"  # SOG checks its own (folder) target
+    sog = src is not None and src.format in ("sog", "lod")  # they check their own folders
     check_outputs(
         [("export", None if sog else out_path), ("labels output", labels_path)],
         [] if src is None else [src.path],
@@ -112,6 +113,10 @@ def export_selection(
             from .io.sog_subset import write_sog_subset
 
             out_path = write_sog_subset(src, rows, out_path)
+        elif fmt == "lod":
+            from .io.lod_subset import write_lod_subset
+
+            out_path = write_lod_subset(src, int(scene.extras["lod_level"]), rows, out_path)
         else:
             raise DivasInputError(src.path, f"cannot export scenes read from format {fmt!r}")
     lp = None

@@ -28,16 +28,31 @@ if hasattr(wp, "LOG_WARNING"):
 else:  # pragma: no cover - older Warp
     wp.config.quiet = True
 
-__all__ = ["resolve_device", "launch_split", "cpu_threads", "ensure_loaded", "init_warp"]
+__all__ = [
+    "resolve_device",
+    "launch_split",
+    "cpu_threads",
+    "ensure_loaded",
+    "init_warp",
+    "THREADS_ENV",
+]
+
+#: environment variable capping the CPU launch threads of a process (a batch job's CPU
+#: share: ``divas batch`` sets it in each job's process).
+THREADS_ENV = "DIVAS_CPU_THREADS"
 
 _POOL: ThreadPoolExecutor | None = None
 _LOADED: set[tuple[int, str]] = set()
 
 
 def cpu_threads(requested: int | None = None) -> int:
-    """Number of CPU launch threads: ``requested`` or the usable core count."""
+    """Number of CPU launch threads: ``requested``, else ``$DIVAS_CPU_THREADS`` (a
+    positive integer), else the usable core count."""
     if requested is not None and requested > 0:
         return int(requested)
+    env = os.environ.get(THREADS_ENV, "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - non-Linux

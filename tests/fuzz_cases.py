@@ -162,6 +162,7 @@ FAMILIES = [
     "splat",
     "spz",
     "sog",
+    "lod",
     "npz",
     "cameras_json",
     "transforms_json",
@@ -240,6 +241,13 @@ def build_seeds(work: Path, families: list[str] | None = None) -> dict[str, Fami
         p = work / "sog" / "seed.sog"
         write_sog_subset(src.source, np.arange(0, 64), p)
         fams["sog"] = Family("sog", [p], load_scene, check=check_scene)
+    if need("lod"):
+        from divas_engine.io.lod_subset import write_lod_subset
+
+        src = load_scene(DATA / "splat-transform-lod" / "lod-meta.json")
+        rows = np.concatenate([np.arange(0, 24), np.arange(3000, 3024), np.arange(6800, 6824)])
+        p = write_lod_subset(src.source, 0, rows, work / "lod" / "seed")
+        fams["lod"] = Family("lod", [p], load_scene, text=True, check=check_scene)
     if need("npz"):
         rng = np.random.default_rng(5)
         dens = rng.uniform(0, 5, (6, 5, 4)).astype(np.float32)
@@ -291,6 +299,7 @@ def build_seeds(work: Path, families: list[str] | None = None) -> dict[str, Fami
                 {"fibonacci": 1, "clicks": [{"xy": [12, 40]}]},
             ],
             "centroid_prompts": {"0:0": [{"xy": [3, 4], "positive": False}]},
+            "points": [{"xyz": [0.1, -0.2, 1.5]}, {"xyz": [0, 0, 2], "positive": False}],
         }
         p = work / "prompts" / "prompts.json"
         p.write_text(json.dumps(doc, indent=1))

@@ -17,7 +17,7 @@ ENGINE = REPO / "divas_engine"
 #: layer. Mirrors the table in docs/ARCHITECTURE.md.
 LAYERS: list[set[str]] = [
     {"kinds", "errors", "geometry", "sh_rotation", "blas_threads"},
-    {"camera", "scene", "output_paths"},
+    {"camera", "scene", "output_paths", "segment_request"},
     {"scene_stats", "blender_convention", "viewport", "selection_tools"},
     {"io", "render"},
     {"fusion", "views", "export", "point_attributes"},

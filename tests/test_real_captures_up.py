@@ -110,6 +110,7 @@ def test_cli_reports_the_up_and_takes_an_override(tmp_path):
 
 def test_segment_up_override_reaches_the_planned_anchors(tmp_path):
     from divas_engine.cli.segment import segment_scene
+    from divas_engine.segment_request import SegmentRequest
 
     prompts = tmp_path / "prompts.json"
     prompts.write_text(
@@ -119,7 +120,9 @@ def test_segment_up_override_reaches_the_planned_anchors(tmp_path):
     cams = {}
     for up in (None, (0.0, 0.0, -1.0)):
         _, s = segment_scene(
-            scene, prompts, scale=0.25, device="cpu", progress=False, keep_session=True, up=up
+            SegmentRequest(scene, prompts, scale=0.25, device="cpu", up=up),
+            progress=False,
+            keep_session=True,
         )
         try:
             cams[up] = s.anchors[0].full_camera

@@ -17,6 +17,7 @@ import bpy
 from divas_engine.errors import DivasInputError
 from divas_engine.evaluation.ground_truth import load_ground_truth
 from divas_engine.io.cameras import load_cameras
+from divas_engine.render import make_renderer
 from divas_engine.segment import (
     DEFAULT_SEGMENTER,
     SegmenterSettings,
@@ -24,7 +25,7 @@ from divas_engine.segment import (
     build_segmenter,
 )
 from divas_engine.session import Session, SessionConfig, anchor_plan, load_prompts
-from divas_engine.session.prompts import resolve_anchors
+from divas_engine.session.point_prompts import resolve_prompts
 
 from .. import memory, session_registry, source
 from ..camera_objects import engine_camera
@@ -190,18 +191,25 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
         limited = memory.limit_heap_for(_primitive_count(scene))
         wm.progress_update(10)
         config = settings.config
-        anchors = None
+        anchors, renderer = None, None
         if settings.prompts_path is not None:
             prompts = load_prompts(settings.prompts_path)
-            resolved = resolve_anchors(
+            if prompts.points:  # anchors that see the 3D points are picked on renders
+                renderer = make_renderer(scene, device=device, config=config.render)
+            resolved = resolve_prompts(
                 prompts,
+                scene,
                 cameras,
+                config,
+                lambda cam: renderer.render(cam),
                 lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates],
             )
             anchors = [(r.camera, r.source, r.index) for r in resolved]
         # the first anchor renders now (the user looks through it first); the others
         # when the user looks through them (:func:`.view_cameras.ensure_background`)
-        session = Session.open(scene, cameras, config, seg, device, anchors=anchors, gt_values=gt)
+        session = Session.open(
+            scene, cameras, config, seg, device, anchors=anchors, gt_values=gt, renderer=renderer
+        )
         _reuse_scratch(session, limited)
         _prefetch_cuts(session)
         wm.progress_update(80)

@@ -30,7 +30,18 @@ from ..errors import DivasInputError
 __all__ = ["main", "build_parser"]
 
 #: Sub-command modules, in ``--help`` order.
-_COMMANDS = ("info", "generate", "render", "anchors", "segment", "demo", "eval", "sam-export")
+_COMMANDS = (
+    "info",
+    "generate",
+    "render",
+    "anchors",
+    "segment",
+    "batch",
+    "session",
+    "demo",
+    "eval",
+    "sam-export",
+)
 #: Sub-commands whose module has another name (``eval`` would shadow the builtin).
 _MODULES = {"eval": "evaluate", "sam-export": "sam_export"}
 

@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import DivasInputError
 from ..kinds import SceneKind
 from ..output_paths import check_output_path, write_image_atomic, write_json_atomic
+from ..segment_request import parse_up
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -55,18 +56,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.set_defaults(func=run)
-
-
-def parse_up(text: str | None) -> np.ndarray | None:
-    if text is None:
-        return None
-    try:
-        v = np.array([float(t) for t in text.split(",")], dtype=np.float64)
-    except ValueError:
-        v = np.zeros(0)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
-        raise DivasInputError(None, f"--up must be three numbers X,Y,Z, not all zero; got {text!r}")
-    return v / np.linalg.norm(v)
 
 
 def up_line(plan, given: bool = False) -> str:

@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.metrics import EvalConfig, evaluate_selection
     from ..evaluation.render_scores import MaskScores
     from ..io.cameras import load_cameras
+    from ..segment_request import SegmentRequest
     from ..synthetic import MIN_SIZE, generate_scene
     from .segment import segment_scene, write_report
 
@@ -88,23 +89,22 @@ def run(args: argparse.Namespace) -> int:
     prompts = demo_prompts(sc.metadata, sc.cameras, args.views_per_click)
     prompts_path = out / "prompts.json"
     prompts.write(prompts_path)
-    from ..session import load_prompts
-
-    prompts = load_prompts(prompts_path)  # what the user would pass to `divas segment`
-    report, session = segment_scene(
-        out / "scene" / "scene.ply",
-        prompts,
-        cameras_path=out / "scene" / "cameras.json",
-        out=out / "segmented.ply",
-        labels_out=out / "labels.npy",
-        segmenter=args.segmenter,
-        gt_labels=out / "scene" / "labels.npy",
-        scale=args.scale,
-        device=args.device,
-        seed=args.seed,
+    report, session = segment_scene(  # what the user would pass to `divas segment`
+        SegmentRequest(
+            out / "scene" / "scene.ply",
+            prompts_path,
+            cameras=out / "scene" / "cameras.json",
+            out=out / "segmented.ply",
+            labels_out=out / "labels.npy",
+            segmenter=args.segmenter,
+            gt_labels=out / "scene" / "labels.npy",
+            scale=args.scale,
+            device=args.device,
+            seed=args.seed,
+            mask_channel=args.mask_channel,
+        ),
         progress=not args.no_progress,
         keep_session=True,
-        mask_channel=args.mask_channel,
     )
     try:
         test_cams = load_cameras(out / "scene" / "test_cameras.json")

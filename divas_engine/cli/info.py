@@ -21,7 +21,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "path",
         type=Path,
         help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz, SOG (.sog, folder or its "
-        "meta.json) or .npz grid",
+        "meta.json), streamed LOD (lod-meta.json) or .npz grid",
+    )
+    p.add_argument(
+        "--lod",
+        type=int,
+        default=None,
+        metavar="N",
+        help="streamed LOD scenes: the level to describe (default 0, the finest)",
     )
     p.add_argument(
         "--cameras",
@@ -82,14 +89,17 @@ def _up_info(scene, cameras_path: Path | None, up, frame) -> dict:
 def run(args: argparse.Namespace) -> int:
     from ..io.load import load_scene
     from ..scene_stats import scene_summary
+    from ..segment_request import parse_up
     from ..views import scene_frame
-    from .anchors import parse_up
 
     up = parse_up(args.up)
     # nothing here reads the SH beyond the DC: a 6M SH-3 PLY is 1.1 GB less (issue 20)
-    scene = load_scene(args.path, max_sh_degree=0)
+    scene = load_scene(args.path, max_sh_degree=0, lod=args.lod)
     frame = scene_frame(scene)  # once, for the summary and the up estimate
     info = scene_summary(scene, frame)
+    for k in ("lod_level", "lod_levels", "lod_counts"):  # a streamed LOD scene's levels
+        if k in getattr(scene, "extras", {}):
+            info[k] = scene.extras[k]
     cams = args.cameras
     if cams is None and (args.path.parent / "cameras.json").is_file():
         cams = args.path.parent / "cameras.json"

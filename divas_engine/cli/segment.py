@@ -21,6 +21,8 @@ Report (``--report``) keys:
   segmenter's hint: what to click next), score, strategy;
 * ``memory``: ``peak_rss_bytes`` (and ``rss_bytes``);
 * ``config``: the full session config; ``outputs``: files written;
+* ``points`` (prompts files with 3D points): where each point was clicked
+  (:func:`points_report`);
 * ``evaluation`` (with ``--gt-labels``): 3D precision / recall / IoU of the selection;
   on surfel scenes ``render``: image IoU, alpha fidelity, opacity-weighted IoU and
   extracted-object PSNR at test views around the ground truth (also
@@ -34,7 +36,6 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,9 +44,7 @@ import numpy as np
 from ..errors import DivasInputError
 from ..kinds import SceneKind, ViewStatus
 from ..output_paths import check_outputs, write_json_atomic
-from .anchors import parse_up
-
-SEGMENTERS = ("graph3d", "classic", "sam-onnx", "sam-torch", "oracle")  # SegmenterKind values
+from ..segment_request import SegmentRequest, add_request_arguments
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -55,95 +54,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Run the DivAS loop on the anchors/clicks of a prompts file "
         "(NOTES 'Headless prompts file') and write the selection.",
     )
-    p.add_argument(
-        "scene",
-        type=Path,
-        help="scene: .ply (2DGS/3DGS/compressed), .splat, .spz or .npz density grid",
-    )
-    p.add_argument(
-        "--cameras",
-        type=Path,
-        default=None,
-        help="training cameras (default: cameras.json beside the scene, if any)",
-    )
-    p.add_argument("--prompts", type=Path, required=True, help="prompts file (JSON, version 1)")
-    p.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="output: the selected primitives (PLY subset / same format), or the "
-        "masked grid .npz for NeRF scenes",
-    )
-    p.add_argument(
-        "--labels-out", type=Path, default=None, help="bool .npy per input row (NeRF: [D,H,W] bool)"
-    )
-    p.add_argument(
-        "--segmenter",
-        choices=SEGMENTERS,
-        default="graph3d",
-        help="mask source (default graph3d: weight-free 3D cut over the scene's primitives; "
-        "classic: GrabCut on colour + depth; oracle is for evaluation only)",
-    )
-    p.add_argument("--sam-encoder", type=Path, default=None, help="SAM ONNX image encoder")
-    p.add_argument("--sam-decoder", type=Path, default=None, help="SAM ONNX prompt decoder")
-    p.add_argument("--sam-checkpoint", type=Path, default=None, help="SAM PyTorch checkpoint")
-    p.add_argument("--sam-model-type", default="vit_h", help="SAM model type (default vit_h)")
-    p.add_argument(
-        "--gt-labels",
-        type=Path,
-        default=None,
-        help="ground truth .npy (bool per surfel / input row; NeRF [D,H,W] bool): "
-        "the oracle's target, and a 3D score in the report",
-    )
-    p.add_argument(
-        "--preset",
-        choices=("llff", "mip360"),
-        default=None,
-        help="NeRF fusion preset (default: llff for forward-facing captures)",
-    )
-    p.add_argument(
-        "--scale", type=float, default=1.0, help="render scale of every view (default 1)"
-    )
-    p.add_argument(
-        "--device",
-        choices=("auto", "cpu", "cuda"),
-        default="auto",
-        help="Warp device (default auto)",
-    )
-    p.add_argument("--report", type=Path, default=None, help="write a JSON report here")
-    p.add_argument(
-        "--session",
-        type=Path,
-        default=None,
-        help="save the session here (JSON + a content-addressed .npz; autosaved after "
-        "open, every click and every accept)",
-    )
-    p.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue the run killed while saving to --session: replay what it saved, "
-        "then run the remaining prompts (a missing session file starts afresh)",
-    )
-    p.add_argument(
-        "--mask-channel",
-        type=int,
-        default=1,
-        choices=(0, 1, 2),
-        help="segmenter channel kept (default 1, the paper's mid granularity)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the segmenter (default 0)")
-    p.add_argument(
-        "--up",
-        default=None,
-        metavar="X,Y,Z",
-        help="scene up for the planned (fibonacci) anchors (default: estimated)",
-    )
-    p.add_argument(
-        "--no-completion",
-        action="store_true",
-        help="3DGS scenes: the paper's selection only, without the completion of "
-        "volumetric scenes (beyond the paper, issue 15)",
-    )
+    add_request_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -192,101 +103,75 @@ def _device(name: str):
 
 
 def segment_scene(
-    scene_path: Path,
-    prompts_path: Path | Any,
-    *,
-    cameras_path: Path | None = None,
-    out: Path | None = None,
-    labels_out: Path | None = None,
-    segmenter: str = "graph3d",
-    sam_encoder: Path | None = None,
-    sam_decoder: Path | None = None,
-    sam_checkpoint: Path | None = None,
-    sam_model_type: str = "vit_h",
-    gt_labels: Path | None = None,
-    preset: str | None = None,
-    scale: float = 1.0,
-    device: str = "auto",
-    session_path: Path | None = None,
-    seed: int = 0,
-    progress: bool = True,
-    keep_session: bool = False,
-    mask_channel: int = 1,
-    up: Sequence[float] | None = None,
-    completion: bool = True,
-    resume: bool = False,
-    report_path: Path | None = None,
+    request: SegmentRequest, *, progress: bool = True, keep_session: bool = False
 ) -> tuple[dict[str, Any], Any]:
-    """The whole ``divas segment`` pipeline; returns ``(report, session)``.
+    """The whole ``divas segment`` pipeline for ``request``; returns ``(report, session)``.
 
-    ``prompts_path`` may also be a parsed :class:`~divas_engine.session.Prompts`. The
-    session is closed unless ``keep_session``. Every output path (``out``,
-    ``labels_out``, ``session_path``, ``report_path``) is checked before anything is
-    loaded (:func:`~divas_engine.output_paths.check_outputs`). ``resume``: continue the
-    run saved at ``session_path`` — replay it (``Session.load``, checked to be this run's
-    by :func:`_check_resumable`), reuse its clicks and accepted views, run the rest.
+    The session is closed unless ``keep_session``. Every output path (``out``,
+    ``labels_out``, ``session``, ``report``) is checked before anything is loaded
+    (:func:`~divas_engine.output_paths.check_outputs`). ``request.resume``: continue the
+    run saved at ``request.session`` — replay it (``Session.load``, checked to be this
+    run's by :func:`_check_resumable`), reuse its clicks and accepted views, run the rest.
     """
     from ..evaluation.ground_truth import load_ground_truth
     from ..evaluation.session_scores import session_evaluation
     from ..io.cameras import load_cameras
     from ..io.load import load_scene
+    from ..render import make_renderer
     from ..segment import SegmenterSettings
-    from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
-    from ..session.prompts import resolve_anchors
+    from ..session import Session, SessionConfig, anchor_plan, load_prompts
+    from ..session.point_prompts import resolve_prompts
     from ..views import ViewConfig
 
+    req = request
     t_start = time.perf_counter()
-    if not (scale > 0 and np.isfinite(scale)):
-        raise DivasInputError(None, f"--scale must be positive, got {scale}")
-    if resume and session_path is None:
-        raise DivasInputError(None, "--resume needs --session (the session to continue)")
+    req.check()
     check_outputs(  # before any loading or computing (issue 14)
         [
-            ("--out", out),
-            ("--labels-out", labels_out),
-            ("--session", session_path),
-            ("--report", report_path),
+            ("--out", req.out),
+            ("--labels-out", req.labels_out),
+            ("--session", req.session),
+            ("--report", req.report),
         ],
         [
-            scene_path,
-            cameras_path,
-            prompts_path if isinstance(prompts_path, (str, Path)) else None,
-            gt_labels,
-            sam_encoder,
-            sam_decoder,
-            sam_checkpoint,
+            req.scene,
+            req.cameras,
+            req.prompts,
+            req.gt_labels,
+            req.sam_encoder,
+            req.sam_decoder,
+            req.sam_checkpoint,
         ],
     )
-    prompts = prompts_path if isinstance(prompts_path, Prompts) else load_prompts(prompts_path)
-    dev = _device(device)
-    scene = load_scene(scene_path)
-    if cameras_path is None and (Path(scene_path).parent / "cameras.json").is_file():
-        cameras_path = Path(scene_path).parent / "cameras.json"
+    prompts = load_prompts(req.prompts)
+    dev = _device(req.device)
+    scene = load_scene(req.scene, lod=req.lod)
+    cameras_path = req.cameras
+    if cameras_path is None and (req.scene.parent / "cameras.json").is_file():
+        cameras_path = req.scene.parent / "cameras.json"
     cameras = load_cameras(cameras_path) if cameras_path is not None else []
-    gt = load_ground_truth(gt_labels, scene) if gt_labels is not None else None
+    gt = load_ground_truth(req.gt_labels, scene) if req.gt_labels is not None else None
     seg = _segmenter(
         SegmenterSettings(
-            segmenter,
-            seed=seed,
-            sam_encoder=sam_encoder,
-            sam_decoder=sam_decoder,
-            sam_checkpoint=sam_checkpoint,
-            sam_model_type=sam_model_type,
-            device=device,
+            req.segmenter,
+            seed=req.seed,
+            sam_encoder=req.sam_encoder,
+            sam_decoder=req.sam_decoder,
+            sam_checkpoint=req.sam_checkpoint,
+            sam_model_type=req.sam_model_type,
+            device=req.device,
         ),
         has_ground_truth=gt is not None,
     )
-    if mask_channel not in (0, 1, 2):
-        raise DivasInputError(None, f"--mask-channel must be 0, 1 or 2, got {mask_channel}")
     config = SessionConfig(
-        view=ViewConfig(up=None if up is None else tuple(float(x) for x in up)),
-        render_scale=float(scale),
-        nerf_preset=preset,
-        seed=int(seed),
-        mask_channel=int(mask_channel),
-        autosave=None if session_path is None else str(session_path),
+        view=ViewConfig(up=req.up),
+        render_scale=float(req.scale),
+        nerf_preset=req.preset,
+        seed=int(req.seed),
+        mask_channel=int(req.mask_channel),
+        autosave=None if req.session is None else str(req.session),
     )
-    if not completion:
+    if not req.completion:
         from dataclasses import replace
 
         config = replace(
@@ -295,12 +180,26 @@ def segment_scene(
                 config.mapping, completion=replace(config.mapping.completion, enabled=False)
             ),
         )
-    resolved = resolve_anchors(
-        prompts, cameras, lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates]
+    renderer = None
+
+    def render(camera):  # the session's renderer, made here when points need renders
+        nonlocal renderer
+        if renderer is None:
+            renderer = make_renderer(scene, device=dev, config=config.render)
+        return renderer.render(camera)
+
+    resolved = resolve_prompts(
+        prompts,
+        scene,
+        cameras,
+        config,
+        render,
+        lambda: [a.camera for a in anchor_plan(scene, cameras, config).candidates],
     )
     t_load = time.perf_counter() - t_start
     t = time.perf_counter()
-    if resume and Path(session_path).exists():
+    session_path = req.session
+    if req.resume and session_path.exists():
         session = Session.load(
             session_path, scene, seg, dev, cameras=cameras, gt_values=gt, autosave=session_path
         )
@@ -319,6 +218,7 @@ def segment_scene(
             anchors=[(r.camera, r.source, r.index) for r in resolved],
             gt_values=gt,
             render_anchors=False,
+            renderer=renderer,
         )
     try:
         for a in _progress(session.anchors, desc="anchors", enabled=progress):
@@ -340,9 +240,7 @@ def segment_scene(
                     else:
                         v = session.click(i, xy, positive=c.positive)
                 except DivasInputError as e:
-                    raise DivasInputError(
-                        prompts.source, f"anchors[{i}].clicks[{k}]: {e.problem}"
-                    ) from None
+                    raise DivasInputError(prompts.source, f"{r.where(i, k)}: {e.problem}") from None
                 if c.positive:
                     extra = prompts.extra_points(i, k)
                     pts = a.full_camera.pixels_to(
@@ -361,7 +259,7 @@ def segment_scene(
         outputs: dict[str, Any] = {}
         error = None
         sel = session.selection
-        if out is not None:
+        if req.out is not None:
             if not sel.any():
                 reasons = "; ".join(
                     f"{v.id}: {v.reason}{advice_suffix(v.advice)}"
@@ -372,7 +270,7 @@ def segment_scene(
                     f" (rejected views: {reasons})" if reasons else ""
                 )
             else:
-                res = session.export(out, labels_path=labels_out)
+                res = session.export(req.out, labels_path=req.labels_out)
                 outputs.update({"out": str(res.path), "format": res.format, "count": res.count})
                 if res.labels_path is not None:
                     outputs["labels_out"] = str(res.labels_path)
@@ -393,23 +291,25 @@ def segment_scene(
         report: dict[str, Any] = {
             "version": 1,
             "command": "segment",
-            "scene": str(scene_path),
+            "scene": str(req.scene),
             "cameras": None if cameras_path is None else str(cameras_path),
             "prompts": prompts.source,
             "kind": rep["kind"],
-            "segmenter": segmenter,
-            "seed": int(seed),
+            "segmenter": req.segmenter,
+            "seed": int(req.seed),
             "device": rep["device"],
-            "render_scale": float(scale),
+            "render_scale": float(req.scale),
             "timings": timings,
             **{k: v for k, v in rep.items() if k not in ("kind", "seed", "device", "segmenter")},
             "outputs": outputs,
         }
         if session.kind == SceneKind.NERF:
             report["preset"] = session.preset
+        if prompts.points:
+            report["points"] = points_report(prompts, resolved)
         if gt is not None:
             report["evaluation"] = session_evaluation(session, sel, gt, dev)
-        if segmenter == "oracle":
+        if req.segmenter == "oracle":
             from dataclasses import asdict
 
             report["oracle"] = {"config": asdict(seg.config), "seed": seg.config.seed}
@@ -422,6 +322,22 @@ def segment_scene(
     finally:
         if not keep_session:
             session.close()
+
+
+def points_report(prompts, resolved) -> list[dict[str, Any]]:
+    """Where each 3D point of the prompts file was clicked: ``{point, xyz, positive,
+    clicks: [{anchor, source, index, xy}]}`` (a negative point no picked anchor sees has
+    no click)."""
+    out = [
+        {"point": j, "xyz": list(p.xyz), "positive": p.positive, "clicks": []}
+        for j, p in enumerate(prompts.points)
+    ]
+    for i, r in enumerate(resolved):
+        for j, c in zip(r.points or (), r.prompt.clicks):
+            out[j]["clicks"].append(
+                {"anchor": i, "source": r.source, "index": r.index, "xy": list(c.xy)}
+            )
+    return out
 
 
 def advice_suffix(advice: str | None) -> str:
@@ -474,30 +390,7 @@ def _json_default(o):
 
 def run(args: argparse.Namespace) -> int:
     try:
-        report, _ = segment_scene(
-            args.scene,
-            args.prompts,
-            cameras_path=args.cameras,
-            out=args.out,
-            labels_out=args.labels_out,
-            segmenter=args.segmenter,
-            sam_encoder=args.sam_encoder,
-            sam_decoder=args.sam_decoder,
-            sam_checkpoint=args.sam_checkpoint,
-            sam_model_type=args.sam_model_type,
-            gt_labels=args.gt_labels,
-            preset=args.preset,
-            scale=args.scale,
-            device=args.device,
-            session_path=args.session,
-            seed=args.seed,
-            progress=not args.no_progress,
-            mask_channel=args.mask_channel,
-            up=parse_up(args.up),
-            completion=not args.no_completion,
-            resume=args.resume,
-            report_path=args.report,
-        )
+        report, _ = segment_scene(SegmentRequest.from_args(args), progress=not args.no_progress)
     except DivasInputError as e:
         if args.report is not None and getattr(e, "report", None) is not None:
             write_report(args.report, e.report)  # the report says which views were rejected

@@ -10,14 +10,15 @@ from typing import Any
 from ..errors import DivasInputError
 from .limits import limits, require_input_file
 
-__all__ = ["read_json"]
+__all__ = ["read_json", "read_text"]
 
 
-def read_json(path: str | PathLike, what: str) -> Any:
-    """Parse the JSON file ``path``; ``what`` names it in errors ("camera file", …).
+def read_text(path: str | PathLike, what: str) -> str:
+    """The UTF-8 text of the user's file ``path`` (at most ``LoadLimits.max_json_bytes``);
+    ``what`` names it in errors.
 
     Raises:
-        DivasInputError: missing, unreadable, or not valid JSON.
+        DivasInputError: missing, unreadable, too large, or not UTF-8.
     """
     path = Path(path)
     try:
@@ -33,11 +34,20 @@ def read_json(path: str | PathLike, what: str) -> Any:
             raw = f.read(cap + 1)
         if len(raw) > cap:
             raise DivasInputError(path, f"{what} is larger than {cap} bytes (LoadLimits)")
-        text = raw.decode("utf-8")
+        return raw.decode("utf-8")
     except OSError as e:
         raise DivasInputError(path, f"cannot read {what} ({e.strerror or e})") from None
     except UnicodeDecodeError as e:
         raise DivasInputError(path, f"cannot read {what}: not UTF-8 text ({e})") from None
+
+
+def read_json(path: str | PathLike, what: str) -> Any:
+    """Parse the JSON file ``path``; ``what`` names it in errors ("camera file", …).
+
+    Raises:
+        DivasInputError: missing, unreadable, or not valid JSON.
+    """
+    text = read_text(path, what)
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:

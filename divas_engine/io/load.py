@@ -2,7 +2,8 @@
 
 Formats: 2DGS/3DGS PLY, PlayCanvas/SuperSplat compressed PLY, antimatter15
 ``.splat``, Niantic ``.spz``, PlayCanvas SOG (``.sog`` bundle, or a folder / its
-``meta.json``), NeRF density grid ``.npz``. Detection looks at the file's magic
+``meta.json``), PlayCanvas streamed LOD (``lod-meta.json`` or its folder, one level at
+a time), NeRF density grid ``.npz``. Detection looks at the file's magic
 bytes first and its suffix second, so a misnamed file still loads.
 """
 
@@ -20,12 +21,16 @@ from .limits import input_guard, require_input_file
 
 __all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
 
-SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "sog", "npz")
+SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "sog", "lod", "npz")
 
 
 def detect_format(path: str | PathLike) -> str:
     """Return one of :data:`SCENE_FORMATS` for ``path`` or raise :class:`DivasInputError`."""
     path = require_input_file(path, "scene file", allow_dir=True)
+    from .lod import LOD_META, is_lod_meta
+
+    if is_lod_meta(path) or (path.is_dir() and (path / LOD_META).is_file()):
+        return "lod"
     if path.is_dir() and (path / "meta.json").is_file():
         require_input_file(path / "meta.json", "SOG meta.json")
         return "sog"
@@ -60,7 +65,11 @@ def detect_format(path: str | PathLike) -> str:
 
 
 def load_scene(
-    path: str | PathLike, *, fmt: str | None = None, max_sh_degree: int | None = None
+    path: str | PathLike,
+    *,
+    fmt: str | None = None,
+    max_sh_degree: int | None = None,
+    lod: int | None = None,
 ) -> Scene:
     """Load a scene file into a :class:`SurfelScene` or :class:`DensityGrid`.
 
@@ -70,11 +79,20 @@ def load_scene(
         max_sh_degree: keep the SH bands up to this degree only (a standard PLY never
             allocates the others; other formats drop them after decoding). The same
             rows are kept; ``scene.source.file_sh_degree`` records the file's degree.
+        lod: the level of a streamed LOD scene (None: 0, the finest); refused for
+            other formats.
     """
     path = Path(path)
     with input_guard(path, "scene file"):
         fmt = fmt or detect_format(path)
-        scene = _load(path, fmt, max_sh_degree)
+        if fmt == "lod":
+            from .lod import LOD_META, read_lod
+
+            scene = read_lod(path / LOD_META if path.is_dir() else path, lod)
+        elif lod is not None:
+            raise DivasInputError(path, f"--lod applies to lod-meta.json scenes, not {fmt}")
+        else:
+            scene = _load(path, fmt, max_sh_degree)
     if max_sh_degree is not None and isinstance(scene, SurfelScene):
         scene = _keep_sh_bands(scene, max_sh_degree)
     return scene

@@ -44,9 +44,19 @@ from ..kinds import SceneKind
 from ..scene import SurfelScene
 from .gaussians import scene_from_rows, sigmoid, surfels_from_arrays
 from .ply import CHUNK_ROWS
-from .sog_container import SH_COEFFS, SogLayout, open_sog, parse_meta, read_texels
+from .sog_container import (
+    SH_COEFFS,
+    SogContainer,
+    SogLayout,
+    open_sog,
+    parse_meta,
+    read_texels,
+)
 
-__all__ = ["read_sog", "is_sog_zip", "read_sog_texels", "decode_sog_rows"]
+__all__ = ["read_sog", "is_sog_zip", "read_sog_texels", "decode_sog_rows", "sog_rows"]
+
+#: what :func:`sog_rows` marks invalid (the dropped rows' count is reported as such).
+INVALID_WHAT = "non-finite values or invalid quaternion tags"
 
 _SQRT2 = np.float64(np.sqrt(2.0))
 #: for each largest-component index, the indices the three stored values go to.
@@ -149,13 +159,9 @@ def decode_sog_rows(layout: SogLayout, tex: dict, rows: slice, where: dict) -> d
     }
 
 
-def read_sog(path: str | PathLike) -> SurfelScene:
-    """Load a SOG scene (a ``.sog`` file, a SOG folder or its ``meta.json``).
-
-    Raises:
-        DivasInputError: missing or undecodable files, a bad ``meta.json``, an unknown
-        version, image sizes that do not fit the count, bytes past a codebook or palette.
-    """
+def sog_rows(path: str | PathLike) -> tuple[SogContainer, dict, SogLayout, tuple, np.ndarray]:
+    """``(container, meta, layout, (means, quats, scales, opacities, sh, scale_n), valid)``
+    of every Gaussian of a SOG scene, decoded and flattened to surfels (file order)."""
     cont, meta, layout, tex = read_sog_texels(Path(path))
     n, deg = layout.count, layout.sh_bands
     where = {role: cont.where(name) for role, name in layout.files.items()}
@@ -181,6 +187,17 @@ def read_sog(path: str | PathLike) -> SurfelScene:
         if deg:
             sh[sl, 1:, :] = d["sh_rest"]
         valid[sl] = ok
+    return cont, meta, layout, (means, quats, scales, opac, sh, scale_n), valid
+
+
+def read_sog(path: str | PathLike) -> SurfelScene:
+    """Load a SOG scene (a ``.sog`` file, a SOG folder or its ``meta.json``).
+
+    Raises:
+        DivasInputError: missing or undecodable files, a bad ``meta.json``, an unknown
+        version, image sizes that do not fit the count, bytes past a codebook or palette.
+    """
+    cont, meta, layout, (*arrays, scale_n), valid = sog_rows(path)
     extras = {
         "sog_version": layout.version or 1,
         "sog_bundled": cont.bundled,
@@ -189,11 +206,11 @@ def read_sog(path: str | PathLike) -> SurfelScene:
     return scene_from_rows(
         cont.path,
         "sog",
-        (means, quats, scales, opac, sh),
+        tuple(arrays),
         valid,
-        deg,
+        layout.sh_bands,
         SceneKind.GS3D,
         extras,
-        invalid_what="non-finite values or invalid quaternion tags",
+        invalid_what=INVALID_WHAT,
         scale_n=scale_n,
     )

@@ -60,7 +60,13 @@ from .gaussians import check_file_rows
 from .sog import read_sog_texels
 from .sog_container import PER_GAUSSIAN, SH_COEFFS, decode_rgba
 
-__all__ = ["write_sog_subset", "sog_texture_size", "encode_webp_lossless"]
+__all__ = [
+    "write_sog_subset",
+    "sog_subset_files",
+    "sog_texture_size",
+    "encode_webp_lossless",
+    "write_folder_atomic",
+]
 
 #: roles whose alpha channel holds data (quats: the largest-component tag, sh0: opacity).
 _ALPHA_ROLES = ("quats", "sh0")
@@ -186,7 +192,9 @@ def _meta_for(meta: dict, layout, n: int, palette_count: int | None) -> dict:
     return out
 
 
-def _write_folder_atomic(target: Path, files: dict[str, bytes]) -> None:
+def write_folder_atomic(target: Path, files: dict[str, bytes]) -> None:
+    """Write ``files`` (names relative to ``target``, ``/`` for sub-folders) as the folder
+    ``target``: built beside it, then swapped in; a failure leaves the old folder."""
     try:
         _swap_folder(target, files)
     except OSError as e:  # one clear error; the previous folder is back in place
@@ -199,7 +207,10 @@ def _swap_folder(target: Path, files: dict[str, bytes]) -> None:
     try:
         tmp.chmod(dir_mode())
         for name, data in files.items():
-            (tmp / name).write_bytes(data)
+            f = tmp / name
+            if f.parent != tmp:
+                f.parent.mkdir(parents=True, exist_ok=True, mode=dir_mode())
+            f.write_bytes(data)
         if target.exists():
             old = target.with_name(f".{target.name}.old-{uuid.uuid4().hex[:8]}")
             os.replace(target, old)
@@ -241,15 +252,7 @@ def write_sog_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | 
         raise ValueError("nothing to write: file_rows is empty")
     bundled, target = _output_target(out, cont.bundled)
     _check_target(bundled, target, cont.path, cont.bundled)
-    images = _gaussian_images(tex, rows, sog_texture_size(len(rows)))
-    palette_count = None
-    if layout.sh_bands:
-        images["shN_centroids"], palette_count = _cut_palette(
-            layout, images["shN_labels"], tex["shN_centroids"], len(rows)
-        )
-    files = {"meta.json": json.dumps(_meta_for(meta, layout, len(rows), palette_count)).encode()}
-    for role, img in images.items():
-        files[f"{role}.webp"] = encode_webp_lossless(img, f"{target}: {role}.webp")
+    files = sog_subset_files(meta, layout, tex, rows, str(target))
     target.parent.mkdir(parents=True, exist_ok=True)
     if bundled:
         buf = io.BytesIO()
@@ -258,5 +261,22 @@ def write_sog_subset(source: SourceInfo, file_rows: np.ndarray, out_path: str | 
                 zf.writestr(name, data)
         write_bytes_atomic(target, buf.getvalue())
         return target
-    _write_folder_atomic(target, files)
+    write_folder_atomic(target, files)
     return target / "meta.json"
+
+
+def sog_subset_files(
+    meta: dict, layout, tex: dict, rows: np.ndarray, what: str
+) -> dict[str, bytes]:
+    """The files (``meta.json`` and the WebP images) of SOG Gaussians ``rows`` (module
+    docstring); ``what`` names the output in errors."""
+    images = _gaussian_images(tex, rows, sog_texture_size(len(rows)))
+    palette_count = None
+    if layout.sh_bands:
+        images["shN_centroids"], palette_count = _cut_palette(
+            layout, images["shN_labels"], tex["shN_centroids"], len(rows)
+        )
+    files = {"meta.json": json.dumps(_meta_for(meta, layout, len(rows), palette_count)).encode()}
+    for role, img in images.items():
+        files[f"{role}.webp"] = encode_webp_lossless(img, f"{what}: {role}.webp")
+    return files

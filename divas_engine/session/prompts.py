@@ -7,7 +7,8 @@
        {"camera": {<Camera.to_dict schema, OpenCV c2w>}, "clicks": [{"xy": [x, y]}, ...]},
        {"training_camera": "IMG_0012", "clicks": [{"xy": [x, y]}]},
        {"fibonacci": 2, "clicks": [{"xy": [x, y], "positive": false}]}],
-     "centroid_prompts": {"0:1": [{"xy": [x, y], "positive": false}]}}
+     "centroid_prompts": {"0:1": [{"xy": [x, y], "positive": false}]},
+     "points": [{"xyz": [x, y, z]}, {"xyz": [x, y, z], "positive": false}]}
 
 * Every anchor names exactly one of ``camera`` / ``training_camera`` (a training
   camera name, with or without its image extension) / ``fibonacci`` (index into the
@@ -20,6 +21,11 @@
 * ``centroid_prompts["a:c"]`` adds points to the centroid view of anchor ``a``,
   click ``c`` (which must be a positive click).
 * Coordinates are continuous pixels of the full-resolution camera (+0.5 centres).
+* ``points`` are prompts in 3D, in the scene's own frame: each positive point becomes
+  a click on an anchor that sees it, chosen by the engine
+  (:mod:`divas_engine.views.point_anchors`, resolved by
+  :func:`divas_engine.session.point_prompts.resolve_prompts`); negative points become
+  negative clicks on the chosen anchors that see them. ``anchors`` may then be empty.
 
 Unknown keys, bad shapes, out-of-image points and dangling references raise
 :class:`~divas_engine.errors.DivasInputError` naming the entry, e.g.
@@ -45,6 +51,7 @@ from ..output_paths import write_json_atomic
 __all__ = [
     "PROMPTS_VERSION",
     "Click",
+    "PointPrompt",
     "AnchorPrompt",
     "Prompts",
     "ResolvedAnchor",
@@ -55,9 +62,10 @@ __all__ = [
 ]
 
 PROMPTS_VERSION = 1
-_TOP_KEYS = {"version", "anchors", "centroid_prompts"}
+_TOP_KEYS = {"version", "anchors", "centroid_prompts", "points"}
 _ANCHOR_KINDS = ("camera", "training_camera", "fibonacci")
 _CLICK_KEYS = {"xy", "positive"}
+_POINT_KEYS = {"xyz", "positive", "radius"}
 
 
 @dataclass(frozen=True)
@@ -71,6 +79,24 @@ class Click:
         d: dict[str, Any] = {"xy": [self.xy[0], self.xy[1]]}
         if not self.positive:
             d["positive"] = False
+        return d
+
+
+@dataclass(frozen=True)
+class PointPrompt:
+    """A prompt in 3D: world point ``xyz`` (the scene's frame), its label, and how far
+    inside its object it may lie (``radius``, scene units: an object's centre)."""
+
+    xyz: tuple[float, float, float]
+    positive: bool = True
+    radius: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"xyz": list(self.xyz)}
+        if not self.positive:
+            d["positive"] = False
+        if self.radius:
+            d["radius"] = self.radius
         return d
 
 
@@ -94,9 +120,10 @@ class Prompts:
     anchors: tuple[AnchorPrompt, ...]
     centroid_prompts: dict[tuple[int, int], tuple[Click, ...]] = field(default_factory=dict)
     source: str | None = None
+    points: tuple[PointPrompt, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        d: dict[str, Any] = {
             "version": PROMPTS_VERSION,
             "anchors": [a.to_dict() for a in self.anchors],
             "centroid_prompts": {
@@ -104,6 +131,9 @@ class Prompts:
                 for (a, c), pts in self.centroid_prompts.items()
             },
         }
+        if self.points:
+            d["points"] = [p.to_dict() for p in self.points]
+        return d
 
     def write(self, path: str | PathLike) -> None:
         write_json_atomic(path, self.to_dict())
@@ -135,6 +165,26 @@ def _parse_click(d: Any, where: str, src: str | None) -> Click:
     if not isinstance(pos, bool):
         raise _fail(src, f"{where}.positive", f"must be true or false, got {pos!r}")
     return Click((float(xy[0]), float(xy[1])), pos)
+
+
+def _parse_point(d: Any, where: str, src: str | None) -> PointPrompt:
+    if not isinstance(d, dict):
+        raise _fail(
+            src, where, f'must be an object like {{"xyz": [x, y, z]}}, got {type(d).__name__}'
+        )
+    unknown = set(d) - _POINT_KEYS
+    if unknown:
+        raise _fail(src, where, f"unknown keys {sorted(unknown)} (allowed: xyz, positive, radius)")
+    xyz = d.get("xyz")
+    if not (isinstance(xyz, list) and len(xyz) == 3 and all(_number(v) for v in xyz)):
+        raise _fail(src, f"{where}.xyz", f"must be three finite numbers [x, y, z], got {xyz!r}")
+    pos = d.get("positive", True)
+    if not isinstance(pos, bool):
+        raise _fail(src, f"{where}.positive", f"must be true or false, got {pos!r}")
+    r = d.get("radius", 0.0)
+    if not (_number(r) and r >= 0):
+        raise _fail(src, f"{where}.radius", f"must be a finite number ≥ 0, got {r!r}")
+    return PointPrompt((float(xyz[0]), float(xyz[1]), float(xyz[2])), pos, float(r))
 
 
 def _parse_clicks(v: Any, where: str, src: str | None) -> tuple[Click, ...]:
@@ -198,6 +248,8 @@ def _check_click_count(doc: dict, src: str | None) -> None:
     cp = doc.get("centroid_prompts")
     if isinstance(cp, dict):
         n += sum(len(v) for v in cp.values() if isinstance(v, list))
+    if isinstance(doc.get("points"), list):
+        n += len(doc["points"])
     cap = limits().max_clicks
     if n > cap:
         raise DivasInputError(src, f"{n} clicks, more than the {cap} a prompts file may hold")
@@ -215,15 +267,19 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
         raise DivasInputError(
             src,
             f"unknown top-level keys {sorted(unknown)} "
-            "(allowed: version, anchors, centroid_prompts)",
+            "(allowed: version, anchors, centroid_prompts, points)",
         )
     if doc.get("version") != PROMPTS_VERSION:
         raise _fail(src, "version", f"must be {PROMPTS_VERSION}, got {doc.get('version')!r}")
-    anchors_doc = doc.get("anchors")
-    if not isinstance(anchors_doc, list) or not anchors_doc:
-        raise _fail(src, "anchors", "must be a non-empty list of anchors")
+    points_doc = doc.get("points", [])
+    if not isinstance(points_doc, list):
+        raise _fail(src, "points", 'must be a list of points like {"xyz": [x, y, z]}')
+    anchors_doc = doc.get("anchors", [] if points_doc else None)
+    if not isinstance(anchors_doc, list) or not (anchors_doc or points_doc):
+        raise _fail(src, "anchors", "must be a non-empty list of anchors (or give 'points')")
     _check_click_count(doc, src)
     anchors = tuple(_parse_anchor(a, i, src) for i, a in enumerate(anchors_doc))
+    points = tuple(_parse_point(p, f"points[{i}]", src) for i, p in enumerate(points_doc))
     cp_doc = doc.get("centroid_prompts", {})
     if not isinstance(cp_doc, dict):
         raise _fail(src, "centroid_prompts", 'must be an object keyed "anchor:click"')
@@ -245,7 +301,7 @@ def parse_prompts(doc: Any, source: str | PathLike | None = None) -> Prompts:
                 src, where, f"click {c} of anchor {a} is negative and spawns no centroid view"
             )
         cps[(a, c)] = _parse_clicks(pts, where, src)
-    return Prompts(anchors, cps, src)
+    return Prompts(anchors, cps, src, points)
 
 
 def load_prompts(path: str | PathLike) -> Prompts:
@@ -273,6 +329,13 @@ class ResolvedAnchor:
     source: str  # "camera" | "training" | "fibonacci"
     index: int  # training-camera / Fibonacci index, -1 for explicit cameras
     prompt: AnchorPrompt
+    points: tuple[int, ...] | None = None  # per click, the 3D point it comes from
+
+    def where(self, anchor: int, click: int) -> str:
+        """How click ``click`` of this anchor (number ``anchor``) is named in errors."""
+        if self.points is not None:
+            return f"points[{self.points[click]}]"
+        return f"anchors[{anchor}].clicks[{click}]"
 
 
 def _check_in_image(cam: Camera, xy: tuple[float, float], where: str, src: str | None) -> None:

@@ -53,9 +53,10 @@ def _run(*args, timeout=120):
 
 def test_headless_matches_divas_segment(scene_dir, tmp_path):
     from divas_engine.cli.segment import segment_scene
+    from divas_engine.segment_request import SegmentRequest
 
     common = dict(
-        cameras_path=scene_dir / "cameras.json",
+        cameras=scene_dir / "cameras.json",
         segmenter="oracle",
         gt_labels=scene_dir / "labels.npy",
         scale=0.5,
@@ -65,12 +66,14 @@ def test_headless_matches_divas_segment(scene_dir, tmp_path):
     ref_dir = tmp_path / "engine"
     ref_dir.mkdir()  # issue 14: an output's folder must exist (it was created)
     report_ref, _ = segment_scene(
-        scene_dir / "scene.ply",
-        scene_dir / "prompts.json",
-        out=ref_dir / "sel.ply",
-        labels_out=ref_dir / "labels.npy",
+        SegmentRequest(
+            scene_dir / "scene.ply",
+            scene_dir / "prompts.json",
+            out=ref_dir / "sel.ply",
+            labels_out=ref_dir / "labels.npy",
+            **common,
+        ),
         progress=False,
-        **common,
     )
     ours = tmp_path / "blender"
     ours.mkdir()
