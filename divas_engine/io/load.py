@@ -2,8 +2,10 @@
 
 Formats: 2DGS/3DGS PLY, PlayCanvas/SuperSplat compressed PLY, antimatter15
 ``.splat``, Niantic ``.spz``, PlayCanvas SOG (``.sog`` bundle, or a folder / its
-``meta.json``), NeRF density grid ``.npz``. Detection looks at the file's magic
-bytes first and its suffix second, so a misnamed file still loads.
+``meta.json``), NeRF density grids: this project's ``.npz``, instant-ngp snapshots
+(``.ingp`` gzip'd msgpack, ``.msgpack``), torch-ngp checkpoints (``.pth``, with the torch
+extra) and OpenVDB ``.vdb`` (where an OpenVDB module is importable). Detection looks at
+the file's magic bytes first and its suffix second, so a misnamed file still loads.
 """
 
 from __future__ import annotations
@@ -20,7 +22,18 @@ from .limits import input_guard, require_input_file
 
 __all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
 
-SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "sog", "npz")
+SCENE_FORMATS = (
+    "ply",
+    "compressed_ply",
+    "splat",
+    "spz",
+    "sog",
+    "npz",
+    "ingp",
+    "msgpack",
+    "torch_ngp",
+    "vdb",
+)
 
 
 def detect_format(path: str | PathLike) -> str:
@@ -49,14 +62,55 @@ def detect_format(path: str | PathLike) -> str:
     if head.startswith(b"PK"):
         from .sog import is_sog_zip
 
-        return "sog" if is_sog_zip(path) else "npz"
-    if head.startswith(b"\x1f\x8b") or head.startswith(b"NGSP") or suffix == ".spz":
+        if is_sog_zip(path):
+            return "sog"
+        return "torch_ngp" if suffix in (".pth", ".pt") or _is_torch_zip(path) else "npz"
+    if head.startswith(b"\x1f\x8b"):
+        return "ingp" if _gzip_holds_msgpack(path) else "spz"
+    if head.startswith(b"NGSP") or suffix == ".spz":
         return "spz"
+    if head.startswith(b" BD") or suffix == ".vdb":
+        return "vdb"
+    from .instant_ngp import is_ngp_msgpack_head
+
+    if is_ngp_msgpack_head(head) and suffix in (".msgpack", ".ingp", ""):
+        return "msgpack"
     if suffix == ".splat":
         return "splat"
     if suffix == ".ply":
         raise DivasInputError(path, "not a PLY file (missing 'ply' magic line)")
-    raise DivasInputError(path, "unknown scene format: expected .ply, .splat, .spz, .sog or .npz")
+    raise DivasInputError(
+        path,
+        "unknown scene format: expected .ply, .splat, .spz, .sog, .npz, .ingp, .msgpack, "
+        ".pth (torch-ngp) or .vdb",
+    )
+
+
+def _gzip_holds_msgpack(path: Path) -> bool:
+    """A gzip stream whose first inflated byte opens a msgpack map (instant-ngp's
+    ``.ingp``), not Niantic's ``NGSP`` header."""
+    import zlib
+
+    from .instant_ngp import is_ngp_msgpack_head
+
+    with open(path, "rb") as f:
+        raw = f.read(1 << 16)
+    try:
+        first = zlib.decompressobj(wbits=31).decompress(raw, 4)
+    except zlib.error:
+        return False
+    return is_ngp_msgpack_head(first) and not first.startswith(b"NGSP")
+
+
+def _is_torch_zip(path: Path) -> bool:
+    """A ZIP laid out as ``torch.save`` writes it (``<name>/data.pkl``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return any(n.endswith("/data.pkl") or n == "data.pkl" for n in zf.namelist())
+    except (zipfile.BadZipFile, OSError):
+        return False
 
 
 def load_scene(
@@ -118,4 +172,16 @@ def _load(path: Path, fmt: str, max_sh_degree: int | None = None) -> Scene:
         from .density_grid import read_density_grid
 
         return read_density_grid(path)
+    if fmt in ("ingp", "msgpack"):
+        from .instant_ngp import read_instant_ngp
+
+        return read_instant_ngp(path)
+    if fmt == "torch_ngp":
+        from .torch_ngp import read_torch_ngp
+
+        return read_torch_ngp(path)
+    if fmt == "vdb":
+        from .openvdb_grid import read_vdb
+
+        return read_vdb(path)
     raise DivasInputError(path, f"unknown format {fmt!r}; expected one of {SCENE_FORMATS}")
