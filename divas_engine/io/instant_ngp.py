@@ -66,12 +66,16 @@ __all__ = [
     "write_ngp_document",
     "write_masked_instant_ngp",
     "is_ngp_msgpack_head",
+    "snapshot_occupancy",
+    "MAX_CONE_STEPSIZE",
 ]
 
 NERF_GRIDSIZE = 128
 #: ``STEPSIZE()`` of ``nerf_device.cuh`` l. 29-33 (float32, as instant-ngp computes it)
 STEPSIZE = float(np.float32(1.73205080757) / np.float32(1024))
 NERF_CASCADES = 8
+#: ``MAX_CONE_STEPSIZE()`` (``nerf_device.cuh`` l. 36)
+MAX_CONE_STEPSIZE = STEPSIZE * (1 << (NERF_CASCADES - 1)) * 1024 / NERF_GRIDSIZE
 SNAPSHOT_FORMAT_VERSION = 1
 
 
@@ -315,6 +319,23 @@ def _network(doc, snap, ds, out: NgpSnapshot, path: Path) -> tuple[NgpNetwork | 
     return net, ""
 
 
+def snapshot_occupancy(snap: NgpSnapshot) -> np.ndarray:
+    """``[8, 128, 128, 128]`` bool, ``[m, x, y, z]``: instant-ngp's bitfield — cells above
+    ``min(0.01, mean of cascade 0)`` (``grid_to_bitfield``) in the snapshot's cascades, and
+    every level OR-ed with the level below max-pooled into its central half
+    (``bitfield_max_pool``, l. 376-396), up to ``NERF_CASCADES`` levels: the march skips
+    empty space through all of them."""
+    dense = morton_to_dense(snap.cascades, NERF_GRIDSIZE).astype(np.float32)
+    dense[~np.isfinite(dense)] = 0.0
+    R, q = NERF_GRIDSIZE, NERF_GRIDSIZE // 4
+    occ = np.zeros((NERF_CASCADES, R, R, R), bool)
+    occ[: len(dense)] = dense > min(0.01, float(np.maximum(dense[0], 0).mean()))
+    for m in range(1, NERF_CASCADES):
+        pooled = occ[m - 1].reshape(R // 2, 2, R // 2, 2, R // 2, 2).any(axis=(1, 3, 5))
+        occ[m, q : R - q, q : R - q, q : R - q] |= pooled
+    return occ
+
+
 def _lattice(snap: NgpSnapshot, max_side: int) -> tuple[np.ndarray, LatticeBox]:
     """σ per NeRF-frame unit on one lattice, instant-ngp's empty cells zeroed."""
     dense = morton_to_dense(snap.cascades, NERF_GRIDSIZE).astype(np.float32)
@@ -388,15 +409,18 @@ def write_ngp_document(path: str | PathLike, doc: dict, compressed: bool) -> Pat
 def write_masked_instant_ngp(
     grid: DensityGrid, selection: np.ndarray, path: str | PathLike
 ) -> Path:
-    """The source snapshot with every density-grid cell no selected voxel overlaps set to 0
-    (instant-ngp then renders the selected part alone); everything else unchanged."""
+    """The source snapshot with every positive density-grid cell that no selected voxel
+    overlaps set to 0 (instant-ngp then renders the selected part alone); everything else
+    unchanged, so a selection of every voxel writes the grid back bit for bit."""
     src = grid.extras.get("ngp")
     if not isinstance(src, NgpGridSource):
         raise DivasInputError(path, "this grid was not read from an instant-ngp snapshot")
     snap = src.snapshot
     sel = snap.frame.density_to_lattice(np.asarray(selection, bool))
     keep = dense_to_morton(cascade_mask(sel, snap.layout, src.box))
-    masked = np.where(keep, snap.cascades, np.float16(0)).astype("<f2")
+    raw = snap.cascades
+    # positive cells no selected voxel overlaps become 0; unseen (−1) and 0 cells stay
+    masked = np.where(keep | ~(raw > 0), raw, np.float16(0)).astype("<f2")
     doc = copy.copy(snap.document)
     doc["snapshot"] = dict(doc["snapshot"])
     doc["snapshot"]["density_grid_binary"] = masked.tobytes()

@@ -1,0 +1,143 @@
+"""Views of an instant-ngp snapshot drawn from its radiance network (``kernels.raymarch_ngp``).
+
+The density grid the snapshot was read into (:mod:`divas_engine.io.instant_ngp`) stays
+the occupancy, fusion and export lattice; this renderer draws RGB and the depth tuple
+from the network itself, like instant-ngp renders it (its step size and occupancy
+cascades; depths planar, in the training cameras' units). ``render_values`` composites
+per-voxel values of that lattice with the network's weights.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from divas_kernels import (
+    NgpMarchSettings,
+    raymarch_ngp,
+    resolve_device,
+    upload_ngp_network,
+    upload_ngp_occupancy,
+)
+
+from ..camera import Camera
+from ..io.instant_ngp import MAX_CONE_STEPSIZE, STEPSIZE, NgpGridSource, snapshot_occupancy
+from ..kinds import SceneKind
+from ..scene import DensityGrid
+from .buffers import RenderBuffers
+from .config import RenderConfig
+
+__all__ = ["NgpRenderer", "has_ngp_network"]
+
+_GRID_TYPES = {"Hash": 0, "Dense": 1, "Tiled": 2}
+
+
+def has_ngp_network(grid: DensityGrid) -> bool:
+    """Whether ``grid`` came from an instant-ngp snapshot whose network was read."""
+    return grid.network is not None and isinstance(grid.extras.get("ngp"), NgpGridSource)
+
+
+class NgpRenderer:
+    """Renders an instant-ngp snapshot's network; uploaded to ``device`` once.
+
+    Settled here: instant-ngp's step ``STEPSIZE = √3/1024`` NeRF units (cone stepping
+    ``1/256`` for ``aabb_scale > 1``, as instant-ngp picks it), samples at step midpoints,
+    colour only for samples of weight ≥ ``COLOR_MIN_WEIGHT`` (``kernels/raymarch_ngp.py``).
+    """
+
+    kind = SceneKind.NERF
+
+    def __init__(self, grid: DensityGrid, device=None, config: RenderConfig | None = None):
+        if not has_ngp_network(grid):
+            raise ValueError("NgpRenderer: the grid carries no instant-ngp network")
+        self.config = config or RenderConfig()
+        self.device = resolve_device(device)
+        self.grid_shape = tuple(grid.density.shape)
+        self.grid_aabb = np.asarray(grid.aabb, np.float64)
+        snap = grid.extras["ngp"].snapshot
+        net, spec = grid.network, grid.network.grid
+        self._net = upload_ngp_network(
+            net.table,
+            np.asarray(spec.offsets),
+            np.array([spec.level_scale(lv) for lv in range(spec.n_levels)]),
+            np.array([spec.level_resolution(lv) for lv in range(spec.n_levels)]),
+            _GRID_TYPES[spec.grid_type],
+            net.density_layers,
+            net.rgb_layers,
+            net.density_out,
+            net.aabb,
+            net.hdr,
+            self.device,
+        )
+        self._occ = upload_ngp_occupancy(snapshot_occupancy(snap), self.device)
+        fr = snap.frame
+        self._frame = (fr.scale, np.asarray(fr.offset, np.float64), fr.axes)
+        self._box = np.asarray(snap.aabb, np.float64)
+        self._n_casc = len(snap.cascades)
+        self._cone = 0.0 if snap.aabb_scale <= 1 else 1.0 / 256.0
+
+    def _settings(self, cam: Camera) -> NgpMarchSettings:
+        c = self.config
+        return NgpMarchSettings(
+            step=STEPSIZE,
+            cone=self._cone,
+            max_step=MAX_CONE_STEPSIZE,
+            tau_sig=c.tau_sig,
+            tau_cw=c.tau_cw,
+            t_min=c.t_min,
+            alpha_min=c.alpha_min,
+            near=cam.clip_near(c.near),
+            threads=c.threads,
+        )
+
+    def _run(self, cam: Camera, values: np.ndarray | None):
+        return raymarch_ngp(
+            self._net,
+            self._occ,
+            self._frame,
+            self._box,
+            self._n_casc,
+            cam.c2w,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            cam.width,
+            cam.height,
+            self._settings(cam),
+            values=values,
+            values_aabb=self.grid_aabb,
+            background=self.config.background,
+        )
+
+    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+        cam = camera if scale == 1.0 else camera.scaled(scale)
+        o = self._run(cam, None)
+        H, W = cam.height, cam.width
+        img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
+        d_exp = img(o.d_exp)
+        return RenderBuffers(
+            rgb=o.feat.numpy().reshape(H, W, 3),
+            alpha=img(o.alpha),
+            D_min=img(o.d_min),
+            D_ref=d_exp.copy(),
+            D_max=img(o.d_max),
+            D_mw=img(o.d_mw),
+            D_exp=d_exp,
+            D_med=img(o.d_med),
+            N_samp=img(o.n_samp),
+            camera=cam,
+            kind=self.kind,
+            stats={"source": "network"},
+        )
+
+    def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        values = np.asarray(values)
+        if values.shape[:3] != self.grid_shape or values.ndim not in (3, 4):
+            raise ValueError(
+                f"render_values: expected per-voxel values of shape {self.grid_shape} "
+                f"or {self.grid_shape}+(C,), got {values.shape}"
+            )
+        cam = camera if scale == 1.0 else camera.scaled(scale)
+        f = self._run(cam, values).feat.numpy()
+        H, W = cam.height, cam.width
+        return f.reshape(H, W) if values.ndim == 3 else f.reshape(H, W, -1)
