@@ -155,7 +155,7 @@ def test_network_is_read_and_counted(tmp_path):
     doc, _ = sphere_snapshot(network=net, config=cfg)
     g = load_scene(_write(tmp_path, doc))
     assert g.network is not None and g.extras["network_note"] == ""
-    assert np.array_equal(g.network.table, net.table)
+    assert np.array_equal(g.network.network.table, net.table)
     # a parameter count that does not match the config: the grid loads, the network not
     doc["snapshot"]["params_binary"] = doc["snapshot"]["params_binary"][:-2]
     g = load_scene(_write(tmp_path, doc, "cut.ingp"))

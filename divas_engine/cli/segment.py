@@ -229,7 +229,7 @@ def segment_scene(
     from ..evaluation.ground_truth import load_ground_truth
     from ..evaluation.session_scores import session_evaluation
     from ..io.cameras import load_cameras
-    from ..io.load import load_scene
+    from ..io.load import load_scene, scene_cameras
     from ..segment import SegmenterSettings
     from ..session import Prompts, Session, SessionConfig, anchor_plan, load_prompts
     from ..session.prompts import resolve_anchors
@@ -262,7 +262,7 @@ def segment_scene(
     scene = load_scene(scene_path)
     if cameras_path is None and (Path(scene_path).parent / "cameras.json").is_file():
         cameras_path = Path(scene_path).parent / "cameras.json"
-    cameras = load_cameras(cameras_path) if cameras_path is not None else []
+    cameras = load_cameras(cameras_path) if cameras_path is not None else scene_cameras(scene)
     gt = load_ground_truth(gt_labels, scene) if gt_labels is not None else None
     seg = _segmenter(
         SegmenterSettings(

@@ -58,6 +58,7 @@ __all__ = [
     "NgpFrame",
     "NgpSnapshot",
     "NgpGridSource",
+    "NgpField",
     "NERF_GRIDSIZE",
     "STEPSIZE",
     "read_ngp_document",
@@ -148,6 +149,40 @@ class NgpSnapshot:
     @property
     def layout(self) -> CascadeLayout:
         return CascadeLayout(len(self.cascades), NERF_GRIDSIZE, (0.5, 0.5, 0.5), 0.5)
+
+
+@dataclass(eq=False)
+class NgpField:
+    """An instant-ngp radiance network with what marching it needs (``DensityGrid.network``
+    of a snapshot read with its network; the renderer uses only these attributes)."""
+
+    network: NgpNetwork
+    snapshot: NgpSnapshot
+    kind: str = "instant-ngp"
+
+    @property
+    def frame(self) -> tuple[float, np.ndarray, tuple[int, int, int]]:
+        """``(scale, offset, axes)``: training frame → NeRF frame."""
+        fr = self.snapshot.frame
+        return fr.scale, np.asarray(fr.offset, np.float64), fr.axes
+
+    @property
+    def box(self) -> np.ndarray:
+        return np.asarray(self.snapshot.aabb, np.float64)
+
+    @property
+    def n_cascades(self) -> int:
+        return len(self.snapshot.cascades)
+
+    @property
+    def stepping(self) -> tuple[float, float, float]:
+        """``(STEPSIZE, cone, MAX_CONE_STEPSIZE)``; cone stepping ``1/256`` for
+        ``aabb_scale > 1``, as instant-ngp picks it (``testbed_nerf.cu`` l. 2438-2440)."""
+        cone = 0.0 if self.snapshot.aabb_scale <= 1 else 1.0 / 256.0
+        return STEPSIZE, cone, MAX_CONE_STEPSIZE
+
+    def occupancy(self) -> np.ndarray:
+        return snapshot_occupancy(self.snapshot)
 
 
 @dataclass(eq=False)
@@ -358,7 +393,8 @@ def snapshot_grid(snap: NgpSnapshot, path: Path, fmt: str, max_side: int = 256) 
     corners = np.stack([fr.to_world(box.lo), fr.to_world(box.hi)])
     aabb = np.stack([corners.min(0), corners.max(0)])
     src = SourceInfo(path, fmt, int(density.size), None, 0)
-    grid = DensityGrid(density, aabb, None, src, network=snap.network)
+    field = NgpField(snap.network, snap) if snap.network is not None else None
+    grid = DensityGrid(density, aabb, None, src, network=field)
     grid.extras.update(
         ngp=NgpGridSource(snap, box),
         cameras=snap.cameras,

@@ -20,7 +20,7 @@ from ..errors import DivasInputError
 from ..scene import Scene, SurfelScene, sh_coeff_count
 from .limits import input_guard, require_input_file
 
-__all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
+__all__ = ["detect_format", "load_scene", "scene_cameras", "SCENE_FORMATS"]
 
 SCENE_FORMATS = (
     "ply",
@@ -132,6 +132,12 @@ def load_scene(
     if max_sh_degree is not None and isinstance(scene, SurfelScene):
         scene = _keep_sh_bands(scene, max_sh_degree)
     return scene
+
+
+def scene_cameras(scene: Scene) -> list:
+    """The training cameras a scene file holds itself (an instant-ngp snapshot's dataset),
+    in the scene's frame; ``[]`` for every other format."""
+    return list(getattr(scene, "extras", {}).get("cameras") or [])
 
 
 def _keep_sh_bands(scene: SurfelScene, max_degree: int) -> SurfelScene:

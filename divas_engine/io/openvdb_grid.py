@@ -29,7 +29,14 @@ from ..errors import DivasInputError
 from ..scene import DensityGrid, SourceInfo
 from .limits import inflate_budget, limits, require_input_file
 
-__all__ = ["openvdb_module", "read_vdb", "write_vdb", "vdb_available", "NO_OPENVDB"]
+__all__ = [
+    "openvdb_module",
+    "read_vdb",
+    "write_vdb",
+    "vdb_available",
+    "check_vdb_structure",
+    "NO_OPENVDB",
+]
 
 NO_OPENVDB = (
     "needs an OpenVDB Python module: inside Blender (it bundles one), with the bpy wheel "
@@ -93,9 +100,94 @@ def read_vdb(path: str | PathLike) -> DensityGrid:
     path = require_input_file(path, "OpenVDB file")
     vdb = _module(path)
     try:
-        metas = vdb.readAllGridMetadata(str(path))
-    except Exception as e:  # the bindings raise plain RuntimeError/ValueError/IOError
+        return _read(vdb, path)
+    except DivasInputError:
+        raise
+    except Exception as e:  # the bindings raise RuntimeError/ValueError/IOError on bad files
         raise DivasInputError(path, f"not a readable OpenVDB file ({e})") from None
+
+
+class _Bytes:
+    def __init__(self, data: bytes, path: Path):
+        self.d, self.o, self.path = data, 0, path
+
+    def take(self, n: int) -> bytes:
+        if n < 0 or self.o + n > len(self.d):
+            raise DivasInputError(self.path, "truncated OpenVDB file")
+        b = self.d[self.o : self.o + n]
+        self.o += n
+        return b
+
+    def num(self, fmt: str):
+        import struct
+
+        return struct.unpack("<" + fmt, self.take(struct.calcsize(fmt)))[0]
+
+    def text(self) -> str:
+        n = self.num("I")
+        if n > 4096:
+            raise DivasInputError(self.path, f"OpenVDB string of {n} bytes")
+        try:
+            return self.take(n).decode("utf-8")
+        except UnicodeDecodeError:
+            raise DivasInputError(self.path, "OpenVDB name is not UTF-8") from None
+
+    def meta_map(self) -> None:
+        count = self.num("i")
+        if not 0 <= count <= 4096:
+            raise DivasInputError(self.path, f"{count} metadata entries")
+        for _ in range(count):
+            self.text()
+            kind = self.text()
+            size = self.num("i")
+            value = self.take(size)
+            if kind == "string":
+                try:
+                    value.decode("utf-8")
+                except UnicodeDecodeError:
+                    raise DivasInputError(self.path, "OpenVDB metadata is not UTF-8") from None
+
+
+def check_vdb_structure(path: Path) -> None:
+    """Walk the file's header, metadata and grid descriptors (OpenVDB's ``Archive`` and
+    ``GridDescriptor`` layouts) and refuse one whose names are not UTF-8 or whose offsets
+    leave the file: OpenVDB's Python bindings abort the whole process when an error
+    message they convert holds such bytes, so those never reach them."""
+    b = _Bytes(path.read_bytes(), path)
+    if b.num("q") != 0x56444220:
+        raise DivasInputError(path, "not an OpenVDB file (bad magic number)")
+    version = b.num("I")
+    if not 213 <= version <= 1024:
+        raise DivasInputError(path, f"OpenVDB file version {version} is not supported")
+    b.num("I"), b.num("I")
+    has_offsets = b.num("b")
+    if 220 <= version < 222:
+        b.num("I")
+    b.take(36)
+    if not has_offsets:
+        raise DivasInputError(path, "OpenVDB file without grid offsets is not supported")
+    b.meta_map()
+    n = b.num("i")
+    if not 0 <= n <= 1024:
+        raise DivasInputError(path, f"{n} grids")
+    size = len(b.d)
+    for _ in range(n):
+        b.text(), b.text(), b.text()
+        grid_pos, block_pos, end_pos = b.num("q"), b.num("q"), b.num("q")
+        if not (0 < grid_pos <= block_pos <= end_pos <= size):
+            raise DivasInputError(path, "OpenVDB grid offsets outside the file")
+        g = _Bytes(b.d, path)
+        g.o = grid_pos
+        if version >= 222:
+            g.num("I")
+        g.meta_map()
+        g.text()  # the transform's map type
+        b.o = end_pos
+
+
+def _read(vdb, path: Path) -> DensityGrid:
+    check_vdb_structure(path)
+    metas = vdb.readAllGridMetadata(str(path))
     floats = [g for g in metas if g.valueTypeName in ("float", "double")]
     if not floats:
         raise DivasInputError(path, "holds no float grid (expected a 'density' grid)")
@@ -115,11 +207,8 @@ def read_vdb(path: str | PathLike) -> DensityGrid:
                 raise DivasInputError(
                     path, f"grid {g.name!r} spans {int(n)} voxels, over the limit"
                 )
-    try:
-        dgrid = vdb.read(str(path), dens_meta.name)
-        cgrid = vdb.read(str(path), col_meta.name) if col_meta is not None else None
-    except Exception as e:
-        raise DivasInputError(path, f"not a readable OpenVDB file ({e})") from None
+    dgrid = vdb.read(str(path), dens_meta.name)
+    cgrid = vdb.read(str(path), col_meta.name) if col_meta is not None else None
     lo_ijk, hi_ijk = dgrid.evalActiveVoxelBoundingBox()
     shape = tuple(int(b - a + 1) for a, b in zip(lo_ijk, hi_ijk))
     if min(shape) < 1 or dgrid.activeVoxelCount() == 0:

@@ -147,8 +147,8 @@ def read_torch_ngp(
 
 
 def write_masked_torch_ngp(grid: DensityGrid, selection: np.ndarray, path: str | PathLike) -> Path:
-    """The checkpoint with every ``density_grid`` cell no selected voxel overlaps set to 0
-    and its ``density_bitfield`` cleared there (written with ``torch.save``)."""
+    """The checkpoint with every positive ``density_grid`` cell that no selected voxel
+    overlaps set to 0 and its ``density_bitfield`` bit cleared (``torch.save``)."""
     src = grid.extras.get("torch_ngp")
     torch = _torch()
     if not isinstance(src, TorchNgpSource) or torch is None:
@@ -160,9 +160,12 @@ def write_masked_torch_ngp(grid: DensityGrid, selection: np.ndarray, path: str |
     ckpt = dict(src.checkpoint)
     model = dict(ckpt[src.key]) if src.key else ckpt
     dg = model["density_grid"]
-    model["density_grid"] = torch.where(torch.from_numpy(keep).to(dg.device), dg, 0.0)
+    # positive cells no selected voxel overlaps become 0; unseen (−1) and 0 cells stay
+    keep_t = torch.from_numpy(keep).to(dg.device) | ~(dg > 0)
+    model["density_grid"] = torch.where(keep_t, dg, torch.zeros_like(dg))
     if "density_bitfield" in model:
-        bits = np.packbits(keep.reshape(-1, 8), axis=1, bitorder="little").ravel()
+        kept = keep_t.cpu().numpy().reshape(-1, 8)
+        bits = np.packbits(kept, axis=1, bitorder="little").ravel()
         bf = model["density_bitfield"]
         model["density_bitfield"] = bf & torch.from_numpy(bits).to(bf.device)
     if src.key:

@@ -12,6 +12,7 @@ from ..kinds import SceneKind
 from ..scene import DensityGrid
 from .buffers import RenderBuffers
 from .config import RenderConfig
+from .grid_shading import shaded_rgb, wants_shading
 
 __all__ = ["NerfRenderer"]
 
@@ -25,7 +26,8 @@ class NerfRenderer:
     edge`` from the AABB entry (the last one ends at the exit), sampled at their
     midpoints; every sample with α > 0 is blended, those with α ≥ 1/255 are
     "contributing" (``N_samp``, the ``D_max`` fallback); ``D_med`` is reported too.
-    Without an RGB grid the colour is ``config.nerf_color``.
+    Without an RGB grid the colour is ``config.nerf_color``, or the grid's shape
+    (:mod:`.grid_shading`) when ``config.shade_grid`` asks for it.
     """
 
     kind = SceneKind.NERF
@@ -34,7 +36,11 @@ class NerfRenderer:
         self.config = config or RenderConfig()
         self.device = resolve_device(device)
         self.grid_shape = tuple(grid.density.shape)
-        self._buf = upload_grid(grid.density, grid.aabb, grid.rgb, self.device)
+        rgb = grid.rgb
+        if wants_shading(grid, self.config.shade_grid):
+            rgb = shaded_rgb(grid)
+        self.shaded = rgb is not grid.rgb
+        self._buf = upload_grid(grid.density, grid.aabb, rgb, self.device)
 
     def _run(self, cam: Camera, values: np.ndarray | None):
         return raymarch_grid(

@@ -20,7 +20,6 @@ from divas_kernels import (
 )
 
 from ..camera import Camera
-from ..io.instant_ngp import MAX_CONE_STEPSIZE, STEPSIZE, NgpGridSource, snapshot_occupancy
 from ..kinds import SceneKind
 from ..scene import DensityGrid
 from .buffers import RenderBuffers
@@ -32,8 +31,8 @@ _GRID_TYPES = {"Hash": 0, "Dense": 1, "Tiled": 2}
 
 
 def has_ngp_network(grid: DensityGrid) -> bool:
-    """Whether ``grid`` came from an instant-ngp snapshot whose network was read."""
-    return grid.network is not None and isinstance(grid.extras.get("ngp"), NgpGridSource)
+    """Whether ``grid`` carries an instant-ngp network (``io.instant_ngp.NgpField``)."""
+    return getattr(grid.network, "kind", None) == "instant-ngp"
 
 
 class NgpRenderer:
@@ -53,8 +52,8 @@ class NgpRenderer:
         self.device = resolve_device(device)
         self.grid_shape = tuple(grid.density.shape)
         self.grid_aabb = np.asarray(grid.aabb, np.float64)
-        snap = grid.extras["ngp"].snapshot
-        net, spec = grid.network, grid.network.grid
+        field = grid.network
+        net, spec = field.network, field.network.grid
         self._net = upload_ngp_network(
             net.table,
             np.asarray(spec.offsets),
@@ -68,19 +67,18 @@ class NgpRenderer:
             net.hdr,
             self.device,
         )
-        self._occ = upload_ngp_occupancy(snapshot_occupancy(snap), self.device)
-        fr = snap.frame
-        self._frame = (fr.scale, np.asarray(fr.offset, np.float64), fr.axes)
-        self._box = np.asarray(snap.aabb, np.float64)
-        self._n_casc = len(snap.cascades)
-        self._cone = 0.0 if snap.aabb_scale <= 1 else 1.0 / 256.0
+        self._occ = upload_ngp_occupancy(field.occupancy(), self.device)
+        self._frame = field.frame
+        self._box = field.box
+        self._n_casc = field.n_cascades
+        self._step, self._cone, self._max_step = field.stepping
 
     def _settings(self, cam: Camera) -> NgpMarchSettings:
         c = self.config
         return NgpMarchSettings(
-            step=STEPSIZE,
+            step=self._step,
             cone=self._cone,
-            max_step=MAX_CONE_STEPSIZE,
+            max_step=self._max_step,
             tau_sig=c.tau_sig,
             tau_cw=c.tau_cw,
             t_min=c.t_min,
