@@ -13,6 +13,7 @@ import numpy as np
 
 from divas_kernels import (
     NgpMarchSettings,
+    eval_ngp_points,
     raymarch_ngp,
     resolve_device,
     upload_ngp_network,
@@ -25,7 +26,7 @@ from ..scene import DensityGrid
 from .buffers import RenderBuffers
 from .config import RenderConfig
 
-__all__ = ["NgpRenderer", "has_ngp_network"]
+__all__ = ["NgpRenderer", "has_ngp_network", "bake_network_colors"]
 
 _GRID_TYPES = {"Hash": 0, "Dense": 1, "Tiled": 2}
 
@@ -33,6 +34,47 @@ _GRID_TYPES = {"Hash": 0, "Dense": 1, "Tiled": 2}
 def has_ngp_network(grid: DensityGrid) -> bool:
     """Whether ``grid`` carries an instant-ngp network (``io.instant_ngp.NgpField``)."""
     return getattr(grid.network, "kind", None) == "instant-ngp"
+
+
+#: directions the baked colour averages over: the six axes of the NeRF frame
+_BAKE_DIRS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+
+
+def _upload(field, device):
+    net, spec = field.network, field.network.grid
+    return upload_ngp_network(
+        net.table,
+        np.asarray(spec.offsets),
+        np.array([spec.level_scale(lv) for lv in range(spec.n_levels)]),
+        np.array([spec.level_resolution(lv) for lv in range(spec.n_levels)]),
+        _GRID_TYPES[spec.grid_type],
+        net.density_layers,
+        net.rgb_layers,
+        net.density_out,
+        net.aabb,
+        net.hdr,
+        device,
+    )
+
+
+def bake_network_colors(grid: DensityGrid, device=None, min_density: float = 0.0) -> np.ndarray:
+    """``[D,H,W,3]`` float32: the network's colour at the centre of every voxel denser than
+    ``min_density``, averaged over the six axis directions (a view-independent colour for
+    displays that cannot evaluate the network, e.g. a Blender volume); 0 elsewhere."""
+    if not has_ngp_network(grid):
+        raise ValueError("bake_network_colors: the grid carries no instant-ngp network")
+    field = grid.network
+    buf = _upload(field, resolve_device(device))
+    iz, iy, ix = np.nonzero(grid.density > min_density)
+    centres = grid.aabb[0] + (np.stack([ix, iy, iz], 1) + 0.5) * grid.voxel_size
+    scale, offset, axes = field.frame
+    q = (centres * scale + offset)[:, list(axes)]
+    acc = np.zeros((len(q), 3), np.float64)
+    for d in _BAKE_DIRS:
+        acc += eval_ngp_points(buf, q, np.broadcast_to(d, q.shape))[:, :3]
+    out = np.zeros(grid.density.shape + (3,), np.float32)
+    out[iz, iy, ix] = (acc / len(_BAKE_DIRS)).astype(np.float32)
+    return out
 
 
 class NgpRenderer:
@@ -53,20 +95,7 @@ class NgpRenderer:
         self.grid_shape = tuple(grid.density.shape)
         self.grid_aabb = np.asarray(grid.aabb, np.float64)
         field = grid.network
-        net, spec = field.network, field.network.grid
-        self._net = upload_ngp_network(
-            net.table,
-            np.asarray(spec.offsets),
-            np.array([spec.level_scale(lv) for lv in range(spec.n_levels)]),
-            np.array([spec.level_resolution(lv) for lv in range(spec.n_levels)]),
-            _GRID_TYPES[spec.grid_type],
-            net.density_layers,
-            net.rgb_layers,
-            net.density_out,
-            net.aabb,
-            net.hdr,
-            self.device,
-        )
+        self._net = _upload(field, self.device)
         self._occ = upload_ngp_occupancy(field.occupancy(), self.device)
         self._frame = field.frame
         self._box = field.box
