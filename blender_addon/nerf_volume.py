@@ -5,9 +5,10 @@ Blender builds volume grids only from OpenVDB files, so a grid is written by the
 when the grid has colour — its RGB grid, or an instant-ngp network's colour baked at the
 voxels) into the extension's user folder, keyed by content, and a Volume datablock reads
 it. The material is a Principled Volume whose density is the ``density`` grid and whose
-colour is the ``color`` grid (a neutral grey without one), so Cycles and EEVEE render the
-medium the grid describes (σ per unit; the object's transform carries the axis
-conversion only, no scale).
+colour is the ``color`` grid (decoded to linear; a neutral grey without one), emitted as
+a NeRF renders it (``_material``), so Cycles and EEVEE show the medium the grid
+describes (σ per unit; the object's transform carries the axis conversion only, no
+scale).
 
 On import the Volume is the display of the grid's session object (the point cloud of
 occupied voxels the DivAS session works on, drawn as its bounds and hidden in renders);
@@ -81,12 +82,18 @@ def write_grid_vdb(grid: DensityGrid, density: np.ndarray | None, tag: str) -> P
         h.update(np.asarray(rgb, np.float32).tobytes())
     path = volume_dir() / f"{tag}_{h.hexdigest()[:16]}.vdb"
     if not path.is_file():
-        shown = DensityGrid(dens, grid.aabb, rgb)
-        write_vdb(path, shown)
+        from divas_engine.point_attributes import srgb_to_linear
+
+        # NeRF colours are display-referred; Blender emits linear light
+        lin = None if rgb is None else srgb_to_linear(np.clip(rgb, 0, 1)).astype(np.float32)
+        write_vdb(path, DensityGrid(dens, grid.aabb, lin))
     return path
 
 
 def _material() -> bpy.types.Material:
+    """NeRF's own image formation, ``C = ∫ T σ c dt``: an absorbing medium of coefficient
+    σ (``density``) that emits ``σ c`` (``color``, grey without one); no scattering, so the
+    volume looks as the NeRF renders it whatever the scene's lights."""
     mat = bpy.data.materials.get(MATERIAL)
     if mat is not None:
         return mat
@@ -96,26 +103,33 @@ def _material() -> bpy.types.Material:
     nt = mat.node_tree
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
-    vol = nt.nodes.new("ShaderNodeVolumePrincipled")
-    attr = nt.nodes.new("ShaderNodeAttribute")
-    attr.attribute_name = "color"
-    # no colour grid: the attribute reads 0; mix towards grey by the grid's own alpha
-    mix = nt.nodes.new("ShaderNodeMix")
-    mix.data_type = "RGBA"
-    mix.inputs["A"].default_value = (0.7, 0.7, 0.7, 1.0)
+    dens = nt.nodes.new("ShaderNodeAttribute")
+    dens.attribute_name = "density"
+    col = nt.nodes.new("ShaderNodeAttribute")
+    col.attribute_name = "color"
+    # no colour grid: the attribute reads 0 everywhere; show grey there
+    length = nt.nodes.new("ShaderNodeVectorMath")
+    length.operation = "LENGTH"
     has = nt.nodes.new("ShaderNodeMath")
     has.operation = "GREATER_THAN"
     has.inputs[1].default_value = 0.0
-    length = nt.nodes.new("ShaderNodeVectorMath")
-    length.operation = "LENGTH"
-    nt.links.new(attr.outputs["Vector"], length.inputs[0])
+    mix = nt.nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    mix.inputs["A"].default_value = (0.45, 0.45, 0.45, 1.0)
+    nt.links.new(col.outputs["Vector"], length.inputs[0])
     nt.links.new(length.outputs["Value"], has.inputs[0])
     nt.links.new(has.outputs["Value"], mix.inputs["Factor"])
-    nt.links.new(attr.outputs["Color"], mix.inputs["B"])
-    nt.links.new(mix.outputs["Result"], vol.inputs["Color"])
-    vol.inputs["Density"].default_value = 1.0
-    vol.inputs["Density Attribute"].default_value = "density"
-    nt.links.new(vol.outputs["Volume"], out.inputs["Volume"])
+    nt.links.new(col.outputs["Color"], mix.inputs["B"])
+    absorb = nt.nodes.new("ShaderNodeVolumeAbsorption")
+    absorb.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    nt.links.new(dens.outputs["Fac"], absorb.inputs["Density"])
+    emit = nt.nodes.new("ShaderNodeEmission")
+    nt.links.new(mix.outputs["Result"], emit.inputs["Color"])
+    nt.links.new(dens.outputs["Fac"], emit.inputs["Strength"])
+    add = nt.nodes.new("ShaderNodeAddShader")
+    nt.links.new(absorb.outputs["Volume"], add.inputs[0])
+    nt.links.new(emit.outputs["Emission"], add.inputs[1])
+    nt.links.new(add.outputs["Shader"], out.inputs["Volume"])
     return mat
 
 
