@@ -11,34 +11,14 @@ import pytest
 from divas_engine import load_scene
 from divas_engine.io.instant_ngp import NgpFrame, write_ngp_document
 from divas_engine.io.instant_ngp_writer import BASE_CONFIG, snapshot_document
-from divas_engine.io.ngp_network import NgpNetwork
 from divas_engine.render import RenderConfig, make_renderer
-from divas_engine.render.ngp_renderer import NgpRenderer
+from divas_engine.render.ngp_renderer import NgpRenderer, upload_network
 from divas_engine.scene import DensityGrid
 from divas_engine.synthetic.ngp_snapshot import snapshot_of_grid
-from divas_kernels import eval_ngp_points, upload_ngp_network
+from divas_kernels import eval_ngp_points
 
 from .ngp_cases import look_at_camera, small_config
 from .ngp_reference import random_network, reference_eval
-
-_TYPES = {"Hash": 0, "Dense": 1, "Tiled": 2}
-
-
-def _upload(net: NgpNetwork, device):
-    g = net.grid
-    return upload_ngp_network(
-        net.table,
-        np.asarray(g.offsets),
-        np.array([g.level_scale(lv) for lv in range(g.n_levels)]),
-        np.array([g.level_resolution(lv) for lv in range(g.n_levels)]),
-        _TYPES[g.grid_type],
-        net.density_layers,
-        net.rgb_layers,
-        net.density_out,
-        net.aabb,
-        net.hdr,
-        device,
-    )
 
 
 def _configs():
@@ -59,7 +39,7 @@ def test_network_matches_float64_reference(device, name):
     pts = net.aabb[0] + rng.random((3000, 3)) * (net.aabb[1] - net.aabb[0])
     d = rng.standard_normal((3000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    got = eval_ngp_points(_upload(net, device), pts, d)
+    got = eval_ngp_points(upload_network(net, device), pts, d)
     ref = reference_eval(net, pts, d)
     # float32 kernels vs float64: a few 1e-4 over 64-wide layers
     assert np.allclose(got, ref, rtol=1e-3, atol=1e-3), np.abs(got - ref).max(0)

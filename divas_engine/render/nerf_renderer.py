@@ -14,10 +14,53 @@ from .buffers import RenderBuffers
 from .config import RenderConfig
 from .grid_shading import shaded_rgb, wants_shading
 
-__all__ = ["NerfRenderer"]
+__all__ = ["NerfRenderer", "MarchedViews"]
 
 
-class NerfRenderer:
+class MarchedViews:
+    """``render`` and ``render_values`` of a ray-marcher whose ``_run(camera, values)``
+    returns a :class:`kernels.composite.PixelOut` (the depth tuple per NOTES with
+    ``D_ref = D_exp``); ``grid_shape`` is the lattice per-voxel values live on."""
+
+    kind = SceneKind.NERF
+    grid_shape: tuple[int, int, int]
+    stats: dict | None = None
+
+    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+        cam = camera if scale == 1.0 else camera.scaled(scale)
+        o = self._run(cam, None)
+        H, W = cam.height, cam.width
+        img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
+        d_exp = img(o.d_exp)
+        return RenderBuffers(
+            rgb=o.feat.numpy().reshape(H, W, 3),
+            alpha=img(o.alpha),
+            D_min=img(o.d_min),
+            D_ref=d_exp.copy(),
+            D_max=img(o.d_max),
+            D_mw=img(o.d_mw),
+            D_exp=d_exp,
+            D_med=img(o.d_med),
+            N_samp=img(o.n_samp),
+            camera=cam,
+            kind=self.kind,
+            stats=dict(self.stats or {}),
+        )
+
+    def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        values = np.asarray(values)
+        if values.shape[:3] != self.grid_shape or values.ndim not in (3, 4):
+            raise ValueError(
+                f"render_values: expected per-voxel values of shape {self.grid_shape} "
+                f"or {self.grid_shape}+(C,), got {values.shape}"
+            )
+        cam = camera if scale == 1.0 else camera.scaled(scale)
+        f = self._run(cam, values).feat.numpy()
+        H, W = cam.height, cam.width
+        return f.reshape(H, W) if values.ndim == 3 else f.reshape(H, W, -1)
+
+
+class NerfRenderer(MarchedViews):
     """Renders a :class:`DensityGrid`; the grid is uploaded to ``device`` once.
 
     Depth tuple per NOTES with ``D_ref = D_exp`` and ``N_samp`` anchored at ``D_max``;
@@ -57,36 +100,3 @@ class NerfRenderer:
             color=self.config.nerf_color,
             background=self.config.background,
         )
-
-    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
-        cam = camera if scale == 1.0 else camera.scaled(scale)
-        o = self._run(cam, None)
-        H, W = cam.height, cam.width
-        img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
-        d_exp = img(o.d_exp)
-        return RenderBuffers(
-            rgb=o.feat.numpy().reshape(H, W, 3),
-            alpha=img(o.alpha),
-            D_min=img(o.d_min),
-            D_ref=d_exp.copy(),
-            D_max=img(o.d_max),
-            D_mw=img(o.d_mw),
-            D_exp=d_exp,
-            D_med=img(o.d_med),
-            N_samp=img(o.n_samp),
-            camera=cam,
-            kind=self.kind,
-            stats={},
-        )
-
-    def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
-        values = np.asarray(values)
-        if values.shape[:3] != self.grid_shape or values.ndim not in (3, 4):
-            raise ValueError(
-                f"render_values: expected per-voxel values of shape {self.grid_shape} "
-                f"or {self.grid_shape}+(C,), got {values.shape}"
-            )
-        cam = camera if scale == 1.0 else camera.scaled(scale)
-        f = self._run(cam, values).feat.numpy()
-        H, W = cam.height, cam.width
-        return f.reshape(H, W) if values.ndim == 3 else f.reshape(H, W, -1)

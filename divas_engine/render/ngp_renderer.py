@@ -21,12 +21,11 @@ from divas_kernels import (
 )
 
 from ..camera import Camera
-from ..kinds import SceneKind
 from ..scene import DensityGrid
-from .buffers import RenderBuffers
 from .config import RenderConfig
+from .nerf_renderer import MarchedViews
 
-__all__ = ["NgpRenderer", "has_ngp_network", "bake_network_colors"]
+__all__ = ["NgpRenderer", "has_ngp_network", "bake_network_colors", "upload_network"]
 
 _GRID_TYPES = {"Hash": 0, "Dense": 1, "Tiled": 2}
 
@@ -40,8 +39,9 @@ def has_ngp_network(grid: DensityGrid) -> bool:
 _BAKE_DIRS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
 
 
-def _upload(field, device):
-    net, spec = field.network, field.network.grid
+def upload_network(net, device):
+    """Copy an :class:`~divas_engine.io.ngp_network.NgpNetwork` to ``device``."""
+    spec = net.grid
     return upload_ngp_network(
         net.table,
         np.asarray(spec.offsets),
@@ -64,7 +64,7 @@ def bake_network_colors(grid: DensityGrid, device=None, min_density: float = 0.0
     if not has_ngp_network(grid):
         raise ValueError("bake_network_colors: the grid carries no instant-ngp network")
     field = grid.network
-    buf = _upload(field, resolve_device(device))
+    buf = upload_network(field.network, resolve_device(device))
     iz, iy, ix = np.nonzero(grid.density > min_density)
     centres = grid.aabb[0] + (np.stack([ix, iy, iz], 1) + 0.5) * grid.voxel_size
     scale, offset, axes = field.frame
@@ -77,7 +77,7 @@ def bake_network_colors(grid: DensityGrid, device=None, min_density: float = 0.0
     return out
 
 
-class NgpRenderer:
+class NgpRenderer(MarchedViews):
     """Renders an instant-ngp snapshot's network; uploaded to ``device`` once.
 
     Settled here: instant-ngp's step ``STEPSIZE = √3/1024`` NeRF units (cone stepping
@@ -85,7 +85,7 @@ class NgpRenderer:
     colour only for samples of weight ≥ ``COLOR_MIN_WEIGHT`` (``kernels/raymarch_ngp.py``).
     """
 
-    kind = SceneKind.NERF
+    stats = {"source": "network"}
 
     def __init__(self, grid: DensityGrid, device=None, config: RenderConfig | None = None):
         if not has_ngp_network(grid):
@@ -95,7 +95,7 @@ class NgpRenderer:
         self.grid_shape = tuple(grid.density.shape)
         self.grid_aabb = np.asarray(grid.aabb, np.float64)
         field = grid.network
-        self._net = _upload(field, self.device)
+        self._net = upload_network(field.network, self.device)
         self._occ = upload_ngp_occupancy(field.occupancy(), self.device)
         self._frame = field.frame
         self._box = field.box
@@ -135,36 +135,3 @@ class NgpRenderer:
             values_aabb=self.grid_aabb,
             background=self.config.background,
         )
-
-    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
-        cam = camera if scale == 1.0 else camera.scaled(scale)
-        o = self._run(cam, None)
-        H, W = cam.height, cam.width
-        img = lambda a: a.numpy().reshape(H, W)  # noqa: E731
-        d_exp = img(o.d_exp)
-        return RenderBuffers(
-            rgb=o.feat.numpy().reshape(H, W, 3),
-            alpha=img(o.alpha),
-            D_min=img(o.d_min),
-            D_ref=d_exp.copy(),
-            D_max=img(o.d_max),
-            D_mw=img(o.d_mw),
-            D_exp=d_exp,
-            D_med=img(o.d_med),
-            N_samp=img(o.n_samp),
-            camera=cam,
-            kind=self.kind,
-            stats={"source": "network"},
-        )
-
-    def render_values(self, camera: Camera, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
-        values = np.asarray(values)
-        if values.shape[:3] != self.grid_shape or values.ndim not in (3, 4):
-            raise ValueError(
-                f"render_values: expected per-voxel values of shape {self.grid_shape} "
-                f"or {self.grid_shape}+(C,), got {values.shape}"
-            )
-        cam = camera if scale == 1.0 else camera.scaled(scale)
-        f = self._run(cam, values).feat.numpy()
-        H, W = cam.height, cam.width
-        return f.reshape(H, W) if values.ndim == 3 else f.reshape(H, W, -1)
