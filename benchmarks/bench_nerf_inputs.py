@@ -28,6 +28,7 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 INPUTS = ("npz", "ingp_net", "ingp_grid", "vdb")
+#: also accepted by --inputs: the network snapshot with its grid marched (network colour)
+EXTRA_INPUTS = ("ingp_net_gridviews",)
 
 
 def _write_input(kind: str, sc, d: Path) -> Path:
@@ -46,7 +49,7 @@ def _write_input(kind: str, sc, d: Path) -> Path:
     if kind == "npz":
         p = d / "ribs.npz"
         write_density_grid(p, sc.grid)
-    elif kind == "ingp_net":
+    elif kind in ("ingp_net", "ingp_net_gridviews"):
         p = d / "ribs_net.ingp"
         write_ngp_document(p, snapshot_of_grid(sc.grid, sc.cameras, network=True), True)
     elif kind == "ingp_grid":
@@ -139,14 +142,17 @@ def suite(seeds, size, grid_res, inputs, say) -> list[dict]:
                 g = load_scene(path)
                 t_load = time.perf_counter() - t
                 labels = _carry(sc.grid, sc.grid_labels, g) & (g.density > 0)
-                base = make_renderer(g, device="cpu", config=cfg.session.render)
+                rcfg = cfg.session.render
+                if kind == "ingp_net_gridviews":
+                    rcfg = replace(rcfg, nerf_network=False)
+                base = make_renderer(g, device="cpu", config=rcfg)
                 renderer = CachingRenderer(base)
                 cam = sc.test_cameras[0]
                 base.render(cam)
                 t = time.perf_counter()
                 base.render(cam)
                 t_view = time.perf_counter() - t
-                session_cfg = variant_config("full", cfg.session)
+                session_cfg = replace(variant_config("full", cfg.session), render=rcfg)
                 t_click = _click_to_fused(g, sc, labels, base, session_cfg)
                 t = time.perf_counter()
                 out = run_session(

@@ -123,3 +123,10 @@ def test_network_views_look_like_the_grid_they_encode(device, tmp_path):
     # the red box is red and the blue box blue through the network
     red = both & (a.rgb[..., 0] > a.rgb[..., 2])
     assert red.any() and (b.rgb[red][:, 0] > b.rgb[red][:, 2]).mean() > 0.9
+    # the grid marched instead of the network: the network's colour baked at the voxels
+    c = make_renderer(g, device=device, config=RenderConfig(nerf_network=False))
+    assert not isinstance(c, NgpRenderer)
+    cb = c.render(cam)
+    mc = cb.alpha > 0.5
+    assert (mc & mb).sum() / (mc | mb).sum() > 0.9
+    assert (cb.rgb[red & mc][:, 0] > cb.rgb[red & mc][:, 2]).mean() > 0.9

@@ -65,6 +65,8 @@ def _draw_settings(layout, context, ref) -> None:
         box.label(text=f"Backbone: {backbone_of(ref)}")
     box.prop(props, "preset")
     box.prop(props, "render_scale")
+    if ref is not None and ref.format in ("ingp", "msgpack"):
+        box.prop(props, "nerf_network")
     col = box.column(align=True)
     col.active = ref is None or ref.kind != "grid"  # NeRF: the preset's constants
     col.prop(props, "see_through_gap")

@@ -105,6 +105,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--scale", type=float, default=1.0, help="render scale of every view (default 1)"
     )
     p.add_argument(
+        "--grid-views",
+        action="store_true",
+        help="instant-ngp snapshots: march the density grid (the network's colour baked in) "
+        "instead of rendering views from the network (much faster on a CPU)",
+    )
+    p.add_argument(
         "--device",
         choices=("auto", "cpu", "cuda"),
         default="auto",
@@ -216,6 +222,7 @@ def segment_scene(
     completion: bool = True,
     resume: bool = False,
     report_path: Path | None = None,
+    grid_views: bool = False,
 ) -> tuple[dict[str, Any], Any]:
     """The whole ``divas segment`` pipeline; returns ``(report, session)``.
 
@@ -286,6 +293,10 @@ def segment_scene(
         mask_channel=int(mask_channel),
         autosave=None if session_path is None else str(session_path),
     )
+    if grid_views:
+        from dataclasses import replace
+
+        config = replace(config, render=replace(config.render, nerf_network=False))
     if not completion:
         from dataclasses import replace
 
@@ -497,6 +508,7 @@ def run(args: argparse.Namespace) -> int:
             completion=not args.no_completion,
             resume=args.resume,
             report_path=args.report,
+            grid_views=args.grid_views,
         )
     except DivasInputError as e:
         if args.report is not None and getattr(e, "report", None) is not None:

@@ -57,10 +57,12 @@ def openvdb_module():
     if spec is None or not spec.origin:
         return None
     root = os.path.dirname(spec.origin)
-    pattern = os.path.join(root, "*", "python", "lib", "python3*", "site-packages", "openvdb*.so")
-    for so in sorted(glob.glob(pattern)) + sorted(glob.glob(pattern[:-3] + ".pyd")):
+    site = os.path.join(root, "*", "python", "lib", "python3*", "site-packages")
+    found = [p for ext in (".so", ".pyd") for p in glob.glob(os.path.join(site, "*openvdb*" + ext))]
+    for so in sorted(found):
+        name = os.path.basename(so).split(".")[0]  # openvdb (Blender ≥ 4.4) or pyopenvdb
         try:
-            s = importlib.util.spec_from_file_location("openvdb", so)
+            s = importlib.util.spec_from_file_location(name, so)
             mod = importlib.util.module_from_spec(s)
             s.loader.exec_module(mod)
             return mod

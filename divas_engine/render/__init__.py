@@ -35,7 +35,7 @@ def make_renderer(
     if isinstance(scene, DensityGrid):
         from .ngp_renderer import NgpRenderer, has_ngp_network
 
-        if has_ngp_network(scene):
+        if has_ngp_network(scene) and (config is None or config.nerf_network):
             return NgpRenderer(scene, device=device, config=config)
         from .nerf_renderer import NerfRenderer
 

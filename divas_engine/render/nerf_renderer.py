@@ -69,8 +69,10 @@ class NerfRenderer(MarchedViews):
     edge`` from the AABB entry (the last one ends at the exit), sampled at their
     midpoints; every sample with α > 0 is blended, those with α ≥ 1/255 are
     "contributing" (``N_samp``, the ``D_max`` fallback); ``D_med`` is reported too.
-    Without an RGB grid the colour is ``config.nerf_color``, or the grid's shape
-    (:mod:`.grid_shading`) when ``config.shade_grid`` asks for it.
+    Without an RGB grid the colour is an instant-ngp network's baked at the voxels (a grid
+    marched instead of its network, ``config.nerf_network`` off), else
+    ``config.nerf_color``, or the grid's shape (:mod:`.grid_shading`) when
+    ``config.shade_grid`` asks for it.
     """
 
     kind = SceneKind.NERF
@@ -80,7 +82,11 @@ class NerfRenderer(MarchedViews):
         self.device = resolve_device(device)
         self.grid_shape = tuple(grid.density.shape)
         rgb = grid.rgb
-        if wants_shading(grid, self.config.shade_grid):
+        if rgb is None and grid.network is not None:  # the grid marched, the network's colour
+            from .ngp_renderer import bake_network_colors
+
+            rgb = bake_network_colors(grid, self.device)
+        elif wants_shading(grid, self.config.shade_grid):
             rgb = shaded_rgb(grid)
         self.shaded = rgb is not grid.rgb
         self._buf = upload_grid(grid.density, grid.aabb, rgb, self.device)
