@@ -11,9 +11,10 @@ loaded back, its ground truth carried to the loaded lattice (nearest cell), and 
 by the suite's protocol (simulated user, SAM-like oracle, DivAS full; views rendered at
 ``--scale``, 0.5, for every input alike: the network's views cost seconds on a CPU). A
 snapshot's ground truth marks every cell a labelled voxel's centre falls in. The selection is
-scored at the held-out test cameras two ways: on the input's own views (the selection's
-opacity through the input's own renderer ≥ ½ against the true object's masks rendered from
-the source grid, cameras at ``--scale``) and carried back to the source lattice (nearest
+scored at the held-out test cameras two ways: on the input's own lattice (the segmented
+grid rendered alone, opacity ≥ ½ — what the masked export and the segmented Volume hold —
+against the true object's masks rendered from the source grid, cameras at ``--scale``)
+and carried back to the source lattice (nearest
 cell; image IoU per NOTES "Evaluation", and alpha fidelity: the selected true voxels'
 rendered weight inside the true silhouette over all true voxels' weight). Render
 time per view: one test camera at full size with the input's own renderer, after a
@@ -92,12 +93,18 @@ def _carry_labels(src_grid, labels: np.ndarray, dst_grid) -> np.ndarray:
     return (num >= 0.5 * den) & (den > 0) & (dst_grid.density > 0)
 
 
-def _own_view_iou(renderer, sel, cams, gt_masks) -> float:
-    """Mean IoU of the selection's rendered opacity (``≥ ½``, the input's own renderer and
-    weights) against the true object's masks from the source grid."""
+def _own_view_iou(grid, sel, cams, gt_masks) -> float:
+    """Mean IoU of the segmented grid rendered alone (density zeroed outside the selection,
+    the loaded lattice: what the masked export and the segmented Volume hold; opacity ≥ ½)
+    against the true object's masks rendered from the source grid (NOTES "Evaluation")."""
+    from divas_engine.render import RenderConfig, make_renderer
+    from divas_engine.scene import DensityGrid
+
+    masked = DensityGrid(np.where(sel, grid.density, 0).astype(np.float32), grid.aabb)
+    r = make_renderer(masked, device="cpu", config=RenderConfig(shade_grid=False))
     ious = []
     for cam, gt in zip(cams, gt_masks):
-        p = renderer.render_values(cam, sel.astype(np.float32)) >= 0.5
+        p = r.render(cam).alpha >= 0.5
         union = int((p | gt).sum())
         ious.append(int((p & gt).sum()) / union if union else 1.0)
     return float(np.mean(ious))
@@ -203,13 +210,13 @@ def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]
                 t_session = time.perf_counter() - t
                 sel = _carry(g, out.selection, sc.grid)
                 score = ev.score({kind: sel})[kind]
-                own = _own_view_iou(base, out.selection, own_cams, own_gt)
+                own = _own_view_iou(g, out.selection, own_cams, own_gt)
                 fid = _alpha_fidelity(sc.grid, sc.test_cameras, sc.grid_labels, sel, ev.gt_masks)
                 fused = sum(1 for _, st, _ in out.statuses if st == "fused")
                 row = {
                     "seed": seed,
                     "input": kind,
-                    "image_iou_own_views": round(own, 4),
+                    "image_iou_own_lattice": round(own, 4),
                     "image_iou_source_lattice": round(score.iou, 4),
                     "alpha_fidelity": round(fid, 4),
                     "render_view_s": round(t_view, 3),
