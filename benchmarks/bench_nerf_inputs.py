@@ -95,16 +95,13 @@ def _carry_labels(src_grid, labels: np.ndarray, dst_grid) -> np.ndarray:
 
 def _own_view_iou(grid, sel, cams, gt_masks) -> float:
     """Mean IoU of the segmented grid rendered alone (density zeroed outside the selection,
-    the loaded lattice: what the masked export and the segmented Volume hold; opacity ≥ ½)
-    against the true object's masks rendered from the source grid (NOTES "Evaluation")."""
-    from divas_engine.render import RenderConfig, make_renderer
-    from divas_engine.scene import DensityGrid
+    on the loaded lattice: what the masked export and the segmented Volume hold; opacity
+    ≥ ½, NOTES "Evaluation") against the true object's masks from the source grid."""
+    from divas_engine.evaluation.metrics import predicted_masks
 
-    masked = DensityGrid(np.where(sel, grid.density, 0).astype(np.float32), grid.aabb)
-    r = make_renderer(masked, device="cpu", config=RenderConfig(shade_grid=False))
+    pred = predicted_masks(grid, cams, {"s": sel})["s"]
     ious = []
-    for cam, gt in zip(cams, gt_masks):
-        p = r.render(cam).alpha >= 0.5
+    for p, gt in zip(pred, gt_masks):
         union = int((p | gt).sum())
         ious.append(int((p & gt).sum()) / union if union else 1.0)
     return float(np.mean(ious))
@@ -153,7 +150,7 @@ def _click_to_fused(grid, sc, labels, renderer, cfg) -> float:
 
 def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]:
     from divas_engine import load_scene
-    from divas_engine.evaluation.metrics import ViewEvaluator
+    from divas_engine.evaluation.metrics import ViewEvaluator, ground_truth_masks
     from divas_engine.evaluation.pipeline import (
         CachingRenderer,
         make_segmenter,
@@ -172,9 +169,7 @@ def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]
         sc = generate_scene("ribs", size=size, seed=seed, grid_resolution=grid_res)
         ev = ViewEvaluator(sc.grid, sc.test_cameras, sc.grid_labels, config=cfg.eval)
         own_cams = [c.scaled(render_scale) for c in sc.test_cameras]
-        src_r = make_renderer(sc.grid, device="cpu")
-        lab = sc.grid_labels.astype(np.float32)
-        own_gt = [src_r.render_values(c, lab) >= 0.5 for c in own_cams]
+        own_gt = ground_truth_masks(sc.grid, own_cams, sc.grid_labels, config=cfg.eval)
         with tempfile.TemporaryDirectory() as tmp:
             for kind in inputs:
                 t = time.perf_counter()
@@ -208,6 +203,7 @@ def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]
                     user=ScriptedUser(labels, cfg.user),
                 )
                 t_session = time.perf_counter() - t
+                np.save(Path(tempfile.gettempdir()) / f"nerf_sel_{kind}_{seed}.npy", out.selection)
                 sel = _carry(g, out.selection, sc.grid)
                 score = ev.score({kind: sel})[kind]
                 own = _own_view_iou(g, out.selection, own_cams, own_gt)
