@@ -1,8 +1,8 @@
 """The synthetic NeRF suite through every NeRF input, and the NeRF figures of the add-on.
 
     python benchmarks/bench_nerf_inputs.py [--seeds 0,1] [--size 20000] [--grid 128]
-        [--inputs npz,ingp_net,ingp_grid,vdb] [--scale 0.5] [--no-suite] [--blender]
-    [--blender-side 256]
+        [--inputs npz,ingp_net,ingp_grid,vdb] [--scale 0.5] [--segmenter oracle|classic]
+    [--shade auto|on|off] [--no-suite] [--blender] [--blender-side 256]
 
 Suite: the ``ribs`` NeRF grid of ``divas eval`` (seeds ``--seeds``) written as this
 project's ``.npz``, as instant-ngp snapshots with the network that reproduces it and
@@ -148,7 +148,9 @@ def _click_to_fused(grid, sc, labels, renderer, cfg) -> float:
     return float("nan")
 
 
-def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]:
+def suite(
+    seeds, size, grid_res, inputs, say, render_scale: float, segmenter="oracle", shade=None
+) -> list[dict]:
     from divas_engine import load_scene
     from divas_engine.evaluation.metrics import ViewEvaluator, ground_truth_masks
     from divas_engine.evaluation.pipeline import (
@@ -179,7 +181,7 @@ def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]
                 g = load_scene(path)
                 t_load = time.perf_counter() - t
                 labels = _carry_labels(sc.grid, sc.grid_labels, g)
-                rcfg = cfg.session.render
+                rcfg = replace(cfg.session.render, shade_grid=shade)
                 if kind == "ingp_net_gridviews":
                     rcfg = replace(rcfg, nerf_network=False)
                 base = make_renderer(g, device="cpu", config=rcfg)
@@ -196,7 +198,7 @@ def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]
                     g,
                     sc.cameras,
                     labels,
-                    segmenter=make_segmenter("oracle", seed),
+                    segmenter=make_segmenter(segmenter, seed),
                     config=session_cfg,
                     device="cpu",
                     renderer=renderer,
@@ -212,6 +214,8 @@ def suite(seeds, size, grid_res, inputs, say, render_scale: float) -> list[dict]
                 row = {
                     "seed": seed,
                     "input": kind,
+                    "segmenter": segmenter,
+                    "shade_grid": shade,
                     "image_iou_own_lattice": round(own, 4),
                     "image_iou_source_lattice": round(score.iou, 4),
                     "alpha_fidelity": round(fid, 4),
@@ -267,6 +271,10 @@ def main(argv=None) -> int:
     p.add_argument("--grid", type=int, default=128)
     p.add_argument("--inputs", default=",".join(INPUTS))
     p.add_argument("--scale", type=float, default=0.5, help="session render scale (0.5)")
+    p.add_argument("--segmenter", default="oracle", help="oracle (default) or classic")
+    p.add_argument(
+        "--shade", choices=("auto", "on", "off"), default="auto", help="RenderConfig.shade_grid"
+    )
     p.add_argument("--no-suite", action="store_true")
     p.add_argument("--blender", action="store_true")
     p.add_argument("--blender-side", type=int, default=256)
@@ -276,7 +284,9 @@ def main(argv=None) -> int:
     summary: dict = {}
     if not a.no_suite:
         seeds = [int(s) for s in a.seeds.split(",")]
-        summary["suite"] = suite(seeds, a.size, a.grid, a.inputs.split(","), say, a.scale)
+        shade = {"auto": None, "on": True, "off": False}[a.shade]
+        inputs = a.inputs.split(",")
+        summary["suite"] = suite(seeds, a.size, a.grid, inputs, say, a.scale, a.segmenter, shade)
     if a.blender:
         summary["blender"] = blender_import(a.blender_side, say)
     print(json.dumps(summary))
