@@ -26,7 +26,8 @@ class MarchedViews:
     grid_shape: tuple[int, int, int]
     stats: dict | None = None
 
-    def render(self, camera: Camera, scale: float = 1.0) -> RenderBuffers:
+    def render(self, camera: Camera, scale: float = 1.0, *, attached: bool = True) -> RenderBuffers:
+        """RGB and the depth tuple (``attached``: a grid has no extra channels to attach)."""
         cam = camera if scale == 1.0 else camera.scaled(scale)
         o = self._run(cam, None)
         H, W = cam.height, cam.width
