@@ -18,6 +18,13 @@ bpy = pytest.importorskip("bpy")
 pytestmark = pytest.mark.skipif(openvdb_module() is None, reason="no OpenVDB module")
 
 
+@pytest.fixture(autouse=True)
+def volumes_in_tmp(tmp_path_factory, monkeypatch):
+    """The volumes' .vdb files go to a temporary folder, not the user's Blender folder."""
+    folder = tmp_path_factory.mktemp("volumes")
+    monkeypatch.setattr(nerf_volume, "volume_dir", lambda: folder)
+
+
 @pytest.fixture(scope="module")
 def ribs_ngp(tmp_path_factory):
     """The ribs grid (32 cells) as instant-ngp snapshots with and without a network, its
