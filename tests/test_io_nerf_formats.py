@@ -155,3 +155,18 @@ def test_cli_on_a_snapshot(tmp_path, capsys):
     assert main(["anchors", str(p), "--out", str(tmp_path / "a"), "--no-render"]) == 0
     doc = json.loads((tmp_path / "a" / "anchors.json").read_text())
     assert doc["cameras_file"] == "scene file"
+    # segment through the snapshot's own camera (the oracle on the ball's voxels)
+    g = load_scene(p)
+    np.save(tmp_path / "gt.npy", g.density > 0)
+    uv, _ = cam.project(np.array([[0.3, -0.2, 0.1]]))
+    prompts = {
+        "version": 1,
+        "anchors": [{"training_camera": "t0", "clicks": [{"xy": uv[0].tolist()}]}],
+    }
+    (tmp_path / "p.json").write_text(json.dumps(prompts))
+    out = tmp_path / "sel.ingp"
+    argv = ["segment", str(p), "--prompts", str(tmp_path / "p.json"), "--out", str(out)]
+    argv += ["--segmenter", "oracle", "--gt-labels", str(tmp_path / "gt.npy"), "--no-progress"]
+    assert main(argv) == 0
+    m = load_scene(out)
+    assert m.source.format == "ingp" and 0 < int((m.density > 0).sum()) < int((g.density > 0).sum())
