@@ -19,10 +19,12 @@ test: $(PY)
 	$(MAKE) --no-print-directory lint
 	$(PY) -m pytest -q
 
-# SAM with real model graphs (random weights, nothing downloaded): the torch extra, CPU wheel
+# SAM with real model graphs (random weights, nothing downloaded) and torch-ngp checkpoints:
+# the torch extra, CPU wheel
 test-sam: $(PY)
 	$(PY) -m pip install -q -e ".[test,torch]"
-	$(PY) -m pytest -q tests/test_sam_real_graphs.py tests/test_sam_export.py tests/test_segmenters.py
+	$(PY) -m pytest -q tests/test_sam_real_graphs.py tests/test_sam_export.py tests/test_segmenters.py \
+		tests/test_io_nerf_formats.py
 
 # Full-size ViT-B and MobileSAM (needs timm, so a working torchvision: PyPI's pairs with
 # torch 2.14.1's CUDA build, ~5.5 GB, in its own venv). Minutes of CPU, ~7 GB peak. Not in CI.

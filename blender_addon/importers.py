@@ -76,13 +76,19 @@ class SplatImportSettings:
 
 @dataclass(frozen=True)
 class GridImportSettings:
-    """``min_opacity``: voxels whose cell opacity ``1 − exp(−σ·voxel)`` is below it are skipped."""
+    """``filepath``: a NeRF density grid (.npz, instant-ngp .ingp/.msgpack, torch-ngp
+    .pth, .vdb); ``min_opacity``: voxels whose cell opacity ``1 − exp(−σ·voxel)`` is below
+    it are skipped; ``volume``: show the grid as a Volume (:mod:`.nerf_volume`) rather than
+    as points (``display``: add the points display); ``cameras``: import the training
+    cameras the file holds (an instant-ngp snapshot's)."""
 
     filepath: Path
     min_opacity: float = 0.01
     display: bool = True
     forward: str = "Y"
     up: str = "Z"
+    volume: bool = True
+    cameras: bool = True
 
 
 #: Collection the training cameras are imported into (and looked up from).
@@ -164,9 +170,7 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
     try:
         scene = load_scene(path)
         if isinstance(scene, DensityGrid):
-            raise DivasInputError(
-                path, "is a NeRF density grid; use Import › NeRF Density Grid (.npz)"
-            )
+            raise DivasInputError(path, "is a NeRF density grid; use File › Import › NeRF (DivAS)")
         wm.progress_update(1)
         source.remember_scene(scene)  # Start DivAS takes it from here (no second read)
         rot, reason = scene_conversion(scene, settings.forward, settings.up, settings.up_from_scene)
@@ -198,7 +202,9 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
 
 
 def import_density_grid(context, settings: GridImportSettings) -> bpy.types.Object:
-    """A point cloud of the grid's occupied voxels (density, opacity, colour attributes)."""
+    """A point cloud of the grid's occupied voxels (density, opacity, colour attributes):
+    the session object, shown by a Volume child (or as points); with the file's own
+    training cameras in the same frame."""
     path = Path(settings.filepath)
     grid = load_scene(path)
     if isinstance(grid, SurfelScene):
@@ -208,12 +214,48 @@ def import_density_grid(context, settings: GridImportSettings) -> bpy.types.Obje
         rot = axis_conversion(settings.forward, settings.up)
     except ValueError as e:
         raise DivasInputError(path, str(e)) from None
-    obj = _new_points_object(context, _object_name(path), table, grid, conversion_matrix(rot))
-    if settings.display:
+    frame = conversion_matrix(rot)
+    obj = _new_points_object(context, _object_name(path), table, grid, frame)
+    source.remember_scene(grid)  # Start DivAS and the segmented volume take it from here
+    if settings.volume:
+        from . import nerf_volume
+
+        nerf_volume.add_display_volume(context, obj, grid)
+    elif settings.display:
         display.add_display_modifier(obj, points=True)
     obj["divas_grid_shape"] = list(grid.density.shape)
     obj["divas_grid_aabb"] = np.asarray(grid.aabb, dtype=np.float64).ravel().tolist()
+    if settings.cameras:
+        from divas_engine.io.load import scene_cameras
+
+        cams = scene_cameras(grid)
+        if cams:
+            _add_training_cameras(context, cams, frame)
+            _activate(context, obj)
     return obj
+
+
+def _camera_objects(cams, coll, frame: np.ndarray) -> list[bpy.types.Object]:
+    """Blender cameras for ``cams`` in ``coll``, sized by the rig's spread."""
+    centres = np.array([c.center for c in cams])
+    spread = float(np.linalg.norm(centres.max(0) - centres.min(0))) if len(cams) > 1 else 1.0
+    size = max(0.02 * spread, 1e-3)
+    return [
+        camera_objects.create_camera_object(
+            c, coll, name=c.name or f"camera_{i:04d}", display_size=size, frame=frame
+        )
+        for i, c in enumerate(cams)
+    ]
+
+
+def _add_training_cameras(context, cams, frame: np.ndarray) -> list[bpy.types.Object]:
+    coll = bpy.data.collections.get(TRAINING_CAMERAS)
+    if coll is None:
+        coll = bpy.data.collections.new(TRAINING_CAMERAS)
+        context.scene.collection.children.link(coll)
+    objs = _camera_objects(cams, coll, frame)
+    camera_objects.apply_render_settings(context.scene, objs[0])
+    return objs
 
 
 def import_cameras(context, settings: CameraImportSettings) -> list[bpy.types.Object]:
@@ -239,15 +281,7 @@ def import_cameras(context, settings: CameraImportSettings) -> list[bpy.types.Ob
         raise DivasInputError(settings.filepath, str(e)) from None
     coll = bpy.data.collections.new(settings.collection_name)
     context.scene.collection.children.link(coll)
-    centres = np.array([c.center for c in cams])
-    spread = float(np.linalg.norm(centres.max(0) - centres.min(0))) if len(cams) > 1 else 1.0
-    size = max(0.02 * spread, 1e-3)
-    objs = [
-        camera_objects.create_camera_object(
-            c, coll, name=c.name or f"camera_{i:04d}", display_size=size, frame=frame
-        )
-        for i, c in enumerate(cams)
-    ]
+    objs = _camera_objects(cams, coll, frame)
     if parent is not None:
         for o in objs:
             o.parent = parent

@@ -16,6 +16,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 
 from divas_engine.fusion import GridConfig, GsFusionConfig
 from divas_engine.mapping import MappingConfig
+from divas_engine.render import RenderConfig
 from divas_engine.session import SessionConfig
 
 __all__ = [
@@ -61,6 +62,12 @@ class DIVAS_PG_session_settings(bpy.types.PropertyGroup):
         soft_min=0.1,
         soft_max=1.0,
         description="Views are rendered at this fraction of their camera's resolution",
+    )
+    nerf_network: BoolProperty(
+        name="Views From NeRF Network",
+        default=True,
+        description="Render an instant-ngp snapshot's views from its network; off: march "
+        "its density grid with the network's colour baked in (much faster on a CPU)",
     )
     see_through_gap: FloatProperty(
         name="See-Through Gap (γ_ST)",
@@ -149,4 +156,5 @@ def session_config(props, *, autosave: str | None = None) -> SessionConfig:
         mask_channel=int(props.mask_channel),
         seed=int(props.seed),
         autosave=autosave,
+        render=replace(RenderConfig(), nerf_network=bool(props.nerf_network)),
     )

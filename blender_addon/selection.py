@@ -111,8 +111,17 @@ def export_selection(obj, settings: ExportSettings) -> ExportResult:
     out.parent.mkdir(parents=True, exist_ok=True)
     matrix = export_matrix(obj, ExportTransform(settings.transform))
     if matrix is None:
-        return engine_export(scene, mask, out, labels_path=labels)
+        vdb = _vdb_beside(out) if ref.kind == "grid" and ref.format != "vdb" else None
+        return engine_export(scene, mask, out, labels_path=labels, vdb_path=vdb)
     return export_transformed_selection(scene, mask, out, matrix, labels_path=labels)
+
+
+def _vdb_beside(out: Path) -> Path | None:
+    """``<out stem>.vdb`` for a grid export (the masked density as a volume), when an
+    OpenVDB module is there to write it."""
+    from divas_engine.io.openvdb_grid import vdb_available
+
+    return out.with_name(out.name.split(".")[0] + ".vdb") if vdb_available() else None
 
 
 def export_matrix(obj, transform: ExportTransform) -> np.ndarray | None:

@@ -51,6 +51,10 @@ FORMAT_SUFFIX = {
     "spz": ".spz",
     "sog": ".sog",
     "npz": ".npz",
+    "ingp": ".ingp",
+    "msgpack": ".msgpack",
+    "torch_ngp": ".pth",
+    "vdb": ".vdb",
 }
 
 _cache: dict[str, object] = {"key": None, "scene": None}

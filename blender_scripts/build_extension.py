@@ -31,7 +31,8 @@ both, one wheel serves every Python), opencv-python-headless 50 MB (already the 
 OpenCV build: no GUI, no contrib; the classic segmenter and SOG's WebP need it, one
 ``abi3`` wheel), scipy 35 MB (KD-tree, ndimage, sparse), onnxruntime 24 MB (SAM in
 ONNX; ``--without-sam`` leaves it out for a build without SAM), zstandard 5.5 MB (.spz
-v4), psutil 0.2 MB (session memory figures), plyfile, the engine. Not bundled: NumPy
+v4), msgpack 0.4 MB (instant-ngp snapshots), psutil 0.2 MB (session memory figures),
+plyfile, the engine. Not bundled: NumPy
 (Blender ships its own, and a second copy would shadow it), tqdm (progress bars of the
 command line only; the add-on never imports it), and every test/development dependency
 (bpy, pytest, onnx, ruff — the ``test`` extra).
@@ -62,6 +63,7 @@ PINNED = {
     "scipy": "1.17.1",
     "plyfile": "1.1.3",
     "zstandard": "0.25.0",
+    "msgpack": "1.2.4",
     "psutil": "7.2.2",
     "threadpoolctl": "3.8.0",
 }

@@ -8,8 +8,10 @@
   folder (:mod:`.io.lod_subset`).
 * ``labels.npy``: bool per *input* primitive (file row order; rows dropped on
   load for NaN/Inf are False).
-* Density grids: a masked ``.npz`` (density zeroed outside the selection, plus
-  the boolean ``mask``).
+* Density grids: the masked grid in its source's format — ``.npz`` (density zeroed
+  outside the selection, plus the boolean ``mask``), an instant-ngp snapshot or torch-ngp
+  checkpoint whose density-grid cells are zero outside the object (the tool then renders
+  the object alone), ``.vdb`` — and optionally the masked density as ``.vdb`` too.
 """
 
 from __future__ import annotations
@@ -45,6 +47,32 @@ def _check_selection(scene: Scene, selection: np.ndarray) -> np.ndarray:
     return sel
 
 
+def _write_masked_grid(scene: DensityGrid, sel: np.ndarray, out_path: Path) -> str:
+    """The masked grid in its source's format; returns the format written."""
+    fmt = scene.source.format if scene.source is not None else "npz"
+    if fmt in ("ingp", "msgpack"):
+        from .io.instant_ngp import write_masked_instant_ngp
+
+        write_masked_instant_ngp(scene, sel, out_path)
+    elif fmt == "torch_ngp":
+        from .io.torch_ngp import write_masked_torch_ngp
+
+        write_masked_torch_ngp(scene, sel, out_path)
+    elif fmt == "vdb":
+        from .io.openvdb_grid import write_vdb
+
+        write_vdb(out_path, scene, np.where(sel, scene.density, 0).astype(np.float32))
+    else:
+        from .io.density_grid import write_density_grid
+
+        masked = DensityGrid(
+            np.where(sel, scene.density, 0).astype(np.float32), scene.aabb, scene.rgb
+        )
+        write_density_grid(out_path, masked, mask=sel)
+        fmt = "npz"
+    return fmt
+
+
 def file_labels(scene: SurfelScene, selection: np.ndarray) -> np.ndarray:
     """``[num_rows]`` bool per input-file primitive from a per-scene-primitive selection."""
     sel = _check_selection(scene, selection)
@@ -61,27 +89,32 @@ def export_selection(
     out_path: str | PathLike,
     *,
     labels_path: str | PathLike | None = None,
+    vdb_path: str | PathLike | None = None,
 ) -> ExportResult:
-    """Write the selected primitives (or voxels) of ``scene`` to ``out_path``."""
+    """Write the selected primitives (or voxels) of ``scene`` to ``out_path``; a density
+    grid also as ``vdb_path`` (the masked density as OpenVDB) when given."""
     out_path = Path(out_path)
     sel = _check_selection(scene, selection)
     src = getattr(scene, "source", None)
     sog = src is not None and src.format in ("sog", "lod")  # they check their own folders
     check_outputs(
-        [("export", None if sog else out_path), ("labels output", labels_path)],
+        [
+            ("export", None if sog else out_path),
+            ("labels output", labels_path),
+            ("OpenVDB output", vdb_path),
+        ],
         [] if src is None else [src.path],
     )
     if isinstance(scene, DensityGrid):
-        from .io.density_grid import write_density_grid
+        fmt = _write_masked_grid(scene, sel, out_path)
+        if vdb_path is not None:
+            from .io.openvdb_grid import write_vdb
 
-        masked = DensityGrid(
-            np.where(sel, scene.density, 0).astype(np.float32), scene.aabb, scene.rgb
-        )
-        write_density_grid(out_path, masked, mask=sel)
+            write_vdb(vdb_path, scene, np.where(sel, scene.density, 0).astype(np.float32))
         if labels_path is not None:
             save_npy_atomic(labels_path, sel)
         return ExportResult(
-            out_path, "npz", int(sel.sum()), None if labels_path is None else Path(labels_path)
+            out_path, fmt, int(sel.sum()), None if labels_path is None else Path(labels_path)
         )
     if not sel.any():
         raise DivasInputError(out_path, "nothing to export: the selection is empty")

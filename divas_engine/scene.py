@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ class SourceInfo:
 
     Attributes:
         path: the file that was read.
-        format: ``"ply"``, ``"compressed_ply"``, ``"splat"``, ``"spz"`` or ``"npz"``.
+        format: the :data:`~divas_engine.io.load.SCENE_FORMATS` name it was read as.
         num_rows: primitives stored in the file (before any row was dropped).
         kept: ``[N] int64`` file row of each primitive in the scene, ascending; None when
             every row is kept in order (a density grid: no per-cell index is held, so the
@@ -160,6 +161,10 @@ class DensityGrid:
         aabb: ``[2,3]`` float64 world-space min and max corners (x, y, z).
         rgb: optional ``[D,H,W,3]`` float32 colour in [0,1].
         source: the file it came from.
+        extras: format-specific facts (e.g. the snapshot an instant-ngp grid came from).
+        network: the radiance field the grid was taken from, when the file holds one
+            (e.g. :class:`divas_engine.io.ngp_network.NgpNetwork`): views are then
+            rendered from it; the grid stays the occupancy, fusion and export lattice.
     """
 
     density: np.ndarray
@@ -167,6 +172,7 @@ class DensityGrid:
     rgb: np.ndarray | None = None
     source: SourceInfo | None = None
     extras: dict = field(default_factory=dict)
+    network: Any = None
 
     @property
     def shape_xyz(self) -> tuple[int, int, int]:

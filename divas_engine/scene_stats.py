@@ -128,6 +128,15 @@ def scene_summary(scene: Scene, frame: RobustFrame | None = None) -> dict:
                 "density": _pct(scene.density[occupied]),
             }
         )
+        if "cascades" in scene.extras:  # instant-ngp snapshot
+            info["aabb_scale"] = scene.extras.get("aabb_scale")
+            info["cascades"] = scene.extras["cascades"]
+        if scene.network is not None or scene.extras.get("network_note"):
+            info["network"] = (
+                "yes: views are rendered from it"
+                if scene.network is not None
+                else scene.extras["network_note"]
+            )
     return info
 
 

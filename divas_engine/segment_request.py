@@ -77,6 +77,8 @@ class SegmentRequest:
         completion: 3DGS scenes: complete the selection beyond the paper.
         lod: level of a streamed-LOD scene (``lod-meta.json``; None: level 0, the finest;
             negative: counted from the coarsest).
+        grid_views: instant-ngp snapshots: march the density grid (the network's colour
+            baked in) instead of rendering views from the network.
     """
 
     scene: Path
@@ -101,6 +103,7 @@ class SegmentRequest:
     up: tuple[float, float, float] | None = None
     completion: bool = True
     lod: int | None = None
+    grid_views: bool = False
 
     def __post_init__(self) -> None:
         for name in _PATHS:
@@ -191,7 +194,7 @@ def _coerce(name: str, v: Any, base: Path | None, at: str) -> Any:
         if not isinstance(v, str) or not v:
             raise DivasInputError(None, f"{at}: must be a path, got {v!r}")
         return request_path(v, base, at)
-    if name in ("resume", "completion"):
+    if name in ("resume", "completion", "grid_views"):
         if not isinstance(v, bool):
             raise DivasInputError(None, f"{at}: must be true or false, got {v!r}")
         return v
@@ -344,6 +347,13 @@ def add_request_arguments(
             action="store_true",
             help="3DGS scenes: the paper's selection only, without the completion of "
             "volumetric scenes (beyond the paper, issue 15)",
+        )
+    if want("grid_views"):
+        p.add_argument(
+            "--grid-views",
+            action="store_true",
+            help="instant-ngp snapshots: march the density grid (the network's colour baked "
+            "in) instead of rendering views from the network (much faster on a CPU)",
         )
     if want("lod"):
         p.add_argument(

@@ -39,6 +39,7 @@ from .fusion_common import QSCALE, ViewData, depth_gradient_factor, upload_view_
 from .fusion_gs import GsParams, gs_fuse_view
 from .fusion_nerf import NerfGridGeom, NerfParams, make_nerf_grid_geom, nerf_fuse_view
 from .integral_image import integral_images
+from .ngp_field import NgpNetBuffers, eval_ngp_points, upload_ngp_network
 from .occupancy import (
     GridGeom,
     build_active,
@@ -58,6 +59,7 @@ from .rasterize import (
     upload_surfels,
 )
 from .raymarch import GridBuffers, MarchSettings, raymarch_grid, upload_grid
+from .raymarch_ngp import NgpMarchSettings, NgpOccupancy, raymarch_ngp, upload_ngp_occupancy
 from .scratch import ScratchPool, recycling
 from .splat import pixel_window
 
@@ -91,6 +93,14 @@ __all__: list[str] = [
     "MarchSettings",
     "raymarch_grid",
     "upload_grid",
+    # instant-ngp radiance networks
+    "NgpNetBuffers",
+    "upload_ngp_network",
+    "eval_ngp_points",
+    "NgpMarchSettings",
+    "NgpOccupancy",
+    "upload_ngp_occupancy",
+    "raymarch_ngp",
     # per-surfel blending contributions (evaluation baselines)
     "ContribOutput",
     "accumulate_contributions",

@@ -32,6 +32,7 @@ import shutil
 import signal
 import struct
 import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -164,6 +165,9 @@ FAMILIES = [
     "sog",
     "lod",
     "npz",
+    "ingp",
+    "ngp_msgpack",
+    "vdb",
     "cameras_json",
     "transforms_json",
     "colmap",
@@ -258,6 +262,31 @@ def build_seeds(work: Path, families: list[str] | None = None) -> dict[str, Fami
         p2 = work / "npz" / "seed_grid_stored.npz"
         np.savez(p2, density=dens, aabb=g.aabb)
         fams["npz"] = Family("npz", [p, p2], load_scene, check=check_scene)
+    ngp_wanted = [n for n in ("ingp", "ngp_msgpack") if need(n)]
+    if ngp_wanted:
+        from divas_engine.io.instant_ngp import write_ngp_document
+
+        from .ngp_cases import small_config, sphere_snapshot
+        from .ngp_reference import random_network
+
+        cfg = small_config(levels=2, log2_t=8, width=16)
+        net, _ = random_network(cfg, 1, seed=1)
+        doc, _ = sphere_snapshot(radius_world=0.2, network=net, config=cfg)
+        for name, comp in (("ingp", True), ("ngp_msgpack", False)):
+            if name in ngp_wanted:
+                p = work / name / ("seed.ingp" if comp else "seed.msgpack")
+                write_ngp_document(p, doc, comp)
+                fams[name] = Family(name, [p], load_scene, check=check_scene)
+    if need("vdb"):
+        from divas_engine.io.openvdb_grid import openvdb_module, write_vdb
+
+        rng = np.random.default_rng(6)
+        dens = (rng.uniform(0, 5, (6, 5, 4)) * (rng.random((6, 5, 4)) > 0.4)).astype(np.float32)
+        rgb = rng.uniform(0, 1, (6, 5, 4, 3)).astype(np.float32)
+        g = DensityGrid(dens, np.array([[-1.0, -1, -1], [1, 1, 1]]), rgb, None)
+        if openvdb_module() is not None:
+            p = write_vdb(work / "vdb" / "seed.vdb", g)
+            fams["vdb"] = Family("vdb", [p], load_scene, check=check_scene)
     cams = _cameras()
     if need("cameras_json"):
         p = save_cameras(work / "cameras_json" / "cameras.json", cams, "cameras_json")
@@ -526,7 +555,11 @@ def mutate(data: bytes, rng: random.Random, text: bool) -> bytes:
         lines[i] = b" ".join(toks)
         return b"\n".join(lines)
     if data[:2] == b"\x1f\x8b" and rng.random() < 0.4:  # mutate inside the gzip stream
-        return gzip.compress(_bytes_mutation(gzip.decompress(data), rng), mtime=0)
+        try:
+            inner = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error):  # an earlier mutation broke the stream
+            return _bytes_mutation(data, rng)
+        return gzip.compress(_bytes_mutation(inner, rng), mtime=0)
     return _bytes_mutation(data, rng)
 
 

@@ -24,6 +24,8 @@ def families(tmp_path_factory):
 @pytest.mark.parametrize("name", FAMILIES)
 def test_seeds_are_valid(families, name):
     """The unmutated seeds load cleanly (so the fuzz starts from real files)."""
+    if name not in families:
+        pytest.skip(f"{name}: no module to write its seed (OpenVDB)")
     fam = families[name]
     for s in fam.seeds:
         out, detail = run_case(fam.load, fam.check, s, 60, 1536 << 20, fam.fork)
@@ -32,6 +34,8 @@ def test_seeds_are_valid(families, name):
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_fuzz_loads_or_refuses(families, name, tmp_path):
+    if name not in families:
+        pytest.skip(f"{name}: no module to write its seed (OpenVDB)")
     fam = families[name]
     n = CASES // 3 if name == "session" else CASES
     res = run_family(fam, n, seed=14, work=tmp_path)

@@ -27,9 +27,9 @@ def _kernel_modules() -> list[str]:
 
 def test_the_kernel_modules_are_found():
     # the ones the renderers, the fusion and the mapping run, at least
-    assert {"rasterize", "tile_walk", "tile_binning", "raymarch", "fusion_gs"} <= set(
-        _kernel_modules()
-    )
+    want = {"rasterize", "tile_walk", "tile_binning", "raymarch", "fusion_gs"}
+    want |= {"ngp_field", "raymarch_ngp"}  # instant-ngp networks
+    assert want <= set(_kernel_modules())
 
 
 @pytest.mark.parametrize("name", _kernel_modules())

@@ -28,14 +28,17 @@ _TRANSFORMS = (
 
 
 class DIVAS_OT_export_selection(bpy.types.Operator):
-    """Write the points marked by 'divas_selected' as a subset of the original file"""
+    """Write the points marked by 'divas_selected' as a subset of the original file (a NeRF
+    grid: the masked grid in its own format, plus the masked density as .vdb)"""
 
     bl_idname = "divas.export_selection"
     bl_label = "Export Selection"
     bl_options = {"REGISTER"}
 
     filepath: StringProperty(name="File Path", subtype="FILE_PATH")
-    filter_glob: StringProperty(default="*.ply;*.splat;*.spz;*.npz", options={"HIDDEN"})
+    filter_glob: StringProperty(
+        default="*.ply;*.splat;*.spz;*.sog;*.npz;*.ingp;*.msgpack;*.pth;*.vdb", options={"HIDDEN"}
+    )
     write_labels: BoolProperty(
         name="Write Labels",
         default=False,

@@ -1,11 +1,11 @@
-"""File › Import › NeRF Density Grid (.npz): occupied voxels as a point cloud."""
+"""File › Import › NeRF (DivAS): a density grid as a Volume (or points) with its cameras."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import bpy
-from bpy.props import BoolProperty, FloatProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper, orientation_helper
 
 from ..importers import GridImportSettings, import_density_grid
@@ -14,14 +14,15 @@ from ..reporting import USER_ERRORS, report_failure
 
 @orientation_helper(axis_forward="Y", axis_up="Z")
 class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
-    """Import a NeRF density grid (.npz) as a point cloud of its occupied voxels"""
+    """Import a NeRF density grid (.npz, instant-ngp .ingp/.msgpack, torch-ngp .pth, .vdb)
+    as a Volume of its density (or as points), with the training cameras it holds"""
 
     bl_idname = "divas.import_density_grid"
-    bl_label = "Import NeRF Density Grid"
+    bl_label = "Import NeRF"
     bl_options = {"REGISTER", "UNDO"}
 
-    filename_ext = ".npz"
-    filter_glob: StringProperty(default="*.npz", options={"HIDDEN"})
+    filename_ext = ".ingp"
+    filter_glob: StringProperty(default="*.npz;*.ingp;*.msgpack;*.pth;*.vdb", options={"HIDDEN"})
     min_opacity: FloatProperty(
         name="Minimum Opacity",
         default=0.01,
@@ -29,7 +30,20 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
         max=1.0,
         description="Skip voxels whose cell opacity 1 - exp(-density * voxel) is below this",
     )
-    display: BoolProperty(name="Display", default=True)
+    display_as: EnumProperty(
+        name="Display",
+        items=(
+            ("VOLUME", "Volume", "A Volume object of the density (Cycles, EEVEE)"),
+            ("POINTS", "Points", "The occupied voxels as points"),
+        ),
+        default="VOLUME",
+    )
+    display: BoolProperty(name="Points Display", default=True)
+    cameras: BoolProperty(
+        name="Training Cameras",
+        default=True,
+        description="Import the training cameras the file holds (instant-ngp snapshots)",
+    )
 
     def execute(self, context):
         settings = GridImportSettings(
@@ -38,6 +52,8 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
             self.display,
             forward=self.axis_forward,
             up=self.axis_up,
+            volume=self.display_as == "VOLUME",
+            cameras=self.cameras,
         )
         try:
             obj = import_density_grid(context, settings)
@@ -50,4 +66,4 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
 
 
 def menu_func(self, context):
-    self.layout.operator(DIVAS_OT_import_density_grid.bl_idname, text="NeRF Density Grid (.npz)")
+    self.layout.operator(DIVAS_OT_import_density_grid.bl_idname, text="NeRF (DivAS)")

@@ -39,7 +39,7 @@ def _draw_import(layout) -> None:
     col = layout.column(align=True)
     col.label(text="Import")
     col.operator("divas.import_splats", text="Gaussian Splats", icon="POINTCLOUD_DATA")
-    col.operator("divas.import_density_grid", text="NeRF Density Grid", icon="VOLUME_DATA")
+    col.operator("divas.import_density_grid", text="NeRF", icon="VOLUME_DATA")
     col.operator("divas.import_cameras", text="Training Cameras", icon="CAMERA_DATA")
 
 
@@ -65,6 +65,8 @@ def _draw_settings(layout, context, ref) -> None:
         box.label(text=f"Backbone: {backbone_of(ref)}")
     box.prop(props, "preset")
     box.prop(props, "render_scale")
+    if ref is not None and ref.format in ("ingp", "msgpack"):
+        box.prop(props, "nerf_network")
     col = box.column(align=True)
     col.active = ref is None or ref.kind != "grid"  # NeRF: the preset's constants
     col.prop(props, "see_through_gap")
@@ -229,5 +231,7 @@ class DIVAS_PT_main(bpy.types.Panel):
         box.prop(context.scene, BLEND_FLAG)
         col = box.column(align=True)
         col.operator("divas.extract_selection", icon="DUPLICATE")
+        if ref.kind == "grid":
+            col.operator("divas.segmented_volume", icon="VOLUME_DATA")
         col.operator("divas.export_selection", icon="EXPORT")
         _draw_tools(layout)

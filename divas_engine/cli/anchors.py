@@ -86,7 +86,7 @@ def make_renderer(scene, device):
 
 def run(args: argparse.Namespace) -> int:
     from ..io.cameras import load_cameras
-    from ..io.load import load_scene
+    from ..io.load import load_scene, scene_cameras
     from ..scene import SurfelScene
     from ..views import plan_scene_anchors, scene_frame
 
@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     cams_path = args.cameras
     if cams_path is None and (args.scene.parent / "cameras.json").is_file():
         cams_path = args.scene.parent / "cameras.json"
-    cameras = load_cameras(cams_path) if cams_path is not None else []
+    cameras = load_cameras(cams_path) if cams_path is not None else scene_cameras(scene)
     frame = scene_frame(scene)
     kind = SceneKind.GS2D if isinstance(scene, SurfelScene) else SceneKind.NERF
     plan = plan_scene_anchors(scene, cameras, kind=kind, all_views=args.all_views, up=up)
@@ -106,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     doc = plan.to_dict()
     doc["scene"] = str(args.scene)
-    doc["cameras_file"] = None if cams_path is None else str(cams_path)
+    doc["cameras_file"] = (
+        str(cams_path) if cams_path is not None else ("scene file" if cameras else None)
+    )
     doc["r_fg"] = frame.radius
     renderer = None if args.no_render else make_renderer(scene, args.device)
     if renderer is None and not args.no_render:

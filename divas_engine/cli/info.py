@@ -87,7 +87,7 @@ def _up_info(scene, cameras_path: Path | None, up, frame) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.load import load_scene
+    from ..io.load import load_scene, scene_cameras
     from ..scene_stats import scene_summary
     from ..segment_request import parse_up
     from ..views import scene_frame
@@ -103,10 +103,13 @@ def run(args: argparse.Namespace) -> int:
     cams = args.cameras
     if cams is None and (args.path.parent / "cameras.json").is_file():
         cams = args.path.parent / "cameras.json"
+    own = scene_cameras(scene)
     if cams is not None:
         info.update(_cameras_info(cams))
     else:
-        info["camera_count"] = 0
+        info["camera_count"] = len(own)
+        if own:
+            info["cameras_file"] = "scene file"
     info.update(_up_info(scene, cams, up, frame))
     if args.json:
         print(json.dumps(info))

@@ -39,10 +39,18 @@ ORBIT_RADIUS = 2.5
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="render RGB + depth tuple of one view to PNG/NPZ")
     p.add_argument(
-        "scene", type=Path, help="scene file (.ply, compressed .ply, .splat, .spz, .npz grid)"
+        "scene",
+        type=Path,
+        help="scene file (.ply, compressed .ply, .splat, .spz, .sog, NeRF .npz/.ingp/.msgpack/"
+        ".pth/.vdb)",
     )
-    cam = p.add_mutually_exclusive_group(required=True)
-    cam.add_argument("--cameras", type=Path, help="camera file or folder (use with --index)")
+    cam = p.add_mutually_exclusive_group()
+    cam.add_argument(
+        "--cameras",
+        type=Path,
+        help="camera file or folder (use with --index; without it, --index picks one of "
+        "the scene file's own cameras: an instant-ngp snapshot's)",
+    )
     cam.add_argument(
         "--camera-json", help="one camera as JSON (Camera.to_dict schema) or a file with it"
     )
@@ -199,7 +207,21 @@ def _pick_camera(args, scene) -> Camera:
     if args.camera_json is not None:
         return parse_camera_json(args.camera_json)
     from ..io.cameras import load_cameras
+    from ..io.load import scene_cameras
 
+    if args.cameras is None:
+        cams = scene_cameras(scene)
+        if not cams or args.index is None:
+            raise DivasInputError(
+                args.scene,
+                "give a camera: --cameras FILE --index I, --camera-json or --orbit"
+                + (f" (or --index 0..{len(cams) - 1}: the file's own cameras)" if cams else ""),
+            )
+        if not 0 <= args.index < len(cams):
+            raise DivasInputError(
+                args.scene, f"camera index {args.index} out of 0..{len(cams) - 1}"
+            )
+        return cams[args.index]
     cams = load_cameras(args.cameras)
     if args.index is None:
         raise DivasInputError(args.cameras, f"--cameras needs --index (0..{len(cams) - 1})")
@@ -216,8 +238,8 @@ def run(args: argparse.Namespace) -> int:
     from .. import load_scene
     from ..render import make_renderer
 
-    if args.index is not None and args.cameras is None:
-        raise DivasInputError(None, "--index only applies to --cameras")
+    if args.index is not None and (args.camera_json is not None or args.orbit is not None):
+        raise DivasInputError(None, "--index only applies to --cameras or the scene's cameras")
     if not (math.isfinite(args.scale) and args.scale > 0):
         raise DivasInputError(None, f"--scale must be positive, got {args.scale}")
     check_render_outputs(args.out, [args.scene, args.cameras])

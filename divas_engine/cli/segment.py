@@ -116,7 +116,7 @@ def segment_scene(
     from ..evaluation.ground_truth import load_ground_truth
     from ..evaluation.session_scores import session_evaluation
     from ..io.cameras import load_cameras
-    from ..io.load import load_scene
+    from ..io.load import load_scene, scene_cameras
     from ..render import make_renderer
     from ..segment import SegmenterSettings
     from ..session import Session, SessionConfig, anchor_plan, load_prompts
@@ -149,7 +149,7 @@ def segment_scene(
     cameras_path = req.cameras
     if cameras_path is None and (req.scene.parent / "cameras.json").is_file():
         cameras_path = req.scene.parent / "cameras.json"
-    cameras = load_cameras(cameras_path) if cameras_path is not None else []
+    cameras = load_cameras(cameras_path) if cameras_path is not None else scene_cameras(scene)
     gt = load_ground_truth(req.gt_labels, scene) if req.gt_labels is not None else None
     seg = _segmenter(
         SegmenterSettings(
@@ -171,6 +171,10 @@ def segment_scene(
         mask_channel=int(req.mask_channel),
         autosave=None if req.session is None else str(req.session),
     )
+    if req.grid_views:
+        from dataclasses import replace
+
+        config = replace(config, render=replace(config.render, nerf_network=False))
     if not req.completion:
         from dataclasses import replace
 

@@ -23,7 +23,7 @@ entry").
 (b) :func:`contribution_vote` — contribution-weighted voting in the style of
     FlashSplat (Shen et al., ECCV 2024): the rendering of a mask is linear in the
     per-surfel labels, so with ``A₁ = Σ α T`` over mask-positive pixels and ``A₀`` over
-    mask-negative pixels (all views; :func:`kernels.contrib.accumulate_contributions`,
+    mask-negative pixels (all views; :func:`divas_kernels.contrib.accumulate_contributions`,
     the rasterizer's own weights) a surfel is foreground iff
 
         A₁ / ‖A‖ > A₀ / ‖A‖ + γ,   ‖A‖ = √(A₀² + A₁²)

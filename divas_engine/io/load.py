@@ -3,8 +3,10 @@
 Formats: 2DGS/3DGS PLY, PlayCanvas/SuperSplat compressed PLY, antimatter15
 ``.splat``, Niantic ``.spz``, PlayCanvas SOG (``.sog`` bundle, or a folder / its
 ``meta.json``), PlayCanvas streamed LOD (``lod-meta.json`` or its folder, one level at
-a time), NeRF density grid ``.npz``. Detection looks at the file's magic
-bytes first and its suffix second, so a misnamed file still loads.
+a time), NeRF density grids: this project's ``.npz``, instant-ngp snapshots
+(``.ingp`` gzip'd msgpack, ``.msgpack``), torch-ngp checkpoints (``.pth``, with the torch
+extra) and OpenVDB ``.vdb`` (where an OpenVDB module is importable). Detection looks at
+the file's magic bytes first and its suffix second, so a misnamed file still loads.
 """
 
 from __future__ import annotations
@@ -19,9 +21,21 @@ from ..errors import DivasInputError
 from ..scene import Scene, SurfelScene, sh_coeff_count
 from .limits import input_guard, require_input_file
 
-__all__ = ["detect_format", "load_scene", "SCENE_FORMATS"]
+__all__ = ["detect_format", "load_scene", "scene_cameras", "SCENE_FORMATS"]
 
-SCENE_FORMATS = ("ply", "compressed_ply", "splat", "spz", "sog", "lod", "npz")
+SCENE_FORMATS = (
+    "ply",
+    "compressed_ply",
+    "splat",
+    "spz",
+    "sog",
+    "lod",
+    "npz",
+    "ingp",
+    "msgpack",
+    "torch_ngp",
+    "vdb",
+)
 
 
 def detect_format(path: str | PathLike) -> str:
@@ -54,14 +68,55 @@ def detect_format(path: str | PathLike) -> str:
     if head.startswith(b"PK"):
         from .sog import is_sog_zip
 
-        return "sog" if is_sog_zip(path) else "npz"
-    if head.startswith(b"\x1f\x8b") or head.startswith(b"NGSP") or suffix == ".spz":
+        if is_sog_zip(path):
+            return "sog"
+        return "torch_ngp" if suffix in (".pth", ".pt") or _is_torch_zip(path) else "npz"
+    if head.startswith(b"\x1f\x8b"):
+        return "ingp" if _gzip_holds_msgpack(path) else "spz"
+    if head.startswith(b"NGSP") or suffix == ".spz":
         return "spz"
+    if head.startswith(b" BD") or suffix == ".vdb":
+        return "vdb"
+    from .instant_ngp import is_ngp_msgpack_head
+
+    if is_ngp_msgpack_head(head) and suffix in (".msgpack", ".ingp", ""):
+        return "msgpack"
     if suffix == ".splat":
         return "splat"
     if suffix == ".ply":
         raise DivasInputError(path, "not a PLY file (missing 'ply' magic line)")
-    raise DivasInputError(path, "unknown scene format: expected .ply, .splat, .spz, .sog or .npz")
+    raise DivasInputError(
+        path,
+        "unknown scene format: expected .ply, .splat, .spz, .sog, .npz, .ingp, .msgpack, "
+        ".pth (torch-ngp) or .vdb",
+    )
+
+
+def _gzip_holds_msgpack(path: Path) -> bool:
+    """A gzip stream whose first inflated byte opens a msgpack map (instant-ngp's
+    ``.ingp``), not Niantic's ``NGSP`` header."""
+    import zlib
+
+    from .instant_ngp import is_ngp_msgpack_head
+
+    with open(path, "rb") as f:
+        raw = f.read(1 << 16)
+    try:
+        first = zlib.decompressobj(wbits=31).decompress(raw, 4)
+    except zlib.error:
+        return False
+    return is_ngp_msgpack_head(first) and not first.startswith(b"NGSP")
+
+
+def _is_torch_zip(path: Path) -> bool:
+    """A ZIP laid out as ``torch.save`` writes it (``<name>/data.pkl``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return any(n.endswith("/data.pkl") or n == "data.pkl" for n in zf.namelist())
+    except (zipfile.BadZipFile, OSError):
+        return False
 
 
 def load_scene(
@@ -96,6 +151,12 @@ def load_scene(
     if max_sh_degree is not None and isinstance(scene, SurfelScene):
         scene = _keep_sh_bands(scene, max_sh_degree)
     return scene
+
+
+def scene_cameras(scene: Scene) -> list:
+    """The training cameras a scene file holds itself (an instant-ngp snapshot's dataset),
+    in the scene's frame; ``[]`` for every other format."""
+    return list(getattr(scene, "extras", {}).get("cameras") or [])
 
 
 def _keep_sh_bands(scene: SurfelScene, max_degree: int) -> SurfelScene:
@@ -136,4 +197,16 @@ def _load(path: Path, fmt: str, max_sh_degree: int | None = None) -> Scene:
         from .density_grid import read_density_grid
 
         return read_density_grid(path)
+    if fmt in ("ingp", "msgpack"):
+        from .instant_ngp import read_instant_ngp
+
+        return read_instant_ngp(path)
+    if fmt == "torch_ngp":
+        from .torch_ngp import read_torch_ngp
+
+        return read_torch_ngp(path)
+    if fmt == "vdb":
+        from .openvdb_grid import read_vdb
+
+        return read_vdb(path)
     raise DivasInputError(path, f"unknown format {fmt!r}; expected one of {SCENE_FORMATS}")

@@ -1,4 +1,5 @@
-"""Renderers: one base class, a 2DGS rasterizer and a NeRF ray-marcher (paper Sec. 3.1).
+"""Renderers: one base class, a 2DGS rasterizer, a density-grid ray-marcher and a marcher
+of instant-ngp radiance networks (paper Sec. 3.1).
 
 ``make_renderer(scene, device)`` picks the adapter for the scene type; everything
 downstream sees only :class:`Renderer` and :class:`RenderBuffers`.
@@ -32,6 +33,10 @@ def make_renderer(
 
         return SurfelRenderer(scene, device=device, config=config)
     if isinstance(scene, DensityGrid):
+        from .ngp_renderer import NgpRenderer, has_ngp_network
+
+        if has_ngp_network(scene) and (config is None or config.nerf_network):
+            return NgpRenderer(scene, device=device, config=config)
         from .nerf_renderer import NerfRenderer
 
         return NerfRenderer(scene, device=device, config=config)

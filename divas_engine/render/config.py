@@ -38,7 +38,14 @@ class RenderConfig:
             rendered in bands of tile rows above it (bounds memory on huge scenes).
         blend: rasterizer blend kernel: ``"auto"`` (``tile`` on CPU, ``pixel`` on CUDA).
         nerf_step_scale: NeRF step = ``nerf_step_scale ×`` the smallest voxel edge (½).
-        nerf_color: colour of a density grid without an RGB grid.
+        nerf_color: colour of a density grid without an RGB grid (when not shaded).
+        shade_grid: colour a density grid without an RGB grid by its shape
+            (:mod:`.grid_shading`) instead of ``nerf_color``; None (default): when it was
+            read from a format that holds no colour (instant-ngp without its network,
+            torch-ngp, a ``.vdb`` without a colour grid).
+        nerf_network: draw views of a grid that carries its radiance network (an
+            instant-ngp snapshot) from the network (True) or march the grid itself,
+            coloured by the network baked at its voxels (False: much faster on a CPU).
         threads: CPU launch threads (None: all usable cores).
         profile: synchronise after each stage and put stage seconds in ``RenderBuffers.stats``.
     """
@@ -56,6 +63,8 @@ class RenderConfig:
     blend: str = RD.BLEND
     nerf_step_scale: float = RD.NERF_STEP_SCALE
     nerf_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    shade_grid: bool | None = None
+    nerf_network: bool = True
     threads: int | None = None
     profile: bool = False
 

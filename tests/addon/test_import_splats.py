@@ -258,7 +258,9 @@ def test_non_standard_properties_are_kept_raw_and_reserved_names_prefixed(tmp_pa
 
 def test_import_density_grid(ribs):
     path = ribs / "grid.npz"
-    assert bpy.ops.divas.import_density_grid(filepath=str(path), min_opacity=0.05) == {"FINISHED"}
+    assert bpy.ops.divas.import_density_grid(
+        filepath=str(path), min_opacity=0.05, display_as="POINTS"
+    ) == {"FINISHED"}
     obj = bpy.context.active_object
     grid = load_scene(path)
     table = grid_point_table(grid, 0.05)

@@ -1,0 +1,271 @@
+"""OpenVDB ``.vdb`` density grids (Blender, Houdini, EmberGen), through an OpenVDB module.
+
+The module is ``openvdb`` (OpenVDB ≥ 11; Blender ≥ 4.4 bundles it), ``pyopenvdb`` (older
+Blender), or the ``openvdb`` that an installed ``bpy`` wheel bundles (its
+``bpy.utils.expose_bundled_modules`` adds the same folder; it is loaded by path here, so the
+engine never imports ``bpy``). Without one, reading or writing ``.vdb`` raises one clear
+:class:`~divas_engine.errors.DivasInputError`.
+
+Reading: the float grid named ``density`` (else the first float grid) over its active
+voxels' bounding box, and a vector grid named ``color``/``Cd`` when present; voxel
+``(i, j, k)`` is centred at the grid transform's ``indexToWorld(i, j, k)``, which must be
+an axis-aligned scale and translation. Writing: ``density`` (a fog volume: background 0,
+zero voxels inactive) and ``color`` when the grid has one, both with that transform.
+"""
+
+from __future__ import annotations
+
+import glob
+import importlib
+import importlib.util
+import os
+from functools import lru_cache
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DivasInputError
+from ..scene import DensityGrid, SourceInfo
+from .limits import inflate_budget, limits, require_input_file
+
+__all__ = [
+    "openvdb_module",
+    "read_vdb",
+    "write_vdb",
+    "vdb_available",
+    "check_vdb_structure",
+    "NO_OPENVDB",
+]
+
+NO_OPENVDB = (
+    "needs an OpenVDB Python module: inside Blender (it bundles one), with the bpy wheel "
+    "installed, or with an 'openvdb'/'pyopenvdb' module importable"
+)
+_COLOR_NAMES = ("color", "Cd", "colour", "rgb")
+
+
+@lru_cache(maxsize=1)
+def openvdb_module():
+    """The OpenVDB Python module, or None (module docstring)."""
+    for name in ("openvdb", "pyopenvdb"):
+        try:
+            return importlib.import_module(name)
+        except ImportError:
+            continue
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.origin:
+        return None
+    root = os.path.dirname(spec.origin)
+    site = os.path.join(root, "*", "python", "lib", "python3*", "site-packages")
+    found = [p for ext in (".so", ".pyd") for p in glob.glob(os.path.join(site, "*openvdb*" + ext))]
+    for so in sorted(found):
+        name = os.path.basename(so).split(".")[0]  # openvdb (Blender ≥ 4.4) or pyopenvdb
+        try:
+            s = importlib.util.spec_from_file_location(name, so)
+            mod = importlib.util.module_from_spec(s)
+            s.loader.exec_module(mod)
+            return mod
+        except (ImportError, OSError):
+            continue
+    return None
+
+
+def vdb_available() -> bool:
+    return openvdb_module() is not None
+
+
+def _module(path) -> object:
+    vdb = openvdb_module()
+    if vdb is None:
+        raise DivasInputError(path, f".vdb {NO_OPENVDB}")
+    return vdb
+
+
+def _axis_transform(grid, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(origin, voxel)``: world centre of voxel (0,0,0) and the per-axis voxel edge."""
+    t = grid.transform
+    o = np.asarray(t.indexToWorld((0, 0, 0)), np.float64)
+    cols = [
+        np.asarray(t.indexToWorld(tuple(int(i == a) for i in range(3))), np.float64) - o
+        for a in range(3)
+    ]
+    M = np.stack(cols, 1)
+    vox = np.diag(M).copy()
+    if np.any(np.abs(M - np.diag(vox)) > 1e-9 * np.abs(vox).max()) or np.any(vox <= 0):
+        raise DivasInputError(path, "grid transform is not an axis-aligned scale and translation")
+    return o, vox
+
+
+def read_vdb(path: str | PathLike) -> DensityGrid:
+    """Load a ``.vdb`` density grid (module docstring); NaN/Inf densities become 0."""
+    path = require_input_file(path, "OpenVDB file")
+    vdb = _module(path)
+    try:
+        return _read(vdb, path)
+    except DivasInputError:
+        raise
+    except Exception as e:  # the bindings raise RuntimeError/ValueError/IOError on bad files
+        raise DivasInputError(path, f"not a readable OpenVDB file ({e})") from None
+
+
+class _Bytes:
+    def __init__(self, data: bytes, path: Path):
+        self.d, self.o, self.path = data, 0, path
+
+    def take(self, n: int) -> bytes:
+        if n < 0 or self.o + n > len(self.d):
+            raise DivasInputError(self.path, "truncated OpenVDB file")
+        b = self.d[self.o : self.o + n]
+        self.o += n
+        return b
+
+    def num(self, fmt: str):
+        import struct
+
+        return struct.unpack("<" + fmt, self.take(struct.calcsize(fmt)))[0]
+
+    def text(self) -> str:
+        n = self.num("I")
+        if n > 4096:
+            raise DivasInputError(self.path, f"OpenVDB string of {n} bytes")
+        try:
+            return self.take(n).decode("utf-8")
+        except UnicodeDecodeError:
+            raise DivasInputError(self.path, "OpenVDB name is not UTF-8") from None
+
+    def meta_map(self) -> None:
+        count = self.num("i")
+        if not 0 <= count <= 4096:
+            raise DivasInputError(self.path, f"{count} metadata entries")
+        for _ in range(count):
+            self.text()
+            kind = self.text()
+            size = self.num("i")
+            value = self.take(size)
+            if kind == "string":
+                try:
+                    value.decode("utf-8")
+                except UnicodeDecodeError:
+                    raise DivasInputError(self.path, "OpenVDB metadata is not UTF-8") from None
+
+
+def check_vdb_structure(path: Path) -> None:
+    """Walk the file's header, metadata and grid descriptors (OpenVDB's ``Archive`` and
+    ``GridDescriptor`` layouts) and refuse one whose names are not UTF-8 or whose offsets
+    leave the file: OpenVDB's Python bindings abort the whole process when an error
+    message they convert holds such bytes, so those never reach them."""
+    b = _Bytes(path.read_bytes(), path)
+    if b.num("q") != 0x56444220:
+        raise DivasInputError(path, "not an OpenVDB file (bad magic number)")
+    version = b.num("I")
+    if not 213 <= version <= 1024:
+        raise DivasInputError(path, f"OpenVDB file version {version} is not supported")
+    b.num("I"), b.num("I")
+    has_offsets = b.num("b")
+    if 220 <= version < 222:
+        b.num("I")
+    b.take(36)
+    if not has_offsets:
+        raise DivasInputError(path, "OpenVDB file without grid offsets is not supported")
+    b.meta_map()
+    n = b.num("i")
+    if not 0 <= n <= 1024:
+        raise DivasInputError(path, f"{n} grids")
+    size = len(b.d)
+    for _ in range(n):
+        b.text(), b.text(), b.text()
+        grid_pos, block_pos, end_pos = b.num("q"), b.num("q"), b.num("q")
+        if not (0 < grid_pos <= block_pos <= end_pos <= size):
+            raise DivasInputError(path, "OpenVDB grid offsets outside the file")
+        g = _Bytes(b.d, path)
+        g.o = grid_pos
+        if version >= 222:
+            g.num("I")
+        g.meta_map()
+        g.text()  # the transform's map type
+        b.o = end_pos
+
+
+def _read(vdb, path: Path) -> DensityGrid:
+    check_vdb_structure(path)
+    metas = vdb.readAllGridMetadata(str(path))
+    floats = [g for g in metas if g.valueTypeName in ("float", "double")]
+    if not floats:
+        raise DivasInputError(path, "holds no float grid (expected a 'density' grid)")
+    dens_meta = next((g for g in floats if g.name == "density"), floats[0])
+    col_meta = next(
+        (g for g in metas if g.name in _COLOR_NAMES and g.valueTypeName.startswith("vec3")), None
+    )
+    budget = inflate_budget(path.stat().st_size)
+    for g in (dens_meta, col_meta):
+        if g is None:
+            continue
+        md = g.metadata
+        if "file_bbox_min" in md and "file_bbox_max" in md:
+            n = np.prod(np.asarray(md["file_bbox_max"]) - np.asarray(md["file_bbox_min"]) + 1)
+            per = 4 if g is dens_meta else 12
+            if n * per > budget or n > limits().max_rows:
+                raise DivasInputError(
+                    path, f"grid {g.name!r} spans {int(n)} voxels, over the limit"
+                )
+    dgrid = vdb.read(str(path), dens_meta.name)
+    cgrid = vdb.read(str(path), col_meta.name) if col_meta is not None else None
+    lo_ijk, hi_ijk = dgrid.evalActiveVoxelBoundingBox()
+    shape = tuple(int(b - a + 1) for a, b in zip(lo_ijk, hi_ijk))
+    if min(shape) < 1 or dgrid.activeVoxelCount() == 0:
+        raise DivasInputError(path, f"empty scene: grid {dgrid.name!r} has no active voxel")
+    if int(np.prod(shape)) * 4 > budget or int(np.prod(shape)) > limits().max_rows:
+        raise DivasInputError(path, f"grid spans {shape} voxels, over the LoadLimits budget")
+    arr = np.zeros(shape, np.float32)
+    dgrid.copyToArray(arr, ijk=tuple(int(v) for v in lo_ijk))
+    shape3 = tuple(max(2, s) for s in shape)  # a DensityGrid needs every side ≥ 2
+    if shape3 != shape:
+        arr = np.pad(arr, [(0, b - a) for a, b in zip(shape, shape3)])
+    origin, vox = _axis_transform(dgrid, path)
+    lo = origin + (np.asarray(lo_ijk, np.float64) - 0.5) * vox
+    density = np.ascontiguousarray(arr.transpose(2, 1, 0))
+    bad = ~np.isfinite(density)
+    n_bad = int(bad.sum())
+    density[bad] = 0
+    density = np.maximum(density, 0)
+    rgb = None
+    if cgrid is not None:
+        c = np.zeros(shape3 + (3,), np.float32)
+        cgrid.copyToArray(c, ijk=tuple(int(v) for v in lo_ijk))
+        rgb = np.clip(np.nan_to_num(c.transpose(2, 1, 0, 3)), 0, 1).astype(np.float32)
+    if not np.any(density > 0):
+        raise DivasInputError(path, "empty scene: the density grid is zero everywhere")
+    aabb = np.stack([lo, lo + np.asarray(shape3) * vox])
+    src = SourceInfo(path, "vdb", int(density.size), None, n_bad)
+    out = DensityGrid(density, aabb, rgb, src)
+    out.extras["vdb_grid_name"] = dgrid.name
+    return out
+
+
+def write_vdb(path: str | PathLike, grid: DensityGrid, density: np.ndarray | None = None) -> Path:
+    """Write ``grid`` (or ``density`` on its lattice instead of its own) as ``.vdb``."""
+    from ..output_paths import atomic_path
+
+    vdb = _module(path)
+    dens = np.asarray(grid.density if density is None else density, np.float32)
+    vox = grid.voxel_size
+    centre0 = np.asarray(grid.aabb[0], np.float64) + 0.5 * vox
+    M = [[vox[0], 0, 0, 0], [0, vox[1], 0, 0], [0, 0, vox[2], 0], [*centre0.tolist(), 1]]
+    xform = vdb.createLinearTransform([[float(v) for v in row] for row in M])
+    g = vdb.FloatGrid()
+    g.copyFromArray(np.ascontiguousarray(dens.transpose(2, 1, 0)))
+    g.name = "density"
+    g.gridClass = vdb.GridClass.FOG_VOLUME
+    g.transform = xform
+    grids = [g]
+    if grid.rgb is not None:
+        c = vdb.Vec3SGrid()
+        rgb = np.where((dens > 0)[..., None], grid.rgb, 0).astype(np.float32)
+        c.copyFromArray(np.ascontiguousarray(rgb.transpose(2, 1, 0, 3)))
+        c.name = "color"
+        c.transform = vdb.createLinearTransform([[float(v) for v in row] for row in M])
+        grids.append(c)
+    with atomic_path(path) as tmp:
+        vdb.write(str(tmp), grids=grids)
+    return Path(path)
