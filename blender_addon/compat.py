@@ -31,6 +31,7 @@ __all__ = [
     "modifier_input",
     "set_modifier_input",
     "bundled_module",
+    "openvdb",
 ]
 
 #: EEVEE's identifier in ``scene.render.engine`` on this release.
@@ -122,3 +123,9 @@ def bundled_module(name: str) -> ModuleType | None:
         return importlib.import_module(name)
     except ImportError:
         return None
+
+
+def openvdb() -> ModuleType | None:
+    """Blender's OpenVDB Python module: ``openvdb`` from 4.4, ``pyopenvdb`` in the Blender
+    4.2 and 4.3 applications (their ``bpy`` modules carry neither), or None."""
+    return bundled_module("openvdb") or bundled_module("pyopenvdb")
