@@ -3,8 +3,8 @@ built by ``blender_scripts/build_extension.py`` with the locked wheels, installe
 Blender's own extension installer into an empty user folder, in a process that sees only
 the ``bpy`` module and what it needs (NumPy, requests, zstandard: what Blender ships),
 then a real capture imported and segmented with one click by
-``blender_scripts/segment.py`` through the installed add-on: the labels ``divas segment``
-gives from the same prompts.
+``blender_scripts/segment.py`` through the installed add-on: the labels and the file
+``divas segment`` gives from the same prompts.
 
 Opt-in like every test that downloads (CI sets ``DIVAS_BUILD_EXTENSION=1``): a cold wheel
 cache fetches ~270 MB once (``build/extension/wheels``, then pip's cache).
@@ -111,8 +111,9 @@ done = bpy.ops.extensions.package_install_files(
 assert done == {"FINISHED"}, done
 import divas_engine
 print("ENGINE", divas_engine.__file__)
+script = sys.argv[3]
 sys.argv = ["segment.py", "--", *sys.argv[4:]]
-runpy.run_path(sys.argv[3], run_name="__main__")
+runpy.run_path(script, run_name="__main__")
 """
 
 
@@ -130,7 +131,9 @@ def test_built_zip_installs_and_segments(built_zip, tmp_path):
     Prompts((AnchorPrompt("camera", cam, (Click(clicks[0], positive=True),)),)).write(prompts)
     common = ["--scale", "0.5", "--seed", "0", "--device", "cpu", "--segmenter", "graph3d"]
     ref = dict(scale=0.5, seed=0, device="cpu", segmenter="graph3d", progress=False)
-    segment_scene(CAPTURE, prompts, labels_out=tmp_path / "ref.npy", **ref)
+    segment_scene(
+        CAPTURE, prompts, out=tmp_path / "ref.ply", labels_out=tmp_path / "ref.npy", **ref
+    )
     user = tmp_path / "blender_user"
     args = ["--scene", CAPTURE, "--prompts", prompts, "--out", tmp_path / "sel.ply"]
     args += ["--labels-out", tmp_path / "labels.npy", *common]
@@ -139,6 +142,7 @@ def test_built_zip_installs_and_segments(built_zip, tmp_path):
         + [str(a) for a in args],
         capture_output=True,
         text=True,
+        cwd=tmp_path,  # not the repository: `-c` puts the working folder on sys.path
         env={**os.environ, "BLENDER_USER_RESOURCES": str(user)},
         timeout=600,
     )
@@ -149,3 +153,4 @@ def test_built_zip_installs_and_segments(built_zip, tmp_path):
     labels = np.load(tmp_path / "labels.npy")
     assert labels.any()
     np.testing.assert_array_equal(labels, np.load(tmp_path / "ref.npy"))
+    assert (tmp_path / "sel.ply").read_bytes() == (tmp_path / "ref.ply").read_bytes()
