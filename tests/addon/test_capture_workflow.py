@@ -20,6 +20,8 @@ from blender_addon.modal_logic import VIEW_PROP
 from divas_engine import load_scene
 from divas_engine.point_attributes import SELECTED
 
+from .conftest import one_click_prompts
+
 CAPTURE = "playcanvas-splats/guitar.compressed.ply"
 SEED, SCALE = 0, 0.5
 
@@ -28,22 +30,9 @@ SEED, SCALE = 0, 0.5
 def guitar(real_data, tmp_path_factory):
     """(capture, prompts file, ground-truth labels per scene row): the first hand-placed
     anchor of the guitar target and its first click."""
-    from divas_engine.evaluation.real_targets import (
-        oracle_anchors,
-        read_targets,
-        target_scene_labels,
-    )
-    from divas_engine.session import Click, Prompts
-    from divas_engine.session.prompts import AnchorPrompt
-
-    capture = real_data / CAPTURE
-    scene = load_scene(capture)
-    doc = read_targets(real_data / "targets" / "guitar")
-    anchors = oracle_anchors(scene, doc["true_up"], doc["targets"]["guitar"]["anchors"])
-    cam, _, _, clicks = anchors[0]
     path = tmp_path_factory.mktemp("guitar") / "prompts.json"
-    Prompts((AnchorPrompt("camera", cam, (Click(clicks[0], positive=True),)),)).write(path)
-    return capture, path, target_scene_labels(scene, doc, "guitar")
+    truth = one_click_prompts(real_data, CAPTURE, "guitar", path)
+    return real_data / CAPTURE, path, truth
 
 
 def _ok(result) -> None:

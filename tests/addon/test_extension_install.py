@@ -25,12 +25,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from .conftest import REPO
+from .conftest import REPO, one_click_prompts
 from .test_extension_build import SCRIPT, build_module, check_manifest, validate
 
 PY = f"{sys.version_info.major}{sys.version_info.minor}"
 SEGMENT = REPO / "blender_scripts" / "segment.py"
-CAPTURE = REPO / "tests" / "data" / "playcanvas-splats" / "guitar.compressed.ply"
+DATA = REPO / "tests" / "data"
+CAPTURE = "playcanvas-splats/guitar.compressed.ply"
 
 pytestmark = [
     pytest.mark.skipif(
@@ -118,25 +119,18 @@ runpy.run_path(script, run_name="__main__")
 
 
 def test_built_zip_installs_and_segments(built_zip, tmp_path):
-    from divas_engine import load_scene
     from divas_engine.cli.segment import segment_scene
-    from divas_engine.evaluation.real_targets import oracle_anchors, read_targets
-    from divas_engine.session import Click, Prompts
-    from divas_engine.session.prompts import AnchorPrompt
 
-    doc = read_targets(REPO / "tests" / "data" / "targets" / "guitar")
-    anchors = doc["targets"]["guitar"]["anchors"]
-    cam, _, _, clicks = oracle_anchors(load_scene(CAPTURE), doc["true_up"], anchors)[0]
     prompts = tmp_path / "prompts.json"
-    Prompts((AnchorPrompt("camera", cam, (Click(clicks[0], positive=True),)),)).write(prompts)
-    common = ["--scale", "0.5", "--seed", "0", "--device", "cpu", "--segmenter", "graph3d"]
-    ref = dict(scale=0.5, seed=0, device="cpu", segmenter="graph3d", progress=False)
-    segment_scene(
-        CAPTURE, prompts, out=tmp_path / "ref.ply", labels_out=tmp_path / "ref.npy", **ref
-    )
+    one_click_prompts(DATA, CAPTURE, "guitar", prompts)
+    common = dict(scale=0.5, seed=0, device="cpu", segmenter="graph3d")
+    ref = tmp_path / "ref"
+    segment_scene(DATA / CAPTURE, prompts, out=ref.with_suffix(".ply"),
+                  labels_out=ref.with_suffix(".npy"), progress=False, **common)  # fmt: skip
     user = tmp_path / "blender_user"
-    args = ["--scene", CAPTURE, "--prompts", prompts, "--out", tmp_path / "sel.ply"]
-    args += ["--labels-out", tmp_path / "labels.npy", *common]
+    args = ["--scene", DATA / CAPTURE, "--prompts", prompts, "--out", tmp_path / "sel.ply"]
+    args += ["--labels-out", tmp_path / "labels.npy"]
+    args += [a for k, v in common.items() for a in (f"--{k}", v)]
     res = subprocess.run(
         [sys.executable, "-S", "-c", _DRIVER, _bpy_only(tmp_path / "site"), built_zip, SEGMENT]
         + [str(a) for a in args],
@@ -152,5 +146,5 @@ def test_built_zip_installs_and_segments(built_zip, tmp_path):
     assert "centroid views fused" in res.stdout
     labels = np.load(tmp_path / "labels.npy")
     assert labels.any()
-    np.testing.assert_array_equal(labels, np.load(tmp_path / "ref.npy"))
-    assert (tmp_path / "sel.ply").read_bytes() == (tmp_path / "ref.ply").read_bytes()
+    np.testing.assert_array_equal(labels, np.load(ref.with_suffix(".npy")))
+    assert (tmp_path / "sel.ply").read_bytes() == ref.with_suffix(".ply").read_bytes()
