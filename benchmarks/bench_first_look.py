@@ -15,9 +15,11 @@ rests; the scene's lights off, as Material Preview lights with its own studio wo
 ``first_s`` is the first frame (the display's Geometry Nodes evaluation, the engine's
 sync of the geometry and the draw), ``frame_s`` the median of ``--frames`` more renders
 of the unchanged scene (nothing re-evaluated; a render re-syncs the geometry a viewport
-keeps, so this bounds a viewport redraw from above). The ``bpy`` module has no window
-and draws with whatever OpenGL it finds (software rendering on a machine without a GPU):
-compare shadings and sizes here, not seconds with a GPU viewport.
+keeps, so this bounds a viewport redraw from above), ``empty_frame_s`` the same frame
+before the import (the engine's fixed cost: what the splats add is the difference). The
+``bpy`` module has no window and draws with whatever OpenGL it finds (software rendering
+on a machine without a GPU): compare shadings and sizes here, not seconds with a GPU
+viewport.
 
 Pictures: ``--capture`` (default: the guitar in ``tests/data``) imported with the defaults,
 seen through the first hand-placed anchor of its target (``tests/data/targets``): Solid
@@ -85,15 +87,21 @@ def child_timing(ply: str, size: tuple[int, int], frames: int) -> dict:
     scene = bpy.context.scene
     scene.render.resolution_x, scene.render.resolution_y = size
     scene.render.resolution_percentage = 100
+    shadings = (("solid", "BLENDER_WORKBENCH"), ("material_preview", "BLENDER_EEVEE"))
+    empty = {}
+    for shading, engine in shadings:  # the frame's cost without splats
+        _render(bpy, engine, 1)
+        empty[shading] = statistics.median(_render(bpy, engine, 1) for _ in range(frames))
     t = time.perf_counter()
     assert bpy.ops.divas.import_splats(filepath=ply) == {"FINISHED"}
     obj = bpy.context.active_object
     out = {"blender": bpy.app.version_string, "import_s": time.perf_counter() - t}
     out["points"] = len(obj.data.points)
-    for shading, engine in (("solid", "BLENDER_WORKBENCH"), ("material_preview", "BLENDER_EEVEE")):
+    for shading, engine in shadings:
         first = _render(bpy, engine, 1)
         rest = [_render(bpy, engine, 1) for _ in range(frames)]
-        out[shading] = {"first_s": first, "frame_s": statistics.median(rest)}
+        frame = statistics.median(rest)
+        out[shading] = {"first_s": first, "frame_s": frame, "empty_frame_s": empty[shading]}
     return out
 
 
