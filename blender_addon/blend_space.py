@@ -37,6 +37,7 @@ import contextlib
 import bpy
 from bpy.props import BoolProperty
 
+from . import compat
 from .display import is_splat_display
 from .display_nodes import BLEND_FLAG
 
@@ -73,29 +74,19 @@ _RENDERABLE = {
 
 def decode_nodes(scene) -> list:
     """The decode nodes in ``scene``'s compositor."""
-    group = getattr(scene, "compositing_node_group", None)
+    group = compat.compositor_tree(scene)
     if group is None:
         return []
     return [n for n in group.nodes if n.name.startswith(DECODE_NODE)]
 
 
-def _new_group() -> bpy.types.NodeTree:
-    group = bpy.data.node_groups.new(COMPOSITOR_GROUP, "CompositorNodeTree")
-    group[_OURS] = True
-    group.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-    layers = group.nodes.new("CompositorNodeRLayers")
-    out = group.nodes.new("NodeGroupOutput")
-    layers.location, out.location = (-300, 0), (300, 0)
-    group.links.new(layers.outputs["Image"], out.inputs[0])
-    return group
-
-
 def _add_decode(scene) -> None:
     """A decode node after every Render Layers' Image (the scene's own compositor is
     kept: what it does then works on the linear values it expects)."""
-    if scene.compositing_node_group is None:
-        scene.compositing_node_group = _new_group()
-    group = scene.compositing_node_group
+    group = compat.compositor_tree(scene)
+    if group is None:
+        group = compat.new_compositor_tree(scene, COMPOSITOR_GROUP)
+        group[_OURS] = True
     for layers in [n for n in group.nodes if n.bl_idname == "CompositorNodeRLayers"]:
         image = layers.outputs["Image"]
         targets = [link.to_socket for link in image.links]
@@ -109,7 +100,7 @@ def _add_decode(scene) -> None:
 
 
 def _remove_decode(scene) -> None:
-    group = scene.compositing_node_group
+    group = compat.compositor_tree(scene)
     for node in decode_nodes(scene):
         src = [link.from_socket for link in node.inputs[0].links]
         targets = [link.to_socket for link in node.outputs[0].links]
@@ -117,9 +108,8 @@ def _remove_decode(scene) -> None:
         for sock in targets if src else ():
             group.links.new(src[0], sock)
     if group is not None and group.get(_OURS):
-        scene.compositing_node_group = None
-        if group.users == 0:
-            bpy.data.node_groups.remove(group)
+        del group[_OURS]
+        compat.remove_compositor_tree(scene)
 
 
 def _mute_for_engine(scene) -> None:

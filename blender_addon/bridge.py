@@ -5,15 +5,14 @@ bulk ``foreach_set`` / ``foreach_get`` on attribute data with C-contiguous array
 exactly the type Blender stores (float32, int32, bool), which Blender copies as one
 memory block (about 5 ms per million floats). Never a per-point Python loop.
 
-Point clouds: ``bpy.data.pointclouds.new`` makes an *empty* point cloud and, in
-Blender 4.2–5.0, ``PointCloud.points`` has no ``add``/``resize``, so Python cannot
-size one directly. :func:`new_point_cloud_object` therefore adds ``n`` vertices to a
-throw-away mesh and converts the object with ``object.convert(target='POINTCLOUD')``
-(a constant-time hand-over of the arrays, ~10 ms for a million points), then writes
-positions and attributes in bulk. A real point cloud (rather than a vertex-only mesh)
-is what Blender renders as points in Cycles and EEVEE, carries the built-in ``radius``,
-has no edit-mode cost at millions of elements, and is what Geometry Nodes treats as
-splats; the conversion is the only non-obvious step.
+Point clouds: ``bpy.data.pointclouds.new`` makes an *empty* point cloud, and before 5.2
+``PointCloud.points`` cannot be resized from Python (``object.convert`` to a point cloud
+exists only from 4.5). :func:`new_point_cloud_object` therefore gives the empty cloud a
+Geometry Nodes modifier whose *Points* node makes ``n`` points and applies it (one route
+on every release from 4.2), then writes positions and attributes in bulk. A real point
+cloud (rather than a vertex-only mesh) is what Blender renders as points in Cycles and
+EEVEE, carries the built-in ``radius``, has no edit-mode cost at millions of elements,
+and is what Geometry Nodes treats as splats.
 """
 
 from __future__ import annotations
@@ -73,7 +72,8 @@ def _data_type_for(values: np.ndarray) -> str:
 
 def point_count(geometry) -> int:
     """Elements in the point domain (point cloud points or mesh vertices)."""
-    return geometry.attributes.domain_size("POINT")
+    points = getattr(geometry, "points", None)
+    return len(points if points is not None else geometry.vertices)
 
 
 #: :attr:`divas_engine.point_attributes.PointTable.kinds` → Blender data type.
@@ -153,36 +153,52 @@ def remove_attribute(geometry, name: str) -> None:
         geometry.attributes.remove(attr)
 
 
+def _points_group(n: int) -> bpy.types.GeometryNodeTree:
+    """A throw-away Geometry Nodes group whose output is ``n`` points at the origin."""
+    ng = bpy.data.node_groups.new(".divas new points", "GeometryNodeTree")
+    ng.is_modifier = True
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    points = ng.nodes.new("GeometryNodePoints")
+    points.inputs["Count"].default_value = n
+    ng.links.new(points.outputs[0], ng.nodes.new("NodeGroupOutput").inputs[0])
+    return ng
+
+
 def new_point_cloud_object(name: str, positions: np.ndarray, collection) -> bpy.types.Object:
     """A new point-cloud object of ``len(positions)`` points linked into ``collection``.
 
-    See the module docstring for why this goes through a mesh. ``collection`` must be
-    part of the active view layer (the conversion evaluates the object).
+    See the module docstring for why the points come from an applied Geometry Nodes
+    modifier. ``collection`` must be part of the active view layer (applying evaluates
+    the object).
     """
     positions = np.ascontiguousarray(positions, dtype=np.float32).reshape(-1, 3)
     n = len(positions)
     if n == 0:
         raise ValueError("a point cloud needs at least one point")
-    mesh = bpy.data.meshes.new(name)
-    mesh.vertices.add(n)
-    obj = bpy.data.objects.new(name, mesh)
+    if n > np.iinfo(np.int32).max:
+        raise ValueError(f"{n:,} points: a Blender point cloud holds at most 2^31 - 1")
+    cloud = bpy.data.pointclouds.new(name)
+    obj = bpy.data.objects.new(name, cloud)
     collection.objects.link(obj)
-    ctx = bpy.context
+    group = _points_group(n)
     try:
-        with ctx.temp_override(
+        mod = obj.modifiers.new("DivAS points", "NODES")
+        mod.node_group = group
+        with bpy.context.temp_override(
             object=obj, active_object=obj, selected_objects=[obj], selected_editable_objects=[obj]
         ):
-            result = bpy.ops.object.convert(target="POINTCLOUD")
+            result = bpy.ops.object.modifier_apply(modifier=mod.name)
+    except RuntimeError as e:  # the operator's poll or report, e.g. a hidden collection
+        result = {"CANCELLED", str(e)}
     finally:
-        if mesh.users == 0:
-            bpy.data.meshes.remove(mesh)
-    if "FINISHED" not in result or obj.type != "POINTCLOUD":
+        bpy.data.node_groups.remove(group)
+    if "FINISHED" not in result or obj.type != "POINTCLOUD" or len(obj.data.points) != n:
         bpy.data.objects.remove(obj)
-        raise RuntimeError(f"could not convert {name!r} to a point cloud")
+        raise RuntimeError(f"could not make the point cloud {name!r} of {n:,} points")
     cloud = obj.data
     cloud.name = name
-    for internal in [a.name for a in cloud.attributes if a.name.startswith(".select")]:
-        remove_attribute(cloud, internal)
+    for internal in [a.name for a in cloud.attributes if a.name != "position"]:
+        remove_attribute(cloud, internal)  # the Points node's radius; written when needed
     write_attribute(cloud, "position", positions)
     return obj
 

@@ -58,7 +58,7 @@ import numpy as np
 
 from divas_engine.point_attributes import COLOR, sh_attribute_name
 
-from . import display_nodes
+from . import bridge, compat, display_nodes
 
 __all__ = [
     "DISPLAY_GROUP",
@@ -77,6 +77,7 @@ __all__ = [
     "add_display_modifier",
     "set_display_inputs",
     "display_inputs",
+    "copy_display_inputs",
     "sync_display_group",
     "display_group_outdated",
     "setup_scene_for_splats",
@@ -99,7 +100,7 @@ SPLATS_MAX_POINTS = 1_000_000
 #: quad half-size in σ: where a fully opaque Gaussian's α·G drops below 1/255.
 QUAD_EXTENT = math.sqrt(2.0 * math.log(255.0))
 #: bumped when the node group or a material changes; older ones are rebuilt.
-VERSION = 7
+VERSION = 8
 _VERSION_PROP = "divas_display_version"
 
 
@@ -216,7 +217,7 @@ def _wants_view_dependent(mod) -> bool:
     """Whether ``mod`` needs the camera: View-Dependent Colour on and SH on the points
     (the view-dependent group shows the DC colour otherwise)."""
     ident = _input_ids(mod).get(DisplayInputs.VIEW_DEPENDENT)
-    on = mod.get(ident) if ident is not None else None
+    on = compat.modifier_input(mod, ident) if ident is not None else None
     if on is not None and not on:
         return False
     data = getattr(mod.id_data, "data", None)
@@ -246,7 +247,7 @@ def sync_display_group(mod) -> bool:
     ids = _input_ids(mod)
     for name, value in values.items():
         if name in ids:
-            mod[ids[name]] = value
+            compat.set_modifier_input(mod, ids[name], value)
     mod.id_data.update_tag()
     return True
 
@@ -266,7 +267,9 @@ def set_display_inputs(mod, **values) -> None:
     for name, value in values.items():
         if name not in ids:
             raise KeyError(f"the display group has no input {name!r}")
-        mod[ids[name]] = tuple(value) if isinstance(value, list | tuple) else value
+        compat.set_modifier_input(
+            mod, ids[name], tuple(value) if isinstance(value, list | tuple) else value
+        )
     sync_display_group(mod)
     mod.node_group.interface_update(bpy.context)
     mod.id_data.update_tag()
@@ -276,9 +279,19 @@ def display_inputs(mod) -> dict[str, object]:
     """The modifier's display-group input values by name."""
     out = {}
     for name, ident in _input_ids(mod).items():
-        v = mod.get(ident)
+        v = compat.modifier_input(mod, ident)
         out[name] = tuple(v) if hasattr(v, "__len__") and not isinstance(v, str) else v
     return out
+
+
+def copy_display_inputs(src, dst) -> None:
+    """Give modifier ``dst`` the display-input values of ``src`` that its group has (e.g.
+    the *Size* a user set, for an extracted copy)."""
+    if src.node_group is None:
+        return
+    ids = _input_ids(dst)
+    values = {k: v for k, v in display_inputs(src).items() if k in ids and v is not None}
+    set_display_inputs(dst, **values)
 
 
 def add_display_modifier(
@@ -301,7 +314,7 @@ def add_display_modifier(
         if mat.name not in obj.data.materials:
             obj.data.materials.append(mat)
     if points is None:
-        n = obj.data.attributes.domain_size("POINT")
+        n = bridge.point_count(obj.data)
         has_frame = obj.data.attributes.get("divas_rotation") is not None
         points = n > SPLATS_MAX_POINTS or not has_frame
     set_display_inputs(
@@ -343,9 +356,10 @@ def sync_viewport_colours(shows: bool | None = None) -> list[str]:
         if not _is_ours(mod):
             continue
         ident = _input_ids(mod).get(DisplayInputs.VIEWPORT_COLOURS)
-        if ident is None or mod.get(ident) is None or bool(mod[ident]) == shows:
+        current = compat.modifier_input(mod, ident) if ident is not None else None
+        if current is None or bool(current) == shows:
             continue
-        mod[ident] = shows
+        compat.set_modifier_input(mod, ident, shows)
         obj.update_tag()
         changed.append(obj.name)
     return changed

@@ -137,25 +137,31 @@ def _call(b: NodeBuilder, group, inputs: dict):
     return n
 
 
+def _per_axis(b: NodeBuilder, op: str, v, arg=None):
+    """Scalar Math ``op`` on each component of the vector socket ``v`` (with ``arg`` as
+    the second operand): Vector Math has no POWER or SIGN before Blender 4.5."""
+    sep = b.node("ShaderNodeSeparateXYZ", {0: v})
+    axes = [b.math(op, b.out(sep, k), arg) for k in ("X", "Y", "Z")]
+    return b.node("ShaderNodeCombineXYZ", dict(enumerate(axes))).outputs[0]
+
+
 def _step(b: NodeBuilder, v, knee: float):
-    """Per component 1 where ``v > knee``, 0 below (½ at the knee, where both sRGB
-    branches meet)."""
-    s = b.vmath("SIGN", b.vmath("SUBTRACT", v, (knee,) * 3))
-    return b.vmath("SCALE", b.vmath("ADD", s, (1.0,) * 3), 0.5)
+    """Per component 1 where ``v > knee``, else 0 (both sRGB branches meet at the knee)."""
+    return _per_axis(b, "GREATER_THAN", v, knee)
 
 
 def srgb_encode(b: NodeBuilder, lin):
     """Extended sRGB encoding of a vector socket (sign-symmetric), as in
-    ``linear_to_srgb``; plain vector-math nodes, so it builds in a Geometry Nodes tree
-    and in a material alike."""
+    ``linear_to_srgb``; plain math nodes, so it builds in a Geometry Nodes tree and in a
+    material alike."""
     a = b.vmath("ABSOLUTE", lin)
     lo = b.vmath("SCALE", a, 12.92)
-    root = b.vmath("POWER", a, (1 / 2.4,) * 3)
+    root = _per_axis(b, "POWER", a, 1 / 2.4)
     hi = b.vmath("SUBTRACT", b.vmath("SCALE", root, 1.055), (0.055,) * 3)
     enc = b.vmath(
         "ADD", lo, b.vmath("MULTIPLY", _step(b, a, _LIN_SRGB_KNEE), b.vmath("SUBTRACT", hi, lo))
     )
-    return b.vmath("MULTIPLY", enc, b.vmath("SIGN", lin))
+    return b.vmath("MULTIPLY", enc, _per_axis(b, "SIGN", lin))
 
 
 def _srgb_encode_group(version):
@@ -175,7 +181,7 @@ def _srgb_decode_group(version):
         c = b.out(gin, "Vector")
         lo = b.vmath("SCALE", c, 1 / 12.92)
         base = b.vmath("SCALE", b.vmath("ADD", c, (0.055,) * 3), 1 / 1.055)
-        hi = b.vmath("POWER", base, (2.4,) * 3)
+        hi = _per_axis(b, "POWER", base, 2.4)
         step = _step(b, c, _SRGB_LIN_KNEE)
         return {
             "Vector": b.vmath("ADD", lo, b.vmath("MULTIPLY", step, b.vmath("SUBTRACT", hi, lo)))

@@ -7,7 +7,8 @@
   images not packed yet packed (:func:`.bridge.pack_pending`), each session written
   beside it (:mod:`.session_actions.files`);
 * ``undo_post`` / ``redo_post`` — move each session to the step Blender's undo restored
-  (:mod:`.session_actions.history`);
+  (:mod:`.session_actions.history`), and the 3D views an import switched to Material
+  Preview with their object (:func:`.first_look.follow_undo`);
 * ``depsgraph_update_post`` — when the scene camera or the active object becomes an
   anchor camera whose view is not rendered yet (anchors render lazily, issue 20), a
   one-shot timer renders it (ID data cannot be written while the depsgraph updates);
@@ -32,7 +33,7 @@ import sys
 import bpy
 from bpy.app.handlers import persistent
 
-from . import blend_space, bridge, display, draw, session_registry
+from . import blend_space, bridge, display, draw, first_look, session_registry
 from .session_actions import files, sync_after_undo
 from .session_actions.view_cameras import cameras_needing_background, fill_backgrounds
 
@@ -139,14 +140,19 @@ def _on_depsgraph_update(_scene=None, depsgraph=None, *_args) -> None:
         request_display_sync(depsgraph)
 
 
+def _sync_sessions() -> None:
+    for line in sync_after_undo():
+        print(line, file=sys.stderr)
+
+
 @persistent
 def on_undo_redo(*_args) -> None:
     """Blender undid or redid a step: the sessions follow (never raises into Blender)."""
-    try:
-        for line in sync_after_undo():
-            print(line, file=sys.stderr)
-    except Exception as e:  # noqa: BLE001 - a handler must not break Blender's undo
-        print(f"DivAS: could not follow the undo ({type(e).__name__}: {e})", file=sys.stderr)
+    for follow in (first_look.follow_undo, _sync_sessions):
+        try:
+            follow()
+        except Exception as e:  # noqa: BLE001 - a handler must not break Blender's undo
+            print(f"DivAS: could not follow the undo ({type(e).__name__}: {e})", file=sys.stderr)
     draw.touch()
 
 
@@ -154,6 +160,7 @@ def on_undo_redo(*_args) -> None:
 def _on_load_pre(*args) -> None:
     session_registry.on_load_pre(*args)
     bridge.forget_pending()  # the images to pack were the old file's
+    first_look.forget()  # the views' switches were for the old file's objects
     _viewport_colours[0] = None  # the next file's modifiers are checked on its first draw
     draw.touch()
 

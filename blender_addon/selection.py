@@ -170,9 +170,7 @@ def extract_selection(context, obj) -> bpy.types.Object:
     new.matrix_world = obj.matrix_world.copy()
     old_mod = obj.modifiers.get(display.MODIFIER)
     if old_mod is not None:
-        mod = display.add_display_modifier(new)
-        for key in old_mod.keys():  # noqa: SIM118 - ID properties; modifier inputs, e.g. the radius scale
-            mod[key] = old_mod[key]
+        display.copy_display_inputs(old_mod, display.add_display_modifier(new))
     obj.select_set(False)
     new.select_set(True)
     context.view_layer.objects.active = new

@@ -7,7 +7,8 @@
 Steps:
 
 1. ``pip download --only-binary=:all: --no-deps --platform … --python-version …`` of each
-   pinned dependency (:data:`PINNED`) for every requested platform × Python into a wheel
+   run-time dependency at the version the Python's lock pins (:func:`pinned`, the
+   versions the tests passed with) for every requested platform × Python into a wheel
    cache (``build/extension/wheels``; reused, so a rebuild downloads nothing), and
    ``pip wheel --no-deps .`` of the engine itself (pure Python, ``py3-none-any``).
 2. A staging copy of ``blender_addon/`` with those wheels in ``wheels/`` and a manifest
@@ -47,6 +48,7 @@ import shutil
 import subprocess
 import sys
 import time
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -54,19 +56,11 @@ REPO = Path(__file__).resolve().parents[1]
 ADDON = REPO / "blender_addon"
 BUILD = REPO / "build" / "extension"
 
-#: The engine's run-time dependencies the add-on needs, at the versions the test suite
-#: runs against (tqdm, a command-line-only dependency, is left out).
-PINNED = {
-    "warp-lang": "1.19.0",
-    "onnxruntime": "1.31.1",
-    "opencv-python-headless": "4.11.0.86",
-    "scipy": "1.17.1",
-    "plyfile": "1.1.3",
-    "zstandard": "0.25.0",
-    "msgpack": "1.2.4",
-    "psutil": "7.2.2",
-    "threadpoolctl": "3.8.0",
-}
+#: The lock of each Python (the versions the tests passed with; ``make lock``): the
+#: bundled wheels take their versions from it.
+LOCKS = {"311": REPO / "constraints" / "py311.txt", "313": REPO / "constraints" / "py313.txt"}
+#: Run-time dependencies of the engine (pyproject.toml) that the extension does not bundle.
+NOT_BUNDLED = {"numpy": "Blender ships its own", "tqdm": "progress bars of the command line"}
 #: left out by ``--without-sam`` (only the SAM ONNX segmenter imports it).
 SAM_ONLY = ("onnxruntime",)
 #: Blender versions of each bundled Python: (blender_version_min, blender_version_max).
@@ -96,6 +90,27 @@ PLATFORMS = {
 PYTHONS = ("311", "313")
 
 
+def runtime_dependencies() -> list[str]:
+    """The engine's dependencies (``[project].dependencies``) the extension bundles."""
+    deps = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["dependencies"]
+    names = [re.match(r"[A-Za-z0-9_.-]+", d)[0] for d in deps]
+    return [n for n in names if _norm(n) not in {_norm(k) for k in NOT_BUNDLED}]
+
+
+def pinned(python: str) -> dict[str, str]:
+    """``{name: version}`` of :func:`runtime_dependencies` as the lock of ``python`` pins them."""
+    lock = LOCKS[python]
+    found = {}
+    for line in lock.read_text().splitlines():
+        m = re.fullmatch(r"\s*([A-Za-z0-9_.-]+)==([^\s;#]+)\s*", line)
+        if m:
+            found[_norm(m[1])] = m[2]
+    missing = [n for n in runtime_dependencies() if _norm(n) not in found]
+    if missing:
+        raise SystemExit(f"{lock} pins no version of {', '.join(missing)}: run `make lock`")
+    return {n: found[_norm(n)] for n in runtime_dependencies()}
+
+
 def _run(cmd: list[str], **kw) -> None:
     print("+", " ".join(str(c) for c in cmd), flush=True)
     subprocess.run(cmd, check=True, **kw)
@@ -110,7 +125,7 @@ def download_wheels(platform: str, python: str, cache: Path, *, sam: bool = True
     dest = cache / f"{platform}-cp{python}"
     dest.mkdir(parents=True, exist_ok=True)
     out = []
-    for name, version in PINNED.items():
+    for name, version in pinned(python).items():
         if not sam and name in SAM_ONLY:
             continue
         prefix = f"{_norm(name)}-{version}-"

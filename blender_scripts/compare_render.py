@@ -100,7 +100,7 @@ def render_blender(context, obj, cam: Camera, engine: str, samples: int, out: Pa
     file frame), rendered by ``engine`` to ``out``."""
     import bpy
 
-    from blender_addon import camera_objects
+    from blender_addon import camera_objects, compat
 
     scene = context.scene
     bcam = camera_objects.create_camera_object(
@@ -113,14 +113,14 @@ def render_blender(context, obj, cam: Camera, engine: str, samples: int, out: Pa
     if world.node_tree is not None and "Background" in world.node_tree.nodes:
         world.node_tree.nodes["Background"].inputs[0].default_value = (0, 0, 0, 1)
     scene.view_settings.view_transform = "Standard"
-    scene.render.engine = engine
+    scene.render.engine = compat.render_engine(engine)  # EEVEE's name differs on 4.x
     scene.render.image_settings.file_format = "PNG"
     scene.render.film_transparent = False
     if engine == "CYCLES":
         c = scene.cycles
         c.device, c.samples, c.use_denoising = "CPU", samples, False
         c.pixel_filter_type, c.filter_width = "BOX", 1.0
-    elif engine == "BLENDER_EEVEE":
+    elif engine in ("BLENDER_EEVEE", "BLENDER_EEVEE_NEXT"):
         scene.eevee.taa_render_samples = samples
     else:
         shading = scene.display.shading

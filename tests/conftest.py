@@ -6,6 +6,8 @@ needs nothing beside it to run its tests.
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -58,3 +60,25 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.kernels)
         else:
             item.add_marker(pytest.mark.engine)
+
+
+# Ending the process as soon as the result is out (DIVAS_TEST_HARD_EXIT=1, set by the
+# Makefile's add-on release matrix): the bpy 4.5 module can deadlock in Blender's own
+# shutdown at interpreter exit (gdb: every thread waits on a futex, Blender's GPU workers
+# among them), after pytest has printed its summary, so a CI run would hang until its
+# time limit. ``os._exit`` skips the interpreter's (and Blender's) exit
+# handlers; pytest has written everything by the last ``pytest_unconfigure``.
+_EXIT_STATUS = "divas_exit_status"
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:
+    setattr(session.config, _EXIT_STATUS, int(exitstatus))
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config) -> None:
+    if os.environ.get("DIVAS_TEST_HARD_EXIT") != "1" or not hasattr(config, _EXIT_STATUS):
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(getattr(config, _EXIT_STATUS))

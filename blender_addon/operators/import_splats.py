@@ -9,6 +9,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper, orientation_helper
 
+from .. import first_look
 from ..blend_space import BLEND_FLAG
 from ..importers import SplatImportSettings, import_splats
 from ..reporting import USER_ERRORS, report_failure
@@ -70,6 +71,13 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
         description="Where overlapping splats are blended: display space reproduces the "
         "capture's colours; linear is Blender's own (Scene › Blend Like the Capture)",
     )
+    material_preview: BoolProperty(
+        name="Show in Material Preview",
+        default=True,
+        description="Switch the 3D views in Solid or Wireframe shading to Material Preview, "
+        "which blends the splats as the capture does (Solid draws them as hard shards); "
+        "undone with the import",
+    )
     setup_scene: BoolProperty(
         name="Set Up Scene",
         default=True,
@@ -94,6 +102,8 @@ class DIVAS_OT_import_splats(bpy.types.Operator, ImportHelper):
             obj = import_splats(context, settings)
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
+        if self.display and self.material_preview:
+            first_look.show_in_material_preview(obj, context.window_manager)
         n = len(obj.data.points)
         self.report(
             {"INFO"},

@@ -55,3 +55,24 @@ def ribs(tmp_path_factory):
     out = tmp_path_factory.mktemp("ribs")
     generate_scene("ribs", out, size=20_000, seed=0, grid_resolution=48)
     return out
+
+
+def one_click_prompts(data: Path, capture: str, target: str, path: Path):
+    """Write a prompts file of the first hand-placed anchor of ``target`` on the capture
+    ``data / capture`` (``tests/data/targets``) with its first click, as a positive click,
+    to ``path``; returns the target's ground-truth labels per scene row."""
+    from divas_engine import load_scene
+    from divas_engine.evaluation.real_targets import (
+        oracle_anchors,
+        read_targets,
+        target_scene_labels,
+    )
+    from divas_engine.session import Click, Prompts
+    from divas_engine.session.prompts import AnchorPrompt
+
+    scene = load_scene(data / capture)
+    doc = read_targets(data / "targets" / Path(capture).name.split(".")[0])
+    anchors = oracle_anchors(scene, doc["true_up"], doc["targets"][target]["anchors"])
+    cam, _, _, clicks = anchors[0]
+    Prompts((AnchorPrompt("camera", cam, (Click(clicks[0], positive=True),)),)).write(path)
+    return target_scene_labels(scene, doc, target)

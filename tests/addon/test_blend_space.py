@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_addon import blend_space
+from blender_addon import blend_space, compat
 from divas_engine.camera import Camera
 from divas_engine.io.ply import write_surfel_ply
 from divas_engine.point_attributes import linear_to_srgb, srgb_to_linear
@@ -101,7 +101,7 @@ def test_blend_like_the_capture_and_back_to_linear(two_layers, tmp_path, engine)
     assert len(blend_space.decode_nodes(scene)) == 1
     np.testing.assert_allclose(_centre(obj, engine, tmp_path / "d.png"), _display(), atol=tol)
     blend_space.set_blend_display(scene, False)
-    assert blend_space.decode_nodes(scene) == [] and scene.compositing_node_group is None
+    assert blend_space.decode_nodes(scene) == [] and compat.compositor_tree(scene) is None
     assert bpy.data.node_groups.get(blend_space.COMPOSITOR_GROUP) is None
     np.testing.assert_allclose(_centre(obj, engine, tmp_path / "l.png"), _linear(), atol=tol)
     if engine == "CYCLES":  # the property itself (the panel's toggle), back on
@@ -137,20 +137,18 @@ def test_auto_keeps_linear_beside_other_objects(two_layers):
 def test_a_compositor_of_the_users_own_is_kept(two_layers):
     """The decode goes right after Render Layers; switching off restores the links."""
     scene = bpy.context.scene
-    group = bpy.data.node_groups.new("mine", "CompositorNodeTree")
-    group.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-    layers = group.nodes.new("CompositorNodeRLayers")
+    group = compat.new_compositor_tree(scene, "mine")  # Render Layers → output
+    (layers,) = [n for n in group.nodes if n.bl_idname == "CompositorNodeRLayers"]
+    out = layers.outputs["Image"].links[0].to_socket
     blur = group.nodes.new("CompositorNodeBlur")
-    out = group.nodes.new("NodeGroupOutput")
     group.links.new(layers.outputs["Image"], blur.inputs[0])
-    group.links.new(blur.outputs[0], out.inputs[0])
-    scene.compositing_node_group = group
+    group.links.new(blur.outputs[0], out)
     _import(two_layers, blend_space="DISPLAY")
     (node,) = blend_space.decode_nodes(scene)
     assert node.inputs[0].links[0].from_socket == layers.outputs["Image"]
     assert blur.inputs[0].links[0].from_node == node
     assert (node.from_color_space, node.to_color_space) == ("sRGB", "Linear Rec.709")
     blend_space.set_blend_display(scene, False)
-    assert scene.compositing_node_group == group
+    assert compat.compositor_tree(scene) == group
     assert blur.inputs[0].links[0].from_socket == layers.outputs["Image"]
     assert [n.bl_idname for n in group.nodes].count("CompositorNodeConvertColorSpace") == 0

@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_addon import bridge, display, handlers
+from blender_addon import bridge, compat, display, handlers
 from divas_engine.point_attributes import SELECTED
 
 
@@ -42,7 +42,7 @@ def _cameras():
 
 def _raw_set(mod, name: str, value) -> None:
     """Set a modifier input as the modifier panel does (no variant switch)."""
-    mod[display._input_ids(mod)[name]] = value
+    compat.set_modifier_input(mod, display._input_ids(mod)[name], value)
     mod.id_data.update_tag()
     bpy.context.view_layer.update()
 
