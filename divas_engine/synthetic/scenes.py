@@ -28,9 +28,10 @@ import numpy as np
 
 from .builder import SceneSpec, allocate_counts, notes_grid_params, rng_for, surfel_scales
 from .rigs import Intrinsics, forward_facing_rig, ring_rig
+from .scenes_checks import CHECK_SCENE_BUILDERS
 from .surfaces import Cylinder, Disc, Frame, Rect, Sphere, Surface, Torus, box
 
-__all__ = ["SCENE_BUILDERS", "RIB_VOXELS", "predict_hv", "bounding_radius"]
+__all__ = ["SCENE_BUILDERS", "SUITE_SCENES", "RIB_VOXELS", "predict_hv", "bounding_radius"]
 
 #: Rib tube radius in units of the predicted occupancy voxel h_v.
 RIB_VOXELS = 1.2
@@ -550,4 +551,11 @@ def occluded_spec(seed: int, size: int) -> SceneSpec:
     )
 
 
-SCENE_BUILDERS = {"ribs": ribs_spec, "plant": plant_spec, "occluded": occluded_spec}
+#: The paper-style suite (``divas eval``'s default scenes).
+SUITE_SCENES = ("ribs", "plant", "occluded")
+SCENE_BUILDERS = {
+    "ribs": ribs_spec,
+    "plant": plant_spec,
+    "occluded": occluded_spec,
+    **CHECK_SCENE_BUILDERS,
+}
