@@ -126,3 +126,48 @@ def test_a_run_on_a_small_scene_with_the_oracle_reaches_high_iou(tmp_path):
     assert max(run.ious) >= run.ious[0] - 1e-9 or run.outcomes[1] != "fused"
     d = run.as_dict()
     assert d["noc"]["0.85"] == number_of_clicks(run.ious, 0.85)
+
+
+def test_every_scene_and_capture_is_in_one_half_of_the_split():
+    from divas_engine.evaluation.noc_suite import (
+        HELD_OUT_CAPTURES,
+        HELD_OUT_SCENES,
+        TUNING_CAPTURES,
+        TUNING_SCENES,
+        half_of,
+        real_cases,
+    )
+    from divas_engine.evaluation.real_target_defs import CAPTURES
+    from divas_engine.synthetic import SCENE_NAMES
+
+    assert set(TUNING_SCENES) | set(HELD_OUT_SCENES) == set(SCENE_NAMES)
+    assert not set(TUNING_SCENES) & set(HELD_OUT_SCENES)
+    with_targets = {k for k, c in CAPTURES.items() if c.targets}
+    assert set(TUNING_CAPTURES) | set(HELD_OUT_CAPTURES) == with_targets
+    assert not set(TUNING_CAPTURES) & set(HELD_OUT_CAPTURES)
+    halves = {c.name: c.half for c in real_cases()}
+    assert halves["biker/helmet"] == halves["biker_spz/helmet"] == "held-out"
+    assert halves["guitar/stand"] == "tuning" and half_of("ribs") == "tuning"
+    with pytest.raises(ValueError):
+        half_of("nowhere")
+
+
+def test_eval_cli_noc_protocol_prints_one_row_per_case(capsys):
+    import argparse
+    import json
+
+    from divas_engine.cli import evaluate
+
+    p = argparse.ArgumentParser()
+    evaluate.add_parser(p.add_subparsers())
+    args = p.parse_args(
+        ["eval", "--protocol", "noc", "--scenes", "occluded", "--size", "4000"]
+        + ["--segmenters", "oracle", "--max-clicks", "2", "--eval-scale", "0.25"]
+        + ["--json", "--quiet", "--device", "cpu"]
+    )
+    assert evaluate.run(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    (row,) = out["rows"]
+    assert row["case"] == "occluded/2dgs" and row["half"] == "held-out"
+    assert len(row["ious"]) == 2 and row["segmenter"] == "oracle"
+    assert out["summary"]["oracle|held-out"]["miou"] == row["ious"]
