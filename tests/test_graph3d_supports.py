@@ -119,3 +119,28 @@ def test_what_holds_the_statue_up_is_not_the_statue():
         assert rc.scores[1] >= 0.5  # the island it stands on is no rival
         _, island = _medium(sc.scene, [click], Graph3DConfig(drop_supports=False))
         assert np.mean(island[ped]) > 0.5, click  # without the rule: the island
+
+
+def test_a_negative_click_on_the_pedestal_removes_the_pedestal():
+    """The statue and its pedestal as one island (the stand-on rule off): a positive
+    click on the head and a negative one on the pedestal's face. As one sink voxel the
+    negative changed nothing; the part the walk reaches from it first leaves the cut."""
+    from divas_engine.synthetic import generate_scene
+
+    sc = generate_scene("pedestal", size=20000, seed=0, kind="3dgs")
+    names = [s.name for s in sc.surfaces]
+    ped = np.array(
+        [i >= 0 and names[i].startswith(("pedestal", "cornice")) for i in sc.surface_ids]
+    )
+    clicks = [[0.0, -0.07, 0.78]]
+    negative = np.array([[0.0, -0.2, 0.6]])  # the pedestal's front face
+    out = {}
+    for claims in (True, False):
+        cfg = Graph3DConfig(drop_supports=False, negative_claims=claims)
+        seg = Graph3DSegmenter(cfg, binding=SceneBinding(sc.scene, None, None))
+        rc = seg.cut(Seeds(np.array(clicks), negative))
+        sel = np.zeros(len(sc.scene), bool)
+        sel[seg.primitives().rows_of(np.arange(rc.selected.shape[1]))] = rc.selected[1]
+        out[claims] = (np.mean(sel[sc.labels]), np.mean(sel[ped]))
+    assert out[True][0] > 0.95 and out[True][1] < 0.02
+    assert out[False][1] > 0.5  # one sink voxel: the island stays

@@ -89,6 +89,10 @@ class Graph3DConfig:
             ``support_quantile`` (0.05) of the added voxels below the boundary, as many
             of the dip's above it; :func:`.cut._on_its_support`): a statue's pedestal of
             another material, a guitar's stand. Needs the scene's up (True).
+        negative_claims: the voxels a walk from the negative seeds reaches before the
+            positive ones leave the sweep like sinks (:func:`.cut._claimed`, Grady's
+            two-label walker; True): a negative click on the pedestal removes the
+            pedestal, not one voxel of it.
 
     Scores and mask:
         score_contrast: boundary contrast c₀ at which the score is 0.5 (0.35); score =
@@ -134,6 +138,7 @@ class Graph3DConfig:
     min_granularity_ratio: float = 1.5
     min_region_share: float = 0.01
     drop_supports: bool = True
+    negative_claims: bool = True
     support_quantile: float = 0.05
     tie_window: float = 1.1
     clean_phi: float = 1e-5

@@ -154,10 +154,12 @@ def sweep_cut(
     config: Graph3DConfig,
     planes: np.ndarray | None = None,
     up: np.ndarray | None = None,
+    negative: np.ndarray | None = None,
 ) -> CutResult:
     """Steps 1–4 of the module docstring. ``positive``/``sinks``/``planes``: bool ``[V]``
     (``planes``: the sinks that are supporting surfaces, a subset of ``sinks``); ``up``:
-    the scene's up, for :func:`_on_its_support` (None: not applied)."""
+    the scene's up, for :func:`_on_its_support` (None: not applied); ``negative``: bool
+    ``[V]``, the negative seeds (a subset of ``sinks``), for :func:`_claimed`."""
     planes = np.zeros(len(graph), bool) if planes is None else planes
     total = 2.0 * float(graph.weights.sum())  # the complement keeps the supports' volume
     # the walk drains into the supports (a post standing on a base loses potential along
@@ -170,6 +172,8 @@ def sweep_cut(
         graph = replace(graph, weights=w)
         deg = _laplacian(graph)[1]
     sinks = sinks | planes
+    if negative is not None and negative.any() and config.negative_claims:
+        sinks = sinks | _claimed(graph, positive, negative, sinks, x, config)
     v = len(graph)
     # positives first, then by potential; sinks last (never in a region)
     key = np.where(positive, 2.0, np.where(sinks | (deg <= 0), -1.0, x))
@@ -235,6 +239,26 @@ def sweep_cut(
     share = _rim_cut(graph, levels[1].nodes) / max(float(cut[best]), 1e-300)
     alt = None if rival_k is None else float(vol[rival_k] / max(vol[best], 1e-300))
     return CutResult(tuple(levels), x, float(min(share, 1.0)), bool(ambiguous), alt)
+
+
+def _claimed(
+    graph: VoxelGraph,
+    positive: np.ndarray,
+    negative: np.ndarray,
+    sinks: np.ndarray,
+    x: np.ndarray,
+    config: Graph3DConfig,
+) -> np.ndarray:
+    """Bool ``[V]``: the voxels a walk reaches a negative seed from before a positive one
+    (Grady's random walker with two labels: the walk from the negative seeds ``y``, the
+    positive ones and the other sinks draining, against the positive walk ``x``;
+    ``y > x``): what the negative click is on. A negative seed is one sink voxel in the
+    positive walk — an island it lies on (a pedestal the statue stands on) keeps
+    conductance 0 without it, and the click would change nothing; its part then leaves
+    the sweep like a sink."""
+    other = (sinks & ~negative) | positive
+    y, _, _ = walk_potential(graph, negative, other, config)
+    return (y > x) & ~positive
 
 
 def _rings(graph: VoxelGraph, nodes: np.ndarray, n: int) -> np.ndarray:

@@ -336,7 +336,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             sinks = graph.rim | neg
             planes = support_nodes(graph, prims, pos, cfg, neg) & ~pos
             sinks = (sinks | planes) & ~pos
-            res = sweep_cut(graph, pos, sinks, cfg, planes, prims.up)
+            res = sweep_cut(graph, pos, sinks, cfg, planes, prims.up, neg & ~pos)
             if _too_small(res, graph, cfg, on_ground) and grows < cfg.region_max_grows:
                 radius *= cfg.region_grow
                 grows += 1
