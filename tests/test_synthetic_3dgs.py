@@ -23,6 +23,7 @@ from divas_engine.io.ply import read_ply_header
 from divas_engine.kinds import SceneKind
 from divas_engine.synthetic import SCENE_NAMES, generate_scene
 from divas_engine.synthetic.gaussians3d import HAZE_SIZE, INTERIOR_MARGIN, SURFACE_SCALE
+from divas_engine.synthetic.scenes import SUITE_SCENES
 from divas_engine.synthetic.splat_stats import (
     _MEASURED,
     REAL_BANDS,
@@ -107,7 +108,7 @@ def test_ply_is_reference_3dgs_layout_and_loads(tmp_path):
     assert meta["clicks"] and all(c["surface"].startswith("vase") for c in meta["clicks"])
 
 
-@pytest.mark.parametrize("name", SCENE_NAMES)
+@pytest.mark.parametrize("name", SUITE_SCENES)  # the calibrated suite
 def test_statistics_in_real_capture_bands(scenes, name):
     sc = scenes[name]
     target = splat_statistics(sc.scene.subset(sc.labels))
@@ -236,7 +237,7 @@ TWO_DGS_SHA256 = {
 }
 
 
-@pytest.mark.parametrize("name", SCENE_NAMES)
+@pytest.mark.parametrize("name", SUITE_SCENES)
 def test_2dgs_output_unchanged(tmp_path, name):
     generate_scene(name, tmp_path, size=3000, seed=3, grid_resolution=16)
     h = hashlib.sha256()
