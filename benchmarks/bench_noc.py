@@ -32,7 +32,7 @@ from divas_engine.evaluation.noc import NocConfig  # noqa: E402
 from divas_engine.evaluation.noc_suite import (  # noqa: E402
     noc_table,
     real_cases,
-    run_case,
+    run_cases,
     summary,
     synthetic_cases,
 )
@@ -131,34 +131,17 @@ def main(argv: list[str] | None = None) -> int:
         cases = [c for c in cases if c.half == args.half]
     cfg = NocConfig(max_clicks=args.max_clicks, eval_scale=args.eval_scale)
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-    rows, cache = [], {}
     t_all = time.perf_counter()
-    for case in cases:
-        for seg in segs:
-            run = run_case(
-                case,
-                seg,
-                size=args.size,
-                seed=args.seed,
-                config=cfg,
-                data_dir=DATA,
-                device=args.device,
-                cache=cache,
-            )
-            rows.append(
-                {
-                    "case": case.name,
-                    "half": case.half,
-                    "kind": case.kind,
-                    "segmenter": seg,
-                    **run.as_dict(cfg.thresholds),
-                }
-            )
-            say(
-                f"{case.name} [{case.half}] {seg}: IoU "
-                + " ".join(f"{v:.2f}" for v in run.ious)
-                + f"  outcomes {run.outcomes}  ({run.seconds:.0f} s)"
-            )
+    rows = run_cases(
+        cases,
+        segs,
+        size=args.size,
+        seed=args.seed,
+        config=cfg,
+        data_dir=DATA,
+        device=args.device,
+        log=say,
+    )
     wall = time.perf_counter() - t_all
     summ = summary(rows, cfg.thresholds)
     print(noc_table(rows, cfg.thresholds))

@@ -246,12 +246,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate_suite(cfg, device=dev, log=log)
     result["device"] = str(dev)
     result["wall_s"] = time.perf_counter() - t0
-    text = json.dumps(result, default=_json_default)
-    if args.out is not None:
-        write_text_atomic(args.out, text)
-    if args.json:
-        print(text)
-    else:
+    if _emit(args, result):
         print(markdown_table(result))
         print(
             f"\n{len(result['rows'])} rows, protocol {cfg.protocol}, size {cfg.size}, "
@@ -266,7 +261,7 @@ def _run_noc(args: argparse.Namespace, dev) -> int:
     """``--protocol noc``: the NoC table of the synthetic scenes (``--kind``) and, with
     ``--real-targets``, every real target."""
     from ..evaluation.noc import NocConfig
-    from ..evaluation.noc_suite import noc_table, real_cases, run_case, summary, synthetic_cases
+    from ..evaluation.noc_suite import noc_table, real_cases, run_cases, summary, synthetic_cases
     from ..synthetic import SCENE_NAMES
 
     if args.max_clicks < 1:
@@ -280,43 +275,36 @@ def _run_noc(args: argparse.Namespace, dev) -> int:
     segs = args.segmenters or ("graph3d", "oracle", "classic")
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
-    rows, cache = [], {}
-    for case in cases:
-        for seg in segs:
-            run = run_case(
-                case,
-                seg,
-                size=int(args.size),
-                seed=int(args.seed),
-                config=cfg,
-                data_dir=args.real_targets,
-                device=dev,
-                cache=cache,
-            )
-            rows.append(
-                {
-                    "case": case.name,
-                    "half": case.half,
-                    "kind": case.kind,
-                    "segmenter": seg,
-                    **run.as_dict(cfg.thresholds),
-                }
-            )
-            say(f"{case.name} [{case.half}] {seg}: " + " ".join(f"{v:.2f}" for v in run.ious))
+    rows = run_cases(
+        cases,
+        segs,
+        size=int(args.size),
+        seed=int(args.seed),
+        config=cfg,
+        data_dir=args.real_targets,
+        device=dev,
+        log=say,
+    )
     result = {"rows": rows, "summary": summary(rows, cfg.thresholds), "device": str(dev)}
     result["wall_s"] = time.perf_counter() - t0
-    text = json.dumps(result, default=_json_default)
-    if args.out is not None:
-        write_text_atomic(args.out, text)
-    if args.json:
-        print(text)
-    else:
+    if _emit(args, result):
         print(noc_table(rows, cfg.thresholds))
         print(
             f"\n{len(rows)} runs, protocol noc, size {args.size}, device {dev}, "
             f"{result['wall_s']:.0f} s"
         )
     return 0
+
+
+def _emit(args: argparse.Namespace, result: dict) -> bool:
+    """Write the JSON result to ``--out``, print it with ``--json``; whether the caller
+    prints its table instead."""
+    text = json.dumps(result, default=_json_default)
+    if args.out is not None:
+        write_text_atomic(args.out, text)
+    if args.json:
+        print(text)
+    return not args.json
 
 
 def _json_default(o):

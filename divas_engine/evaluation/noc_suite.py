@@ -33,6 +33,7 @@ __all__ = [
     "synthetic_cases",
     "real_cases",
     "run_case",
+    "run_cases",
     "summary",
     "noc_table",
 ]
@@ -123,6 +124,50 @@ def run_case(
         renderer=prep["renderer"],
         log=log,
     )
+
+
+def run_cases(
+    cases: Sequence[NocCase],
+    segmenters: Sequence[str],
+    *,
+    size: int = 20_000,
+    seed: int = 0,
+    config: NocConfig = NocConfig(),
+    data_dir: Path | None = None,
+    device=None,
+    log: Callable[[str], None] | None = None,
+) -> list[dict]:
+    """:func:`run_case` for every case and segmenter: one row each (the case, its half
+    and kind, the segmenter, :meth:`NocRun.as_dict`); ``log`` gets a line per run."""
+    rows, cache = [], {}
+    for case in cases:
+        for seg in segmenters:
+            run = run_case(
+                case,
+                seg,
+                size=size,
+                seed=seed,
+                config=config,
+                data_dir=data_dir,
+                device=device,
+                cache=cache,
+            )
+            rows.append(
+                {
+                    "case": case.name,
+                    "half": case.half,
+                    "kind": case.kind,
+                    "segmenter": seg,
+                    **run.as_dict(config.thresholds),
+                }
+            )
+            if log is not None:
+                log(
+                    f"{case.name} [{case.half}] {seg}: IoU "
+                    + " ".join(f"{v:.2f}" for v in run.ious)
+                    + f"  outcomes {run.outcomes}  ({run.seconds:.0f} s)"
+                )
+    return rows
 
 
 def _prepare(case: NocCase, size: int, seed: int, data_dir: Path | None, device) -> dict:

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from .builder import SceneSpec, rng_for
-from .rigs import Intrinsics, forward_facing_rig, ring_rig
+from .rigs import Intrinsics, forward_facing_rig, half_ring_rigs
 from .surfaces import Cylinder, Disc, Frame, Rect, Sphere, Surface, Torus, box
 
 __all__ = ["wheel_spec", "pedestal_spec", "CHECK_SCENE_BUILDERS"]
@@ -158,30 +158,8 @@ def pedestal_spec(seed: int, size: int) -> SceneSpec:
     centre = np.array([0.0, 0.0, 0.75])
     intr = Intrinsics()
     crng = rng_for(seed, "pedestal", "cameras")
-    train = ring_rig(
-        crng,
-        intr,
-        center=centre,
-        radius=2.0,
-        elevations_deg=[8, 25],
-        counts=[30, 30],
-        prefix="train_",
-        az_range_deg=(-165, -15),
-        radius_jitter=0.03,
-        angle_jitter_deg=1.0,
-        aim_jitter=0.02,
-    )
-    test = ring_rig(
-        crng,
-        intr,
-        center=centre,
-        radius=2.0,
-        elevations_deg=[15],
-        counts=[8],
-        prefix="test_",
-        az_range_deg=(-165, -15),
-        az_offset=0.5,
-        aim_jitter=0.02,
+    train, test = half_ring_rigs(
+        crng, intr, center=centre, radius=2.0, elevations_deg=[8, 25], test_elevation_deg=15
     )
     return SceneSpec(
         "pedestal",
