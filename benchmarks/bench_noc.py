@@ -42,8 +42,10 @@ DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
 COLOURS = {"graph3d": (40, 90, 220), "oracle": (60, 160, 60), "classic": (200, 120, 40)}
 
 
-def plot_miou(summ: dict, path: Path, title: str) -> None:
-    """mIoU vs clicks per segmenter, solid = tuning half, dashed = held-out (OpenCV)."""
+def plot_miou(summ: dict, path: Path, title: str, colours: dict | None = None) -> None:
+    """mIoU vs clicks per segmenter, solid = tuning half, dashed = held-out (OpenCV);
+    ``colours``: BGR per segmenter name (default :data:`COLOURS`)."""
+    colours = COLOURS if colours is None else colours
     w, h, left, right, top, bottom = 900, 560, 80, 210, 50, 60
     img = np.full((h, w, 3), 255, np.uint8)
     pw, ph = w - left - right, h - top - bottom
@@ -76,7 +78,7 @@ def plot_miou(summ: dict, path: Path, title: str) -> None:
     for s in summ.values():
         if s["half"] == "all":
             continue
-        col = COLOURS.get(s["segmenter"], (0, 0, 0))
+        col = colours.get(s["segmenter"], (0, 0, 0))
         pts = [xy(k + 1, v) for k, v in enumerate(s["miou"])]
         dashed = s["half"] == "held-out"
         for a, b in zip(pts[:-1], pts[1:]):
