@@ -197,10 +197,7 @@ def _reference_extents(
         return empty
     if config.extent_gs3d_only and getattr(ref.scene, "kind", None) != SceneKind.GS3D:
         return empty  # 2DGS: an isolated centre is a sparse surface (config docstring)
-    big = ref.sigma[sel].astype(np.float64) > config.extent_min_sigma * h
-    if getattr(ref.scene, "scale_n", None) is not None:  # blobs only: κ ≤ extent_max_kappa
-        big &= ref.kappa[sel].astype(np.float64) <= config.extent_max_kappa
-    big = np.flatnonzero(big)
+    big = np.flatnonzero(ref.sigma[sel].astype(np.float64) > config.extent_min_sigma * h)
     if len(big) == 0:
         return empty
     # only where the centres leave a primitive unlinked: its voxel has no occupied

@@ -46,10 +46,6 @@ class Graph3DConfig:
             equal). On 2DGS surfels an isolated centre is a sparsely sampled surface, and
             its extent bridged the synthetic vase to its plinth (simulated user: plant /
             occluded 0.836 / 0.883 → 0.720 / 0.711; BENCHMARKS "Primitive extents").
-            ``extent_max_kappa``: only Gaussians of normal confidence κ at most this
-            (0.5: a blob, not a flattened disc) get extents — a flat Gaussian alone in its
-            voxel is a surface sampled sparser than the voxel, as a 2DGS surfel is (the
-            synthetic wheel's wall, 10 voxels behind its spokes, was bridged to them).
         min_opacity: primitives below this opacity are left out of the graph (0.02;
             near-invisible haze neither bridges objects nor shows in a mask).
 
@@ -126,7 +122,6 @@ class Graph3DConfig:
     extent_max_steps: int = 4
     extent_min_sigma: float = 1.0
     extent_gs3d_only: bool = True
-    extent_max_kappa: float = 0.5
     sigma_d: float = 1.0
     colour_contrast: float = 0.5
     normal_sigma: float = 0.15

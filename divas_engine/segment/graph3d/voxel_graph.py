@@ -281,14 +281,7 @@ def _extent_entries(
     if config.extent_gs3d_only and getattr(prims.scene, "kind", None) != SceneKind.GS3D:
         return empty  # 2DGS: an isolated centre is a sparse surface (config docstring)
     sigma = prims.sigma_of(sel)
-    big = sigma.astype(np.float64) > config.extent_min_sigma * h
-    kap = prims.kappa_of(sel)
-    if kap is not None and config.extent_max_kappa < 1.0:
-        # a flat Gaussian (a sure normal) is a sample of a surface, as a 2DGS surfel: alone
-        # in its voxel it is a sparsely sampled surface, and its extent would bridge it to
-        # whatever lies in front (a wall 10 voxels behind a wheel's spokes)
-        big &= kap.astype(np.float64) <= config.extent_max_kappa
-    big = np.flatnonzero(big)
+    big = np.flatnonzero(sigma.astype(np.float64) > config.extent_min_sigma * h)
     if len(big) == 0:
         return empty
     # only where the centres leave a primitive unlinked: its voxel has no occupied
