@@ -46,7 +46,7 @@ def plot_miou(summ: dict, path: Path, title: str, colours: dict | None = None) -
     """mIoU vs clicks per segmenter, solid = tuning half, dashed = held-out (OpenCV);
     ``colours``: BGR per segmenter name (default :data:`COLOURS`)."""
     colours = COLOURS if colours is None else colours
-    w, h, left, right, top, bottom = 900, 560, 80, 210, 50, 60
+    w, h, left, right, top, bottom = 960, 560, 80, 270, 50, 60
     img = np.full((h, w, 3), 255, np.uint8)
     pw, ph = w - left - right, h - top - bottom
     lo = 0.0
