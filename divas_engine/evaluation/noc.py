@@ -17,7 +17,7 @@ The simulated user (RITM / SimpleClick style, evaluation only) and what is measu
   positive. Ties: the deeper first; then a positive before a negative (a missed part
   before a spill); then the lower anchor index; then the first pixel in row-major
   order. The click is the pixel centre ``(x + 0.5, y + 0.5)``. No error pixel on any
-  anchor: no click (the session is left as it is and the click is not spent).
+  anchor: no click (the step is recorded as ``none``, its IoU the current one).
 * **What a click does**: ``session.click(anchor, xy, positive)`` — the public API;
   when it returns an open centroid view (a positive click), the user previews it with
   the default prompts (``session.prompt``) and accepts it (``session.accept``, then
