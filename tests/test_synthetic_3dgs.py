@@ -26,6 +26,7 @@ from divas_engine.io.ply import read_ply_header
 from divas_engine.kinds import SceneKind
 from divas_engine.synthetic import SCENE_NAMES, generate_scene
 from divas_engine.synthetic.gaussians3d import HAZE_SIZE, INTERIOR_MARGIN, SURFACE_SCALE
+from divas_engine.synthetic.scenes import SUITE_SCENES
 from divas_engine.synthetic.splat_stats import (
     _MEASURED,
     REAL_BANDS,
@@ -113,7 +114,7 @@ def test_ply_is_reference_3dgs_layout_and_loads(tmp_path):
     assert meta["clicks"] and all(c["surface"].startswith("vase") for c in meta["clicks"])
 
 
-@pytest.mark.parametrize("name", SCENE_NAMES)
+@pytest.mark.parametrize("name", SUITE_SCENES)  # the calibrated suite
 def test_statistics_in_real_capture_bands(scenes, name):
     sc = scenes[name]
     target = splat_statistics(sc.scene.subset(sc.labels))
@@ -232,7 +233,7 @@ def test_seeded_determinism(tmp_path):
     assert len(a.scene) == len(c.scene) == 4_000
 
 
-@pytest.mark.parametrize("name", SCENE_NAMES)
+@pytest.mark.parametrize("name", SUITE_SCENES)  # the scenes the reference was stored for
 def test_2dgs_output_matches_the_committed_reference(name):
     """The 2DGS generator writes what it wrote when the reference was stored
     (``tests/data/synthetic_reference``), within the CPU tolerances of

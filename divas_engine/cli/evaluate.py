@@ -1,6 +1,6 @@
 """``divas eval [--scenes ribs,plant,occluded] [--size N] [--segmenters oracle,classic]
-[--protocol user|clicks] [--json] [--out FILE]``: the evaluation table on the synthetic
-suite.
+[--protocol user|clicks|noc] [--json] [--out FILE]``: the evaluation table on the
+synthetic suite (``--protocol noc``: clicks to 85/90 % IoU, :mod:`..evaluation.noc`).
 
 Per scene: scripted DivAS sessions — by default a simulated user that looks at each of
 the session's anchors with the overlay of the running selection and clicks the largest
@@ -59,6 +59,7 @@ def _int_list(s: str) -> tuple[int, ...]:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from ..synthetic import SCENE_NAMES
+    from ..synthetic.scenes import SUITE_SCENES
 
     p = sub.add_parser(
         "eval",
@@ -69,8 +70,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--scenes",
         type=_csv(tuple(SCENE_NAMES), "--scenes"),
-        default=tuple(SCENE_NAMES),
-        help=f"comma-separated synthetic scenes (default {','.join(SCENE_NAMES)})",
+        default=None,
+        help=f"comma-separated synthetic scenes of {','.join(SCENE_NAMES)} (default "
+        f"{','.join(SUITE_SCENES)}; with --protocol noc every scene)",
     )
     p.add_argument(
         "--size", type=int, default=DEFAULT_SIZE, help=f"surfels per scene (default {DEFAULT_SIZE})"
@@ -86,8 +88,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--segmenters",
         type=_csv(("oracle", "graph3d", "classic"), "--segmenters"),
-        default=("oracle", "classic"),
-        help="comma-separated subset of oracle,graph3d,classic (default oracle,classic)",
+        default=None,
+        help="comma-separated subset of oracle,graph3d,classic (default oracle,classic; "
+        "with --protocol noc graph3d,oracle,classic)",
     )
     p.add_argument("--no-nerf", action="store_true", help="skip the NeRF path on the ribs grid")
     p.add_argument(
@@ -105,12 +108,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--protocol",
-        choices=("user", "clicks"),
+        choices=("user", "clicks", "noc"),
         default="user",
         help="view protocol: the simulated user clicking uncovered target regions "
         "under the overlay on the session's anchors (user, default, the "
-        "paper's Sec. 3.3/3.7) or the metadata clicks on training cameras "
-        "(clicks, the divas demo protocol)",
+        "paper's Sec. 3.3/3.7), the metadata clicks on training cameras "
+        "(clicks, the divas demo protocol), or noc: the interactive-segmentation "
+        "metric (RITM-style user, IoU after 1..--max-clicks clicks, NoC@85/90, "
+        "tuning and held-out halves apart; evaluation.noc)",
+    )
+    p.add_argument(
+        "--max-clicks",
+        type=int,
+        default=10,
+        help="--protocol noc: clicks per scene and target (default 10)",
+    )
+    p.add_argument(
+        "--real-targets",
+        type=Path,
+        default=None,
+        help="--protocol noc: also every real-capture target of this data folder "
+        "(the repository's tests/data)",
     )
     p.add_argument(
         "--clicks-per-anchor",
@@ -174,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.metrics import EvalConfig
     from ..evaluation.suite import SuiteConfig, evaluate_suite, markdown_table
     from ..synthetic import MIN_SIZE
+    from ..synthetic.scenes import SUITE_SCENES
 
     if args.size < MIN_SIZE:
         raise DivasInputError(None, f"--size {args.size} is too small (minimum {MIN_SIZE})")
@@ -187,6 +206,10 @@ def run(args: argparse.Namespace) -> int:
         dev = resolve_device(args.device)
     except RuntimeError as e:
         raise DivasInputError(None, str(e)) from None
+    if args.protocol == "noc":
+        return _run_noc(args, dev)
+    args.scenes = args.scenes or SUITE_SCENES
+    args.segmenters = args.segmenters or ("oracle", "classic")
     from ..evaluation.scripted_user import UserBudget
 
     ub = UserBudget()
@@ -223,12 +246,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate_suite(cfg, device=dev, log=log)
     result["device"] = str(dev)
     result["wall_s"] = time.perf_counter() - t0
-    text = json.dumps(result, default=_json_default)
-    if args.out is not None:
-        write_text_atomic(args.out, text)
-    if args.json:
-        print(text)
-    else:
+    if _emit(args, result):
         print(markdown_table(result))
         print(
             f"\n{len(result['rows'])} rows, protocol {cfg.protocol}, size {cfg.size}, "
@@ -237,6 +255,56 @@ def run(args: argparse.Namespace) -> int:
             f"{result['wall_s']:.0f} s"
         )
     return 0
+
+
+def _run_noc(args: argparse.Namespace, dev) -> int:
+    """``--protocol noc``: the NoC table of the synthetic scenes (``--kind``) and, with
+    ``--real-targets``, every real target."""
+    from ..evaluation.noc import NocConfig
+    from ..evaluation.noc_suite import noc_table, real_cases, run_cases, summary, synthetic_cases
+    from ..synthetic import SCENE_NAMES
+
+    if args.max_clicks < 1:
+        raise DivasInputError(None, f"--max-clicks must be ≥ 1, got {args.max_clicks}")
+    if args.real_targets is not None and not (args.real_targets / "targets").is_dir():
+        raise DivasInputError(args.real_targets, "no targets/ folder here (use tests/data)")
+    cfg = NocConfig(max_clicks=int(args.max_clicks), eval_scale=float(args.eval_scale))
+    cases = synthetic_cases(args.scenes or SCENE_NAMES, [args.kind])
+    if args.real_targets is not None:
+        cases += real_cases()
+    segs = args.segmenters or ("graph3d", "oracle", "classic")
+    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    t0 = time.perf_counter()
+    rows = run_cases(
+        cases,
+        segs,
+        size=int(args.size),
+        seed=int(args.seed),
+        config=cfg,
+        data_dir=args.real_targets,
+        device=dev,
+        log=say,
+    )
+    result = {"rows": rows, "summary": summary(rows, cfg.thresholds), "device": str(dev)}
+    result["wall_s"] = time.perf_counter() - t0
+    if _emit(args, result):
+        print(noc_table(rows, cfg.thresholds))
+        print(
+            f"\n{len(rows)} runs, protocol noc, size {args.size}, device {dev}, "
+            f"{result['wall_s']:.0f} s"
+        )
+    return 0
+
+
+def _emit(args: argparse.Namespace, result: dict) -> bool:
+    """Write the JSON result to ``--out``, print it with ``--json``; whether the caller
+    prints its table instead."""
+    text = json.dumps(result, default=_json_default)
+    if args.out is not None:
+        write_text_atomic(args.out, text)
+    if args.json:
+        print(text)
+    return not args.json
 
 
 def _json_default(o):

@@ -55,6 +55,7 @@ __all__ = [
     "write_capture",
     "read_targets",
     "target_scene_labels",
+    "target_dont_care",
     "capture_layout",
     "evaluation_cameras",
     "oracle_anchors",
@@ -158,12 +159,21 @@ def read_targets(capture_dir: Path) -> dict:
     doc = json.loads((d / "targets.json").read_text())
     for t in doc["targets"].values():
         t["labels"] = unpack_labels(np.load(d / t["file"]), doc["rows"])
+        if t.get("dont_care_file"):
+            t["dont_care"] = unpack_labels(np.load(d / t["dont_care_file"]), doc["rows"])
     return doc
 
 
 def target_scene_labels(scene: SurfelScene, doc: dict, name: str) -> np.ndarray:
     """Per-Gaussian labels of target ``name`` of a :func:`read_targets` document."""
     return scene_rows(scene, doc["targets"][name]["labels"])
+
+
+def target_dont_care(scene: SurfelScene, doc: dict, name: str) -> np.ndarray | None:
+    """Per-Gaussian don't-care marks of target ``name`` (Gaussians its rule cannot settle:
+    left out of the scoring), or None when the target has none."""
+    dc = doc["targets"][name].get("dont_care")
+    return None if dc is None else scene_rows(scene, dc)
 
 
 def capture_layout(scene: SurfelScene, true_up, config: ViewConfig | None = None) -> SceneLayout:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..camera import Camera
 
-__all__ = ["Intrinsics", "forward_facing_rig", "ring_rig"]
+__all__ = ["Intrinsics", "forward_facing_rig", "ring_rig", "half_ring_rigs"]
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -111,3 +111,43 @@ def ring_rig(
             tgt = center + aim_jitter * rng.uniform(-1, 1, 3)
             cams.append(intr.camera(eye, tgt, f"{prefix}{len(cams):03d}"))
     return cams
+
+
+def half_ring_rigs(
+    rng: np.random.Generator,
+    intr: Intrinsics,
+    *,
+    center,
+    radius: float,
+    elevations_deg: list[float],
+    test_elevation_deg: float,
+) -> tuple[list[Camera], list[Camera]]:
+    """Training and test cameras on the front half ring (azimuth −165° … −15°) of a
+    scene against a wall: 30 training cameras per elevation (jittered: radius 3 %,
+    angles 1°, aim 0.02), 8 test cameras at ``test_elevation_deg`` between them."""
+    train = ring_rig(
+        rng,
+        intr,
+        center=center,
+        radius=radius,
+        elevations_deg=list(elevations_deg),
+        counts=[30] * len(elevations_deg),
+        prefix="train_",
+        az_range_deg=(-165, -15),
+        radius_jitter=0.03,
+        angle_jitter_deg=1.0,
+        aim_jitter=0.02,
+    )
+    test = ring_rig(
+        rng,
+        intr,
+        center=center,
+        radius=radius,
+        elevations_deg=[test_elevation_deg],
+        counts=[8],
+        prefix="test_",
+        az_range_deg=(-165, -15),
+        az_offset=0.5,
+        aim_jitter=0.02,
+    )
+    return train, test

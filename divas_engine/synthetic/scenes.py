@@ -27,10 +27,11 @@ import math
 import numpy as np
 
 from .builder import SceneSpec, allocate_counts, notes_grid_params, rng_for, surfel_scales
-from .rigs import Intrinsics, forward_facing_rig, ring_rig
+from .rigs import Intrinsics, forward_facing_rig, half_ring_rigs, ring_rig
+from .scenes_checks import CHECK_SCENE_BUILDERS
 from .surfaces import Cylinder, Disc, Frame, Rect, Sphere, Surface, Torus, box
 
-__all__ = ["SCENE_BUILDERS", "RIB_VOXELS", "predict_hv", "bounding_radius"]
+__all__ = ["SCENE_BUILDERS", "SUITE_SCENES", "RIB_VOXELS", "predict_hv", "bounding_radius"]
 
 #: Rib tube radius in units of the predicted occupancy voxel h_v.
 RIB_VOXELS = 1.2
@@ -510,30 +511,8 @@ def occluded_spec(seed: int, size: int) -> SceneSpec:
 
     intr = Intrinsics()
     crng = rng_for(seed, "occluded", "cameras")
-    train = ring_rig(
-        crng,
-        intr,
-        center=center,
-        radius=2.2,
-        elevations_deg=[6, 20],
-        counts=[30, 30],
-        prefix="train_",
-        az_range_deg=(-165, -15),
-        radius_jitter=0.03,
-        angle_jitter_deg=1.0,
-        aim_jitter=0.02,
-    )
-    test = ring_rig(
-        crng,
-        intr,
-        center=center,
-        radius=2.2,
-        elevations_deg=[13],
-        counts=[8],
-        prefix="test_",
-        az_range_deg=(-165, -15),
-        az_offset=0.5,
-        aim_jitter=0.02,
+    train, test = half_ring_rigs(
+        crng, intr, center=center, radius=2.2, elevations_deg=[6, 20], test_elevation_deg=13
     )
     return SceneSpec(
         "occluded",
@@ -550,4 +529,11 @@ def occluded_spec(seed: int, size: int) -> SceneSpec:
     )
 
 
-SCENE_BUILDERS = {"ribs": ribs_spec, "plant": plant_spec, "occluded": occluded_spec}
+#: The paper-style suite (``divas eval``'s default scenes).
+SUITE_SCENES = ("ribs", "plant", "occluded")
+SCENE_BUILDERS = {
+    "ribs": ribs_spec,
+    "plant": plant_spec,
+    "occluded": occluded_spec,
+    **CHECK_SCENE_BUILDERS,
+}

@@ -259,4 +259,11 @@ def scene_solids(name: str, surfaces: list[Surface]) -> list[Solid]:
             _box(surfaces, p) for p in ("plinth", "pillar", "plank", "fence_post_0", "fence_post_1")
         ]
         return out
+    if name == "wheel":
+        parts = ["rim", "hub"] + [n for n in ix if n.startswith("spoke_")]
+        return [_from_surface(surfaces[ix[n]], ix[n]) for n in parts]
+    if name == "pedestal":
+        parts = ("statue_base", "statue_body", "statue_shoulders", "statue_neck", "statue_head")
+        out = [_from_surface(surfaces[ix[n]], ix[n]) for n in parts]
+        return out + [_box(surfaces, "pedestal"), _box(surfaces, "cornice")]
     raise ValueError(f"no solids defined for scene {name!r}")

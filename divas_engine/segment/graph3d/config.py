@@ -84,6 +84,15 @@ class Graph3DConfig:
             the walk reaches.
         min_region_share: the medium region holds at least this share of the graph's
             volume (0.01): a speck of haze cut off around the click is not the object.
+        drop_supports, support_quantile: the medium region is the largest smaller dip
+            that stands on what the least-φ region adds beyond it (all but
+            ``support_quantile`` (0.05) of the added voxels below the boundary, as many
+            of the dip's above it; :func:`.cut._on_its_support`): a statue's pedestal of
+            another material, a guitar's stand. Needs the scene's up (True).
+        negative_claims: the voxels a walk from the negative seeds reaches before the
+            positive ones leave the sweep like sinks (:func:`.cut._claimed`, Grady's
+            two-label walker; True): a negative click on the pedestal removes the
+            pedestal, not one voxel of it.
 
     Scores and mask:
         score_contrast: boundary contrast c₀ at which the score is 0.5 (0.35); score =
@@ -128,6 +137,9 @@ class Graph3DConfig:
     support_min_width: float = 6.0
     min_granularity_ratio: float = 1.5
     min_region_share: float = 0.01
+    drop_supports: bool = True
+    negative_claims: bool = True
+    support_quantile: float = 0.05
     tie_window: float = 1.1
     clean_phi: float = 1e-5
     tie_potential: float = 0.1

@@ -42,7 +42,7 @@ from scipy.ndimage import minimum_filter1d
 from scipy.sparse.csgraph import connected_components
 
 from .config import Graph3DConfig
-from .voxel_graph import VoxelGraph
+from .voxel_graph import VoxelGraph, other_material
 from .walk_solver import solve_walk
 
 __all__ = ["CutResult", "Granularity", "walk_potential", "sweep_cut"]
@@ -153,9 +153,13 @@ def sweep_cut(
     sinks: np.ndarray,
     config: Graph3DConfig,
     planes: np.ndarray | None = None,
+    up: np.ndarray | None = None,
+    negative: np.ndarray | None = None,
 ) -> CutResult:
     """Steps 1–4 of the module docstring. ``positive``/``sinks``/``planes``: bool ``[V]``
-    (``planes``: the sinks that are supporting surfaces, a subset of ``sinks``)."""
+    (``planes``: the sinks that are supporting surfaces, a subset of ``sinks``); ``up``:
+    the scene's up, for :func:`_on_its_support` (None: not applied); ``negative``: bool
+    ``[V]``, the negative seeds (a subset of ``sinks``), for :func:`_claimed`."""
     planes = np.zeros(len(graph), bool) if planes is None else planes
     total = 2.0 * float(graph.weights.sum())  # the complement keeps the supports' volume
     # the walk drains into the supports (a post standing on a base loses potential along
@@ -168,6 +172,8 @@ def sweep_cut(
         graph = replace(graph, weights=w)
         deg = _laplacian(graph)[1]
     sinks = sinks | planes
+    if negative is not None and negative.any() and config.negative_claims:
+        sinks = sinks | _claimed(graph, positive, negative, sinks, x, config)
     v = len(graph)
     # positives first, then by potential; sinks last (never in a region)
     key = np.where(positive, 2.0, np.where(sinks | (deg <= 0), -1.0, x))
@@ -200,14 +206,22 @@ def sweep_cut(
         return _degenerate(v, positive, x)
     best = int(np.argmin(np.where(big, phi, np.inf))) if big.any() else int(np.argmin(phi))
     best = _first_tie(phi, vol, big, best, np.minimum(key[order], 1.0), config)
+    held_up = best
+    if up is not None and config.drop_supports:
+        best = _on_its_support(
+            graph, order, phi, vol, big, best, k_min, planes, positive, up, config
+        )
     minima = _local_minima(phi, vol, config.min_granularity_ratio)
     ratio = config.min_granularity_ratio
     small = _best_where(minima, phi, vol <= vol[best] / ratio, best)
     large = _best_where(minima, phi, vol >= vol[best] * ratio, best)
-    rival = [  # specks are no rival: the medium is never one
+    rival = [  # specks are no rival: the medium is never one; nor what it stands on
         k
         for k in minima
-        if k != best and big[k] and not (vol[best] / ratio < vol[k] < vol[best] * ratio)
+        if k != best
+        and big[k]
+        and not (vol[best] / ratio < vol[k] < vol[best] * ratio)
+        and (held_up == best or k < best)
     ]
     rival_k = min(rival, key=lambda k: phi[k]) if rival else None
     ambiguous = rival_k is not None and phi[rival_k] <= config.ambiguity_ratio * phi[best]
@@ -225,6 +239,26 @@ def sweep_cut(
     share = _rim_cut(graph, levels[1].nodes) / max(float(cut[best]), 1e-300)
     alt = None if rival_k is None else float(vol[rival_k] / max(vol[best], 1e-300))
     return CutResult(tuple(levels), x, float(min(share, 1.0)), bool(ambiguous), alt)
+
+
+def _claimed(
+    graph: VoxelGraph,
+    positive: np.ndarray,
+    negative: np.ndarray,
+    sinks: np.ndarray,
+    x: np.ndarray,
+    config: Graph3DConfig,
+) -> np.ndarray:
+    """Bool ``[V]``: the voxels a walk reaches a negative seed from before a positive one
+    (Grady's random walker with two labels: the walk from the negative seeds ``y``, the
+    positive ones and the other sinks draining, against the positive walk ``x``;
+    ``y > x``): what the negative click is on. A negative seed is one sink voxel in the
+    positive walk — an island it lies on (a pedestal the statue stands on) keeps
+    conductance 0 without it, and the click would change nothing; its part then leaves
+    the sweep like a sink."""
+    other = (sinks & ~negative) | positive
+    y, _, _ = walk_potential(graph, negative, other, config)
+    return (y > x) & ~positive
 
 
 def _rings(graph: VoxelGraph, nodes: np.ndarray, n: int) -> np.ndarray:
@@ -329,6 +363,78 @@ def _first_tie(
         if np.median(xs[k + 1 : best + 1]) < config.tie_potential * np.median(xs[: k + 1]):
             return k
     return best
+
+
+def _on_its_support(
+    graph: VoxelGraph,
+    order: np.ndarray,
+    phi: np.ndarray,
+    vol: np.ndarray,
+    big: np.ndarray,
+    best: int,
+    k_min: int,
+    planes: np.ndarray,
+    positive: np.ndarray,
+    up: np.ndarray,
+    config: Graph3DConfig,
+) -> int:
+    """The region that stands on what the chosen one adds beyond it, repeated while one
+    does (a statue on its pedestal on a plinth): the largest dip of φ
+    (:func:`_local_minima` over ± ``tie_window``) smaller than the chosen region that
+    holds every seed and has a clear boundary (contrast below ``score_contrast``, where
+    the score is ½), whose added part ``E`` (no seed in it) is another material
+    (:func:`~.voxel_graph.other_material`), lies below the boundary (all but
+    ``support_quantile`` of it no higher than the boundary's highest voxel plus one
+    voxel; as many of the dip's voxels no lower than its lowest minus one) and is wider
+    there than what stands on it (the horizontal spread of ``E``'s top two voxels over
+    that of the dip's bottom two). What holds the clicked object up — a pedestal of
+    another material, a plinth, a table's frame — is not the object, though it makes
+    one island with it once the floor is removed (conductance 0: it would always win
+    the sweep). A click on the support (a seed below the contact) keeps it. The upper half
+    of a statue stands on its lower half of the same material, a flower's head on a
+    narrower stem: kept whole. The foliage standing on its pot is cut the same way when
+    the click is above the contact; a click on the pot keeps both."""
+    height = graph.centroid @ np.asarray(up, np.float64)
+    flat = graph.centroid - height[:, None] * np.asarray(up, np.float64)[None, :]
+    e = graph.edges
+    q, h = config.support_quantile, graph.h
+    dips = _local_minima(np.where(big, phi, np.inf), vol, config.tie_window)
+    changed = True
+    while changed:
+        changed = False
+        for k in sorted((k for k in dips if k_min - 1 <= k < best), key=lambda k: -vol[k]):
+            inside = np.zeros(len(graph), bool)
+            inside[order[: k + 1]] = True
+            extra = np.zeros(len(graph), bool)
+            extra[order[k + 1 : best + 1]] = True
+            a, b = inside[e[:, 0]], inside[e[:, 1]]
+            cross = (a & extra[e[:, 1]]) | (b & extra[e[:, 0]])
+            if not cross.any() or _contrast(graph, inside, planes) > config.score_contrast:
+                continue
+            if not other_material(graph.lab[extra], graph.lab[inside]):
+                continue
+            ring = np.unique(e[cross].ravel())  # the voxels on both sides of the boundary
+            top, bottom = float(height[ring].max()), float(height[ring].min())
+            if np.quantile(height[extra], 1.0 - q) > top + h:
+                continue  # E reaches above the contact: it does not hold the dip up
+            if np.quantile(height[inside], q) < bottom - h:
+                continue  # the dip reaches below the contact: it does not stand on E
+            if float(height[positive].min()) < bottom - h:
+                break  # a click below the contact, on E: the user wants it too
+            e_top = extra & (height >= float(height[extra].max()) - 2.0 * h)
+            d_bottom = inside & (height <= float(height[inside].min()) + 2.0 * h)
+            if _spread(flat[e_top]) <= _spread(flat[d_bottom]):
+                continue  # E is narrower than what stands on it: a stem, a leg
+            best, changed = k, True
+            break
+    return best
+
+
+def _spread(points: np.ndarray) -> float:
+    """RMS distance of points from their mean (0 for none)."""
+    if len(points) == 0:
+        return 0.0
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
 
 
 def _best_where(minima: list[int], phi: np.ndarray, allowed: np.ndarray, fallback: int) -> int:

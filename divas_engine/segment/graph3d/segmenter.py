@@ -58,7 +58,7 @@ from .render_box import WHOLE, screen_box
 from .supports import support_nodes, support_primitives
 from .voxel_graph import VoxelGraph, build_voxel_graph
 
-__all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice"]
+__all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice", "seed_nodes"]
 
 #: the hint when a positive click hits nothing (the add-on's plain-language table knows it)
 NO_SURFACE = "no surface under the click: click on the object itself"
@@ -327,17 +327,17 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         while True:
             graph = build_voxel_graph(prims, centre, radius, cfg)
             pos = np.zeros(len(graph), bool)
-            pn = graph.node_of_points(seeds.positive)
+            pn = seed_nodes(graph, prims, seeds.positive)
             pos[pn[pn >= 0]] = True
             if not pos.any():
                 return self._empty(prims, NO_SURFACE, radius, grows, t0)
             neg = np.zeros(len(graph), bool)
-            nn = graph.node_of_points(seeds.negative)
+            nn = seed_nodes(graph, prims, seeds.negative)
             neg[nn[nn >= 0]] = True
             sinks = graph.rim | neg
             planes = support_nodes(graph, prims, pos, cfg, neg) & ~pos
             sinks = (sinks | planes) & ~pos
-            res = sweep_cut(graph, pos, sinks, cfg, planes)
+            res = sweep_cut(graph, pos, sinks, cfg, planes, prims.up, neg & ~pos)
             if _too_small(res, graph, cfg, on_ground) and grows < cfg.region_max_grows:
                 radius *= cfg.region_grow
                 grows += 1
@@ -419,6 +419,29 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             full = self.binding.render_values(cam, vals)
             cov = np.asarray(full, np.float32).reshape(cam.height, cam.width, 3)
         return cov
+
+
+def seed_nodes(graph: VoxelGraph, prims: ScenePrimitives, points: np.ndarray) -> np.ndarray:
+    """The graph node of each seed point: :meth:`VoxelGraph.node_of_points` (the voxel
+    holding it, or a node centroid within two voxels), else the voxel of the primitive
+    whose footprint holds the point — the one nearest in units of its reach (its
+    4 σ cutoff), among those that reach it; ``-1`` when none does. A click's 3D point
+    is where the rendered surface is (the depth tuple's estimate): on a trained 3DGS
+    scene that surface lies a σ or two in front of the centres of the Gaussians that
+    draw it, farther than two voxels when the Gaussians are large."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    out = graph.node_of_points(pts)
+    miss = np.flatnonzero(out < 0)
+    if len(miss) == 0 or len(graph.prim) == 0:
+        return out
+    centres = np.asarray(prims.points[graph.prim], np.float64)
+    reach = np.maximum(np.asarray(prims.reach_of(graph.prim), np.float64), 1e-12)
+    for i in miss:
+        r = np.linalg.norm(centres - pts[i], axis=1) / reach
+        j = int(np.argmin(r))
+        if r[j] <= 1.0:
+            out[i] = int(graph.voxel_of[j])
+    return out
 
 
 def _masks_key(seeds: Seeds, camera: Camera) -> bytes:

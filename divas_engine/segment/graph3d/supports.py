@@ -12,24 +12,30 @@ supporting surface become sinks of the walk (:mod:`.cut`):
   the paper): along the scene's up (the strongest ground plane's normal), the voxels
   with a sure, up-facing normal are binned by height (one voxel per bin); a bin that
   holds a connected patch of at least ``support_min_voxels`` of them (and
-  ``support_min_share`` of the region's voxels) that is flat (heights within a third of
-  a voxel RMS) and holds a disc ``support_min_width`` voxels across (a table top, not the
-  top strip of a lying cylinder or a comb of rib tops), more than two voxels below the
-  highest positive seed and with no positive seed on its own up-facing voxels (± 1.5
-  voxels of height), is a horizontal surface the clicked object rests on, and those
-  voxels are sinks. A scene without a ground plane has no up, and no local supports.
+  ``support_min_share`` of the region's voxels) — the plane itself: within ¾ voxel of
+  the patch's median height, so the top of a statue's base a voxel above the cornice is
+  not part of it — that is flat (heights within a third of a voxel RMS) and holds a disc
+  ``support_min_width`` voxels across (a table top, not the top strip of a lying
+  cylinder or a comb of rib tops) — its holes filled when its colour is another
+  material's than the clicked voxels' (mean apart by more than the patch's own spread):
+  what stands on a surface hides its footprint, so a pedestal's cornice is a ring around
+  the statue; a ring of the object's own colour (the top of a statue's base around its
+  body) is not filled —, more than two voxels below the highest positive seed and with
+  no positive seed on the plane, is a horizontal surface the clicked object rests on,
+  and those voxels are sinks. A scene without a ground plane has no up, and no local
+  supports.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import binary_closing, binary_erosion
+from scipy.ndimage import binary_closing, binary_erosion, binary_fill_holes
 from scipy.sparse.csgraph import connected_components
 
 from .config import Graph3DConfig
 from .primitives import ScenePrimitives
-from .voxel_graph import VoxelGraph
+from .voxel_graph import VoxelGraph, other_material
 
 __all__ = ["support_nodes", "support_primitives"]
 
@@ -85,9 +91,16 @@ def _local_supports(
         if level > top - 2.0 * h:
             continue  # nothing clicked stands on it
         for part in _components(graph, layer):
+            if len(part) < need:
+                continue
+            # the plane itself: a step of another flat surface beside it (the top of a
+            # statue's base a voxel above the cornice it stands on) is not the plane
+            z0 = float(np.median(height[part]))
+            part = part[np.abs(height[part] - z0) <= 0.75 * h]
             if len(part) < need or positive[part].any():
                 continue  # small, or the user clicked the surface itself
-            if _is_plane(graph.centroid[part], up, h, config.support_min_width):
+            fill = other_material(graph.lab[part], graph.lab[positive])
+            if _is_plane(graph.centroid[part], up, h, config.support_min_width, fill):
                 out[part] = True
     return out
 
@@ -109,9 +122,12 @@ def _components(graph: VoxelGraph, nodes: np.ndarray) -> list[np.ndarray]:
     return [idx[g] for g in np.split(order, cuts)]
 
 
-def _is_plane(points: np.ndarray, up: np.ndarray, h: float, width: float) -> bool:
+def _is_plane(
+    points: np.ndarray, up: np.ndarray, h: float, width: float, fill_holes: bool = False
+) -> bool:
     """A flat patch (heights within ``h / 3`` RMS) that holds a disc ``width`` voxels
-    across: its footprint, rasterised at ``h``, survives an erosion by ``width / 2``."""
+    across: its footprint, rasterised at ``h`` (``fill_holes``: its holes filled),
+    survives an erosion by ``width / 2``."""
     height = points @ up
     if float(np.std(height)) > h / 3.0:
         return False
@@ -125,6 +141,8 @@ def _is_plane(points: np.ndarray, up: np.ndarray, h: float, width: float) -> boo
     img = np.zeros(tuple(uv.max(axis=0) + 1 + 2 * r), bool)
     img[uv[:, 0] + r, uv[:, 1] + r] = True
     img = binary_closing(img, iterations=1)  # voxel-sized holes of a sparse sampling
+    if fill_holes:  # what stands on a surface hides its footprint there: a hole
+        img = binary_fill_holes(img)
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disc = yy * yy + xx * xx <= r * r
     return bool(binary_erosion(img, structure=disc).any())

@@ -35,7 +35,7 @@ from ...scene import SurfelScene
 from .config import Graph3DConfig
 from .primitives import ScenePrimitives
 
-__all__ = ["VoxelGraph", "build_voxel_graph"]
+__all__ = ["VoxelGraph", "build_voxel_graph", "other_material"]
 
 # half of the 26-neighbourhood: every undirected edge once
 _OFFSETS = np.array(
@@ -337,6 +337,16 @@ def _extent_entries(
     first = np.r_[True, pair[1:] != pair[:-1]]
     pick = order[first]
     return row[pick], pts[pick], kk[pick], g[pick]
+
+
+def other_material(lab: np.ndarray, ref_lab: np.ndarray) -> bool:
+    """Voxels of colours ``lab [n,3]`` are another material than those of ``ref_lab``:
+    their mean colour differs from the reference's by more than their own colour spread
+    (their texture: the RMS deviation over the Lab channels)."""
+    if len(lab) < 2 or len(ref_lab) == 0:
+        return False
+    spread = float(np.sqrt(np.sum(np.var(lab, axis=0))))
+    return float(np.linalg.norm(lab.mean(axis=0) - ref_lab.mean(axis=0))) > spread
 
 
 def _affinity(
