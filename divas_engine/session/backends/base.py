@@ -127,6 +127,13 @@ class SessionBackend(ABC):
         with the view's camera before the view is rendered (here or by the session):
         the session starts work that needs only the camera meanwhile (issue 20)."""
 
+    @abstractmethod
+    def click_patch(self, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:
+        """The surface patch of a click at ``point`` (:mod:`..corrections`): sorted flat
+        indices (into a selection) of the primitives or voxels the point lies in, each
+        grown by ``radius`` (world units), within ``sigmas`` standard deviations
+        (:func:`~..corrections.surfel_patch`, :func:`~..corrections.grid_patch`)."""
+
     # ---------------------------------------------------------------- masks and fusion
     @abstractmethod
     def depth_weight(
