@@ -421,3 +421,87 @@ def test_helmet_with_the_oracle_improves_with_negative_clicks(real_data):
     assert [p for p, _ in kinds[:2]] == [True, True] and ious[1] > 0.85
     assert sum(not p for p, _ in kinds[2:]) >= 3  # the user corrects spills from here
     assert ious[-1] > max(0.87, ious[1] + 0.01), (ious, kinds)
+
+
+@pytest.fixture(scope="module")
+def ribs_grid():
+    sc = generate_scene("ribs", None, size=20_000, seed=0, grid_resolution=48)
+    names = [c.name for c in sc.cameras]
+    n = len(sc.metadata["clicks"])
+    anchors, clicks = [], []
+    for k, c in enumerate(sc.metadata["clicks"]):
+        vis = c["visible_in"]
+        anchors.append(sc.cameras[names.index(vis[(2 * k + 1) * len(vis) // (2 * n)])])
+        clicks.append(np.array(c["xyz"]))
+    return sc, anchors, clicks
+
+
+def _deepest(s: Session, i: int, values: np.ndarray, near=None) -> tuple[float, float]:
+    """The pixel of anchor ``i`` deepest inside ``values`` rendered (≥ 0.5); ``near``:
+    within 12 pixels of that pixel, and not on it."""
+    from scipy import ndimage
+
+    cam = s.anchors[i].camera
+    m = s.renderer.render_values(cam, values.astype(np.float32)).reshape(cam.height, -1) >= 0.5
+    d = ndimage.distance_transform_edt(m)
+    if near is not None:
+        yy, xx = np.mgrid[: cam.height, : cam.width] + 0.5
+        r = np.hypot(xx - near[0], yy - near[1])
+        d[(r > 12) | (r < 3)] = 0
+    y, x = np.unravel_index(int(np.argmax(d)), d.shape)
+    return x + 0.5, y + 0.5
+
+
+def test_density_grid_corrections_fused_and_pending(ribs_grid):
+    """The NeRF path: a negative click re-segments the fused views that hold it — with the
+    error-free oracle their masks come back the same, so the fusion is the same and the
+    selection loses exactly the clicked voxels — and a pending view is submitted again
+    with the click; undo is exact."""
+    sc, anchors, clicks = ribs_grid
+    s = Session.open(
+        sc.grid, sc.cameras, SessionConfig(render_scale=SCALE), _perfect(), "cpu",
+        anchors=anchors[:2], gt_values=sc.grid_labels, render_anchors=False,
+    )  # fmt: skip
+    h = s.history
+    v0 = s.click(0, _xy(s, 0, clicks[0]))
+    assert s.accept(v0).synced and v0.status == ViewStatus.FUSED  # its anchor's last view
+    before, acc = s.selection.copy(), s.fusion.accumulators()
+    h.record("fused")
+    s.click(0, _deepest(s, 0, s.selection), positive=False)  # inside the selection
+    res = s.last_correction
+    patch = res.correction.patch
+    assert v0.id in res.refused and v0.labels.tolist()[-1] == 0
+    assert len(patch) and before.reshape(-1)[patch].any()
+    want = before.copy().reshape(-1)
+    want[patch] = False
+    np.testing.assert_array_equal(s.selection.reshape(-1), want)
+    for k, a in s.fusion.accumulators().items():
+        np.testing.assert_array_equal(a, acc[k], err_msg=k)  # the same mask fused again
+    h.record("negative")
+    h.goto(h.steps[-2].id)
+    np.testing.assert_array_equal(s.selection, before)
+    # a pending view takes a later click and is submitted again with it
+    v1 = s.click(1, _xy(s, 1, clicks[1]))
+    v2 = s.click(1, _xy(s, 1, clicks[1]) + 4.0)
+    assert s.accept(v1).status == ViewStatus.PENDING  # v2 still open on anchor 1
+    xy = _deepest(s, 1, sc.grid_labels, near=_xy(s, 1, clicks[1]))  # the ribs, in v1
+    s.click(1, xy, positive=False)
+    assert v1.id in s.last_correction.resegmented and v1.labels.tolist()[-1] == 0
+    r = s.accept(v2)
+    assert r.synced and v1.status == ViewStatus.FUSED
+    assert not s.selection.reshape(-1)[s.last_correction.correction.patch].any()
+    s.close()
+
+
+def test_finish_object_commits_the_corrected_selection(vase):
+    sc, _, _, plinth = vase
+    s = _open(vase, TwoLevel(), gt=sc.labels + 0.5 * plinth)
+    _accept_clicks(s, vase, anchors=[0, 1])
+    _, xy = _front_pixel(s, 0, np.flatnonzero(plinth))
+    s.click(0, xy, positive=False)
+    patch = s.last_correction.correction.patch
+    sel = s.selection.copy()
+    rec = s.finish_object("vase")
+    assert np.array_equal(rec.selection, sel) and not (s.labels[patch] == 1).any()
+    assert s.current.corrections == [] and not s.selection.any()  # a new object, no clicks
+    s.close()

@@ -223,7 +223,8 @@ def correct(
     point = np.array(point, np.float64)
     patch = self.backend.click_patch(point, float(radius), sigmas)
     views = [v for v in obj.views if v is not spawned]
-    plan = corr.prompt_plan(views, point, positive, self.config.negative_occlusion_tol, own=own)
+    tol, reads = self.config.negative_occlusion_tol, self.backend.weight_reads_prompts
+    plan = corr.prompt_plan(views, point, positive, tol, reads, own=own)
     c = Correction(
         len(obj.corrections),
         bool(positive),
@@ -261,7 +262,8 @@ def _resegment(
     refused, rejected = [], []
     seg_s = kernel_s = 0.0
     for v, xy in plan:
-        p, lab = corr.with_prompt(v.points, v.labels, xy, positive)
+        base = (v.points, v.labels) if v.points is not None else self.default_prompts(v)
+        p, lab = corr.with_prompt(*base, xy, positive)
         if v.status == ViewStatus.PENDING:
             v.points, v.labels = p, lab
             self._submit(v, p, lab)

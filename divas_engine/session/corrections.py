@@ -18,10 +18,10 @@ view), or a world point — is one :class:`~.records.Correction` of its object:
 2. **A prompt of every view that disagrees with it.** Every view of the object —
    fused, pending or previewed — where ``P`` is visible (in the image, on the surface
    the view shows: depth within ``tol`` of ``D_ref``, :func:`visible_pixels`) and whose
-   mask disagrees with the
-   click there (the fused / previewed M̃ ``≥ 0.5`` at a negative click, ``< 0.5`` at a
-   positive one; a pending view has no mask yet and always takes it:
-   :func:`prompt_plan`) is segmented again with the point added to its prompts (SAM:
+   mask disagrees with the click there (:func:`disagrees`: the segmenter's mask ``≥ 0.5``
+   at a negative click; ``< 0.5`` at a positive one, or on 2DGS the band-passed M̃,
+   whose band the positive prompts set; a pending view has no mask yet and always takes
+   it: :func:`prompt_plan`) is segmented again with the point added to its prompts (SAM:
    the decoder only, its embedding cached per view; graph3d: the cut with the new
    seed; the oracle: its masks answer the point) and fused again in its own slot
    (remove + add: exact, :func:`~.fusing.refuse_view`). A view that already agrees is
@@ -61,7 +61,8 @@ __all__ = [
     "grid_patch",
     "visible_pixels",
     "patch_radius",
-    "view_mask",
+    "view_masks",
+    "disagrees",
     "prompt_plan",
     "missing_prompts",
     "with_prompt",
@@ -120,15 +121,35 @@ def patch_radius(camera: Camera, depth: float, patch_px: float) -> float:
     return float(patch_px) * float(depth) / (0.5 * (camera.fx + camera.fy))
 
 
-def view_mask(v: SessionView) -> np.ndarray | None:
-    """What ``v`` says now: its fused mask, its preview's (zeros when the preview was
-    rejected before depth weighting), or None (pending, or never previewed)."""
+def view_masks(v: SessionView) -> tuple[np.ndarray, np.ndarray] | None:
+    """What ``v`` says now, ``(raw, weighted)``: the segmenter's mask and the depth-
+    weighted one it fused (a fused view) or would fuse (a previewed one; zeros when the
+    preview was rejected); None when it has none (pending, or never previewed)."""
+    prev = v.preview
     if v.status == ViewStatus.FUSED:
-        return v.mask
-    if v.status == ViewStatus.OPEN and v.preview is not None:
-        m = v.preview.mask
-        return np.zeros(v.preview.masks.shape[1:], np.float32) if m is None else m
+        if prev is not None and prev.mask is v.mask:
+            return prev.selection.mask, v.mask
+        return (v.mask if v.raw_mask is None else v.raw_mask), v.mask
+    if v.status == ViewStatus.OPEN and prev is not None:
+        zeros = np.zeros(prev.masks.shape[1:], np.float32)
+        raw = prev.selection.mask
+        return (zeros if raw is None else raw), (zeros if prev.mask is None else prev.mask)
     return None
+
+
+def disagrees(
+    masks: tuple[np.ndarray, np.ndarray], xy, positive: bool, weight_reads_prompts: bool
+) -> bool:
+    """Whether a view's ``(raw, weighted)`` masks say the opposite of a click at pixel
+    ``xy``: a negative click where the segmenter's mask holds the spot; a positive one
+    where it does not — or, when the depth weighting reads the prompts (2DGS: the band of
+    the positive prompts' depths), where the weighting left it out."""
+    x, y = int(xy[0]), int(xy[1])
+    raw, weighted = masks
+    inside = float(raw[y, x]) >= 0.5
+    if not positive:
+        return inside
+    return not inside or (weight_reads_prompts and float(weighted[y, x]) < 0.5)
 
 
 def _has_point(points: np.ndarray | None, xy: np.ndarray) -> bool:
@@ -142,21 +163,23 @@ def prompt_plan(
     point: np.ndarray,
     positive: bool,
     occlusion_tol: float,
+    reads: bool,
     *,
     own: SessionView | None = None,
 ) -> list[tuple[SessionView, tuple[float, float]]]:
     """The views a click at ``point`` prompts, with its pixel in each (module docstring,
     step 2): fused, pending and previewed views where it is visible and their mask
-    disagrees with it; ``own``, the clicked view, when it is open (the click refines
-    its preview, as a prompt point does). Rendered views only (a fused, pending or
-    previewed view is)."""
+    disagrees with it (:func:`disagrees`; ``reads``: the backend's depth weighting reads
+    the prompts); ``own``, the clicked view, when it is open
+    (the click refines its preview, as a prompt point does). Rendered views only (a
+    fused, pending or previewed view is)."""
     out = []
     for v in views:
         if v.status == ViewStatus.REJECTED or v.buffers is None:
             continue
         refine = v is own and v.status == ViewStatus.OPEN
-        mask = view_mask(v)
-        if v.status == ViewStatus.OPEN and mask is None and not refine:
+        masks = view_masks(v)
+        if v.status == ViewStatus.OPEN and masks is None and not refine:
             continue  # its first preview will read the click (missing_prompts)
         uv, ok = visible_pixels(v.camera, v.buffers.D_ref, point[None], occlusion_tol)
         if not (ok[0] or v is own):
@@ -164,30 +187,30 @@ def prompt_plan(
         xy = np.clip(uv[0], 0.0, np.array([v.camera.width, v.camera.height]) - 1e-6)
         if _has_point(v.points, xy):
             continue
-        if mask is not None and not refine:
-            inside = float(mask[int(xy[1]), int(xy[0])]) >= 0.5
-            if inside != (not positive):
-                continue  # it agrees already
+        if masks is not None and not refine and not disagrees(masks, xy, positive, reads):
+            continue  # it agrees already
         out.append((v, (float(xy[0]), float(xy[1]))))
     return out
 
 
 def missing_prompts(
-    v: SessionView, mask: np.ndarray | None, clicks: ObjectClicks, points: np.ndarray,
+    v: SessionView,
+    clicks: ObjectClicks,
+    points: np.ndarray,
     occlusion_tol: float,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The object's clicks a first preview of ``v`` (its depth-weighted ``mask``, None:
-    rejected, empty) disagrees with, visible in ``v`` and not among its prompt
-    ``points``: ``([K,2] pixels, [K] labels)``."""
-    if not len(clicks.points):
+    weight_reads_prompts: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The object's clicks the first preview of ``v`` disagrees with (:func:`disagrees`),
+    visible in ``v`` and not among its prompt ``points``: ``([K,2] pixels, [K] labels)``."""
+    masks = view_masks(v)
+    if not len(clicks.points) or masks is None:
         return np.zeros((0, 2)), np.zeros(0, np.int64)
     uv, ok = visible_pixels(v.camera, v.buffers.D_ref, clicks.points, occlusion_tol)
     pts, labs = [], []
     for xy, vis, pos in zip(uv, ok, clicks.positive):
         if not vis or _has_point(points, xy) or _has_point(np.asarray(pts).reshape(-1, 2), xy):
             continue
-        inside = mask is not None and float(mask[int(xy[1]), int(xy[0])]) >= 0.5
-        if inside != bool(pos):
+        if disagrees(masks, xy, bool(pos), weight_reads_prompts):
             pts.append(xy)
             labs.append(int(bool(pos)))
     return np.asarray(pts, np.float64).reshape(-1, 2), np.asarray(labs, np.int64)

@@ -226,7 +226,7 @@ class Session(SessionReader):
         if clicks and self.config.corrections.enabled:
             oc = self.state.object_clicks(self.objects[v.object_index])
             tol = self.config.negative_occlusion_tol
-            mp, ml = corr.missing_prompts(v, prev.mask, oc, p, tol)
+            mp, ml = corr.missing_prompts(v, oc, p, tol, self.backend.weight_reads_prompts)
             if len(mp):
                 prev = self._preview(v, np.concatenate([p, mp]), np.concatenate([lab, ml]))
         prev.asked = (p, lab)

@@ -65,6 +65,10 @@ class SessionBackend(ABC):
     last_mapping: Any = None
     #: 3DGS scenes with the completion on: its latest result; else None
     last_completion: Any = None
+    #: the depth weighting reads the prompts (2DGS: the band of the positive prompts'
+    #: depths), so a positive click can change a view's weighted mask where its
+    #: segmenter's mask already holds the spot (:func:`..corrections.disagrees`)
+    weight_reads_prompts: ClassVar[bool] = False
     _warm: threading.Thread | None = None
 
     @property

@@ -55,6 +55,7 @@ class SurfelBackend(SessionBackend):
 
     scene_type = SurfelScene
     kind = SceneKind.GS2D
+    weight_reads_prompts = True
 
     def __init__(
         self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer
