@@ -53,9 +53,9 @@ class TwoLevel(Segmenter):
         raise NotImplementedError
 
 
-@pytest.fixture(scope="module")
-def vase():
-    sc = generate_scene("occluded", None, size=20_000, seed=0)
+def _metadata_anchors(sc):
+    """One training camera per metadata click (spread over those that see it), and the
+    clicks' 3D points."""
     names = [c.name for c in sc.cameras]
     n = len(sc.metadata["clicks"])
     anchors, clicks = [], []
@@ -63,6 +63,13 @@ def vase():
         vis = c["visible_in"]
         anchors.append(sc.cameras[names.index(vis[(2 * k + 1) * len(vis) // (2 * n)])])
         clicks.append(np.array(c["xyz"]))
+    return anchors, clicks
+
+
+@pytest.fixture(scope="module")
+def vase():
+    sc = generate_scene("occluded", None, size=20_000, seed=0)
+    anchors, clicks = _metadata_anchors(sc)
     surf = [s.name for s in sc.surfaces]
     plinth = np.isin(sc.surface_ids, [i for i, nm in enumerate(surf) if nm.startswith("plinth")])
     return sc, anchors, clicks, plinth
@@ -80,6 +87,16 @@ def _open(vase, segmenter, gt=None, **cfg) -> Session:
         gt_values=sc.labels if gt is None else gt,
         render_anchors=False,
     )
+
+
+def _plinth_session(vase) -> tuple[Session, TwoLevel]:
+    """A :class:`TwoLevel` session with the views of anchors 0 and 1 fused (both hold the
+    plinth)."""
+    sc, _, _, plinth = vase
+    seg = TwoLevel()
+    s = _open(vase, seg, gt=sc.labels + 0.5 * plinth)
+    _accept_clicks(s, vase, anchors=[0, 1])
+    return s, seg
 
 
 def _perfect() -> OracleSegmenter:
@@ -163,9 +180,7 @@ def test_negative_click_on_a_spill_made_by_fusion_removes_it(vase):
 
 def test_negative_click_on_a_support_removes_it_in_views_of_other_anchors(vase):
     sc, _, _, plinth = vase
-    seg = TwoLevel()
-    s = _open(vase, seg, gt=sc.labels + 0.5 * plinth)
-    _accept_clicks(s, vase, anchors=[0, 1])
+    s, seg = _plinth_session(vase)
     v1 = s.views[1]
     assert v1.anchor == 1
     on_plinth = int((s.selection & plinth).sum())
@@ -224,9 +239,7 @@ def test_positive_click_on_a_missed_part_adds_it(vase):
 
 def test_click_on_an_accepted_view_and_a_world_point(vase):
     sc, _, _, plinth = vase
-    seg = TwoLevel()
-    s = _open(vase, seg, gt=sc.labels + 0.5 * plinth)
-    _accept_clicks(s, vase, anchors=[0, 1])
+    s, _ = _plinth_session(vase)
     v0 = s.views[0]
     rows = np.flatnonzero(plinth & s.selection)
     uv, z = v0.camera.project(sc.scene.means[rows])
@@ -426,14 +439,7 @@ def test_helmet_with_the_oracle_improves_with_negative_clicks(real_data):
 @pytest.fixture(scope="module")
 def ribs_grid():
     sc = generate_scene("ribs", None, size=20_000, seed=0, grid_resolution=48)
-    names = [c.name for c in sc.cameras]
-    n = len(sc.metadata["clicks"])
-    anchors, clicks = [], []
-    for k, c in enumerate(sc.metadata["clicks"]):
-        vis = c["visible_in"]
-        anchors.append(sc.cameras[names.index(vis[(2 * k + 1) * len(vis) // (2 * n)])])
-        clicks.append(np.array(c["xyz"]))
-    return sc, anchors, clicks
+    return (sc, *_metadata_anchors(sc))
 
 
 def _deepest(s: Session, i: int, values: np.ndarray, near=None) -> tuple[float, float]:
@@ -495,8 +501,7 @@ def test_density_grid_corrections_fused_and_pending(ribs_grid):
 
 def test_finish_object_commits_the_corrected_selection(vase):
     sc, _, _, plinth = vase
-    s = _open(vase, TwoLevel(), gt=sc.labels + 0.5 * plinth)
-    _accept_clicks(s, vase, anchors=[0, 1])
+    s, _ = _plinth_session(vase)
     _, xy = _front_pixel(s, 0, np.flatnonzero(plinth))
     s.click(0, xy, positive=False)
     patch = s.last_correction.correction.patch
