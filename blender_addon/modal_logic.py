@@ -11,9 +11,10 @@ Two steps, each a plain function that tests can drive with synthetic values:
 2. :func:`plan` combines a click / key with what the view shows (a :class:`Target`:
    through an anchor camera, through a centroid view's camera with its status, or a
    free 3D view) into a :class:`Step` the operator executes: spawn a centroid view
-   (positive click on an anchor), a negative anchor click, a prompt point on a centroid
-   view, a click in a free view (the view becomes an anchor), accept, undo, redo,
-   leave, or a message saying why nothing happens.
+   (positive click on an anchor), a negative anchor click, a prompt point on an open
+   centroid view, a correction on an accepted one (the click a 3D constraint:
+   :mod:`divas_engine.session.corrections`), a click in a free view (the view becomes
+   an anchor), accept, undo, redo, leave, or a message saying why nothing happens.
 
 :class:`Gesture` is the same for the box / lasso / brush selection modal.
 """
@@ -171,6 +172,7 @@ class StepKind(Enum):
     SPAWN = "spawn"  # positive click on an anchor → centroid view
     ANCHOR_NEGATIVE = "anchor_negative"
     PROMPT = "prompt"  # add a point to a centroid view, refresh the preview
+    CORRECT_VIEW = "correct_view"  # a click on an accepted view: a correction
     VIEWPORT_CLICK = "viewport_click"  # a click in a free 3D view → an anchor of it
     ACCEPT = "accept"
     UNDO = "undo"
@@ -195,8 +197,8 @@ def _is_accepted(target: Target) -> bool:
 
 def _accepted(target: Target) -> str:
     return (
-        "This view is already accepted: Ctrl+Z takes it back, or click the object on "
-        "another anchor or in a 3D view"
+        "This view is already accepted: click it to correct the selection (Shift: remove), "
+        "Ctrl+Z takes it back"
     )
 
 
@@ -249,9 +251,8 @@ def plan(key: Key, target: Target, xy: tuple[float, float] | None = None) -> Ste
     if target.is_anchor:
         kind = StepKind.SPAWN if key.positive else StepKind.ANCHOR_NEGATIVE
         return Step(kind, target.anchor, None, xy, key.positive)
-    if _is_accepted(target):
-        return Step(StepKind.MESSAGE, message=_accepted(target))
-    return Step(StepKind.PROMPT, target.anchor, target.view_id, xy, key.positive)
+    kind = StepKind.CORRECT_VIEW if _is_accepted(target) else StepKind.PROMPT
+    return Step(kind, target.anchor, target.view_id, xy, key.positive)
 
 
 # ----------------------------------------------------------------------------- gestures

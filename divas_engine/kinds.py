@@ -1,5 +1,5 @@
-"""The engine's fixed vocabularies as enums: scene kinds, view statuses and why a view
-was rejected.
+"""The engine's fixed vocabularies as enums: scene kinds, view statuses, why a view
+was rejected and where a click was made.
 
 Both are :class:`enum.StrEnum`, so a member equals its string value and serialises to
 it: session files, reports and prompts files keep the strings they always had.
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-__all__ = ["SceneKind", "ViewStatus", "RejectReason"]
+__all__ = ["SceneKind", "ViewStatus", "RejectReason", "ClickOrigin"]
 
 
 class SceneKind(StrEnum):
@@ -60,3 +60,18 @@ class RejectReason(StrEnum):
     EMPTY_MASK = "empty-mask"
     SEGMENTATION_FAILED = "segmentation-failed"
     SEGMENTATION_MISSING = "segmentation-missing"
+
+
+class ClickOrigin(StrEnum):
+    """Where a click of the session was made (each click is a 3D constraint,
+    :mod:`divas_engine.session.corrections`).
+
+    ``ANCHOR`` on an anchor render (a positive one spawns a centroid view, Sec. 3.3);
+    ``VIEW`` on a centroid view; ``CAMERA`` through any other camera (a free 3D view);
+    ``POINT`` a world point given directly.
+    """
+
+    ANCHOR = "anchor"
+    VIEW = "view"
+    CAMERA = "camera"
+    POINT = "point"

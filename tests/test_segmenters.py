@@ -895,3 +895,31 @@ def test_oracle_gt_render_callable_and_defaults():
     assert OracleConfig().dropout_prob == 0.3 and OracleConfig().fp_prob == 0.2
     with pytest.raises(ValueError, match="gt"):
         OracleSegmenter().set_image(np.zeros((8, 8, 3), np.uint8))
+
+
+def test_oracle_answers_prompts_on_its_own_errors():
+    n = 128  # the grid is the image: a cell is a pixel
+    gt = np.zeros((n, n), np.float32)
+    gt[40:90, 40:90] = 1
+    gt[60:62, 90:120] = 1  # a 2-px arm: thin, dropped
+    seg = _oracle(dropout_prob=1.0, fp_prob=1.0, seed=5)
+    seg.set_image(np.zeros((n, n, 3), np.uint8), gt=gt, view_id="v")
+    blob = seg.last_report["fp_blob"]
+    bx, by = blob["x"], blob["y"]
+    base = seg.predict(np.array([[65.0, 65.0]]), np.array([1]))[0][1] >= 0.5
+    assert base[int(by), int(bx)] and not base[61, 100:119].any()  # a blob, no arm
+    # a negative point on the blob takes the whole blob back, nothing else
+    m = seg.predict(np.array([[65.0, 65.0], [bx, by]]), np.array([1, 0]))[0][1] >= 0.5
+    blob_px = base & ~(gt >= 0.5)
+    assert not m[blob_px].any() and np.array_equal(m[~blob_px], base[~blob_px])
+    # a positive point on the dropped arm brings the arm back
+    m = seg.predict(np.array([[65.0, 65.0], [110.5, 60.5]]), np.array([1, 1]))[0][1] >= 0.5
+    assert m[60:62, 92:118].all() and np.array_equal(m[:, :88], base[:, :88])
+    # a negative point on the object itself, or a positive one on the background: nothing
+    m = seg.predict(np.array([[65.0, 65.0], [50.5, 50.5], [5.5, 120.5]]), np.array([1, 0, 1]))
+    np.testing.assert_array_equal(m[0][1] >= 0.5, base)
+    # off: prompts are ignored, as in NOTES
+    off = _oracle(dropout_prob=1.0, fp_prob=1.0, seed=5, respond_to_prompts=False)
+    off.set_image(np.zeros((n, n, 3), np.uint8), gt=gt, view_id="v")
+    m = off.predict(np.array([[65.0, 65.0], [bx, by]]), np.array([1, 0]))[0][1] >= 0.5
+    np.testing.assert_array_equal(m, base)

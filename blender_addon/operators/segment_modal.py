@@ -1,7 +1,9 @@
 """Click to Segment: a modal operator in the 3D viewport — through a DivAS camera, or in
 any free 3D view (the view becomes an anchor).
 
-LMB positive, Shift+LMB / RMB negative, Enter accept, Ctrl+Z / Backspace undo,
+LMB positive, Shift+LMB / RMB negative — on an anchor, a centroid view (an accepted one:
+a correction of the selection) or a free view, every click a 3D constraint that the
+viewport shows at once —, Enter accept, Ctrl+Z / Backspace undo,
 Ctrl+Shift+Z redo, Esc leave (the header shows the keys). What an event means is decided
 by the pure :mod:`..modal_logic`; :class:`ModalController` only maps the mouse onto the
 camera's image (:func:`..view3d.click_to_camera_pixel`) or the free view's own camera,
@@ -29,6 +31,8 @@ from ..session_actions import (
     add_prompt,
     camera_target,
     click,
+    correct_view,
+    correction_summary,
     run_step,
     viewport_click,
 )
@@ -41,6 +45,7 @@ _WHAT = {
     StepKind.SPAWN: "Click on anchor",
     StepKind.ANCHOR_NEGATIVE: "Negative click on anchor",
     StepKind.PROMPT: "Add point to view",
+    StepKind.CORRECT_VIEW: "Click on accepted view",
     StepKind.VIEWPORT_CLICK: "Click in a 3D view",
     StepKind.ACCEPT: "Accept view",
 }
@@ -176,12 +181,17 @@ class ModalController:
         k = step.kind
         what = _WHAT[k]
         hinted = None  # the previewed object: its segmenter's hint is shown
+        last = live.session.last_correction
         if k in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE):
             hinted = run_step(obj, live, f"{what} {step.anchor}", click, context, obj, live,
                               step.anchor, step.xy, step.positive)  # fmt: skip
         elif k is StepKind.PROMPT:
             hinted = run_step(obj, live, what, add_prompt, context, obj, live, step.view_id,
                               step.xy, step.positive)  # fmt: skip
+        elif k is StepKind.CORRECT_VIEW:
+            res = run_step(obj, live, what, correct_view, context, obj, live, step.view_id,
+                           step.xy, step.positive)  # fmt: skip
+            self.report({"INFO"}, f"{what}: {correction_summary(res)}")
         elif k is StepKind.VIEWPORT_CLICK:
             r, rv = self.region, self.rv3d
             _, hinted = run_step(obj, live, what, viewport_click, context, obj, live,
@@ -194,6 +204,9 @@ class ModalController:
             if v.status == ViewStatus.REJECTED:
                 msg = rejection_message(v.rejection, v.score, v.advice, reason=v.reason)
                 self.report({"WARNING"}, "View not added. " + msg)
+        corr = live.session.last_correction
+        if k is not StepKind.CORRECT_VIEW and not step.positive and corr is not last:
+            self.report({"INFO"}, f"{what}: {correction_summary(corr)}")
         hint = advice_message(getattr(hinted, "advice", None))
         if hint:
             self.report({"INFO"}, hint)

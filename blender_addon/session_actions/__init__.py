@@ -8,7 +8,7 @@ what Blender shows. By responsibility:
 * :mod:`.start` — start a session on an imported object, or resume its saved one (the
   engine's inputs: scene, training cameras, ground truth, segmenter, device);
 * :mod:`.loop_steps` — the loop: add an anchor, click (on an anchor or in any 3D view),
-  add a prompt, accept, sync, undo, reset, finish the object;
+  add a prompt, correct an accepted view, accept, sync, undo, reset, finish the object;
 * :mod:`.history` — every step one Blender undo step, the session kept in step with
   Blender's undo and redo;
 * :mod:`.files` — where a session is saved so it follows the .blend (sidecar, recovery
@@ -32,6 +32,8 @@ from .loop_steps import (
     add_anchor,
     add_prompt,
     click,
+    correct_view,
+    correction_summary,
     finish_object,
     full_to_session_xy,
     refresh_preview,
@@ -55,6 +57,8 @@ __all__ = [
     "resume",
     "add_anchor",
     "click",
+    "correct_view",
+    "correction_summary",
     "add_prompt",
     "refresh_preview",
     "accept",

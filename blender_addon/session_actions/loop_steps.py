@@ -1,6 +1,11 @@
 """The steps of the interactive loop on a live session: add an anchor, click (on an
-anchor, or anywhere in a 3D view), add a prompt point, accept, sync, undo, reset,
-finish the object.
+anchor, or anywhere in a 3D view), add a prompt point, correct an accepted view,
+accept, sync, undo, reset, finish the object.
+
+Every click is also a correction of the selection (a 3D constraint,
+:mod:`divas_engine.session.corrections`): the points' selection is written in the same
+step, so the viewport shows it at once, and the step's record says how many views it
+changed (the panel shows it).
 
 Each makes one engine call on the session and then updates what Blender shows: the
 cameras' images (:mod:`.view_cameras`) and the points' selection (:mod:`.points`). Pixel
@@ -39,6 +44,8 @@ __all__ = [
     "viewport_camera",
     "viewport_click",
     "click",
+    "correct_view",
+    "correction_summary",
     "add_prompt",
     "refresh_preview",
     "accept",
@@ -137,25 +144,77 @@ def viewport_click(
     return index, click(context, obj, live, index, (float(xy[0]), float(xy[1])), positive)
 
 
+def correction_summary(res) -> str:
+    """What a correction (:class:`~divas_engine.session.CorrectionResult`) changed, in
+    words: the views segmented again and the splats selected / deselected."""
+    n = res.views_changed
+    parts = [f"{n} view{'s' if n != 1 else ''} changed"]
+    if len(res.removed):
+        parts.append(f"{len(res.removed):,} splats out")
+    if len(res.added):
+        parts.append(f"{len(res.added):,} splats in")
+    return ", ".join(parts)
+
+
+def _after_correction(context, obj, live: LiveSession, res) -> dict:
+    """Show a correction at once: the points' selection, the selection over the views it
+    changed; its record fields (views changed, seconds by stage)."""
+    s = live.session
+    if res.refused or res.rejected or len(res.added) or len(res.removed):
+        write_selection(obj, live)
+    sel = s.selection
+    for vid in res.resegmented:
+        v = s.view(vid)
+        if vid in live.view_cameras and v.status == ViewStatus.FUSED:
+            show_view(context, obj, live, v, lambda v=v: s.overlay(v, sel), activate=False)
+    return {"views_changed": res.views_changed, **res.timings}
+
+
 def click(
     context, obj, live: LiveSession, anchor: int, xy, positive: bool = True, *, preview: bool = True
 ):
     """A click on anchor ``anchor``: positive spawns (and shows) the centroid view with
-    its default-prompt preview; negative becomes a negative prompt of the anchor's views."""
+    its default-prompt preview; negative takes the spot out of the selection at once
+    (and out of every view that held it). Both correct the views that disagree."""
     s = live.session
     t0 = time.perf_counter()
+    last = s.last_correction
     res = s.click(int(anchor), (float(xy[0]), float(xy[1])), positive=positive)
+    corr = s.last_correction if s.last_correction is not last else None
     _show_rendered_anchor(live, int(anchor))
+    fields = {} if corr is None else _after_correction(context, obj, live, corr)
     if not positive:
-        live.record(
-            {"what": f"negative click on anchor {anchor}", "update_s": time.perf_counter() - t0}
-        )
+        what = f"negative click on anchor {anchor}"
+        if corr is not None:
+            what += f": {correction_summary(corr)}"
+        live.record({"what": what, **fields, "update_s": time.perf_counter() - t0})
         return res
-    timings = dict(res.timings)
+    timings = {**dict(res.timings), **fields}
     if preview:
         timings["preview_s"] = s.prompt(res).seconds
     show_view(context, obj, live, res)
     live.record({"what": f"view {res.id}", **timings, "update_s": time.perf_counter() - t0})
+    return res
+
+
+def correct_view(context, obj, live: LiveSession, view_id: str, xy, positive: bool = True):
+    """A click on centroid view ``view_id`` (accepted or not) as a correction: the spot
+    goes out of (negative) or into (positive) the selection at once, and every view
+    that disagrees with it is segmented and fused again. Returns the engine's
+    :class:`~divas_engine.session.CorrectionResult`."""
+    s = live.session
+    t0 = time.perf_counter()
+    v = s.view(view_id)
+    res = s.click_view(v, (float(xy[0]), float(xy[1])), positive=positive)
+    fields = _after_correction(context, obj, live, res)
+    if v.status == ViewStatus.FUSED:
+        sel = s.selection
+        show_view(context, obj, live, v, lambda: s.overlay(v, sel))
+    else:
+        show_view(context, obj, live, v)
+    sign = "click" if positive else "negative click"
+    what = f"{sign} on view {v.id}: {correction_summary(res)}"
+    live.record({"what": what, **fields, "update_s": time.perf_counter() - t0})
     return res
 
 

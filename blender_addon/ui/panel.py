@@ -138,6 +138,8 @@ def _draw_session(layout, live) -> None:
     if last:
         sub = box.column(align=True)
         sub.label(text=f"Last: {last.get('what', '')}")
+        if "views_changed" in last:  # a click as a correction (views segmented again)
+            sub.label(text=f"    Views changed: {last['views_changed']}")
         for key, label in TIMING_LABELS:
             if key in last:
                 sub.label(text=f"    {label}: {1000.0 * float(last[key]):.0f} ms")

@@ -20,11 +20,18 @@ It turns the ground-truth label coverage ``L`` of a view into SAM-like output:
 5. the same mask in all 3 channels; scores ``0.9`` when some pixel is ≥ 0.5,
    else ``0.2``.
 
+Prompts (``respond_to_prompts``, not in NOTES: a correction loop needs a mask source
+that answers its clicks, as SAM does): a *negative* point on an error the oracle made —
+a low-res cell the errors set to the object while the truth there is background — takes
+back the connected error part (8-connectivity) under it; a *positive* point on a cell of
+the object the errors dropped brings that part back. A point elsewhere changes nothing
+(the label image *is* the target), and the caller's :func:`.base.select_mask` still
+rejects views without a positive prompt. The point's cell is ``⌊(x, y) · grid / image⌋``,
+or the nearest error cell within one cell of it.
+
 Dropout runs before bleed so a dropped part gets no bleed ring (NOTES list the
 errors in the order bleed, dropout, blob; their sets are disjoint otherwise).
-Error sizes are in low-res grid pixels, where the errors are applied. Prompts
-are ignored apart from their shape (the label image *is* the target); the
-caller's :func:`.base.select_mask` still rejects views without a positive prompt.
+Error sizes are in low-res grid pixels, where the errors are applied.
 
 Randomness: one generator per view from ``(seed, crc32(view key))``, with one
 child stream per error type, so a view's errors do not depend on call order or
@@ -67,6 +74,7 @@ class OracleConfig:
     fp_radius_px: tuple[float, float] = (3.0, 8.0)
     score_nonempty: float = 0.9
     score_empty: float = 0.2
+    respond_to_prompts: bool = True
     seed: int = 0
 
 
@@ -160,6 +168,7 @@ class OracleSegmenter(Segmenter):
         f = min(1.0, cfg.low_res / max(h, w))
         hw = (max(1, int(round(h * f))), max(1, int(round(w * f))))
         lo = np.clip(_area_resize(np.nan_to_num(gt), hw), 0.0, 1.0)
+        truth = lo.copy()
         dlo = None
         if depth is not None:
             valid = (depth > 0).astype(np.float32)
@@ -171,12 +180,8 @@ class OracleSegmenter(Segmenter):
         obj = lo >= 0.5
         rep["bleed_px"], rep["bleed_pixels"] = self._bleed(lo, obj, dlo, rng_bleed)
         rep["fp_blob"] = self._false_positive(lo, obj, rng_fp)
-        logits = np.float32(cfg.logit_scale) * (lo - np.float32(0.5))
-        if hw != (h, w):
-            logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
-        prob = sigmoid(logits)
         self.last_report = rep
-        return prob
+        return _OracleState(lo, truth, (h, w))
 
     def _dropout(
         self, lo: np.ndarray, obj: np.ndarray, rng: np.random.Generator
@@ -225,8 +230,54 @@ class OracleSegmenter(Segmenter):
         return {"x": cx + 0.5, "y": cy + 0.5, "radius": float(r)}
 
     def _predict(
-        self, prob: Any, points: np.ndarray, labels: np.ndarray
+        self, state: _OracleState, points: np.ndarray, labels: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
+        lo = state.grid
+        if cfg.respond_to_prompts and len(points):
+            lo = lo.copy()
+            answered = _answer_prompts(lo, state.truth, state.shape, points, labels)
+            self.last_report = {**self.last_report, "prompt_parts": answered}
+        h, w = state.shape
+        logits = np.float32(cfg.logit_scale) * (lo - np.float32(0.5))
+        if lo.shape != (h, w):
+            logits = cv2.resize(logits, (w, h), interpolation=cv2.INTER_LINEAR)
+        prob = sigmoid(logits)
         score = cfg.score_nonempty if bool((prob >= 0.5).any()) else cfg.score_empty
         return np.repeat(prob[None], 3, axis=0), np.full(3, score, np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class _OracleState:
+    """A view's low-res grid with its errors, the clean truth grid and the image size."""
+
+    grid: np.ndarray
+    truth: np.ndarray
+    shape: tuple[int, int]
+
+
+def _answer_prompts(
+    lo: np.ndarray, truth: np.ndarray, shape: tuple[int, int], points, labels
+) -> list[tuple[int, int]]:
+    """Undo, in place on ``lo``, the error parts the prompts point at (module docstring);
+    ``(label, cells changed)`` per point that changed something."""
+    gh, gw = lo.shape
+    h, w = shape
+    out = []
+    for (x, y), lab in zip(np.asarray(points, np.float64), np.asarray(labels)):
+        positive = int(lab) == 1
+        # a negative point takes back what the errors added, a positive one what they dropped
+        err = (truth < 0.5) & (lo >= 0.5) if not positive else (truth >= 0.5) & (lo < 0.5)
+        r = min(max(int(np.floor(y * gh / h)), 0), gh - 1)
+        c = min(max(int(np.floor(x * gw / w)), 0), gw - 1)
+        if not err[r, c]:
+            near = np.argwhere(err[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2])
+            if not len(near):
+                continue
+            d = (near[:, 0] + max(r - 1, 0) - r) ** 2 + (near[:, 1] + max(c - 1, 0) - c) ** 2
+            r, c = near[int(np.argmin(d))] + (max(r - 1, 0), max(c - 1, 0))
+        _, parts = cv2.connectedComponents(err.astype(np.uint8), connectivity=8)
+        part = parts == parts[r, c]
+        lo[part] = truth[part]
+        out.append((int(positive), int(part.sum())))
+    return out

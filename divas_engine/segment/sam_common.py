@@ -33,6 +33,7 @@ __all__ = [
     "SAM_PIXEL_MEAN",
     "SAM_PIXEL_STD",
     "SAM_IMAGE_SIZE",
+    "SAM_CACHE_VIEWS",
     "preprocess_shape",
     "resize_antialiased",
     "resize_longest_side",
@@ -48,6 +49,10 @@ SAM_PIXEL_MEAN = np.array([123.675, 116.28, 103.53], dtype=np.float32)
 SAM_PIXEL_STD = np.array([58.395, 57.12, 57.375], dtype=np.float32)
 #: Encoder input side S.
 SAM_IMAGE_SIZE = 1024
+#: Views whose image embeddings a SAM segmenter keeps (4 MiB each): every view of an
+#: object within the paper's view budget (≤ 20), so a click that corrects a fused view
+#: runs the decoder only.
+SAM_CACHE_VIEWS = 20
 
 
 def preprocess_shape(h: int, w: int, long_side: int = SAM_IMAGE_SIZE) -> tuple[int, int]:

@@ -42,6 +42,7 @@ import numpy as np
 from ..errors import DivasInputError
 from .base import Segmenter
 from .sam_common import (
+    SAM_CACHE_VIEWS,
     SAM_IMAGE_SIZE,
     SAM_PIXEL_MEAN,
     decoder_prompts,
@@ -98,7 +99,8 @@ class SamOnnxSegmenter(Segmenter):
         encoder_path: image encoder ``.onnx``.
         decoder_path: prompt decoder ``.onnx`` (official export signature).
         providers: onnxruntime execution providers (default CPU).
-        cache_size: views whose embeddings are kept.
+        cache_size: views whose embeddings are kept (:data:`.sam_common.SAM_CACHE_VIEWS`:
+            a click that corrects a fused view runs the decoder only).
     """
 
     name = "sam-onnx"
@@ -108,7 +110,7 @@ class SamOnnxSegmenter(Segmenter):
         encoder_path: str | PathLike,
         decoder_path: str | PathLike,
         providers: Sequence[str] | None = None,
-        cache_size: int = 8,
+        cache_size: int = SAM_CACHE_VIEWS,
     ):
         super().__init__(cache_size)
         self.encoder_path, self.decoder_path = Path(encoder_path), Path(decoder_path)

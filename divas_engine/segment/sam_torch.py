@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from .base import Segmenter
-from .sam_common import resize_longest_side, sam_point_coords, sigmoid
+from .sam_common import SAM_CACHE_VIEWS, resize_longest_side, sam_point_coords, sigmoid
 from .sam_models import FAMILIES, SamModelType, import_torch, load_sam_model
 from .sam_upstream import sam_package
 
@@ -48,7 +48,8 @@ class SamTorchSegmenter(Segmenter):
         checkpoint: official checkpoint (``sam_vit_*.pth``, ``mobile_sam.pt``).
         model_type: ``vit_h``, ``vit_l``, ``vit_b`` or ``mobile_sam``.
         device: torch device (default: CUDA when available, else CPU).
-        cache_size: views whose embeddings are kept.
+        cache_size: views whose embeddings are kept (:data:`.sam_common.SAM_CACHE_VIEWS`:
+            a click that corrects a fused view runs the decoder only).
     """
 
     name = "sam-torch"
@@ -58,7 +59,7 @@ class SamTorchSegmenter(Segmenter):
         checkpoint: str | PathLike,
         model_type: str = "vit_h",
         device: str | None = None,
-        cache_size: int = 8,
+        cache_size: int = SAM_CACHE_VIEWS,
     ):
         torch = _import_torch()
         t = SamModelType.parse(model_type, Path(checkpoint))
@@ -75,7 +76,7 @@ class SamTorchSegmenter(Segmenter):
         self._init_from_predictor(predictor_cls(model), cache_size)
 
     @classmethod
-    def from_predictor(cls, predictor: Any, cache_size: int = 8) -> SamTorchSegmenter:
+    def from_predictor(cls, predictor: Any, cache_size: int = SAM_CACHE_VIEWS) -> SamTorchSegmenter:
         """Wrap an existing ``SamPredictor``-like object (custom builds, tests)."""
         _import_torch()
         self = cls.__new__(cls)

@@ -9,17 +9,19 @@
 * :mod:`.backends` — one :class:`~.backends.SessionBackend` per scene representation
   (surfels, density grids), picked from the scene by a registry: everything the loop
   does differently per representation.
-* :mod:`.records` — anchors, clicks, views, previews, overlays, accept results, objects
-  (plain data); :mod:`.masks` — prompt sets and mask previews; :mod:`.fusing` — views into
-  and out of the fusion; :mod:`.edits` — manual edits; :mod:`.history` — undo / redo;
-  :mod:`.persistence` — save / replay (file layer :mod:`.store`); :mod:`.outputs` — the
-  object files; :mod:`.report` — counts and the run report.
+* :mod:`.records` — anchors, clicks, corrections, views, previews, overlays, accept and
+  correction results, objects (plain data); :mod:`.masks` — prompt sets and mask
+  previews; :mod:`.corrections` — every click as a 3D constraint (beyond the paper);
+  :mod:`.fusing` — views into and out of the fusion; :mod:`.edits` — manual edits;
+  :mod:`.history` — undo / redo; :mod:`.persistence` — save / replay (file layer
+  :mod:`.store`); :mod:`.outputs` — the object files; :mod:`.report` — counts and the
+  run report.
 * :class:`SessionConfig` — the loop's constants plus the sub-configs it hands down.
 * :mod:`.prompts` — the NOTES "Headless prompts file" (version 1): parse, check, resolve.
 * :func:`write_labelled_ply` — the scene with an extra ``divas_label`` column.
 """
 
-from .config import SessionConfig, config_from_dict, config_to_dict
+from .config import CorrectionConfig, SessionConfig, config_from_dict, config_to_dict
 from .labels_io import LABEL_PROPERTY, file_label_values, write_labelled_ply
 from .prompts import (
     AnchorPrompt,
@@ -35,6 +37,9 @@ from .records import (
     AcceptResult,
     AnchorClick,
     AnchorView,
+    ClickSource,
+    Correction,
+    CorrectionResult,
     MaskPreview,
     ObjectRecord,
     Overlay,
@@ -46,6 +51,10 @@ from .timing import Timings, memory_report
 __all__ = [
     "Session",
     "SessionConfig",
+    "CorrectionConfig",
+    "Correction",
+    "CorrectionResult",
+    "ClickSource",
     "SessionView",
     "AnchorView",
     "AnchorClick",

@@ -23,7 +23,36 @@ from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
 from ..segment.worker import SYNC_PENDING
 from ..views.config import ViewConfig
 
-__all__ = ["SessionConfig", "config_to_dict", "config_from_dict"]
+__all__ = ["CorrectionConfig", "SessionConfig", "config_to_dict", "config_from_dict"]
+
+
+@dataclass(frozen=True)
+class CorrectionConfig:
+    """Clicks as 3D constraints (beyond the paper; :mod:`.corrections`).
+
+    Attributes:
+        enabled: every click is a constraint on its object: a prompt of every view
+            where its point is visible and the view's mask disagrees with it, and its
+            surface patch forced in (positive) or out (negative) of the selection.
+            False: the paper's loop (a positive click prompts its own centroid view; a
+            negative one the later centroid views of its anchor).
+        patch_px: the patch radius, in pixels of the clicked image at the click's depth.
+        negative_sigmas, positive_sigmas: a primitive is in the patch when the point
+            lies within this many standard deviations of it (its ellipsoid grown by the
+            patch radius): generous for a negative click (everything that draws the
+            spot goes), strict for a positive one (no large background splat comes in).
+    """
+
+    enabled: bool = True
+    patch_px: float = 2.0
+    negative_sigmas: float = 2.0
+    positive_sigmas: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("patch_px", "negative_sigmas", "positive_sigmas"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"CorrectionConfig.{name} must be positive, got {v}")
 
 
 @dataclass(frozen=True)
@@ -59,8 +88,10 @@ class SessionConfig:
         nerf_zoom: λ of the NeRF centroid view (None: 0.67 forward-facing / 0.47 360°).
         all_views: offer every Fibonacci anchor (unsupported included).
         overwrite_labels: a later object may take surfels already labelled by an earlier one.
-        negative_occlusion_tol: an anchor negative click is projected into a centroid view
-            only where it is not hidden: its depth ≤ (1 + tol) · the view's D_ref.
+        negative_occlusion_tol: a click's point is projected into a view only where it
+            is on the surface the view shows: its depth within ``tol · D_ref`` of the
+            view's D_ref (neither hidden behind it nor floating before it).
+        corrections: clicks as 3D constraints (:class:`CorrectionConfig`).
         overlay_color, overlay_alpha: overlay of the selection on a view.
         overlay_threshold: coverage threshold of the binary overlay mask (NOTES
             "Evaluation": 0.1).
@@ -88,6 +119,7 @@ class SessionConfig:
     all_views: bool = False
     overwrite_labels: bool = False
     negative_occlusion_tol: float = 0.05
+    corrections: CorrectionConfig = field(default_factory=CorrectionConfig)
     overlay_color: tuple[float, float, float] = (1.0, 0.25, 0.1)
     overlay_alpha: float = 0.6
     overlay_threshold: float = 0.1

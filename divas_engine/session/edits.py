@@ -6,7 +6,10 @@ delete or hide splats. The selection a session shows, labels and exports is
 
     F = ((S ∖ R_o) ∪ A_o) ∖ D
 
-* ``S`` — the semantic selection of the current object ``o`` (fusion + mapping);
+* ``S`` — the semantic selection of the current object ``o`` (fusion + mapping), with
+  the surface patches of its clicks forced in or out (:mod:`.corrections`; a click
+  takes its patch out of the manual layer that would undo it, :func:`yield_to_click`,
+  so the latest of a click and a manual edit wins);
 * ``A_o`` / ``R_o`` — primitives the user added / removed by hand on object ``o``;
 * ``D`` — deleted primitives: never selected, labelled or exported again.
 
@@ -51,6 +54,7 @@ __all__ = [
     "delete_primitives",
     "hide_primitives",
     "reveal_primitives",
+    "yield_to_click",
 ]
 
 
@@ -165,7 +169,7 @@ def apply_selection(state: SessionState, new: np.ndarray, within: np.ndarray | N
         new = new & ~state.edits.deleted
     k = state.current.index
     state.edits = state.edits.with_object(k, _delta(state.edits.of(k), old, new))
-    state.selection = compose(state.semantic, state.edits, k)
+    state.selection = state.composed()
     return state.selection
 
 
@@ -182,7 +186,7 @@ def delete_primitives(state: SessionState, m: np.ndarray) -> int:
         for o in state.objects[:-1]:
             if o.selection is not None and o.selection[m].any():
                 o.selection = o.selection & ~m
-        state.selection = compose(state.semantic, state.edits, state.current.index)
+        state.selection = state.composed()
     return count
 
 
@@ -200,3 +204,18 @@ def reveal_primitives(state: SessionState) -> np.ndarray | None:
     old = state.edits.hidden
     state.edits = replace(state.edits, hidden=None)
     return old
+
+
+def yield_to_click(state: SessionState, patch: np.ndarray, positive: bool) -> None:
+    """A click on the current object forces ``patch`` (a mask) in or out: it leaves the
+    manual layer that would undo that (``A_o`` for a negative click, ``R_o`` for a
+    positive one)."""
+    k = state.current.index
+    o = state.edits.of(k)
+    if positive and o.removed is not None and o.removed[patch].any():
+        o = ObjectEdits(o.added, _any(o.removed & ~patch))
+    elif not positive and o.added is not None and o.added[patch].any():
+        o = ObjectEdits(_any(o.added & ~patch), o.removed)
+    else:
+        return
+    state.edits = state.edits.with_object(k, o)

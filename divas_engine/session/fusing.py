@@ -1,6 +1,6 @@
 """The fusion bookkeeping of a session's views (paper Sec. 3.5): fusing a group of
-accepted views into their slots, collecting the background worker's masks, and
-reconciling the fusion with a restored state.
+accepted views into their slots, fusing a corrected view again in its slot, collecting
+the background worker's masks, and reconciling the fusion with a restored state.
 
 The fusion is fixed-point, so removing and adding views in any order gives the
 accumulators of the target set bit for bit (:mod:`divas_engine.fusion.state`): a
@@ -24,7 +24,16 @@ from .timing import Timings
 if TYPE_CHECKING:
     from ..fusion import FusionCapacityError
 
-__all__ = ["FusedSome", "collect", "drain", "fuse_views", "fusion_view", "reconcile"]
+__all__ = [
+    "FusedSome",
+    "collect",
+    "drain",
+    "fuse_views",
+    "fusion_view",
+    "reconcile",
+    "refuse_view",
+    "slot_views",
+]
 
 
 class FusedSome(Exception):
@@ -93,6 +102,27 @@ def fuse_views(
     return fused, rejected, kernel_s
 
 
+def refuse_view(v: SessionView, prev: MaskPreview, b: RenderBuffers, fusion, timings: Timings):
+    """Fuse the fused view ``v`` again, in its own slot, with the corrected ``prev``
+    (rendered as ``b``): its old fusion view removed, the new one added (exact: the
+    fusion is fixed-point). A rejected ``prev`` takes the view out of the fusion
+    (``REJECTED``, with its reason). Returns the kernel seconds."""
+    slot = int(v.fusion_id)
+    t = time.perf_counter()
+    fusion.remove_view(slot)
+    rejection = prev.rejection
+    if rejection is None:
+        fv = fusion_view(v, prev.mask, b)
+        fusion.add_view(fv, slot)
+        v.mask, v.fusion_view, v.score, v.advice = prev.mask, fv, prev.score, None
+    else:
+        v.status, v.reason, v.rejection = ViewStatus.REJECTED, rejection.message, rejection
+        v.mask, v.fusion_id, v.fusion_view, v.score = None, None, None, prev.score
+    dt = time.perf_counter() - t
+    timings.add("kernel", dt)
+    return dt
+
+
 def collect(
     worker: SamWorker | None, group: Sequence[SessionView]
 ) -> list[tuple[SessionView, SegResult | Rejection]]:
@@ -126,17 +156,23 @@ def drain(worker: SamWorker | None) -> None:
             worker.sync()
 
 
-def reconcile(fusion, before: dict[int, SessionView], target: dict[int, SessionView]) -> None:
-    """Make the fusion hold the ``target`` views by slot, from ``before``: the views
-    fused now but not in the target are removed, the target's missing ones fused again
-    in their own slots."""
-    for slot, v in before.items():
-        if target.get(slot) is not v and slot in fusion.view_ids:
+def slot_views(views: dict[int, SessionView]) -> dict[int, object]:
+    """The fusion view of each slot (what :func:`reconcile` compares)."""
+    return {slot: v.fusion_view for slot, v in views.items()}
+
+
+def reconcile(fusion, before: dict[int, object], target: dict[int, object]) -> None:
+    """Make the fusion hold the ``target`` fusion views by slot (:func:`slot_views`),
+    from ``before``: the ones fused now but not in the target are removed, the target's
+    missing ones fused again in their own slots (a view fused again after a correction
+    is a new fusion view in the same slot)."""
+    for slot, fv in before.items():
+        if target.get(slot) is not fv and slot in fusion.view_ids:
             fusion.remove_view(slot)
-    for slot, v in target.items():
-        if before.get(slot) is not v and slot not in fusion.view_ids:
-            fusion.add_view(v.fusion_view, slot)
+    for slot, fv in target.items():
+        if before.get(slot) is not fv and slot not in fusion.view_ids:
+            fusion.add_view(fv, slot)
     if sorted(fusion.view_ids) != sorted(target):  # never expected; rebuild to be exact
         fusion.reset()
-        for slot, v in target.items():
-            fusion.add_view(v.fusion_view, slot)
+        for slot, fv in target.items():
+            fusion.add_view(fv, slot)

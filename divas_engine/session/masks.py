@@ -1,7 +1,8 @@
 """Prompt sets and mask previews of a centroid view (paper Sec. 3.4).
 
 * :func:`default_prompts` — the click's 3D point projected into the view (positive)
-  plus the anchor's visible negative clicks (NOTES "Headless prompts file");
+  plus the visible negative clicks (NOTES "Headless prompts file"; which clicks: the
+  object's, or with corrections off its anchor's: :meth:`Session.default_prompts`);
 * :func:`prompt_set` — the user's points, checked;
 * :func:`mask_preview` — a SAM result → channel selection (score ≥ ``min_score``) →
   the backend's depth weighting → the "empty mask" rule; the segmenter's hint (what to
@@ -10,8 +11,6 @@
 """
 
 from __future__ import annotations
-
-from collections.abc import Sequence
 
 import numpy as np
 
@@ -22,7 +21,8 @@ from ..segment.base import Rejection, Segmenter, SegResult, select_mask
 from ..segment.context import ViewContext
 from .backends import SessionBackend
 from .config import SessionConfig
-from .records import AnchorClick, MaskPreview, SessionView
+from .corrections import visible_pixels
+from .records import MaskPreview, SessionView
 from .timing import Timings
 
 __all__ = ["TimedSegmenter", "as_prompt_arrays", "default_prompts", "prompt_set", "mask_preview"]
@@ -55,25 +55,19 @@ def as_prompt_arrays(points, labels) -> tuple[np.ndarray, np.ndarray]:
 
 
 def default_prompts(
-    v: SessionView, anchor_clicks: Sequence[AnchorClick], occlusion_tol: float
+    v: SessionView, negatives: np.ndarray, occlusion_tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The click's 3D point projected into ``v`` (positive) plus the negative clicks of
-    its anchor that are visible there: in the image, in front, and at a depth
-    ≤ (1 + ``occlusion_tol``) · the view's D_ref (negative; ``v`` rendered then)."""
+    """The click's 3D point projected into ``v`` (positive) plus the ``[K,3]`` negative
+    click points that are visible there (:func:`.corrections.visible_pixels`: on the
+    surface the view shows, within ``occlusion_tol`` of its D_ref; negative; ``v``
+    rendered then)."""
     cam = v.camera
     uv, _ = cam.project(v.centroid.target[None])
     pts, labs = [uv[0]], [1]
-    negs = [c for c in anchor_clicks if not c.positive and c.point is not None]
-    if negs:
-        d_ref = v.buffers.D_ref
-        puv, z = cam.project(np.stack([c.point for c in negs]))
-        for (x, y), zz in zip(puv, z):
-            if not (zz > 0 and 0 <= x < cam.width and 0 <= y < cam.height):
-                continue
-            d = float(d_ref[int(y), int(x)])
-            if d > 0 and zz <= (1.0 + occlusion_tol) * d:
-                pts.append((x, y))
-                labs.append(0)
+    if len(negatives):
+        puv, ok = visible_pixels(cam, v.buffers.D_ref, negatives, occlusion_tol)
+        pts += list(puv[ok])
+        labs += [0] * int(ok.sum())
     return np.asarray(pts, np.float64), np.asarray(labs, np.int64)
 
 

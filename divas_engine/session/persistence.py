@@ -2,7 +2,8 @@
 
 :func:`session_document` turns a :class:`~divas_engine.session.Session` into the JSON
 document plus the arrays (the accepted, depth-weighted masks, the segmenter's raw
-masks the 3DGS completion reads, the labels and the selection); :func:`load_session`
+masks the 3DGS completion reads, the clicks' surface patches, the labels and the
+selection); :func:`load_session`
 parses them back into plain records (:func:`saved_object`) and has a new session
 *replay* them (:meth:`~divas_engine.session.Session.replay`): the stored camera poses are
 re-rendered and the stored masks fused in their slots, so the replayed labels equal the
@@ -29,7 +30,7 @@ from ..segment.base import Rejection, Segmenter
 from ..views.centroid_common import CentroidView
 from .backends import backend_class_for
 from .edits import edit_arrays, saved_edits
-from .records import AnchorClick, ObjectRecord, SessionView
+from .records import AnchorClick, ClickSource, Correction, ObjectRecord, SessionView
 from .store import SESSION_FORMAT, SESSION_VERSION, load_state
 from .validate import check_session_doc
 
@@ -74,6 +75,7 @@ def session_document(session: Session) -> tuple[dict[str, Any], dict[str, np.nda
                 "finished": o.finished,
                 "accept_order": list(o.accept_order),
                 "clicks": {str(a): [c.to_dict() for c in cs] for a, cs in o.clicks.items()},
+                "corrections": [_correction_doc(c, o.index, arrays) for c in o.corrections],
                 "views": vdocs,
             }
         )
@@ -99,6 +101,12 @@ def session_document(session: Session) -> tuple[dict[str, Any], dict[str, np.nda
         "objects": objs,
     }
     return doc, arrays
+
+
+def _correction_doc(c: Correction, obj_index: int, arrays: dict[str, np.ndarray]) -> dict:
+    key = f"patch_{obj_index}_{c.index}"
+    arrays[key] = np.asarray(c.patch, np.int64)
+    return c.to_dict(key)
 
 
 def load_session(
@@ -217,6 +225,19 @@ def saved_object(
             )
             for c in cs
         ]
+    for cd in od.get("corrections", ()):  # absent in older sessions
+        obj.corrections.append(
+            Correction(
+                int(cd["index"]),
+                bool(cd["positive"]),
+                np.asarray(cd["point"], np.float64),
+                float(cd["radius"]),
+                np.asarray(arrays[cd["patch"]], np.int64),
+                ClickSource.from_dict(cd["source"]),
+                tuple(str(v) for v in cd["views"]),
+                cd.get("spawned"),
+            )
+        )
     for vd in od["views"]:
         cv = CentroidView(
             Camera.from_dict(vd["camera"]),

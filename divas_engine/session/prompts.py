@@ -15,8 +15,10 @@
   N Fibonacci candidates of the scene, App. C.1).
 * Each *positive* click (``positive`` defaults to true) spawns one centroid view; its
   default SAM prompt is the click's 3D point projected into that view. A negative
-  click on an anchor adds a negative prompt to every centroid view of that anchor
-  (its 3D point projected, where visible). Clicks are numbered per anchor in file
+  click on an anchor is a correction of the object (``docs/corrections.md``): a
+  negative prompt of every view that shows its 3D point and holds it, and its surface
+  taken out of the selection (with ``corrections.enabled`` off: a negative prompt of
+  the centroid views of that anchor, where visible). Clicks are numbered per anchor in file
   order, positive and negative alike.
 * ``centroid_prompts["a:c"]`` adds points to the centroid view of anchor ``a``,
   click ``c`` (which must be a positive click).

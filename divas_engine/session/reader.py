@@ -34,6 +34,7 @@ from .masks import TimedSegmenter, default_prompts
 from .persistence import session_document
 from .records import (
     AnchorView,
+    CorrectionResult,
     ObjectRecord,
     Overlay,
     SessionView,
@@ -72,7 +73,8 @@ class SessionReader:
         renderer: renders anchors, centroid views and overlays; rendering: the
             session's :class:`~.rendering.SessionRendering` over it.
         state: the :class:`~.state.SessionState` (anchors, objects, labels, selections…).
-        timings, updates: per-stage seconds and one record per accept.
+        timings, updates: per-stage seconds and one record per accept and click.
+        last_correction: what the last click did as a correction (:mod:`.corrections`).
         replay_matches: after ``Session.load``, whether the replay reproduced the saved
             labels; plan: the anchor plan of ``open``; autosave_error: the last
             autosave failure (None: the last autosave landed).
@@ -128,6 +130,9 @@ class SessionReader:
             renderer=self.renderer,
         )
         self._gt_values = None
+        #: the ground truth rendered per view id (evaluation; a view is segmented again
+        #: when a click corrects it)
+        self._truths: dict[str, tuple[Camera, np.ndarray]] = {}
         if gt_values is not None:
             self.set_ground_truth(gt_values)
         shape = self.backend.selection_shape
@@ -138,6 +143,7 @@ class SessionReader:
         self._history: SessionHistory | None = None
         self.autosave_error: str | None = None
         self.replay_matches: bool | None = None
+        self.last_correction: CorrectionResult | None = None
         self._closed = False
         # one BLAS thread while the session is open: no core left spinning after each of
         # its tall, thin NumPy products (the same bits; :mod:`divas_engine.blas_threads`)
@@ -205,6 +211,7 @@ class SessionReader:
                 None, f"ground-truth labels have shape {v.shape}, the scene needs {shape}"
             )
         self._gt_values = v
+        self._truths.clear()
         if self.segmenter is not None:
             with self.rendering.lock:
                 self.renderer.attach_values(v if self.segmenter.wants_ground_truth else None)
@@ -310,7 +317,11 @@ class SessionReader:
         truth = None
         seg = self.segmenter
         if self._gt_values is not None and seg is not None and seg.wants_ground_truth:
-            truth = self.rendering.render_values(view.camera, self._gt_values)
+            truth = self._truths.get(view.id)
+            if truth is None or truth[0] is not view.camera:
+                truth = (view.camera, self.rendering.render_values(view.camera, self._gt_values))
+                self._truths[view.id] = truth
+            truth = truth[1]
         clicks = self.state.object_clicks(self.objects[view.object_index])
         return ViewContext(view.id, b.rgb, b.D_ref, view.camera, clicks, truth)
 
@@ -361,13 +372,21 @@ class SessionReader:
         return AnchorView(i, self.working_camera(full), full, str(source), int(index))
 
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
-        """The click's 3D point projected into the view (positive) plus the anchor's
-        visible negative clicks (negative)."""
+        """The click's 3D point projected into the view (positive) plus the visible
+        negative clicks (negative): of the view's object (:mod:`.corrections`), or with
+        corrections off of its anchor."""
         v = self.view(view) if isinstance(view, str) else view
-        clicks = self.objects[v.object_index].clicks.get(v.anchor, [])
-        if any(not c.positive for c in clicks):
+        obj = self.objects[v.object_index]
+        if self.config.corrections.enabled:
+            oc = self.state.object_clicks(obj)
+            negs = oc.points[~oc.positive]
+        else:
+            clicks = obj.clicks.get(v.anchor, [])
+            negs = [c.point for c in clicks if not c.positive and c.point is not None]
+        negs = np.asarray(negs, np.float64).reshape(-1, 3)
+        if len(negs):
             self.render(v)  # the negative clicks' visibility reads its depth
-        return default_prompts(v, clicks, self.config.negative_occlusion_tol)
+        return default_prompts(v, negs, self.config.negative_occlusion_tol)
 
     def write_labelled(self, path: str | PathLike) -> Path:
         """The scene with the ``divas_label`` column (surfel scenes)."""

@@ -1,5 +1,6 @@
-"""The records of an interactive session: anchors, clicks, centroid views, previews,
-overlays, accept results and objects — plain data (the loop is :mod:`.session`).
+"""The records of an interactive session: anchors, clicks, corrections, centroid views,
+previews, overlays, accept and correction results and objects — plain data (the loop
+is :mod:`.session`).
 
 An anchor or a view holds its render once the session has rendered it
 (:meth:`~divas_engine.session.Session.render`); reading a record never renders.
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera
-from ..kinds import ViewStatus
+from ..kinds import ClickOrigin, ViewStatus
 from ..render.buffers import RenderBuffers
 from ..segment.base import MaskSelection, Rejection
 from ..segment.depth_weighting import DepthBand
@@ -23,6 +24,9 @@ from ..views.centroid_common import CentroidView
 __all__ = [
     "AnchorView",
     "AnchorClick",
+    "ClickSource",
+    "Correction",
+    "CorrectionResult",
     "MaskPreview",
     "SessionView",
     "Overlay",
@@ -93,6 +97,83 @@ class AnchorClick:
         }
 
 
+@dataclass(frozen=True, eq=False)
+class ClickSource:
+    """Where a click was made: ``origin`` (:class:`~divas_engine.kinds.ClickOrigin`) and
+    ``xy`` (pixels of that image) with, by origin, the ``anchor`` and its ``click``
+    number, the ``view`` id, or the ``camera`` (working resolution); ``POINT``: none."""
+
+    origin: ClickOrigin
+    xy: tuple[float, float] | None = None
+    anchor: int | None = None
+    click: int | None = None
+    view: str | None = None
+    camera: Camera | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "origin": str(self.origin),
+            "xy": None if self.xy is None else [float(self.xy[0]), float(self.xy[1])],
+            "anchor": self.anchor,
+            "click": self.click,
+            "view": self.view,
+            "camera": None if self.camera is None else self.camera.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ClickSource:
+        xy = d.get("xy")
+        cam = d.get("camera")
+        return cls(
+            ClickOrigin(d["origin"]),
+            None if xy is None else (float(xy[0]), float(xy[1])),
+            None if d.get("anchor") is None else int(d["anchor"]),
+            None if d.get("click") is None else int(d["click"]),
+            d.get("view"),
+            None if cam is None else Camera.from_dict(cam),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Correction:
+    """A click as a 3D constraint on its object (beyond the paper;
+    :mod:`~divas_engine.session.corrections`).
+
+    Attributes:
+        index: its number in the object (click order).
+        positive: the click's sign.
+        point: ``[3]`` the back-projected point (world units).
+        radius: the patch radius (world units: ``patch_px`` pixels at the click's depth).
+        patch: sorted flat indices (into a selection) of the primitives or voxels under
+            the click — forced in (positive) or out (negative) of the selection.
+        source: the :class:`ClickSource`.
+        views: the views it prompted when it was made (segmented again).
+        spawned: the centroid view a positive anchor click spawned (Sec. 3.3): that
+            click stands for its view, so its patch holds while the view is fused.
+    """
+
+    index: int
+    positive: bool
+    point: np.ndarray
+    radius: float
+    patch: np.ndarray
+    source: ClickSource
+    views: tuple[str, ...] = ()
+    spawned: str | None = None
+
+    def to_dict(self, patch_key: str) -> dict[str, Any]:
+        return {
+            "index": self.index,
+            "positive": self.positive,
+            "point": [float(v) for v in self.point],
+            "radius": float(self.radius),
+            "patch": patch_key,
+            "source": self.source.to_dict(),
+            "views": list(self.views),
+            "spawned": self.spawned,
+        }
+
+
 @dataclass(eq=False)
 class MaskPreview:
     """SAM output for one prompt set on a view, after channel selection and depth weighting.
@@ -107,6 +188,8 @@ class MaskPreview:
         advice: the segmenter's plain-language hint when it was unsure (what to click
             next: a click on what is missing, a negative click on what spilled over),
             None when it is confident or gives no hints (SAM, the oracle).
+        asked: the prompt set :meth:`Session.prompt` was asked for, when ``points``
+            also hold the object's clicks its first mask disagreed with (None: the same).
     """
 
     view_id: str
@@ -120,6 +203,7 @@ class MaskPreview:
     rejection: Rejection | None
     seconds: float = 0.0
     advice: str | None = None
+    asked: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def accepted(self) -> bool:
@@ -279,14 +363,51 @@ class AcceptResult:
 
 
 @dataclass(eq=False)
+class CorrectionResult:
+    """What one click did as a correction (:mod:`~divas_engine.session.corrections`).
+
+    Attributes:
+        correction: the :class:`Correction` made.
+        resegmented: the views segmented again with the click as a prompt (fused,
+            pending or previewed views where its point is visible and their mask
+            disagrees with it).
+        refused: those of them fused again in their slots; rejected: ``(id, reason)``
+            of fused views whose corrected mask was rejected (they left the fusion).
+        added, removed: flat indices of the primitives or voxels the click selected /
+            deselected (the selection delta).
+        selection: the selection afterwards.
+        view: the centroid view a positive anchor click spawned, else None.
+        timings: seconds by stage (``segmenter_s``, ``kernel_s``, ``mapping_s``,
+            ``update_s`` the whole correction).
+    """
+
+    correction: Correction
+    resegmented: list[str]
+    refused: list[str]
+    rejected: list[tuple[str, str]]
+    added: np.ndarray
+    removed: np.ndarray
+    selection: np.ndarray
+    view: SessionView | None = None
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def views_changed(self) -> int:
+        """How many views the click changed (segmented again)."""
+        return len(self.resegmented)
+
+
+@dataclass(eq=False)
 class ObjectRecord:
-    """One object of a multi-object session."""
+    """One object of a multi-object session; ``corrections``: its clicks as 3D
+    constraints, in click order."""
 
     index: int
     label: int
     name: str
     views: list[SessionView] = field(default_factory=list)
     clicks: dict[int, list[AnchorClick]] = field(default_factory=dict)
+    corrections: list[Correction] = field(default_factory=list)
     accept_order: list[str] = field(default_factory=list)
     finished: bool = False
     selection: np.ndarray | None = None

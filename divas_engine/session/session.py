@@ -22,9 +22,13 @@ Decisions not in the paper:
 
 * an accepted view whose depth-weighted mask holds fewer than ``min_mask_pixels``
   pixels ≥ 0.5 is rejected ("empty mask"), like a low SAM score;
-* a negative click on an anchor is back-projected (like a positive one) and becomes
-  a negative prompt of every centroid view of that anchor where its 3D point is
-  visible (in the image, in front, not hidden by more than ``negative_occlusion_tol``);
+* every click — on an anchor, a centroid view (:meth:`Session.click_view`), through any
+  camera (:meth:`Session.click_camera`) or a world point (:meth:`Session.click_point`) —
+  is a 3D constraint on its object (:mod:`.corrections`): a prompt of every view where
+  its point is visible and the view's mask disagrees (those views segmented and fused
+  again), and its surface patch forced in or out of the selection; a negative click
+  becomes a negative prompt of the object's later views where it is visible
+  (``corrections.enabled`` False: of its anchor's, as before);
 * the default prompt of a centroid view is the click's 3D point projected into it
   (NOTES "Headless prompts file"); extra points are added to it;
 * multiple objects: :meth:`Session.finish_object` commits the selection as the next
@@ -34,7 +38,7 @@ Decisions not in the paper:
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from os import PathLike
 from typing import Any
 
@@ -48,9 +52,9 @@ from ..segment.base import Rejection, Segmenter, SegResult
 from ..segment.factory import SegmenterSettings, build_segmenter
 from ..segment.worker import SamWorker
 from ..views import Anchor
-from ..views.centroid_common import click_point
+from . import clicks, fusing
+from . import corrections as corr
 from . import edits as edit_steps
-from . import fusing
 from .config import SessionConfig
 from .edits import EditLayer
 from .history import SessionHistory
@@ -60,7 +64,6 @@ from .persistence import load_session
 from .reader import SessionReader, anchor_plan, scene_kind
 from .records import (
     AcceptResult,
-    AnchorClick,
     AnchorView,
     MaskPreview,
     ObjectRecord,
@@ -180,67 +183,11 @@ class Session(SessionReader):
         self.autosave()
         return a
 
-    def _back_project(self, anchor: AnchorView, xy) -> tuple[float, np.ndarray]:
-        b = self.render(anchor)
-        depth = self.backend.click_depth(b)
-        return click_point(anchor.camera, xy, depth, b.alpha, self.config.view.min_alpha_click)
-
-    def click(self, anchor_index: int, xy, positive: bool = True) -> SessionView | AnchorClick:
-        """A click on an anchor (pixels of the anchor render).
-
-        Positive: spawns, renders and returns the centroid view (Sec. 3.3). Negative:
-        records an extra negative prompt for the centroid views of this anchor and
-        returns the :class:`AnchorClick`.
-
-        Raises:
-            DivasInputError: outside the image, or no surface under the click.
-        """
-        anchor = self.anchor(anchor_index)
-        xy = (float(xy[0]), float(xy[1]))
-        obj = self.current
-        clicks = obj.clicks.setdefault(anchor.index, [])
-        ci = len(clicks)
-        try:
-            if not positive:
-                _, point = self._back_project(anchor, xy)
-                rec = AnchorClick(anchor.index, ci, xy, False, point)
-                clicks.append(rec)
-                self.autosave()
-                return rec
-            vid = f"o{obj.index}:a{anchor.index}:c{ci}"
-            on_camera = self._prefetch(anchor, xy, obj)
-            t0 = time.perf_counter()
-            with self.rendering.lock, self.timings.measure("centroid"):
-                b = self.render(anchor)
-                cv = self.backend.centroid_view(anchor.camera, xy, b, vid, on_camera)
-            t1 = time.perf_counter()
-        except DivasInputError as e:
-            raise DivasInputError(
-                None, f"anchor {anchor.index}: {e.problem}", code=e.code, details=e.details
-            ) from None
-        buffers, handed_s = cv.take_buffers()  # the planner's first probe, when it is the view
-        view = SessionView(vid, obj.index, anchor.index, ci, cv, buffers=buffers)
-        self.render(view)  # rendered here when the planner's probe is not the view
-        t2 = time.perf_counter()
-        view.timings = {"centroid_s": t1 - t0 - handed_s, "render_s": handed_s + t2 - t1}
-        clicks.append(AnchorClick(anchor.index, ci, xy, True, cv.target.copy(), vid))
-        self.state.add_view(view)
-        self.autosave()
-        return view
-
-    def _prefetch(
-        self, anchor: AnchorView, xy: tuple[float, float], obj: ObjectRecord
-    ) -> Callable[[Camera], object] | None:
-        """Hand the object's 3D clicks with this click's point (the view's target) to a
-        segmenter that starts work before the view renders (:meth:`Segmenter.prefetch`);
-        the callback the centroid view calls with its camera (``prefetch_view``), or None."""
-        seg = self.segmenter
-        if not seg.prefetches:
-            return None  # nothing would start: no back-projection
-        _, point = self._back_project(anchor, xy)  # raises as the centroid view would
-        clicks = self.state.object_clicks(obj, point)
-        seg.prefetch(clicks)
-        return lambda camera: seg.prefetch_view(camera, clicks)
+    # the clicks (Sec. 3.3), each one a 3D constraint (:mod:`.corrections`): :mod:`.clicks`
+    click = clicks.click
+    click_view = clicks.click_view
+    click_camera = clicks.click_camera
+    click_point = clicks.click_point
 
     def _prompt_set(
         self, v: SessionView, points, labels, include_default: bool
@@ -264,10 +211,29 @@ class Session(SessionReader):
     def prompt(
         self, view: SessionView | str, points=(), labels=(), *, include_default: bool = True
     ) -> MaskPreview:
-        """Mask preview for a prompt set (default prompts + ``points``), synchronous."""
+        """Mask preview for a prompt set (default prompts + ``points``), synchronous;
+        with the default prompts, segmented again with the object's clicks its mask
+        disagrees with (:func:`.corrections.missing_prompts`)."""
         v = self._resolve(view)
         _check_open(v)
         p, lab = self._prompt_set(v, points, labels, include_default)
+        return self._prompt(v, p, lab, include_default)
+
+    def _prompt(self, v: SessionView, p, lab, clicks: bool) -> MaskPreview:
+        """The preview of ``p``/``lab``; ``clicks``: then with the object's clicks its
+        mask disagrees with (:func:`.corrections.missing_prompts`)."""
+        prev = self._preview(v, p, lab)
+        if clicks and self.config.corrections.enabled:
+            oc = self.state.object_clicks(self.objects[v.object_index])
+            tol = self.config.negative_occlusion_tol
+            mp, ml = corr.missing_prompts(v, oc, p, tol, self.backend.weight_reads_prompts)
+            if len(mp):
+                prev = self._preview(v, np.concatenate([p, mp]), np.concatenate([lab, ml]))
+        prev.asked = (p, lab)
+        return prev
+
+    def _preview(self, v: SessionView, p: np.ndarray, lab: np.ndarray) -> MaskPreview:
+        """Segment ``v`` with the prompt set ``p``/``lab``; kept as its preview."""
         seg = self._require_segmenter()
         ctx = self.view_context(v)
         t0 = time.perf_counter()
@@ -287,6 +253,7 @@ class Session(SessionReader):
         """
         v = self._resolve(view)
         _check_open(v)
+        with_default = True
         if points is not None or labels is not None:
             p, lab = self._prompt_set(
                 v,
@@ -294,8 +261,9 @@ class Session(SessionReader):
                 labels if labels is not None else (),
                 include_default,
             )
+            with_default = include_default
         elif v.points is not None:
-            p, lab = v.points, v.labels
+            p, lab, with_default = v.points, v.labels, False  # a preview's set, complete
         else:
             p, lab = self._prompt_set(v, (), (), True)
         v.points, v.labels = p, lab
@@ -304,13 +272,13 @@ class Session(SessionReader):
         n_seg = len(self.timings.calls("segmenter"))
         if not self.backend.asynchronous:
             prev = v.preview
-            same = (
-                prev is not None
-                and np.array_equal(prev.points, p)
-                and np.array_equal(prev.labels, lab)
+            asked = None if prev is None else (prev.asked or (prev.points, prev.labels))
+            same = prev is not None and any(
+                np.array_equal(a, p) and np.array_equal(b, lab)
+                for a, b in (asked, (prev.points, prev.labels))
             )
             if not same:
-                prev = self.prompt(v, p, lab, include_default=False)
+                prev = self._prompt(v, p, lab, with_default)
             result = self._fuse_group([(v, prev)], view=v)
         else:
             self._accept_async(v, p, lab)
@@ -508,9 +476,9 @@ class Session(SessionReader):
         the fusion is reconciled slot by slot (exact, no render), pending views are
         forgotten or submitted again; the snapshot's selection is kept (no mapping)."""
         st = self.state
-        before_fused, before_pending = st.fused_slots(), list(st.pending)
+        before_fused, before_pending = fusing.slot_views(st.fused_slots()), list(st.pending)
         st.restore(snapshot)
-        fusing.reconcile(self.fusion, before_fused, st.fused_slots())
+        fusing.reconcile(self.fusion, before_fused, fusing.slot_views(st.fused_slots()))
         keep = set(map(id, st.pending))
         for v in before_pending:
             if id(v) not in keep and self._worker is not None:
@@ -529,7 +497,8 @@ class Session(SessionReader):
         st = self.state
         st.objects, st.views, st.edits = [], {}, edits
         for saved in objects:
-            obj = ObjectRecord(saved.index, saved.label, saved.name, clicks=saved.clicks)
+            obj = ObjectRecord(saved.index, saved.label, saved.name, clicks=saved.clicks,
+                               corrections=saved.corrections)  # fmt: skip
             st.objects.append(obj)
             pending = []
             for v in saved.views:

@@ -10,8 +10,10 @@ rebuilds it. Renders are not part of it: views keep their buffers across snapsho
 going back to a step re-renders nothing. The fusion state that matches it belongs to
 the session's backend; the session reconciles it on a restore.
 
-The clicks are kept per object in 3D (:meth:`SessionState.object_clicks`), so a click can
-be a constraint on every view of its object, whichever anchor it was made on.
+The clicks are kept per object in 3D (:meth:`SessionState.object_clicks`) and, as
+corrections, with the surface patch each one forces in or out of the selection
+(:meth:`SessionState.composed`, :mod:`.corrections`): a click is a constraint on every
+view of its object, whichever anchor, view or camera it was made on.
 """
 
 from __future__ import annotations
@@ -20,10 +22,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinds import ViewStatus
+from ..kinds import ClickOrigin, ViewStatus
 from ..segment.context import ObjectClicks
+from .corrections import constrain
 from .edits import EditLayer, compose
-from .records import AnchorClick, AnchorView, ObjectRecord, SessionView
+from .records import AnchorClick, AnchorView, Correction, ObjectRecord, SessionView
 
 __all__ = ["SessionState", "StateSnapshot"]
 
@@ -52,6 +55,7 @@ class _ObjectState:
     selection: np.ndarray | None
     views: tuple[SessionView, ...]
     clicks: dict[int, tuple[AnchorClick, ...]]
+    corrections: tuple[Correction, ...]
     accept_order: tuple[str, ...]
 
 
@@ -136,9 +140,11 @@ class SessionState:
     def object_clicks(
         self, obj: ObjectRecord, new_positive: np.ndarray | None = None
     ) -> ObjectClicks:
-        """The 3D clicks of ``obj`` on every anchor, with ``new_positive`` a positive
-        click not recorded yet (the click being made)."""
+        """The 3D clicks of ``obj`` on every anchor, then its corrections made elsewhere
+        (views, cameras, points), with ``new_positive`` a positive click not recorded
+        yet (the click being made)."""
         clicks = [c for cs in obj.clicks.values() for c in cs if c.point is not None]
+        clicks += [c for c in obj.corrections if c.source.origin != ClickOrigin.ANCHOR]
         pts = [np.asarray(c.point, np.float64) for c in clicks]
         pos = [bool(c.positive) for c in clicks]
         if new_positive is not None:
@@ -171,10 +177,18 @@ class SessionState:
         self.current.views.append(view)
         self.views[view.id] = view
 
+    def composed(self) -> np.ndarray:
+        """The selection of the current object: ``S`` with its clicks' patches forced in
+        or out (:func:`~.corrections.constrain`), then the manual edits
+        (:func:`~.edits.compose`)."""
+        cur = self.current
+        fused = {v.id for v in cur.views if v.status == ViewStatus.FUSED}
+        return compose(constrain(self.semantic, cur.corrections, fused), self.edits, cur.index)
+
     def set_semantic(self, semantic: np.ndarray) -> None:
-        """The fused selection ``S``; the selection is ``S`` with the manual edits."""
+        """The fused selection ``S``; the selection is :meth:`composed` from it."""
         self.semantic = semantic
-        self.selection = compose(semantic, self.edits, self.current.index)
+        self.selection = self.composed()
 
     def new_object(self) -> ObjectRecord:
         """Start the next object (empty, labelled one past the last)."""
@@ -209,6 +223,7 @@ class SessionState:
                 o.selection,
                 tuple(o.views),
                 {a: tuple(cs) for a, cs in o.clicks.items()},
+                tuple(o.corrections),
                 tuple(o.accept_order),
             )
             for o in self.objects
@@ -235,6 +250,7 @@ class SessionState:
         for o in snap.objects:
             rec = ObjectRecord(o.index, o.label, o.name, list(o.views))
             rec.clicks = {a: list(cs) for a, cs in o.clicks.items()}
+            rec.corrections = list(o.corrections)
             rec.accept_order = list(o.accept_order)
             rec.finished, rec.selection = o.finished, o.selection
             objs.append(rec)

@@ -19,6 +19,7 @@ from ..camera import Camera
 from ..errors import DivasInputError
 from ..kinds import RejectReason, ViewStatus
 from .config import SessionConfig, config_to_dict
+from .records import ClickSource
 
 __all__ = ["check_session_doc"]
 
@@ -103,6 +104,31 @@ def _click(c: Any, where: str, n_anchors: int) -> None:
     _kind(_get(c, "view", where), (str, type(None)), f"{where}.view", "a view id or null")
 
 
+def _correction(c: Any, where: str, arrays: dict[str, np.ndarray], size: int | None) -> None:
+    _int(_get(c, "index", where), f"{where}.index")
+    _kind(_get(c, "positive", where), bool, f"{where}.positive", "true or false")
+    _nums(_get(c, "point", where), 3, f"{where}.point")
+    if _num(_get(c, "radius", where), f"{where}.radius") <= 0:
+        raise _Bad(f"{where}.radius", "must be positive")
+    key = _get(c, "patch", where)
+    if not isinstance(key, str) or key not in arrays:
+        raise _Bad(f"{where}.patch", f"names no array of the session ({_short(key)})")
+    a = arrays[key]
+    if a.ndim != 1 or a.dtype.kind not in "iu":
+        raise _Bad(f"{where}.patch", f"array {key!r} must be 1-D integer, not {a.dtype}{a.shape}")
+    if len(a) and (int(a.min()) < 0 or (size is not None and int(a.max()) >= size)):
+        raise _Bad(f"{where}.patch", f"array {key!r} indexes outside the scene")
+    src = _kind(_get(c, "source", where), dict, f"{where}.source", "an object")
+    try:
+        ClickSource.from_dict(src)
+    except (ValueError, KeyError, TypeError, OverflowError) as e:
+        raise _Bad(f"{where}.source", str(e)) from None
+    views = _kind(_get(c, "views", where), list, f"{where}.views", "a list")
+    for i, x in enumerate(views):
+        _kind(x, str, f"{where}.views[{i}]", "a view id")
+    _kind(c.get("spawned"), (str, type(None)), f"{where}.spawned", "a view id or null")
+
+
 def _view(v: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -> None:
     _kind(v, dict, where, "a view object")
     _kind(_get(v, "id", where), str, f"{where}.id", "a string")
@@ -156,7 +182,9 @@ def _view(v: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -> 
         _int(_get(v, "fusion_id", where), f"{where}.fusion_id")
 
 
-def _object(o: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -> None:
+def _object(
+    o: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray], size: int | None
+) -> None:
     _kind(o, dict, where, "an object")
     _int(_get(o, "index", where), f"{where}.index")
     _int(_get(o, "label", where), f"{where}.label", 1, (1 << 31) - 1)
@@ -172,6 +200,10 @@ def _object(o: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -
         _kind(cs, list, f"{where}.clicks[{a}]", "a list of clicks")
         for i, c in enumerate(cs):
             _click(c, f"{where}.clicks[{a}][{i}]", n_anchors)
+    corrections = o.get("corrections", [])  # absent in older sessions
+    _kind(corrections, list, f"{where}.corrections", "a list")
+    for i, c in enumerate(corrections):
+        _correction(c, f"{where}.corrections[{i}]", arrays, size)
     views = _kind(_get(o, "views", where), list, f"{where}.views", "a list")
     for i, v in enumerate(views):
         _view(v, f"{where}.views[{i}]", n_anchors, arrays)
@@ -230,8 +262,9 @@ def check_session_doc(
             _kind(_get(a, "source", w), str, f"{w}.source", "a string")
             _int(_get(a, "index", w), f"{w}.index", -1)
         objs = _kind(_get(doc, "objects", ""), list, "objects", "a list")
+        size = arrays["labels"].size if "labels" in arrays else None
         for i, o in enumerate(objs):
-            _object(o, f"objects[{i}]", len(anchors), arrays)
+            _object(o, f"objects[{i}]", len(anchors), arrays, size)
         for key in ("labels", "selection"):
             if key in arrays and arrays[key].dtype.kind not in "biu":
                 raise _Bad(

@@ -77,7 +77,9 @@ POS, NEG = Key(KeyKind.CLICK, True), Key(KeyKind.CLICK, False)
         (POS, OPEN, (3.0, 4.0), StepKind.PROMPT),
         (NEG, OPEN, (3.0, 4.0), StepKind.PROMPT),
         (POS, Target(2, "v", "rejected"), (3.0, 4.0), StepKind.PROMPT),  # re-prompt a rejected view
-        (POS, FUSED, (3.0, 4.0), StepKind.MESSAGE),
+        (POS, FUSED, (3.0, 4.0), StepKind.CORRECT_VIEW),  # a correction of the selection
+        (NEG, FUSED, (3.0, 4.0), StepKind.CORRECT_VIEW),
+        (NEG, Target(2, "v", "pending"), (3.0, 4.0), StepKind.CORRECT_VIEW),
         (POS, ANCHOR, None, StepKind.MESSAGE),  # outside the camera frame
         (POS, NONE, (3.0, 4.0), StepKind.MESSAGE),  # not a DivAS camera
         (POS, FREE, (3.0, 4.0), StepKind.VIEWPORT_CLICK),  # a free 3D view
@@ -98,7 +100,7 @@ POS, NEG = Key(KeyKind.CLICK, True), Key(KeyKind.CLICK, False)
 def test_plan(key, target, xy, kind):
     step = plan(key, target, xy)
     assert step.kind is kind
-    if kind in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE, StepKind.PROMPT):
+    if kind in (StepKind.SPAWN, StepKind.ANCHOR_NEGATIVE, StepKind.PROMPT, StepKind.CORRECT_VIEW):
         assert step.xy == xy and step.positive == key.positive and step.anchor == 2
     if kind is StepKind.VIEWPORT_CLICK:
         assert step.xy == xy and step.positive == key.positive
@@ -283,9 +285,9 @@ def test_modal_click_prompt_accept_undo_redo_exit(scene_dir):
         "Add point to view",
         "Accept view",
     ]
-    # a click on the fused view's camera is refused with a message
+    # Enter on the fused view's camera is refused with a message
     _scene().camera = bpy.data.objects[vcam]
-    assert h.send(_event("LEFTMOUSE"), pixel=(5.5, 5.5)) == {"RUNNING_MODAL"}
+    assert h.send(_event("RET")) == {"RUNNING_MODAL"}
     assert "already accepted" in h.reports[-1][1]
     # Ctrl+Z is Blender's undo: the accept is undone, the session follows
     assert h.send(_event("Z", ctrl=True)) == {"RUNNING_MODAL"}
@@ -396,3 +398,52 @@ def test_modal_needs_a_3d_view_and_a_session(scene_dir):
     session_registry.drop(obj)
     assert h.send(_event("RET")) == {"CANCELLED"}
     assert "ended" in h.reports[-1][1]
+
+
+def test_modal_shift_click_on_a_spill_removes_it_at_once(scene_dir):
+    """Issue 35 item 4: a Shift-click on the selection, through an accepted view's camera,
+    takes the spot out of the points' selection in the same step (the viewport's
+    ``divas_selected``), the panel's last update says how many views it changed, and one
+    Blender undo step brings the exact selection back."""
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    name = obj.name
+    s = live.session
+    h = _Harness(obj)
+    h.send(_event("LEFTMOUSE"), pixel=_visible_click(s.anchors[0].camera, sc))
+    v = s.views[0]
+    h.send(_event("RET"))
+    assert v.status == "fused"
+    before = s.selection.copy()
+    # a selected spot of the view's surface: the view's own click target
+    uv, _ = v.camera.project(v.centroid.target[None])
+    _scene().camera = bpy.data.objects[live.view_cameras[v.id]]
+    n_steps = len(s.history.steps)
+    assert h.send(_event("LEFTMOUSE", shift=True), pixel=tuple(uv[0])) == {"RUNNING_MODAL"}
+    res = s.last_correction
+    patch = res.correction.patch
+    assert len(patch) and before[patch].any() and not s.selection[patch].any()
+    # the points show it now: divas_selected is the engine's selection
+    mapped = scene_selection(s.scene, bridge.read_attribute(bpy.data.objects[name].data, INDEX),
+                             _selected(name))  # fmt: skip
+    np.testing.assert_array_equal(mapped, s.selection)
+    assert live.last_update["views_changed"] == res.views_changed
+    assert f"{res.views_changed} view" in live.last_update["what"]
+    assert "Click on accepted view" in h.reports[-1][1] and "splats out" in h.reports[-1][1]
+    assert len(s.history.steps) == n_steps + 1  # one step
+    # Ctrl+Z: the selection, on the points too, is back bit for bit
+    assert h.send(_event("Z", ctrl=True)) == {"RUNNING_MODAL"}
+    np.testing.assert_array_equal(s.selection, before)
+    mapped = scene_selection(s.scene, bridge.read_attribute(bpy.data.objects[name].data, INDEX),
+                             _selected(name))  # fmt: skip
+    np.testing.assert_array_equal(mapped, before)
+    # Shift-click on the anchor: the same, from the anchor's camera
+    _scene().camera = bpy.data.objects[live.anchor_cameras[0]]
+    uv, _ = s.anchors[0].camera.project(v.centroid.target[None])
+    assert h.send(_event("LEFTMOUSE", shift=True), pixel=tuple(uv[0])) == {"RUNNING_MODAL"}
+    res = s.last_correction
+    assert res.correction.source.anchor == 0 and not s.selection[res.correction.patch].any()
+    mapped = scene_selection(s.scene, bridge.read_attribute(bpy.data.objects[name].data, INDEX),
+                             _selected(name))  # fmt: skip
+    np.testing.assert_array_equal(mapped, s.selection)
+    assert "Negative click on anchor" in h.reports[-1][1] and "view" in h.reports[-1][1]

@@ -491,3 +491,40 @@ def test_add_camera_as_anchor(scene_dir):
     with pytest.raises(RuntimeError, match="non-uniform scale"):
         bpy.ops.divas.session_add_anchor(camera=train[0].name)
     assert len(s.anchors) == n
+
+
+def test_click_on_an_accepted_view_corrects_at_once(scene_dir):
+    """Issue 35 item 4: Click Anchor with ``view`` on an accepted view, negative: the spot
+    leaves the points' selection in the same step, the panel says how many views the
+    click changed, one Blender undo step restores the selection exactly."""
+    out, sc = scene_dir
+    panel_cls = bpy.types.DIVAS_PT_main
+    obj, live = _oracle(scene_dir)
+    name, s = obj.name, live.session
+    undo = ("EXEC_DEFAULT", True)  # each operator one Blender undo step, as from the UI
+    xy = "{!r} {!r}".format(*_click_xy(live, 0, sc))
+    assert bpy.ops.divas.session_click(*undo, anchor=0, xy=xy) == {"FINISHED"}
+    v = s.views[0]
+    assert bpy.ops.divas.session_accept(*undo) == {"FINISHED"} and v.status == "fused"
+    before = s.selection.copy()
+    uv, _ = v.camera.project(v.centroid.target[None])
+    uv += 3.0  # beside the view's own prompt: the view takes the click too
+    assert bpy.ops.divas.session_click(
+        *undo, view=v.id, xy="{!r} {!r}".format(*uv[0]), positive=False
+    ) == {"FINISHED"}
+    res = s.last_correction
+    assert res.correction.source.view == v.id and before[res.correction.patch].any()
+    assert res.resegmented == [v.id] and v.labels.tolist()[-1] == 0
+    assert not s.selection[res.correction.patch].any()
+    _selection_matches(obj, live)  # written in the same step
+    assert live.last_update["views_changed"] == res.views_changed
+    log = []
+    panel_cls.draw(type("P", (), {"layout": _Layout(log)})(), bpy.context)
+    labels = [v for k, v in log if k == "label"]
+    assert f"    Views changed: {res.views_changed}" in labels
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    np.testing.assert_array_equal(s.selection, before)
+    _selection_matches(bpy.data.objects[name], live)
+    # a view that does not exist: one line
+    with pytest.raises(RuntimeError, match="no view 'nope'"):
+        bpy.ops.divas.session_click(view="nope", xy="1 1")

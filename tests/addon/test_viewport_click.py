@@ -137,3 +137,37 @@ def test_viewport_anchor_follows_the_anchor_resolution(scene_dir):
     a = s.anchors[-1]
     assert (a.camera.width, a.camera.height) == (200, 111)
     assert a.camera.fx == pytest.approx(700 * 200 / 900)
+
+
+def test_negative_click_in_a_free_view_removes_at_once(scene_dir):
+    """Issue 35 item 4: a Shift-click (negative) in a free 3D view on the selection takes
+    the spot out of the points' selection in the same step."""
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    s, k = live.session, 1
+    (mx, my), xy = _region_click(live, k, sc)
+    assert bpy.ops.divas.session_click(*UNDO, anchor=k, xy=f"{xy[0]!r} {xy[1]!r}") == {"FINISHED"}
+    assert bpy.ops.divas.session_accept(*UNDO) == {"FINISHED"}
+    before = s.selection.copy()
+    world = _world_camera(bpy.data.objects[obj.name], s.anchors[k].full_camera)
+    vm, wm = region_matrices(world, near=0.01, far=100.0)
+    full = s.anchors[k].full_camera
+    assert bpy.ops.divas.session_viewport_click(
+        *UNDO,
+        view_matrix=vm.astype(np.float32).ravel(),
+        window_matrix=wm.astype(np.float32).ravel(),
+        region_size=(full.width, full.height),
+        mouse=(mx, my),
+        positive=False,
+    ) == {"FINISHED"}
+    res = s.last_correction
+    assert res.correction.positive is False and before[res.correction.patch].any()
+    assert not s.selection[res.correction.patch].any()
+    from blender_addon import bridge
+    from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
+
+    geom = bpy.data.objects[obj.name].data
+    mapped = scene_selection(
+        s.scene, bridge.read_attribute(geom, INDEX), bridge.read_attribute(geom, SELECTED)
+    )
+    np.testing.assert_array_equal(mapped, s.selection)

@@ -65,6 +65,10 @@ class SessionBackend(ABC):
     last_mapping: Any = None
     #: 3DGS scenes with the completion on: its latest result; else None
     last_completion: Any = None
+    #: the depth weighting reads the prompts (2DGS: the band of the positive prompts'
+    #: depths), so a positive click can change a view's weighted mask where its
+    #: segmenter's mask already holds the spot (:func:`..corrections.disagrees`)
+    weight_reads_prompts: ClassVar[bool] = False
     _warm: threading.Thread | None = None
 
     @property
@@ -126,6 +130,13 @@ class SessionBackend(ABC):
         """The centroid view a positive click spawns (Sec. 3.3). ``on_camera`` is called
         with the view's camera before the view is rendered (here or by the session):
         the session starts work that needs only the camera meanwhile (issue 20)."""
+
+    @abstractmethod
+    def click_patch(self, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:
+        """The surface patch of a click at ``point`` (:mod:`..corrections`): sorted flat
+        indices (into a selection) of the primitives or voxels the point lies in, each
+        grown by ``radius`` (world units), within ``sigmas`` standard deviations
+        (:func:`~..corrections.surfel_patch`, :func:`~..corrections.grid_patch`)."""
 
     # ---------------------------------------------------------------- masks and fusion
     @abstractmethod

@@ -92,6 +92,11 @@ class DensityGridBackend(SessionBackend):
             on_camera(cv.camera)
         return cv
 
+    def click_patch(self, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:
+        from ..corrections import grid_patch
+
+        return grid_patch(self.scene, point, radius, sigmas)
+
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
     ) -> tuple[np.ndarray, DepthBand | None]:

@@ -55,6 +55,7 @@ class SurfelBackend(SessionBackend):
 
     scene_type = SurfelScene
     kind = SceneKind.GS2D
+    weight_reads_prompts = True
 
     def __init__(
         self, scene: Scene, config: SessionConfig, *, forward_facing: bool, device, renderer
@@ -73,6 +74,7 @@ class SurfelBackend(SessionBackend):
         self.last_mapping = None
         self.last_completion = None
         self._planner = None
+        self._reach: np.ndarray | None = None
         self._completion = None
         self._evidence: dict[int, tuple] = {}
         self._state: tuple | None = None  # (grid, fusion, mapper)
@@ -170,6 +172,17 @@ class SurfelBackend(SessionBackend):
         on_camera: Callable[[Camera], None] | None = None,
     ) -> CentroidView:
         return self.planner.centroid_view(camera, xy, buffers, name=name, on_camera=on_camera)
+
+    def click_patch(self, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:
+        from ..corrections import surfel_patch
+
+        sc = self.scene
+        if self._reach is None:  # per primitive: its largest standard deviation
+            s = np.max(sc.scales, axis=1)
+            self._reach = (s if sc.scale_n is None else np.maximum(s, sc.scale_n)).astype(
+                np.float32
+            )
+        return surfel_patch(sc, point, radius, sigmas, self._reach)
 
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
