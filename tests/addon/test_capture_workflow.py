@@ -41,20 +41,23 @@ def _ok(result) -> None:
 
 def test_capture_imports_segments_extracts_and_exports(guitar, tmp_path):
     from divas_engine.cli.segment import segment_scene
+    from divas_engine.segment_request import SegmentRequest
     from divas_engine.session import load_prompts
 
     capture, prompts_path, truth = guitar
     ref = tmp_path / "engine"
     ref.mkdir()
     segment_scene(
-        capture,
-        prompts_path,
-        out=ref / "sel.ply",
-        labels_out=ref / "labels.npy",
-        segmenter="graph3d",
-        device="cpu",
-        seed=SEED,
-        scale=SCALE,
+        SegmentRequest(
+            capture,
+            prompts_path,
+            out=ref / "sel.ply",
+            labels_out=ref / "labels.npy",
+            segmenter="graph3d",
+            device="cpu",
+            seed=SEED,
+            scale=SCALE,
+        ),
         progress=False,
     )
     ref_labels = np.load(ref / "labels.npy")  # per file row

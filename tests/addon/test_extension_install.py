@@ -120,13 +120,17 @@ runpy.run_path(script, run_name="__main__")
 
 def test_built_zip_installs_and_segments(built_zip, tmp_path):
     from divas_engine.cli.segment import segment_scene
+    from divas_engine.segment_request import SegmentRequest
 
     prompts = tmp_path / "prompts.json"
     one_click_prompts(DATA, CAPTURE, "guitar", prompts)
     common = dict(scale=0.5, seed=0, device="cpu", segmenter="graph3d")
     ref = tmp_path / "ref"
-    segment_scene(DATA / CAPTURE, prompts, out=ref.with_suffix(".ply"),
-                  labels_out=ref.with_suffix(".npy"), progress=False, **common)  # fmt: skip
+    request = SegmentRequest(
+        DATA / CAPTURE, prompts, out=ref.with_suffix(".ply"), labels_out=ref.with_suffix(".npy"),
+        **common,
+    )  # fmt: skip
+    segment_scene(request, progress=False)
     user = tmp_path / "blender_user"
     args = ["--scene", DATA / CAPTURE, "--prompts", prompts, "--out", tmp_path / "sel.ply"]
     args += ["--labels-out", tmp_path / "labels.npy"]
