@@ -9,7 +9,7 @@ LOCK   := constraints/py311.txt
 PIP    := $(PY) -m pip install -q -c $(LOCK)
 
 .PHONY: demo test test-sam test-sam-full test-engine test-kernels test-addon test-cuda lint bench \
-	clean extension lock test-latest test-addon-matrix
+	clean extension lock test-latest test-addon-matrix hooks
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -45,6 +45,10 @@ test-sam-full:
 test-engine test-kernels test-addon test-cuda: $(PY)
 	$(PIP) -e ".[test]"
 	$(PY) -m pytest -q -m $(subst test-,,$@)
+
+# The commit-msg hook: one-line subjects of at most 72 characters (.githooks/commit-msg)
+hooks:
+	git config core.hooksPath .githooks
 
 # Style: ruff lint and format check (configured in pyproject.toml)
 lint: $(PY)
