@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> list[dict]:
 
 
 def markdown(rows: list[dict]) -> str:
-    """The rows as the Markdown table of BENCHMARKS.md (one line per target × method)."""
+    """The rows as a Markdown table, one line per target × method (docs/benchmarks-history.md)."""
     out = [
         "| target | method | image IoU | alpha fidelity | opacity-w. IoU | PSNR dB (vs truth) "
         "| Gaussian IoU (R / P) |",
