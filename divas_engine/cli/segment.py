@@ -126,7 +126,7 @@ def segment_scene(
     req = request
     t_start = time.perf_counter()
     req.check()
-    check_outputs(  # before any loading or computing (issue 14)
+    check_outputs(  # before any loading or computing
         [
             ("--out", req.out),
             ("--labels-out", req.labels_out),
