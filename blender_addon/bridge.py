@@ -232,8 +232,8 @@ _unpacked: set[str] = set()
 def pack_soon(img: bpy.types.Image) -> None:
     """Pack ``img`` into the .blend at the next idle moment (a one-shot timer) and at the
     latest before the file is saved (:func:`pack_pending` from ``save_pre``), instead of
-    now: packing encodes a PNG, 25–55 ms for a 640×480 view, which a click or a first look
-    through an anchor no longer waits for (issue 20). Blender's own auto-save runs no
+    now: packing encodes a PNG, which a click or a first look through an anchor then
+    does not wait for. Blender's own auto-save runs no
     ``save_pre``: one made within :data:`PACK_DELAY_S` of a click holds that image
     unpacked (the engine's render, not the user's data)."""
     _unpacked.add(img.name)

@@ -10,7 +10,7 @@
   (:mod:`.session_actions.history`), and the 3D views an import switched to Material
   Preview with their object (:func:`.first_look.follow_undo`);
 * ``depsgraph_update_post`` — when the scene camera or the active object becomes an
-  anchor camera whose view is not rendered yet (anchors render lazily, issue 20), a
+  anchor camera whose view is not rendered yet (anchors render lazily), a
   one-shot timer renders it (ID data cannot be written while the depsgraph updates);
   and when an updated object's display modifier runs the wrong colour variant (its
   *View-Dependent Colour* was toggled in the modifier panel), a one-shot timer swaps it
@@ -21,7 +21,7 @@
   colours changed since the last check (a shading switch, a workspace or screen change),
   a one-shot timer sets the display modifiers' *Viewport Colours*
   (:func:`.display.sync_viewport_colours`: with Solid shading the point display's
-  colours are not drawn, so the viewport skips the SH colour — issue 20).
+  colours are not drawn, so the viewport skips the SH colour).
 
 Every handler is ``@persistent`` (it outlives file loads) and registered once.
 """

@@ -67,7 +67,7 @@ def run_step(obj, live: LiveSession, what: str, fn, *args, **kwargs):
         rollback(obj, live)
         raise
     commit(obj, live, what)
-    memory.release_freed()  # the step's freed transients back to the system (issue 20)
+    memory.release_freed()  # the step's freed transients back to the system
     return out
 
 
