@@ -1,5 +1,5 @@
-"""A view's records made while its sparse gather runs in the background (issue 15,
-walk15c): the edge distance, the voxel evidence of the cover and the Gaussians' geometry
+"""A view's records made while its sparse gather runs in the background: the edge
+distance, the voxel evidence of the cover and the Gaussians' geometry
 are made during the walk. Reference: the records made one step after the other — the
 synchronous gather (:func:`sparse_contributions`), then :func:`gaussian_evidence` of the
 Gaussians with a weight and :func:`voxel_evidence` of the final cover's voxels (the path

@@ -1,5 +1,5 @@
-"""The session's background warm-up also builds the segmenter's per-scene state (issue 20:
-graph3d's primitives took seconds of the first click at 3M splats), after the fusion state
+"""The session's background warm-up also builds the segmenter's per-scene state (graph3d's
+primitives, seconds of a large scene's first click otherwise), after the fusion state
 and without making readers of the fusion state wait for it."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What an imported capture looks like when Blender renders it (issue 18).
+"""What an imported capture looks like when Blender renders it.
 
 Cycles renders the shared biker and guitar captures (Standard view transform) from a
 camera the engine renders too (``blender_scripts/compare_render.py`` does the same at

@@ -1,5 +1,5 @@
-"""The add-on's plain-language messages for a view the segmenter was unsure about
-(issue 16): the segmenter's own hint names the click to add, in the add-on's keys."""
+"""The add-on's plain-language messages for a view the segmenter was unsure about: the
+segmenter's own hint names the click to add, in the add-on's keys."""
 
 from __future__ import annotations
 
