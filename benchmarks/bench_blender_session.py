@@ -1,6 +1,6 @@
 """The interactive loop inside Blender (bpy module, headless): Start DivAS, a click and an
 accept through the add-on's operators on a synthetic plant scene with SH degree 3, with
-the process RSS and a profile of each step (issue 20, Blender side).
+the process RSS and a profile of each step (Blender side).
 
     python benchmarks/bench_blender_session.py [--size 1000000] [--profile OUT_DIR]
 
@@ -19,18 +19,18 @@ time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
 then runs its camera-free variant: a click's camera switch does not re-evaluate it).
 Headless there is no 3D view, so the display's *Viewport Colours* input is off (as with
 every 3D view in Solid mode, Blender's default, which draws the point display without
-its colours: the viewport skips the SH colour, branch ``blender20c``); with
+its colours: the viewport skips the SH colour); with
 ``--viewport-colours`` it is on, as with a 3D view in Material Preview or Rendered.
 ``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
 no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
 its figure stays the reference across rounds); the click then contains that segmenter's
 preview instead of the oracle's value render. Each step after Start includes the
 session counts the add-on's panel reads in the redraw that follows it (counted on that
-first read since branch ``blender20c``). The peak RSS column is the process's
+first read). The peak RSS column is the process's
 high-water mark after each step (``ru_maxrss``). With ``--runs N`` the bench runs N times,
 each in a fresh process (every click is a session's first, as a user's is), and prints
-each step's N wall times, their median and the median CPU and largest peak (the machine's
-noise is ±0.1 s on a 1.5 s click: one run is not a figure).
+each step's N wall times, their median and the median CPU and largest peak (one run is
+not a figure: a shared machine is noisy).
 """
 
 from __future__ import annotations
@@ -194,7 +194,7 @@ def main() -> None:
         s.segmenter.prefetch_masks = not args.no_mask_prefetch
     # Start returns before the engine's background warm-up (fusion state, mapper) ends;
     # a user looks at the first anchor meanwhile. Timed apart, so the click is measured
-    # on a warm session in both versions (before issue 20's add-on work Start waited)
+    # on a warm session whichever way Start handles the warm-up
     step("background warm-up left after Start", lambda: (s.grid, s.wait_warm_up()))
     xy = None
     for i, a in enumerate(s.anchors):
@@ -216,7 +216,7 @@ def main() -> None:
     if nxt is not None:  # the first look through an anchor not rendered yet
         step("look through another anchor (first time)", lambda: _look_through(bpy, live, nxt))
     shown = next((vid for vid in live.coverage if callable(live.coverage[vid][1])), None)
-    if shown is not None:  # (before issue 20's add-on work accept rendered it inside)
+    if shown is not None:  # (an accept that renders it inside leaves no lazy overlay)
         step("overlay of the view shown next (first draw)", lambda: live.coverage_of(shown))
     from divas_engine.render import make_renderer
 

@@ -1,4 +1,4 @@
-"""Per-update cost of the 3DGS completion (issue 15) at 250k / 1M Gaussians.
+"""Per-update cost of the 3DGS completion at 250k / 1M Gaussians.
 
 Scene: ``benchmarks/scenes.surfel_scene`` (a room plus four spheres), marked 3DGS; the
 fusion state is synthesised as in ``bench_mapping.py`` (voxels within 2 h_v of a sphere

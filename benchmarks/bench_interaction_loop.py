@@ -1,4 +1,4 @@
-"""What the Blender interaction loop adds, on real captures (issue 19): anchor resolution
+"""What the Blender interaction loop adds, on real captures: anchor resolution
 vs click / accept latency, the cost of an undo or redo of any step (session history)
 next to the accept it undoes, and the manual selection tools on the capture's points.
 

@@ -1,5 +1,5 @@
 """ClassicSegmenter vs plain flood fill on the synthetic scenes' centroid views; and with
-``--cost``, the cost per prompt of the default 3D graph segmenter (issue 16) at up to 1M
+``--cost``, the cost per prompt of the default 3D graph segmenter at up to 1M
 surfels beside classic's on the same view.
 
 For each synthetic scene: the metadata click points on the target are projected

@@ -46,7 +46,7 @@ def _renders(out: dict, tag: str, scene, cams) -> None:
 def _contrib(out: dict, tag: str, renderer, cam, mask) -> None:
     try:
         from divas_kernels import accumulate_contributions
-    except ImportError:  # before issue 13 item 3 it was not exported
+    except ImportError:  # older checkouts do not export it from the package
         from divas_kernels.contrib import accumulate_contributions
 
     c = accumulate_contributions(
