@@ -3,7 +3,7 @@
 Every per-point value goes through :func:`write_attribute` / :func:`read_attribute`:
 bulk ``foreach_set`` / ``foreach_get`` on attribute data with C-contiguous arrays of
 exactly the type Blender stores (float32, int32, bool), which Blender copies as one
-memory block (about 5 ms per million floats). Never a per-point Python loop.
+memory block. Never a per-point Python loop.
 
 Point clouds: ``bpy.data.pointclouds.new`` makes an *empty* point cloud, and before 5.2
 ``PointCloud.points`` cannot be resized from Python (``object.convert`` to a point cloud

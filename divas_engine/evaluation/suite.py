@@ -500,7 +500,7 @@ def suite_means(rows: Sequence[dict]) -> list[dict]:
 
 
 def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
-    """The issue's targets, evaluated on the oracle rows averaged over the seeds: DivAS
+    """The suite's targets, evaluated on the oracle rows averaged over the seeds: DivAS
     full mean IoU ≥ 0.90 over the surfel suite; DivAS full ≥ both baselines on every
     scene (and, listed, in how many seeds); removing the thin path lowers the ribs IoU."""
     o = [r for r in rows if r["segmenter"] == "oracle" and r["kind"] == SceneKind.GS2D]

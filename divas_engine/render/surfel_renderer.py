@@ -107,9 +107,9 @@ class SurfelRenderer(Renderer):
     value_images_kept: int = 4
     #: :meth:`render_values_sparse` takes its working arrays from buffers kept across
     #: calls (``divas_kernels.scratch``) — memory held between calls, ≈ 140 MB at 3M. Pays
-    #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold
-    #: at 3M: 43–63k → 4–12k page faults and ≈ 0.56 → 0.47 s CPU a mask render; the
-    #: add-on switches it on there); with glibc's adaptive threshold the freed arrays
+    #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold:
+    #: far fewer page faults a mask render; the add-on switches it on there); with
+    #: glibc's adaptive threshold the freed arrays
     #: are reused anyway and the first call costs more (every array its own buffer)
     scratch_sparse: bool = False
     #: the other renders (views, anchors, probes) too, for what no binning keeps (fewer

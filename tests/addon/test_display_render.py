@@ -9,9 +9,9 @@ render of that camera supersampled 8× (what a Blender pixel integrates; the nat
 which is most of its difference to its own supersampled picture, see BENCHMARKS.md):
 
 * the default import blends like the capture (display space, :mod:`blender_addon.
-  blend_space`): guitar 0.043, biker 0.037 measured, ≤ 0.06 (the issue's target);
-* switched off (biker), Blender blends in linear light again: 0.088 from that reference,
-  0.035 from the engine's render composited in linear light (≤ 0.06).
+  blend_space`): ≤ 0.06 for both captures;
+* switched off (biker), Blender blends in linear light: ≤ 0.06 from the engine's render
+  composited in linear light (far more from the display-space reference).
 
 Workbench (what Solid mode draws) shows the splat colours: the same figure, not grey.
 """
