@@ -1,4 +1,4 @@
-"""Latency of a correction (issue 35): one click as a 3D constraint — its back-projection
+"""Latency of a correction: one click as a 3D constraint — its back-projection
 and surface patch, the views it re-segments, their re-fusion and the mapping.
 
 On one synthetic scene (default: the 1M-surfel ``plant``), a session with the oracle (a
