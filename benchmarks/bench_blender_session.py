@@ -4,33 +4,16 @@ the process RSS and a profile of each step (Blender side).
 
     python benchmarks/bench_blender_session.py [--size 1000000] [--profile OUT_DIR]
 
-Per step: wall seconds of the operator call, the process CPU seconds it took (on a
-shared machine the wall time also counts waiting for a core), the part of the wall
-time that is Blender's own depsgraph update after the operator (``bpy.ops`` updates the
-view layer: the display modifier re-evaluating for the new selection or scene camera,
-what a viewport redraw would do) and each figure as a ratio to one full engine render
-of the clicked view, measured in the same run (the figure to compare across loads).
-The clicked anchor is looked through first (as a user does; a lazy anchor renders
-then). Also: the first look through another anchor and the first
-read of the accepted selection's overlay on the view shown next (rendered when first
-drawn). With ``--profile``, a cProfile text profile of each step (sorted by cumulative
-time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
-``--fixed-colour``, *View-Dependent Colour* is switched off after the import (the display
-then runs its camera-free variant: a click's camera switch does not re-evaluate it).
-Headless there is no 3D view, so the display's *Viewport Colours* input is off (as with
-every 3D view in Solid mode, Blender's default, which draws the point display without
-its colours: the viewport skips the SH colour); with
-``--viewport-colours`` it is on, as with a 3D view in Material Preview or Rendered.
-``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
-no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
-its figure stays the reference across rounds); the click then contains that segmenter's
-preview instead of the oracle's value render. Each step after Start includes the
-session counts the add-on's panel reads in the redraw that follows it (counted on that
-first read). The peak RSS column is the process's
-high-water mark after each step (``ru_maxrss``). With ``--runs N`` the bench runs N times,
-each in a fresh process (every click is a session's first, as a user's is), and prints
-each step's N wall times, their median and the median CPU and largest peak (one run is
-not a figure: a shared machine is noisy).
+Per step: wall seconds, process CPU seconds, the part that is Blender's depsgraph update after
+the operator, and each as a ratio to one full engine render of the clicked view (the figure to
+compare across loads); the peak RSS after each step. Also the first look through another
+anchor and the first read of the next view's overlay. ``--profile`` writes a cProfile text
+profile per step. ``--fixed-colour`` switches *View-Dependent Colour* off (the camera-free
+display variant); ``--viewport-colours`` turns the display's *Viewport Colours* on, as a 3D
+view in Material Preview would (headless it is off, as in Solid mode). ``--segmenter graph3d``
+runs the product's default segmenter instead of the oracle. ``--runs N`` runs N fresh processes
+and prints each step's wall times, their median, the median CPU and the largest peak (one run
+is not a figure: a shared machine is noisy).
 """
 
 from __future__ import annotations

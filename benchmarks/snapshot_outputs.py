@@ -1,4 +1,4 @@
-"""Bit-identity check across a refactor or an optimisation (issues 13 and 20).
+"""Bit-identity check across a refactor or an optimisation.
 
 ``snapshot`` writes renders (RGB + depth tuple), value renders, FlashSplat-style
 contributions, session selections/overlays and ``divas segment`` labels of a few
