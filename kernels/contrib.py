@@ -226,7 +226,7 @@ def accumulate_contributions(
             surfel adds into one shared dump slot, and each tile's depth-ordered list is
             walked only up to its last target (a tile without one not at all). What a
             target's weight depends on — the surfels before it at its pixels, in the same
-            order — is walked as before, in the same tiles, accumulator rows and tile
+            order — is walked unchanged, in the same tiles, accumulator rows and tile
             order, so each target's sums are those of the pass without ``targets`` bit for
             bit (the completion's gather from a kept view binning).
     Returns:

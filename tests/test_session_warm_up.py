@@ -47,7 +47,7 @@ def test_graph3d_primitives_are_built_before_the_first_prompt(plant):
     s.close()
     # the same prompt on a session whose segmenter builds on first use
     cold_seg = Graph3DSegmenter()
-    cold_seg.warm_up = lambda: None  # as before: built by the first prompt
+    cold_seg.warm_up = lambda: None  # no warm-up: built by the first prompt
     cold = _open(plant, cold_seg)
     cold.backend._warm_done.wait(60)
     v2 = cold.click(cold.anchors[0].index, (xs[len(xs) // 2] + 0.5, ys[len(xs) // 2] + 0.5))

@@ -81,7 +81,7 @@ def test_solid_mode_shows_the_splat_colours(real_data, tmp_path):
     refs, inside = CMP.engine_references(path, cam)
     got = CMP.render_blender(bpy.context, obj, cam, "BLENDER_WORKBENCH", 1, tmp_path / "wb.png")
     drawn = got.sum(-1) > 0.02
-    # the figure is drawn where the engine draws it, in colour (not the old flat grey)
+    # the figure is drawn where the engine draws it, in colour (not a flat grey)
     assert (drawn & inside).sum() >= 0.9 * inside.sum()
     assert got[inside].std(axis=0).mean() > 0.05  # varied colours, not one flat shade
     assert abs(_luma(got)[inside].mean() - _luma(refs["engine"])[inside].mean()) <= 0.15

@@ -21,7 +21,7 @@ def test_rejection_with_advice_says_which_click_to_add():
     msg = rejection_message(low, 0.312, HINT)
     assert "confidence 0.31" in msg and "negative click (Shift+click)" in msg
     assert msg.endswith("press Enter") and "channel" not in msg
-    # without a hint (SAM, the oracle): the generic advice, as before
+    # without a hint (SAM, the oracle): the generic advice
     plain = rejection_message(low, 0.312)
     assert "confidence 0.31" in plain and "channel" not in plain and "spilled over" in plain
 

@@ -64,7 +64,7 @@ def _numpy_sh_colour(obj, mod, cam) -> np.ndarray:
 
 
 def _ungated_group(mod) -> None:
-    """The group as it was before the gate: its output Switch's True input wired past."""
+    """The group without the gate: its output Switch's True input wired past."""
     ng = mod.node_group
     gate = next(
         n

@@ -46,7 +46,7 @@ class SurfelBackend(SessionBackend):
             paper); else None.
 
     The occupancy geometry is computed at construction (a degenerate scene fails at
-    open, as before); the active voxels, the fusion state, the voxel-to-surfel mapper
+    open); the active voxels, the fusion state, the voxel-to-surfel mapper
     and the click neighbourhood's centres are built by :meth:`warm_up` in a background
     thread while the user looks at the first anchor, or on first use (``grid`` and
     ``fusion`` wait for it). The same functions run on the same inputs: the state is
