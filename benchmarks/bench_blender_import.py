@@ -1,4 +1,4 @@
-"""Blender import of a large 3DGS scene: time, peak RSS and the saved .blend size (issue 18).
+"""Blender import of a large 3DGS scene: time, peak RSS and the saved .blend size.
 
     python benchmarks/bench_blender_import.py [--splats 3000000] [--degree 3] [--evaluate]
 

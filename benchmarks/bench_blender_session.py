@@ -1,36 +1,19 @@
 """The interactive loop inside Blender (bpy module, headless): Start DivAS, a click and an
 accept through the add-on's operators on a synthetic plant scene with SH degree 3, with
-the process RSS and a profile of each step (issue 20, Blender side).
+the process RSS and a profile of each step (Blender side).
 
     python benchmarks/bench_blender_session.py [--size 1000000] [--profile OUT_DIR]
 
-Per step: wall seconds of the operator call, the process CPU seconds it took (on a
-shared machine the wall time also counts waiting for a core), the part of the wall
-time that is Blender's own depsgraph update after the operator (``bpy.ops`` updates the
-view layer: the display modifier re-evaluating for the new selection or scene camera,
-what a viewport redraw would do) and each figure as a ratio to one full engine render
-of the clicked view, measured in the same run (the figure to compare across loads).
-The clicked anchor is looked through first (as a user does; a lazy anchor renders
-then). Also: the first look through another anchor and the first
-read of the accepted selection's overlay on the view shown next (rendered when first
-drawn). With ``--profile``, a cProfile text profile of each step (sorted by cumulative
-time) is written to OUT_DIR (the evidence of where the add-on's time goes). With
-``--fixed-colour``, *View-Dependent Colour* is switched off after the import (the display
-then runs its camera-free variant: a click's camera switch does not re-evaluate it).
-Headless there is no 3D view, so the display's *Viewport Colours* input is off (as with
-every 3D view in Solid mode, Blender's default, which draws the point display without
-its colours: the viewport skips the SH colour, branch ``blender20c``); with
-``--viewport-colours`` it is on, as with a 3D view in Material Preview or Rendered.
-``--segmenter graph3d`` runs the loop with the product's default segmenter (weight-free,
-no SAM files) instead of the oracle (a stand-in for SAM that renders the ground truth:
-its figure stays the reference across rounds); the click then contains that segmenter's
-preview instead of the oracle's value render. Each step after Start includes the
-session counts the add-on's panel reads in the redraw that follows it (counted on that
-first read since branch ``blender20c``). The peak RSS column is the process's
-high-water mark after each step (``ru_maxrss``). With ``--runs N`` the bench runs N times,
-each in a fresh process (every click is a session's first, as a user's is), and prints
-each step's N wall times, their median and the median CPU and largest peak (the machine's
-noise is ±0.1 s on a 1.5 s click: one run is not a figure).
+Per step: wall seconds, process CPU seconds, the part that is Blender's depsgraph update after
+the operator, and each as a ratio to one full engine render of the clicked view (the figure to
+compare across loads); the peak RSS after each step. Also the first look through another
+anchor and the first read of the next view's overlay. ``--profile`` writes a cProfile text
+profile per step. ``--fixed-colour`` switches *View-Dependent Colour* off (the camera-free
+display variant); ``--viewport-colours`` turns the display's *Viewport Colours* on, as a 3D
+view in Material Preview would (headless it is off, as in Solid mode). ``--segmenter graph3d``
+runs the product's default segmenter instead of the oracle. ``--runs N`` runs N fresh processes
+and prints each step's wall times, their median, the median CPU and the largest peak (one run
+is not a figure: a shared machine is noisy).
 """
 
 from __future__ import annotations
@@ -194,7 +177,7 @@ def main() -> None:
         s.segmenter.prefetch_masks = not args.no_mask_prefetch
     # Start returns before the engine's background warm-up (fusion state, mapper) ends;
     # a user looks at the first anchor meanwhile. Timed apart, so the click is measured
-    # on a warm session in both versions (before issue 20's add-on work Start waited)
+    # on a warm session whichever way Start handles the warm-up
     step("background warm-up left after Start", lambda: (s.grid, s.wait_warm_up()))
     xy = None
     for i, a in enumerate(s.anchors):
@@ -216,7 +199,7 @@ def main() -> None:
     if nxt is not None:  # the first look through an anchor not rendered yet
         step("look through another anchor (first time)", lambda: _look_through(bpy, live, nxt))
     shown = next((vid for vid in live.coverage if callable(live.coverage[vid][1])), None)
-    if shown is not None:  # (before issue 20's add-on work accept rendered it inside)
+    if shown is not None:  # (an accept that renders it inside leaves no lazy overlay)
         step("overlay of the view shown next (first draw)", lambda: live.coverage_of(shown))
     from divas_engine.render import make_renderer
 

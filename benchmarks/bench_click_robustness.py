@@ -16,7 +16,7 @@ rejected between draws is a score that hangs on millimetres of the click's 3D po
 
 ``--scale``: the session's render scale (0.5: 320 × 240 anchors, a prompts-file start's
 default in the add-on). ``--neck-min-voxels``: graph3d's narrowness guard (default: the
-config's) — the figure of the cut fix of 2026-12-05 (docs/benchmarks-history.md).
+config's).
 """
 
 from __future__ import annotations

@@ -1,38 +1,20 @@
-"""Per-update cost of the 3DGS completion (issue 15) at 250k / 1M Gaussians.
+"""Per-update cost of the 3DGS completion at 250k / 1M Gaussians.
 
-Scene: ``benchmarks/scenes.surfel_scene`` (a room plus four spheres), marked 3DGS; the
-fusion state is synthesised as in ``bench_mapping.py`` (voxels within 2 h_v of a sphere
-surface segmented, the object Gaussians selected). Views: 640×480, masks = the spheres'
-silhouettes, depth from the renderer. What one accept adds to the update:
+Scene: ``benchmarks/scenes.surfel_scene`` marked 3DGS, the fusion state synthesised as in
+``bench_mapping.py``; views 640×480, masks = the spheres' silhouettes. Columns:
 
-* ``view records ms`` — :meth:`VolumetricCompletion.view_record` of the new view: the
-  contribution gather (one rasterizer pass that splits each Gaussian's blending weight
-  by the mask, the FlashSplat-style evidence) and the projection of the active voxels;
-  ``of which gather ms`` is the rasterizer pass alone; ``gather, binning kept ms`` the
-  same pass when the accept's render of the view kept its projection, depth order and
-  tiles (the session shares its renderer's buffers with the completion);
-* ``sparse gather ms`` — the same gather restricted to the Gaussians of the records'
-  cover of the selection's neighbourhood (``CompletionConfig.sparse_gather``,
-  :mod:`divas_engine.mapping.completion_gather`): only the surfels that can blend before
-  them are projected and walked; ``cover`` / ``sub-scene`` are those Gaussians and
-  surfels, ``mask %`` the mask's share of the view; ``equal`` checks the covered
-  records against the full pass's;
-* ``kept gather ms`` — the same records when the completion shares the renderer and
-  the view was just rendered (the session's accept: the renderer keeps the view's
-  binning): that binning's tile lists are walked up to each tile's last covered
-  Gaussian, nothing is projected; ``walked`` the (tile, surfel) pairs that walk visits;
-* ``accept ms`` — the whole update with the sparse gather: ``add_view`` (the records of
-  the cover the last decision needed: Gaussians and voxels) and ``complete`` (widen
-  the covers if the decision needs more, decide), from the sub-scene pass;
-  ``kept accept ms`` the same from the kept binning (what the session's user waits
-  for), ``kept accept CPU ms`` its process CPU time (all threads: the walk runs on two,
-  beside the records made meanwhile; less sensitive than the wall time to other
-  processes' load);
+* ``view records ms`` — :meth:`VolumetricCompletion.view_record` (contribution gather plus
+  voxel projection); ``of which gather ms``; ``gather, binning kept ms`` with the view's
+  binning kept by the renderer;
+* ``sparse gather ms`` — the gather restricted to the cover of the selection's neighbourhood
+  (``cover`` / ``sub-scene`` sizes, ``mask %``, ``equal`` against the full pass);
+* ``kept gather ms`` — the records from the kept binning's tile lists (``walked`` pairs);
+* ``accept ms`` — the whole update with the sparse gather (``add_view`` + ``complete``);
+  ``kept accept ms`` / ``kept accept CPU ms`` from the kept binning (what the user waits for);
 * ``add ms`` / ``undo ms`` — adding / subtracting a view's integer records;
-* ``decide ms`` — :meth:`VolumetricCompletion.complete` with S live views (fill rounds,
-  neighbourhood, contribution test over all N Gaussians).
+* ``decide ms`` — :meth:`VolumetricCompletion.complete` with S live views.
 
-``render ms`` is one plain render of the same view, side by side, for scale.
+``render ms`` is one plain render of the same view, for scale.
 
     python benchmarks/bench_completion.py [--sizes 250000,1000000] [--views 1,5,20]
 """

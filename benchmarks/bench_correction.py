@@ -1,27 +1,21 @@
-"""Latency of a correction (issue 35): one click as a 3D constraint — its back-projection
+"""Latency of a correction: one click as a 3D constraint — its back-projection
 and surface patch, the views it re-segments, their re-fusion and the mapping.
 
-On one synthetic scene (default: the 1M-surfel ``plant``), a session with the oracle (a
-stand-in for SAM whose masks answer prompts; the SAM decoder alone would take its
-place) or ``graph3d`` fuses the first ``--views`` demo-prompt views, then makes the
-simulated user's next clicks on its anchors (the deepest error pixel, positive on a
-missed part, negative on a spill: ``tests/click_user.py``'s rule), then negative clicks
-on the deepest spill — or, when there is none, on the selection itself, where every
-fused view that shows the spot disagrees (the most views a click re-segments). Each
-correction is
-timed ``--repeats`` times (undone exactly through the session history between
-repeats), as wall and process CPU seconds, with its stages and the views it changed;
-beside it one full render of the same anchor (the ratio travels between machines). The
-machine's load average is printed with the figures.
+On one synthetic scene (default: the 1M-surfel ``plant``) a session with the oracle or
+``graph3d`` fuses the first ``--views`` demo-prompt views, then makes the simulated user's next
+clicks on its anchors (``tests/click_user.py``'s rule), then negative clicks on the deepest
+spill (or on the selection, where every fused view showing the spot disagrees). Each correction
+is timed ``--repeats`` times (undone exactly between repeats) as wall and CPU seconds, with its
+stages and changed views, beside one full render of the same anchor; the load average is
+printed with the figures.
 
     python benchmarks/bench_correction.py [--size 1000000] [--scene plant]
         [--segmenter oracle] [--views 4] [--clicks 2] [--negatives 2] [--repeats 3]
         [--device cpu]
     python benchmarks/bench_correction.py --target biker/helmet --segmenter oracle --clicks 8
 
-The second form: the simulated user on a real target of ``tests/data`` (its hand-placed
-anchors), the image IoU at the target's evaluation cameras after each click, with the
-corrections off (the paper's loop) and on.
+The second form: the simulated user on a real target of ``tests/data``, the image IoU at its
+evaluation cameras after each click, with the corrections off (the paper's loop) and on.
 """
 
 from __future__ import annotations

@@ -5,26 +5,16 @@
 
 Run it with the Python of the ``bpy`` release to measure (``.venv-bpy42/bin/python …``).
 
-Timing: a synthetic 3DGS PLY of each size (SH degree 3, :func:`bench_blender_import.make_ply`,
-reused from ``build/bench``) imported with the add-on's defaults into the startup scene
-(its cube deleted) by a fresh ``bpy`` process, then the startup camera's view rendered by
-the draw engine of each viewport shading: Workbench for Solid (Studio light, the colour
-attribute as the import sets Solid mode up, the viewport's anti-aliasing) and EEVEE for
-Material Preview (one sample: a viewport redraw draws one and refines while the view
-rests; the scene's lights off, as Material Preview lights with its own studio world).
-``first_s`` is the first frame (the display's Geometry Nodes evaluation, the engine's
-sync of the geometry and the draw), ``frame_s`` the median of ``--frames`` more renders
-of the unchanged scene (nothing re-evaluated; a render re-syncs the geometry a viewport
-keeps, so this bounds a viewport redraw from above), ``empty_frame_s`` the same frame
-before the import (the engine's fixed cost: what the splats add is the difference). The
-``bpy`` module has no window and draws with whatever OpenGL it finds (software rendering
-on a machine without a GPU): compare shadings and sizes here, not seconds with a GPU
-viewport.
+Timing: a synthetic 3DGS PLY per size imported with the add-on's defaults by a fresh ``bpy``
+process, then the startup camera's view rendered by Workbench (Solid) and EEVEE (Material
+Preview, one sample). ``first_s`` is the first frame (Geometry Nodes evaluation, geometry sync,
+draw), ``frame_s`` the median of ``--frames`` more renders (an upper bound of a viewport
+redraw), ``empty_frame_s`` the same frame before the import. ``bpy`` draws with whatever
+OpenGL it finds: compare shadings and sizes here, not seconds with a GPU viewport.
 
-Pictures: ``--capture`` (default: the guitar in ``tests/data``) imported with the defaults,
-seen through the first hand-placed anchor of its target (``tests/data/targets``): Solid
-mode as the import leaves it (``<name>_solid.png``) and the first look, Material Preview
-converged over the viewport's samples (``<name>_first_look.png``).
+Pictures: ``--capture`` (default: the guitar in ``tests/data``) seen through the first
+hand-placed anchor of its target, in Solid mode (``<name>_solid.png``) and Material Preview
+converged (``<name>_first_look.png``).
 """
 
 from __future__ import annotations

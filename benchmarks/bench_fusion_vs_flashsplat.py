@@ -1,5 +1,5 @@
 """Per-update cost: DivAS's incremental fusion + mapping vs a FlashSplat-style
-re-accumulation over every fused view (issue 20), side by side in one run.
+re-accumulation over every fused view, side by side in one run.
 
 Each update adds one accepted view. DivAS runs the new view's fusion kernel (sparse,
 exactly undoable record) and re-maps voxels to surfels (``GsFusion.add_view`` +

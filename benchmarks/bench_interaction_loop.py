@@ -1,10 +1,10 @@
-"""What the Blender interaction loop adds, on real captures (issue 19): anchor resolution
+"""What the Blender interaction loop adds, on real captures: anchor resolution
 vs click / accept latency, the cost of an undo or redo of any step (session history)
 next to the accept it undoes, and the manual selection tools on the capture's points.
 
 For each capture target (the hand-placed anchors of ``tests/data/targets``): a session
 with the classic segmenter at each anchor resolution (long side of the anchor image; 0
-= the anchor camera × ``--scale``, the old 320×240), one click per anchor, each view
+= the anchor camera × ``--scale``, 320×240 by default), one click per anchor, each view
 accepted; every step recorded in the history, then undone and redone one by one.
 Medians per step. Selection tools: ``project_to_region`` + box / 24-gon lasso / circle
 on every point, and one grow / shrink step with the automatic radius.

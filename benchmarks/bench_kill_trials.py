@@ -1,4 +1,4 @@
-"""``kill -9`` trials of ``divas segment --session`` (issue 14): lost sessions, resumes.
+"""``kill -9`` trials of ``divas segment --session``: lost sessions, resumes.
 
     python benchmarks/bench_kill_trials.py [--random 30] [--torn 2,3,4,5,6,7,8,9] [--seed 14]
     PYTHONPATH=/path/to/other/checkout python benchmarks/bench_kill_trials.py --no-resume

@@ -1,4 +1,4 @@
-"""An export (and ``divas segment --out``) onto its own input: is the input kept? (issue 14)
+"""An export (and ``divas segment --out``) onto its own input: is the input kept?
 
     python benchmarks/bench_out_equals_input.py
     PYTHONPATH=/path/to/other/checkout python benchmarks/bench_out_equals_input.py

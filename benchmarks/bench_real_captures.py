@@ -1,31 +1,22 @@
-"""DivAS on the real-capture targets (issues 15 and 16), with and without the 3DGS
+"""DivAS on the real-capture targets, with and without the 3DGS
 completion, against both peers fed the same masks.
 
 For every target of ``tests/data/targets`` (ground truth made by rule,
-:mod:`divas_engine.evaluation.real_targets`): one scripted session on the capture with
-the target's hand-placed anchors and clicks (protocol ``clicks`` of
-:func:`~divas_engine.evaluation.pipeline.run_session`: every click spawns its centroid
-view, every view is accepted), once with the SAM-like oracle (NOTES "Evaluation") and
-once with the classic segmenter on the same clicks; scored at the target's test views
-(:func:`~divas_engine.evaluation.real_targets.evaluation_cameras`) with
-:class:`~divas_engine.evaluation.metrics.ViewEvaluator` — the NOTES protocol: predicted
-mask = rendered selection indicator ≥ 0.1, ground truth = rendered labels ≥ 0.5 — and
-:class:`~divas_engine.evaluation.fidelity.FidelityEvaluator` (alpha fidelity,
-opacity-weighted Gaussian IoU, PSNR of the selection rendered alone vs the scene inside
-the true silhouette, and vs the true object alone). Methods per session
-(:data:`METHODS`): DivAS (the session's selection, with the completion of 3DGS scenes),
-DivAS without it (the mapping's Pass-3 selection of the same session), the centre vote
-and the contribution vote fed the session's accepted masks (``--baseline-masks``), and
-the ground truth itself (the metrics' ceiling: the NOTES image IoU of the truth is below
-1 — translucent edges pass 0.1 but not 0.5).
+:mod:`divas_engine.evaluation.real_targets`): one scripted session with the target's
+hand-placed anchors and clicks (protocol ``clicks`` of
+:func:`~divas_engine.evaluation.pipeline.run_session`), once with the SAM-like oracle and once
+with the classic segmenter; scored at the target's test views with
+:class:`~divas_engine.evaluation.metrics.ViewEvaluator` (the NOTES protocol) and
+:class:`~divas_engine.evaluation.fidelity.FidelityEvaluator`. Methods (:data:`METHODS`): DivAS,
+DivAS without the completion, the centre and contribution votes fed the session's accepted
+masks, and the ground truth itself (the metrics' ceiling).
 
     python benchmarks/bench_real_captures.py [--targets biker/helmet,guitar/neck]
         [--segmenters oracle,classic] [--scale 1] [--eval-scale 1] [--seed 0]
         [--device cpu] [--json OUT.json] [--export DIR] [--breakdown]
 
-``--export DIR`` also writes, per target, ``DIR/<capture>_<target>/prompts.json`` and
-``gt.npy`` (bool per file row) so the same run can be made with the CLI:
-``divas segment SCENE --prompts prompts.json --segmenter oracle --gt-labels gt.npy``.
+``--export DIR`` also writes per target ``prompts.json`` and ``gt.npy`` so the same run can be
+made with ``divas segment SCENE --prompts prompts.json --segmenter oracle --gt-labels gt.npy``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""SAM on the CPU: encoder time per view and decoder time per prompt (issue 21 item 3).
+"""SAM on the CPU: encoder time per view and decoder time per prompt.
 
 Real-size architectures with random weights (speed does not depend on the weights):
 ViT-B from ``segment-anything``, MobileSAM's TinyViT from its own package when it

@@ -1,29 +1,20 @@
 """ClassicSegmenter vs plain flood fill on the synthetic scenes' centroid views; and with
-``--cost``, the cost per prompt of the default 3D graph segmenter (issue 16) at up to 1M
+``--cost``, the cost per prompt of the default 3D graph segmenter at up to 1M
 surfels beside classic's on the same view.
 
-For each synthetic scene: the metadata click points on the target are projected
-into their best training camera (one that sees the point unoccluded — rendered
-D_med within 3 % of the point's depth — nearest to it), which serves as the
-anchor; the 2DGS centroid view of that click is built (alg:centroid-gs) and
-rendered; both segmenters get the click's 3D point projected into the centroid
-view (its principal point) as the one positive prompt. 2D IoU of mask channel 1
-(p ≥ 0.5) against ground truth: ``render_values(cam, labels) ≥ 0.5``
-(NOTES "Evaluation").
+Per synthetic scene: each metadata click on the target is projected into its best unoccluded
+training camera (the anchor), its 2DGS centroid view (alg:centroid-gs) is rendered and both
+segmenters get the click's 3D point as the one positive prompt; 2D IoU of mask channel 1
+(p ≥ 0.5) against ``render_values(cam, labels) ≥ 0.5`` (NOTES "Evaluation").
 
     .venv/bin/python benchmarks/bench_segmenters.py [--size 100000] [--seed 0] [--clicks 4]
     .venv/bin/python benchmarks/bench_segmenters.py --cost [--sizes 100000,1000000]
         [--walk-solver two_level]
 
-``--cost``: the benchmark room of :mod:`benchmarks.scenes` (surfels on the walls and four
-spheres) at each size; one click on each sphere of :func:`~benchmarks.scenes.bench_camera`'s
-view (a fresh seed set each time, so no cut is cached); per prompt the 3D cut (local
-voxel graph, walk, sweep) and the render of the three regions into the 640×480 view at
-SAM's low-res size; classic's ``set_image`` + ``predict`` on the same view for the ratio
-(the machine is shared: compare within one run), and the prompt's CPU time
-(``process_time``: every thread, the render's too — steadier than wall time on a loaded
-machine). The one-time per-scene preparation
-(features, ground search, the renderer's block index for sparse mask renders) is
+``--cost``: the benchmark room of :mod:`benchmarks.scenes` at each size, one click per sphere
+(fresh seeds, so no cut is cached); per prompt the 3D cut and the render of its regions at
+SAM's low-res size, classic's ``set_image`` + ``predict`` on the same view for the ratio, and
+the prompt's CPU time (``process_time``, all threads). The one-time per-scene preparation is
 reported apart.
 """
 

@@ -1,4 +1,4 @@
-"""Latency of the interactive loop (issues 6 and 20) through the Session API.
+"""Latency of the interactive loop through the Session API.
 
 Part 1 — what the user waits for, on one synthetic scene (default: the 1M-surfel
 ``plant``): ``Session.open`` (planned anchors, first anchor rendered), a click → centroid
@@ -12,7 +12,7 @@ Part 2 — per-update cost of DivAS's incremental fusion + mapping against a
 FlashSplat-style re-accumulation (per-surfel blending-weight voting re-run over every
 fused view at each update), at growing view counts and scene sizes.
 
-Part 3 (``--per-update``) — the older per-update table of ``divas segment`` reports.
+Part 3 (``--per-update``) — the per-update table of ``divas segment`` reports.
 
     python benchmarks/bench_session.py [--size 1000000] [--scene plant] [--views 5,10,20]
         [--fusion-sizes 250000,1000000] [--per-update] [--device cuda]

@@ -1,4 +1,4 @@
-"""Fuzz every input loader and print the outcome table (issue 14 item 6).
+"""Fuzz every input loader and print the outcome table.
 
 Mutated copies of small valid seed files (``tests/fuzz_cases.py``) go through each
 loader in a forked child with a memory limit and a timeout. The table counts, per

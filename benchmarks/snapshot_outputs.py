@@ -1,4 +1,4 @@
-"""Bit-identity check across a refactor or an optimisation (issues 13 and 20).
+"""Bit-identity check across a refactor or an optimisation.
 
 ``snapshot`` writes renders (RGB + depth tuple), value renders, FlashSplat-style
 contributions, session selections/overlays and ``divas segment`` labels of a few
@@ -46,7 +46,7 @@ def _renders(out: dict, tag: str, scene, cams) -> None:
 def _contrib(out: dict, tag: str, renderer, cam, mask) -> None:
     try:
         from divas_kernels import accumulate_contributions
-    except ImportError:  # before issue 13 item 3 it was not exported
+    except ImportError:  # older checkouts do not export it from the package
         from divas_kernels.contrib import accumulate_contributions
 
     c = accumulate_contributions(

@@ -1,33 +1,20 @@
 """Where splats are blended: in display (sRGB) space like the capture, or Blender's linear.
 
-The 3DGS/2DGS trainers — and the engine — composite the splats' *display* (sRGB)
-colours: a pixel shows ``C = Σ_i T_i α_i c_i`` with ``c_i`` the SH colour as it is
-displayed (eq. the 2DGS/3DGS volume-rendering sum). Blender composites in linear light:
-``Σ T_i α_i L(c_i)``, shown as ``E(Σ …)`` (``E`` = sRGB encoding, ``L`` = ``E⁻¹``),
-which brightens a pixel where dark and bright splats mix (the biker's black leathers
-with their highlights: ~0.07 mean |ΔRGB| from this alone).
+The 3DGS/2DGS trainers — and the engine — composite the splats' *display* colours,
+``C = Σ_i T_i α_i c_i``; Blender composites in linear light, ``E(Σ T_i α_i L(c_i))`` (``E`` =
+sRGB encoding, ``L = E⁻¹``), which brightens pixels where dark and bright splats mix.
 
-With the scene property ``divas_blend_display`` set ("Blend Like the Capture"):
+With the scene property ``divas_blend_display`` ("Blend Like the Capture"): the splat and point
+materials emit ``E(c_lin)`` (read through a View Layer Attribute node,
+:func:`.display_nodes.srgb_encode`), so Cycles and EEVEE sum display values as the trainer does
+(the stored ``divas_color`` and Solid mode stay linear), and the compositor decodes the result,
+``L(C)`` (OCIO's sRGB → Linear Rec.709), so the Standard view transform shows ``C``.
 
-* the splat and point materials emit ``E(c_lin)`` — the display colour — instead of the
-  stored linear ``c_lin`` (they read the property through an Attribute node of type
-  View Layer, :func:`.display_nodes.srgb_encode`), so Cycles and EEVEE sum display
-  values exactly as the trainer does; the stored ``divas_color`` stays linear and Solid
-  mode (the colour attribute) is unchanged;
-* the compositor decodes the result, ``L(C)`` (Convert Colorspace sRGB → Linear
-  Rec.709, OCIO's exact piecewise curve), so the render holds linear scene values and
-  the Standard view transform shows ``E(L(C)) = C``: the capture's own pixel.
-
-The decode applies to the whole frame, so anything else in the scene is shown as if its
-linear value were display-encoded (darker mid-tones): that is why it is an option. On
-import, *Auto* turns it on only when the scene has nothing else to render. Workbench
-renders (Solid mode's colours, opaque) are not decoded (:func:`on_render_pre` mutes the
-node for them). In the viewport, Material Preview and Rendered shading need the viewport
-compositor (turned on for the open 3D views when the option is set); Solid mode never
-uses the compositor and needs nothing.
-
-Turning it off removes the decode node (and the compositor node group it made) and the
-materials emit the linear colour again: Blender's linear blending, exactly as before.
+The decode applies to the whole frame, darkening anything else in the scene: hence an option,
+which *Auto* turns on at import only when the scene has nothing else to render. Workbench
+renders are not decoded (:func:`on_render_pre` mutes the node). Material Preview and Rendered
+shading need the viewport compositor (turned on for the open 3D views). Turning it off removes
+the decode node and its node group, and the materials emit the linear colour again.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Every per-point value goes through :func:`write_attribute` / :func:`read_attribute`:
 bulk ``foreach_set`` / ``foreach_get`` on attribute data with C-contiguous arrays of
 exactly the type Blender stores (float32, int32, bool), which Blender copies as one
-memory block (about 5 ms per million floats). Never a per-point Python loop.
+memory block. Never a per-point Python loop.
 
 Point clouds: ``bpy.data.pointclouds.new`` makes an *empty* point cloud, and before 5.2
 ``PointCloud.points`` cannot be resized from Python (``object.convert`` to a point cloud
@@ -232,8 +232,8 @@ _unpacked: set[str] = set()
 def pack_soon(img: bpy.types.Image) -> None:
     """Pack ``img`` into the .blend at the next idle moment (a one-shot timer) and at the
     latest before the file is saved (:func:`pack_pending` from ``save_pre``), instead of
-    now: packing encodes a PNG, 25–55 ms for a 640×480 view, which a click or a first look
-    through an anchor no longer waits for (issue 20). Blender's own auto-save runs no
+    now: packing encodes a PNG, which a click or a first look through an anchor then
+    does not wait for. Blender's own auto-save runs no
     ``save_pre``: one made within :data:`PACK_DELAY_S` of a click holds that image
     unpacked (the engine's render, not the user's data)."""
     _unpacked.add(img.name)

@@ -9,7 +9,7 @@ and the DivAS session do this), and :func:`engine_camera` always rebuilds the en
 camera from the camera's *own* stored size, whatever the scene currently holds.
 Lens, sensor, fit and shift live on the camera data and are exact per camera.
 
-Frames (issue 18): a camera is made in the frame of the splats it belongs to — its
+Frames: a camera is made in the frame of the splats it belongs to — its
 world matrix is ``frame @ pose``, with ``frame`` the splat import's axis conversion
 (kept as the ``divas_frame`` custom property) or, for a camera parented to the splat
 object, the object itself. :func:`engine_camera` undoes exactly that, so it always

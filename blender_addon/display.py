@@ -1,52 +1,19 @@
 """How imported splats and voxels look: one Geometry Nodes group, two materials, a quad.
 
-Every imported point cloud gets the modifier "DivAS Display" running the node group
-"DivAS Splat Display" (built by :mod:`.display_nodes`). Per splat it computes the
-display colour — the linear ``divas_color`` (import decoded the SH DC colour from
-sRGB), or with *View-Dependent Colour* the full SH colour ``0.5 + Σ Y_k(d) c_k``
-evaluated like the engine's rasterizer along the direction ``d`` from the **scene
-camera** to the splat (in the object's own frame, so any object transform is honoured)
-and then decoded to linear — tinted where ``divas_selected`` is set, and shows it two
-ways:
+Every imported point cloud gets the modifier "DivAS Display" running the node group "DivAS
+Splat Display" (:mod:`.display_nodes`). Per splat it computes the display colour — the linear
+``divas_color``, or with *View-Dependent Colour* the SH colour ``0.5 + Σ Y_k(d) c_k`` along the
+direction ``d`` from the **scene camera**, decoded to linear — tinted where ``divas_selected``
+is set, and shows it as **Splats** (a quad per splat of extent :data:`QUAD_EXTENT`, the 2DGS
+cut-off √(2 ln 255) σ, material "DivAS Splat" evaluating ``α = min(0.99, opacity ·
+exp(−(u²+v²)/2))``) or **Points** (material "DivAS Points", cheap for huge scenes).
 
-* **Splats** (default up to :data:`SPLATS_MAX_POINTS` splats): a quad per splat, rotated
-  by ``divas_rotation`` and scaled by the tangent σ's (``divas_scale``) × *Size* ×
-  :data:`QUAD_EXTENT` (the 2DGS cut-off √(2 ln 255) σ, where α·G falls below 1/255),
-  realised into one mesh. The material "DivAS Splat" evaluates the 2DGS Gaussian on the
-  quad's ``divas_quad_uv`` (σ units): ``α = min(0.99, opacity · exp(−(u²+v²)/2))``,
-  dropped below 1/255, as the alpha of an unlit emission over a transparent BSDF (Cycles
-  blends it; EEVEE dithers it and converges over its samples) — the emission is the
-  sRGB-encoded colour when the scene blends like the capture (:mod:`.blend_space`,
-  which decodes the sum in the compositor). The realised mesh's
-  active colour attribute ``divas_display`` is the same colour, so Solid mode with
-  *Attribute* colour (and Workbench renders) shows the splat colours.
-* **Points**: one point per splat (Cycles/EEVEE spheres) of radius *Size* ·
-  2√(s₁s₂), clipped at the P99 radius (or ``divas_radius`` where a density grid sets
-  one), material "DivAS Points". Cheap for huge scenes; Solid mode shows it in the
-  material colour (Blender's Workbench draws point clouds without attributes).
-
-Why the SH colour follows the scene camera and not the viewport: a shader sees the
-splat only after instancing, where the object's rotation is no longer separable from
-the splat's own, and the realised mesh that lets Solid mode show colours keeps only
-the colour; evaluating the SH in Geometry Nodes per splat keeps it exact (the engine's
-own direction) for renders, at the cost of the viewport showing the colours seen from
-the scene camera. With *View-Dependent Colour* off (or no SH coefficients on the points)
-the modifier runs the fixed-colour variant "DivAS Splat Display (Fixed Colour)" instead
-(same inputs, the same colour node for node, no *Active Camera* node), so switching the
-scene camera — every click and accept of a session does — does not re-evaluate the
-display (issue 20); :func:`sync_display_group` picks the variant, after every
-:func:`set_display_inputs` and (through a handler) when the input is changed in the
-modifier panel. *Opacity Threshold* hides splats whose opacity is below it (the
-floaters that wall a scene off in Solid mode).
-
-Solid mode draws the *point* display in the material colour, so with it the viewport
-shows no splat colour at all: the view-dependent group then takes the fixed colour in the
-viewport (renders still evaluate the SH colour) unless its *Viewport Colours* input is
-on, which :func:`sync_viewport_colours` keeps on exactly while a 3D view shows material
-colours (:data:`COLOUR_SHADINGS`; checked on every 3D-view redraw by :mod:`.draw`). A
-click's camera switch at 3M points then costs ≈ 0.1 s of display instead of 0.33 s
-(issue 20) with nothing on screen changed; switching a view to Material Preview
-evaluates the SH colour then (one redraw shows the fixed colour first).
+The SH colour follows the scene camera, not the viewport: a shader sees the splat only after
+instancing, where the object's rotation is no longer separable from the splat's own. Without
+view-dependent colour the modifier runs the fixed-colour variant, which has no camera node, so
+a session's camera switches do not re-evaluate the display (:func:`sync_display_group`); in
+Solid mode the point display shows no splat colour, so the SH colour is skipped there unless
+:func:`sync_viewport_colours` turns *Viewport Colours* on. Details: docs/design-notes.md.
 """
 
 from __future__ import annotations

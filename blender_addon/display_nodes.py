@@ -1,35 +1,12 @@
 """The node trees behind :mod:`.display` (what they compute is described there).
 
-Geometry Nodes group, per splat (fields on the imported point cloud ``P``):
-
-1. ``d = normalize(position − camera)``, the camera from *Active Camera* through *Object
-   Info* (Relative), i.e. in the object's own (file) frame. Only in the view-dependent
-   group: the *fixed-colour* variant (``view_dependent=False``) has no camera node at
-   all, so a change of scene camera does not re-evaluate the modifier (issue 20: 0.7 CPU
-   s per camera switch at 3M points); its colour is the same ``max(divas_color, 0)``
-   nodes the view-dependent group switches to when the SH are off or absent. The
-   view-dependent group also takes that colour in the *viewport* for the point display
-   while *Viewport Colours* is off (*Is Viewport* ∧ *Points* ⇒ *Viewport Colours*, a
-   single value, so the SH nodes are not evaluated at all): Solid mode draws point
-   clouds in their material colour, so no splat colour is seen there (a Workbench
-   render of the points is pixel-identical with the SH colour on and off), and the
-   add-on switches the input on while a 3D view shows material colours
-   (:func:`.display.sync_viewport_colours`). Renders (*Is Viewport* false) always
-   evaluate the SH colour. Issue 20: a camera switch at 3M points then re-evaluates
-   only the camera-free part of the group (≈ 0.1 s instead of 0.33 s).
-2. Colour: ``divas_color`` is linear; with view-dependent colour it is re-encoded to
-   sRGB (the SH DC colour), the ``divas_sh_k`` codes are decoded (``(c − 128)/127 ·
-   range_band``) and added as ``Y_k(d) c_k`` (:data:`divas_engine.sh_rotation.
-   SH_MONOMIALS`), clamped at 0 like the engine (the DC-only colour too), and decoded
-   back to linear. Selected
-   points are tinted. Stored as ``divas_shade`` (RGBA, A = opacity) on a *clean* point
-   cloud of the same points (Points + Sample Index), so no other attribute of ``P``
-   (SH codes, file columns) is copied per quad when instancing.
-3. Splats: instance the quad on every point whose opacity ≥ the threshold, rotated by
-   ``divas_rotation``, scaled by (s₁, s₂, max(s₁, s₂)) · Size · extent; realise; copy
-   ``divas_shade`` into the quad's active colour attribute ``divas_display``.
-   Points: the clean cloud with radius Size · 2√(s₁s₂) (≤ Max Radius) or
-   ``divas_radius``.
+Geometry Nodes group, per splat: (1) the direction ``d`` from the *Active Camera* in the
+object's own frame (only in the view-dependent group; the fixed-colour variant has no camera
+node, so a change of scene camera does not re-evaluate it); (2) the colour — ``divas_color``
+or, view-dependent, the SH colour from the ``divas_sh_k`` codes, clamped at 0 like the
+engine, selected points tinted — stored as ``divas_shade`` on a clean point cloud; (3) splats:
+a quad instanced per point above the opacity threshold, realised, ``divas_shade`` copied to
+its active colour attribute. The steps in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,21 @@
 """The add-on's ``bpy.app.handlers``: what keeps the live sessions in step with the file.
 
-* ``load_pre`` — the file's objects are going away: close every session
-  (:func:`.session_registry.on_load_pre`);
+* ``load_pre`` — close every session (:func:`.session_registry.on_load_pre`);
 * ``load_post`` — resume the opened file's saved sessions (preference);
-* ``save_pre`` / ``save_post`` — scene paths relative to the .blend, the anchor and view
-  images not packed yet packed (:func:`.bridge.pack_pending`), each session written
-  beside it (:mod:`.session_actions.files`);
+* ``save_pre`` / ``save_post`` — scene paths relative to the .blend, pending images packed
+  (:func:`.bridge.pack_pending`), each session written beside it (:mod:`.session_actions.files`);
 * ``undo_post`` / ``redo_post`` — move each session to the step Blender's undo restored
-  (:mod:`.session_actions.history`), and the 3D views an import switched to Material
-  Preview with their object (:func:`.first_look.follow_undo`);
-* ``depsgraph_update_post`` — when the scene camera or the active object becomes an
-  anchor camera whose view is not rendered yet (anchors render lazily, issue 20), a
-  one-shot timer renders it (ID data cannot be written while the depsgraph updates);
-  and when an updated object's display modifier runs the wrong colour variant (its
-  *View-Dependent Colour* was toggled in the modifier panel), a one-shot timer swaps it
-  (:func:`.display.sync_display_group`: no camera dependency with the SH colour off);
+  (:mod:`.session_actions.history`) and the 3D views an import switched to Material Preview
+  with their object (:func:`.first_look.follow_undo`);
+* ``depsgraph_update_post`` — a one-shot timer renders an anchor camera that became the scene
+  camera or active object before its view was rendered (anchors render lazily; ID data cannot
+  be written during the update), and swaps a display modifier running the wrong colour variant
+  (:func:`.display.sync_display_group`);
 * ``render_pre`` — no display-space decode for Workbench renders
   (:func:`.blend_space.on_render_pre`);
-* a 3D-view draw handler (``PRE_VIEW``) — when whether some 3D view shows material
-  colours changed since the last check (a shading switch, a workspace or screen change),
-  a one-shot timer sets the display modifiers' *Viewport Colours*
-  (:func:`.display.sync_viewport_colours`: with Solid shading the point display's
-  colours are not drawn, so the viewport skips the SH colour — issue 20).
+* a 3D-view draw handler (``PRE_VIEW``) — when whether some 3D view shows material colours
+  changed, a one-shot timer sets the modifiers' *Viewport Colours*
+  (:func:`.display.sync_viewport_colours`).
 
 Every handler is ``@persistent`` (it outlives file loads) and registered once.
 """

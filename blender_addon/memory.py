@@ -1,26 +1,17 @@
-"""Keep freed memory out of Blender's resident set during a session (issue 20: RSS at
-3M splats).
+"""Keep freed memory out of Blender's resident set during a session.
 
-A render or an accept allocates and frees many arrays of 1–32 MB (per-surfel keys,
-indices, colours, images). glibc's ``malloc`` serves those from its heap once its
-adaptive mmap threshold has grown past their size (it grows up to 32 MB after the first
-large free), and a freed chunk in the middle of the heap stays resident: measured in
-Blender on the 3M-splat plant scene, the heap grew from 0.07 to 0.6 GB over a session,
-0.06–0.12 GB of the RSS after a click was free heap, and the peaks of the renders sat on
-top of it. Two glibc settings fix it without changing any result:
+A render or an accept allocates and frees many arrays of 1–32 MB. glibc's ``malloc`` serves
+those from its heap once its adaptive mmap threshold has grown past their size, and a freed
+chunk in the middle of the heap stays resident, so the RSS of a large session grows by free
+heap under the renders' peaks. Two glibc settings fix it without changing any result:
 
 * :func:`limit_heap` (when a session of :data:`LIMIT_FROM` primitives or more starts:
-  :func:`limit_heap_for`): a fixed mmap threshold of
-  :data:`MMAP_THRESHOLD` — arrays from 4 MB on get pages of their own and give them back
-  when freed, so the RSS follows what is in use. Measured at 3M (BENCHMARKS.md, branch
-  ``blender20b``): the session's peak in Blender 2.55–2.60 → 2.44–2.46 GB with the other
-  changes of that branch, the same with 1 MB (2.44–2.45) at a few % more CPU for the page
-  faults; in a plain process a 3M render + value render: peak 1.38 → 1.32 GB, +2–3 % CPU;
-  per click of a 3M session ≈ +0–8 % CPU. Smaller scenes are far from the memory limit
-  (1M splats: 1.4 GB), so they keep glibc's adaptive threshold and its speed;
-* :func:`release_freed` (after the steps that render: import, Start, a click, an accept,
-  a first look through an anchor, an overlay drawn the first time): ``malloc_trim(0)``
-  hands the heap's free pages back.
+  :func:`limit_heap_for`): a fixed mmap threshold of :data:`MMAP_THRESHOLD` — arrays from
+  4 MB on get pages of their own and give them back when freed, so the RSS follows what is in
+  use, at a few % more CPU for page faults; smaller scenes keep the adaptive threshold;
+* :func:`release_freed` (after the steps that render: import, Start, a click, an accept, a
+  first look through an anchor, an overlay drawn the first time): ``malloc_trim(0)`` hands the
+  heap's free pages back.
 
 Both are no-ops where glibc is not the allocator (macOS, Windows, musl).
 """

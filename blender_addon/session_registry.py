@@ -101,7 +101,7 @@ class LiveSession:
             self.coverage[view_id] = (sel, ov)
             from . import memory
 
-            memory.release_freed()  # the render's freed transients (issue 20)
+            memory.release_freed()  # the render's freed transients
         return ov.coverage
 
     def host_state(self) -> dict[str, Any]:
@@ -123,9 +123,9 @@ class LiveSession:
 
     def changed(self) -> None:
         """The session changed: recount when the counts are next read, redraw. (The
-        panel reads them in the redraw after every step; counting here made an accept,
-        which records and commits, count twice: the engine's count of the labelled
-        points copies the ``[N]`` labels each time — issue 20.)"""
+        panel reads them in the redraw after every step; counting here would count an
+        accept, which records and commits, twice, and the engine's count of the
+        labelled points copies the ``[N]`` labels each time.)"""
         self._counts = None
         self.version += 1
 

@@ -8,7 +8,7 @@ and writes the rows the points' ``divas_selected`` attribute marks, in the file'
 format. The last loaded scene is cached (keyed by path, size and mtime) so repeated
 exports do not reparse a large file. The importer hands the scene it has just read to
 that cache (:func:`remember_scene`), so Start DivAS right after an import reads nothing
-again (issue 20): the engine then holds one copy of the scene, shared by the cache and
+again: the engine then holds one copy of the scene, shared by the cache and
 the session.
 """
 

@@ -4,39 +4,14 @@
     python blender_scripts/build_extension.py --platforms linux-x64 --python 311   # the CI variant
     python blender_scripts/build_extension.py --without-sam         # no onnxruntime (−24 MB)
 
-Steps:
-
-1. ``pip download --only-binary=:all: --no-deps --platform … --python-version …`` of each
-   run-time dependency at the version the Python's lock pins (:func:`pinned`, the
-   versions the tests passed with) for every requested platform × Python into a wheel
-   cache (``build/extension/wheels``; reused, so a rebuild downloads nothing), and
-   ``pip wheel --no-deps .`` of the engine itself (pure Python, ``py3-none-any``).
-2. A staging copy of ``blender_addon/`` with those wheels in ``wheels/`` and a manifest
-   whose ``wheels`` and ``platforms`` list exactly them (the source manifest lists no
-   wheels, so the source tree stays clean and installable for development).
-3. ``blender_ext.py build --split-platforms`` — Blender's own packager, from a
-   ``blender`` binary (``blender --command extension build``) or, without one, from the
-   ``bpy`` module's copy of the same script — writes ``divas-<version>-<platform>.zip``
-   into ``--out``. With neither available the zip is written here in the same layout
-   (manifest at the archive root, wheels under ``wheels/``), one per platform.
-
-Blender 4.2–5.0 runs Python 3.11 and 5.1+ Python 3.13. Each Python gets its own zip
-(``divas-<version>-<platform>-cp311.zip`` with ``blender_version_max = "5.1.0"``,
-``…-cp313.zip`` with ``blender_version_min = "5.1.0"``): a Blender only ever loads the
-wheels of its own Python, so one zip holding both carried ~65 MB it never used.
-
-What a zip holds (linux-x64, cp311, measured 2026-12-02; the one zip with both Pythons
-was 329 MB): warp-lang 149 MB (45 %: ``warp.so`` with the CUDA code paths and
-``warp-clang.so``, the LLVM that JIT-compiles the kernels on the CPU — the engine needs
-both, one wheel serves every Python), opencv-python-headless 50 MB (already the smallest
-OpenCV build: no GUI, no contrib; the classic segmenter and SOG's WebP need it, one
-``abi3`` wheel), scipy 35 MB (KD-tree, ndimage, sparse), onnxruntime 24 MB (SAM in
-ONNX; ``--without-sam`` leaves it out for a build without SAM), zstandard 5.5 MB (.spz
-v4), msgpack 0.4 MB (instant-ngp snapshots), psutil 0.2 MB (session memory figures),
-plyfile, the engine. Not bundled: NumPy
-(Blender ships its own, and a second copy would shadow it), tqdm (progress bars of the
-command line only; the add-on never imports it), and every test/development dependency
-(bpy, pytest, onnx, ruff — the ``test`` extra).
+Steps: (1) ``pip download --only-binary=:all:`` of each run-time dependency at the version the
+Python's lock pins (:func:`pinned`) for every platform × Python into a reused wheel cache, and
+``pip wheel --no-deps .`` of the engine; (2) a staging copy of ``blender_addon/`` with those
+wheels and a manifest listing exactly them; (3) Blender's own packager
+(``blender_ext.py build --split-platforms``, from a ``blender`` binary or the ``bpy`` module),
+or the same layout written here. Each Python gets its own zip (Blender 4.2–5.0 runs 3.11,
+5.1+ runs 3.13; a Blender loads only its own Python's wheels). NumPy is not bundled (Blender
+ships its own). What a zip holds and why: docs/design-notes.md.
 """
 
 from __future__ import annotations

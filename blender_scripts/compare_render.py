@@ -6,27 +6,14 @@ the pictures side by side and the mean absolute differences inside the object.
         [--azimuth 30] [--elevation 15] [--up 0,-1,0] [--blend AUTO|DISPLAY|LINEAR]
         [--supersample 8]
 
-(or ``blender -b --python blender_scripts/compare_render.py -- …``). The camera looks at
-the capture's robust centre (``scene_frame``) from ``2.4 r_fg`` at the given azimuth and
-elevation about ``--up`` (the capture's up in its own frame). Blender renders with the
-Standard view transform, a black world and a 1-pixel box filter; the engine references:
-
-* ``engine``: the engine's own render (point-sampled at pixel centres, 2DGS low-pass,
-  colours composited in display (sRGB) space, as the 3DGS/2DGS trainers do);
-* ``engine_aa``: the same render at 8× the resolution (``--supersample``), area-averaged
-  in display space — the engine's picture anti-aliased the way a Blender pixel
-  integrates its area when the import blends like the capture (the add-on's
-  ``blend_space``). It also drops most of the native render's 2DGS screen-space
-  low-pass (σ = √2/2 *pixels*), which at a few hundred pixels widens every sub-pixel
-  splat to a pixel-sized disc: on the shared captures that, not aliasing, is most of
-  the native render's difference to its own supersampled picture (BENCHMARKS.md);
-* ``engine_linear_aa``: as ``engine_aa`` but compositing in linear light (the splat
-  colours decoded to linear before blending, the sum and the area average in linear,
-  encoded after) — what Blender's linear blending computes (``--blend LINEAR``).
-
-"Inside the object" is where the engine's native alpha is > 0.5. Writes
-``<name>_<engine>.png``, ``<name>_<reference>.png``, ``<name>_side_by_side.png`` and
-``<name>_compare.json``; prints the JSON.
+The camera looks at the capture's robust centre from ``2.4 r_fg``; Blender renders with the
+Standard view transform, a black world and a 1-pixel box filter. Engine references:
+``engine`` (its own render, display-space compositing as the trainers do); ``engine_aa`` (at
+``--supersample``× resolution, area-averaged in display space — what a Blender pixel integrates,
+without most of the native render's 2DGS √2/2-pixel low-pass widening); ``engine_linear_aa``
+(compositing in linear light, what Blender's linear blending computes). "Inside the object" is
+where the engine's native alpha is > 0.5. Writes ``<name>_<engine>.png``,
+``<name>_<reference>.png``, ``<name>_side_by_side.png`` and ``<name>_compare.json``.
 """
 
 from __future__ import annotations

@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> dict:
         raise ScriptError("--segmenter sam-torch needs --sam-checkpoint")
     if req.seed < 0:
         raise ScriptError(f"--seed must be ≥ 0, got {req.seed}")
-    try:  # every output checked before anything is loaded, as `divas segment` (issue 14)
+    try:  # every output checked before anything is loaded, as `divas segment`
         check_outputs(
             [
                 ("--out", req.out),

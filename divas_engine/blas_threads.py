@@ -1,25 +1,16 @@
-"""One BLAS thread while a session is open (issue 20).
+"""One BLAS thread while a session is open.
 
-The engine's NumPy products are tall and thin — ``[n,3] @ [3]`` heights, ``[n,3] @ [3,3]``
-camera transforms of centres and blocks, at up to millions of rows. OpenBLAS runs each
-of them on every core, and afterwards its worker threads spin-wait for the next call for
-≈ 2^28 cycles before they sleep: measured here, one ``[1.27M,3] @ [3]`` product costs 4 ms
-on one thread but 0.107 CPU s with two (the second core spinning for ≈ 0.1 s). On a
-2-core laptop that spinning core is the one the renderer's threads and graph3d's cut need:
-at 3M splats graph3d's cut took 0.65 CPU s with two BLAS threads and 0.38 with one, its
-mask render 0.51 → 0.37 (BENCHMARKS.md, issue 20, click20g).
-
-Those products split their *rows* across threads (each output is one row's dot product,
-computed by the same kernel), so one thread gives the same bits; the reductions whose
-result does depend on the thread count (``ddot``) the engine already avoids (graph3d's
-solver sums with NumPy). Tested: ``tests/test_blas_threads.py`` and the session results
-with one and two threads.
+The engine's NumPy products are tall and thin (``[n,3] @ [3]`` heights, ``[n,3] @ [3,3]``
+camera transforms, up to millions of rows). OpenBLAS runs each on every core and its workers
+then spin-wait before they sleep, so on a 2-core machine a spinning core is taken from the
+renderer's threads and graph3d's cut. Those products split their *rows* across threads, so one
+thread gives the same bits (the thread-dependent ``ddot`` reductions the engine avoids; tested
+in ``tests/test_blas_threads.py``).
 
 :class:`BlasThreads` limits the BLAS libraries loaded in the process (NumPy's, SciPy's) to
-:data:`SESSION_BLAS_THREADS` threads while at least one session is open and puts back what
-they had when the last one closes (the host, e.g. Blender, keeps its own setting
-otherwise). The libraries are found and set by ``threadpoolctl`` (OpenBLAS, MKL, BLIS on
-Linux, Windows and macOS; a BLAS it cannot set, e.g. Accelerate, is left as it is).
+:data:`SESSION_BLAS_THREADS` threads while at least one session is open and puts back what they
+had when the last one closes (the host, e.g. Blender, keeps its own setting otherwise). The
+libraries are set by ``threadpoolctl`` (OpenBLAS, MKL, BLIS; one it cannot set is left as is).
 """
 
 from __future__ import annotations

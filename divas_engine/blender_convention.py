@@ -1,37 +1,14 @@
 """Engine :class:`~divas_engine.camera.Camera` ↔ Blender camera, in pure NumPy (no ``bpy``).
 
-Blender semantics (``BKE_camera_params_compute_viewplane`` and ``BKE_camera_view_frame_ex``
-in ``blenkernel/intern/camera.cc``; ``bpy_extras.object_utils.world_to_camera_view``):
-
-* Axes: a Blender camera looks down its local −z with +y up, so
-  ``matrix_world = c2w_opencv · diag(1, −1, −1, 1)``. Object scale in ``matrix_world`` is
-  ignored (Blender normalises it away for projection).
-* Pixel aspect: ``ycor = pixel_aspect_y / pixel_aspect_x``; one pixel row spans ``ycor``
-  times the view-plane height of one column, so ``fx / fy = ycor``.
-* Sensor fit: the *fitted* dimension is horizontal when ``sensor_fit == 'HORIZONTAL'``,
-  vertical when ``'VERTICAL'``, and for ``'AUTO'`` the larger of ``W·aspx`` and
-  ``H·aspy``. Measured in x-pixel units it is ``viewfac = W`` (horizontal) or
-  ``ycor · H`` (vertical). The sensor size used is ``sensor_height`` only for an explicit
-  ``'VERTICAL'`` fit; ``'AUTO'`` always uses ``sensor_width``, even when it fits
-  vertically (portrait images).
-* Focal: ``fx = lens · viewfac / sensor``, ``fy = fx / ycor``.
-* Shift is a fraction of the fitted dimension, in both axes (*not* of its own axis), and
-  moves the view window, so the optical axis moves the other way in the image:
-  ``cx = W/2 − shift_x · viewfac`` and, with Blender's y up,
-  ``cy = H/2 + shift_y · viewfac / ycor``.
-* Normalised view coordinates (``world_to_camera_view``): ``(0, 0)`` is the bottom-left
-  image corner, ``(1, 1)`` the top-right; pixel ``(u, v)`` in the engine's +0.5
-  convention is ``(x · W, (1 − y) · H)``.
-
-:func:`camera_to_blender` always writes an explicit fit ('HORIZONTAL' for landscape,
-'VERTICAL' for portrait, judged with pixel aspect) with the fitted sensor side equal to
-``sensor_mm`` and the other side in the image's aspect, pixel aspect ≥ 1 on one axis
-(Blender's range is [1, 200]) and ``resolution_percentage`` 100.
-
-Axes of imported scenes (like Blender's own importers' Forward/Up options):
-:func:`axis_conversion` is ``bpy_extras.io_utils.axis_conversion`` in NumPy;
-:func:`up_conversion` turns an estimated scene up into the object rotation that makes
-it Blender's +Z.
+Blender semantics (``BKE_camera_params_compute_viewplane`` in ``blenkernel/intern/camera.cc``;
+``bpy_extras.object_utils.world_to_camera_view``): ``matrix_world = c2w_opencv ·
+diag(1, −1, −1, 1)``; ``ycor = pixel_aspect_y / pixel_aspect_x``; the fitted dimension is
+``viewfac = W`` (horizontal) or ``ycor · H`` (vertical), ``'AUTO'`` always using
+``sensor_width``; ``fx = lens · viewfac / sensor``, ``fy = fx / ycor``; shift is a fraction of
+the fitted dimension, ``cx = W/2 − shift_x · viewfac``, ``cy = H/2 + shift_y · viewfac / ycor``.
+:func:`camera_to_blender` always writes an explicit fit. :func:`axis_conversion` is
+``bpy_extras.io_utils.axis_conversion`` in NumPy; :func:`up_conversion` turns an estimated
+scene up into the object rotation that makes it Blender's +Z. Details: docs/design-notes.md.
 """
 
 from __future__ import annotations

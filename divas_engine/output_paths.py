@@ -1,4 +1,4 @@
-"""Checked, atomic outputs: every file DivAS writes goes through this module (issue 14).
+"""Checked, atomic outputs: every file DivAS writes goes through this module.
 
 * :func:`check_output_path` / :func:`check_outputs` — the pre-flight, run *before* any
   loading or computation: the parent folder exists and is writable, the path is not a

@@ -1,40 +1,17 @@
 """Per-point attribute tables for hosts that show a scene as points (the Blender add-on).
 
-Pure NumPy (no ``bpy``): a host gets ``positions [N,3]`` and an ordered ``{name: array}``
-it writes one attribute per entry, so no format knowledge lives in the host.
+Pure NumPy (no ``bpy``): a host gets ``positions [N,3]`` and an ordered ``{name: array}`` it
+writes one attribute per entry, so no format knowledge lives in the host. Every value is stored
+once, so a scene of millions of splats fits in memory and in a ``.blend``.
 
-Surfel scenes (:func:`surfel_point_table`), one point per scene primitive (rows dropped
-on load for NaN/Inf are absent). Every value is stored once (issue 18: a 3M-splat
-scene must fit in memory and in a reasonable ``.blend``):
+* :func:`surfel_point_table` — one point per primitive: ``divas_index`` (file row),
+  ``divas_color`` (linear RGB decoded from the sRGB SH DC colour, A = opacity),
+  ``divas_rotation`` (w, x, y, z), ``divas_scale``, optional ``divas_sh_<k>`` (three 8-bit codes
+  packed in one int32, :func:`quantize_sh`; display only) and the PLY's non-standard
+  properties (``ply_``-prefixed when a host reserves the name);
+* :func:`grid_point_table` — one point per voxel of a density grid above an opacity threshold.
 
-* ``divas_index`` int32: the file row (what selection and export need; the export
-  copies rows from the source file, so no stored-space file value is kept twice).
-* ``divas_color`` ``[N,4]``: RGB in *linear* scene space — the SH DC colour
-  ``0.5 + C0·f_dc`` is a display (sRGB-encoded) value, so it is decoded with the
-  sRGB transfer function (:func:`srgb_to_linear`, extended sign-symmetrically
-  beyond [0, 1] so no value is clipped) and a host's Standard view transform shows
-  the capture's own colour — and A = opacity α.
-* ``divas_rotation`` ``[N,4]`` (w, x, y, z) unit quaternion of the surfel frame
-  (columns t_u, t_v, normal), a host *quaternion* attribute (:attr:`PointTable.kinds`).
-* ``divas_scale`` ``[N,3]``: tangent standard deviations (s₁, s₂) and the normal one
-  s₃ a 3DGS flattening dropped (0 for native 2DGS surfels).
-* ``divas_sh_<k>`` int32, k = 1 … (degree+1)²−1 (with ``sh_display``): the view-dependent
-  SH coefficient k of R, G and B as three 8-bit codes packed in one integer
-  (R + 256·G + 65536·B, exact in a float32 too), band l's code c ∈ [1, 255] meaning
-  ``(c − 128) / 127 · range_l`` — zero exact — (:func:`quantize_sh`, ``PointTable.meta
-  ["sh_range"]``). Display only — exports read the source file — so 8 bits suffice
-  (PlayCanvas's compressed PLY stores SH in 8 bits too) and a degree-3 scene costs
-  60 bytes per splat instead of 180.
-* Non-standard vertex properties of a PLY (anything but ``x y z nx ny nz f_dc_*
-  f_rest_* opacity scale_* rot_*``): the raw stored value, float32 (``double`` rounded)
-  or int32 (``uint`` bit-cast). Names a host reserves (:data:`RESERVED_NAMES`, a leading
-  ``.``, the ``divas_`` prefix) are prefixed ``ply_``.
-
-Density grids (:func:`grid_point_table`): one point per voxel whose cell opacity
-``1 − exp(−σ·voxel)`` reaches a threshold, at the cell centre, with ``divas_index``
-(flat ``[iz,iy,ix]`` index into ``density``), ``divas_density`` σ, ``divas_color``
-(the grid's rgb decoded to linear, or grey by opacity; A = opacity) and
-``divas_radius`` (half a cell).
+The attributes in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ class SourceInfo:
         num_rows: primitives stored in the file (before any row was dropped).
         kept: ``[N] int64`` file row of each primitive in the scene, ascending; None when
             every row is kept in order (a density grid: no per-cell index is held, so the
-            bookkeeping does not grow with the grid — issue 14).
+            bookkeeping does not grow with the grid).
         dropped_nonfinite: rows dropped because a value was NaN/Inf.
         file_sh_degree: the SH degree stored in the file when the scene was loaded with
             fewer bands (``load_scene(..., max_sh_degree=…)``); None when it keeps them all.

@@ -40,7 +40,6 @@ def robust_frame(
         # one contiguous float64 column at a time: the median of each column and the
         # squared distance summed x, y, z in that order are np.median(p, axis=0) and
         # np.linalg.norm(p - c, axis=1) exactly, without the [N,3] float64 copies
-        # (6M Gaussians: 2.9 → ~1 s, issue 20's `divas info`)
         c = np.array([np.median(p[:, k].astype(np.float64)) for k in range(3)])
         r = float(np.percentile(np.sqrt(_squared_distance(p, c)), percentile))
         return RobustFrame(c, r)

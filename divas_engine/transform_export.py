@@ -1,33 +1,15 @@
-"""Export a selection with an affine transform applied (issue 18: Blender's "apply object
-transform" on export), in the input's own format.
+"""Export a selection with an affine transform applied (Blender's "apply object transform" on
+export), in the input's own format.
 
 A Gaussian ``(μ, Σ = R S² Rᵀ, opacity, SH)`` under ``x ↦ A x + t`` becomes
-``(A μ + t, A Σ Aᵀ, opacity, SH rotated by Q)`` where ``Q`` is the rotation of ``A``
-(polar decomposition ``A = Q P``; ``Q`` = the rotation itself for a rigid or uniformly
-scaled ``A``, which is what object transforms almost always are):
+``(A μ + t, A Σ Aᵀ, opacity, SH rotated by Q)`` with ``Q`` the rotation of ``A`` (polar
+decomposition ``A = Q P``). ``A = s·Q`` composes quaternions exactly; any other ``A`` (mirrors
+included) re-factorises the covariance (3DGS: eigen-decomposition; 2DGS: SVD of the tangent
+frame). SH rotate band by band, ``c'_l = D_l(Q) c_l`` (:mod:`.sh_rotation`).
 
-* ``A = s·Q`` (rotation with uniform scale s, mirrors included as ``Q`` with det −1 is
-  not a rotation — see below): quaternions compose, ``q' = q_Q ⊗ q``, scales × s, the
-  file's axis order kept. Exact.
-* any other ``A``: 3DGS — ``Σ' = A Σ Aᵀ`` eigen-decomposed into a new rotation and three
-  scales (largest first); 2DGS surfels — the tangent frame ``A [s₁t_u, s₂t_v]`` (3×2)
-  factorised by SVD into new tangents and scales (the image of an ellipse under a
-  linear map is an ellipse, so the surfel stays exact). A mirroring ``A`` (det < 0)
-  takes this path too: the covariance is mirror-invariant, the new frame is a proper
-  rotation.
-* SH: band by band, ``c'_l = D_l(Q) c_l`` (:mod:`.sh_rotation`), so the colour seen along
-  ``d`` after the transform equals the colour seen along ``Q⁻¹ d`` before it. The DC term
-  and opacity never change. Under a mirror the bands transform with the orthogonal
-  ``Q`` the same way (real SH bands are invariant under O(3)).
-
-Formats: standard PLY (rows copied, the transformed properties overwritten: ``x y z``,
-``nx ny nz`` where non-zero, ``rot_*``, ``scale_*``, ``f_rest_*``), compressed PLY
-(re-encoded: fresh chunk bounds, positions/scales/rotations packed again, SH bytes
-re-quantised), ``.splat`` (records rebuilt, colour bytes kept) and generated scenes (a
-2DGS PLY). ``.spz`` and SOG are not re-encoded: their quantisers (SPZ fixed-point
-positions and smallest-three rotations, SOG's k-means scale codebooks and SH palette)
-are not reproduced here, so those raise :class:`~.errors.DivasInputError` naming the
-format; exporting them without the transform still writes them exactly.
+Formats: standard PLY, compressed PLY (re-encoded), ``.splat`` and generated scenes; ``.spz``
+and SOG are not re-encoded (their quantisers are not reproduced here) and raise
+:class:`~.errors.DivasInputError` naming the format. Details: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,38 +1,13 @@
 """Viewport click → camera pixel, in pure NumPy (no ``bpy``).
 
-When a 3D viewport looks through a camera, Blender draws the camera frame (the
-rendered image's border) as a quadrilateral in *region* coordinates: origin at the
-region's bottom-left corner, x right, y up, one unit per screen pixel, region pixel
-``(i, j)`` covering ``[i, i+1) × [j, j+1)``. ``Camera.view_frame(scene=…)`` gives the
-frame's four corners in camera space, in the order top-right, bottom-right,
-bottom-left, top-left; ``bpy_extras.view3d_utils.location_3d_to_region_2d`` maps them
-(after ``matrix_world``) into the region.
-
-The camera image (engine convention, :mod:`divas_engine.camera`) has its origin at the
-top-left, y down, pixel ``(i, j)`` centred at ``(i + 0.5, j + 0.5)``. The frame's
-corners are the image corners ``(W, 0)``, ``(W, H)``, ``(0, H)``, ``(0, 0)`` in that same
-order. The image of a planar rectangle under a perspective view is a projective
-transform of it, so the map region → image is the homography fixed by those four
-correspondences; when looking through the camera the frame is an axis-aligned
-rectangle and the homography reduces to the affine ``u = (x − left) / (right − left) · W``,
-``v = (top − y) / (top − bottom) · H``. Letterboxing (the frame smaller than the region)
-and non-square pixel aspect (the frame's aspect is ``W·aspx : H·aspy``, not ``W : H``)
-need no special case: both only change where the corners are.
-
-Mouse events give integer region pixels (``event.mouse_region_x/y``); the click is
-taken at that pixel's centre, ``+0.5`` on both axes.
-
-A free 3D view is a camera too (:func:`camera_from_region`): Blender's
-``RegionView3D.view_matrix`` maps world to view space (camera axes: −z forward, y up)
-and its perspective ``window_matrix`` ``P`` maps view space to clip space, with
-``w = −z``. For a view-space point ``(x, y, z) = (x_c, −y_c, −z_c)`` (OpenCV camera
-coordinates ``x_c, y_c, z_c``), ``ndc_x = P₀₀ x_c / z_c − P₀₂`` and
-``ndc_y = −P₁₁ y_c / z_c − P₁₂``; the region pixel is ``((ndc_x + 1) W / 2,
-(ndc_y + 1) H / 2)`` and the image pixel flips y, so the region's exact pinhole camera
-has ``fx = W P₀₀ / 2``, ``cx = W (1 − P₀₂) / 2``, ``fy = H P₁₁ / 2``,
-``cy = H (1 + P₁₂) / 2`` and ``c2w = view_matrix⁻¹ · diag(1, −1, −1, 1)``. Looking
-through a camera, the window matrix already holds the camera frame's zoom and offset,
-so the same formula holds. An orthographic view (``P₃₃ = 1``) has no pinhole camera.
+Looking through a camera, Blender draws the camera frame as a quadrilateral in *region*
+coordinates (origin bottom-left, y up); its corners are the image corners, so region → image is
+the homography fixed by those four correspondences (affine when the frame is axis-aligned;
+letterboxing and pixel aspect need no special case). A click is taken at its region pixel's
+centre (+0.5). A free 3D view is a camera too (:func:`camera_from_region`): from the
+perspective ``window_matrix`` ``P``, ``fx = W P₀₀ / 2``, ``cx = W (1 − P₀₂) / 2``,
+``fy = H P₁₁ / 2``, ``cy = H (1 + P₁₂) / 2`` and ``c2w = view_matrix⁻¹ · diag(1, −1, −1, 1)``;
+an orthographic view has no pinhole camera. The derivation: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Warp runs a CPU launch on one thread. It does release the GIL while the kernel
 runs, so the wrappers split a CPU launch into ``threads`` sub-launches issued
-from a small thread pool (measured 1.8× on 2 cores). On CUDA a launch is one
+from a small thread pool. On CUDA a launch is one
 grid, unchanged.
 
 A *split* kernel takes ``base: int, stride: int`` as its **last two** inputs and

@@ -1,30 +1,14 @@
 """Per-surfel blending contributions split by a binary view mask (evaluation baseline).
 
-For one view with a binary mask ``B`` (``[H, W]``), every surfel ``i`` gets
+For one view with a binary mask ``B`` every surfel ``i`` gets
 
     A₁[i] = Σ_{p: B[p]=1} w_{i,p},     A₀[i] = Σ_{p: B[p]=0} w_{i,p},
 
-with ``w_{i,p} = α_{i,p} T_{i,p}`` the front-to-back blending weight of surfel ``i`` at
-pixel ``p`` — exactly the weight the rasterizer gives it (``render_values`` composites
-``Σ_i w_{i,p} v_i``). This is the per-primitive accumulation of contribution-weighted
-voting in the style of FlashSplat (ECCV 2024): a Gaussian is foreground when it
-contributes more to mask-positive than to mask-negative pixels.
-
-It reuses the rasterizer entirely: its preprocessing and depth sort
-(:func:`divas_kernels.rasterize.project_splats`), its tile binning
-(:mod:`divas_kernels.tile_binning`) and its tile walk (:mod:`divas_kernels.tile_walk`:
-the ray–splat evaluation and the compositing step, so early termination and ``α_min``
-skipping are the renderer's). Only the per-pair action differs (the walk's
-:class:`~divas_kernels.tile_walk.ContribSink`): instead of adding ``w · feat`` to the
-pixel, ``w`` is atomically added to the surfel's ``A₁`` or ``A₀``.
-
-Two walk forms, as in the rasterizer: ``pixel`` (one thread per pixel, the GPU form,
-``wp.atomic_add`` into ``[1, N]`` accumulators) and ``tile`` (one thread per tile, the
-CPU form). Warp's CPU ``atomic_add`` is a plain add and the CPU wrapper runs several
-sub-launches concurrently (:func:`divas_kernels._launch.launch_split`, ``interleave``: the
-sub-launch ``j`` gets ``base = j``), so on the CPU each sub-launch owns the row
-``base`` of ``[threads, N]`` accumulators; the rows are summed at the end.
-Results are float32 and, up to float rounding of the sums, independent of the form.
+with ``w_{i,p} = α_{i,p} T_{i,p}`` the rasterizer's own blending weight (contribution-weighted
+voting in the style of FlashSplat). It reuses the rasterizer's projection, binning and tile walk
+(:class:`~divas_kernels.tile_walk.ContribSink` adds ``w`` to ``A₁`` or ``A₀``). On the CPU each
+concurrent sub-launch owns one row of ``[threads, N]`` accumulators (Warp's CPU ``atomic_add``
+is a plain add); the rows are summed at the end. Details: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -242,9 +226,9 @@ def accumulate_contributions(
             surfel adds into one shared dump slot, and each tile's depth-ordered list is
             walked only up to its last target (a tile without one not at all). What a
             target's weight depends on — the surfels before it at its pixels, in the same
-            order — is walked as before, in the same tiles, accumulator rows and tile
+            order — is walked unchanged, in the same tiles, accumulator rows and tile
             order, so each target's sums are those of the pass without ``targets`` bit for
-            bit (issue 15: the completion's gather from a kept view binning).
+            bit (the completion's gather from a kept view binning).
     Returns:
         :class:`ContribOutput` on ``buf.device`` (``[len(targets)]`` with ``targets``).
     """

@@ -1,40 +1,16 @@
 """Warp kernels of the 2DGS voxel-to-surfel mapping (paper Sec. 3.6, eq:pass1 …
 eq:final-F; App. B "Voxel-to-Surfel Mapping: Implementation Details"; alg:vox2surfel).
 
-* :data:`pass1_kernel` — ``f¹_i = B^seg[m_i]``: the surfel's voxel (the Morton code of
-  the grid build, ``divas_kernels.occupancy.point_voxel_code``, resolved once to an active
-  index by the grid's hash table) is segmented.
-* :data:`pass2_kernel` — ``f²_i = f¹_i ∧ (a_i ≤ τ_a)`` (needle flag precomputed once
-  per scene) and the stream-compaction flag of the Pass-3 candidates.
-* :data:`coverage_kernel` — Pass 3, footprint coverage (eq:cov-atomics, eq:kappa):
-  per candidate surfel and per view ``s`` whose bit is set in the surfel's voxel
-  bitmask (the view gate of alg:vox2surfel (i)), the pixels of the tight 1σ box
-  ``[c_x ± e_x] × [c_y ± e_y]``, ``e_x = max |π_x(μ ± t_k) − c_x|`` over the four
-  projected 1σ tangent tips (alg:vox2surfel (ii)), are visited; a pixel is counted
-  when the pixel ray meets the surfel plane at tangent coordinates ``u² + v² ≤ 9``
-  (the rasterizer's ray–splat intersection, :class:`divas_kernels.splat.Splat` rows);
-  ``κ_s = mask_fp / max(total_fp, 1)``, ``κ = max_s κ_s``.
+* :data:`pass1_kernel` — ``f¹_i = B^seg[m_i]`` (the surfel's voxel is segmented);
+* :data:`pass2_kernel` — ``f²_i = f¹_i ∧ (a_i ≤ τ_a)`` and the Pass-3 compaction flag;
+* :data:`coverage_kernel` — Pass 3 (eq:cov-atomics, eq:kappa): per candidate and per view
+  whose bit is set in its voxel's bitmask, the pixels of the 1σ box whose ray meets the
+  surfel plane at ``u² + v² ≤ 9``; ``κ_s = mask_fp / max(total_fp, 1)``, ``κ = max_s κ_s``;
 * :data:`select_kernel` — ``f_i = f²_i ∧ (κ_i ≥ τ_κ)`` (eq:final-F).
 
-Execution layout. The paper's Pass 3 is a tile-sorted, tile-parallel gather (keys =
-tile id only, eq:keys-no-depth) with two atomic increments per accepted pixel. The
-counts are order-free integers, so any layout gives the same result; here the
-gather is **surfel-parallel**: one thread per candidate surfel loops over the views
-whose bit is set and over its own 1σ box, owning its counters (no atomics, no sort).
-On the CPU (Warp runs a CPU launch serially per thread) this is the efficient form:
-work ∝ visited pixels. On CUDA it is correct and simple; the tile sort is a GPU
-layout/load-balance choice that can replace it without changing any output.
-
-Exact early-outs (``early_out=1``; identical κ, checked by a test): a view is skipped
-once ``κ_i = 1`` (the max cannot grow); a box with no mask-positive pixel (summed-area
-table) gives ``κ_s = 0`` without a sweep; a box whose pixels are all positive gives
-``κ_s = 1`` as soon as one pixel passes the ellipse test. With ``early_out=0`` every
-box is swept and the raw counts are written (used by tests and ``view_counts``).
-
-Visibility rule (the rasterizer's): a surfel is scored in a view only when its whole
-acceptance disc (``max(3σ, box σ)``) lies beyond the near plane, so every scored
-surfel has a projected centre and an elliptic footprint and every accepted hit lies
-in front of the camera.
+Pass 3 is surfel-parallel, not the paper's tile-sorted gather: the counts are order-free
+integers, so the layout does not change the result. Exact early-outs (``early_out=1``) give
+identical κ. Layout, early-outs and the visibility rule: docs/design-notes.md.
 """
 
 from __future__ import annotations

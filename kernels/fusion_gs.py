@@ -5,41 +5,10 @@ eq:thin-tthin-gs).
 Per (voxel x, view i) the kernel writes the view's contribution to eq:compact-fusion:
 ``kind = 1`` thick vote (num m·w, den w), ``kind = 2`` thin vote (num t, den 1) when
 t ≥ τ_thin, else nothing. Accumulation is done by ``divas_kernels.fusion_accum``.
-
-Choices where the paper is silent (also listed in ``divas_engine.fusion.gs_fusion``):
-* nearest-pixel sampling; the ray of eq:planar-to-ray and of the spatial gate goes
-  through the *centre* of the projected pixel (the ray the depth buffers were
-  rendered along), so the spatial gate also measures the lateral offset;
-* depth gates (eq:asym-gate, eq:behind-gate, thin per-pixel gate) compare planar
-  x_d with planar buffers — they lie on the same pixel ray; the spatial gate and
-  the depth weight use ray depths (eq:planar-to-ray);
-* the layered/see-through/trusted predicates are pixel properties, evaluated for
-  every in-frame voxel (the behind gate needs them when m < 0.5 too);
-* a centre pixel without a surface (D_med < ε) cannot vote thick and does not
-  fail the behind gate (there is no surface to be behind);
-* the thin per-pixel asymmetric gate (eq:asym-gate) is one-sided on *layered*
-  pixels only — alg:gs-thin computes no see-through/trusted predicate and takes no
-  γ_ST or d_cam — so a far see-through background in the footprint is not depth
-  support and cannot dilute p_covered (eq:gs-coverage, "prevents … background …
-  from deflating the ratio");
-* a voxel with a corner at z ≤ ε (straddling the camera plane) skips the view;
-* eq:gs-depthweight's segment is ``[d_min, max(d_max, d_ref)]``: the tuple's depths
-  come from different primitives (blended in centre-depth order, each at its own
-  ray–plane hit), so on a surface covered by several overlapping surfels D_max can
-  land a hair *before* D_min or D_ref (≈ 20 % of target pixels on the synthetic
-  scenes, by ~10⁻³ h_v); the literal half-width ``max(½(d_max − d_min), ε)`` then
-  makes r̂ ≈ 10²–10⁴ and the vote's weight exp(−α₁ r̂²) underflows to 0 — an accepted
-  thick vote that counts nothing and, being exclusive, also blocks the thin path.
-  Ordered, t̂ ∈ [d_min, d_ref] stays inside the segment and w ∈ [e^{−α₁}, 1], the
-  paper's "maximal at the segment centre, decaying toward its edges" (NOTES: e⁻¹ at
-  the edge).
-
-Precision: per-voxel geometry (centre, projection, footprint corners, pixel ray,
-spatial gate, depth weight) is float64 — eq:gs-depthweight divides by the half-width
-of the surface segment, which for 2DGS is a tiny fraction of the depth, so float32
-would limit P to ~1e-5; the per-pixel thin sweep is float32. ``layered``
-(n > n̄ + σ_n) is evaluated exactly in integers from the int64 integral images, so
-it is identical on every device.
+Per-voxel geometry is float64 (eq:gs-depthweight divides by a half-width that is a tiny
+fraction of the depth); the per-pixel thin sweep is float32; ``layered`` is exact in integers.
+The choices where the paper is silent (pixel sampling, gates, the ordered depth-weight
+segment ``[d_min, max(d_max, d_ref)]``) are listed in docs/design-notes.md.
 """
 
 from __future__ import annotations

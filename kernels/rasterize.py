@@ -1,42 +1,17 @@
 """Tile-based 2DGS surfel rasterizer (Warp, CPU and CUDA).
 
-Pipeline per view (the 2DGS rasterizer structure, re-derived here):
+Per view: (1) ``preprocess`` — camera-space splat rows, projected centre, planar centre depth
+(the sort key), SH colour and a conservative exact pixel rectangle of the cutoff disc
+``u² + v² ≤ ρ_cut``, ``ρ_cut = 2 ln(255 · opacity)`` (where ``α`` falls to ``1/255``); a surfel
+is rendered only when its whole cutoff disc lies beyond the near plane; (2) stable depth sort of
+the visible surfels; (3) tile binning per band of tile rows (:mod:`divas_kernels.tile_binning`);
+(4) front-to-back blending in the ``pixel`` (GPU) or ``tile`` (CPU) walk form.
 
-1. ``preprocess``: per surfel, camera-space homogeneous splat rows, projected
-   centre, planar centre depth (the sort key), SH colour, and a *conservative
-   exact* pixel rectangle: the screen bounding box of the projected cutoff disc
-   ``u² + v² ≤ ρ_cut`` (a conic; closed form below) united with the low-pass disc.
-   ``ρ_cut = 2 ln(255 · opacity)`` is where ``opacity · G`` falls to ``α_min = 1/255``
-   (``≤ 3.33``σ), so no pixel with ``α ≥ 1/255`` lies outside the rectangle — the
-   fixed 3σ box of 2DGS would drop the 3σ–3.33σ rim the definition keeps.
-   A surfel is rendered only when its whole cutoff disc lies beyond the near
-   plane (2DGS culls by centre depth; a straddling disc would need the whole
-   screen, its image being unbounded). So every rendered splat has a
-   projected centre and an elliptic footprint.
-2. depth sort of the surfels left after culling (compacted in index order, then a stable
-   float radix sort: ties keep index order), their splats gathered in that order.
-3. per band of tile rows: tile counts in depth order, exclusive scan, duplication
-   into (tile, surfel) pairs, stable radix sort on the tile bits, tile ranges.
-   Bands are split so the duplicate count stays under ``max_duplicates``.
-4. blending, front to back per pixel (``divas_kernels.composite`` rules), in one of two
-   equivalent Warp kernels that call the same per-pair function:
-   ``pixel`` (one thread per pixel, loops its tile's list — the GPU form) and
-   ``tile`` (one thread per tile, walks each surfel's exact row spans ∩ tile —
-   the CPU form: work ∝ covered pixels instead of list length × 256).
-
-Ray–splat intersection (NOTES): for pixel ray ``r = ((x−c_x)/f_x, (y−c_y)/f_y, 1)``
-and the surfel plane ``X(u,v) = μ + u t_u + v t_v`` in camera space (``t_u, t_v``
-scaled by ``s_1, s_2``), with rows ``m_x = (t_u.x, t_v.x, μ.x)`` (likewise ``m_y, m_z``)
-the hit satisfies ``(u, v, 1) ∝ p = (r_x m_z − m_x) × (r_y m_z − m_y)``, which is
-linear in ``r``: ``p = Q r`` (:class:`divas_kernels.splat.Splat`, evaluated from the offset
-to the projected centre's ray). So ``ρ_3 = u² + v²`` with ``u = p_x/p_z, v = p_y/p_z``
-and the planar depth is ``z = m_z·(u, v, 1) = det[m]/p_z``. Low-pass: ``ρ_2 = d² / σ²`` with
-``d`` the pixel
-distance to the projected centre and ``σ = √2/2`` px. ``ρ = min(ρ_3, ρ_2)`` (the max
-of the two Gaussians, as 2DGS does: it takes over exactly when the ray is near
-edge-on or the surfel is sub-pixel); the depth is the intersection depth when
-``ρ_3 ≤ ρ_2``, else the centre depth. ``α = min(α_max, opacity · exp(−ρ/2))``;
-``α < α_min`` or depth < near → skipped.
+Ray–splat intersection: with rows ``m_x, m_y, m_z`` of the camera-space surfel plane, the hit
+of pixel ray ``r`` is ``(u, v, 1) ∝ p = Q r``; ``ρ_3 = u² + v²``, planar depth
+``z = det[m]/p_z``; low-pass ``ρ_2 = d² / σ²`` with ``σ = √2/2`` px; ``ρ = min(ρ_3, ρ_2)``;
+``α = min(α_max, opacity · exp(−ρ/2))``, skipped when ``α < α_min`` or depth < near.
+The derivation in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -106,8 +81,8 @@ class RasterSettings:
         blend: ``"auto"`` (``tile`` on CPU, ``pixel`` on CUDA), ``"tile"`` or ``"pixel"``.
         cull_pass_min: from this many projected surfels on, culling is a pass of its own
             (sort keys only), then a second pass stores each visible surfel's splat at its
-            depth rank: no splat buffer of the scene's size (92 bytes a surfel; issue 20:
-            the render peak at 3M); the same render, at one more projection.
+            depth rank: no splat buffer of the scene's size (92 bytes a surfel: the
+            render's peak memory); the same render, at one more projection.
         threads: CPU launch threads (None: all usable cores).
         profile: synchronise after each stage and record stage seconds in ``stats``.
     """
@@ -249,7 +224,7 @@ def preprocess_kernel(
     if sp.x0 > sp.x1 or sp.y0 > sp.y1:
         # culled: left out of the depth order and never read again (binning, blending
         # and every other pass read only the visible splats), so neither its splat nor
-        # its SH colour is written (issue 20: most surfels of a zoomed view)
+        # its SH colour is written (most surfels of a zoomed view)
         if use_dest == 0:
             sort_keys[j] = BIG
         return
@@ -342,8 +317,8 @@ def project_splats(
     ``colors`` ``[N, 3 + C]``): copied after each visible surfel's colour. ``dest``
     (``[K]`` int32, the depth rank of every visible item): the ``n_dest`` visible splats
     are written at their ranks, in a ``[n_dest]`` buffer, and no keys (``keys`` is a
-    placeholder): the items are read in index order (issue 20: reading them in depth
-    order, scattered over the scene's arrays, cost 3× the projection at 3M).
+    placeholder): the items are read in index order (reading them in depth order,
+    scattered over the scene's arrays, costs more than the projection).
 
     Returns ``(splats [K], keys [K])`` (``K`` = N, or the rows): the depth keys, +inf
     (``BIG``) for culled surfels, whose ``splats`` and ``colors`` entries are left unset
@@ -426,15 +401,15 @@ def rasterize_surfels(
         window: ``(x0, y0, x1, y1)``, half-open pixels: render only this part of the
             image — surfels whose bounds miss it are culled, bounds are clipped to it, so
             its pixels equal the whole image's bit for bit at the cost of the window
-            (issue 20: the centroid-view probes read a central patch). Pixels outside it
+            (the centroid-view probes read a central patch). Pixels outside it
             are not rendered (partial or empty): read only the window. None: the image.
         rows: ascending surfel indices, a superset of those the view keeps: only they are
             projected (the others would be culled; the survivors keep their index order
-            for the stable depth sort): the same render at the rows' cost (issue 20).
+            for the stable depth sort): the same render at the rows' cost.
         extra: with an RGB render, ``[N]`` or ``[N, C]`` per-surfel values composited in
             the same blend as channels ``3 … 3 + C − 1`` of ``feat`` (no background): each
             channel bit for bit what ``values=extra`` composites, without a second blend
-            (issue 20: the oracle's ground truth at the view the session renders). A
+            (the oracle's ground truth at the view the session renders). A
             ``binning`` is not reused then, nor are the colours kept with a new one.
         keep_colours: False: a kept binning holds no SH colours (an RGB render of its
             camera then projects afresh); their array may then come from an active

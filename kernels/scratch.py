@@ -1,30 +1,14 @@
-"""Host memory reused by the transient arrays of repeated CPU renders (issue 20).
+"""Host memory reused by the transient arrays of repeated CPU renders.
 
-Every CPU render allocates its working arrays afresh (splats, sort keys, tile pairs …):
-megabytes that the C heap maps anew each time — in Blender's fixed-threshold heap every
-allocation over 4 MB — and whose pages fault in on first touch (≈ 2 µs a page here:
-graph3d's mask render at 3M splats touched 40–45k fresh pages a call). Inside
-``with pool.active():`` the wrappers that call :func:`scratch_empty` get their arrays
-from a :class:`ScratchPool` instead: the ``k``-th allocation of the scope reuses the
-``k``-th buffer of the previous scopes (grown when too small), so a repeated render of
-similar size touches pages it already owns. The values are the same: an array from
-:func:`scratch_empty` is as uninitialised as ``wp.empty``'s and every wrapper writes
-before it reads.
-
-Only arrays that do not outlive the scope may come from a pool (a returned image never
-does): a scope that keeps nothing (``everything=True``: a value render) pools every
-:func:`scratch_empty`; one whose render keeps its binning (``everything=False``) pools
-only the arrays not marked ``kept`` (sort keys, scans, ranks, tile keys, pixel states),
-while the splats, ids and tile ranges a binning keeps are allocated afresh. The caller
-opts in per render; nothing else changes. A pool in use in another thread's scope is
-not shared: that scope allocates afresh.
-
-A render that keeps its binning may also take over the memory of the binning it
-replaces (:func:`recycling`): the dropped binning's splat array (92 bytes per visible
-splat: 168 MB, 41k fresh pages, for a 3M view) becomes the new binning's, so the pages
-the old view touched are written again instead of unmapped and faulted in anew. The
-caller hands over only arrays nothing else holds (the renderer checks the reference
-counts); every wrapper writes each row of its kept splat array before reading it.
+Every CPU render allocates working arrays (splats, sort keys, tile pairs …) whose pages fault
+in on first touch; in Blender's heap every allocation over a fixed threshold is mapped anew.
+Inside ``with pool.active():`` :func:`scratch_empty` hands out the ``k``-th buffer of the
+previous scopes (grown when too small), so a repeated render of similar size touches pages it
+already owns; the values are the same (every wrapper writes before it reads). Only arrays that
+do not outlive the scope are pooled (``everything=False`` leaves out those a kept binning holds,
+marked ``kept``); a pool in use by another thread is not shared. :func:`recycling` lets a
+render that keeps its binning take over the splat array of the binning it replaces, when
+nothing else holds it. Details: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -67,7 +67,7 @@ def upload_surfels(
 
     def put(a: np.ndarray, dtype) -> wp.array:
         # on the CPU the Warp array *is* the float32 NumPy array (no copy: the scene's
-        # means and SH are held once, issue 20); kernels only read these buffers
+        # means and SH are held once); kernels only read these buffers
         return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=dtype, device=dev,
                         copy=not dev.is_cpu)  # fmt: skip
 

@@ -146,8 +146,8 @@ def sort_visible(keys: wp.array, n: int, dev, threads: int) -> tuple[wp.array, i
     """``(order, n_vis)``: the surfels whose key is not culled (``< BIG``), stably sorted by
     key (ties: index order). They are compacted in index order first and only they are
     radix-sorted — the prefix a stable sort of all ``n`` keys would give (culled keys are
-    ``BIG``, after every depth), at the cost of the visible ones (issue 20: a probe sees a
-    few percent of a 3M scene; the radix sort runs on one CPU thread)."""
+    ``BIG``, after every depth), at the cost of the visible ones (a probe sees a few
+    percent of a large scene; the radix sort runs on one CPU thread)."""
     flags = scratch_empty(max(n, 1), wp.int32, dev)
     incl = scratch_empty(max(n, 1), wp.int32, dev)
     n_vis = 0
@@ -216,8 +216,8 @@ def visible_splats(
     """``(splats [n_vis], ids [n_vis])``: the visible prefix of the depth order ``order``
     gathered by depth rank ``j`` (``ids[j]`` its surfel index: ``rows[order[j]]`` when the
     splats are those of the surfels ``rows``). Binning and walks read these, so a kept
-    view holds only its visible splats (issue 20: a third of a 3M scene's 92-byte splats
-    in a centroid view) and reads them in order."""
+    view holds only its visible splats (92 bytes each; a centroid view sees a fraction
+    of the scene) and reads them in order."""
     out = scratch_empty(max(n_vis, 1), Splat, dev, kept=True)
     ids = scratch_empty(max(n_vis, 1), wp.int32, dev, kept=True)
     if n_vis > 0:
@@ -335,8 +335,8 @@ def tile_bands(
 @dataclass(eq=False)
 class ViewBinning:
     """Projection, culling, depth order and tile binning of one view, reusable by every
-    later pass over the same camera, settings and scene (issue 20: the RGB/depth render
-    and the value renders of a camera share them; the results are bit-identical, the
+    later pass over the same camera, settings and scene (the RGB/depth render and the
+    value renders of a camera share them; the results are bit-identical, the
     same kernels running on the same inputs).
 
     Attributes:

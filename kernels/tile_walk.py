@@ -2,28 +2,15 @@
 (tile, surfel) lists of ``divas_kernels.tile_binning``: the blend (``divas_kernels.rasterize``)
 and the per-surfel contribution pass (``divas_kernels.contrib``).
 
-For every pixel, the surfels of its tile are visited in the sorted (centre depth,
-index) order; :func:`divas_kernels.splat.splat_alpha` then
-:func:`divas_kernels.composite.blend_step` give the pair's weight ``w = α T``, and a
-*sink* says what the pass does with it:
+For every pixel the surfels of its tile are visited in (centre depth, index) order;
+:func:`divas_kernels.splat.splat_alpha` then :func:`divas_kernels.composite.blend_step` give the
+pair's weight ``w = α T`` and a *sink* says what the pass does with it: :class:`BlendSink` adds
+``w · feat`` to the pixel, :class:`ContribSink` adds ``w`` to surfel ``i``'s A₁ or A₀ row.
 
-* :class:`BlendSink` — adds ``w · feat[i]`` (``feat[j]``, the depth rank, when the
-  features were stored in depth order: ``by_rank``) to the pixel's features and, at the
-  end, writes the depth tuple (:func:`divas_kernels.composite.finish_pixel`);
-* :class:`ContribSink` — adds ``w`` to surfel ``i``'s A₁ (mask-positive pixel) or A₀
-  accumulator, row ``base`` of a ``[rows, N]`` array (one row per CPU sub-launch).
-
-Two walk forms, generic over the sink (one Warp overload per sink, same float
-operations in the same order, so their outputs are bit-identical):
-
-* :data:`walk_pixel_kernel` — one thread per pixel, loops its tile's list (GPU form);
-* :data:`walk_tile_kernel` — one thread per tile; for each surfel of the tile it walks
-  only the surfel's row spans (:func:`divas_kernels.splat.row_span`) ∩ tile and keeps the pixel
-  states in a scratch array (CPU form: Warp runs CPU launches serially per thread, so
-  the work should scale with covered pixels, not with list length × tile area).
-
-A new pass over the same lists adds a sink struct and its ``sink_pair`` /
-``sink_finish`` overloads here, plus one :func:`wp.overload` per walk form.
+Two walk forms, generic over the sink and bit-identical: :data:`walk_pixel_kernel` (one thread
+per pixel, GPU) and :data:`walk_tile_kernel` (one thread per tile walking each surfel's row
+spans ∩ tile, CPU: work scales with covered pixels). A new pass adds a sink struct, its
+``sink_pair`` / ``sink_finish`` overloads and one :func:`wp.overload` per walk form.
 """
 
 from __future__ import annotations
@@ -82,8 +69,8 @@ class ContribSink:
 
 @wp.func
 def sink_pair(sink: BlendSink, base: int, i: int, j: int, p: int, w: float):
-    # the features in depth order are read in the walk's order (issue 20: a 3M view's
-    # blend read them scattered by surfel index: 8 % of its time)
+    # the features in depth order are read in the walk's order (read by surfel index
+    # they would be scattered over the whole array)
     row = i
     if sink.by_rank != 0:
         row = j

@@ -1,4 +1,4 @@
-"""Independent checks of an anchor's framing from its render (tests of issue 17).
+"""Independent checks of an anchor's framing from its render (camera-free anchors).
 
 The framing code works on a sample of Gaussian centres; these checks look at what the
 user sees instead: the rendered accumulated opacity α of the view.

@@ -1,4 +1,4 @@
-"""Seeded fuzzing of every input loader (issue 14 item 6), shared by the CI test
+"""Seeded fuzzing of every input loader, shared by the CI test
 ``tests/test_fuzz_loaders.py`` and the large runner ``benchmarks/fuzz_loaders.py``.
 
 Each *family* has small valid seed files (built here from the engine's writers or cut

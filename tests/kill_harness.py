@@ -1,4 +1,4 @@
-"""``kill -9`` trials of ``divas segment --session`` (issue 14 item 6), shared by
+"""``kill -9`` trials of ``divas segment --session``, shared by
 ``tests/test_session_kill.py`` and ``benchmarks/bench_kill_trials.py``.
 
 Each trial forks a child that runs ``divas segment … --session S`` (``cli.main``, the
@@ -76,7 +76,7 @@ def make_case(folder: Path, *, size: int = 4000, views_per_click: int = 1) -> Ki
 def kill_at_manifest_rename(k: int, manifest_name: str = "session.json"):
     """A child ``prepare`` hook: SIGKILL the child at its ``k``-th rename onto the session
     manifest, just before it happens — the window between the arrays file landing and
-    the manifest landing (the torn save of issue 14)."""
+    the manifest landing (where a non-atomic save would tear)."""
 
     def prepare() -> None:
         real = os.replace

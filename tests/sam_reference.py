@@ -1,5 +1,5 @@
 """Real SAM architectures with random weights, and segment-anything's own predictor as
-the reference the DivAS segmenters are compared with (issue 21).
+the reference the DivAS segmenters are compared with.
 
 Nothing is downloaded: the models are built from the family's package
 (``segment-anything``'s ``ImageEncoderViT``, ``PromptEncoder``, ``MaskDecoder``) and

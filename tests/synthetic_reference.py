@@ -1,28 +1,18 @@
 """Committed reference of the 2DGS synthetic generator's files, compared with tolerances.
 
 ``decode(folder)`` turns the files ``generate_scene(name, folder, **PARAMS)`` writes into
-arrays, read with ``plyfile`` / ``numpy`` / ``json`` (not the engine's readers):
+arrays, read with ``plyfile`` / ``numpy`` / ``json`` (not the engine's readers): ``ply/<column>``
+(the first :data:`ROWS` rows, a random third of the scene) and ``ply_stats/<column>``
+(``[Σx, Σ|x|, Σx², min, max]``), the label, surface-id and grid arrays whole, and
+``json/<file>`` (compared value by value). ``compare(ref, got)`` returns the differences beyond
+the tolerances; ``python -m tests.synthetic_reference`` rewrites
+``tests/data/synthetic_reference/<scene>.npz``.
 
-* ``ply/<column>``: the first :data:`ROWS` PLY rows of every column (rows are shuffled,
-  so they are a random third of the scene: every surface, needles and floaters), and
-  ``ply_stats/<column>``: ``[Σx, Σ|x|, Σx², min, max]`` over all rows in float64;
-* ``labels``, ``surface_ids``, ``grid/density``, ``grid/rgb``, ``grid/aabb``,
-  ``grid_labels``: whole;
-* ``json/<file>``: the bytes of each JSON file (compared value by value).
-
-``compare(ref, got)`` returns the differences beyond the tolerances below; ``python -m
-tests.synthetic_reference`` rewrites ``tests/data/synthetic_reference/<scene>.npz``.
-
-Tolerances. The generator's last bits depend on the CPU: OpenBLAS picks its ``ddot`` /
-``dgemm`` kernels per CPU (``np.linalg.norm``, ``@`` in the layout and the surface
-frames) and numpy its SIMD ``exp`` (``benchmarks/stage_hashes.py compare``), so float64
-values differ by a few ulps and float32 ones by at most one. Floats are compared with
-``rtol`` :data:`RTOL` plus :data:`ATOL` × the array's largest magnitude. Integers and
-booleans that come out of float comparisons (a grid cell's owner where two shells tie,
-a camera that sees a click at the border of its image) could flip where a value sits
-within a few ulps of its threshold: up to :data:`FLIP_FRACTION` of such elements (at
-least one) may differ — ulp-level ties are rare (none seen across the emulated CPUs),
-while any change to the generator's code moves far more.
+Tolerances: OpenBLAS picks its ``ddot`` / ``dgemm`` kernels and NumPy its SIMD ``exp`` per CPU,
+so float64 values differ by a few ulps and float32 ones by at most one. Floats are compared with
+``rtol`` :data:`RTOL` plus :data:`ATOL` × the array's largest magnitude; up to
+:data:`FLIP_FRACTION` (at least one) of the integers and booleans that come out of float
+comparisons may flip at ulp-level ties, while any change to the generator moves far more.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 20: a CPU render that replaces a kept view binning writes its splats into the
+"""A CPU render that replaces a kept view binning writes its splats into the
 dropped binning's array (no fresh pages to fault in) — only when nothing else holds that
 binning or its array — and renders the same bits as a renderer that never recycles.
 Checked in one pass and with the culling pass first, on 2DGS and 3DGS-derived scenes,

@@ -1,4 +1,4 @@
-"""One BLAS thread while a session is open (issue 20, :mod:`divas_engine.blas_threads`): the
+"""One BLAS thread while a session is open (:mod:`divas_engine.blas_threads`): the
 count is set by the first open session and restored by the last close, and the engine's
 results — the centroid view, its buffers, graph3d's cut and masks — are the same bits with
 one BLAS thread and with two (the check can fail: a threaded ``ddot`` rounds by thread

@@ -1,4 +1,4 @@
-"""The error breakdown by source of a completed 3DGS selection (issue 15 diagnostics,
+"""The error breakdown by source of a completed 3DGS selection (diagnostics,
 :mod:`divas_engine.evaluation.breakdown`): hand-made cases with the sums written out, and
 a scripted 3DGS session whose parts must rebuild its selection."""
 

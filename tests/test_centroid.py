@@ -219,8 +219,8 @@ def test_gs_click_on_empty_space(occluded):
 def test_centroid_camera_clips_a_faint_floater_next_to_it(occluded):
     """A centroid view carries its own near clip ``near_fraction · d_cam`` (probes too),
     so a faint floater (α = 0.06 ≥ τ_sig) 2 % of d_cam in front of it — invisible to
-    eq:occfrac, which reads D_med — no longer sets D_min over the image (the chain that
-    made eq:behind-gate drop voxels behind see-through pixels). ``near_fraction = 0``
+    eq:occfrac, which reads D_med — does not set D_min over the image (that would make
+    eq:behind-gate drop voxels behind see-through pixels). ``near_fraction = 0``
     restores the renderer's near alone."""
     from divas_engine.geometry import rotmat_to_quat
     from divas_engine.render.surfel_renderer import SurfelRenderer

@@ -1,4 +1,4 @@
-"""The first centroid-view probe at full resolution (ViewConfig.probe_full_first, issue 20):
+"""The first centroid-view probe at full resolution (ViewConfig.probe_full_first):
 the same views as the paper's low-resolution probes, the view's render made once."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 14 item 3/6: the CLI matrix — bad invocations of every sub-command (hostile
+"""The CLI matrix — bad invocations of every sub-command (hostile
 files, a FIFO as the scene, out-of-range options, unwritable outputs) end with a nonzero
 exit and one message, never a Python traceback; an internal error prints one line with
 "please report" and the path of the saved traceback. Most run in-process through

@@ -1,4 +1,4 @@
-"""Completion of volumetric (3DGS-derived) scenes (issue 15): on an analytic solid ball
+"""Completion of volumetric (3DGS-derived) scenes: on an analytic solid ball
 whose interior no view sees, the interior is filled and a floater in front stays out;
 incremental adds and undos equal the batch; the session runs it on 3DGS only."""
 

@@ -1,5 +1,5 @@
-"""The voxel's claim tested at the Gaussian's own centre (``CompletionConfig.centre_evidence``,
-issue 15, stand15): a Gaussian that joins only because its centre voxel is segmented or
+"""The voxel's claim tested at the Gaussian's own centre (``CompletionConfig.centre_evidence``):
+a Gaussian that joins only because its centre voxel is segmented or
 filled must itself lie on / within the solid depth behind a mask-positive surface in some
 view and be inconsistent in none. Hand-set counters on the ball of ``test_completion``;
 the plain reference there states the rule too."""

@@ -1,4 +1,4 @@
-"""The 3DGS completion's sparse gather (issue 15): a view's records are gathered only for
+"""The 3DGS completion's sparse gather: a view's records are gathered only for
 the Gaussians of a cover of the selection's neighbourhood, from the surfels that can blend
 before them. References: the full rasterizer pass's records (``sparse_gather=False``) —
 bit-equal on every covered Gaussian — and the completion decided on full records: the

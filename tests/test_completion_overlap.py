@@ -1,9 +1,9 @@
-"""A view's records made while its sparse gather runs in the background (issue 15,
-walk15c): the edge distance, the voxel evidence of the cover and the Gaussians' geometry
+"""A view's records made while its sparse gather runs in the background: the edge
+distance, the voxel evidence of the cover and the Gaussians' geometry
 are made during the walk. Reference: the records made one step after the other — the
 synchronous gather (:func:`sparse_contributions`), then :func:`gaussian_evidence` of the
-Gaussians with a weight and :func:`voxel_evidence` of the final cover's voxels (the path
-before this change). Bit-equal, with a kept binning, with the sub-scene path and when the
+Gaussians with a weight and :func:`voxel_evidence` of the final cover's voxels (the
+sequential path). Bit-equal, with a kept binning, with the sub-scene path and when the
 gather falls back to the full pass (then the voxel part covers every voxel)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Helpers of the completion's per-view records (issue 15): the edge distance computed on
+"""Helpers of the completion's per-view records: the edge distance computed on
 the mask's box equals the whole image's, point projection does not depend on which other
 points are projected, and a record widened by a disjoint part is the union."""
 

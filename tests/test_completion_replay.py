@@ -1,6 +1,6 @@
 """A 3DGS session with the completion, saved and replayed: the replay reads the
 segmenter's raw masks from the file (the completion's evidence), so its labels equal
-the live session's exactly — after an undo and a re-accept too (issue 15)."""
+the live session's exactly — after an undo and a re-accept too."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The completion's contribution walk on the CPU (issue 15, walk15c): the tile walk of
+"""The completion's contribution walk on the CPU: the tile walk of
 ``accumulate_contributions`` that keeps per pixel only the transmittance (not the depth
 tuple's state) and looks the targets' slots up in a kept ``[N]`` table. Reference: the
 generic tile walk of :mod:`divas_kernels.tile_walk` (``ContribSink``; the path before this

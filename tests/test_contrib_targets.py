@@ -1,4 +1,4 @@
-"""``accumulate_contributions(targets=…)`` (issue 15): the sums of a few surfels from a walk
+"""``accumulate_contributions(targets=…)``: the sums of a few surfels from a walk
 that stops, in each tile, right after the last of them — from a kept view binning or a
 fresh projection of the scene or of a part of it (``rows``). Reference: the same pass
 without ``targets`` over the whole scene; each target's A₁ / A₀ must be equal bit for bit,

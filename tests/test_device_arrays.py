@@ -1,4 +1,4 @@
-"""The kernel boundary's device-array helpers against NumPy (issue 13 item 3): growable
+"""The kernel boundary's device-array helpers against NumPy: growable
 append buffers (the mapping's mask cache) keep every appended value at its offset."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``divas eval --kind 3dgs``: the suite on the trained-3DGS variants (issue 15) — the
+"""``divas eval --kind 3dgs``: the suite on the trained-3DGS variants — the
 completion's row, the paper's selection before it, both peers and the truth as the
 metrics' ceiling, on one CI-sized scene."""
 

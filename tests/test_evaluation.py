@@ -297,7 +297,7 @@ def test_centre_vote_hand_case():
     )
     assert not tie.selected[0]
     # view 1 with its own near clip at 4.5: s0, s1 (z = 4) and the wall (z = 3) are cut
-    # and cast no vote there; the wall no longer hides the z = 5 surfel, which votes +
+    # and cast no vote there; the wall does not hide the z = 5 surfel, which votes +
     clipped = centre_vote(
         scene,
         [MaskView(cam.with_near(4.5), masks[0].mask)] + masks[1:],

@@ -1,4 +1,4 @@
-"""The metrics users feel (issue 15): weighted IoU, PSNR, alpha fidelity and the
+"""The metrics users feel: weighted IoU, PSNR, alpha fidelity and the
 extracted-object PSNR on hand-computed cases."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 5 item 9: on the synthetic ``ribs`` scene, oracle masks from a few centroid
+"""On the synthetic ``ribs`` scene, oracle masks from a few centroid
 views fuse into a V_seg that covers the ribs, and the thin path (alg:gs-thin) is what
 recovers the sub-voxel ribs (rib radius 1.2 h_v). End to end through the real pieces:
 synthetic scene → occupancy → surfel renderer → 2DGS centroid views → SAM-like oracle

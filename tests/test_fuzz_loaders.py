@@ -1,4 +1,4 @@
-"""Issue 14 item 6: a seeded fuzz run per loader family in CI — mutated copies of small
+"""A seeded fuzz run per loader family in CI — mutated copies of small
 valid files (bit flips, truncation, header edits, numeric extremes, JSON structure
 edits) either load sanely or raise DivasInputError; nothing crashes, hangs (20 s per
 case) or blows the memory limit (1.5 GiB above the child's size). The big run is

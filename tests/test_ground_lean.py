@@ -1,4 +1,4 @@
-"""Issue 20 (memory at 3M splats): the ground search converts only the rows it uses to
+"""The ground search converts only the rows it uses to
 float64 (no ``[N,3]`` float64 copies of the scene's centres); the planes are the same as
 converting everything first. The reference here is the earlier code's first step — all
 rows in float64, the in-range rows, the seeded sample — fed to the search, which then

@@ -1,4 +1,4 @@
-"""Issue 14 items 3-5: each malformed-input class the fuzzing found, built by hand, ends
+"""Each malformed-input class the fuzzing found, built by hand, ends
 in one DivasInputError naming the file (or is dropped and counted), within bounded
 memory; FIFOs are refused before they are opened."""
 

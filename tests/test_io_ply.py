@@ -288,8 +288,8 @@ def test_density_grid_load_export_and_errors(tmp_path):
     g = load_scene(_grid(tmp_path))
     assert isinstance(g, DensityGrid) and g.shape_xyz == (6, 5, 4)
     assert np.allclose(g.voxel_size, 1.0)
-    # no per-cell row index is held for a grid (issue 14: bookkeeping must not grow with
-    # the grid); the rows are every cell in order, made on demand
+    # no per-cell row index is held for a grid (bookkeeping must not grow with the
+    # grid); the rows are every cell in order, made on demand
     assert g.source.kept is None and g.source.dropped == 0
     np.testing.assert_array_equal(g.source.kept_rows, np.arange(g.density.size))
     sel = np.zeros(g.density.shape, bool)

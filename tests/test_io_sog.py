@@ -513,7 +513,7 @@ def test_failed_export_leaves_previous_output(tmp_path, monkeypatch, name):
             return real(self, data)
 
         monkeypatch.setattr(Path, "write_bytes", broken)
-    # issue 14: a disk error is one DivasInputError naming the output (was a bare OSError)
+    # a disk error is one DivasInputError naming the output, not a bare OSError
     with pytest.raises(DivasInputError, match="disk full"):
         export_selection(scene, ~sel, tmp_path / name)
     monkeypatch.undo()

@@ -1,4 +1,4 @@
-"""The kernel boundary (issue 13 item 3): the engine reaches Warp only through the
+"""The kernel boundary: the engine reaches Warp only through the
 wrappers of ``divas_kernels.__all__``."""
 
 from __future__ import annotations

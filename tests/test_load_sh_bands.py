@@ -1,5 +1,5 @@
 """``load_scene(..., max_sh_degree=d)``: the scene keeps the SH bands up to ``d`` and
-everything else exactly as a full load (``divas info`` loads the DC only, issue 20)."""
+everything else exactly as a full load (``divas info`` loads the DC only)."""
 
 from __future__ import annotations
 

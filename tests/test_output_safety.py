@@ -1,4 +1,4 @@
-"""Outputs never destroy the user's data (issue 14 items 1 and 6).
+"""Outputs never destroy the user's data.
 
 * :mod:`divas_engine.output_paths`: the write is temp + fsync + ``os.replace`` with the
   umask's permissions; an injected ``ENOSPC`` / ``EROFS`` at the write, the fsync or the
@@ -334,7 +334,7 @@ def test_session_save_removes_dead_writers_temporaries(tmp_path):
 
 
 def test_legacy_session_layout_loads_and_is_migrated(tmp_path):
-    """A session saved before issue 14 (arrays in ``<path>.npz``) loads; the next save
+    """A session in the legacy layout (arrays in ``<path>.npz``) loads; the next save
     writes the content-addressed file and removes the legacy one and its temporaries."""
     import hashlib
     import io

@@ -1,4 +1,4 @@
-"""Issue 18 item 4 / issue 20: the faster Gaussian-PLY reader (one gather per output from
+"""The faster Gaussian-PLY reader (one gather per output from
 a float32 view of each chunk, SH straight into its rows, 3DGS flattening on entry
 arrays) gives bit-identical scenes to the reader it replaced.
 

@@ -1,4 +1,4 @@
-"""Issue 6 item 4: the headless prompts file (NOTES "Headless prompts file", version 1).
+"""The headless prompts file (NOTES "Headless prompts file", version 1).
 Every malformed entry raises DivasInputError naming the entry."""
 
 from __future__ import annotations

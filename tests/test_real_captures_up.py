@@ -1,4 +1,4 @@
-"""Camera-free up and anchors on the shared real captures (issue 17).
+"""Camera-free up and anchors on the shared real captures.
 
 True ups, determined by eye on renders (tests/data/targets/<capture>/targets.json,
 ``true_up_note`` says how): biker (compressed PLY and SPZ) and guitar −y, the three

@@ -1,4 +1,4 @@
-"""Ground truth made by rule on the shared real captures (issue 15): the committed label
+"""Ground truth made by rule on the shared real captures: the committed label
 files are their rules applied to the committed captures, with the recorded counts and
 SHA-256; the oracle anchors' clicks land on their targets; the test views are above the
 ground and show the target.

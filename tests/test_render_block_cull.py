@@ -1,4 +1,4 @@
-"""Issue 20: a render projects only the surfels of the scene blocks that can reach its
+"""A render projects only the surfels of the scene blocks that can reach its
 pixel window (:meth:`SurfelBlocks.in_window`) — every channel, the kept binning's
 surfel order, the value renders and the centroid views equal a render that projects
 every surfel, bit for bit."""

@@ -1,4 +1,4 @@
-"""Issue 20: an RGB render keeps its per-surfel colours (and the extra value channels
+"""An RGB render keeps its per-surfel colours (and the extra value channels
 blended with them) in depth order — row ``j`` is the colour of the ``j``-th visible
 splat, surfel ``ids[j]`` — so the blend reads them in the order it walks the splats.
 Checked against an independent NumPy evaluation of the SH colours, in one pass and with

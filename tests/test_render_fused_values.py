@@ -1,4 +1,4 @@
-"""Issue 20: per-surfel values known before a view is rendered (the oracle's ground
+"""Per-surfel values known before a view is rendered (the oracle's ground
 truth) are composited in the view's own RGB blend, as extra channels of the same
 per-pixel loop; the later value render of that camera is read back, not blended again,
 and equals a separate value render bit for bit — on 2DGS and 3DGS-derived scenes, with

@@ -1,4 +1,4 @@
-"""Issue 20: work shared or skipped for speed gives bit-identical results — a value
+"""Work shared or skipped for speed gives bit-identical results — a value
 render reusing the RGB render's projection and tile binning, the depth-only probe
 render, the probe rendered over its central patch only, the brute-force eq:neigh
 neighbourhood, and the lazily rendered accept overlays."""
@@ -234,7 +234,7 @@ def test_accept_releases_a_binning_the_budget_cannot_keep_beside_another(tmp_pat
 
 def test_fusion_kernel_split_over_threads_is_bit_identical(tmp_path):
     """The per-voxel fusion kernel and the hash queries run as several CPU sub-launches
-    (issue 20: both cores); the contributions equal a single launch's bit for bit."""
+    (all cores); the contributions equal a single launch's bit for bit."""
     import divas_kernels as dk
     from divas_engine.fusion import FusionView, GridConfig, GsFusion, build_occupancy
 

@@ -1,5 +1,5 @@
 """The sparse value render's working arrays come from buffers kept across calls
-(:mod:`divas_kernels.scratch`, issue 20: no fresh pages to fault in per mask render):
+(:mod:`divas_kernels.scratch`: no fresh pages to fault in per mask render):
 the images are the dense render's bit for bit, call after call, as the row sets grow and
 shrink; a repeated call allocates nothing new; nothing that outlives a call (a kept
 binning) may come from a pool."""

@@ -1,4 +1,4 @@
-"""Issue 20: on the CPU the surfel renderer reads the scene's own float32 means and SH
+"""On the CPU the surfel renderer reads the scene's own float32 means and SH
 (no second copy of the scene in Warp arrays); what it renders is unchanged (the render
 tests compare the images against the NumPy reference)."""
 

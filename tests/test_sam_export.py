@@ -1,4 +1,4 @@
-"""Issue 21 item 2: ``divas sam-export`` and the checkpoint loading behind it.
+"""``divas sam-export`` and the checkpoint loading behind it.
 
 CI runs these with the ``torch`` extra (``make test-sam``). The conversion is run on
 checkpoints saved in the official format (``torch.save(sam.state_dict())``, as Meta's

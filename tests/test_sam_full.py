@@ -1,4 +1,4 @@
-"""Issue 21: the full-size checks, opt-in (``make test-sam-full``, ``DIVAS_TEST_FULL_SAM=1``).
+"""The full-size checks, opt-in (``make test-sam-full``, ``DIVAS_TEST_FULL_SAM=1``).
 
 * ViT-B at its real size (random weights, saved as Meta's ``sam_vit_b_01ec64.pth`` is:
   a ``state_dict``) through ``divas sam-export`` with the real registry, then

@@ -1,4 +1,4 @@
-"""Issue 21 item 1: real segment-anything graphs (random weights, reduced-depth ViT)
+"""Real segment-anything graphs (random weights, reduced-depth ViT)
 exported with the project's export code, run through ``SamOnnxSegmenter`` /
 ``SamTorchSegmenter`` and ``divas segment``, compared with segment-anything's own
 ``SamPredictor`` (tests/sam_reference.py). Needs the ``torch`` extra: ``make test-sam``."""

@@ -1,4 +1,4 @@
-"""Scene up without cameras and framed camera-free anchors (issue 17) on analytic point
+"""Scene up without cameras and framed camera-free anchors on analytic point
 sets whose up, ground and extent are known by construction."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 6 items 4–5: ``divas segment`` end to end (oracle and classic; 2DGS PLY and NeRF
+"""``divas segment`` end to end (oracle and classic; 2DGS PLY and NeRF
 grid), its report keys, bad inputs as one-line errors (exit 2), and ``divas demo``."""
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ def test_segment_oracle_2dgs(scene_dir, tmp_path, capsys):
     assert abs(x["opacity_weighted_iou"] - rep["evaluation"]["surfels"]["iou"]) < 0.1
     assert rep["config"]["render_scale"] == 0.5
     assert all(v["status"] in ("fused", "rejected") for v in rep["views"])
-    # issue 14: the arrays file is content-addressed, named by the manifest
+    # the arrays file is content-addressed, named by the manifest
     arrays_file = json.loads((tmp_path / "s.json").read_text())["arrays"]["file"]
     assert arrays_file.startswith("s.json.") and (tmp_path / arrays_file).exists()
     assert "centroid views fused" in capsys.readouterr().out

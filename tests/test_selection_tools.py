@@ -1,4 +1,4 @@
-"""Issue 19 item 5: the geometry of the manual selection tools on known point layouts
+"""The geometry of the manual selection tools on known point layouts
 (:mod:`divas_engine.selection_tools`) — each expected set is written out by hand."""
 
 from __future__ import annotations

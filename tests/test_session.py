@@ -1,4 +1,4 @@
-"""Issue 6 items 1–3: the interactive Session (click → centroid view → prompt → accept →
+"""The interactive Session (click → centroid view → prompt → accept →
 fuse + map → overlay), exact undo, reset, save / autosave / replay, multiple objects and
 the labelled PLY, the NeRF asynchronous SAM groups, and bad inputs."""
 
@@ -87,14 +87,14 @@ def test_click_accept_undo_reset_save_replay(ribs, tmp_path):
     prev = s.prompt(v0)
     assert prev.accepted and prev.mask.shape == v0.buffers.alpha.shape and prev.band is not None
     assert prev.labels.tolist() == [1]
-    # issue 14: saved from the open on (anchors), and after every click
+    # saved from the open on (anchors), and after every click
     assert auto.exists() and len(Session.load(auto, scene, device="cpu").current.views) == 1
     r0 = s.accept(v0)
     assert r0.status == "fused" and r0.synced and r0.fused == [v0.id]
     sel0 = s.selection.copy()
     assert sel0.sum() > 100 and (sel0 & sc.labels).sum() / sel0.sum() > 0.95
     assert r0.overlay is not None and r0.overlay.mask.any()
-    # issue 14: the arrays file is content-addressed (named in the manifest), the arrays
+    # the arrays file is content-addressed (named in the manifest), the arrays
     # of earlier saves are gone
     arrays_file = json.loads(auto.read_text())["arrays"]["file"]
     assert auto.exists() and (auto.parent / arrays_file).exists()
@@ -161,7 +161,7 @@ def test_manual_anchor_is_clicked_saved_and_replayed(ribs, tmp_path):
     assert s2.replay_matches and np.array_equal(s2.selection, sel)
     with pytest.raises(TypeError, match="Camera"):
         s.add_anchor("IMG_0001")
-    # a tampered hint (issue 16's advice) is a clear error naming the file, not a crash
+    # a tampered hint (the view's advice) is a clear error naming the file, not a crash
     doc = json.loads(auto.read_text())
     doc["objects"][0]["views"][0]["advice"] = {"not": "text"}
     bad = tmp_path / "tampered.json"
@@ -410,7 +410,7 @@ def _capped_add_view(fusion, capacity: list[int]):
 
 
 def test_capacity_error_mid_group_keeps_state_consistent(ribs, monkeypatch):
-    """Issue 13 item 9: a FusionCapacityError partway through a fused NeRF group keeps the
+    """A FusionCapacityError partway through a fused NeRF group keeps the
     views fused before it (and selects them); the rest go back to open, undo works and a
     retry fuses them."""
     sc, _, anchors, clicks, _ = ribs

@@ -1,4 +1,4 @@
-"""Issue 13 item 1: the session runs over per-representation backends picked from the
+"""The session runs over per-representation backends picked from the
 scene by a registry; a new representation plugs in by registering a backend, without
 touching the loop."""
 

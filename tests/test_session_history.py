@@ -1,4 +1,4 @@
-"""Issue 19 items 1 and 5 (engine side): the session history (undo / redo of any step,
+"""The session history (undo / redo of any step,
 the fusion reconciled bit-exactly) and manual edits composed with the semantic
 selection, saved and replayed."""
 

@@ -1,5 +1,5 @@
 """``kill -9`` of ``divas segment --session`` at seeded random moments, and at the torn
-window between the arrays file and the manifest (issue 14 items 2 and 6).
+window between the arrays file and the manifest.
 
 Every killed run leaves a session that loads (or none, when it died before the first
 save), no temporary survives the resume, and ``--resume`` finishes it to the labels

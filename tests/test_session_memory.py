@@ -1,4 +1,4 @@
-"""Issue 20 (memory at 3M surfels): the session's voxel-to-surfel mapper reads the
+"""The session's voxel-to-surfel mapper reads the
 renderer's surfel centres and scaled tangents instead of uploading its own copy. The
 renderer rounds the float32 product ``R·s``, the mapper the exact float64 product of the
 same float32 factors: the same float32 values, so the mapping is unchanged bit for bit.

@@ -1,5 +1,5 @@
-"""The session's background warm-up also builds the segmenter's per-scene state (issue 20:
-graph3d's primitives took seconds of the first click at 3M splats), after the fusion state
+"""The session's background warm-up also builds the segmenter's per-scene state (graph3d's
+primitives, seconds of a large scene's first click otherwise), after the fusion state
 and without making readers of the fusion state wait for it."""
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def test_graph3d_primitives_are_built_before_the_first_prompt(plant):
     s.close()
     # the same prompt on a session whose segmenter builds on first use
     cold_seg = Graph3DSegmenter()
-    cold_seg.warm_up = lambda: None  # as before: built by the first prompt
+    cold_seg.warm_up = lambda: None  # no warm-up: built by the first prompt
     cold = _open(plant, cold_seg)
     cold.backend._warm_done.wait(60)
     v2 = cold.click(cold.anchors[0].index, (xs[len(xs) // 2] + 0.5, ys[len(xs) // 2] + 0.5))

@@ -1,7 +1,7 @@
 """Export with a transform applied (:mod:`divas_engine.transform_export`) and the axis
 conversions of :mod:`divas_engine.blender_convention`.
 
-Target (issue 18): a rotated-and-exported scene renders like the original seen through
+Target: a rotated-and-exported scene renders like the original seen through
 the inverse rotation — here the exported file, loaded again, rendered from the camera
 carried by the same transform equals the original's render from the original camera.
 Tolerance: mean |ΔRGB| ≤ 1e-4 inside the object for float formats (PLY, .splat; only

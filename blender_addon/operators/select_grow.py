@@ -11,7 +11,7 @@ from divas_engine.selection_tools import grow, neighbour_radius, shrink
 from .. import point_edits
 from .point_edit_base import PointEditOperator
 
-#: the automatic radius of the last object (its k-d tree costs ~2 s at 1M splats).
+#: the automatic radius of the last object (its k-d tree is slow to build on a large scene).
 _radius_cache: dict[tuple, float] = {}
 
 

@@ -1,25 +1,21 @@
 """The DivAS session steps on Blender data: the work behind the session operators and
 the click-to-segment modal (which share every function here).
 
-Each step makes one engine call on the object's live
-:class:`~divas_engine.session.Session` (:mod:`..session_registry`) and then updates
-what Blender shows. By responsibility:
+Each step makes one engine call on the object's live :class:`~divas_engine.session.Session`
+(:mod:`..session_registry`) and then updates what Blender shows:
 
-* :mod:`.start` — start a session on an imported object, or resume its saved one (the
-  engine's inputs: scene, training cameras, ground truth, segmenter, device);
-* :mod:`.loop_steps` — the loop: add an anchor, click (on an anchor or in any 3D view),
-  add a prompt, correct an accepted view, accept, sync, undo, reset, finish the object;
-* :mod:`.history` — every step one Blender undo step, the session kept in step with
-  Blender's undo and redo;
-* :mod:`.files` — where a session is saved so it follows the .blend (sidecar, recovery
-  autosave, resume on open, relative scene paths);
-* :mod:`.view_cameras` — a camera per anchor and centroid view in "DivAS Views", with
-  the view's render (packed) as its background image;
-* :mod:`.points` — ``divas_selected`` / ``divas_label`` on the object's points after
-  every change of the selection, so the display material recolours the splats live.
+* :mod:`.start` — start a session on an imported object, or resume its saved one;
+* :mod:`.loop_steps` — add an anchor, click, add a prompt, correct an accepted view, accept,
+  sync, undo, reset, finish the object;
+* :mod:`.history` — every step one Blender undo step, the session kept in step with it;
+* :mod:`.files` — where a session is saved so it follows the .blend;
+* :mod:`.view_cameras` — a camera per anchor and centroid view in "DivAS Views", with the
+  view's render (packed) as its background image;
+* :mod:`.points` — ``divas_selected`` / ``divas_label`` on the object's points after every
+  change of the selection.
 
-Pixel coordinates are in rendered-image pixels (the camera × render scale) unless a
-function says otherwise.
+Pixel coordinates are in rendered-image pixels (the camera × render scale) unless a function
+says otherwise.
 """
 
 from __future__ import annotations

@@ -1,26 +1,18 @@
 """Where a session is saved, so that it follows the .blend.
 
-* **Key.** Every object with a session carries a random *session key*
-  (``divas_session_key``): unlike its name it survives renames, and it travels with the
-  object through Save As. A duplicated object gets its own key when it starts a session.
-* **With the .blend.** When the .blend is saved (``save_post``), every live session is
-  written beside it, in ``<blend stem>.divas/<key>.json`` (+ ``.npz``): the sidecar of
-  *that* file, so Save As leaves the old file's sidecar as it was and starts the new
-  one. The anchor and view images are packed into the .blend itself
-  (:func:`..overlays.set_background`; those not packed yet at ``save_pre``).
-* **Between saves** the engine autosaves after every accept to a recovery file keyed
-  only by the key, in the extension's user directory
-  (``bpy.utils.extension_path_user``; Blender's user data folder when the add-on is not
-  installed as an extension): an unsaved file's sessions never collide, whatever their
-  objects are called.
-* **Reopening.** :func:`saved_session_path` finds the sidecar of the open .blend (or one
-  beside it, if the .blend was renamed outside Blender), else the recovery file;
-  "Resume DivAS Session" replays it onto the object with one click, and with the
-  preference "Resume Sessions on Open" every saved session resumes by itself
-  (``load_post``).
-* **Relative paths.** When Blender's "Relative Paths" preference is on, the object's
-  scene-file path is stored relative to the .blend (``save_pre``: relative to where the
-  file is being saved, so it stays right after Save As to another folder).
+* **Key.** Every object with a session carries a random ``divas_session_key``: unlike its name
+  it survives renames and travels through Save As; a duplicate gets its own key on Start.
+* **With the .blend.** On ``save_post`` every live session is written to
+  ``<blend stem>.divas/<key>.json`` (+ ``.npz``), the sidecar of *that* file, so Save As leaves
+  the old sidecar as it was. The anchor and view images are packed into the .blend.
+* **Between saves** the engine autosaves after every accept to a recovery file keyed only by
+  the key, in the extension's user directory (``bpy.utils.extension_path_user``), so an
+  unsaved file's sessions never collide.
+* **Reopening.** :func:`saved_session_path` finds the open .blend's sidecar (or one beside a
+  renamed .blend), else the recovery file; "Resume DivAS Session" replays it, and with "Resume
+  Sessions on Open" every saved session resumes by itself (``load_post``).
+* **Relative paths.** With Blender's "Relative Paths" on, the scene-file path is stored
+  relative to where the .blend is being saved (``save_pre``).
 """
 
 from __future__ import annotations

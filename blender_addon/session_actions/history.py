@@ -1,27 +1,21 @@
 """Session steps as Blender undo steps.
 
-Why this design: Blender's undo (Ctrl+Z, Ctrl+Shift+Z, Edit › Undo History) restores the
-whole file — the points' ``divas_selected`` / ``divas_label``, the anchor and view
-cameras, every property — but knows nothing of the engine session living in Python. So
-every session step is one Blender undo step *and* one step of the session's own history
-(:class:`divas_engine.session.history.SessionHistory`), and the two are tied by an id:
+Blender's undo restores the whole file — the points' attributes, the cameras, every property —
+but knows nothing of the engine session living in Python. So every session step is one Blender
+undo step *and* one step of the session's own history
+(:class:`divas_engine.session.history.SessionHistory`), tied by an id:
 
-* after a step, :func:`commit` records the session state and writes the step's id into
-  the object (``divas_history_step``); Blender then pushes its undo step (the operators
-  have ``bl_options = {'REGISTER', 'UNDO'}``; the modal calls ``ed.undo_push``), so the
-  id is part of the file state that step saved;
-* after Blender undoes or redoes (``undo_post`` / ``redo_post``), :func:`sync_after_undo`
-  reads the id the restored file holds and moves the session to that step
-  (:meth:`~divas_engine.session.history.SessionHistory.goto`: exact, and nothing is
-  rendered again). Steps that are not DivAS's (moving an object …) leave the id alone,
-  so the session stays where it is.
+* after a step, :func:`commit` records the session state and writes the step's id into the
+  object (``divas_history_step``); Blender then pushes its undo step (``bl_options`` ``UNDO``;
+  the modal calls ``ed.undo_push``), so the id is part of that step's file state;
+* after an undo or redo (``undo_post`` / ``redo_post``), :func:`sync_after_undo` reads the
+  restored id and moves the session to that step
+  (:meth:`~divas_engine.session.history.SessionHistory.goto`: exact, nothing rendered again);
+  other steps leave the id alone.
 
-An explicit session history alone (its own undo buttons) would leave Ctrl+Z doing
-something else; Blender's undo alone cannot restore Python state. With both tied, the
-one undo an artist knows works for everything. When Blender goes back to before the
-session started (the id is gone), the session is closed; its cameras went with the undo.
-
-A step that fails halfway is rolled back (:func:`rollback`), so no partial change stays.
+So the one undo an artist knows works for everything. When Blender goes back to before the
+session started (the id is gone), the session is closed. A step that fails halfway is rolled
+back (:func:`rollback`).
 """
 
 from __future__ import annotations
@@ -67,7 +61,7 @@ def run_step(obj, live: LiveSession, what: str, fn, *args, **kwargs):
         rollback(obj, live)
         raise
     commit(obj, live, what)
-    memory.release_freed()  # the step's freed transients back to the system (issue 20)
+    memory.release_freed()  # the step's freed transients back to the system
     return out
 
 

@@ -292,7 +292,7 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
     if v.status == ViewStatus.REJECTED:
         show_view(context, obj, live, v)  # stay: more prompts, then Enter again
         return res
-    # the overlays are rendered when the view is first drawn (read), not here (issue 20)
+    # the overlays are rendered when the view is first drawn (read), not here
     if res.overlay_source is not None:
         show_view(context, obj, live, v, lambda: res.overlay, activate=False)
     if res.next_view is not None and res.next_overlay_source is not None:

@@ -3,23 +3,17 @@ object's selection) and ``divas_label`` (int, every object's label), written thr
 :mod:`..bridge` after every change of the selection, so the display material recolours
 the splats live.
 
-Only what changed is written (issue 20): the point → primitive map and the values last
-written are kept on the live session (:class:`Written`), so an accept compares the new
-selection with them and writes just the points that changed — one element at a time
-while they are few, one bulk ``foreach_set`` from the kept array when that is cheaper
-(:data:`PARTIAL_MAX`) — and leaves an unchanged attribute alone. Between two writes
-where only the current selection changed (a click's accept, an undo of it) no array of
-every point is made: the comparison goes into a kept buffer, the labels are worked out
-at the changed points only (the engine's ``label_set`` rule: the committed label, or
-the current object's where it is selected and — unless labels may be overwritten —
-unlabelled) and the kept arrays are updated in place. A fresh ``[N]`` array per accept
-cost 0.03 s or 0.07–0.34 s at 3M points on the benchmark VM: its pages come from the
-kernel, and pages freed a few seconds earlier have been handed back to the hypervisor
-(virtio-balloon free page reporting), so touching them again is a host fault
-(BENCHMARKS.md, branch ``blender20c``). The result is the same as a full write
-(tested); anything that may have changed the points behind the session's back
-(Blender's undo, a rebuilt point cloud) or the committed labels (finishing an object, a
-reset, erasing, a history jump) makes the next write a full one.
+Only what changed is written: the point → primitive map and the values last written are kept
+on the live session (:class:`Written`), so an accept writes just the points that changed — one
+element at a time while they are few, one bulk ``foreach_set`` when that is cheaper
+(:data:`PARTIAL_MAX`) — and leaves an unchanged attribute alone. When only the current
+selection changed, no ``[N]`` array is made: the comparison goes into a kept buffer and the
+labels are worked out at the changed points only (the engine's ``label_set`` rule). A fresh
+``[N]`` array per accept would take pages from the kernel, and on a VM with free page
+reporting touching them again is a host fault. The result equals a full write (tested);
+anything that may have changed the points or the committed labels behind the session's back
+(Blender's undo, a rebuilt point cloud, finishing an object, a reset, erasing, a history jump)
+makes the next write a full one.
 """
 
 from __future__ import annotations
@@ -40,8 +34,8 @@ __all__ = ["LABEL_ATTRIBUTE", "PARTIAL_MAX", "Written", "WriteBack", "write_sele
 #: per-point int32: the label of every finished object plus the current selection.
 LABEL_ATTRIBUTE = "divas_label"
 #: up to this many changed points are written one element at a time; above it one bulk
-#: write of the whole attribute is cheaper (measured with bpy 5.0.1 on 1M points:
-#: ~1–3 µs per element vs ~1–6 ms per bulk bool / int write).
+#: write of the whole attribute is cheaper (an element write costs microseconds, a bulk
+#: write of a million points milliseconds).
 PARTIAL_MAX = 1000
 
 

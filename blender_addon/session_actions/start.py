@@ -159,8 +159,8 @@ def _primitive_count(scene) -> int:
 def _reuse_scratch(session: Session, limited: bool) -> None:
     """With the heap's fixed mmap threshold (a large scene, :mod:`..memory`) every large
     transient array is fresh pages: the mask renders of a scene-aware segmenter then
-    keep their working arrays between calls (``SurfelRenderer.scratch_sparse``, issue
-    20: 43–63k → 4–12k page faults a mask render at 3M, ≈ 0.1 s, ≈ 140 MB held)."""
+    keep their working arrays between calls (``SurfelRenderer.scratch_sparse``: far
+    fewer page faults a mask render, at ≈ 140 MB held on a 3M-splat scene)."""
     if limited:
         session.renderer.scratch_sparse = True
 
@@ -168,7 +168,7 @@ def _reuse_scratch(session: Session, limited: bool) -> None:
 def _prefetch_cuts(session: Session) -> None:
     """The click operator previews the view's mask before it returns: a segmenter that
     can start its work for that prompt while the view renders (graph3d's cut,
-    ``Graph3DSegmenter.prefetch_cuts``, issue 20) is told to."""
+    ``Graph3DSegmenter.prefetch_cuts``) is told to."""
     session.segmenter.prefetch_cuts = True
 
 
@@ -181,13 +181,13 @@ def _follow_undo_steps(context, session: Session) -> None:
 def start(context, obj, settings: StartSettings) -> LiveSession:
     """Load the object's scene (the import's copy when it is still cached), build the
     session and the anchor cameras; the first anchor, rendered now, becomes the scene
-    camera. The other anchors render when first looked through (issue 20)."""
+    camera. The other anchors render when first looked through."""
     wm = context.window_manager
     t0 = time.perf_counter()
     wm.progress_begin(0, 100)
     try:
         scene, cameras, gt, seg, device = _engine_inputs(context, obj, settings)
-        # a large scene's big transients give their pages back when freed (issue 20)
+        # a large scene's big transients give their pages back when freed
         limited = memory.limit_heap_for(_primitive_count(scene))
         wm.progress_update(10)
         config = settings.config
@@ -236,7 +236,7 @@ def start(context, obj, settings: StartSettings) -> LiveSession:
         live.record({"what": "start", "update_s": live.open_s})
         if live.anchor_cameras:
             activate_camera(context, bpy.data.objects[live.anchor_cameras[0]])
-        memory.release_freed()  # the load's and first render's freed transients (issue 20)
+        memory.release_freed()  # the load's and first render's freed transients
         return live
     finally:
         wm.progress_end()

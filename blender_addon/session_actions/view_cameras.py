@@ -225,8 +225,8 @@ def has_background(cam) -> bool:
 
 def ensure_background(live: LiveSession, cam) -> bool:
     """Render anchor camera ``cam``'s view now if it has no background image yet (the
-    lazy anchors of issue 20: an anchor renders when the user looks through it or
-    selects it). Returns whether an image was made."""
+    lazy anchors: an anchor renders when the user looks through it or selects it).
+    Returns whether an image was made."""
     if cam is None or cam.type != "CAMERA" or VIEW_PROP in cam or ANCHOR_PROP not in cam:
         return False
     if cam.name not in live.anchor_cameras or has_background(cam):
@@ -235,7 +235,7 @@ def ensure_background(live: LiveSession, cam) -> bool:
     if i >= len(live.session.anchors):
         return False
     overlays.set_background(cam, live.session.render(live.session.anchors[i]).rgb)
-    memory.release_freed()  # the render's freed transients back to the system (issue 20)
+    memory.release_freed()  # the render's freed transients back to the system
     return True
 
 
@@ -280,7 +280,7 @@ def show_view(
 ):
     """The camera of centroid view ``v`` (made on first use, with its render); the
     engine's selection ``overlay`` on it (an :class:`~divas_engine.session.Overlay`, or
-    a callable returning one: rendered only when the view is first drawn, issue 20) is
+    a callable returning one: rendered only when the view is first drawn) is
     kept to be drawn while that selection is current; the scene camera when
     ``activate``."""
     cam = _view_camera(context, obj, live, v)

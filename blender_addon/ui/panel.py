@@ -55,7 +55,7 @@ def _draw_settings(layout, context, ref) -> None:
         box.prop(prefs, "segmenter")
         if prefs.segmenter in SAM_SEGMENTERS:
             # one rule for what a Start would use: a checkpoint alone is enough for SAM
-            # (ONNX), it is converted once (issue 21)
+            # (ONNX), it is converted once
             ready = active_model_ready(prefs)
             box.label(text=f"Model: {active_model(prefs)}", icon="INFO" if ready else "ERROR")
     props = scene_settings(context.scene)

@@ -1,7 +1,7 @@
 """``divas`` command line: one module per sub-command.
 
 Each sub-command module exposes ``add_parser(subparsers)`` (registering its
-arguments and ``func``). :func:`main` never prints a traceback (issue 14 item 3):
+arguments and ``func``). :func:`main` never prints a traceback:
 
 * bad input (:class:`DivasInputError`) → one line naming the file, exit 2;
 * environment problems — ``OSError`` (permission denied, disk full, name too long, …)

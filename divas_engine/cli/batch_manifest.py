@@ -8,19 +8,13 @@ JSON (``.json``)::
                "cameras": "caps/chair01/cameras.json", "prompts": "prompts/chair.json",
                "output": "out/chair01", "options": {"seed": 1}}]}
 
-(a bare list of rows is the same without ``defaults``). CSV (any other name): a header
-row naming the columns ``scene``, ``prompts``, ``output`` (required), ``cameras``,
-``name``, ``options`` (a JSON object) and any option by name; empty cells are unset;
-option cells are read as JSON when they parse (``0.5``, ``true``, ``[0, 0, 1]``), else
-as text.
-
-Options are :class:`~divas_engine.segment_request.SegmentRequest` fields
-(``segmenter``, ``seed``, ``scale``, ``lod``, ``up``, ``device`` …; ``-`` and ``_``
-alike); a row's options override ``defaults``. The batch sets each job's outputs
-(``out``, ``labels_out``, the report) inside its ``output`` folder, so those are not
-options. Paths are relative to the manifest's folder, or ``file://`` URIs; they are
-read where the job runs (the driver does not open scenes). A row's name defaults to
-its output folder's name; names and output folders are unique.
+(a bare list of rows is the same without ``defaults``). CSV (any other name): a header naming
+``scene``, ``prompts``, ``output`` (required), ``cameras``, ``name``, ``options`` (a JSON
+object) and any option by name; empty cells are unset, option cells are JSON when they parse.
+Options are :class:`~divas_engine.segment_request.SegmentRequest` fields; a row's options
+override ``defaults``; the outputs are set inside ``output``. Paths are relative to the
+manifest's folder (or ``file://`` URIs) and read where the job runs. Names default to the
+output folder's name; names and output folders are unique.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ weighting, Pass 1 only, Pass 1+2; and two peer baselines fed the same accepted v
 (centre-projection voting, FlashSplat-style contribution voting); the NeRF path on the
 ribs density grid. Scores at the held-out test cameras (NOTES "Evaluation": mean IoU
 and pixel accuracy; alpha fidelity, opacity-weighted IoU and the PSNR of the selection
-rendered alone, issue 15) and per primitive (precision / recall). See
+rendered alone) and per primitive (precision / recall). See
 :mod:`divas_engine.evaluation.suite`.
 """
 

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     from ..views import scene_frame
 
     up = parse_up(args.up)
-    # nothing here reads the SH beyond the DC: a 6M SH-3 PLY is 1.1 GB less (issue 20)
+    # nothing here reads the SH beyond the DC, so none is loaded (GBs on large scenes)
     scene = load_scene(args.path, max_sh_degree=0, lod=args.lod)
     frame = scene_frame(scene)  # once, for the summary and the up estimate
     info = scene_summary(scene, frame)

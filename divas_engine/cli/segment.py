@@ -1,33 +1,18 @@
 """``divas segment SCENE --prompts P.json --out OUT``: headless segmentation from a prompts file.
 
-Runs the whole DivAS loop (:class:`~divas_engine.session.Session`) on the anchors and
-clicks of a prompts file (NOTES "Headless prompts file"): every positive click spawns a
-centroid view, its default prompt plus ``centroid_prompts`` go to the segmenter, every
-view is accepted in order (NeRF: asynchronous SAM with group synchronisation, Sec. 3.4),
-then the selection is written in the input's format (a PLY subset / a masked ``.npz``
-grid), optionally with per-input-row labels (``--labels-out``) and a JSON report.
+Runs the whole DivAS loop (:class:`~divas_engine.session.Session`) on the anchors and clicks of
+a prompts file (NOTES "Headless prompts file"): every positive click spawns a centroid view,
+its prompts go to the segmenter, every view is accepted in order (NeRF: asynchronous SAM with
+group synchronisation, Sec. 3.4), then the selection is written in the input's format,
+optionally with per-input-row labels (``--labels-out``) and a JSON report.
 
-Report (``--report``) keys:
-
-* ``version`` (1), ``command``, ``scene``, ``cameras``, ``prompts``, ``kind`` ("2dgs"/"nerf"),
-  ``segmenter``, ``seed``, ``device``, ``render_scale``, ``preset`` (NeRF);
-* ``timings``: ``T_pipe_s`` (load → outputs written), ``load_s``, ``open_s``, ``export_s``
-  and per stage (``render``, ``centroid``, ``segmenter``, ``segmenter_wait``, ``kernel``,
-  ``mapping``, ``overlay``) ``{calls, total_s, mean_s, max_s, per_call_s}``;
-* ``updates``: one record per accepted view (seconds by stage);
-* ``counts``: primitives, anchors, centroid_views, accepted, rejected, selected,
-  active_voxels, segmented_voxels …;
-* ``views``: id, anchor, click, status (``fused``/``rejected``), reason, advice (the
-  segmenter's hint: what to click next), score, strategy;
-* ``memory``: ``peak_rss_bytes`` (and ``rss_bytes``);
-* ``config``: the full session config; ``outputs``: files written;
-* ``points`` (prompts files with 3D points): where each point was clicked
-  (:func:`points_report`);
-* ``evaluation`` (with ``--gt-labels``): 3D precision / recall / IoU of the selection;
-  on surfel scenes ``render``: image IoU, alpha fidelity, opacity-weighted IoU and
-  extracted-object PSNR at test views around the ground truth (also
-  ``without_completion`` on 3DGS scenes);
-  ``oracle`` (oracle segmenter): its config and seed.
+Report (``--report``) keys: ``version`` (1), the inputs and settings (``command``, ``scene``,
+``kind``, ``segmenter``, ``seed``, ``device`` …); ``timings`` (``T_pipe_s`` and per stage
+``{calls, total_s, mean_s, max_s, per_call_s}``); ``updates`` (per accepted view);
+``counts``; ``views`` (id, anchor, click, status, reason, advice, score, strategy);
+``memory``; ``config``; ``outputs``; ``points`` (where each 3D point was clicked,
+:func:`points_report`); ``evaluation`` (with ``--gt-labels``: 3D precision / recall / IoU and,
+on surfel scenes, rendered metrics, also ``without_completion`` on 3DGS); ``oracle``.
 """
 
 from __future__ import annotations
@@ -126,7 +111,7 @@ def segment_scene(
     req = request
     t_start = time.perf_counter()
     req.check()
-    check_outputs(  # before any loading or computing (issue 14)
+    check_outputs(  # before any loading or computing
         [
             ("--out", req.out),
             ("--labels-out", req.labels_out),

@@ -1,40 +1,22 @@
 """Peer baselines for the evaluation: lift the *same* accepted 2D view masks that DivAS
 fused to a per-surfel selection without DivAS's voxel fusion and mapping.
 
-Both take a list of :class:`MaskView` (camera, mask ``[H,W]`` probabilities, optional
-``D_med``). A pixel is mask-positive when ``m ≥ mask_threshold`` (0.5, NOTES "thick
-entry").
+Both take :class:`MaskView` lists; a pixel is positive when ``m ≥ mask_threshold`` (0.5).
 
-(a) :func:`centre_vote` — centre-projection majority voting. A surfel is *seen* by a
-    view when its centre projects inside the image (pixel ``⌊u⌋, ⌊v⌋``), lies in front
-    of the camera (planar depth ``z >`` the view's near plane, ``Camera.clip_near``) and
-    is not hidden: ``D_med = 0`` at that
-    pixel (accumulated opacity never reached ½: nothing opaque in front) or
+(a) :func:`centre_vote` — centre-projection majority voting. A surfel is *seen* when its centre
+    projects inside the image, beyond the near plane, and is not hidden: ``D_med = 0`` there or
+    ``z ≤ D_med · (1 + depth_rel_tol) + scale_tol · max(s₁, s₂)`` (one-sided). It is foreground
+    iff its positive votes are a strict majority of the views that see it.
 
-        z ≤ D_med · (1 + depth_rel_tol) + scale_tol · max(s₁, s₂)
-
-    (defaults 1 % of depth + 2 × the surfel's larger scale: the surfel's own extent
-    along the ray plus rounding of the median depth). The test is one-sided — a surfel
-    in front of the median surface is visible, only one behind it is occluded. A seen
-    surfel votes *positive* in a view when the mask is positive at its centre pixel. It
-    is foreground iff positive votes are a strict majority of the views that see it
-    (ties and never-seen surfels → background).
-
-(b) :func:`contribution_vote` — contribution-weighted voting in the style of
-    FlashSplat (Shen et al., ECCV 2024): the rendering of a mask is linear in the
-    per-surfel labels, so with ``A₁ = Σ α T`` over mask-positive pixels and ``A₀`` over
-    mask-negative pixels (all views; :func:`divas_kernels.contrib.accumulate_contributions`,
-    the rasterizer's own weights) a surfel is foreground iff
+(b) :func:`contribution_vote` — contribution-weighted voting in the style of FlashSplat (Shen
+    et al., ECCV 2024): with ``A₁ = Σ α T`` over mask-positive pixels and ``A₀`` over negative
+    ones (all views, the rasterizer's own weights), a surfel is foreground iff
 
         A₁ / ‖A‖ > A₀ / ‖A‖ + γ,   ‖A‖ = √(A₀² + A₁²)
 
-    FlashSplat's binary solver with its background bias γ ("slackness"): the per-Gaussian
-    pair ``(A₀, A₁)`` is L2-normalised and γ is added to the background entry before the
-    argmax (their ``render.py``: ``normalize(all_counts, dim=0)``, then
-    ``all_counts[0] += slackness``, ``argmax``). γ ∈ (−1, 1); default 0, the plain
-    argmax ``A₁ > A₀`` (their default; the released scripts use 0.7–0.75 for object
-    *removal*, where a larger foreground is safer). Surfels that contribute to no pixel
-    are background.
+    FlashSplat's binary solver with background bias γ ("slackness"), γ ∈ (−1, 1), default 0
+    (their default; larger values suit object removal). Surfels with no contribution are
+    background.
 """
 
 from __future__ import annotations

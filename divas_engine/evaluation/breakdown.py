@@ -1,12 +1,12 @@
-"""Where a 3DGS selection's errors come from (issue 15 diagnostics): the true and false
+"""Where a 3DGS selection's errors come from (diagnostics): the true and false
 Gaussians of a DivAS selection split by the step that put them there — the paper's passes
 (Pass 3's selection ``f``, less what the completion dropped), the completion's
 contribution additions and its fill additions — counted and weighted by opacity (the
 weight of the opacity-weighted Gaussian IoU, :func:`.fidelity.weighted_iou`), with the
 opacity-weighted IoU the selection would have without each source's false Gaussians.
 
-Used by ``benchmarks/bench_real_captures.py --breakdown``; the stand15 note (issue 15)
-reads guitar/stand's false positives this way.
+Used by ``benchmarks/bench_real_captures.py --breakdown`` (e.g. to read guitar/stand's
+false positives).
 """
 
 from __future__ import annotations

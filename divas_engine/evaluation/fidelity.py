@@ -1,30 +1,18 @@
-"""How complete and faithful an extracted object looks (issue 15, "the metrics users feel").
+"""How complete and faithful an extracted object looks (the metrics users feel).
 
-Surfel scenes only; ``G`` is the ground-truth label set, ``S`` a selection, and at a test
-camera the *true silhouette* is the NOTES ground-truth mask (labels rendered with normal
-alpha blending, ``≥ gt_threshold``). With ``w_{i,p} = α_{i,p} T_{i,p}`` the blending
-weight of Gaussian ``i`` at pixel ``p`` in the whole scene's render (what
-``render_values`` composites):
+Surfel scenes only; ``G`` is the ground-truth label set, ``S`` a selection, the *true
+silhouette* at a test camera is the NOTES ground-truth mask (``≥ gt_threshold``), and
+``w_{i,p} = α_{i,p} T_{i,p}`` is Gaussian ``i``'s blending weight at pixel ``p`` in the whole
+scene's render:
 
-* **alpha fidelity** — the selected true Gaussians' rendered weight inside the true
-  silhouette over the true Gaussians' weight there,
-
-      Σ_{p∈sil} Σ_{i∈S∩G} w_{i,p}  /  Σ_{p∈sil} Σ_{i∈G} w_{i,p}
-
-  pooled over the test views (1.0: the extracted object renders as solid as it does in
-  the scene; a hollow or see-through extraction scores below 1);
-* **opacity-weighted Gaussian IoU** — ``Σ_{S∩G} o_i / Σ_{S∪G} o_i`` with ``o_i`` the
-  Gaussian's opacity (a large translucent Gaussian and a tiny opaque one count by what
-  they can block; the plain per-Gaussian IoU counts them alike). The same with weight
-  ``o_i · s₁ s₂`` (opacity × footprint area) is reported as ``area_weighted_iou``;
-* **extracted-object PSNR** — the selection rendered *alone* (``scene.subset(S)``, the
-  renderer's background) against the original render of the whole scene, over the RGB
-  of the pixels inside the true silhouette, pooled over the views:
-  ``10 log₁₀(1 / MSE)``, colours clipped to [0, 1]. Occluders in front of the object and
-  background seen through its translucent edges differ between the two renders even for
-  ``S = G``: the same PSNR of ``G`` alone (``psnr_ceiling``) is the reference a
-  selection can reach, and ``psnr_vs_truth`` compares against ``G`` rendered alone (∞
-  when the selection renders exactly like the true object).
+* **alpha fidelity** — ``Σ_{p∈sil} Σ_{i∈S∩G} w_{i,p} / Σ_{p∈sil} Σ_{i∈G} w_{i,p}`` pooled over
+  the test views (1.0: the extraction renders as solid as in the scene);
+* **opacity-weighted Gaussian IoU** — ``Σ_{S∩G} o_i / Σ_{S∪G} o_i`` (``area_weighted_iou``: with
+  weight ``o_i · s₁ s₂``);
+* **extracted-object PSNR** — the selection rendered alone against the whole scene's render,
+  over the RGB inside the true silhouette, ``10 log₁₀(1 / MSE)``. Occluders and background seen
+  through translucent edges differ even for ``S = G``: ``psnr_ceiling`` (``G`` alone) is the
+  reachable reference, ``psnr_vs_truth`` compares against ``G`` rendered alone.
 """
 
 from __future__ import annotations

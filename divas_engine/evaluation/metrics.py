@@ -1,25 +1,16 @@
 """Rendered-mask and per-primitive metrics (NOTES "Evaluation", paper App. D protocol).
 
-Masks at a test camera:
+Masks at a test camera: surfel scenes — predicted = ``render_values`` of the foreground
+indicator F ∈ {0, 1} (``Σ_k α_k T_k F_k``) ``≥ pred_threshold`` (0.1), ground truth = the same
+render of the labels ``≥ gt_threshold`` (0.5); density grids — the accumulated opacity of the
+*segmented density* ``≥ nerf_threshold`` (0.5), likewise for the label grid.
 
-* surfel scenes — predicted = ``render_values`` of the per-surfel foreground indicator
-  F ∈ {0, 1} with normal alpha blending (``Σ_k α_k T_k F_k``), ``≥ pred_threshold``
-  (0.1); ground truth = the same render of the ground-truth labels, ``≥ gt_threshold``
-  (0.5);
-* density grids — predicted = accumulated opacity of the *segmented density* (density
-  × voxel selection, a new :class:`~divas_engine.scene.DensityGrid` rendered by the NeRF
-  renderer) ``≥ nerf_threshold`` (0.5); ground truth = the same for the ground-truth
-  label grid.
+Per view: IoU = |P ∧ G| / |P ∨ G| (1 when both are empty), pixel accuracy, precision and recall
+(an empty prediction has precision 1 iff the truth is empty; an empty truth has recall 1). Per
+scene: the means over views and the pooled IoU. Per primitive: precision / recall / IoU / F1.
 
-Per view: IoU = |P ∧ G| / |P ∨ G| (1 when both are empty), pixel accuracy = fraction of
-pixels where P = G, precision and recall (precision of an empty prediction is 1 when the
-ground truth is empty too, else 0; recall of an empty ground truth is 1). Per scene: the
-means over views, plus the pooled IoU (sums over all views). Per primitive (surfels or
-voxels): precision / recall / IoU / F1 of the selection against the labels.
-
-:class:`ViewEvaluator` renders the ground-truth masks of a scene once and scores any
-number of selections; for surfel scenes all selections share one multi-channel render
-per camera (the blending weights do not depend on the values).
+:class:`ViewEvaluator` renders the ground-truth masks once and scores any number of selections;
+on surfel scenes all selections share one multi-channel render per camera.
 """
 
 from __future__ import annotations

@@ -1,34 +1,17 @@
 """Scripted DivAS sessions for the evaluation: the real interactive
 :class:`~divas_engine.session.Session` driven by the synthetic scenes' metadata.
 
-Two protocols per scene (one object):
+Two protocols per scene (one object): ``"user"`` (default) — the paper's interactive protocol
+(Sec. 3.3 / 3.7): a simulated user (:class:`~.scripted_user.ScriptedUser`) looks at each
+anchor with the running overlay, clicks the largest uncovered region and accepts each centroid
+view, within a :class:`~.scripted_user.UserBudget`; ``"clicks"`` — the metadata clicks of
+:func:`~.demo_prompts.demo_prompts` (the ``divas demo`` protocol), every view accepted exactly as
+``divas segment`` does. The segmenter is fresh per session.
 
-* ``"user"`` (default) — the paper's interactive protocol (Sec. 3.3 / 3.7): the session
-  opens on its own anchor plan (Sec. 3.2) and a simulated user
-  (:class:`~.scripted_user.ScriptedUser`) looks at each anchor with the overlay of the
-  running selection and clicks the largest uncovered region of its target, accepting
-  each centroid view before looking again, within a :class:`~.scripted_user.UserBudget`;
-* ``"clicks"`` — the metadata clicks of :func:`~.demo_prompts.demo_prompts` (the
-  ``divas demo`` protocol): each metadata click point goes on training cameras that see
-  it, spread over the rig; clicks on the same camera share an anchor; every click spawns
-  its centroid view (Sec. 3.3) whose default prompt is the click's 3D point projected
-  into it; every view is accepted (SAM → channel 1 → depth weighting → fusion →
-  mapping), exactly as ``divas segment`` does.
-
-The segmenter is fresh per session (the oracle's ground truth is the session's own
-render of the labels at each view).
-
-Ablations are the same session with one config change (:data:`VARIANTS`):
-
-* ``no_thin`` — ``gs_fusion.rho_thin = inf`` (no voxel passes the thin path's density
-  floor);
-* ``no_depth_weight`` — the depth weighting of the masks is the identity: the band-pass
-  (2DGS) / normalised-depth (NeRF) weight with ``denom_floor = inf`` is 1 on every valid
-  pixel, and ``invalid_weight = 1`` keeps pixels without a surface unweighted too, so
-  ``M̃ = M``.
-
-Pass 1 only / Pass 1+2 are read from the full session's last mapping
-(``MappingResult.pass1`` / ``.pass2``): the chain is monotone and computed in one run.
+Ablations are the same session with one config change (:data:`VARIANTS`): ``no_thin``
+(``gs_fusion.rho_thin = inf``) and ``no_depth_weight`` (``denom_floor = inf`` and
+``invalid_weight = 1``, so ``M̃ = M``). Pass 1 only / Pass 1+2 are read from the full session's
+last mapping (``MappingResult.pass1`` / ``.pass2``): the chain is monotone.
 """
 
 from __future__ import annotations

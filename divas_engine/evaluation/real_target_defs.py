@@ -1,4 +1,4 @@
-"""The ground-truth rules of the shared real captures (issue 15; rule language:
+"""The ground-truth rules of the shared real captures (rule language:
 :mod:`.target_rules`). Every number here was measured on renders and checked by eye
 (the notes say how); :mod:`.real_targets` applies them and writes the label files.
 

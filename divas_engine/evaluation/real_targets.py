@@ -1,24 +1,15 @@
-"""Ground truth on the shared real captures, made by rule (issue 15; rules in
-:mod:`.real_target_defs`, rule language in :mod:`.target_rules`).
+"""Ground truth on the shared real captures, made by rule (rules in :mod:`.real_target_defs`,
+rule language in :mod:`.target_rules`).
 
-Files (``tests/data/targets/<capture>/``):
+Files (``tests/data/targets/<capture>/``): ``targets.json`` — the capture file and its SHA-256,
+row count, true up and per target its kind, rule, eye check, label file and hand-placed oracle
+anchors; ``<target>.npy`` — ``np.packbits`` of the label per *file row* (little bit order), so
+the labels survive a loader that drops rows.
 
-* ``targets.json`` — the capture file and its SHA-256, its row count, the true up and
-  how it was determined, and per target: kind, description, the rule, how it was
-  checked by eye, the label file, its count and SHA-256, the hand-placed oracle anchors;
-* ``<target>.npy`` — the label per *file row*, ``np.packbits`` of the bool vector
-  (``rows`` bits, little bit order), so the labels survive a loader that drops rows.
-
-What an evaluation needs:
-
-* :func:`capture_frame` — the up-aligned frame of a capture (x = the world axis least
-  aligned with the up, as :func:`~divas_engine.views.up_frame`); azimuth 0 looks from +x;
-* :func:`evaluation_cameras` — orbit cameras around the *target*, camera-free: framed on the
-  target's robust extent (:func:`~divas_engine.views.framed_camera`, fill 0.65, centred,
-  image-up = the true up) at 8 azimuths 22.5° + k·45° and elevations 20° and 45°, all
-  above the ground, those where the target is mostly hidden left out;
-* :func:`oracle_anchors` — the hand-placed anchors, framed on the whole capture like
-  camera-free anchors, with their clicks (full-resolution pixels of 640 × 480).
+* :func:`capture_frame` — the up-aligned frame of a capture (azimuth 0 looks from +x);
+* :func:`evaluation_cameras` — camera-free orbit cameras framed on the target (fill 0.65) at 8
+  azimuths 22.5° + k·45° and elevations 20° and 45°, mostly-hidden views left out;
+* :func:`oracle_anchors` — the hand-placed anchors with their clicks (640 × 480 pixels).
 
 ``python -m divas_engine.evaluation.real_targets write DATA_DIR`` regenerates the files.
 """

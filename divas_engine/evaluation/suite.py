@@ -56,7 +56,7 @@ METHODS: dict[str, str] = {
     "contrib_vote": "(b) contribution vote (FlashSplat-style)",
 }
 #: Extra rows on 3DGS-derived scenes (``SceneKind.GS3D``): the paper's selection before
-#: the completion of volumetric scenes (beyond the paper, issue 15).
+#: the completion of volumetric scenes (beyond the paper).
 GS3D_METHODS: dict[str, str] = {
     "no_completion": "w/o 3DGS completion (paper passes)",
     "truth": "the ground truth itself (the metrics' ceiling)",
@@ -500,11 +500,11 @@ def suite_means(rows: Sequence[dict]) -> list[dict]:
 
 
 def check_targets(rows: Sequence[dict]) -> dict[str, Any]:
-    """The issue's targets, evaluated on the oracle rows averaged over the seeds: DivAS
+    """The suite's targets, evaluated on the oracle rows averaged over the seeds: DivAS
     full mean IoU ≥ 0.90 over the surfel suite; DivAS full ≥ both baselines on every
     scene (and, listed, in how many seeds); removing the thin path lowers the ribs IoU."""
     o = [r for r in rows if r["segmenter"] == "oracle" and r["kind"] == SceneKind.GS2D]
-    # (targets of the 2DGS suite; 3DGS variants are reported, their targets in issue 15)
+    # (targets of the 2DGS suite; 3DGS variants are reported without targets)
     if not o:
         return {}
     by = {(r["scene"], r["method"]): r["iou"] for r in scene_means(o)}

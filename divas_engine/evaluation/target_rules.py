@@ -1,27 +1,19 @@
-"""Per-Gaussian selection rules of the real-capture ground truth (issue 15).
+"""Per-Gaussian selection rules of the real-capture ground truth.
 
-A rule is a small JSON tree evaluated on every Gaussian of a scene, giving one bool per
-file row. Leaves test the Gaussian's centre μ, its opacity α or its base colour (the
-DC term, ``0.5 + SH_C0 · f_dc`` clipped to [0, 1], in HSV with H in degrees and S, V in
-[0, 1]); inner nodes combine them.
+A rule is a small JSON tree evaluated on every Gaussian of a scene, giving one bool per file
+row. Leaves test the centre μ, the opacity α or the base colour (``0.5 + SH_C0 · f_dc`` clipped
+to [0, 1], in HSV with H in degrees):
 
-Leaves:
+* ``{"box": {"center", "axes", "half"}}`` — ``|(μ − c)·a_k| ≤ h_k`` for unit axes a_k;
+* ``{"halfspace": {"normal": n, "offset": d}}`` — ``μ·n̂ ≥ d``;
+* ``{"sphere": {"center", "radius"}}``, ``{"ellipsoid": {"center", "axes", "radii"}}`` —
+  ``Σ ((μ − c)·a_k / r_k)² ≤ 1``;
+* ``{"cylinder": {"p0", "p1", "radius"}}`` — within r of the segment, between its end planes;
+* ``{"opacity": {"min", "max"}}`` (either bound optional); ``{"hsv": {"min", "max"}}`` — each
+  channel in range, a hue range with min > max wraps through 0°; ``{"all": true}``.
 
-* ``{"box": {"center": c, "axes": [a1, a2, a3], "half": [h1, h2, h3]}}`` — oriented
-  box: ``|(μ − c)·a_k| ≤ h_k`` for the unit axes a_k;
-* ``{"halfspace": {"normal": n, "offset": d}}`` — ``μ·n̂ ≥ d`` (n̂ = n / ‖n‖);
-* ``{"sphere": {"center": c, "radius": r}}``, ``{"ellipsoid": {"center": c,
-  "axes": [a1, a2, a3], "radii": [r1, r2, r3]}}`` — ``Σ ((μ − c)·a_k / r_k)² ≤ 1``;
-* ``{"cylinder": {"p0": p0, "p1": p1, "radius": r}}`` — within r of the segment
-  p0–p1, between its end planes;
-* ``{"opacity": {"min": a, "max": b}}`` — a ≤ α ≤ b (either bound optional);
-* ``{"hsv": {"min": [h, s, v], "max": [h, s, v]}}`` — each channel in range; a hue
-  range with min > max wraps through 0° (reds);
-* ``{"all": true}`` — every Gaussian.
-
-Nodes: ``{"and": [r, …]}``, ``{"or": [r, …]}``, ``{"not": r}``.
-
-Unknown keys are errors (a typo must not silently select nothing).
+Nodes: ``{"and": [r, …]}``, ``{"or": [r, …]}``, ``{"not": r}``. Unknown keys are errors (a typo
+must not silently select nothing).
 """
 
 from __future__ import annotations

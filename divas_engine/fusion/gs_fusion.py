@@ -9,40 +9,10 @@ Usage::
     fusion.remove_view(vid)            # exact undo
     res = fusion.result()              # P, V_seg, view bitmask per active voxel
 
-Decisions on points the paper leaves open (see also the kernel docstring):
-
-1. Sampling: nearest pixel ``⌊u⌋, ⌊v⌋`` of the projected centre; in-frame means
-   ``0 ≤ u < W ∧ 0 ≤ v < H`` and ``x_d > ε``.
-2. eq:planar-to-ray uses the ray through the centre of that pixel (the ray its
-   depths were rendered along); the spatial gate therefore includes the voxel's
-   lateral offset from that ray.
-3. Depth gates (eq:asym-gate, eq:behind-gate, thin gate) compare planar ``x_d``
-   with planar buffers; spatial gate and depth weight use ray depths.
-4. The footprint B is the pixel box ``⌊u_min⌋…⌊u_max⌋ × ⌊v_min⌋…⌊v_max⌋`` of the 8
-   projected corners clipped to the image; A_B = its pixel count (|B|, main text);
-   n̄, σ_n are the mean and population std of N_samp over B (pixels without a
-   surface included, N_samp = 0 there). A corner at z ≤ ε skips the view.
-5. layered / see-through / trusted are computed for every in-frame voxel; a centre
-   pixel without surface (D_med < ε) cannot vote thick and passes the behind gate.
-6. Missing D_min or D_max (< ε) at a pixel falls back to D_med.
-7. The thin per-pixel gate is one-sided (against D_min) iff that pixel is layered,
-   two-sided against D_med otherwise — alg:gs-thin has no see-through input, and a
-   one-sided gate on see-through background would let the background dilute
-   p_covered; unprojection uses D_min iff the pixel is layered.
-8. ⌈ρ_occ A_B⌉ is taken with a 1e-4 slack (0.1·30 → 3, not 4).
-9. π_dg (App. D, NOTES): relative central differences of ½(D_min+D_max),
-   edge-replicated at the image border; a surface-less pixel has π_dg = 0 and reads
-   as depth 0 when it is a neighbour.
-10. A thin vote needs t > 0 besides t ≥ τ_thin (matters only if τ_thin ≤ 0).
-11. Exact early-out: a thin sweep is skipped when the footprint holds fewer
-    mask-positive pixels than ρ_cover·n_min (the acceptance would need at least as
-    many); a test checks identical output with and without it.
-12. Accumulation in int64 fixed point, per-view sparse records for undo
-    (``state.py``); the bitmask bit of a view is its slot, ≤ max_views (64) live.
-13. eq:gs-depthweight runs on the ordered segment ``[d_min, max(d_max, d_ref)]``: the
-    depth tuple is not monotone on 2DGS (per-primitive hits blended in centre-depth
-    order), and with D_max a hair before D_min the literal half-width collapses to ε
-    and the weight of an accepted thick vote to 0 (kernel docstring).
+Accumulation is int64 fixed point with per-view sparse records for undo (``state.py``); a
+view's bitmask bit is its slot (≤ 64 live). The 13 decisions on points the paper leaves open
+(sampling, gates, footprint, fallbacks, the ordered depth-weight segment) are listed in
+docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,26 +1,16 @@
 """2DGS occupancy grid: Morton-scattered surfel opacity (paper Sec. 3.5 "Occupancy by
 Morton-scattered opacity", eq:scene-norm, eq:voxel-size; App. B; NOTES "Occupancy").
 
-Frame (eq:scene-norm, NOTES): ``c_scene`` = coordinate-wise median of the finite
-centres, ``r_fg`` = P99 radial distance, half-extent ``b = 1.05 r_fg`` (no ceil).
-Voxel edge (eq:voxel-size): ``h_v = max(α_v s̄, β_v r_fg / g_0)`` with ``s̄`` the
-median of ``max(s₁, s₂)`` over the surfels kept by the AABB filter; ``g`` = smallest
-power of two ≥ 2b/h_v, capped at g_max, and then ``h_v = 2b/g``.
+Frame (eq:scene-norm): ``c_scene`` = coordinate-wise median of the finite centres, ``r_fg`` =
+P99 radial distance, half-extent ``b = 1.05 r_fg``. Voxel edge (eq:voxel-size):
+``h_v = max(α_v s̄, β_v r_fg / g_0)`` with ``s̄`` the median of ``max(s₁, s₂)``; ``g`` = smallest
+power of two ≥ 2b/h_v, capped at g_max, then ``h_v = 2b/g``.
 
-Storage — memory ∝ active voxels, never a dense g³ array:
-
-* ``codes [A] int64`` Morton codes, ascending (the compact active-voxel list);
-* ``density [A] float32`` summed opacity ρ, ``count [A] int32`` surfels per voxel;
-* an open-addressing hash table code → active index (keys int64 + values int32 at
-  load ≤ ½: ≤ 48 B per active voxel, expected O(1) probes).
-
-Why a hash table and not the paper's packed bitfield: a g³-bit field is 128 MiB at
-g = 1024 whatever the scene, and a bit alone does not give the active *index* (the
-per-voxel P and view bitmask live in active-index order, so a lookup would still
-need a rank structure). A two-level brick table would cost a fixed (g/8)³·4 B =
-8 MiB top level plus 68 B per occupied brick; the hash is ~12–24 B per active voxel
-and scales with the foreground only. The per-voxel segmentation bit of Pass 1 is
-read as ``seg[active_index]``.
+Storage ∝ active voxels, never a dense g³ array: ``codes [A] int64`` (ascending Morton),
+``density [A] float32``, ``count [A] int32`` and an open-addressing hash code → active index
+(load ≤ ½). Not the paper's packed bitfield: a g³-bit field is 128 MiB at g = 1024 whatever the
+scene and gives no active *index* (per-voxel P and bitmasks live in active-index order); a
+two-level brick table costs a fixed 8 MiB top level. Pass 1 reads ``seg[active_index]``.
 """
 
 from __future__ import annotations

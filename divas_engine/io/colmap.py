@@ -1,31 +1,19 @@
 """COLMAP sparse model (``cameras.bin|txt`` + ``images.bin|txt``) reader and writer.
 
-Format (COLMAP "Output Format" docs), all binary data little endian:
+Format (COLMAP "Output Format" docs), binary little endian: ``cameras.bin`` — ``uint64 n``, per
+camera ``uint32 camera_id, int32 model_id, uint64 width, height, float64 params[k]``;
+``images.bin`` — ``uint64 n``, per image ``uint32 image_id, float64 qw qx qy qz, tx ty tz,
+uint32 camera_id, char name[]`` (NUL-terminated), then its 2D points. Text files hold the same
+fields (``#`` comments; the 2D-point line of ``images.txt`` is ignored).
 
-* ``cameras.bin``: ``uint64 n``; per camera ``uint32 camera_id, int32 model_id,
-  uint64 width, uint64 height, float64 params[k]`` (``k`` fixed by the model).
-* ``images.bin``: ``uint64 n``; per image ``uint32 image_id, float64 qw qx qy qz,
-  float64 tx ty tz, uint32 camera_id, char name[] (NUL-terminated), uint64 n_pts,
-  n_pts × (float64 x, float64 y, int64 point3D_id)``.
-* Text files: ``#`` comments; ``cameras.txt`` has ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS…``;
-  ``images.txt`` has two lines per image, ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME``
-  then the (possibly empty) 2D-point line, which is ignored (tolerated when missing).
+Pose: ``(q, t)`` is world-to-camera with camera axes x right, y down, z forward — the engine's
+OpenCV convention, so ``c2w = [Rᵀ | −Rᵀ t]`` and no flip. COLMAP's pixel centres are at +0.5
+like the engine's, so ``cx, cy`` are copied unchanged.
 
-Pose: ``(q, t)`` is world-to-camera, ``x_cam = R(q) x_world + t``, with COLMAP's camera
-axes x right, y down, z forward — the engine's OpenCV convention, so
-``c2w = [Rᵀ | −Rᵀ t]`` and no axis flip.
-
-Pixel convention: COLMAP puts the image origin at the upper-left *corner* of the
-upper-left pixel, whose centre is (0.5, 0.5) (its SIFT keypoints and its default principal
-point ``(w/2, h/2)`` follow this), i.e. the engine's +0.5 convention: ``cx, cy`` are
-copied unchanged.
-
-Camera models: ``SIMPLE_PINHOLE``, ``PINHOLE``; ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV``
-are read with their distortion *ignored* (a ``UserWarning`` lists the cameras with
-non-zero distortion: undistort the images first, e.g. ``colmap image_undistorter``).
-Any other model used by an image is a :class:`~divas_engine.errors.DivasInputError`.
-``points3D`` is not read. Cameras are returned sorted by image name (the order the
-3DGS trainers use).
+Camera models: ``SIMPLE_PINHOLE``, ``PINHOLE``; ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` are
+read with their distortion ignored (a ``UserWarning`` lists the distorted cameras); any other
+model is a :class:`~divas_engine.errors.DivasInputError`. ``points3D`` is not read. Cameras are
+returned sorted by image name (the order the 3DGS trainers use).
 """
 
 from __future__ import annotations

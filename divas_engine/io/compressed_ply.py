@@ -1,45 +1,16 @@
 """PlayCanvas / SuperSplat *compressed PLY*: decoder and re-encoding subset writer.
 
-Format (as written by SuperSplat and ``splat-transform``'s compressed-PLY
-writer and read by the PlayCanvas engine; all little-endian binary PLY):
+Per run of 256 splats an ``element chunk`` row of float bounds (position, log-scale and, in newer
+files, colour); per splat four ``uint`` words: position and scale as 11/10/11-bit unorms lerped
+between the chunk bounds, rotation as "smallest three" (2-bit index, three 10-bit components),
+colour as RGBA bytes (alpha = activated opacity); an optional ``element sh`` of ``uchar``
+``f_rest`` dequantised to the bucket centre as ``splat-transform``'s reader does. Coordinates
+are the source 3DGS PLY's (no axis change).
 
-* ``element chunk C`` with ``C = ceil(N / 256)`` rows of ``float`` bounds for
-  each run of 256 consecutive splats: ``min_x min_y min_z max_x max_y max_z``,
-  ``min_scale_x..z max_scale_x..z`` (log-scale space) and, in newer files,
-  ``min_r min_g min_b max_r max_g max_b`` (colour space, ``0.5 + SH_C0 * f_dc``).
-* ``element vertex N`` of four ``uint`` words per splat:
-
-  - ``packed_position``: x in bits 21..31 (11 bits), y in bits 11..20 (10 bits),
-    z in bits 0..10 (11 bits); each an unsigned-normalised ``u / (2^bits - 1)``
-    that lerps ``min*(1-t) + max*t`` between the splat's chunk bounds.
-  - ``packed_scale``: the same 11/10/11 layout, lerped between the chunk's
-    log-scale bounds; the scale is ``exp`` of that.
-  - ``packed_rotation``: bits 30..31 are the index (in ``rot_0..3`` = w, x, y, z
-    order) of the largest-magnitude component, which is made positive and not
-    stored; the other three, in ascending index order, sit in bits 20..29,
-    10..19 and 0..9 as 10-bit unorm ``u`` with value ``(u/1023 - 0.5) * sqrt(2)``;
-    the largest is ``sqrt(1 - sum of squares)``.
-  - ``packed_color``: r, g, b, a bytes in bits 24..31, 16..23, 8..15, 0..7. With
-    colour bounds r, g, b lerp between them (else they are ``byte/255``); then
-    ``f_dc = (c - 0.5) / SH_C0``. The alpha byte is the *activated* opacity:
-    ``opacity = a / 255``.
-* optional ``element sh N`` of ``uchar f_rest_0..(3(K-1)-1)`` (9, 24 or 45),
-  channel-major like standard PLY ``f_rest``. The writer stores
-  ``trunc((v/8 + 0.5) * 256)`` clamped to 0..255; we dequantise to the bucket
-  centre as ``splat-transform``'s reader does: byte 0 -> -4, 255 -> +4, else
-  ``((b + 0.5) / 256 - 0.5) * 8``. (The PlayCanvas engine uses
-  ``b * 8/255 - 4``; the two differ by less than half a bucket, 1/64.)
-
-Coordinates are those of the 3DGS PLY the file was made from (the writer
-converts to "PLY space" first), so no axis change is applied.
-
-A subset cannot be cut out byte-exactly: chunk membership is positional (256
-consecutive rows share bounds). :func:`write_compressed_ply_subset` therefore
-re-encodes the selected splats with fresh per-chunk bounds following the
-writer's rules (min/max over the chunk, log-scale bounds clamped to ±20,
-``floor(t * (2^bits - 1) + 0.5)``), in the order given. The fields that do not
-depend on the chunk are copied verbatim: the rotation word, the alpha byte, the
-``sh`` bytes, and the whole colour word of files without colour bounds.
+A subset cannot be cut out byte-exactly (chunk membership is positional), so
+:func:`write_compressed_ply_subset` re-encodes the selected splats with fresh per-chunk bounds
+by the writer's rules; the chunk-independent fields (rotation word, alpha byte, ``sh`` bytes)
+are copied verbatim. Bit layouts in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
-"""Limits and guards shared by every input reader (issue 14 items 3 and 5).
+"""Limits and guards shared by every input reader.
 
 * :class:`LoadLimits`: how much memory a file may make the readers allocate. Anything
   compressed (gzip SPZ, zstd SPZ v4, zip/npz members, WebP/PNG textures) may inflate to
   ``max(min_inflate_bytes, max_inflate_ratio × file size)`` at most, checked against
   the sizes the file *declares* before anything is allocated; row counts, image sides
   and JSON sizes have absolute caps. The defaults admit every real capture we know
-  (the biggest inflate ~6× their file) while a 2 MB hostile file can no longer ask for
+  (the biggest inflate ~6× their file) while a 2 MB hostile file cannot ask for
   gigabytes. Change them for one block with :func:`load_limits`.
 * :func:`require_input_file`: refuses FIFOs, devices and sockets *before* opening them
   (a FIFO given as a scene would otherwise block ``open`` forever).

@@ -1,26 +1,16 @@
 """PlayCanvas streamed LOD scenes (``lod-meta.json``), loaded one level at a time.
 
-The format is what splat-transform writes for large scenes (``src/lib/writers/write-lod.ts``)
-and reads (``src/lib/readers/read-lod.ts``). ``lod-meta.json``:
+The format is what splat-transform writes (``write-lod.ts``) and reads (``read-lod.ts``).
+``lod-meta.json`` holds ``version`` (1, or absent), ``lodLevels``, optional ``count(s)``,
+``filenames`` (the SOG units, unbundled ``meta.json`` folders), an optional ``environment`` SOG
+and a spatial ``tree`` whose leaves map ``"<level>"`` to ``{file, offset, count}`` rows of a
+unit.
 
-* ``version`` (1; absent in files written before it was stamped), ``lodLevels`` (> 0),
-  optional ``count`` and ``counts`` (Gaussians per level), ``filenames`` (the SOG units,
-  each an unbundled SOG folder's ``meta.json`` relative to ``lod-meta.json``, named
-  ``<level>_<k>/meta.json`` by the writer), optional ``environment`` (a SOG of
-  background Gaussians outside every level), ``asset``;
-* ``tree``: a spatial tree of nodes ``{bound: {min, max}, children?: [...],
-  lods?: {"<level>": {file, offset, count}}}``. Each leaf's Gaussians of a level are
-  rows ``offset .. offset + count`` of unit ``file``.
-
-One level is the concatenation of its units in ascending file index, each unit's rows
-in order (the reader's segment order), so its rows are what ``splat-transform
-lod-meta.json -L <level>`` writes. The environment is not part of a level (as there).
-Every unit is a SOG scene (:mod:`.sog`); its count must equal the sum of the tree's
-references to it, the per-level totals the ``counts`` when given, and a unit holds
-one level only.
-
-``scene.extras`` gets ``lod_level``, ``lod_levels``, ``lod_counts`` and ``lod_units``
-(``[[file name, count], ...]`` of the level, in row order).
+One level is the concatenation of its units in ascending file index, each unit's rows in order,
+so its rows are what ``splat-transform lod-meta.json -L <level>`` writes; the environment is not
+part of a level. Every unit is a SOG scene (:mod:`.sog`) whose count must equal the tree's
+references to it; a unit holds one level only. ``scene.extras`` gets ``lod_level``,
+``lod_levels``, ``lod_counts`` and ``lod_units`` (``[[file name, count], ...]``, row order).
 """
 
 from __future__ import annotations

@@ -1,34 +1,13 @@
 """PlayCanvas SOG reader: ``.sog`` bundles and unbundled ``meta.json`` folders.
 
-The definition is PlayCanvas's published SOG format description (developer docs,
-"The SOG Format" and "SOG version 2") and the splat-transform reader; files and
-layouts are described in :mod:`.sog_container`. Per Gaussian ``i`` (texel ``i``
-of every per-Gaussian image; ``lerp(a, b, t) = a + (b - a) * t``; ``R, G, B, A``
-the texel's bytes):
-
-* **position**: ``v = means_l + 256 * means_u`` per channel (16 bits),
-  ``n = lerp(mins, maxs, v / 65535)`` (a zero range counts as 1), and the inverse
-  of the format's log transform ``x = sign(n) * (exp(|n|) - 1)``;
-* **rotation** (``quats``, "smallest three"): ``A - 252`` is the index of the
-  largest component in (w, x, y, z) order; ``R, G, B`` are the other three in
-  ascending index order, each ``(b / 255 * 2 - 1) / sqrt(2)``; the largest is
-  ``sqrt(1 - sum of their squares)`` (positive). A tag outside 252..255 makes
-  the row invalid (dropped, counted);
-* **scales**: log-scales ``codebook[R, G, B]`` (v2) or ``lerp(mins, maxs, b / 255)``
-  (original layout); the scale is ``exp`` of it;
-* **colour and opacity** (``sh0``): DC ``codebook[R, G, B]`` and opacity ``A / 255``
-  (v2), or DC ``lerp(mins[:3], maxs[:3], b / 255)`` and opacity
-  ``sigmoid(lerp(mins[3], maxs[3], A / 255))`` (original layout);
-* **SH bands** (``shN``): the 16-bit label ``R + 256 * G`` of ``shN_labels`` names
-  a palette entry; entry ``e`` is row ``e // 64`` of ``shN_centroids``, texels
-  ``(e % 64) * coeffs + j`` for coefficient ``j``, whose ``R, G, B`` are the
-  red/green/blue coefficients: ``codebook[b]`` (v2) or ``lerp(mins, maxs, b / 255)``
-  with scalar ``mins``/``maxs`` (original).
-
-SOG stores the 3DGS PLY frame (splat-transform reads it with its PLY transform),
-so no axis is changed. 3D Gaussians are flattened to surfels as for every 3DGS
-format. ``scene.extras`` gets ``sog_version`` (1 = the original layout, 2),
-``sog_bundled`` and ``splat_model`` (meta ``model``: default / antialiased / 2dgs).
+Defined by PlayCanvas's published SOG format description ("The SOG Format", "SOG version 2")
+and the splat-transform reader; containers and layouts are in :mod:`.sog_container`. Per
+Gaussian (texel ``i`` of every image): 16-bit positions with the format's log transform
+inverted, "smallest three" rotations (a tag outside 252..255 drops the row), log-scales and DC
+colour from codebooks (v2) or ranges (original layout), opacity ``A / 255`` (v2) or a sigmoid
+of a range (original), SH bands from the ``shN`` palette. SOG stores the 3DGS PLY frame (no
+axis change). ``scene.extras`` gets ``sog_version``, ``sog_bundled`` and ``splat_model``.
+The decoding formulas: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,24 +1,18 @@
 """PlayCanvas SOG containers: find ``meta.json`` and its textures, check them, decode them.
 
-A SOG scene ("spatially ordered Gaussians", what SuperSplat and splat-transform
-publish) is a ``meta.json`` plus 8-bit images, lossless WebP by default. It comes
-*unbundled* (a folder: ``meta.json`` beside the images) or *bundled* (``scene.sog``:
-a ZIP holding the same files at its root). Every per-Gaussian image has the same
-size ``W x H``; Gaussian ``i`` is texel ``(i % W, i // W)`` (row-major, origin top
-left); ``count <= W*H`` and trailing texels are ignored. ``shN_centroids`` is the
-exception: the SH palette, 64 entries per row, each entry ``coeffs`` texels wide.
+A SOG scene ("spatially ordered Gaussians") is a ``meta.json`` plus 8-bit images (lossless WebP
+by default), *unbundled* (a folder) or *bundled* (``scene.sog``, a ZIP with the same files at
+its root). Every per-Gaussian image is ``W x H``; Gaussian ``i`` is texel ``(i % W, i // W)``;
+``count <= W*H``. ``shN_centroids`` is the SH palette, 64 entries per row, ``coeffs`` texels
+each.
 
-Two ``meta.json`` layouts exist (:class:`SogLayout` keeps what decoding needs):
+Two ``meta.json`` layouts (:class:`SogLayout` keeps what decoding needs): the **original**
+(no ``version``: per-attribute ``shape``, ``mins``/``maxs`` ranges, SH band count from the
+palette width) and **version 2** (``count``, ``means.mins/maxs``, 256-entry codebooks for
+``scales``, ``sh0``, ``shN``, and ``shN.count`` / ``shN.bands``).
 
-* the **original layout** (no ``version`` key): per-attribute ``shape`` (first
-  entry = count), ``mins``/``maxs`` ranges, an optional ``shN`` with scalar
-  ``mins``/``maxs``; the SH band count follows from the palette width
-  (``64 * coeffs``);
-* **version 2**: ``count``, ``means.mins/maxs``, 256-entry codebooks for
-  ``scales``, ``sh0`` and ``shN``, and ``shN.count`` / ``shN.bands``.
-
-Memory is bounded by the declared count: the image sizes are read from the file
-headers and checked against it before any pixel is decoded.
+Memory is bounded by the declared count: image sizes are read from the headers and checked
+against it before any pixel is decoded.
 """
 
 from __future__ import annotations

@@ -1,39 +1,14 @@
 """Write a row subset of a SOG scene back as SOG, in the source's own layout.
 
-Rule: the kept Gaussians decode bit-identically. Nothing is re-quantised: the
-source's ``meta.json`` is kept (means ``mins``/``maxs``, codebooks, original-layout
-ranges, ``model``, ``asset``) and each kept Gaussian's texels are copied, in the
-source's texel order, to the texels ``0..n-1`` of new images. Only these change:
-
-* the count (v2 ``count``; original layout: ``shape[0]`` of every attribute) and
-  the image size, chosen as splat-transform does (``W = ceil(sqrt(n) / 4) * 4``,
-  ``H = ceil(n / W / 4) * 4``; trailing texels zero);
-* the SH palette is cut to the entries the kept rows use (in ascending source
-  entry order), the labels renumbered to match, v2 ``shN.count`` set to that;
-* the file names become the standard ``means_l.webp`` … ``shN_labels.webp``;
-* alpha of the images whose alpha means nothing (means, scales, SH labels and
-  palette) is written 255.
-
-Format rules reproduced only approximately, and why:
-
-* **Bounds.** ``means.mins/maxs`` (and the original layout's ranges) stay the
-  source's, so they bound the subset but are not its tight min/max as a fresh
-  splat-transform encode would write them; re-fitting them would re-quantise
-  every position.
-* **Spatial (Morton) order.** The kept texels keep the source's order: a
-  subsequence of the source's Morton order, not a Morton sort over the subset's
-  own extents. Readers do not depend on the order.
-* **RGB under alpha 0.** libwebp's lossless encoder, as OpenCV drives it, has no
-  "exact" switch: it may rewrite the RGB of texels whose alpha is 0 (to whatever
-  compresses best). Only ``sh0`` carries meaning there (alpha = opacity byte), so
-  the colour of a Gaussian whose opacity byte is 0 is not kept (v2: an invisible
-  Gaussian; original layout: the lowest opacity step). Every other byte is: each
-  image is decoded again after encoding and compared.
-
-Outputs are written atomically: ``.sog`` to a temporary file in the same folder,
-then ``os.replace``; a folder is built beside the target, then swapped in. A
-failure leaves any previous output intact. The output may not be the input.
-(Files go through :mod:`divas_engine.output_paths`; the folder swap is done here.)
+Rule: the kept Gaussians decode bit-identically. Nothing is re-quantised: the source's
+``meta.json`` is kept and each kept Gaussian's texels are copied, in source order, to texels
+``0..n-1`` of new images; only the count, the image size (splat-transform's rule), the SH
+palette (cut to the used entries, labels renumbered), the file names and the alpha of
+alpha-free images change. Bounds stay the source's (not tight) and the order is a subsequence
+of the source's Morton order. libwebp may rewrite RGB under alpha 0, so only a zero-opacity
+Gaussian's colour may change; every image is decoded again and compared. Outputs are atomic
+(a ``.sog`` via a temporary file, a folder swapped in); the output may not be the input.
+Details: docs/design-notes.md.
 """
 
 from __future__ import annotations

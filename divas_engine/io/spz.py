@@ -1,50 +1,16 @@
 """Niantic ``.spz``: decoder (versions 2, 3 and 4) and byte-exact subset writer.
 
-Containers
-----------
-* **Versions 2 and 3** (the classic format): the whole file is one gzip stream
-  whose payload is a 16-byte header ``magic u32 = 0x5053474e ('NGSP'), version
-  u32, numPoints u32, shDegree u8, fractionalBits u8, flags u8, reserved u8``
-  followed by the attribute columns. If flag ``0x2`` (extensions) is set,
-  extension records sit between the header and the columns; we skip them using
-  the known column sizes (the columns end the payload).
-* **Version 4**: the header is *not* compressed. It is 32 bytes: the same first
-  15 bytes, then ``numStreams u8`` (byte 15), ``tocByteOffset u32`` (bytes
-  16..19) and 12 reserved bytes. Bytes ``[32, tocByteOffset)`` hold plaintext
-  extension records (``u32 type, u32 byteLength, payload``). At
-  ``tocByteOffset`` a table of ``numStreams`` entries ``(compressedSize u64,
-  uncompressedSize u64)`` follows, then the streams back to back, each one
-  independent **zstd** frame holding one column (empty columns — SH at degree
-  0 — are omitted). Decompressing needs the ``zstandard`` package.
+Versions 2 and 3: one gzip stream holding a 16-byte header (``'NGSP'``, version, numPoints,
+shDegree, fractionalBits, flags) and the attribute columns; version 4: an uncompressed 32-byte
+header, a table of contents and one zstd frame per column (needs ``zstandard``). Columns:
+24-bit fixed-point positions, alpha bytes ``sigmoid(opacity) · 255``, colours, log-scales,
+rotations (v2: three bytes; v3+: "smallest three" u32) and SH bytes ``(b − 128) / 128``.
 
-Columns, in order (``N`` points, all bytes)
--------------------------------------------
-* positions ``N×9``: x, y, z as 24-bit little-endian two's-complement fixed
-  point, value ``int24 / 2^fractionalBits``;
-* alphas ``N``: ``sigmoid(opacity) * 255`` (so ``opacity = a / 255``);
-* colours ``N×3``: ``f_dc * (0.15 * 255) + 127.5`` (so ``f_dc = (c/255 - 0.5) / 0.15``);
-* scales ``N×3``: ``(log_scale + 10) * 16`` (so ``scale = exp(s/16 - 10)``);
-* rotations: version 2 ``N×3`` bytes x, y, z = ``q * 127.5 + 127.5`` with ``w >= 0``
-  rebuilt as ``sqrt(1 - |xyz|^2)``; version 3+ ``N×4`` bytes, one little-endian
-  u32 "smallest three": bits 30..31 the index of the largest component in
-  (x, y, z, w) order, then the other three in ascending index order in bits
-  20..29, 10..19, 0..9, each a sign bit (bit 9) and a 9-bit magnitude ``m`` with
-  value ``±m / 511 * sqrt(1/2)``; the largest is ``sqrt(1 - sum of squares)``;
-* SH ``N×(K-1)×3``: coefficient-major, colour innermost, value ``(b - 128) / 128``.
-
-Coordinate frame
-----------------
-SPZ stores Right-Up-Back (RUB, the OpenGL / three.js frame); 3DGS PLY files
-are Right-Down-Front (RDF). Like the reference library's SPZ → PLY path
-(``UnpackOptions.to = RDF``), :func:`read_spz` converts to RDF: ``y`` and ``z``
-of positions are negated, the quaternion becomes ``(w, x, -y, -z)`` (a rotation
-by π about x), and the SH coefficients get the reference per-coefficient sign
-flips for ``y, z -> -y, -z``. The result is in the world frame a PLY export of the
-same scene has (checked against ``biker.compressed.ply`` in the tests).
-SH degree 4 files are cut to degree 3 (the engine's maximum).
-
-The subset writer copies the selected points' bytes of every column unchanged
-and rewrites only the point count (and, for version 4, the table of contents).
+SPZ stores Right-Up-Back; :func:`read_spz` converts to the 3DGS PLY frame (Right-Down-Front)
+like the reference library: ``y, z`` negated, quaternion ``(w, x, −y, −z)``, SH sign flips.
+SH degree 4 is cut to 3. The subset writer copies the selected points' bytes of every column
+and rewrites only the point count (and v4's table of contents). Layouts in full:
+docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ chain f¹ ⪰ f² ⪰ f — Morton admission, needle cull, footprint coverage.
   after each fusion update → :class:`MappingResult`.
 * :func:`map_to_surfels` — one-shot form. Constants: :class:`MappingConfig`.
 * :class:`~.completion.VolumetricCompletion` — beyond the paper: completion of the
-  selection on 3DGS-derived scenes (issue 15), constants :class:`CompletionConfig`.
+  selection on 3DGS-derived scenes, constants :class:`CompletionConfig`.
 """
 
 from .config import CompletionConfig, MappingConfig

@@ -1,5 +1,5 @@
 """Appearance consistency of Gaussians seen only through other surfaces — a decision rule
-of the 3DGS completion (:mod:`divas_engine.mapping.completion`, issue 15; beyond the paper).
+of the 3DGS completion (:mod:`divas_engine.mapping.completion`; beyond the paper).
 
 A contribution-positive Gaussian that no fused view *sees* (``min_visibility``) has its
 blending weight inside the silhouettes only because what covers it is the object. Two

@@ -1,64 +1,20 @@
-"""Completion of the selection on volumetric (3DGS-derived) scenes — beyond the paper
-(issue 15). The paper's fusion and voxel→surfel mapping (Sec. 3.5–3.6) are built for 2DGS,
-whose surfels lie on the surface. A trained 3DGS is not a surface: measured on the
-shared captures (issue 15's note), the true Gaussians the paper's passes miss sit
-mostly in voxels that *no view voted for* — on the visible surface, inside the masks, but
-outside the thick path's tight depth and spatial gates (a 3DGS surface is a slab of
-Gaussians, not a sheet), or hidden behind the object's own front in every view — and
-large translucent Gaussians whose centre voxel is not even active.
+"""Completion of the selection on volumetric (3DGS-derived) scenes — beyond the paper.
 
-Two additions, both restricted to the neighbourhood of the DivAS voxel selection
-(coarse cells of ``2^k`` voxels around segmented voxels, :class:`CompletionConfig`) so
-the result stays 3D-consistent and floaters away from the object stay out:
+The paper's fusion and voxel→surfel mapping (Sec. 3.5–3.6) assume 2DGS surfels on the surface.
+On a trained 3DGS the true Gaussians the paper's passes miss sit mostly in voxels no view voted
+for (a 3DGS surface is a slab, or hidden behind the object's own front) and in large
+translucent Gaussians whose centre voxel is inactive. Two additions, restricted to the coarse
+cells around the DivAS voxel selection (:class:`CompletionConfig`):
 
-* **contribution-consistent Gaussians** (in the spirit of FlashSplat, Shen et al. 2024):
-  per fused view ``v`` and Gaussian ``i`` the blending weights of the view's render split
-  by its fused mask, ``A₁ = Σ_{M̃≥τ} α T``, ``A₀ = Σ_{M̃<τ} α T``
-  (:func:`divas_kernels.contrib.accumulate_contributions`, the rasterizer's own weights);
-  a Gaussian of the neighbourhood is added when ``A₀ + A₁ ≥ w_min`` over the fused views
-  and ``A₁ − A₀ > γ √(A₀² + A₁²)``, and the masks *see* it: in some fused view its
-  weight ``A₀ + A₁`` is at least ``min_visibility`` × its unoccluded footprint weight
-  ``o · 2π s₁ s₂ |cos θ| f_x f_y / z²`` (the weight it would have with ``T = 1``). A
-  Gaussian seen only *through* other surfaces (``T ≪ 1`` in every view: the support
-  behind a pot, the table under a leaf, the interior of a solid) has a blending weight
-  that falls inside the silhouette because what covers it is the object, which says
-  nothing about itself; such a Gaussian is added only as the hidden voxels of the fill
-  are — its centre within the solid depth behind a mask-positive surface
-  (``depth_factor`` × the chord below) in ``fill_min_views`` views (one when its
-  centre voxel is segmented or filled) and, with ``deep_is_inconsistent``, beyond it in
-  none — or, with ``appearance_k``, when it looks like the object (mapping.appearance);
-* **solid fill** of voxels the views never voted for: per fused view a voxel's centre is
-  *on the surface* (projects onto a mask-positive pixel, ``|z − D_med| ≤ m h_v``),
-  *hidden* (behind such a surface by at most the depth a solid of that silhouette can
-  have there: ``depth_factor`` × the chord ``2 √(ρ(2R − ρ))`` of a ball of the mask's
-  inscribed radius R at the pixel's distance ρ from the silhouette edge, in world units
-  at the voxel's depth — a thin frame allows little depth, a round object its diameter),
-  or *inconsistent* (visible on a mask-negative pixel, or a floater in front of a
-  positive one). Out of frame, hidden behind a negative pixel (an occluder) or deeper
-  than the chord (``deep_is_inconsistent``: an oblique flat object is deeper than its
-  silhouette's inscribed ball) says nothing. Voxels with no inconsistent view and one
-  surface view or ``fill_min_views`` (2) hidden/surface views — the visual hull of the
-  masks, carved by every view that sees them; one cone is unbounded, two intersect in a
-  bounded region — are grown from the segmented voxels through the neighbourhood
-  (``fill_rounds`` rounds); a Gaussian whose centre voxel is segmented or filled is
-  added unless its own contribution says it renders mostly outside the masks (with
-  ``centre_evidence``, one with no contribution of its own must pass the voxels' test at
-  its own centre), and a Gaussian of the paper's selection whose contribution says so
-  is dropped
-  (``drop_inconsistent``: Pass 3's intent, with the renderer's weights).
+* contribution-consistent Gaussians (in the spirit of FlashSplat): per fused view the
+  blending weights split by the fused mask, ``A₁ = Σ_{M̃≥τ} α T``, ``A₀ = Σ_{M̃<τ} α T``; a
+  Gaussian joins when ``A₁ − A₀ > γ √(A₀² + A₁²)`` and some view *sees* it;
+* solid fill of unvoted voxels: the visual hull of the masks (on the surface or hidden within
+  a silhouette's chord depth, inconsistent in no view), grown from the segmented voxels.
 
-Incremental and exact under undo: adding a view computes only that view's records (one
-contribution gather and one projection of the active voxels — with ``sparse_gather``
-only of the Gaussians and voxels of the cells the decision reads,
-:mod:`.completion_gather`, :mod:`.completion_records`) and adds them to integer
-accumulators — ``A₀, A₁`` in int64 fixed point (2⁻²⁴ pixel), the voxel counters in
-int32 — removing it subtracts the same integers, so any add/undo sequence equals the
-views added once (tests: ``tests/test_completion.py``). The per-update decision
-touches only the coarse cells near the selection and their members (per-cell member
-lists built once; the fill candidacy is read from the counters of the voxels examined
-only), and the
-selected Gaussians (the drop test); its only ``O(N)`` / ``O(A)`` steps are copies and
-scans of ``[N]`` / ``[A]`` bool arrays.
+Incremental and exact under undo: a view's records are integers (``A₀, A₁`` in int64 fixed
+point of 2⁻²⁴ pixel, voxel counters in int32) added to accumulators and subtracted on undo.
+The full rules: docs/design-notes.md, section ``divas_engine/mapping/completion.py``.
 """
 
 from __future__ import annotations

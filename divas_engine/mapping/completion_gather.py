@@ -1,43 +1,15 @@
-"""The neighbourhood cells of the 3DGS completion and its sparse per-view gather (issue 15).
+"""The neighbourhood cells of the 3DGS completion and its sparse per-view gather.
 
-The completion's decision (:meth:`.completion.VolumetricCompletion.complete`) reads the
-contribution records ``A₁, A₀`` (and the visibility / depth evidence derived from them) of
-two sets of Gaussians only: those of the coarse cells near the DivAS voxel selection
-(:class:`CoarseCells`, grown by the fill) and the selected ones (the drop test). So a
-view's gather need not split the blending weight of all ``N`` Gaussians: it needs the
-weights of the Gaussians ``K`` of a *cover* (a set of coarse cells holding that
-neighbourhood), and a Gaussian's weight ``w_{i,p} = α_{i,p} T_{i,p}`` at a pixel is decided
-by the Gaussians that blend before it there. :func:`sparse_contributions` therefore runs
-the same contribution pass (:func:`divas_kernels.accumulate_contributions`: the
-rasterizer's projection, depth order, tiles and walk) on only the surfels that can blend,
-somewhere in the image, before one of ``K``
-(:meth:`~divas_engine.render.surfel_blocks.SurfelBlocks.near`, the graph3d segmenter's
-sparse mask renders use the same index): every pixel of every tile a footprint of ``K``
-meets holds, in the same order (ascending depth, ties by index — the rows keep the scene's
-order), every surfel that precedes a Gaussian of ``K`` there, so the weights of ``K`` are the
-full pass's over the whole image (``A₀`` included: no window cuts a footprint). Surfels of
-the sub-scene outside ``K`` may miss what lies in front of them elsewhere: their sums are
-discarded. The sums are accumulated per tile into the same ``[threads, ·]`` rows in the
-same tile order as the full pass, so they are the full pass's bit for bit (tested) — as
-long as the full pass walks the image in one band of tiles (its (tile, surfel) pairs ≤
-``RenderConfig.max_duplicates``, 2²⁵: true at 1M surfels and 640 × 480). A full pass split
-into bands hands band-local tile numbers to the CPU sub-launches, so a tile may land in
-another accumulator row and a sum differ in its last float32 bit (one fixed-point unit
-of 2⁻²⁴ pixel).
-
-In either pass each tile's depth-ordered list is walked only up to its last Gaussian of
-``K`` (``accumulate_contributions(targets=…)``: what comes after it changes no weight of
-``K``; a tile without one is skipped), and when the renderer still keeps the view's
-binning — the session's accept: the view was rendered to be reviewed — that binning's
-lists are walked directly: no block look-up, projection, depth sort or tile binning, and
-the walk is the full pass's own, cut (so the sums are its sums with no condition on
-bands). What remains is the walk over the pixels the object covers, up to each pixel's
-saturation: the cost of a render of the object's part of the view.
-
-Which cells a record covers is remembered with it; the completion widens a record's cover
-(gathers the missing cells and adds them) when the selection's neighbourhood outgrows it,
-and falls back to the full pass when the cover's sub-scene holds most of the scene, or off
-the CPU (where the pass over the scene is cheap).
+The completion's decision reads the contribution records ``A₁, A₀`` of two sets of Gaussians
+only: those of the coarse cells near the voxel selection (:class:`CoarseCells`) and the
+selected ones. :func:`sparse_contributions` runs the contribution pass on only the surfels
+that can blend before one of the cover's Gaussians ``K`` somewhere in the image
+(:meth:`~divas_engine.render.surfel_blocks.SurfelBlocks.near`), so the weights of ``K`` equal
+the full pass's — bit for bit while the full pass walks the image in one band of tiles. Each
+tile's list is walked only up to its last Gaussian of ``K``; a binning the renderer still keeps
+is walked directly. A record's cover is widened when the neighbourhood outgrows it; the full
+pass is used when the cover holds most of the scene, or off the CPU. Details:
+docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -241,8 +213,8 @@ def sparse_contributions(
 
 
 # one background thread for the gathers (its walk runs on the launch pool's threads), so
-# the completion makes what does not read the walk meanwhile (issue 15: the per-update
-# cost); a forked child starts its own
+# the completion makes what does not read the walk meanwhile (off the per-update path);
+# a forked child starts its own
 _GATHER: ThreadPoolExecutor | None = None
 
 

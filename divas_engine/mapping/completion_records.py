@@ -1,4 +1,4 @@
-"""The per-view records of the 3DGS completion (issue 15) and the per-pixel and
+"""The per-view records of the 3DGS completion and the per-pixel and
 per-point helpers they are made with.
 
 A view's record holds integers only (fixed-point contribution sums, visibility and depth
@@ -74,8 +74,8 @@ class _ViewRecord:
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """``scipy.ndimage.binary_fill_holes(mask)`` (its default 4-connectivity): the mask
     plus every background component (4-connected) that touches no image border — one
-    labelling pass instead of growing the outside by repeated dilation (issue 15: the
-    per-update cost; equal, ``tests/test_completion_records.py``)."""
+    labelling pass instead of growing the outside by repeated dilation (cheaper per
+    update; equal, ``tests/test_completion_records.py``)."""
     from scipy.ndimage import label
 
     m = np.asarray(mask, bool)

@@ -64,7 +64,7 @@ class MappingConfig:
 @dataclass(frozen=True)
 class CompletionConfig:
     """Completion of the selection on volumetric (3DGS-derived) scenes — beyond the paper
-    (issue 15; :mod:`divas_engine.mapping.completion`). Runs only on ``SceneKind.GS3D``
+    (:mod:`divas_engine.mapping.completion`). Runs only on ``SceneKind.GS3D``
     scenes; 2DGS input keeps the paper's three passes exactly.
 
     Attributes:
@@ -78,10 +78,8 @@ class CompletionConfig:
         min_weight: a Gaussian has contribution evidence when its blending weight summed
             over the fused views ``A₀ + A₁ ≥ min_weight`` (full-resolution pixels; 0.01:
             a hundredth of a fully weighted pixel); below it only the solid fill
-            decides. Measured on the real-capture targets (oracle, op-IoU): 0.5 left
-            the small and half-hidden Gaussians the masks do claim to the fill, which
-            misses those outside filled voxels (neck 0.926 → 0.948, guitar 0.951 →
-            0.961, stand 0.719 → 0.731 at 0.01; 0.001 within ±0.005 of 0.01).
+            decides. Larger values leave the small and half-hidden Gaussians the masks
+            do claim to the fill, which misses those outside filled voxels.
         min_visibility: τ_vis, a Gaussian is *seen* in a fused view when its blending
             weight there is at least τ_vis × its unoccluded footprint weight
             ``o · 2π s₁ s₂ |cos θ| f_x f_y / z²`` (its weight with transmittance 1);
@@ -89,34 +87,23 @@ class CompletionConfig:
             surfaces) is added only when its centre lies within the solid depth behind
             a mask-positive surface (``depth_factor``) in ``fill_min_views`` views
             (deeper says nothing unless ``deep_is_inconsistent``) — as the fill's
-            hidden voxels. 0.1: measured on the
-            synthetic 3DGS plant (oracle, 2 views), the additions the masks claim
-            through the pot and the leaves — table seen behind them, T ≈ 0.002 — have
-            visibility 0.0002–0.03, the true additions the masks see 0.3–0.7; image IoU
-            0.452 → 0.684 (the paper's passes 0.660). Real-capture cost
-            (guitar, lod1/plants): see BENCHMARKS.md, issue 15 third pass. 0 turns the
-            rule off (the second pass's completion exactly).
+            hidden voxels. 0.1 separates the two: Gaussians seen only through the
+            object (a table behind a pot, T ≈ 0.002) have visibility ≲ 0.03, those the
+            masks see ≳ 0.3. 0 turns the rule off.
         appearance_k: a contribution-positive Gaussian seen in no view that the depth
             rule above leaves out still joins when, among the ``appearance_k`` Gaussians
             of the neighbourhood nearest to it in 3D that some view *sees*, the one of
             closest colour (SH DC) is in the selection: the object's own inside seen
             through its front looks like the object, the support seen through the object
             like the support's seen part next to it (:mod:`divas_engine.mapping.appearance`).
-            0 (the default) turns the rule off: the third pass's completion exactly.
-            Measured at 8 (BENCHMARKS.md, issue 15 fourth pass, oracle): real captures
-            alpha 0.984 → 0.986, PSNR 36.4 → 36.9 dB (lod1/plants 28.0 → 29.5), op-IoU
-            0.895 → 0.894, image IoU 0.840 → 0.837; synthetic occluded op-IoU 0.824 →
-            0.897 but image IoU 0.667 → 0.632; synthetic plant end to end 0.684 → 0.577
-            (the simulated user stops after 2 views instead of 3; on that same session
-            the rule changes nothing in image IoU). Off until that is resolved.
+            0 (the default) turns the rule off. It raises alpha fidelity and PSNR on the
+            real captures but lowers image IoU on the synthetic scenes, hence off.
         neighbourhood_log2: the neighbourhood of the voxel selection is the set of coarse
             cells of ``2^k`` voxels per side holding a segmented (or filled) voxel,
             dilated by one cell: everything within ``2^k … 2^(k+1)`` voxels (1: 2–4 h_v).
             Contribution and fill additions are restricted to it, so floaters and
-            surfaces away from the object stay out. Measured (oracle, k = 1 vs 0): k = 0
-            gains op-IoU (synthetic 3DGS plant 0.809 → 0.838, stand 0.729 → 0.742) but
-            loses the large Gaussians whose centres lie 2–4 voxels out: on lod1/plants
-            alpha fidelity 0.987 → 0.787, PSNR 31.1 → 19.5 dB — a ghost again, so 1.
+            surfaces away from the object stay out. 1, not 0: k = 0 gains op-IoU but
+            loses the large Gaussians whose centres lie 2–4 voxels out (a ghost render).
         surface_margin: ``|z − D_med| ≤ surface_margin · h_v`` is "on the visible
             surface" of a view (2, the fusion's behind-gate margin, eq:behind-gate);
             further in front is a floater in front of the object.
@@ -141,13 +128,9 @@ class CompletionConfig:
             (0.072 scene units on the guitar capture, a stand tube's width) and its centre
             alone speaks for it: one view where that centre falls on a thin object's mask
             fills it, and the voxel then adds what else it holds — the guitar body's
-            hidden interior behind the stand (stand15, issue 15). Measured (oracle,
-            BENCHMARKS.md "guitar/stand false positives (stand15)"): op-IoU stand 0.743 →
-            0.752, biker/head 0.904 → 0.909, mean of the 7 real targets 0.895 → 0.897,
-            image IoU and alpha within ±0.001, but PSNR 36.42 → 36.37 dB (guitar/neck
-            35.20 → 34.99: the false Gaussians it drops rendered inside the silhouette);
-            synthetic 3DGS: ribs and occluded identical, plant op-IoU 0.909 → 0.910.
-            Off (the default) until the PSNR trade is decided: main's completion exactly.
+            hidden interior behind the stand. The rule raises op-IoU slightly but lowers
+            PSNR (the false Gaussians it drops rendered inside the silhouette), so it is
+            off by default.
         drop_inconsistent: also drop Gaussians of the paper's selection whose blending
             weight over the fused views lies mostly outside the masks (the same test,
             the other way: not ``A₁ − A₀ > γ ‖A‖`` with evidence ``≥ drop_min_weight``;

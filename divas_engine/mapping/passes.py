@@ -8,39 +8,10 @@ Usage::
     res = mapper.map(fusion.result(), views, slots)   # after each accepted view
     res.selected                                # [N] bool, the foreground indicator f
 
-``slots[k]`` is the view-coverage bitmask bit of ``views[k]``: for
-:class:`~divas_engine.fusion.GsFusion` it is the id returned by ``add_view`` (the view
-id *is* its slot, ``fusion/state.py``).
-
-Decisions on points the paper leaves open:
-
-1. Pass 1 resolves each surfel's voxel once per scene with the grid's own
-   ``surfel_voxel_codes`` (the build's NaN/AABB filter and Morton encoding) and hash
-   lookup; the "segmentation bitfield" is ``FusionResult.segmented`` by active index
-   (the grid stores a hash, not a g³ bitfield, ``fusion/occupancy.py``). A surfel
-   filtered by the AABB/NaN test or in an inactive voxel has ``f¹ = 0``.
-2. τ_a is NumPy's linear-interpolation P99 of ``a_i`` (float64) over all N surfels
-   (eq:needle: ``{a_i}_{i=1}^{M}``, not just Pass-1 survivors); a non-finite aspect is
-   left out of the percentile and counts as a needle.
-3. The Pass-3 gate uses the P-masked bitmask ``FusionResult.vmask``; since Pass 1
-   keeps only segmented voxels it equals the raw bitmask on every candidate.
-4. 1σ box: ``e_x = max |π_x(μ ± σ_b t_k) − c_x|`` over the four projected tangent tips
-   (the paper's ``max(|α_x^{(0)}|, |α_x^{(1)}|)``; taking both tips of each axis makes
-   it well defined under perspective), centred on the projected centre ``c``; the
-   visited pixels are those whose centre ``(x + ½, y + ½)`` lies in the box (clipped
-   to the image).
-5. Per-pixel acceptance: the pixel ray meets the surfel plane at ``u² + v² ≤ 9``
-   (tangent units), the rasterizer's ray–splat intersection without its low-pass
-   term (coverage is geometric; a sub-pixel surfel whose box holds no pixel centre
-   gets κ_s = 0 in that view).
-6. A surfel is scored in a view only when its whole 3σ disc lies beyond the near
-   plane (the rasterizer's rule, with the view camera's own near when larger:
-   ``Camera.clip_near``); otherwise κ_s = 0 there.
-7. Masks are binarised once per view, ``M̃ ≥ τ_M`` compared in float32.
-8. κ_i = 0 for surfels never scored; κ is computed in float32 as
-   ``mask_fp / max(total_fp, 1)`` and compared with float32(τ_κ).
-9. Pass 3 is a surfel-parallel gather (see ``kernels/coverage.py``), not the paper's
-   tile-sorted one: the integer counts are layout-independent.
+``slots[k]`` is the view-coverage bitmask bit of ``views[k]`` (for
+:class:`~divas_engine.fusion.GsFusion` the id returned by ``add_view``). The decisions on
+points the paper leaves open (voxel resolution, τ_a's percentile, the 1σ box, per-pixel
+acceptance, near-plane rule, κ's float32 arithmetic) are listed in docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -226,8 +197,8 @@ class SurfelMapper:
             renderer's ``surfel_buffers``): their centres and scaled tangents are used
             instead of a second upload. They hold the same float32 values: the renderer
             rounds the float32 product ``R·s`` and this class the exact float64 product
-            of the same float32 factors, which rounds to the same float32 (issue 20:
-            0.1 GB at 3M surfels; tested bit for bit).
+            of the same float32 factors, which rounds to the same float32 (tested bit
+            for bit).
     """
 
     def __init__(

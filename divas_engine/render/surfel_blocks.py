@@ -31,14 +31,14 @@ _CHUNK = 1 << 18  # surfels per chunk of the index's per-surfel passes
 _REACH_CLASSES = 4  # footprint classes: ≤ 4×, ≤ 16×, ≤ 64×, more than the median's
 _TILE = 8  # pixels per side of the depth map's tiles
 #: rows of ``near``'s points per (item, tile) pass: the pairs of large footprints run to
-#: tens of millions (issue 20: the peak of graph3d's first click at 3M); a max per tile
-#: over blocks of rows is the same map; 8192 rows keep each pass's pair arrays small
-#: enough for the heap's free memory (4k instead of 18k page faults a mask render at 3M)
+#: tens of millions at millions of surfels; a max per tile over blocks of rows is the same
+#: map, and 8192 rows keep each pass's pair arrays small enough to come from the heap's
+#: free memory instead of fresh pages
 _NEAR_CHUNK = 1 << 13
 #: rows per pass of :func:`ball_pixel_bounds` and the depths of ``near``: its dozen
 #: per-row temporaries stay small enough to come from the heap's free memory, not from
-#: fresh mappings whose pages fault in (issue 20: 17k page faults, ≈ 40 ms, of each mask
-#: render at 3M in Blender's fixed-threshold heap); row by row the same arithmetic
+#: fresh mappings whose pages fault in (Blender's heap maps every allocation over a fixed
+#: threshold anew); row by row the same arithmetic
 _BOUNDS_CHUNK = 1 << 15
 
 
@@ -138,7 +138,7 @@ class SurfelBlocks:
         # cells cut at each axis's quantiles (a dense object inside a large backdrop gets
         # many small blocks), and split by footprint class (a few huge backdrop surfels
         # would otherwise widen the balls of the blocks they share with small ones).
-        # Per axis and in chunks: the transient memory stays a few [N] arrays (issue 20)
+        # Per axis and in chunks: the transient memory stays a few [N] arrays
         q = np.linspace(0.0, 1.0, g + 1)[1:-1]
         key = np.zeros(n, np.int64)
         for k in (2, 1, 0):
@@ -188,8 +188,8 @@ class SurfelBlocks:
     ) -> np.ndarray:
         """Ascending rows of the surfels of every block whose ball can reach a pixel of
         ``window`` (``x0, y0, x1, y1`` half-open pixels of ``camera``'s image) — a
-        superset of the surfels a render of that window does not cull (issue 20: a
-        zoomed centroid view or a probe's central patch meets a few blocks, and only
+        superset of the surfels a render of that window does not cull (a zoomed
+        centroid view or a probe's central patch meets a few blocks, and only
         their surfels need projecting). A ball wholly behind the camera plane is left
         out (its surfels lie behind the near plane); one reaching the plane is kept.
         Bounds are widened by ``margin_px`` (the low-pass disc), a pixel of rounding and

@@ -79,12 +79,12 @@ class SurfelRenderer(Renderer):
     The projection, culling, depth sort and tile binning of the last
     ``binning_cache`` views are kept (:class:`divas_kernels.ViewBinning`), so a value
     render (overlay, oracle target) of a camera just rendered in RGB only blends —
-    bit-identical to a fresh render (issue 20). 0 turns the cache off.
+    bit-identical to a fresh render. 0 turns the cache off.
 
     Values known before a view is rendered (:meth:`attach_values`: the oracle's ground
     truth) are composited in every RGB render's own blend, as extra channels; a later
     :meth:`render_values` of that camera with the same values returns that image
-    without blending again — bit-identical to a separate value render (issue 20).
+    without blending again — bit-identical to a separate value render.
     """
 
     kind = SceneKind.GS2D
@@ -99,22 +99,22 @@ class SurfelRenderer(Renderer):
     #: keep an RGB render's per-surfel SH colours (``[N,3]`` float32, 12 bytes per surfel
     #: of the scene) with its binning, for a second RGB render of the same camera. A
     #: session never makes one (anchors and views keep their buffers; the value renders
-    #: that reuse a binning read no colours), so they are dropped: 34 MB at 3M surfels
-    #: (issue 20). A dropped colour set only means that RGB render projects afresh.
+    #: that reuse a binning read no colours), so they are dropped (34 MB at 3M surfels).
+    #: A dropped colour set only means that RGB render projects afresh.
     binning_keeps_colours: bool = False
     #: how many RGB renders' composites of the attached values are kept (an image each:
     #: ``H·W·C`` floats, 1.2 MB for one channel at 640×480)
     value_images_kept: int = 4
     #: :meth:`render_values_sparse` takes its working arrays from buffers kept across
     #: calls (``divas_kernels.scratch``) — memory held between calls, ≈ 140 MB at 3M. Pays
-    #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold
-    #: at 3M: 43–63k → 4–12k page faults and ≈ 0.56 → 0.47 s CPU a mask render; the
-    #: add-on switches it on there); with glibc's adaptive threshold the freed arrays
+    #: where the C heap maps every large array afresh (the add-on's fixed mmap threshold:
+    #: far fewer page faults a mask render; the add-on switches it on there); with
+    #: glibc's adaptive threshold the freed arrays
     #: are reused anyway and the first call costs more (every array its own buffer)
     scratch_sparse: bool = False
-    #: the other renders (views, anchors, probes) too, for what no binning keeps (75k →
-    #: 45k page faults a 3M view) — another ≈ 110 MB held at 3M, so off by default: at 3M
-    #: in Blender it took the peak RSS to the issue's 2.5 GB limit (issue 20)
+    #: the other renders (views, anchors, probes) too, for what no binning keeps (fewer
+    #: fresh pages) — another ≈ 110 MB held at 3M, so off by default: it raises the peak
+    #: RSS of a large scene in Blender
     scratch_renders: bool = False
     #: a render that replaces a kept binning writes its splats into the dropped one's
     #: array when nothing else holds it and its splats fit (``divas_kernels.recycling``):
@@ -167,7 +167,7 @@ class SurfelRenderer(Renderer):
         if hit is None and self.device.is_cpu and (window is not None or self._blocks is not None):
             rows = self._candidates(cam, window)
         # the working arrays no binning keeps in buffers kept from the last render
-        # (divas_kernels.scratch: no fresh pages to fault in, issue 20), when switched on
+        # (divas_kernels.scratch: no fresh pages to fault in), when switched on
         pool = self._scratch.active(everything=False) if self.scratch_renders else nullcontext()
         with pool, recycling(donors):
             r = rasterize_surfels(
@@ -205,8 +205,8 @@ class SurfelRenderer(Renderer):
     def _candidates(self, cam: Camera, window) -> np.ndarray | None:
         """The surfels of the scene blocks that can reach ``window`` of ``cam`` (the
         image when None; :meth:`SurfelBlocks.in_window`), or None when that is most of
-        the scene. Projecting only them renders the same image bit for bit (issue 20:
-        a centroid view and its probes see a small part of the scene). CPU only."""
+        the scene. Projecting only them renders the same image bit for bit (a centroid
+        view and its probes see a small part of the scene). CPU only."""
         if self.num_primitives == 0:
             return None
         blocks, _ = self.sparse_index()
@@ -217,9 +217,8 @@ class SurfelRenderer(Renderer):
     def _make_room(self) -> list:
         """Before a render whose binning will be kept: drop the oldest kept binnings that
         would be dropped after it anyway (the count, or the bytes with one more of the
-        size of the largest kept), so their memory is free while it renders (issue 20:
-        at 3M surfels one binning is ≈ 0.2 GB; the peak held two). A cache only: no
-        result changes.
+        size of the largest kept), so their memory is free while it renders (at 3M
+        surfels one binning is ≈ 0.2 GB). A cache only: no result changes.
 
         Returns the dropped binnings' splat arrays that nothing else holds, for the
         render to write its own splats into (``divas_kernels.recycling``; CPU, when
@@ -261,9 +260,9 @@ class SurfelRenderer(Renderer):
         composites in its own blend (extra channels of the same per-pixel loop, no
         background), so that :meth:`render_values` of a camera rendered since, given
         values equal to these bit for bit (as float32), returns that composite without
-        blending again: the same image bit for bit (issue 20: the oracle's ground truth
-        at each view the session shows; a separate value render costs a blend as long as
-        the RGB one). A private float32 copy is held; None detaches."""
+        blending again: the same image bit for bit (the oracle's ground truth at each
+        view the session shows; a separate value render costs a blend as long as the
+        RGB one). A private float32 copy is held; None detaches."""
         self._images = []
         if values is None:
             self._attached = None
@@ -381,7 +380,7 @@ class SurfelRenderer(Renderer):
     def release(self, camera: Camera) -> bool:
         """Drop ``camera``'s kept binning now when the byte budget holds no second one
         beside it — the next render would drop it anyway (a 3M-surfel view: ≈ 0.2 GB);
-        a view that is done with (accepted) frees its memory at once (issue 20). Returns
+        a view that is done with (accepted) frees its memory at once. Returns
         whether one was dropped; smaller binnings stay (their overlays reuse them)."""
         hit = self.kept_binning(camera)
         if hit is None or 2 * hit.nbytes <= self.binning_cache_bytes:
@@ -434,7 +433,7 @@ class SurfelRenderer(Renderer):
         (:mod:`.surfel_blocks`): the same composite bit for bit, at the cost of those
         surfels instead of the scene's. The dense render on a GPU (where the pass over
         the scene is cheap). ``threads``: the CPU launch threads of this render (1: the
-        calling thread only — a render beside another one, issue 20; every split is per
+        calling thread only — a render beside another one; every split is per
         item, so the image is the same bit for bit)."""
         rows = np.asarray(rows, np.int64)
         v = np.asarray(values, np.float32)

@@ -1,31 +1,20 @@
 """The one 2D segmenter interface every mask source implements (paper Sec. 3.4).
 
-A segmenter is used like SAM's predictor: :meth:`Segmenter.set_image` once per
-view (the expensive part — an image embedding, a feature image — is cached per
-view), then :meth:`Segmenter.predict` for every prompt set on that view.
+Used like SAM's predictor: :meth:`Segmenter.set_image` once per view (the expensive part is
+cached per view, keyed by the explicit ``view_id`` or a BLAKE2 hash of image and depth), then
+:meth:`Segmenter.predict` per prompt set. Conventions shared by all implementations:
 
-Conventions shared by all implementations:
-
-* ``rgb``: ``[H,W,3]`` ``uint8`` or float in ``[0,1]`` (a 4th alpha channel is
-  dropped). ``depth``: ``[H,W]`` planar camera depth of the same view, or None;
-  ``≤ 0`` / non-finite = no surface (NOTES "Depth tuple").
-* ``points``: ``[P,2]`` continuous pixel coordinates ``(x, y)`` with pixel
-  centres at ``+0.5`` — pixel index ``(i, j)`` is the point ``(i + 0.5, j + 0.5)``
-  (NOTES "Conventions"). ``labels``: ``[P]`` int, ``1`` positive, ``0`` negative.
-* ``predict`` returns ``masks [3,H,W] float32`` *probabilities* (sigmoid of
-  logits, NOTES "Fusion constants") ordered small → large granularity like SAM's
-  multimask output, and ``scores [3] float32``. DivAS uses channel 1
+* ``rgb``: ``[H,W,3]`` ``uint8`` or float in ``[0,1]`` (alpha dropped); ``depth``: ``[H,W]``
+  planar camera depth or None, ``≤ 0`` / non-finite = no surface (NOTES "Depth tuple").
+* ``points``: ``[P,2]`` continuous pixel coordinates, pixel ``(i, j)`` centred at
+  ``(i + 0.5, j + 0.5)``; ``labels``: ``[P]`` int, ``1`` positive, ``0`` negative.
+* ``predict`` returns ``masks [3,H,W] float32`` probabilities ordered small → large like
+  SAM's multimask output, and ``scores [3] float32``; DivAS uses channel 1
   (:func:`select_mask`, Sec. 3.4 "Mask-channel selection and view acceptance").
 
-The embedding cache is keyed by the explicit ``view_id`` when given (the caller
-promises a view id is never reused for a different image) and otherwise by a
-BLAKE2 hash of the image and depth bytes.
-
-A session calls :meth:`Segmenter.segment_view` with a :class:`~.context.ViewContext`
-(the view's render, camera and object clicks) and the optional hooks the base class
-declares with no-op defaults (:meth:`~Segmenter.bind_scene`, :meth:`~Segmenter.warm_up`,
-the prefetch hooks, :attr:`~Segmenter.wants_ground_truth`); a segmenter overrides the ones
-it uses.
+A session calls :meth:`Segmenter.segment_view` with a :class:`~.context.ViewContext` and the
+optional hooks the base class declares with no-op defaults (``bind_scene``, ``warm_up``, the
+prefetch hooks, ``wants_ground_truth``); a segmenter overrides the ones it uses.
 """
 
 from __future__ import annotations

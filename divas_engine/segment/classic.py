@@ -1,70 +1,14 @@
 """A weight-free fallback segmenter: seeded GrabCut on colour *and* rendered depth.
 
-No model file, no network (the default is the scene-aware :mod:`.graph3d`). It
-keeps SAM's contract (3 granularities, probabilities, a score per channel) so
-the rest of DivAS cannot tell the difference.
-
-Algorithm (per prompt set; the per-view colour features are cached):
-
-1. Work at SAM's low-res scale: the image is area-resized to longest side
-   ``work_long_side`` (256). Colour is CIE-Lab projected on its two principal
-   axes (keeps the Lab distances of most of the colour variation in 2 channels).
-2. Depth channel. The positive clicks' depths (median of a 5×5 valid
-   window each) form a band ``[d_lo, d_hi]`` (the idea of eq:depthband, here
-   on log depth); every pixel gets the signed log-distance to the band
-   ``δ = log D − clip(log D, log d_lo, log d_hi)`` and the third channel is
-   ``128 + depth_gain · δ`` (clipped to 0..255; no surface → 255). GrabCut's
-   colour models *and* its contrast-sensitive smoothness then see depth edges,
-   so an object whose texture equals the background's is still cut out.
-3. Seeds and initial labels for granularity ``k`` (tolerance ``τ_k``): probable
-   foreground = the connected components (8-neighbourhood) of ``|δ| ≤ τ_k`` that
-   hold a positive click, minus pixels whose Lab colour is nearer the negative
-   clicks' mean colour than the positive clicks' (by ``neg_colour_margin``); sure background where
-   ``|δ| > hard_factor · τ_k``; positive clicks → sure-foreground disks (only
-   their depth-consistent pixels), negative clicks → sure-background disks; the
-   1-px image frame is at most *probable* background. Without depth, ``|δ| ≤ τ_k``
-   is replaced by the Lab distance to the positive clicks' mean colour
-   ``≤ colour_tol[k]``.
-4. ``cv2.grabCut`` (mask init, seeded RNG) inside an ROI around the probable
-   foreground; the foreground components touching a positive click are kept.
-5. Soft output: the signed distance to the binary boundary is resized to full
-   resolution and mapped through ``sigmoid(sd / softness_px)``.
-6. Score per channel: boundary separation ``D² = Σ_c Δμ_c² / (σ²_in,c + σ²_out,c + σ₀²)``
-   of the three feature channels over 2-px rings inside/outside the boundary,
-   ``score = D² / (1 + D²)`` (≥ 0.5 ⇔ ``D ≥ 1``, a clean one-sigma separation),
-   times the fraction of positive clicks covered, times ``(1 − fraction of
-   negative clicks covered)``, times ``min(1, area / min_area_frac)`` (a click
-   that did not grow is no commitment); 0 for an empty mask or one covering
-   more than ``max_area_frac`` of the view.
-
-Depth-edge regions (``edge_regions``, default on when depth is given; module
-:mod:`.depth_edges`): a genuine 3D object boundary is a disparity *jump* or a
-normal *crease*, both measured plane-invariantly (a slanted plane has neither).
-Step 3 then changes for granularity ``k``: the probable foreground is the
-4-connected region of the click that crosses no depth edge (strength ≥ 1 for
-``jump_tol[k]`` / ``crease_tol[k]``), re-grown over its rim, intersected with the
-click's component of ``|δ| ≤ edge_hard_factor · τ_k`` (a support touching the object
-with no jump is cut where its depth leaves the band) and minus the negative-colour
-pixels; everything else is probable background, sure background beyond
-``edge_hard_factor · τ_k`` outside the region; clicks as before. So thin, curved,
-depth-spread objects (rib cages, leaves) keep all their parts, while GrabCut's
-colour model can still split an object from a support it rests on. The channel
-score is multiplied by ``closure ** closure_power``, ``closure`` = the fraction of
-the region's outer rim that is a depth edge (a region that leaked over a contact
-into its support is less of a commitment). A channel (of ``edge_fallback``, by
-default channel 1) whose edge-region cut scores below ``edge_min_score`` is recomputed
-with the plain depth-band labels of step 3
-(``hard_factor``) and keeps that cut and its score, so views the band path accepted
-are not lost. Known limit: an object resting on a support at the same depth (no
-jump, weak crease) stays joined to it — the depth channel ties them, colour alone
-does not split them (same as the band path).
-
-Cost: about 0.1–0.3 s per prompt set at 640×480 on 2 CPU cores (GrabCut's
-max-flow dominates; the per-view features take ~20 ms).
-
-Channels are small/medium/large by ``τ_k`` (nested in practice, not enforced);
-the medium one runs first and a channel whose initial labels equal an earlier
-one's reuses its cut (no second GrabCut).
+No model file, no network (the default is the scene-aware :mod:`.graph3d`). It keeps SAM's
+contract (3 granularities, probabilities, a score per channel) so the rest of DivAS cannot
+tell the difference. Per prompt set, at SAM's low-res scale: Lab colour on two principal axes
+plus a depth channel ``128 + depth_gain · δ`` with ``δ`` the signed log-distance to the
+positive clicks' depth band (the idea of eq:depthband); seeds from the band (or, with
+``edge_regions``, from the click's depth-edge region, :mod:`.depth_edges`); ``cv2.grabCut``
+in an ROI; soft output ``sigmoid(sd / softness_px)``; score per channel from the boundary
+separation ``D² / (1 + D²)``. Channels are small/medium/large by the tolerance ``τ_k``.
+The steps in full: docs/design-notes.md, section ``divas_engine/segment/classic.py``.
 """
 
 from __future__ import annotations

@@ -1,26 +1,18 @@
 """Depth-edge regions for :class:`.classic.ClassicSegmenter` (weight-free object masks).
 
-The rendered depth of a splat view is the strongest object cue it has: a genuine
-3D edge is either a *depth jump* (an occluding contour) or a *crease* (a
-normal discontinuity where an object stands on a surface). Both are measured so
-that a slanted plane produces neither, however steep its depth gradient:
+A genuine 3D edge is a *depth jump* (an occluding contour) or a *crease* (a normal
+discontinuity where an object stands on a surface); both are measured so that a slanted plane
+produces neither:
 
-* disparity ``q = 1/D`` of a plane is affine in pixel coordinates, so between
-  horizontal neighbours ``x, x+1`` the step ``s = q[x+1] − q[x]`` of a plane
-  equals the one-sided steps ``g_L = q[x−1] − q[x−2]`` and ``g_R = q[x+3] − q[x+2]``
-  (one pixel skipped on either side, so an antialiased jump spread over 2 px still counts).
-  The jump of the pair is ``min(|s − g_L|, |s − g_R|) / min(q[x], q[x+1])``
-  (relative; ≈ the relative depth jump at an occluding contour, 0 on any plane);
-  same for vertical pairs;
-* the pseudo-normal ``n ∝ (f·∂q/∂u / q, f·∂q/∂v / q, 1)`` (Sobel on the lightly
-  smoothed disparity, ``f = focal_frac ·`` the working width) is compared across
-  each pair between the pixels ``crease_gap`` away on either side; the crease
-  strength of the pair is the angle between the two normals (radians).
+* jump: disparity ``q = 1/D`` of a plane is affine in pixels, so between neighbours the step
+  ``s = q[x+1] − q[x]`` equals the one-sided steps ``g_L = q[x−1] − q[x−2]`` and
+  ``g_R = q[x+3] − q[x+2]``; the jump is ``min(|s − g_L|, |s − g_R|) / min(q[x], q[x+1])``;
+* crease: the angle between the pseudo-normals ``n ∝ (f·∂q/∂u / q, f·∂q/∂v / q, 1)`` taken
+  ``crease_gap`` away on either side of the pair.
 
-A pixel's edge strength (per granularity) is ``max(jump / τ_jump, crease / τ_crease)``
-over its 4 neighbour pairs; pixels ≥ 1 form the barrier, the 4-connected
-barrier-free component under the click is the object core, which then re-grows
-over the barrier pixels whose depth continues it (:func:`regrow`).
+A pixel's edge strength is ``max(jump / τ_jump, crease / τ_crease)`` over its 4 neighbour
+pairs; pixels ≥ 1 form the barrier, the barrier-free 4-connected component under the click is
+the object core, which re-grows over barrier pixels whose depth continues it (:func:`regrow`).
 """
 
 from __future__ import annotations

@@ -4,9 +4,6 @@ NeRF — bounded min-max normalisation (eq:nerf-depthweight)::
 
     M̃_s = M_s ⊙ (1 − Ẑ_s),   Ẑ_s = (D_exp − min D_exp) / max(max D_exp − min D_exp, floor)
 
-min/max over *valid* pixels; the floor (``denom_floor``) keeps a constant-depth
-view at weight 1 instead of 0/0.
-
 2DGS — prompt depth band with a robust far estimate (eq:depthband, eq:gs-bandpass)::
 
     𝒟_s = {D_med(p_k)}_{k=1..P_s} ∪ {D_med(w/2, h/2)},  d_min = min 𝒟_s,  d_max = max 𝒟_s
@@ -14,16 +11,10 @@ view at weight 1 instead of 0/0.
     Δ₋ = max(d_min − D_med, 0),  Δ₊ = max(D_med − d_max, 0)
     D_band = clip((Δ₋ + Δ₊) / max(d_far − d_max, 10⁻⁶), 0, 1),   M̃_s = M_s (1 − D_band)
 
-``p_k`` are the *positive* prompts only. A continuous point is read at the pixel
-that contains it (``floor``; the view centre ``(w/2, h/2)`` is pixel
-``(⌊w/2⌋, ⌊h/2⌋)``). ``𝒫₉₈`` is NumPy's linear-interpolated percentile over
-valid pixels. Depth samples that are invalid are left out of ``𝒟_s``.
-
-Validity (both paths): finite and ``≥ min_valid_depth`` (NOTES: ``D_med = 0``
-means no surface), optionally ANDed with a caller mask (e.g. NeRF accumulated
-opacity). Invalid pixels get ``invalid_weight`` (0): the paper's formulas do not
-define them (a literal ``D_med = 0`` would give ``Δ₋ = d_min``), and the fusion
-kernels skip them anyway — a documented completion, not a change.
+``p_k`` are the positive prompts, read at the pixel containing them (``floor``). Min, max and
+``𝒫₉₈`` are over valid pixels: finite and ``≥ min_valid_depth``, optionally ANDed with a caller
+mask. Invalid pixels get ``invalid_weight`` (0): the paper's formulas do not define them and
+the fusion kernels skip them; the floor keeps a constant-depth view at weight 1, not 0/0.
 """
 
 from __future__ import annotations

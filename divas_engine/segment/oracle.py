@@ -1,42 +1,12 @@
 """SAM-like oracle for evaluation only — never a default (NOTES "Evaluation").
 
-It turns the ground-truth label coverage ``L`` of a view into SAM-like output:
-
-1. area-downsample ``L`` (and the depth) to longest side ``low_res = 256``
-   (SAM's low-res logit grid; smaller images stay at their size);
-2. seeded structured errors on the grid, ``B = L ≥ 0.5`` being the object:
-   *dropout* — each 8-connected part of ``B`` thinner than ``thin_px = 3``
-   (what a ``thin_px``-cross opening removes; parts under ``thin_min_area``
-   pixels are staircase noise and kept) is set to 0 with probability
-   ``dropout_prob = 0.3``; *boundary bleed* — with probability ``bleed_prob``
-   background within ``w ~ U[bleed_min_px, bleed_max_px = 4]`` grid pixels of
-   the (remaining) object whose depth is within ``bleed_depth_rel = 10 %`` of
-   the nearest object pixel's depth is set to 1 (no depth → no depth gate);
-   *false positive* — with probability ``fp_prob = 0.2`` one disk of radius
-   ``U[fp_radius_px]`` centred on a background pixel farther than ``r + 2``
-   from the object is set to 1;
-3. logits ``= logit_scale · (L − 0.5)`` with ``logit_scale = 8``;
-4. bilinear upsample to the view (half-pixel centres), sigmoid;
-5. the same mask in all 3 channels; scores ``0.9`` when some pixel is ≥ 0.5,
-   else ``0.2``.
-
-Prompts (``respond_to_prompts``, not in NOTES: a correction loop needs a mask source
-that answers its clicks, as SAM does): a *negative* point on an error the oracle made —
-a low-res cell the errors set to the object while the truth there is background — takes
-back the connected error part (8-connectivity) under it; a *positive* point on a cell of
-the object the errors dropped brings that part back. A point elsewhere changes nothing
-(the label image *is* the target), and the caller's :func:`.base.select_mask` still
-rejects views without a positive prompt. The point's cell is ``⌊(x, y) · grid / image⌋``,
-or the nearest error cell within one cell of it.
-
-Dropout runs before bleed so a dropped part gets no bleed ring (NOTES list the
-errors in the order bleed, dropout, blob; their sets are disjoint otherwise).
-Error sizes are in low-res grid pixels, where the errors are applied.
-
-Randomness: one generator per view from ``(seed, crc32(view key))``, with one
-child stream per error type, so a view's errors do not depend on call order or
-on which other error types are enabled. :attr:`OracleSegmenter.last_report`
-records the seed and every error drawn.
+It turns the ground-truth label coverage ``L`` of a view into SAM-like output: area-downsample
+to SAM's low-res grid, seeded structured errors there (dropout of thin parts, boundary bleed
+within a depth gate, one false-positive disk), logits ``logit_scale · (L − 0.5)``, bilinear
+upsample and sigmoid; the same mask in all 3 channels. With ``respond_to_prompts`` a click on
+an error takes that error part back, as SAM answers a correction. One generator per view from
+``(seed, crc32(view key))``, one child stream per error type; :attr:`OracleSegmenter.last_report`
+records every error drawn. The steps and their parameters: docs/design-notes.md.
 """
 
 from __future__ import annotations

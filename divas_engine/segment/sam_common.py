@@ -1,25 +1,15 @@
 """SAM pre-/post-processing shared by the ONNX and PyTorch back ends (own implementation).
 
-Image: resize the longest side to ``S = 1024`` (the new size rounds half up,
-``int(x + 0.5)``, like segment-anything's ``ResizeLongestSide``) with an
-antialiased bilinear (triangle) filter — the filter PIL's ``BILINEAR`` resize and
-``F.interpolate(..., antialias=True)`` use — then normalise with the pixel mean
-``(123.675, 116.28, 103.53)`` / std ``(58.395, 57.12, 57.375)`` on the 0..255
-scale and zero-pad bottom/right to ``S×S`` (the pad is 0 *after* normalisation).
-The resize is kept in float (segment-anything's numpy path rounds the resized
-image to uint8; the difference is at most half a grey level).
+Image: resize the longest side to ``S = 1024`` (new size ``int(x + 0.5)``, like
+segment-anything's ``ResizeLongestSide``) with an antialiased bilinear filter, kept in float;
+normalise with mean ``(123.675, 116.28, 103.53)`` / std ``(58.395, 57.12, 57.375)`` on the
+0..255 scale; zero-pad bottom/right to ``S×S`` after normalisation.
 
-Prompt coordinates — how SAM's convention maps to ours: SAM's prompt encoder
-(and the ONNX decoder's ``_embed_points``) adds ``0.5`` to every input point
-("shift to center of pixel") before dividing by ``S``, i.e. it reads its input
-as a *pixel index* of the resized ``S``-frame whose continuous position is
-``index + 0.5``. Our points are already continuous (pixel centre at ``+0.5``), and
-a continuous position ``u`` of the original image sits at ``u · s`` in the
-resized frame (``s = new_w / W`` per axis, exactly what ``apply_coords`` uses).
-So the decoder must see ``x_sam = u · s − 0.5``. (Passing a raw pixel index
-``i`` the way SAM's examples do gives ``i · s``; ours gives ``(i + 0.5)s − 0.5``,
-the same point up to ``0.5|1 − s|`` resized pixels, and identical when s = 1.)
-The padding point added when there is no box is ``(0, 0)`` with label ``−1``.
+Prompt coordinates: SAM's prompt encoder adds ``0.5`` to every input point, i.e. reads it as a
+pixel index of the resized frame. Our points are continuous (pixel centre at ``+0.5``) and a
+position ``u`` sits at ``u · s`` in the resized frame (``s = new_w / W`` per axis), so the
+decoder sees ``x_sam = u · s − 0.5``. The padding point added when there is no box is
+``(0, 0)`` with label ``−1``.
 """
 
 from __future__ import annotations

@@ -1,25 +1,19 @@
 """An official SAM checkpoint → the ONNX encoder/decoder pair ``sam-onnx`` runs.
 
-Needs the ``torch`` extra (PyTorch, ``segment-anything``, ``onnx``); the pair it
-writes runs without them (onnxruntime only). Steps of :func:`convert_checkpoint`:
+Needs the ``torch`` extra (PyTorch, ``segment-anything``, ``onnx``); the pair it writes runs
+with onnxruntime only. Steps of :func:`convert_checkpoint`:
 
 1. :func:`.sam_models.load_sam_model` — tensors-only load, type checked;
-2. :func:`export_onnx_pair` — the *decoder* through the family's own
-   ``SamOnnxModel`` as its ``scripts/export_onnx_model.py`` does (multimask output,
-   opset 17, dynamic point count), its padding crop kept dynamic (:func:`_dynamic_crop`:
-   the 1.0 release's freezes at the dummy's aspect); the *encoder* in one of the two
-   layouts :class:`.sam_onnx.SamOnnxSegmenter` reads (:class:`EncoderLayout`) —
-   segment-anything ships no encoder export, so the two wrappers here are this project's;
-3. :func:`check_onnx_pair` — one prediction on a fixed synthetic picture through
-   the ONNX pair (``SamOnnxSegmenter``) and through the PyTorch model
-   (``SamTorchSegmenter`` over the family's ``SamPredictor``); the export is refused
-   when they disagree.
+2. :func:`export_onnx_pair` — the decoder through the family's own ``SamOnnxModel`` (multimask
+   output, opset 17, dynamic point count, padding crop kept dynamic by :func:`_dynamic_crop`);
+   the encoder in one of the layouts :class:`.sam_onnx.SamOnnxSegmenter` reads
+   (:class:`EncoderLayout`);
+3. :func:`check_onnx_pair` — one prediction through the ONNX pair and the PyTorch model; the
+   export is refused when they disagree.
 
-Files are written under temporary names and renamed into place, so a failed
-export never leaves a half-written pair (nor replaces a good one). An encoder over
-~1.8 GB (ViT-H: 2.5 GB) is saved with its weights in one ``.onnx.data`` file beside
-it (protobuf's 2 GB limit). :func:`cached_conversion` is the add-on's entry: one
-conversion per checkpoint (path, size, modification time, type), reused after.
+Files are written under temporary names and renamed into place; an encoder over ~1.8 GB keeps
+its weights in one ``.onnx.data`` file beside it (protobuf's 2 GB limit).
+:func:`cached_conversion` is the add-on's entry: one conversion per checkpoint, reused after.
 """
 
 from __future__ import annotations

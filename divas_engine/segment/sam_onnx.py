@@ -1,33 +1,12 @@
 """SAM (ViT-H/L/B) and MobileSAM through onnxruntime — no PyTorch needed.
 
-Two files: an image encoder and the prompt decoder exported with
-segment-anything's ``scripts/export_onnx_model.py`` signature.
-
-Encoder — two export variants, told apart by the rank/layout of its single input:
-
-* *preprocessed* (``[1,3,S,S]`` float32, usually ``S = 1024``): we resize the
-  longest side to S, normalise and zero-pad (:mod:`.sam_common`) and feed it.
-* *raw* (``[h,w,3]`` or ``[1,h,w,3]``, float32 or uint8 — segment-anything's
-  ``ImageEncoderOnnxModel(use_preprocess=True)``): normalisation and padding
-  happen inside the model, so we feed the longest-side-resized image on the
-  0..255 scale, unnormalised. When the input's spatial dims are fixed, we pad
-  bottom/right up to them with the pixel mean (≈ 0 after the model normalises).
-
-The output named ``image_embeddings`` (else the first output) is the embedding,
-``[1,256,64,64]`` for every SAM variant and MobileSAM.
-
-Decoder — inputs ``image_embeddings [1,256,64,64]``, ``point_coords [1,P,2]``,
-``point_labels [1,P]``, ``mask_input [1,1,256,256]``, ``has_mask_input [1]``,
-``orig_im_size [2]`` (H, W); outputs ``masks`` (logits at the original size),
-``iou_predictions``, ``low_res_masks``. When ``low_res_masks`` is there we upscale it
-ourselves (:func:`.sam_common.upscale_low_res_masks`, SAM's ``postprocess_masks``)
-rather than trust ``masks``: every decoder exported with segment-anything 1.0 (PyPI)
-crops the padding at the export dummy's aspect ratio whatever the image. Exported *without*
-``--return-single-mask`` it returns 4 masks: index 0 is the single-mask token and
-1..3 the multimask output, which we keep (SamPredictor's ``multimask_output``
-slice). A 3-channel output is taken as is; a single-mask export is refused.
-Prompts go through :func:`.sam_common.decoder_prompts` (``u·s − 0.5`` plus the
-``(0,0)``/``−1`` padding point); masks → sigmoid → probabilities.
+Two files: an image encoder (a *preprocessed* ``[1,3,S,S]`` input that :mod:`.sam_common`
+resizes, normalises and pads, or a *raw* ``[h,w,3]`` input that normalises inside the model)
+and the prompt decoder with segment-anything's ``scripts/export_onnx_model.py`` signature.
+The decoder's ``low_res_masks`` are upscaled here (:func:`.sam_common.upscale_low_res_masks`)
+rather than its ``masks`` trusted: segment-anything 1.0's export crops the padding at the
+export dummy's aspect ratio. Of a 4-mask output, masks 1..3 (the multimask output) are kept;
+a single-mask export is refused. Inputs and outputs in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,12 @@
 """Importing the SAM model packages (``segment-anything``, MobileSAM's ``mobile_sam``).
 
-Both packages import ``torchvision`` when they are imported, yet their models do not
-need it: the package ``__init__`` pulls in the automatic mask generator
-(``torchvision.ops`` NMS) and ``utils/transforms.py`` imports torchvision's PIL
-``resize`` / ``to_pil_image``, used only by ``ResizeLongestSide.apply_image`` (the
-uint8 path of ``SamPredictor.set_image``). PyTorch's CPU wheel has no matching
-torchvision on PyPI (PyPI's build fails to import beside it), so with the ``torch``
-extra :func:`sam_package` imports the package like this when a plain import fails
-for want of torchvision:
-
-1. the package module is created from its spec *without running its* ``__init__``;
-2. its model submodules are imported unchanged — ``modeling`` (ImageEncoderViT,
-   PromptEncoder, MaskDecoder, Sam), ``build_sam`` (``sam_model_registry``),
-   ``utils.onnx`` (``SamOnnxModel``) and ``predictor`` (``SamPredictor``);
-3. while ``utils.transforms`` is imported (and only then) ``torchvision`` is replaced
-   by a module whose two functions raise an ImportError naming torchvision: the
-   uint8 ``SamPredictor.set_image`` path fails loudly, everything else is the
-   package's own code. DivAS feeds the predictor through ``set_torch_image`` (its own
-   resize, :mod:`.sam_common`) and never calls ``set_image``.
-
-The package's public names are set on the module as its ``__init__`` would (minus the
-mask generator, whose access raises the same ImportError). With a working torchvision
-the plain import is used and nothing here applies.
+Both packages import ``torchvision`` on import, yet their models do not need it, and PyTorch's
+CPU wheel has no matching torchvision on PyPI. When a plain import fails for want of
+torchvision, :func:`sam_package` creates the package module without running its ``__init__``,
+imports the model submodules unchanged, and while ``utils.transforms`` is imported replaces
+``torchvision`` by a module whose functions raise an ImportError naming it (so the uint8
+``SamPredictor.set_image`` path fails loudly; DivAS uses ``set_torch_image``). With a working
+torchvision the plain import is used. The steps in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,25 +1,13 @@
 """SAM scheduling: asynchronous for NeRF, synchronous for 2DGS (Sec. 3.4, "Execution scheduling").
 
-DivAS-NeRF runs SAM in a background worker on the preceding centroid views
-while the user annotates the current one, and synchronises — collects and
-fuses the pending masks together — when (i) the current view ends its anchor
-group or (ii) at least three masks are pending. DivAS-GS calls SAM
-synchronously. :class:`SamWorker` offers both behind one API::
-
-    worker.submit(view, points, labels)            # view: a ViewContext
-    if worker.should_sync(end_of_group):
-        for view_id, res in worker.sync().items():   # submission order
-            fuse(view_id, res.masks, res.scores)
-
-* Async jobs run one at a time on a single background thread (so the wrapped
-  segmenter is never used concurrently; onnxruntime/OpenCV release the GIL).
-* Results are cached by view id with the prompts they answered; re-submitting a
-  view with the same prompts reuses the cached result (no second run), and the
-  segmenter's own per-view embedding cache makes re-prompting a view cheap.
-  Re-submitting a view that is still pending replaces its job.
-* A job's exception is re-raised in the caller at :meth:`SamWorker.sync` as
-  :class:`SegmentationJobError` naming the view (the other views' results are
-  attached to it), never lost in the thread.
+DivAS-NeRF runs SAM in a background worker on the preceding centroid views while the user
+annotates the current one, and synchronises when the current view ends its anchor group or at
+least three masks are pending; DivAS-GS calls SAM synchronously. :class:`SamWorker` offers
+both behind one API (``submit``, ``should_sync``, ``sync``). Async jobs run one at a time on a
+single thread (the segmenter is never used concurrently). Results are cached by view id with
+the prompts they answered, so re-submitting the same prompts reuses them; re-submitting a
+pending view replaces its job. A job's exception is re-raised at :meth:`SamWorker.sync` as
+:class:`SegmentationJobError` naming the view, never lost in the thread.
 """
 
 from __future__ import annotations

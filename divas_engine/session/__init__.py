@@ -1,21 +1,15 @@
 """Interactive DivAS sessions (paper Sec. 3, the whole loop) and the headless prompts file.
 
-* :class:`Session` (:mod:`.session`) — open / click / prompt / accept / sync / undo /
-  reset / finish_object / export / load (replay). 2DGS runs SAM synchronously, NeRF
-  asynchronously with group synchronisation (Sec. 3.4), both with overlay propagation
-  (Sec. 3.7): the steps that change its :class:`~.state.SessionState` (the one owner of
-  anchors, objects, views, labels and selections), over :class:`~.reader.SessionReader`
-  (its parts and every read of them); renders are explicit (:mod:`.rendering`).
-* :mod:`.backends` — one :class:`~.backends.SessionBackend` per scene representation
-  (surfels, density grids), picked from the scene by a registry: everything the loop
-  does differently per representation.
-* :mod:`.records` — anchors, clicks, corrections, views, previews, overlays, accept and
-  correction results, objects (plain data); :mod:`.masks` — prompt sets and mask
-  previews; :mod:`.corrections` — every click as a 3D constraint (beyond the paper);
-  :mod:`.fusing` — views into and out of the fusion; :mod:`.edits` — manual edits;
-  :mod:`.history` — undo / redo; :mod:`.persistence` — save / replay (file layer
-  :mod:`.store`); :mod:`.outputs` — the object files; :mod:`.report` — counts and the
-  run report.
+* :class:`Session` (:mod:`.session`) — open / click / prompt / accept / sync / undo / reset /
+  finish_object / export / load (replay): the steps that change its
+  :class:`~.state.SessionState`, over :class:`~.reader.SessionReader` (every read of it);
+  renders are explicit (:mod:`.rendering`).
+* :mod:`.backends` — one :class:`~.backends.SessionBackend` per scene representation (surfels,
+  density grids), picked from the scene by a registry.
+* :mod:`.records` (plain data), :mod:`.masks` (prompt sets, previews), :mod:`.corrections`
+  (every click as a 3D constraint), :mod:`.fusing`, :mod:`.edits` (manual edits),
+  :mod:`.history` (undo / redo), :mod:`.persistence` / :mod:`.store` (save / replay),
+  :mod:`.outputs` (the object files), :mod:`.report` (counts, run report).
 * :class:`SessionConfig` — the loop's constants plus the sub-configs it hands down.
 * :mod:`.prompts` — the NOTES "Headless prompts file" (version 1): parse, check, resolve.
 * :func:`write_labelled_ply` — the scene with an extra ``divas_label`` column.

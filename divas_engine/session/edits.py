@@ -1,32 +1,21 @@
 """Manual edits of a session's selection, composed with the semantic one (not in the paper).
 
-The paper's selection is *semantic*: the fused masks mapped to primitives (Sec. 3.5–3.6).
-Artists also clean it up by hand (box, lasso, brush, grow/shrink, by opacity …) and
-delete or hide splats. The selection a session shows, labels and exports is
+The paper's selection is *semantic* (fused masks mapped to primitives, Sec. 3.5–3.6); artists
+also edit it by hand and delete or hide splats. The selection a session shows, labels and
+exports is
 
     F = ((S ∖ R_o) ∪ A_o) ∖ D
 
-* ``S`` — the semantic selection of the current object ``o`` (fusion + mapping), with
-  the surface patches of its clicks forced in or out (:mod:`.corrections`; a click
-  takes its patch out of the manual layer that would undo it, :func:`yield_to_click`,
-  so the latest of a click and a manual edit wins);
-* ``A_o`` / ``R_o`` — primitives the user added / removed by hand on object ``o``;
-* ``D`` — deleted primitives: never selected, labelled or exported again.
-
-Hidden primitives ``H`` are kept too (a host does not draw them and its tools skip
-them); hiding deselects them by hand (into ``R_o``, as Blender's hide does), so ``H``
-never enters ``F`` and a replay does not depend on when something was hidden.
-
-So a view fused *after* a manual edit still grows or shrinks ``S`` while the edit stays:
-a splat removed by hand stays removed, one added stays added. A manual edit that turns
-``F`` into ``F'`` updates the layers by its delta only:
+with ``S`` the semantic selection of the current object ``o`` (its clicks' surface patches
+forced in or out, :mod:`.corrections`; a click takes its patch out of the manual layer that
+would undo it, :func:`yield_to_click`), ``A_o`` / ``R_o`` the primitives added / removed by hand
+and ``D`` the deleted ones. Hiding deselects by hand (into ``R_o``), so hidden primitives never
+enter ``F``. A view fused after an edit still changes ``S`` while the edit stays. An edit
+turning ``F`` into ``F'`` updates the layers by its delta only:
 ``A' = (A ∪ (F' ∖ F)) ∖ (F ∖ F')`` and ``R' = (R ∪ (F ∖ F')) ∖ (F' ∖ F)``.
 
-An :class:`EditLayer` is immutable: every edit returns a new one (its arrays are never
-written in place), so the session history (:mod:`.history`) keeps references, not
-copies. Masks have the session's selection shape (``[N]`` surfels, ``[D,H,W]`` voxels).
-The edit steps (:func:`apply_selection`, :func:`delete_primitives`, :func:`hide_primitives`,
-:func:`reveal_primitives`) change a :class:`~.state.SessionState`; the session calls them.
+An :class:`EditLayer` is immutable (every edit returns a new one), so the history keeps
+references, not copies. The edit steps change a :class:`~.state.SessionState`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Multi-object label outputs (issue 6 item 3).
+"""Multi-object label outputs.
 
 * :func:`write_labelled_ply` — the scene with one extra ``int divas_label`` vertex
   property (0 = unlabelled, k = object k). A standard PLY input is copied row for

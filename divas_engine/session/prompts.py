@@ -10,29 +10,11 @@
      "centroid_prompts": {"0:1": [{"xy": [x, y], "positive": false}]},
      "points": [{"xyz": [x, y, z]}, {"xyz": [x, y, z], "positive": false}]}
 
-* Every anchor names exactly one of ``camera`` / ``training_camera`` (a training
-  camera name, with or without its image extension) / ``fibonacci`` (index into the
-  N Fibonacci candidates of the scene, App. C.1).
-* Each *positive* click (``positive`` defaults to true) spawns one centroid view; its
-  default SAM prompt is the click's 3D point projected into that view. A negative
-  click on an anchor is a correction of the object (``docs/corrections.md``): a
-  negative prompt of every view that shows its 3D point and holds it, and its surface
-  taken out of the selection (with ``corrections.enabled`` off: a negative prompt of
-  the centroid views of that anchor, where visible). Clicks are numbered per anchor in file
-  order, positive and negative alike.
-* ``centroid_prompts["a:c"]`` adds points to the centroid view of anchor ``a``,
-  click ``c`` (which must be a positive click).
-* Coordinates are continuous pixels of the full-resolution camera (+0.5 centres).
-* ``points`` are prompts in 3D, in the scene's own frame: each positive point becomes
-  a click on an anchor that sees it, chosen by the engine
-  (:mod:`divas_engine.views.point_anchors`, resolved by
-  :func:`divas_engine.session.point_prompts.resolve_prompts`); negative points become
-  negative clicks on the chosen anchors that see them. ``anchors`` may then be empty.
-
-Unknown keys, bad shapes, out-of-image points and dangling references raise
-:class:`~divas_engine.errors.DivasInputError` naming the entry, e.g.
-``anchors[1].clicks[0].xy``. Parsing (:func:`parse_prompts`) checks the syntax;
-:func:`resolve_anchors` checks names, indices and image bounds against the scene.
+Each positive click spawns a centroid view; a negative click is a correction of the object
+(``docs/corrections.md``); ``points`` are 3D prompts placed on anchors by the engine. Errors
+raise :class:`~divas_engine.errors.DivasInputError` naming the entry
+(``anchors[1].clicks[0].xy``); :func:`parse_prompts` checks the syntax, :func:`resolve_anchors`
+names, indices and image bounds. The rules in full: docs/design-notes.md and docs/prompts-file.md.
 """
 
 from __future__ import annotations

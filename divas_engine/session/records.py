@@ -332,7 +332,7 @@ class AcceptResult:
         overlay, next_view, next_overlay: propagation feedback (Sec. 3.7); the two
             overlays are rendered when first read (``overlay_source`` /
             ``next_overlay_source`` hold the :class:`Overlay` or the callable that
-            renders it), so an accept itself renders nothing (issue 20).
+            renders it), so an accept itself renders nothing.
         timings: seconds of this update by stage.
     """
 

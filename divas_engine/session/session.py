@@ -1,38 +1,20 @@
 """The interactive DivAS session: the engine API of the loop of paper Sec. 3 (no ``bpy``).
 
-Loop (Sec. 3.1 "Overview"): anchors → a click on an anchor spawns a centroid view
-(Sec. 3.3) → point prompts give a SAM mask, depth weighted (Sec. 3.4) → accepting
-the view fuses it (Sec. 3.5) and, for 2DGS, maps the voxels to surfels (Sec. 3.6) →
-the selection is overlaid on the current and the next pending view (Sec. 3.7).
+Loop (Sec. 3.1): anchors → a click spawns a centroid view (Sec. 3.3) → point prompts give a
+depth-weighted SAM mask (Sec. 3.4) → accepting fuses it (Sec. 3.5) and, for 2DGS, maps voxels
+to surfels (Sec. 3.6) → the selection is overlaid on the current and next view (Sec. 3.7).
+Scheduling (Sec. 3.4): 2DGS segments synchronously at :meth:`Session.accept`; NeRF hands the
+view to a background :class:`~divas_engine.segment.SamWorker` and fuses pending masks together
+at the end of an anchor group or at ``sync_pending`` (3) masks. Pixel coordinates are in the
+images the session renders (cameras scaled by ``SessionConfig.render_scale``).
+:class:`Session` is the only writer of its :class:`~.state.SessionState`; reads are
+:class:`~.reader.SessionReader`'s.
 
-Scheduling (Sec. 3.4 "Execution scheduling"): 2DGS segments synchronously at
-:meth:`Session.accept`; NeRF hands the view to a background
-:class:`~divas_engine.segment.SamWorker` and fuses the pending masks together when the
-view ends its anchor group or ``sync_pending`` (3) masks are pending (:meth:`Session.sync`
-forces it; ``finish_object``, ``export`` and ``save`` of the final state call it).
-
-Coordinates: every pixel coordinate of this API is in the images the session renders
-(the cameras scaled by ``SessionConfig.render_scale``).
-
-Shape: :class:`Session` holds the steps that change its :class:`~.state.SessionState`
-(it is the state's only writer); its parts and every read of them are
-:class:`~.reader.SessionReader`'s (module ``divas_engine.session.__init__`` maps the rest).
-
-Decisions not in the paper:
-
-* an accepted view whose depth-weighted mask holds fewer than ``min_mask_pixels``
-  pixels ≥ 0.5 is rejected ("empty mask"), like a low SAM score;
-* every click — on an anchor, a centroid view (:meth:`Session.click_view`), through any
-  camera (:meth:`Session.click_camera`) or a world point (:meth:`Session.click_point`) —
-  is a 3D constraint on its object (:mod:`.corrections`): a prompt of every view where
-  its point is visible and the view's mask disagrees (those views segmented and fused
-  again), and its surface patch forced in or out of the selection; a negative click
-  becomes a negative prompt of the object's later views where it is visible
-  (``corrections.enabled`` False: of its anchor's, as before);
-* the default prompt of a centroid view is the click's 3D point projected into it
-  (NOTES "Headless prompts file"); extra points are added to it;
-* multiple objects: :meth:`Session.finish_object` commits the selection as the next
-  integer label (0 = unlabelled; earlier labels kept unless ``overwrite_labels``).
+Not in the paper: a view whose mask holds fewer than ``min_mask_pixels`` pixels ≥ 0.5 is
+rejected; every click is a 3D constraint on its object (:mod:`.corrections`: a prompt of every
+view where its point is visible and the mask disagrees, and its surface patch forced in or
+out); a centroid view's default prompt is the click's 3D point projected into it; multiple
+objects: :meth:`Session.finish_object` commits the selection as the next integer label.
 """
 
 from __future__ import annotations

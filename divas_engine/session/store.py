@@ -1,5 +1,5 @@
 """Saved sessions: a JSON manifest plus one content-addressed ``.npz`` of arrays (never
-pickle), saved as one atomic unit (issue 14).
+pickle), saved as one atomic unit.
 
 ``save_state(path, doc, arrays)`` writes the arrays to ``<path>.<sha256[:16]>.npz`` (a
 name that depends on the bytes, so it never overwrites the file the current manifest
@@ -9,8 +9,8 @@ moment leaves either the old manifest with its old arrays, or the new manifest w
 its new arrays — never a torn pair. Array files no manifest names any more and the
 temporaries of killed writers are removed on the next save (temporaries also on load).
 
-Sessions saved before this layout (arrays in ``<path>.npz``) load unchanged: the
-manifest names its arrays file, and its SHA-256 still guards it.
+Sessions in the older layout (arrays in ``<path>.npz``) load unchanged: the manifest
+names its arrays file, and its SHA-256 guards it.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Checking a saved session document before it is replayed (issue 14 item 2, last part).
+"""Checking a saved session document before it is replayed.
 
 :func:`check_session_doc` walks everything :func:`~.persistence.load_session` reads —
 types, finiteness, ranges, camera dictionaries, view statuses, mask keys and shapes —
@@ -149,7 +149,7 @@ def _view(v: Any, where: str, n_anchors: int, arrays: dict[str, np.ndarray]) -> 
     except (ValueError, TypeError):
         raise _Bad(f"{where}.status", f"unknown view status {_short(v['status'])}") from None
     _kind(_get(v, "reason", where), (str, type(None)), f"{where}.reason", "a string or null")
-    # the segmenter's hint (issue 16); absent in sessions saved before it
+    # the segmenter's hint; absent in older sessions
     _kind(v.get("advice"), (str, type(None)), f"{where}.advice", "a string or null")
     if v.get("rejection") is not None:  # absent in older sessions
         _rejection(v["rejection"], f"{where}.rejection")

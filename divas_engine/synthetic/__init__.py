@@ -1,30 +1,18 @@
 """Synthetic 2DGS, 3DGS (and NeRF-grid) scenes with exact ground truth.
 
-``generate_scene(name, out_dir, size=..., seed=..., kind=...)`` samples surfels on
-analytic surfaces (``surfaces.py``) with the surfel model of ``builder.py`` (``kind``
-2DGS, the default), or writes the same scene as a trained-looking 3DGS
-(``gaussians3d.py``: surface Gaussians with thickness, interior Gaussians in the
-solids of ``solids.py``, large translucent haze, needles, floaters; statistics
-measured on real captures in ``splat_stats.py``); the named scenes are in
-``scenes.py``. Everything is deterministic in ``(name, size, seed, kind)`` and
-vectorised (2M surfels in seconds).
+``generate_scene(name, out_dir, size=..., seed=..., kind=...)`` samples surfels on analytic
+surfaces (``surfaces.py``) with the surfel model of ``builder.py`` (``kind`` 2DGS, the
+default), or writes the same scene as a trained-looking 3DGS (``gaussians3d.py``, statistics of
+real captures in ``splat_stats.py``); the named scenes are in ``scenes.py``. Deterministic in
+``(name, size, seed, kind)`` and vectorised.
 
-Files written to ``out_dir``:
-
-* ``scene.ply`` — 2DGS-trainer PLY (:func:`~divas_engine.io.ply.write_surfel_ply`), or for
-  ``kind=3dgs`` the 3DGS reference-trainer PLY (``scale_0..2``, :mod:`.gaussians3d`);
-* ``cameras.json`` / ``test_cameras.json`` — training / held-out cameras (3DGS schema);
-* ``labels.npy`` — bool per surfel in PLY row order (True = target);
-* ``surface_ids.npy`` — int32 per surfel: index into ``scene.json["surfaces"]``, −1 floater;
-* ``scene.json`` — metadata: counts, surfaces (type, parameters, area, count),
-  target description, click points on the target (with the training cameras
-  that see each), scene centre/radius, the NOTES occupancy sizing (``h_v``…);
-* 3DGS only: ``classes.npy`` — uint8 per Gaussian, :class:`~.gaussians3d.GaussianClass`
-  (0 surface, 1 interior, 2 haze, 3 floater); ``scene.json`` adds ``kind``, ``solids``,
-  per-class counts and the shape ``statistics`` beside the real captures' bands;
-* ``ribs`` 2DGS only: ``grid.npz`` (``density [D,H,W]`` σ per world unit indexed
-  ``[iz,iy,ix]`` at cell centres ``aabb[0] + (i + ½)·voxel``, ``rgb [D,H,W,3]``,
-  ``aabb [2,3]``) and ``grid_labels.npy`` (bool ``[D,H,W]``).
+Files written to ``out_dir``: ``scene.ply`` (2DGS-trainer PLY, or the 3DGS reference-trainer
+layout for ``kind=3dgs``); ``cameras.json`` / ``test_cameras.json`` (3DGS schema);
+``labels.npy`` (bool per row, True = target); ``surface_ids.npy`` (int32 index into
+``scene.json["surfaces"]``, −1 floater); ``scene.json`` (counts, surfaces, target, click
+points with the cameras that see them, centre/radius, occupancy sizing); 3DGS only
+``classes.npy`` (:class:`~.gaussians3d.GaussianClass`) and the shape statistics; ``ribs`` 2DGS
+only ``grid.npz`` (``density [D,H,W]``, ``rgb``, ``aabb``) and ``grid_labels.npy``.
 """
 
 from __future__ import annotations

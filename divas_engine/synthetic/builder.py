@@ -1,33 +1,13 @@
 """Turn a scene specification (analytic surfaces + cameras) into 2DGS surfels.
 
-Surfel model (per surface, vectorised):
-
-* counts: the surface budget is split over the surfaces ∝ ``density × area``
-  (largest remainder, so counts are exact to ±1); a surface with a fixed
-  ``share`` (the far dome) takes that fraction first;
-* centres: area-uniform samples on the analytic surface (see ``surfaces.py``);
-* rotation: columns (t_u, t_v, n) with n the analytic normal, t_u the strongest-
-  curvature tangent (randomly rotated on flat/gently curved patches);
-* scales: ``0.7 · spacing`` per axis with mild log-normal noise and anisotropy,
-  ``spacing = sqrt(area / count)``; along a strongly curved direction the scale
-  is limited to 0.45 × the curvature radius (and the other axis grows, ≤ 3×,
-  so thin stems stay covered);
-* opacity U(0.6, 1); colour from ``texture.surface_colors`` stored as SH DC
-  ``(rgb − 0.5) / SH_C0``; degree-1 SH terms are small N(0, 0.04) noise;
-* needles: ``needle_share`` (2 %) of the surface surfels get one scale 1200–4000×
-  smaller than the other (aspect > 1000), the long one 2–5× the usual size, and a
-  low opacity U(0.02, 0.16). Measured on the shared real splats
-  (``../shared/data/playcanvas-splats``, biker / guitar): 1.7 % / 2.8 % of the
-  primitives have aspect > 50, and the top-1 % aspect tail has median opacity
-  0.09 / 0.08 against 0.17 / 0.24 for all primitives — the faint slivers the paper's
-  Pass 2 (eq:needle, P99 cut) is built for. With fewer needles than 1 %, or opaque
-  ones, the P99 cut would fall on genuine surface surfels (the plant's stems);
-* floaters: ``floater_share`` of all surfels, opacity U(0.05, 0.2), random
-  orientation, placed in random training-camera frusta at 15–85 % of the
-  camera-to-centre depth and at least ``3 · spacing`` from every surface.
-
-Rows are finally shuffled with a seeded permutation (real PLYs are not sorted
-by object).
+Per surface, vectorised: counts ∝ ``density × area`` (largest remainder); area-uniform centres
+on the analytic surface; frame (t_u, t_v, n) with n the analytic normal; scales ``0.7 ·
+spacing`` with mild noise, limited to 0.45 × the curvature radius; opacity U(0.6, 1); SH DC
+colour from ``texture.surface_colors``. ``needle_share`` (2 %) of the surfels are faint
+needles (aspect > 1000) — the slivers the paper's Pass 2 (eq:needle, P99 cut) is built for, as
+on real captures; fewer or opaque ones would put the P99 cut on genuine surfels.
+``floater_share`` faint floaters sit in training-camera frusta away from every surface. Rows
+are shuffled with a seeded permutation. The model in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,58 +1,16 @@
 """The synthetic scenes as *trained 3DGS*: volumetric Gaussians with exact ground truth.
 
-Same scene specification as the 2DGS variant (surfaces, palettes, training and test
-cameras: ``scenes.py``), but the primitives are 3D Gaussians drawn from what trained
-3DGS captures look like (:mod:`.splat_stats`: every distribution below is a measured
-quantile table or a band of the real captures in ``tests/data``, not a guess). Four
-classes (:class:`GaussianClass`), counts exact in ``size``:
+Same scene specification as the 2DGS variant (``scenes.py``), but 3D Gaussians drawn from what
+trained 3DGS captures look like (:mod:`.splat_stats`: measured quantile tables and bands of
+the real captures in ``tests/data``). Four classes (:class:`GaussianClass`), counts exact in
+``size``: ``SURFACE`` (on the analytic surfaces, with measured thickness and needles, shrunk at
+curvatures and patch edges), ``INTERIOR`` (inside the solids of :mod:`.solids`, the Gaussians
+no view sees), ``HAZE`` (large faint flat Gaussians over the surfaces) and ``FLOATER``.
 
-* ``SURFACE`` (the rest of the budget, split over the surfaces ∝ density × area exactly
-  like 2DGS, so each object keeps its 2DGS share): centre = an area-uniform sample on
-  the analytic surface moved along the normal by ``N(0, ½ s_min)``. Shape and opacity
-  are one joint draw from the measured tables and copula
-  (:func:`~.splat_stats.sample_shapes`): ``s_max = SURFACE_SCALE · spacing · exp(L')``
-  with ``L' = LOG_SMAX_SPREAD · L`` (× ``SURFACE_UPPER_TAIL`` above the median: large
-  Gaussians sit inside objects more often than on them, as measured), ``s_mid = s_max ·
-  (s_mid/s_max)``, ``s_min = s_mid · (s_min/s_mid)`` — so the third axis has the
-  measured thickness (median ``s_min/s_max`` ≈ 0.04, not 0) and needles (``s_mid / s_max
-  < 0.05``, ~10 %) are longer and fainter, as measured. The smallest axis lies along the
-  normal, the largest along the straight direction of thin cylinders and tubes (stems,
-  ribs; random in the plane elsewhere); the frame is tilted by ``N(0, TILT)`` about a
-  random axis. Across a curvature the extent is at most 0.45 × its radius; near a patch
-  edge (:mod:`.edges`) the Gaussian shrinks, all axes alike, to the edge distance (at
-  least ``EDGE_FLOOR`` spacings) — a trainer keeps silhouettes sharp.
-* ``INTERIOR``: uniform in the solids of :mod:`.solids` at depth ≥ ``INTERIOR_MARGIN``
-  owner spacings, never inside a solid of the other label. Each solid's deep part is
-  filled at ``INTERIOR_SPACING`` owner spacings apart (at most ``INTERIOR_MAX_SHARE`` of
-  all Gaussians; a fixed point with the surface budget), so thick objects hold many and
-  thin ones none; random orientation, shape and opacity from the same joint draw,
-  ``s_max`` around ``INTERIOR_PACKING`` × the solid's interior spacing and never more
-  than the centre's depth (the 1σ ellipsoid stays inside). Colour: the owner's palette
-  darkened by ``INTERIOR_SHADE`` (no view constrains it). These are the Gaussians no
-  view sees.
-* ``HAZE`` (``HAZE_SHARE``): large faint Gaussians over the surfaces (surfaces ∝ their
-  counts, the far dome left out): drawn like surface Gaussians — flat along the surface,
-  shape ratios from the tables, the same curvature and edge limits (so they do not stick
-  out of a silhouette, which a trainer would not allow either) — but ``s_max``
-  ``HAZE_SIZE`` × the surface median (log-uniform) and opacity U(0.01, 0.2). Measured:
-  the captures' large Gaussians are as flat as the others (``s_min/s_max`` median
-  0.007–0.09), about half of them faint.
-* ``FLOATER`` (the spec's floater shares, as 2DGS): free space in training frusta (the
-  2DGS rule, :func:`~.builder.sample_floaters`), ``s_max`` 1–4 × 0.7 × the base spacing,
-  random orientation, axis ratios from the tables, opacity U(0.05, 0.2), the floater
-  palette.
-
-**Ground truth, by construction.** A Gaussian belongs to the object whose surface or
-solid it was generated for: ``SURFACE`` and ``HAZE`` take their surface's target flag and
-index, ``INTERIOR`` its solid's (the solid's owning surface), ``FLOATER`` is background
-(surface id −1). Colours: the palette colour at the surface point (interior: at the
-centre, shaded), stored as SH DC; the SH rest bands carry ``N(0, SH_REST_SIGMA / l)``
-noise per coefficient of band ``l``.
-
-Rows are shuffled with a seeded permutation. The PLY is the reference trainer's layout
-(``x y z nx ny nz f_dc_0..2 f_rest_* opacity scale_0..2 rot_0..3``: logit opacity, log
-scales, normals zero); :func:`scene_from_rows3d` turns the stored rows into the engine's
-scene exactly as :func:`~divas_engine.io.ply.read_gaussian_ply` does.
+Ground truth by construction: a Gaussian belongs to the object whose surface or solid it was
+generated for; floaters are background. Rows are shuffled; the PLY is the reference trainer's
+layout, and :func:`scene_from_rows3d` turns it into the engine's scene exactly as
+:func:`~divas_engine.io.ply.read_gaussian_ply` does. Per-class rules: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,19 @@
 """Analytic solids of the synthetic scenes: the volumes a trained 3DGS fills with Gaussians.
 
-A trained 3DGS keeps Gaussians inside solid parts (densification pushes them there and
-no view ever removes them). The 3DGS variant of each scene (:mod:`.gaussians3d`) puts
-its *interior* Gaussians in these solids. Each solid is an exact analytic volume with
+A trained 3DGS keeps Gaussians inside solid parts (densification pushes them there and no view
+removes them); the 3DGS variant (:mod:`.gaussians3d`) puts its *interior* Gaussians in these.
+Each solid is an exact analytic volume with :meth:`Solid.depth` (signed distance to its
+boundary, positive inside: an intersection of a ball / cylinder / tube with slabs, exact as
+the minimum over the pieces) and ``label`` / ``surface`` (target flag, owning surface index).
 
-* :meth:`Solid.depth` — signed distance to its boundary, positive inside (exact inside:
-  every solid here is an intersection of a ball / cylinder / tube with slabs, and the
-  distance from an interior point to the boundary of such an intersection is the
-  minimum over the pieces);
-* ``label`` and ``surface`` — the ground truth it carries: the target flag and the index
-  of the owning surface in the scene's surface list (the surface whose object it is).
+:func:`scene_solids` builds them from the scene's own surfaces:
 
-:func:`scene_solids` lists them per scene, built from the scene's own surfaces (no
-number is repeated here):
-
-* ``ribs`` — every surface flagged ``solid``: spine, tail cap, skull, rib tubes and their
-  caps (target), the stand post and base (background);
-* ``plant`` — the pot filled up to the soil (target; the 8 mm wall above the soil and the
-  5 mm stems are left out: thinner than two interior Gaussians), the table top, the
-  table legs and the book (background); the mug is thin-walled and stays hollow;
-* ``occluded`` — the vase's foot and body (target; the trainer never sees inside them —
-  the neck is open, a camera looks into it, so it stays hollow), the plinth, the pillar,
-  the plank and the fence posts (background).
+* ``ribs`` — every surface flagged ``solid`` (spine, skull, rib tubes: target; stand:
+  background);
+* ``plant`` — the pot filled up to the soil (target; wall and stems are thinner than two
+  interior Gaussians), table top, legs and book (background); the mug stays hollow;
+* ``occluded`` — the vase's foot and body (target; the open neck stays hollow), plinth, pillar,
+  plank and fence posts (background).
 """
 
 from __future__ import annotations

@@ -1,44 +1,16 @@
 """Shape statistics of trained 3DGS scenes, measured on the real captures in ``tests/data``.
 
-The synthetic 3DGS generator (:mod:`.gaussians3d`) draws its Gaussians from these
-measurements and its tests check that a generated scene's statistics fall inside the
-bands of the real captures. Everything is scale-free (ratios, logs relative to the
-scene's own median), so captures of any size compare.
+The synthetic 3DGS generator (:mod:`.gaussians3d`) draws its Gaussians from these measurements
+and its tests check that a generated scene's statistics fall inside the bands of the real
+captures. Everything is scale-free (ratios, logs relative to the scene's median). Per Gaussian,
+with sorted standard deviations ``s_max ≥ s_mid ≥ s_min``: ``log_smax_pXX``, ``mid_max_pXX`` /
+``min_max_pXX``, the opacity histogram ends, ``large_share``, ``needle_share``, ``smax_nn8_p50``
+and ``hidden_share`` (centres no orbit view sees). :data:`REAL_BANDS` span biker, guitar,
+playbot and logo (the flattened LOD tiles are reported, not banded); the sampling tables are
+their quantile averages with a mean Gaussian copula.
 
-Per Gaussian, with the activated standard deviations sorted ``s_max ≥ s_mid ≥ s_min``
-(for a loaded 3DGS scene: the two flattened scales and ``SurfelScene.scale_n``):
-
-* ``log_smax_pXX`` — percentiles of ``log s_max − median(log s_max)``;
-* ``mid_max_pXX`` / ``min_max_pXX`` — percentiles of ``s_mid / s_max`` (anisotropy in the
-  plane) and ``s_min / s_max`` (thickness: trained 3DGS is not flat);
-* ``opacity_lt_01`` / ``opacity_ge_09`` / ``opacity_p50`` — the two ends of the opacity
-  histogram and its median;
-* ``large_share`` — ``s_max > 3 · median``; ``large_low_share`` — of all Gaussians, the
-  large ones with opacity < 0.3 (the translucent blobs over surfaces);
-* ``needle_share`` — ``s_mid / s_max < 0.05`` (needles), ``needle_opacity_p50`` their
-  median opacity;
-* ``smax_nn8_p50`` — median of ``s_max`` over the distance to the 8th nearest centre (how
-  much neighbours overlap);
-* ``hidden_share`` (:func:`hidden_share`, renders) — centres more than 1 % of ``r_fg``
-  behind the first surface (the rendered median depth ``D_med``) in every one of 48
-  orbit views around the robust frame: the Gaussians no view sees.
-
-``python -m divas_engine.synthetic.splat_stats [SCENE ...]`` prints the table for the
-real captures (default) or the given scene files.
-
-Measured (``REAL_CAPTURES``, 2 cores, this repository's loaders): the bands
-:data:`REAL_BANDS` are the [min, max] over biker, guitar (compressed PLY), playbot and
-logo (SOG). The three ``gaussiansplats3d-lod`` tiles are reported but not in the bands:
-their third axis is ~0 (``s_min/s_max`` median 0, ``log s_min`` ~10 below ``s_max``: the
-tiles were flattened when they were cut) and their SH rest is all zero, so they are not
-what a trainer writes. The sampling tables (``*_QUANTILES``) are the quantile averages
-(Wasserstein barycentre) of the four captures, the dependence between the four
-quantities their mean Gaussian copula. The captures differ most in opacity: biker and
-guitar have the reference trainer's shape (a third of the Gaussians below 0.1, median
-0.17–0.24), playbot and logo are mostly opaque (median 0.83–0.90); the average (median
-0.53) is what makes a generated surface render opaque at the measured packing — a
-trainer places its faint Gaussians where others overlap, which independent draws with
-the biker opacity alone do not reproduce (front surfaces came out see-through).
+``python -m divas_engine.synthetic.splat_stats [SCENE ...]`` prints the table for the real
+captures (default) or the given scene files. Definitions in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

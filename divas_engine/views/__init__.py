@@ -6,7 +6,7 @@
 * :func:`estimate_up` — scene up and capture type from the training cameras.
 * :func:`plan_scene_anchors` / :func:`estimate_scene_up` / :func:`framed_camera` —
   camera-free captures: up from a ground plane or the capture convention, anchors
-  framed on the robust foreground (not in the paper; issue 17).
+  framed on the robust foreground (not in the paper).
 * :class:`GsCentroidPlanner` — 2DGS centroid views (alg:centroid-gs).
 * :func:`nerf_centroid_view` — NeRF centroid views (alg:centroid_view).
 * :class:`ViewConfig` — every constant, with its paper symbol.

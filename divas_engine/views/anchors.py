@@ -1,41 +1,16 @@
 """Anchor views (paper Sec. 3.2, App. C.1–C.2; NOTES "Anchors").
 
-Candidates: N Fibonacci directions (eq:fib) in the up-aligned frame around
-``c_scene``, ranked by alg:view_ranking. Radius per representation:
+Candidates: N Fibonacci directions (eq:fib) in the up-aligned frame around ``c_scene``, ranked
+by alg:view_ranking. Radius: NeRF — the median training-camera distance; 2DGS (eq:gs-radius) —
+``r_i = min(r_knn, r_cap)`` (mean distance of the ``knn_cameras`` nearest cameras, P90 of the
+cameras in a 45° cone; none in the cone → ``unsupported``).
 
-* NeRF: one global radius, the median training-camera distance to ``c_scene``.
-* 2DGS (eq:gs-radius): r_i = min(r_knn, r_cap) with r_knn the mean distance of the
-  ``knn_cameras`` training cameras angularly nearest to d_i and r_cap the P90 of the
-  distances of the cameras inside a 45° cone around d_i. No camera in the cone →
-  ``unsupported`` (placed at r_knn, excluded from the default top-K, listed with
-  ``all_views``).
-
-Capture types (decided from the cameras, :mod:`.up_direction`):
-
-* 360°: the default anchors are the top-K supported Fibonacci candidates.
-* forward-facing: the paper picks anchors manually from the training views; the
-  default list is K training cameras spread over the rig (farthest-point order from
-  the camera nearest the rig's mean centre), any other training camera can be added
-  with :func:`training_anchor`; ``all_views`` appends the ranked Fibonacci pool.
-* no training cameras (camera-free, e.g. the shared real scenes; not in the paper,
-  issue 17) — :func:`plan_scene_anchors`: the up is estimated from the scene itself
-  (a ground plane, else the capture convention; :mod:`.up_direction`) unless given,
-  and every candidate is framed on the robust foreground (:mod:`.framing`: it fills
-  ``frame_fill`` of the frame, centred, no roll), with the fallback intrinsics
-  (640×480, f = 600). With a ground the candidates are a Fibonacci lattice of the
-  zone between ``ground_min_elevation_deg`` (10°) and ``ground_max_elevation_deg``
-  (60°) above the horizon (equal-area, golden-angle): no anchor looks from below the
-  ground, and none straight down the up axis, where a standing figure shows only the
-  top of its head. The "front" axis is the world axis least
-  aligned with up. Nothing is unsupported. :meth:`AnchorPlan.frame_direction` frames
-  a user-chosen direction the same way (manual "add anchor").
-  :func:`plan_anchors` without a layout keeps the plain fallback: anchors at
-  ``fallback_radius_factor · r_fg`` around ``c_scene`` with up ``up`` /
-  ``ViewConfig.up`` / ``convention_up``.
-
-Anchor cameras with training cameras use the intrinsics of the median-fx training
-camera, sit at ``c_scene + r_i d_i``, look at ``c_scene`` and keep image-up = scene up
-(``ViewConfig.up`` overrides the estimated up).
+Capture types (:mod:`.up_direction`): 360° takes the top-K supported candidates;
+forward-facing takes K training cameras spread over the rig (farthest-point order);
+camera-free scenes (not in the paper, :func:`plan_scene_anchors`) estimate the up from the
+scene and frame every candidate on the robust foreground (:mod:`.framing`), on a Fibonacci
+lattice of the elevation zone above a found ground. Anchor cameras look at ``c_scene`` with
+image-up = scene up. The rules in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ class CentroidView:
         probes: Strategy-2 log, largest radius first.
 
     The planner may hand over the full render of ``camera`` it already made (the first
-    probe at full resolution, issue 20): :meth:`take_buffers` gives it once.
+    probe at full resolution): :meth:`take_buffers` gives it once.
     """
 
     camera: Camera

@@ -1,42 +1,15 @@
 """2DGS centroid view (paper App. C.3, alg:centroid-gs).
 
-Strategy 1 (physical neighbourhood): z = D_med at the click, x_w its
-back-projection, R_phys = p_f z tan(FOV_x/2) (eq:Rphys); N = opaque surfels
-(α > α_min) within R_phys of x_w (eq:neigh), found by a distance pass over the
-opaque centres whose x lies within R_phys of x_w's (centres kept sorted by x, float64,
-per planner). A k-d tree was used before: building it took longer on a 1M-surfel scene
-(≈1.5 s) than many such queries, and one session makes a handful (issue 20); the set
-is the same (``‖c − x_w‖ < R_phys`` with the same NumPy norm; the x slab is widened by
-a relative 1e-9 so no rounding of that norm can fall outside it). |N| < 5 → r_init = z p_f and no
-box; else R_lat = P90 of the offsets perpendicular to the view direction
-(eq:Rlat), r_init = R_lat / (f_fill tan(FOV_x/2)) (eq:Rinit) and the anchor box is
-the projected bounding box of N.
-
-Strategy 2 (occlusion-aware refinement): K_r radii linspace(r_init, 0.3 r_init);
-each probe renders D_med at low resolution (σ = ``probe_scale``, ≥ 64 px a side),
-only over the central patch (the pixel window eq:occfrac reads; same depths there);
-the central patch is the centred f_fill-sized rectangle; τ_occ = 0.85 z_near with
-z_near the nearest positive camera z of N in the probe camera (eq:tauocc), 0.7 r_k
-when none; O(r_k) = fraction of valid (> 0) patch depths below τ_occ (eq:occfrac).
-The first (largest) r_k with O < τ_O = 0.15 is taken; none → the smallest radius
-(the paper's fallback). A probe with no valid patch depth is skipped.
-
-Beyond the paper (issue 20, ``ViewConfig.probe_full_first``): the first radius r_0 is
-tested on the *full-resolution* render of its camera — exactly the render the view needs
-when r_0 is taken — instead of a low-resolution probe, so a click whose first candidate
-is accepted costs one render, not a probe plus a render; the render is handed to the
-session with the view (:meth:`CentroidView.take_buffers`). The same eq:occfrac, τ_occ and
-τ_O decide, over the same central patch at 16× the pixels. Measured on 120 clicks (the
-2DGS and 3DGS synthetic scenes, 16 per scene, and every hand-placed click of the real
-captures): r_0 was taken in 115; the full-resolution and the low-resolution tests
-decided the same in all 120 (|ΔO| ≤ 0.02). When r_0 is rejected the remaining radii are
-probed at low resolution as before, at the price of that one extra render.
-
-The view direction v̂ is the anchor ray through the click (anchor centre → x_w);
-BuildPose puts the camera at x_w − r v̂ with the anchor's intrinsics and up.
-
-Deviation: the paper's validity test ``D_med > 0.01`` is in absolute units; the
-renderer marks invalid depth with 0, so ``> 0`` is used (unit-free, NOTES "Units").
+Strategy 1 (physical neighbourhood): z = D_med at the click, x_w its back-projection,
+R_phys = p_f z tan(FOV_x/2) (eq:Rphys); N = opaque surfels within R_phys of x_w (eq:neigh),
+found by a distance pass over the opaque centres of an x slab (sorted by x, float64: the same
+set as a k-d tree, without building one per scene). |N| < 5 → r_init = z p_f and no box; else
+R_lat = P90 of the perpendicular offsets (eq:Rlat), r_init = R_lat / (f_fill tan(FOV_x/2))
+(eq:Rinit). Strategy 2 (occlusion-aware refinement): K_r radii linspace(r_init, 0.3 r_init),
+each probe's central patch depth read against τ_occ (eq:tauocc); the first r_k with
+O(r_k) < τ_O (eq:occfrac) is taken, else the smallest. Beyond the paper
+(``ViewConfig.probe_full_first``): r_0 is tested on the full-resolution render the view needs
+anyway, so an accepted first candidate costs one render. Details: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -77,7 +50,7 @@ def _row_norms(cols: np.ndarray, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``np.linalg.norm(cols[:, rows].T - x, axis=1)`` bit for bit (``cols`` ``[3, n]``) —
     NumPy sums the squares of a row left to right, ``(dx² + dy²) + dz²`` — from the three
     coordinate rows instead of a gathered ``[n,3]`` block and a length-3 reduction
-    (issue 20: 4.3 → 2 ms of the click's eq:neigh at 1M)."""
+    (no ``[n,3]`` gather on the click's eq:neigh path)."""
     dx, dy, dz = (cols[k, rows] - x[k] for k in range(3))
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
@@ -85,7 +58,7 @@ def _row_norms(cols: np.ndarray, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
 def _lateral_distances(mu: np.ndarray, x_w: np.ndarray, v: np.ndarray) -> np.ndarray:
     """eq:Rlat's ``‖r⊥‖`` per centre, ``r = μ − x_w``, ``r⊥ = r − (r·v) v``: bit for bit
     ``np.linalg.norm(r - np.outer(r @ v, v), axis=1)`` (the same products, NumPy's row
-    order of the squares) from columns, without the ``[n,3]`` temporaries (issue 20)."""
+    order of the squares) from columns, without the ``[n,3]`` temporaries."""
     r = mu - x_w
     a = r @ v
     px, py, pz = (r[:, k] - a * v[k] for k in range(3))
@@ -96,7 +69,7 @@ def _probe_depth(renderer, cam: Camera, scale: float, f_fill: float) -> np.ndarr
     """D_med of a probe, read only over its central patch (eq:occfrac): the renderer's
     depth-only pass of that pixel window when it has one (no SH colours, no feature
     compositing, the surfels that miss the patch culled; the patch's depths are the
-    whole render's bit for bit — issue 20), else a full render."""
+    whole render's bit for bit), else a full render."""
     probe = cam if scale == 1.0 else cam.scaled(scale)
     rs, cs = central_patch(probe.height, probe.width, f_fill)
     return renderer.render_depth(probe, window=(cs.start, rs.start, cs.stop, rs.stop)).D_med
@@ -124,8 +97,8 @@ class GsCentroidPlanner:
 
     def _opaque_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """``(surfel indices [M], float64 centres [3, M])`` of the opaque surfels, by x.
-        Indices are int32 when they fit (issue 20: 3M surfels keep 34 MB less than an
-        int64 index and a separate x copy)."""
+        Indices are int32 when they fit (half the memory of an int64 index; no separate
+        x copy)."""
         if self._cols is None:
             opaque = np.flatnonzero(self.scene.opacities > self.config.alpha_min)
             if len(self.scene.opacities) <= np.iinfo(np.int32).max:
@@ -158,7 +131,7 @@ class GsCentroidPlanner:
         hi = np.searchsorted(cols[0], x[0] + slab, side="right")
         c = cols[:, lo:hi]
         # the y/z slabs first (a centre within the ball is within them), the norm on the
-        # rest: the same rows, each row's norm computed alone (issue 20: 9 → 2 ms at 1M)
+        # rest: the same rows, each row's norm computed alone
         near = np.flatnonzero((np.abs(c[1] - x[1]) <= slab) & (np.abs(c[2] - x[2]) <= slab))
         d = _row_norms(c, near, x)
         rows = near[d < radius]
@@ -187,8 +160,8 @@ class GsCentroidPlanner:
         ``on_camera``: called with a candidate view camera before its full-resolution
         render starts — the first radius's (``probe_full_first``), then, when that one is
         rejected, the final camera before returning (the caller renders it) — so work
-        that needs only the view's camera runs while the view renders (issue 20:
-        graph3d's masks). A rejected first candidate only wastes that work.
+        that needs only the view's camera runs while the view renders (graph3d's
+        masks). A rejected first candidate only wastes that work.
 
         Raises:
             DivasInputError: no surface under the click.

@@ -93,7 +93,7 @@ class ViewConfig:
         probe_min_size: … but at least this many pixels on each side (64).
         probe_full_first: test the first radius r_0 on the full-resolution render of its
             camera — the view's own render when r_0 is taken — instead of a low-resolution
-            probe (not in the paper; True; issue 20: a click then costs one render).
+            probe (not in the paper; True: an accepted click then costs one render).
         near_fraction: a centroid view's own near clip, as a fraction of its orbit radius
             ``d_cam`` (not in the paper; 0.05). The paper's failure mode of a centroid
             camera placed *inside* a floater (App. C, Strategy 2) has a faint form that

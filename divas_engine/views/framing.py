@@ -1,25 +1,18 @@
-"""Framing of camera-free anchors on the scene's robust foreground (not in the paper;
-issue 17).
+"""Framing of camera-free anchors on the scene's robust foreground (not in the paper).
 
-The paper places anchors from the training cameras (eq:gs-radius). A capture without
-them gets anchors framed on its own content:
+The paper places anchors from the training cameras (eq:gs-radius). A capture without them gets
+anchors framed on its own content:
 
-* **scene layout** (:func:`layout_from_points`; ``views.scene_layout`` of a scene) —
-  the up (:func:`~.up_direction.estimate_scene_up`), a seeded sample of
-  ``frame_points`` foreground Gaussians (centres within ``r_fg`` of ``c_scene``,
-  weighted by opacity), the framing centre (midpoint of the weighted [q, 1 − q] box
-  of the sample in the up-aligned frame) and, when a ground was found, the floor
-  height along the up (the ``ground_floor_quantile`` of the sample's heights);
-* **robust extent of a view** (:func:`projected_extent`) — the opacity-weighted
-  [q, 1 − q] quantiles (q = ``frame_quantile``) of the sample's projected u and v;
-  the *fill* of a view is ``max(Δu / W, Δv / H)``: the object fills that fraction of
-  the frame along its tighter side;
-* **framed camera** (:func:`framed_camera`) — looking along a given direction, image
-  up = the scene up (no roll), at the distance where the fill is ``frame_fill``
-  (bisection) — but never so close that the near end of the robust foreground (its
-  weighted q-quantile of depth) is nearer than ``frame_min_depth`` × the look-at
-  distance — its look-at point moved sideways until the robust extent is centred
-  (three rounds).
+* **scene layout** (:func:`layout_from_points`) — the up (:func:`~.up_direction.estimate_scene_up`),
+  a seeded, opacity-weighted sample of foreground Gaussians (within ``r_fg`` of ``c_scene``),
+  the framing centre (midpoint of the sample's weighted [q, 1 − q] box) and the floor height
+  when a ground was found;
+* **robust extent of a view** (:func:`projected_extent`) — the weighted [q, 1 − q] quantiles of
+  the sample's projected u and v; the *fill* is ``max(Δu / W, Δv / H)``;
+* **framed camera** (:func:`framed_camera`) — looking along a direction with no roll, at the
+  distance where the fill is ``frame_fill`` (bisection) but no nearer than ``frame_min_depth`` ×
+  the look-at distance to the foreground's near end, its look-at point moved until the robust
+  extent is centred (three rounds).
 """
 
 from __future__ import annotations

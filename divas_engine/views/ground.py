@@ -1,27 +1,19 @@
-"""Supporting ground planes of a scene without cameras (not in the paper; issue 17).
+"""Supporting ground planes of a scene without cameras (not in the paper).
 
-A supporting plane of normal n is a plane with (almost) all content on its +n side
-and a dense contact layer on it. For each candidate normal n the plane sits at the
-``ground_floor_quantile`` (0.5 %) of the heights ``h = (p − c)·n`` of the sampled
-Gaussian centres — floaters below it are tolerated, nothing else — and its *support*
-is the opacity weight inside the band ``|h − h_floor| ≤ ground_band · r_fg``:
+A supporting plane of normal n has (almost) all content on its +n side and a dense contact
+layer on it: it sits at the ``ground_floor_quantile`` (0.5 %) of the heights ``h = (p − c)·n``
+of the sampled Gaussian centres, and its *support* is the opacity weight in the band
+``|h − h_floor| ≤ ground_band · r_fg``.
 
-* coarse search over a Fibonacci sphere of ``ground_directions`` normals; the six
-  strongest local maxima (≥ 20° apart) plus the strongest normal within
-  ``ground_convention_deg`` of ``convention_up`` (a small contact such as the soles
-  of a standing figure is rarely among the global six) are refined on a 6° cap of
-  200 normals (≈ 0.7° apart);
-* *sharpness* = 1 − (mean support on the ring 15° away) / (support): a floor, a
-  tabletop or a pair of soles loses most of its band when the normal tilts; the round
-  bottom of a blob does not;
-* *coverage* = the fraction of the content's footprint on the plane (cells of a 24×24
-  grid over its [1 %, 99 %] box holding ≥ 0.2 % of the weight) that holds band points:
-  ≈ 1 for a floor under everything, small for the soles of a standing figure;
-* *axis_deg* = angle of n to the nearest world axis (±x, ±y, ±z).
+* coarse search over ``ground_directions`` Fibonacci normals; the six strongest local maxima
+  plus the strongest normal near ``convention_up`` are refined on a 6° cap;
+* *sharpness* = 1 − (mean support on the ring 15° away) / (support): a floor or a pair of soles
+  loses its band when the normal tilts, the round bottom of a blob does not;
+* *coverage* = the fraction of the content's footprint on the plane (a 24×24 grid) holding
+  band points; *axis_deg* = angle of n to the nearest world axis.
 
-Which candidate becomes the up is decided in :mod:`.up_direction`. A dense plane
-with content on one side is not always a floor (the face of a guitar lying against
-its stand is one): the candidates are only evidence.
+Which candidate becomes the up is decided in :mod:`.up_direction`: a dense one-sided plane is
+not always a floor, so the candidates are only evidence.
 """
 
 from __future__ import annotations
@@ -182,8 +174,7 @@ def ground_candidates(
     cfg = config or ViewConfig()
     c = np.asarray(center, np.float64)
     # the rows within r_fg, then the sample, in float64 only for the rows used: the same
-    # values as converting everything first (issue 20: no [N,3] float64 temporaries,
-    # ≈ 0.2 GB at 3M points)
+    # values as converting everything first, without [N,3] float64 temporaries
     pts, wts = np.asarray(points), np.asarray(weights)
     keep = np.empty(len(pts), bool)
     for s in range(0, len(pts), _CHUNK):

@@ -1,41 +1,18 @@
 """Scene up direction and capture type from the training cameras (paper Sec. 3.2;
 NOTES "Anchors").
 
-* Mean of the cameras' image-up vectors (−y of the OpenCV camera).
-* Capture type: forward-facing when the cameras look the same way — the mean
-  resultant length of their unit optical axes is ≥ ``forward_facing_resultant``
-  (0.9 ≈ all within ~25° of the mean); otherwise 360° (rings, half rings, domes).
-* 360° captures: the mean is refined to the normal of the best-fit plane of the
-  camera centres (smallest right-singular vector of the centred centres), oriented
-  to agree with the mean — but only when that plane is well defined (smallest /
-  middle singular value ≤ ``plane_flatness``) and the normal lies within
-  ``plane_max_tilt_deg`` of the mean up; otherwise the mean is kept. The guard
-  rejects degenerate rigs (a camera line, a sphere of cameras) whose "plane"
-  normal is noise.
+With cameras: the mean of their image-up vectors (−y of the OpenCV camera); forward-facing
+when the mean resultant length of their optical axes is ≥ ``forward_facing_resultant``, else
+360°, where the mean is refined to the normal of the camera centres' best-fit plane when that
+plane is well defined and within ``plane_max_tilt_deg`` of the mean.
 
-Without cameras (:func:`estimate_scene_up`; not in the paper, issue 17) the up comes
-from the scene itself, first rule that applies:
-
-1. ``override`` — the user's ``--up`` / ``ViewConfig.up``; confidence 1.
-2. ``ground`` — a supporting ground plane (:func:`~.ground.ground_candidates`, with
-   support ≥ ``ground_min_support`` and sharpness ≥ ``ground_min_sharpness``) that
-   either (a) lies within ``ground_convention_deg`` of the pipeline convention
-   (``convention_up``; the ground refines it), the strongest such one, or (b) is the
-   strongest candidate of all, within ``ground_axis_deg`` of a world axis and covering
-   ≥ ``ground_min_coverage`` of the content's footprint — a file someone re-oriented
-   with its floor on an axis (Z-up tiles, Y-up glTF exports). Rule (b) goes first. A
-   dense one-sided plane elsewhere (the face of a guitar against its stand) is not
-   taken. A ground normal within ``ground_snap_deg`` (10°) of a world axis is snapped
-   to that axis: files are axis-aligned far more often than not (an editor such as
-   SuperSplat levels them, a converter puts the floor on an axis), and the contact
-   band of a capture — its underside, the part its cameras saw least — is itself only
-   good to a few degrees (measured on the shared captures over 8 seeds: the biker's
-   soles 4.8–8.3° from the upright the body shows, the guitar stand's feet 3.7–4.5°
-   from the level its leg bars show, the LOD tiles 0.5°, the SOG playbot 0.2° and
-   logo 1.2–2.1°).
-   Confidence 0.5 + 0.5 · sharpness: two cues agree (a one-sided contact plane and
-   the convention or the axis alignment), weighted by how planar the contact is.
-3. ``convention`` — ``convention_up`` (COLMAP-trained captures: −y); confidence 0.3.
+Without cameras (:func:`estimate_scene_up`; not in the paper), first rule that applies:
+``override`` (``--up`` / ``ViewConfig.up``, confidence 1); ``ground`` — a supporting plane
+(:func:`~.ground.ground_candidates`) near the pipeline convention, or the strongest one when it
+is axis-aligned and covers the content's footprint; snapped to a world axis within
+``ground_snap_deg`` (files are usually axis-aligned and a contact band is good to only a few
+degrees); confidence 0.5 + 0.5 · sharpness; ``convention`` (−y), confidence 0.3.
+The rules in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What an imported capture looks like when Blender renders it (issue 18).
+"""What an imported capture looks like when Blender renders it.
 
 Cycles renders the shared biker and guitar captures (Standard view transform) from a
 camera the engine renders too (``blender_scripts/compare_render.py`` does the same at
@@ -9,9 +9,9 @@ render of that camera supersampled 8× (what a Blender pixel integrates; the nat
 which is most of its difference to its own supersampled picture, see BENCHMARKS.md):
 
 * the default import blends like the capture (display space, :mod:`blender_addon.
-  blend_space`): guitar 0.043, biker 0.037 measured, ≤ 0.06 (the issue's target);
-* switched off (biker), Blender blends in linear light again: 0.088 from that reference,
-  0.035 from the engine's render composited in linear light (≤ 0.06).
+  blend_space`): ≤ 0.06 for both captures;
+* switched off (biker), Blender blends in linear light: ≤ 0.06 from the engine's render
+  composited in linear light (far more from the display-space reference).
 
 Workbench (what Solid mode draws) shows the splat colours: the same figure, not grey.
 """
@@ -81,7 +81,7 @@ def test_solid_mode_shows_the_splat_colours(real_data, tmp_path):
     refs, inside = CMP.engine_references(path, cam)
     got = CMP.render_blender(bpy.context, obj, cam, "BLENDER_WORKBENCH", 1, tmp_path / "wb.png")
     drawn = got.sum(-1) > 0.02
-    # the figure is drawn where the engine draws it, in colour (not the old flat grey)
+    # the figure is drawn where the engine draws it, in colour (not a flat grey)
     assert (drawn & inside).sum() >= 0.9 * inside.sum()
     assert got[inside].std(axis=0).mean() > 0.05  # varied colours, not one flat shade
     assert abs(_luma(got)[inside].mean() - _luma(refs["engine"])[inside].mean()) <= 0.15

@@ -1,4 +1,4 @@
-"""The display's two node-group variants (issue 20): with *View-Dependent Colour* off, or
+"""The display's two node-group variants: with *View-Dependent Colour* off, or
 without SH on the points, the modifier runs the fixed-colour group, which has no camera
 dependency — switching or moving the scene camera (every click and accept of a session
 does) does not re-evaluate the display — and shows exactly what the view-dependent group

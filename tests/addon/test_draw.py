@@ -1,4 +1,4 @@
-"""Issue 19 item 2: the feedback drawn over the viewport. Headless Blender cannot draw
+"""The feedback drawn over the viewport. Headless Blender cannot draw
 (the ``gpu`` module refuses in background mode), so these tests check what *would* be
 drawn where: the items :mod:`blender_addon.draw` collects for a region looking through
 a DivAS camera (mask preview over the camera frame, prompt markers on the clicked

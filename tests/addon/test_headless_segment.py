@@ -1,4 +1,4 @@
-"""Issue 7 items 8 and 9: ``blender_scripts/segment.py`` — a headless segmentation through
+"""``blender_scripts/segment.py`` — a headless segmentation through
 the add-on's operators, run as a subprocess (``python segment.py -- …`` with the ``bpy``
 module), gives the labels and the PLY ``divas segment`` gives on the same inputs; bad
 inputs exit non-zero with one ``error:`` line."""
@@ -64,7 +64,7 @@ def test_headless_matches_divas_segment(scene_dir, tmp_path):
         seed=2,
     )
     ref_dir = tmp_path / "engine"
-    ref_dir.mkdir()  # issue 14: an output's folder must exist (it was created)
+    ref_dir.mkdir()  # an output's folder must exist
     report_ref, _ = segment_scene(
         SegmentRequest(
             scene_dir / "scene.ply",

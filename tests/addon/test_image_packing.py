@@ -1,6 +1,6 @@
 """The engine renders shown behind the DivAS cameras are packed into the .blend at the
 next idle moment and at the latest before a save — not inside the click that shows them
-(issue 20: a PNG encode of 25–55 ms per view). Saved and reopened, the images hold the
+(a PNG encode per view). Saved and reopened, the images hold the
 renders; a file loaded meanwhile drops the requests."""
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Camera import: for every created camera, Blender's ``world_to_camera_view`` of random
 3D points equals the engine's projection within 0.5 px (with that camera's own
 resolution and pixel aspect applied). Points are made in the file's frame and placed in
-the world through the frame the camera was imported in (issue 18: the splats' axis
+the world through the frame the camera was imported in (the splats' axis
 conversion, or the splat object it is parented to)."""
 
 from __future__ import annotations

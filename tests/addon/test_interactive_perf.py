@@ -1,4 +1,4 @@
-"""Issue 20 (Blender side): what the add-on no longer does on the user's time, and that
+"""What the add-on keeps off the user's time, and that
 the result stays the same.
 
 * anchors render lazily — only the first at Start — and an anchor looked through later
@@ -98,7 +98,7 @@ def test_start_renders_the_first_anchor_only_and_reads_no_file(scene_dir, monkey
     s = live.session
     assert s.scene is cached  # one engine copy: the importer's
     # the click operator previews the mask at once: graph3d's cut starts while the view
-    # renders (issue 20; the engine's own default is off)
+    # renders (the engine's own default is off)
     assert type(s.segmenter).__name__ == "Graph3DSegmenter" and s.segmenter.prefetch_cuts
     assert len(s.anchors) >= 3
     assert [a.rendered for a in s.anchors] == [True] + [False] * (len(s.anchors) - 1)

@@ -1,4 +1,4 @@
-"""Issue 7 items 4 and 9, issue 19 items 1 and 3: the click-to-segment modal. The event →
+"""The click-to-segment modal. The event →
 step logic is pure (:mod:`blender_addon.modal_logic`) and tested as a table; the
 operator's ``modal()`` is driven with stand-in events, a stand-in region and a stubbed
 click → pixel mapping (headless Blender has no 3D view) against a real session on a
@@ -333,7 +333,7 @@ def test_modal_two_views_propagate(scene_dir):
     assert v0.status == "fused" and v1.status == "open"
     assert scene.camera.name == live.view_cameras[v1.id]
     sel_ref, lazy = live.coverage[v1.id]  # the 3D selection over the next view: rendered
-    assert sel_ref is s.selection and callable(lazy)  # when first drawn (issue 20)
+    assert sel_ref is s.selection and callable(lazy)  # when first drawn
     cov = live.coverage_of(v1.id)
     assert cov.shape == (v1.camera.height, v1.camera.width)
     assert cov.max() > 0.5
@@ -401,7 +401,7 @@ def test_modal_needs_a_3d_view_and_a_session(scene_dir):
 
 
 def test_modal_shift_click_on_a_spill_removes_it_at_once(scene_dir):
-    """Issue 35 item 4: a Shift-click on the selection, through an accepted view's camera,
+    """A Shift-click on the selection, through an accepted view's camera,
     takes the spot out of the points' selection in the same step (the viewport's
     ``divas_selected``), the panel's last update says how many views it changed, and one
     Blender undo step brings the exact selection back."""

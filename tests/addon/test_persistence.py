@@ -1,4 +1,4 @@
-"""Issue 19 item 4: the session follows the .blend — session → click → accept → rename →
+"""The session follows the .blend — session → click → accept → rename →
 Save As (twice, to other folders) → reopen → resume: same selection, the anchor images
 intact (packed), the cameras kept, the scene path relative; the one-click and the
 automatic resume; an unsaved file's sessions apart per object."""
@@ -80,7 +80,7 @@ def test_save_as_reopen_resume(scene_dir, tmp_path):
     sel = live.session.selection.copy()
     assert sel.sum() > 50
     all_anchors = list(live.anchor_cameras)
-    # anchors render lazily (issue 20): the ones looked through or clicked have their
+    # anchors render lazily: the ones looked through or clicked have their
     # render packed; the others have no image (made when first looked through)
     anchors = [n for n, a in zip(all_anchors, live.session.anchors) if a.rendered]
     assert len(anchors) >= 2

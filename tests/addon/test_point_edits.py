@@ -1,4 +1,4 @@
-"""Issue 19 item 5: the manual selection tools on an imported object — box, lasso, circle
+"""The manual selection tools on an imported object — box, lasso, circle
 and sphere on a known point layout select exactly the expected splats (each set worked
 out by hand), the modes, invert, grow / shrink, by opacity and by size, delete / hide /
 reveal / separate, all undoable and all reflected in the export; with a session, the

@@ -1,5 +1,5 @@
-"""The add-on's plain-language messages for a view the segmenter was unsure about
-(issue 16): the segmenter's own hint names the click to add, in the add-on's keys."""
+"""The add-on's plain-language messages for a view the segmenter was unsure about: the
+segmenter's own hint names the click to add, in the add-on's keys."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def test_rejection_with_advice_says_which_click_to_add():
     msg = rejection_message(low, 0.312, HINT)
     assert "confidence 0.31" in msg and "negative click (Shift+click)" in msg
     assert msg.endswith("press Enter") and "channel" not in msg
-    # without a hint (SAM, the oracle): the generic advice, as before
+    # without a hint (SAM, the oracle): the generic advice
     plain = rejection_message(low, 0.312)
     assert "confidence 0.31" in plain and "channel" not in plain and "spilled over" in plain
 

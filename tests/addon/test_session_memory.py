@@ -1,4 +1,4 @@
-"""Issue 20 (memory at 3M splats, Blender side): what the add-on keeps and how freed
+"""What the add-on keeps and how freed
 memory leaves the process, with the written selection unchanged.
 
 * the write-back keeps no point → primitive map when point ``i`` is primitive ``i`` (a
@@ -143,7 +143,7 @@ def test_start_fixes_the_threshold_only_for_large_scenes(scene_dir, monkeypatch)
 
 
 def test_the_mask_renders_reuse_their_buffers_only_with_the_fixed_threshold(scene_dir, monkeypatch):
-    """Issue 20: with the fixed mmap threshold (a large scene) the session's renderer keeps
+    """With the fixed mmap threshold (a large scene) the session's renderer keeps
     its sparse value renders' working arrays between calls; with glibc's adaptive one
     (what a small scene keeps) it does not (freed arrays are reused there anyway)."""
     monkeypatch.setattr(memory, "_limited", False)

@@ -1,4 +1,4 @@
-"""Issue 7 items 3, 5, 7, 9: Start DivAS (anchor cameras with exact projections and their
+"""Start DivAS (anchor cameras with exact projections and their
 renders as background images), the EXEC session operators against the engine Session
 (click, accept → ``divas_selected``, undo, finish object → ``divas_label``, reset),
 autosave + resume, export/extract after a session, errors as one-line reports, the
@@ -120,7 +120,7 @@ def test_start_session_cameras_images_projection(scene_dir):
         s.anchors[0].camera.height,
     )
     rng = np.random.default_rng(0)
-    # anchors render lazily (issue 20): the first at Start, each other one when first
+    # anchors render lazily: the first at Start, each other one when first
     # looked through (Look Through Camera here), then with its render behind it
     assert [a.rendered for a in s.anchors] == [True] + [False] * (len(s.anchors) - 1)
     for i, (cam, a) in enumerate(zip(cams, s.anchors)):
@@ -184,7 +184,7 @@ def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
     ) == {"FINISHED"}
     v0 = s.views[0]
     assert bpy.context.scene.camera.name == live.view_cameras[v0.id]
-    assert auto.is_file()  # issue 14: autosaved from the open on, and after every click
+    assert auto.is_file()  # autosaved from the open on, and after every click
     # accept the scene camera's view
     assert bpy.ops.divas.session_accept() == {"FINISHED"}
     assert v0.status == "fused" and s.selection.sum() > 100
@@ -494,7 +494,7 @@ def test_add_camera_as_anchor(scene_dir):
 
 
 def test_click_on_an_accepted_view_corrects_at_once(scene_dir):
-    """Issue 35 item 4: Click Anchor with ``view`` on an accepted view, negative: the spot
+    """Click Anchor with ``view`` on an accepted view, negative: the spot
     leaves the points' selection in the same step, the panel says how many views the
     click changed, one Blender undo step restores the selection exactly."""
     out, sc = scene_dir

@@ -1,4 +1,4 @@
-"""Issue 19 item 1: every session step is one Blender undo step, and after Blender's undo
+"""Every session step is one Blender undo step, and after Blender's undo
 (``bpy.ops.ed.undo``) or redo (``ed.redo``) — run for real, headless — the session
 equals the restored Blender state and the state before / after the step: selection
 attribute, labels, views and their cameras, anchors."""

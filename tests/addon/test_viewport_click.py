@@ -1,4 +1,4 @@
-"""Issue 19 item 3: a click in a free 3D view. The view's camera is reconstructed from the
+"""A click in a free 3D view. The view's camera is reconstructed from the
 region's view and window matrices and size (given to the operator, as a 3D view would
 give them; float32 like Blender's), the view becomes an anchor, and the click spawns the
 same centroid view as the same click on the equivalent anchor camera — with the object
@@ -140,7 +140,7 @@ def test_viewport_anchor_follows_the_anchor_resolution(scene_dir):
 
 
 def test_negative_click_in_a_free_view_removes_at_once(scene_dir):
-    """Issue 35 item 4: a Shift-click (negative) in a free 3D view on the selection takes
+    """A Shift-click (negative) in a free 3D view on the selection takes
     the spot out of the points' selection in the same step."""
     out, sc = scene_dir
     obj, live = _start(scene_dir)

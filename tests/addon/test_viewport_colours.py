@@ -1,4 +1,4 @@
-"""*Viewport Colours* (issue 20): Solid mode draws the point display in its material
+"""*Viewport Colours*: Solid mode draws the point display in its material
 colour, so while no 3D view shows material colours the view-dependent group takes the
 fixed colour in the viewport — its SH nodes are not evaluated when a click switches the
 scene camera — and everything that can show the colours is unchanged:
@@ -64,7 +64,7 @@ def _numpy_sh_colour(obj, mod, cam) -> np.ndarray:
 
 
 def _ungated_group(mod) -> None:
-    """The group as it was before the gate: its output Switch's True input wired past."""
+    """The group without the gate: its output Switch's True input wired past."""
     ng = mod.node_group
     gate = next(
         n

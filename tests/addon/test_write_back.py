@@ -1,4 +1,4 @@
-"""Issue 20 (Blender side): an accept or an undo writes the points' selection and labels
+"""An accept or an undo writes the points' selection and labels
 back without an array of every point — the comparison in a kept buffer, the labels worked
 out at the changed points, the kept arrays updated in place — and the attributes then
 equal the engine's selection and ``label_set`` (the full reference) at every step: click,

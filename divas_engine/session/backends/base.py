@@ -80,7 +80,7 @@ class SessionBackend(ABC):
         """Start work that the first anchor does not need in a background thread: the
         backend's own (e.g. the fusion state), then ``then`` (the segmenter's warm-up) in
         the same thread; the default has nothing of its own and runs ``then`` alone.
-        Called once by :meth:`Session.open` after the first anchor is rendered (issue 20)."""
+        Called once by :meth:`Session.open` after the first anchor is rendered."""
         if then is not None:
             self._warm = threading.Thread(target=then, name="divas-warm-up", daemon=True)
             self._warm.start()
@@ -129,7 +129,7 @@ class SessionBackend(ABC):
     ) -> CentroidView:
         """The centroid view a positive click spawns (Sec. 3.3). ``on_camera`` is called
         with the view's camera before the view is rendered (here or by the session):
-        the session starts work that needs only the camera meanwhile (issue 20)."""
+        the session starts work that needs only the camera meanwhile."""
 
     @abstractmethod
     def click_patch(self, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:

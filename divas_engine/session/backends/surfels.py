@@ -43,14 +43,14 @@ class SurfelBackend(SessionBackend):
         last_mapping: the latest voxel-to-surfel :class:`~divas_engine.mapping.MappingResult`.
         last_completion: on 3DGS scenes with ``config.mapping.completion.enabled``, the
             latest :class:`~divas_engine.mapping.completion.CompletionResult` (beyond the
-            paper, issue 15); else None.
+            paper); else None.
 
     The occupancy geometry is computed at construction (a degenerate scene fails at
-    open, as before); the active voxels, the fusion state, the voxel-to-surfel mapper
+    open); the active voxels, the fusion state, the voxel-to-surfel mapper
     and the click neighbourhood's centres are built by :meth:`warm_up` in a background
     thread while the user looks at the first anchor, or on first use (``grid`` and
     ``fusion`` wait for it). The same functions run on the same inputs: the state is
-    identical to building it at open (issue 20).
+    identical to building it at open.
     """
 
     scene_type = SurfelScene
@@ -103,7 +103,7 @@ class SurfelBackend(SessionBackend):
                 self._state_error = e
         if self._state is not None:
             self.planner._opaque_centres()
-            # the block index the renderer culls zoomed views and probes with (issue 20)
+            # the block index the renderer culls zoomed views and probes with
             self.renderer.sparse_index()
 
     def warm_up(self, then: Callable[[], None] | None = None) -> None:
@@ -212,7 +212,7 @@ class SurfelBackend(SessionBackend):
     def _complete(
         self, sel: np.ndarray, fused: FusionResult, live: Sequence[SessionView]
     ) -> np.ndarray:
-        """Completion of a 3DGS-derived scene (beyond the paper, issue 15): the live views'
+        """Completion of a 3DGS-derived scene (beyond the paper): the live views'
         records are added/removed incrementally, then the selection is completed."""
         from ...mapping.completion import VolumetricCompletion
 
