@@ -56,12 +56,12 @@ def main() -> None:
     ap.add_argument(
         "--no-prefetch",
         action="store_true",
-        help="graph3d: no cut started while the clicked view renders (A/B of issue 20)",
+        help="graph3d: no cut started while the clicked view renders (an A/B switch)",
     )
     ap.add_argument(
         "--no-mask-prefetch",
         action="store_true",
-        help="graph3d: the masks rendered after the view, not beside it (A/B of issue 20)",
+        help="graph3d: the masks rendered after the view, not beside it (an A/B switch)",
     )
     ap.add_argument(
         "--scratch",

@@ -346,7 +346,7 @@ def add_request_arguments(
             "--no-completion",
             action="store_true",
             help="3DGS scenes: the paper's selection only, without the completion of "
-            "volumetric scenes (beyond the paper, issue 15)",
+            "volumetric scenes (beyond the paper)",
         )
     if want("grid_views"):
         p.add_argument(
