@@ -32,6 +32,8 @@ __all__ = [
     "MATERIAL",
     "VOLUME_PROP",
     "volume_dir",
+    "NO_VOLUMES",
+    "volumes_available",
     "grid_colors",
     "write_grid_vdb",
     "new_volume_object",
@@ -44,6 +46,18 @@ MATERIAL = "DivAS NeRF Volume"
 #: custom property of a DivAS volume: "display" (child of a session object) or "segment"
 VOLUME_PROP = "divas_volume"
 ADDON_ID = "divas"
+
+
+#: the one line the add-on shows where this Blender cannot make Volume objects
+NO_VOLUMES = "this Blender has no OpenVDB module to write volumes with"
+
+
+def volumes_available() -> bool:
+    """Whether this Blender can make the Volume objects (an OpenVDB module to write their
+    ``.vdb`` files: :func:`.compat.openvdb`); without one a grid is shown as points."""
+    from .compat import openvdb
+
+    return openvdb() is not None
 
 
 def volume_dir() -> Path:
@@ -70,10 +84,10 @@ def grid_colors(grid: DensityGrid) -> np.ndarray | None:
 def write_grid_vdb(grid: DensityGrid, density: np.ndarray | None, tag: str) -> Path:
     """Write ``grid`` (its density, or ``density`` on its lattice) with :func:`grid_colors`
     to the volume folder under a content-keyed name; an existing file is reused."""
-    from divas_engine.io.openvdb_grid import vdb_available, write_vdb
+    from divas_engine.io.openvdb_grid import write_vdb
 
-    if not vdb_available():
-        raise DivasInputError(None, "this Blender has no OpenVDB module to write volumes with")
+    if not volumes_available():
+        raise DivasInputError(None, NO_VOLUMES)
     dens = np.asarray(grid.density if density is None else density, np.float32)
     h = hashlib.sha1(dens.tobytes())
     h.update(np.asarray(grid.aabb, np.float64).tobytes())

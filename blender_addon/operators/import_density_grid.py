@@ -9,6 +9,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper, orientation_helper
 
 from ..importers import GridImportSettings, import_density_grid
+from ..nerf_volume import NO_VOLUMES, volumes_available
 from ..reporting import USER_ERRORS, report_failure
 
 
@@ -59,9 +60,11 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
             obj = import_density_grid(context, settings)
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
-        self.report(
-            {"INFO"}, f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}"
-        )
+        msg = f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}"
+        if settings.volume and not volumes_available():
+            self.report({"WARNING"}, f"{msg}, shown as points: {NO_VOLUMES}")
+        else:
+            self.report({"INFO"}, msg)
         return {"FINISHED"}
 
 

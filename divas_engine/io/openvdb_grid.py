@@ -19,6 +19,7 @@ import glob
 import importlib
 import importlib.util
 import os
+import sys
 from functools import lru_cache
 from os import PathLike
 from pathlib import Path
@@ -31,6 +32,7 @@ from .limits import inflate_budget, limits, require_input_file
 
 __all__ = [
     "openvdb_module",
+    "bundled_openvdb_files",
     "read_vdb",
     "write_vdb",
     "vdb_available",
@@ -47,28 +49,42 @@ _COLOR_NAMES = ("color", "Cd", "colour", "rgb")
 
 @lru_cache(maxsize=1)
 def openvdb_module():
-    """The OpenVDB Python module, or None (module docstring)."""
+    """The OpenVDB Python module, or None (module docstring).
+
+    The one finder the engine and the Blender add-on share: an importable ``openvdb`` or
+    ``pyopenvdb`` first (inside Blender, or after ``bpy.utils.expose_bundled_modules``),
+    else the extension module inside an installed ``bpy`` wheel, loaded by path and
+    registered under its own name so a later ``import openvdb`` gets the same module
+    (an extension module's types must be registered once per process)."""
     for name in ("openvdb", "pyopenvdb"):
         try:
             return importlib.import_module(name)
         except ImportError:
             continue
-    spec = importlib.util.find_spec("bpy")
-    if spec is None or not spec.origin:
-        return None
-    root = os.path.dirname(spec.origin)
-    site = os.path.join(root, "*", "python", "lib", "python3*", "site-packages")
-    found = [p for ext in (".so", ".pyd") for p in glob.glob(os.path.join(site, "*openvdb*" + ext))]
-    for so in sorted(found):
+    for so in bundled_openvdb_files():
         name = os.path.basename(so).split(".")[0]  # openvdb (Blender ≥ 4.4) or pyopenvdb
         try:
             s = importlib.util.spec_from_file_location(name, so)
             mod = importlib.util.module_from_spec(s)
+            sys.modules[name] = mod
             s.loader.exec_module(mod)
             return mod
         except (ImportError, OSError):
+            sys.modules.pop(name, None)
             continue
     return None
+
+
+def bundled_openvdb_files() -> list[str]:
+    """The OpenVDB extension modules an installed ``bpy`` wheel carries in its Python's
+    ``site-packages`` (``openvdb`` from Blender 4.4; empty for wheels without one)."""
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.origin:
+        return []
+    root = os.path.dirname(spec.origin)
+    site = os.path.join(root, "*", "python", "lib", "python3*", "site-packages")
+    pats = [os.path.join(site, "*openvdb*" + ext) for ext in (".so", ".pyd")]
+    return sorted(p for pat in pats for p in glob.glob(pat))
 
 
 def vdb_available() -> bool:
@@ -150,11 +166,43 @@ class _Bytes:
                     raise DivasInputError(self.path, "OpenVDB metadata is not UTF-8") from None
 
 
+#: bytes of each transform map's data after its type name (OpenVDB's ``Map::read``: the
+#: ``Vec3d``/``Mat4d`` members it stores); other maps (frustum) are not axis-aligned
+_MAP_BYTES = {
+    "TranslationMap": 24,
+    "ScaleMap": 120,
+    "UniformScaleMap": 120,
+    "ScaleTranslateMap": 144,
+    "UniformScaleTranslateMap": 144,
+    "AffineMap": 128,
+    "UnitaryMap": 128,
+}
+#: bytes of one value of a tree's value type (``Tree_<type>_5_4_3``), stored full size
+_VALUE_BYTES = {
+    "float": 4,
+    "double": 8,
+    "int32": 4,
+    "int64": 8,
+    "uint32": 4,
+    "bool": 1,
+    "mask": 1,
+    "vec3s": 12,
+    "vec3d": 24,
+    "vec3i": 12,
+}
+#: the least one root child takes in the topology: its origin and an internal node's
+#: child and value masks (32³ bits each)
+_ROOT_CHILD_BYTES = 12 + 2 * 4096
+
+
 def check_vdb_structure(path: Path) -> None:
-    """Walk the file's header, metadata and grid descriptors (OpenVDB's ``Archive`` and
-    ``GridDescriptor`` layouts) and refuse one whose names are not UTF-8 or whose offsets
-    leave the file: OpenVDB's Python bindings abort the whole process when an error
-    message they convert holds such bytes, so those never reach them."""
+    """Walk the file's header, metadata, grid descriptors and each grid's root node
+    (OpenVDB's ``Archive``, ``GridDescriptor``, ``Map`` and ``RootNode`` layouts) and
+    refuse a file whose names are not UTF-8, whose offsets leave the file, or whose root
+    node counts more tiles or children than its topology block can hold: OpenVDB's
+    Python bindings abort the whole process when an error message they convert holds
+    non-UTF-8 bytes, and its reader loops (and allocates) once per counted entry even
+    past the end of the stream, so a corrupted count would hang it."""
     b = _Bytes(path.read_bytes(), path)
     if b.num("q") != 0x56444220:
         raise DivasInputError(path, "not an OpenVDB file (bad magic number)")
@@ -174,17 +222,43 @@ def check_vdb_structure(path: Path) -> None:
         raise DivasInputError(path, f"{n} grids")
     size = len(b.d)
     for _ in range(n):
-        b.text(), b.text(), b.text()
+        name, gtype, parent = b.text(), b.text(), b.text()
         grid_pos, block_pos, end_pos = b.num("q"), b.num("q"), b.num("q")
         if not (0 < grid_pos <= block_pos <= end_pos <= size):
             raise DivasInputError(path, "OpenVDB grid offsets outside the file")
-        g = _Bytes(b.d, path)
+        g = _Bytes(b.d[:block_pos], path)
         g.o = grid_pos
         if version >= 222:
             g.num("I")
         g.meta_map()
-        g.text()  # the transform's map type
+        map_type = g.text()
+        if not parent:  # an instance shares its parent's tree and stores none
+            _check_root(g, map_type, gtype, name)
         b.o = end_pos
+
+
+def _check_root(g: _Bytes, map_type: str, gtype: str, name: str) -> None:
+    """The root node's tile and child counts fit the topology block (``g`` ends there)."""
+    if map_type not in _MAP_BYTES:
+        raise DivasInputError(g.path, f"grid {name!r} has a {map_type!r} transform")
+    g.take(_MAP_BYTES[map_type])
+    half = gtype.endswith("_HalfFloat")
+    value = gtype.removesuffix("_HalfFloat").split("_")
+    vbytes = _VALUE_BYTES.get(value[1] if len(value) > 1 else "")
+    if vbytes is None:
+        return  # not a grid DivAS reads (points, strings): OpenVDB never parses its tree
+    if half and value[1] in ("float", "vec3s"):
+        vbytes //= 2
+    g.num("i")  # buffer count
+    g.take(vbytes)  # background
+    tiles, children = g.num("I"), g.num("I")
+    room = len(g.d) - g.o
+    if tiles * (13 + vbytes) + children * _ROOT_CHILD_BYTES > room:
+        raise DivasInputError(
+            g.path,
+            f"grid {name!r} counts {tiles} tiles and {children} children at its root, more "
+            f"than its {room} bytes of topology hold (a corrupted or truncated file)",
+        )
 
 
 def _read(vdb, path: Path) -> DensityGrid:
