@@ -7,10 +7,19 @@ engine never imports ``bpy``). Without one, reading or writing ``.vdb`` raises o
 :class:`~divas_engine.errors.DivasInputError`.
 
 Reading: the float grid named ``density`` (else the first float grid) over its active
-voxels' bounding box, and a vector grid named ``color``/``Cd`` when present; voxel
-``(i, j, k)`` is centred at the grid transform's ``indexToWorld(i, j, k)``, which must be
-an axis-aligned scale and translation. Writing: ``density`` (a fog volume: background 0,
-zero voxels inactive) and ``color`` when the grid has one, both with that transform.
+voxels' bounding box grown by one background cell on every side, and a vector grid named
+``color``/``Cd`` when present; voxel ``(i, j, k)`` is centred at the grid transform's
+``indexToWorld(i, j, k)``, which must be an axis-aligned scale and translation. The
+margin is the support of the trilinear field the renderers sample (cell-centred, clamped
+to the lattice's edge): it fades from an outermost active voxel to the background over
+one cell, as OpenVDB's own trilinear sampler does; a lattice cut at the active voxels'
+faces would hold their value to the face and nothing beyond, so silhouettes would move.
+A file :func:`write_vdb` wrote records its lattice's index box (grid metadata
+``divas_lattice_min``/``divas_lattice_max``), and reads back on that same lattice.
+
+Writing: ``density`` (a fog volume: background 0,
+zero voxels inactive; with its lattice's index box) and ``color`` when the grid has one,
+both with that transform.
 """
 
 from __future__ import annotations
@@ -45,6 +54,8 @@ NO_OPENVDB = (
     "installed, or with an 'openvdb'/'pyopenvdb' module importable"
 )
 _COLOR_NAMES = ("color", "Cd", "colour", "rgb")
+#: grid metadata :func:`write_vdb` records: the index box of the lattice it wrote
+LATTICE_MIN, LATTICE_MAX = "divas_lattice_min", "divas_lattice_max"
 
 
 @lru_cache(maxsize=1)
@@ -261,6 +272,30 @@ def _check_root(g: _Bytes, map_type: str, gtype: str, name: str) -> None:
         )
 
 
+def _lattice_box(meta: dict, lo, hi) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The index box the dense lattice covers: the one :func:`write_vdb` recorded
+    (``divas_lattice_min/max``) when it holds the active box ``lo..hi``, else the active
+    box grown by one background cell on every side (module docstring)."""
+    lo = tuple(int(v) for v in lo)
+    hi = tuple(int(v) for v in hi)
+    try:
+        a = np.asarray(meta[LATTICE_MIN], np.float64).reshape(3)
+        b = np.asarray(meta[LATTICE_MAX], np.float64).reshape(3)
+    except (KeyError, TypeError, ValueError):
+        a = b = None
+    if (
+        a is not None
+        and np.all(np.isfinite(a) & np.isfinite(b))
+        and np.all(a == np.rint(a))
+        and np.all(b == np.rint(b))
+        and np.all(a <= lo)
+        and np.all(b >= hi)
+        and np.all(b - a >= 1)
+    ):
+        return tuple(int(v) for v in a), tuple(int(v) for v in b)
+    return tuple(v - 1 for v in lo), tuple(v + 1 for v in hi)
+
+
 def _read(vdb, path: Path) -> DensityGrid:
     check_vdb_structure(path)
     metas = vdb.readAllGridMetadata(str(path))
@@ -286,16 +321,14 @@ def _read(vdb, path: Path) -> DensityGrid:
     dgrid = vdb.read(str(path), dens_meta.name)
     cgrid = vdb.read(str(path), col_meta.name) if col_meta is not None else None
     lo_ijk, hi_ijk = dgrid.evalActiveVoxelBoundingBox()
-    shape = tuple(int(b - a + 1) for a, b in zip(lo_ijk, hi_ijk))
-    if min(shape) < 1 or dgrid.activeVoxelCount() == 0:
+    if min(int(b - a + 1) for a, b in zip(lo_ijk, hi_ijk)) < 1 or dgrid.activeVoxelCount() == 0:
         raise DivasInputError(path, f"empty scene: grid {dgrid.name!r} has no active voxel")
+    lo_ijk, hi_ijk = _lattice_box(dens_meta.metadata, lo_ijk, hi_ijk)
+    shape = tuple(b - a + 1 for a, b in zip(lo_ijk, hi_ijk))
     if int(np.prod(shape)) * 4 > budget or int(np.prod(shape)) > limits().max_rows:
         raise DivasInputError(path, f"grid spans {shape} voxels, over the LoadLimits budget")
     arr = np.zeros(shape, np.float32)
-    dgrid.copyToArray(arr, ijk=tuple(int(v) for v in lo_ijk))
-    shape3 = tuple(max(2, s) for s in shape)  # a DensityGrid needs every side ≥ 2
-    if shape3 != shape:
-        arr = np.pad(arr, [(0, b - a) for a, b in zip(shape, shape3)])
+    dgrid.copyToArray(arr, ijk=lo_ijk)
     origin, vox = _axis_transform(dgrid, path)
     lo = origin + (np.asarray(lo_ijk, np.float64) - 0.5) * vox
     density = np.ascontiguousarray(arr.transpose(2, 1, 0))
@@ -305,12 +338,12 @@ def _read(vdb, path: Path) -> DensityGrid:
     density = np.maximum(density, 0)
     rgb = None
     if cgrid is not None:
-        c = np.zeros(shape3 + (3,), np.float32)
-        cgrid.copyToArray(c, ijk=tuple(int(v) for v in lo_ijk))
+        c = np.zeros(shape + (3,), np.float32)
+        cgrid.copyToArray(c, ijk=lo_ijk)
         rgb = np.clip(np.nan_to_num(c.transpose(2, 1, 0, 3)), 0, 1).astype(np.float32)
     if not np.any(density > 0):
         raise DivasInputError(path, "empty scene: the density grid is zero everywhere")
-    aabb = np.stack([lo, lo + np.asarray(shape3) * vox])
+    aabb = np.stack([lo, lo + np.asarray(shape) * vox])
     src = SourceInfo(path, "vdb", int(density.size), None, n_bad)
     out = DensityGrid(density, aabb, rgb, src)
     out.extras["vdb_grid_name"] = dgrid.name
@@ -330,6 +363,8 @@ def write_vdb(path: str | PathLike, grid: DensityGrid, density: np.ndarray | Non
     g = vdb.FloatGrid()
     g.copyFromArray(np.ascontiguousarray(dens.transpose(2, 1, 0)))
     g.name = "density"
+    g[LATTICE_MIN] = (0, 0, 0)
+    g[LATTICE_MAX] = tuple(int(n) - 1 for n in dens.shape[::-1])
     g.gridClass = vdb.GridClass.FOG_VOLUME
     g.transform = xform
     grids = [g]
