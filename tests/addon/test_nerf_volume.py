@@ -106,7 +106,7 @@ def test_session_on_the_volume_and_the_segmented_volume(ribs_ngp, tmp_path):
     )
     if not ok.any():
         pytest.skip("no click point in the first anchor")
-    x, y = uv[np.argmax(ok)]
+    x, y = (float(v) for v in uv[np.argmax(ok)])
     assert bpy.ops.divas.session_click(anchor=0, xy=f"{x!r} {y!r}") == {"FINISHED"}
     assert bpy.ops.divas.session_accept() == {"FINISHED"}
     assert s.selection.sum() > 20
