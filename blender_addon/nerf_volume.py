@@ -1,7 +1,8 @@
 """NeRF density grids as Blender Volume objects (import display and segmented results).
 
 Blender builds volume grids only from OpenVDB files, so a grid is written by the engine
-(:func:`divas_engine.io.openvdb_grid.write_vdb`: ``density`` σ per unit, and ``color``
+(:func:`divas_engine.io.openvdb_grid.write_vdb`, through Blender's OpenVDB module where
+the release has one, else the engine's NumPy writer: ``density`` σ per unit, and ``color``
 when the grid has colour — its RGB grid, or an instant-ngp network's colour baked at the
 voxels) into the extension's user folder, keyed by content, and a Volume datablock reads
 it. The material is a Principled Volume whose density is the ``density`` grid and whose
@@ -32,8 +33,6 @@ __all__ = [
     "MATERIAL",
     "VOLUME_PROP",
     "volume_dir",
-    "NO_VOLUMES",
-    "volumes_available",
     "grid_colors",
     "write_grid_vdb",
     "new_volume_object",
@@ -46,18 +45,6 @@ MATERIAL = "DivAS NeRF Volume"
 #: custom property of a DivAS volume: "display" (child of a session object) or "segment"
 VOLUME_PROP = "divas_volume"
 ADDON_ID = "divas"
-
-
-#: the one line the add-on shows where this Blender cannot make Volume objects
-NO_VOLUMES = "this Blender has no OpenVDB module to write volumes with"
-
-
-def volumes_available() -> bool:
-    """Whether this Blender can make the Volume objects (an OpenVDB module to write their
-    ``.vdb`` files: :func:`.compat.openvdb`); without one a grid is shown as points."""
-    from .compat import openvdb
-
-    return openvdb() is not None
 
 
 def volume_dir() -> Path:
@@ -86,8 +73,9 @@ def write_grid_vdb(grid: DensityGrid, density: np.ndarray | None, tag: str) -> P
     to the volume folder under a content-keyed name; an existing file is reused."""
     from divas_engine.io.openvdb_grid import write_vdb
 
-    if not volumes_available():
-        raise DivasInputError(None, NO_VOLUMES)
+    from .compat import openvdb
+
+    openvdb()  # Blender's own module where it has one (else the engine's NumPy writer)
     dens = np.asarray(grid.density if density is None else density, np.float32)
     h = hashlib.sha1(dens.tobytes())
     h.update(np.asarray(grid.aabb, np.float64).tobytes())

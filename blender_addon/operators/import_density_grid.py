@@ -9,7 +9,6 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper, orientation_helper
 
 from ..importers import GridImportSettings, import_density_grid
-from ..nerf_volume import NO_VOLUMES, volumes_available
 from ..reporting import USER_ERRORS, report_failure
 
 
@@ -57,12 +56,13 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
             cameras=self.cameras,
         )
         try:
-            obj = import_density_grid(context, settings)
+            notes: list[str] = []
+            obj = import_density_grid(context, settings, notes)
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
         msg = f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}"
-        if settings.volume and not volumes_available():
-            self.report({"WARNING"}, f"{msg}, shown as points: {NO_VOLUMES}")
+        if notes:
+            self.report({"WARNING"}, f"{msg}, {notes[0]}")
         else:
             self.report({"INFO"}, msg)
         return {"FINISHED"}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..nerf_volume import NO_VOLUMES, segmented_volume, volumes_available
+from ..nerf_volume import segmented_volume
 from ..reporting import USER_ERRORS, report_failure
 from ..selection import has_selection
 from ..source import source_of
@@ -25,9 +25,6 @@ class DIVAS_OT_segmented_volume(bpy.types.Operator):
             return False
         if not has_selection(context.active_object):
             cls.poll_message_set("The grid has no selection yet ('divas_selected')")
-            return False
-        if not volumes_available():
-            cls.poll_message_set(NO_VOLUMES[0].upper() + NO_VOLUMES[1:])
             return False
         return context.mode == "OBJECT"
 

@@ -3,8 +3,9 @@
 The module is ``openvdb`` (OpenVDB ≥ 11; Blender ≥ 4.4 bundles it), ``pyopenvdb`` (older
 Blender), or the ``openvdb`` that an installed ``bpy`` wheel bundles (its
 ``bpy.utils.expose_bundled_modules`` adds the same folder; it is loaded by path here, so the
-engine never imports ``bpy``). Without one, reading or writing ``.vdb`` raises one clear
-:class:`~divas_engine.errors.DivasInputError`.
+engine never imports ``bpy``). Without one, reading ``.vdb`` raises one clear
+:class:`~divas_engine.errors.DivasInputError`, and writing goes through the NumPy writer
+(:mod:`.vdb_writer`: uncompressed, what Blender's own reader needs for a Volume).
 
 Reading: the float grid named ``density`` (else the first float grid) over its active
 voxels' bounding box grown by one background cell on every side, and a vector grid named
@@ -351,26 +352,38 @@ def _read(vdb, path: Path) -> DensityGrid:
 
 
 def write_vdb(path: str | PathLike, grid: DensityGrid, density: np.ndarray | None = None) -> Path:
-    """Write ``grid`` (or ``density`` on its lattice instead of its own) as ``.vdb``."""
+    """Write ``grid`` (or ``density`` on its lattice instead of its own) as ``.vdb``:
+    through the OpenVDB module (compressed), else :mod:`.vdb_writer` (plain bytes)."""
     from ..output_paths import atomic_path
 
-    vdb = _module(path)
     dens = np.asarray(grid.density if density is None else density, np.float32)
     vox = grid.voxel_size
     centre0 = np.asarray(grid.aabb[0], np.float64) + 0.5 * vox
+    box = {LATTICE_MIN: (0, 0, 0), LATTICE_MAX: tuple(int(n) - 1 for n in dens.shape[::-1])}
+    rgb = None
+    if grid.rgb is not None:
+        rgb = np.where((dens > 0)[..., None], grid.rgb, 0).astype(np.float32)
+    vdb = openvdb_module()
+    if vdb is None:
+        from .vdb_writer import write_vdb_numpy
+
+        grids = [("density", dens.transpose(2, 1, 0))]
+        if rgb is not None:
+            grids.append(("color", rgb.transpose(2, 1, 0, 3)))
+        with atomic_path(path) as tmp:
+            write_vdb_numpy(tmp, grids, centre0, vox, {"density": box})
+        return Path(path)
     M = [[vox[0], 0, 0, 0], [0, vox[1], 0, 0], [0, 0, vox[2], 0], [*centre0.tolist(), 1]]
-    xform = vdb.createLinearTransform([[float(v) for v in row] for row in M])
     g = vdb.FloatGrid()
     g.copyFromArray(np.ascontiguousarray(dens.transpose(2, 1, 0)))
     g.name = "density"
-    g[LATTICE_MIN] = (0, 0, 0)
-    g[LATTICE_MAX] = tuple(int(n) - 1 for n in dens.shape[::-1])
+    for k, v in box.items():
+        g[k] = v
     g.gridClass = vdb.GridClass.FOG_VOLUME
-    g.transform = xform
+    g.transform = vdb.createLinearTransform([[float(v) for v in row] for row in M])
     grids = [g]
-    if grid.rgb is not None:
+    if rgb is not None:
         c = vdb.Vec3SGrid()
-        rgb = np.where((dens > 0)[..., None], grid.rgb, 0).astype(np.float32)
         c.copyFromArray(np.ascontiguousarray(rgb.transpose(2, 1, 0, 3)))
         c.name = "color"
         c.transform = vdb.createLinearTransform([[float(v) for v in row] for row in M])
