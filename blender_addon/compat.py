@@ -18,6 +18,7 @@ release where the API changed and why the add-on needs both sides:
 from __future__ import annotations
 
 import importlib
+from functools import lru_cache
 from types import ModuleType
 
 import bpy
@@ -126,6 +127,20 @@ def bundled_module(name: str) -> ModuleType | None:
 
 
 def openvdb() -> ModuleType | None:
-    """Blender's OpenVDB Python module: ``openvdb`` from 4.4, ``pyopenvdb`` in the Blender
-    4.2 and 4.3 applications (their ``bpy`` modules carry neither), or None."""
-    return bundled_module("openvdb") or bundled_module("pyopenvdb")
+    """Blender's OpenVDB Python module (``openvdb`` from 4.4, ``pyopenvdb`` in the Blender
+    4.2 and 4.3 applications), or None: this release's bundled modules are exposed where
+    it can, then the engine's own finder
+    (:func:`divas_engine.io.openvdb_grid.openvdb_module`) decides, so the add-on and the
+    engine read and write ``.vdb`` with the same module."""
+    from divas_engine.io import openvdb_grid
+
+    _expose_bundled_modules()
+    return openvdb_grid.openvdb_module()
+
+
+@lru_cache(maxsize=1)
+def _expose_bundled_modules() -> None:
+    """``bpy.utils.expose_bundled_modules()`` once per process, where this release has it."""
+    expose = getattr(bpy.utils, "expose_bundled_modules", None)
+    if expose is not None:
+        expose()

@@ -201,10 +201,13 @@ def import_splats(context, settings: SplatImportSettings) -> bpy.types.Object:
         wm.progress_end()
 
 
-def import_density_grid(context, settings: GridImportSettings) -> bpy.types.Object:
+def import_density_grid(
+    context, settings: GridImportSettings, notes: list[str] | None = None
+) -> bpy.types.Object:
     """A point cloud of the grid's occupied voxels (density, opacity, colour attributes):
-    the session object, shown by a Volume child (or as points); with the file's own
-    training cameras in the same frame."""
+    the session object, shown by a Volume child (or as points: asked for, or where the
+    Volume cannot be made — one line on ``notes``); with the file's own training cameras
+    in the same frame."""
     path = Path(settings.filepath)
     grid = load_scene(path)
     if isinstance(grid, SurfelScene):
@@ -217,11 +220,17 @@ def import_density_grid(context, settings: GridImportSettings) -> bpy.types.Obje
     frame = conversion_matrix(rot)
     obj = _new_points_object(context, _object_name(path), table, grid, frame)
     source.remember_scene(grid)  # Start DivAS and the segmented volume take it from here
-    if settings.volume:
+    volume = settings.volume
+    if volume:
         from . import nerf_volume
 
-        nerf_volume.add_display_volume(context, obj, grid)
-    elif settings.display:
+        try:
+            nerf_volume.add_display_volume(context, obj, grid)
+        except DivasInputError as e:  # e.g. Blender read no grid from the file
+            volume = False
+            if notes is not None:
+                notes.append(f"shown as points: {e.problem}")
+    if not volume and (settings.display or settings.volume):
         display.add_display_modifier(obj, points=True)
     obj["divas_grid_shape"] = list(grid.density.shape)
     obj["divas_grid_aabb"] = np.asarray(grid.aabb, dtype=np.float64).ravel().tolist()

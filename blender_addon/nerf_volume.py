@@ -1,7 +1,8 @@
 """NeRF density grids as Blender Volume objects (import display and segmented results).
 
 Blender builds volume grids only from OpenVDB files, so a grid is written by the engine
-(:func:`divas_engine.io.openvdb_grid.write_vdb`: ``density`` σ per unit, and ``color``
+(:func:`divas_engine.io.openvdb_grid.write_vdb`, through Blender's OpenVDB module where
+the release has one, else the engine's NumPy writer: ``density`` σ per unit, and ``color``
 when the grid has colour — its RGB grid, or an instant-ngp network's colour baked at the
 voxels) into the extension's user folder, keyed by content, and a Volume datablock reads
 it. The material is a Principled Volume whose density is the ``density`` grid and whose
@@ -70,10 +71,11 @@ def grid_colors(grid: DensityGrid) -> np.ndarray | None:
 def write_grid_vdb(grid: DensityGrid, density: np.ndarray | None, tag: str) -> Path:
     """Write ``grid`` (its density, or ``density`` on its lattice) with :func:`grid_colors`
     to the volume folder under a content-keyed name; an existing file is reused."""
-    from divas_engine.io.openvdb_grid import vdb_available, write_vdb
+    from divas_engine.io.openvdb_grid import write_vdb
 
-    if not vdb_available():
-        raise DivasInputError(None, "this Blender has no OpenVDB module to write volumes with")
+    from .compat import openvdb
+
+    openvdb()  # Blender's own module where it has one (else the engine's NumPy writer)
     dens = np.asarray(grid.density if density is None else density, np.float32)
     h = hashlib.sha1(dens.tobytes())
     h.update(np.asarray(grid.aabb, np.float64).tobytes())

@@ -116,12 +116,10 @@ def export_selection(obj, settings: ExportSettings) -> ExportResult:
     return export_transformed_selection(scene, mask, out, matrix, labels_path=labels)
 
 
-def _vdb_beside(out: Path) -> Path | None:
-    """``<out stem>.vdb`` for a grid export (the masked density as a volume), when an
-    OpenVDB module is there to write it."""
-    from divas_engine.io.openvdb_grid import vdb_available
-
-    return out.with_name(out.name.split(".")[0] + ".vdb") if vdb_available() else None
+def _vdb_beside(out: Path) -> Path:
+    """``<out stem>.vdb`` for a grid export: the masked density as a volume (written
+    through an OpenVDB module, or the engine's NumPy writer without one)."""
+    return out.with_name(out.name.split(".")[0] + ".vdb")
 
 
 def export_matrix(obj, transform: ExportTransform) -> np.ndarray | None:

@@ -285,8 +285,18 @@ def build_seeds(work: Path, families: list[str] | None = None) -> dict[str, Fami
         rgb = rng.uniform(0, 1, (6, 5, 4, 3)).astype(np.float32)
         g = DensityGrid(dens, np.array([[-1.0, -1, -1], [1, 1, 1]]), rgb, None)
         if openvdb_module() is not None:
+            from divas_engine.io.vdb_writer import write_vdb_numpy
+
             p = write_vdb(work / "vdb" / "seed.vdb", g)
-            fams["vdb"] = Family("vdb", [p], load_scene, check=check_scene)
+            # the same grid uncompressed (the NumPy writer): raw node values to mutate
+            (work / "vdb_plain").mkdir(exist_ok=True)
+            plain = write_vdb_numpy(
+                work / "vdb_plain" / "seed.vdb",
+                [("density", dens.transpose(2, 1, 0)), ("color", rgb.transpose(2, 1, 0, 3))],
+                np.full(3, -1.0) + 1 / 8,
+                np.array([0.5, 0.4, 1 / 3]),
+            )
+            fams["vdb"] = Family("vdb", [p, plain], load_scene, check=check_scene)
     cams = _cameras()
     if need("cameras_json"):
         p = save_cameras(work / "cameras_json" / "cameras.json", cams, "cameras_json")

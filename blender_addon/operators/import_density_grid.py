@@ -56,12 +56,15 @@ class DIVAS_OT_import_density_grid(bpy.types.Operator, ImportHelper):
             cameras=self.cameras,
         )
         try:
-            obj = import_density_grid(context, settings)
+            notes: list[str] = []
+            obj = import_density_grid(context, settings, notes)
         except USER_ERRORS as e:
             return report_failure(self, e, settings.filepath)
-        self.report(
-            {"INFO"}, f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}"
-        )
+        msg = f"Imported {len(obj.data.points):,} voxels from {settings.filepath.name}"
+        if notes:
+            self.report({"WARNING"}, f"{msg}, {notes[0]}")
+        else:
+            self.report({"INFO"}, msg)
         return {"FINISHED"}
 
 

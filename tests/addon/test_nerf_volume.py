@@ -15,7 +15,8 @@ from divas_engine.point_attributes import SELECTED
 from divas_engine.synthetic.ngp_snapshot import sample_grid, snapshot_of_grid
 
 bpy = pytest.importorskip("bpy")
-pytestmark = pytest.mark.skipif(openvdb_module() is None, reason="no OpenVDB module")
+#: reading a .vdb back needs an OpenVDB module (writing one does not)
+HAS_VDB = openvdb_module() is not None
 
 
 @pytest.fixture(autouse=True)
@@ -63,9 +64,10 @@ def test_import_as_volume_with_the_snapshot_cameras(ribs_ngp):
     assert {"density", "color"} <= names  # colour baked from the network
     assert vol.data.materials[0].name == nerf_volume.MATERIAL
     # the volume's density is the grid's, where the grid is
-    grid = load_scene(out / "ribs_net.ingp")
-    back = read_vdb(vol.data.filepath)
-    assert int((back.density > 0).sum()) == int((grid.density > 0).sum())
+    if HAS_VDB:
+        grid = load_scene(out / "ribs_net.ingp")
+        back = read_vdb(vol.data.filepath)
+        assert int((back.density > 0).sum()) == int((grid.density > 0).sum())
     # the training cameras come in, in the grid's frame
     coll = bpy.data.collections["DivAS Cameras"]
     cams = [o for o in coll.objects if o.type == "CAMERA"]
@@ -106,7 +108,7 @@ def test_session_on_the_volume_and_the_segmented_volume(ribs_ngp, tmp_path):
     )
     if not ok.any():
         pytest.skip("no click point in the first anchor")
-    x, y = uv[np.argmax(ok)]
+    x, y = (float(v) for v in uv[np.argmax(ok)])
     assert bpy.ops.divas.session_click(anchor=0, xy=f"{x!r} {y!r}") == {"FINISHED"}
     assert bpy.ops.divas.session_accept() == {"FINISHED"}
     assert s.selection.sum() > 20
@@ -116,8 +118,10 @@ def test_session_on_the_volume_and_the_segmented_volume(ribs_ngp, tmp_path):
     assert seg.type == "VOLUME" and not seg.hide_select and seg is not obj
     assert seg[nerf_volume.VOLUME_PROP] == "segment"
     np.testing.assert_allclose(np.array(seg.matrix_world), np.array(obj.matrix_world))
-    masked = read_vdb(seg.data.filepath)
-    assert int((masked.density > 0).sum()) == int((s.selection & (s.scene.density > 0)).sum())
+    if HAS_VDB:
+        masked = read_vdb(seg.data.filepath)
+        n_sel = int((s.selection & (s.scene.density > 0)).sum())
+        assert int((masked.density > 0).sum()) == n_sel
     # export: the masked snapshot and the .vdb beside it
     bpy.context.view_layer.objects.active = obj
     target = tmp_path / "ribs_sel.ingp"
