@@ -2,15 +2,17 @@
 
     python blender_scripts/render_nerf_volume.py -- GRID --labels L.npy --out DIR
         [--engine CYCLES|BLENDER_EEVEE_NEXT] [--width 480] [--samples 32] [--camera I]
+        [--anchors N]
 
 (or ``blender -b --python blender_scripts/render_nerf_volume.py -- …``). Imports GRID
 (``.ingp``, ``.msgpack``, ``.npz``, ``.pth``, ``.vdb``) with Import › NeRF as a Volume,
 starts a DivAS session with the SAM-like oracle on ``L.npy`` (ground truth per voxel of
-the grid as loaded), clicks the grid's densest labelled voxel in the first anchor that
-sees it, accepts, makes the Segmented Volume, and renders from training camera ``I`` (the
-snapshot's own, else the anchor): ``DIR/volume.png`` (the imported volume),
-``DIR/segment.png`` (the segmented volume alone) and ``DIR/side_by_side.png``; prints the
-timings and voxel counts as JSON.
+the grid as loaded), clicks a labelled voxel in each of the first N anchors that sees
+it (``--anchors``, default 1; the clicks spread along the object), accepting each view,
+makes the Segmented Volume, and renders from training camera ``I`` (the snapshot's own,
+else the anchor): ``DIR/volume.png`` (the imported volume), ``DIR/segment.png`` (the
+segmented volume alone) and ``DIR/side_by_side.png``; prints the timings and voxel
+counts as JSON.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ def _args(argv):
     p.add_argument("--width", type=int, default=480)
     p.add_argument("--samples", type=int, default=32)
     p.add_argument("--camera", type=int, default=0)
+    p.add_argument("--anchors", type=int, default=1, help="anchors clicked (one click each)")
     return p.parse_args(argv)
 
 
@@ -45,6 +48,21 @@ def _render(bpy, path: Path) -> np.ndarray:
     import cv2
 
     return cv2.imread(str(path), cv2.IMREAD_COLOR)
+
+
+#: where the k-th click goes: quantiles along the object's longest axis (middle first)
+CLICK_QUANTILES = (0.5, 0.1, 0.9, 0.3, 0.7)
+
+
+def _click_target(pts: np.ndarray, k: int) -> np.ndarray:
+    """The labelled voxel nearest the middle of the k-th slab (a tenth of the voxels)
+    along the longest axis of ``pts``: successive clicks spread over the object."""
+    axis = int(np.argmax(np.ptp(pts, 0)))
+    order = np.argsort(pts[:, axis], kind="stable")
+    width = max(1, len(order) // 10)
+    start = round(CLICK_QUANTILES[k % len(CLICK_QUANTILES)] * (len(order) - width))
+    slab = pts[order[start : start + width]]
+    return slab[np.argmin(np.linalg.norm(slab - np.median(slab, 0), axis=1))]
 
 
 def main(argv: list[str]) -> int:
@@ -74,16 +92,19 @@ def main(argv: list[str]) -> int:
     labels = np.load(a.labels)
     iz, iy, ix = np.nonzero(labels & (s.scene.density > 0))
     pts = s.scene.aabb[0] + (np.stack([ix, iy, iz], 1) + 0.5) * s.scene.voxel_size
-    target = np.median(pts, 0)
     t = time.perf_counter()
+    clicked = 0
     for i, anc in enumerate(s.anchors):
         cam = anc.camera
+        target = _click_target(pts, clicked)
         uv, z = cam.project(target[None])
         if z[0] > 0 and 0 <= uv[0, 0] < cam.width and 0 <= uv[0, 1] < cam.height:
             xy = f"{uv[0, 0]!r} {uv[0, 1]!r}"
             assert bpy.ops.divas.session_click(anchor=i, xy=xy) == {"FINISHED"}
-            break
-    assert bpy.ops.divas.session_accept() == {"FINISHED"}
+            assert bpy.ops.divas.session_accept() == {"FINISHED"}
+            clicked += 1
+            if clicked == a.anchors:
+                break
     t_click = time.perf_counter() - t
     assert bpy.ops.divas.segmented_volume() == {"FINISHED"}
     seg = bpy.context.active_object
@@ -125,6 +146,8 @@ def main(argv: list[str]) -> int:
                 "render_two_s": round(t_render, 2),
                 "voxels": int((s.scene.density > 0).sum()),
                 "selected": int(seg["divas_voxels"]),
+                "labelled": int(labels.sum()),
+                "anchors_clicked": clicked,
                 "engine": a.engine,
             }
         )
