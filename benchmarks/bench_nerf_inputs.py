@@ -182,8 +182,8 @@ def suite(
                 t_load = time.perf_counter() - t
                 labels = _carry_labels(sc.grid, sc.grid_labels, g)
                 rcfg = replace(cfg.session.render, shade_grid=shade)
-                if kind == "ingp_net_gridviews":
-                    rcfg = replace(rcfg, nerf_network=False)
+                if kind in ("ingp_net", "ingp_net_gridviews"):  # not by device
+                    rcfg = replace(rcfg, nerf_network=kind == "ingp_net")
                 base = make_renderer(g, device="cpu", config=rcfg)
                 renderer = CachingRenderer(base)
                 cam = sc.test_cameras[0]

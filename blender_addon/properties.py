@@ -19,6 +19,14 @@ from divas_engine.mapping import MappingConfig
 from divas_engine.render import RenderConfig
 from divas_engine.session import SessionConfig
 
+#: how a snapshot's views are drawn (``RenderConfig.nerf_network``: None, True, False)
+NERF_VIEWS = [
+    ("AUTO", "Auto", "From the network on a CUDA device, from the grid on a CPU"),
+    ("NETWORK", "Network", "From the snapshot's network (seconds per view on a CPU)"),
+    ("GRID", "Grid", "March the density grid with the network's colour baked in (fast)"),
+]
+_NERF_NETWORK = {"AUTO": None, "NETWORK": True, "GRID": False}
+
 __all__ = [
     "DIVAS_PG_session_settings",
     "PRESETS",
@@ -63,11 +71,11 @@ class DIVAS_PG_session_settings(bpy.types.PropertyGroup):
         soft_max=1.0,
         description="Views are rendered at this fraction of their camera's resolution",
     )
-    nerf_network: BoolProperty(
-        name="Views From NeRF Network",
-        default=True,
-        description="Render an instant-ngp snapshot's views from its network; off: march "
-        "its density grid with the network's colour baked in (much faster on a CPU)",
+    nerf_views: EnumProperty(
+        name="NeRF Views",
+        items=NERF_VIEWS,
+        default="AUTO",
+        description="How an instant-ngp snapshot's views are drawn",
     )
     see_through_gap: FloatProperty(
         name="See-Through Gap (γ_ST)",
@@ -156,5 +164,5 @@ def session_config(props, *, autosave: str | None = None) -> SessionConfig:
         mask_channel=int(props.mask_channel),
         seed=int(props.seed),
         autosave=autosave,
-        render=replace(RenderConfig(), nerf_network=bool(props.nerf_network)),
+        render=replace(RenderConfig(), nerf_network=_NERF_NETWORK[props.nerf_views]),
     )

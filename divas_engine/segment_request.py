@@ -77,8 +77,9 @@ class SegmentRequest:
         completion: 3DGS scenes: complete the selection beyond the paper.
         lod: level of a streamed-LOD scene (``lod-meta.json``; None: level 0, the finest;
             negative: counted from the coarsest).
-        grid_views: instant-ngp snapshots: march the density grid (the network's colour
-            baked in) instead of rendering views from the network.
+        grid_views, network_views: instant-ngp snapshots: march the density grid (the
+            network's colour baked in), or render views from the network; neither: the
+            network on CUDA, the grid on a CPU (``RenderConfig.nerf_network``).
     """
 
     scene: Path
@@ -104,6 +105,7 @@ class SegmentRequest:
     completion: bool = True
     lod: int | None = None
     grid_views: bool = False
+    network_views: bool = False
 
     def __post_init__(self) -> None:
         for name in _PATHS:
@@ -132,6 +134,15 @@ class SegmentRequest:
             )
         if self.preset is not None and self.preset not in PRESETS:
             raise DivasInputError(None, f"--preset must be one of {', '.join(PRESETS)}")
+        if self.grid_views and self.network_views:
+            raise DivasInputError(None, "--grid-views and --network-views exclude each other")
+
+    @property
+    def nerf_network(self) -> bool | None:
+        """``RenderConfig.nerf_network`` for this request (None: by device)."""
+        if self.grid_views:
+            return False
+        return True if self.network_views else None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: paths as strings, ``up`` as a list."""
@@ -194,7 +205,7 @@ def _coerce(name: str, v: Any, base: Path | None, at: str) -> Any:
         if not isinstance(v, str) or not v:
             raise DivasInputError(None, f"{at}: must be a path, got {v!r}")
         return request_path(v, base, at)
-    if name in ("resume", "completion", "grid_views"):
+    if name in ("resume", "completion", "grid_views", "network_views"):
         if not isinstance(v, bool):
             raise DivasInputError(None, f"{at}: must be true or false, got {v!r}")
         return v
@@ -353,7 +364,14 @@ def add_request_arguments(
             "--grid-views",
             action="store_true",
             help="instant-ngp snapshots: march the density grid (the network's colour baked "
-            "in) instead of rendering views from the network (much faster on a CPU)",
+            "in) instead of rendering views from the network (the default on a CPU)",
+        )
+    if want("network_views"):
+        p.add_argument(
+            "--network-views",
+            action="store_true",
+            help="instant-ngp snapshots: render views from the network even on a CPU (the "
+            "default on CUDA; on a CPU each view takes seconds)",
         )
     if want("lod"):
         p.add_argument(

@@ -111,8 +111,11 @@ def test_network_views_look_like_the_grid_they_encode(device, tmp_path):
     p = tmp_path / "boxes.ingp"
     write_ngp_document(p, doc, True)
     g = load_scene(p)
-    net_r = make_renderer(g, device=device)
+    net_r = make_renderer(g, device=device, config=RenderConfig(nerf_network=True))
     assert isinstance(net_r, NgpRenderer)
+    # by default the network draws the views on CUDA, the grid on a CPU
+    auto = make_renderer(g, device=device)
+    assert isinstance(auto, NgpRenderer) == (str(device).startswith("cuda"))
     a = make_renderer(src, device=device).render(cam)
     b = net_r.render(cam)
     ma, mb = a.alpha > 0.5, b.alpha > 0.5

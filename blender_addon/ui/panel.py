@@ -66,7 +66,7 @@ def _draw_settings(layout, context, ref) -> None:
     box.prop(props, "preset")
     box.prop(props, "render_scale")
     if ref is not None and ref.format in ("ingp", "msgpack"):
-        box.prop(props, "nerf_network")
+        box.prop(props, "nerf_views")
     col = box.column(align=True)
     col.active = ref is None or ref.kind != "grid"  # NeRF: the preset's constants
     col.prop(props, "see_through_gap")

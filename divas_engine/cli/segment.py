@@ -156,10 +156,10 @@ def segment_scene(
         mask_channel=int(req.mask_channel),
         autosave=None if req.session is None else str(req.session),
     )
-    if req.grid_views:
+    if req.nerf_network is not None:
         from dataclasses import replace
 
-        config = replace(config, render=replace(config.render, nerf_network=False))
+        config = replace(config, render=replace(config.render, nerf_network=req.nerf_network))
     if not req.completion:
         from dataclasses import replace
 

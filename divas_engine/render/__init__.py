@@ -17,11 +17,24 @@ __all__ = [
     "RenderBuffers",
     "RenderConfig",
     "make_renderer",
+    "network_views",
     "SurfelRenderer",
     "NerfRenderer",
     "DEPTH_CHANNELS",
     "NPZ_CHANNELS",
 ]
+
+
+def network_views(config: RenderConfig | None, device=None) -> bool:
+    """Whether a snapshot's views come from its network: ``config.nerf_network``, or when
+    that is None, on CUDA only (a CPU marches the grid with the network's colour baked:
+    seconds per network view there against a fraction of one)."""
+    choice = None if config is None else config.nerf_network
+    if choice is not None:
+        return bool(choice)
+    from divas_kernels import resolve_device
+
+    return bool(resolve_device(device).is_cuda)
 
 
 def make_renderer(
@@ -35,7 +48,7 @@ def make_renderer(
     if isinstance(scene, DensityGrid):
         from .ngp_renderer import NgpRenderer, has_ngp_network
 
-        if has_ngp_network(scene) and (config is None or config.nerf_network):
+        if has_ngp_network(scene) and network_views(config, device):
             return NgpRenderer(scene, device=device, config=config)
         from .nerf_renderer import NerfRenderer
 

@@ -45,7 +45,8 @@ class RenderConfig:
             torch-ngp, a ``.vdb`` without a colour grid).
         nerf_network: draw views of a grid that carries its radiance network (an
             instant-ngp snapshot) from the network (True) or march the grid itself,
-            coloured by the network baked at its voxels (False: much faster on a CPU).
+            coloured by the network baked at its voxels (False: an order of magnitude
+            faster on a CPU); None: the network on CUDA, the grid on a CPU.
         threads: CPU launch threads (None: all usable cores).
         profile: synchronise after each stage and put stage seconds in ``RenderBuffers.stats``.
     """
@@ -64,7 +65,7 @@ class RenderConfig:
     nerf_step_scale: float = RD.NERF_STEP_SCALE
     nerf_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
     shade_grid: bool | None = None
-    nerf_network: bool = True
+    nerf_network: bool | None = None
     threads: int | None = None
     profile: bool = False
 

@@ -172,6 +172,10 @@ def test_scene_settings_defaults_are_the_engine_defaults():
     )
     assert cfg.render_scale == 0.3 and cfg.grid.g_max == 512 and cfg.nerf_preset == "llff"
     assert cfg.autosave == "/tmp/x.json"
+    # NeRF Views: Auto (by device), Network, Grid
+    for item, want in (("NETWORK", True), ("GRID", False), ("AUTO", None)):
+        props.nerf_views = item
+        assert session_config(props).render.nerf_network is want
 
 
 def test_click_accept_undo_finish_reset(scene_dir, tmp_path):
