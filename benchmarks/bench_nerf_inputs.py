@@ -2,29 +2,13 @@
 
     python benchmarks/bench_nerf_inputs.py [--seeds 0,1] [--size 20000] [--grid 128]
         [--inputs npz,ingp_net,ingp_grid,vdb] [--scale 0.5] [--segmenter oracle|classic]
-    [--shade auto|on|off] [--no-suite] [--blender] [--blender-side 256]
+        [--shade auto|on|off] [--no-suite] [--blender] [--blender-side 256]
 
-Suite: the ``ribs`` NeRF grid of ``divas eval`` (seeds ``--seeds``) written as this
-project's ``.npz``, as instant-ngp snapshots with the network that reproduces it and
-without one (grid only: shaded, ``render/grid_shading.py``), and as ``.vdb``; each is
-loaded back, its ground truth carried to the loaded lattice (nearest cell), and segmented
-by the suite's protocol (simulated user, SAM-like oracle, DivAS full; views rendered at
-``--scale``, 0.5, for every input alike: the network's views cost seconds on a CPU). A
-snapshot's ground truth marks every cell a labelled voxel's centre falls in. The selection is
-scored at the held-out test cameras two ways: on the input's own lattice (the segmented
-grid rendered alone, opacity ≥ ½ — what the masked export and the segmented Volume hold —
-against the true object's masks rendered from the source grid, cameras at ``--scale``)
-and carried back to the source lattice (nearest
-cell; image IoU per NOTES "Evaluation", and alpha fidelity: the selected true voxels'
-rendered weight inside the true silhouette over all true voxels' weight). Render
-time per view: one test camera at full size with the input's own renderer, after a
-warm-up render. Click → fused view: one click on the first anchor at the target's
-centre, then accept, timed with the input's renderer (the session's render scale).
-
-``--blender``: Import › NeRF of a ``--blender-side``³ density grid (``benchmarks/scenes.py``,
-no colour) as a Volume (the point cloud, the ``.vdb`` and the Volume object) and as points,
-timed through the operator.
-Prints one line per measure and a JSON summary at the end; ``uptime`` first.
+Suite: the ``ribs`` NeRF grid of ``divas eval`` written as each input (``.npz``, instant-ngp
+snapshots with and without its network, ``.vdb``), loaded back and segmented by the suite's
+protocol; IoU on the input's own lattice and on the source lattice, render time per view,
+click → fused view. ``--blender``: Import › NeRF of a ``--blender-side``³ grid as a Volume
+and as points. One line per measure, then a JSON summary. Protocol: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -4,15 +4,12 @@ Everything else runs one code path on every release. Each function here names th
 release where the API changed and why the add-on needs both sides:
 
 * EEVEE's engine identifier: ``BLENDER_EEVEE_NEXT`` in 4.2–4.5, ``BLENDER_EEVEE`` from 5.0.
-* The scene compositor: ``scene.use_nodes`` / ``scene.node_tree`` (an embedded tree with a
-  Composite node) in 4.x; a node group ``scene.compositing_node_group`` (a Group Output)
-  from 5.0.
-* Geometry Nodes modifier inputs: ID properties on the modifier (``mod[identifier]``) in
-  4.2–5.0; in 5.2 the modifier holds no ID properties and the inputs are RNA structs
-  ``mod.properties.inputs.<identifier>.value`` (found by feature, so 5.1 takes its own side).
-* Blender's bundled Python modules (OpenVDB, OpenImageIO, USD): importable inside Blender;
-  the ``bpy`` module from PyPI exposes them with ``bpy.utils.expose_bundled_modules()``
-  (4.4+), and has none of them before.
+* The compositor: ``scene.use_nodes`` / ``scene.node_tree`` (a Composite node) in 4.x; a node
+  group ``scene.compositing_node_group`` (a Group Output) from 5.0.
+* Geometry Nodes modifier inputs: ID properties (``mod[identifier]``) in 4.2–5.0; RNA structs
+  ``mod.properties.inputs.<identifier>.value`` in 5.2 (found by feature: 5.1 takes its side).
+* Bundled Python modules (OpenVDB, OpenImageIO, USD): importable inside Blender; the PyPI
+  ``bpy`` exposes them with ``bpy.utils.expose_bundled_modules()`` from 4.4, none before.
 """
 
 from __future__ import annotations

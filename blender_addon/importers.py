@@ -1,17 +1,15 @@
 """Import scene files and camera files into Blender (the work behind the import operators).
 
-Each function takes the context and a frozen settings dataclass, calls the engine
-(which raises :class:`~divas_engine.errors.DivasInputError` naming the file on bad
-input) and builds Blender data through :mod:`.bridge`.
+Each function takes the context and a frozen settings dataclass, calls the engine (which
+raises :class:`~divas_engine.errors.DivasInputError` naming the file on bad input) and builds
+Blender data through :mod:`.bridge`.
 
-Axes (issue 18, like Blender's own importers): points keep the file's coordinates and
-the *object* carries the axis conversion, so export writes the file's own frame and
-the session's scene frame is the object's local frame. The conversion is the
-Forward/Up pair (default: COLMAP-trained 3DGS, forward +Z, up −Y), or with *Up From
-Scene* the engine's estimate (:func:`divas_engine.views.estimate_scene_up`: a
-supporting ground plane, else the same convention) turned into the rotation that makes
-it world +Z. Training cameras come in the same frame: parented to the splat object
-(they then follow it), or with the same Forward/Up as their own transform.
+Axes, like Blender's own importers: points keep the file's coordinates and the *object*
+carries the axis conversion, so export writes the file's own frame and the session's scene
+frame is the object's local frame. The conversion is the Forward/Up pair (default:
+COLMAP-trained 3DGS, forward +Z, up −Y), or with *Up From Scene* the rotation that makes the
+engine's estimate (:func:`divas_engine.views.estimate_scene_up`) world +Z. Training cameras
+come in the same frame: parented to the splat object, or with the same Forward/Up.
 """
 
 from __future__ import annotations
@@ -135,9 +133,8 @@ def scene_conversion(
 
     pts, w = scene_points(scene)
     fr = scene_frame(scene)
-    # the file axis that becomes +Z is the convention; a 6,000-Gaussian sample (the
-    # engine's default is 20,000) finds the same ground on every shared capture in a
-    # fifth of the time, and the import only needs the axis it snaps to
+    # the file axis that becomes +Z is the convention; the import only needs the axis it
+    # snaps to, so it fits the ground to fewer Gaussians than the engine's default sample
     cfg = ViewConfig(convention_up=tuple(conv[2]), ground_points=IMPORT_GROUND_POINTS)
     est = estimate_scene_up(pts, w, fr.center, fr.radius, cfg)
     if est.source != UpSource.GROUND:

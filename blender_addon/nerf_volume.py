@@ -1,20 +1,14 @@
 """NeRF density grids as Blender Volume objects (import display and segmented results).
 
-Blender builds volume grids only from OpenVDB files, so a grid is written by the engine
-(:func:`divas_engine.io.openvdb_grid.write_vdb`, through Blender's OpenVDB module where
-the release has one, else the engine's NumPy writer: ``density`` σ per unit, and ``color``
-when the grid has colour — its RGB grid, or an instant-ngp network's colour baked at the
-voxels) into the extension's user folder, keyed by content, and a Volume datablock reads
-it. The material is a Principled Volume whose density is the ``density`` grid and whose
-colour is the ``color`` grid (decoded to linear; a neutral grey without one), emitted as
-a NeRF renders it (``_material``), so Cycles and EEVEE show the medium the grid
-describes (σ per unit; the object's transform carries the axis conversion only, no
-scale).
-
-On import the Volume is the display of the grid's session object (the point cloud of
-occupied voxels the DivAS session works on, drawn as its bounds and hidden in renders);
-the Volume is its child and not selectable, so clicks and selections reach the session
-object. A segmented result is a new, selectable Volume of the masked density.
+Blender builds volume grids only from OpenVDB files, so the engine writes the grid
+(:func:`divas_engine.io.openvdb_grid.write_vdb`: ``density`` σ per unit, and ``color``: its
+RGB grid or an instant-ngp network's colour baked at the voxels) into the extension's user
+folder, keyed by content, and a Volume datablock reads it. Its Principled Volume material
+emits as a NeRF renders (``_material``), so Cycles and EEVEE show the medium the grid
+describes; the object's transform carries the axis conversion only, no scale. On import the
+Volume is an unselectable child of the grid's session object (the point cloud of occupied
+voxels), so clicks reach the session object; a segmented result is a new, selectable Volume
+of the masked density. In full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ __all__ = [
 
 
 class ExportTransform(StrEnum):
-    """What of the object's transform an export applies (issue 18).
+    """What of the object's transform an export applies.
 
     ``NONE``: the rows as the file holds them (its own frame). ``OBJECT``: the object's
     transform *since import* (``frame⁻¹ · matrix_world``, ``frame`` = the import's axis

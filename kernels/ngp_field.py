@@ -1,16 +1,15 @@
 """An instant-ngp radiance network evaluated per point (Warp, CPU and CUDA).
 
-The layouts are tiny-cuda-nn's (``divas_engine/io/ngp_network.py`` says where each comes
-from): multiresolution grid encoding (coherent prime hash ``x ⊕ y·2654435761 ⊕
-z·805459861`` where a level's dense index would not fit, trilinear blend of the 8 corners at
-``x·scale + 0.5``), bias-free ReLU MLPs with row-major ``[out, in]`` matrices, the 16
-spherical harmonics of degree < 4 of the direction. σ = exp(density MLP output 0);
-colour = logistic (exp for HDR) of the RGB MLP fed ``[density MLP outputs, SH]``.
-
-Widths up to :data:`MAX_WIDTH` (every width instant-ngp's FullyFusedMLP allows). The
-wrapper :func:`eval_ngp_points` evaluates raw outputs at given points — what the
-ray-marcher (:mod:`kernels.raymarch_ngp`) runs per sample, and what the tests compare with
-a float64 NumPy reference.
+The layouts are tiny-cuda-nn's (docs/design-notes.md, ``ngp_network.py``, says where each
+comes from): multiresolution grid encoding (coherent prime hash
+``x ⊕ y·2654435761 ⊕ z·805459861`` where a level's dense index would not fit, trilinear blend
+of the 8 corners at ``x·scale + 0.5``), bias-free ReLU MLPs with row-major ``[out, in]``
+matrices, the 16 spherical harmonics of degree < 4 of the direction. σ = exp(density MLP
+output 0); colour = logistic (exp for HDR) of the RGB MLP fed ``[density MLP outputs, SH]``.
+Widths up to :data:`MAX_WIDTH` (every width instant-ngp's FullyFusedMLP allows).
+:func:`eval_ngp_points` evaluates raw outputs at given points: what the ray-marcher
+(:mod:`kernels.raymarch_ngp`) runs per sample, and what the tests compare with a float64
+NumPy reference.
 """
 
 from __future__ import annotations

@@ -1,20 +1,14 @@
 """Ray-march an instant-ngp radiance network (Warp, CPU and CUDA).
 
-Per pixel, the ray through the pixel centre (OpenCV camera in the training frame) is
-taken into instant-ngp's NeRF frame (``ngp = cycle(p·scale + offset)``), clipped to the
-snapshot's box and the near plane, and marched like instant-ngp's renderer
-(``nerf_device.cuh`` ``if_unoccupied_advance_to_next_occupied_voxel``): at a position
-whose cell of the finest cascade containing it is empty in the occupancy (instant-ngp's
-bitfield, max-pooled into the coarser cascades), the march jumps out of the largest empty
-cascade cell around it; otherwise it takes a step ``dt = STEPSIZE`` (scenes with
-``aabb_scale > 1``: ``dt = clamp(t·cone, STEPSIZE, MAX_CONE_STEPSIZE)``, the continuous
-form of instant-ngp's exponential stepping), samples the density network at the step's
-midpoint, ``α = 1 − exp(−σ dt)``, and composites front to back with
-:mod:`kernels.composite` (depths are planar, in training-frame units; ``N_samp``
-anchored at ``D_max``). Colour is evaluated where the sample's weight ``w ≥``
-:data:`COLOR_MIN_WEIGHT` (lighter samples add at most that much each). Per-voxel values
-(overlays, evaluation masks) are composited with the same weights, sampled trilinearly on
-the grid's lattice at the sample's training-frame position.
+Per pixel, the ray through the pixel centre (OpenCV camera, training frame) is taken into
+instant-ngp's NeRF frame, clipped to the snapshot's box and the near plane, and marched like
+instant-ngp's renderer (``nerf_device.cuh`` ``if_unoccupied_advance_to_next_occupied_voxel``):
+it jumps out of the largest empty cascade cell where the occupancy is empty, else takes a step
+``dt = STEPSIZE`` (``clamp(t·cone, STEPSIZE, MAX_CONE_STEPSIZE)`` for ``aabb_scale > 1``),
+samples its midpoint, ``α = 1 − exp(−σ dt)``, and composites front to back with
+:mod:`kernels.composite` (planar depths, training-frame units). Colour is evaluated where
+``w ≥`` :data:`COLOR_MIN_WEIGHT`; per-voxel values are sampled trilinearly on the grid's
+lattice. Step by step: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,31 +1,14 @@
 """instant-ngp NeRF snapshots: ``.ingp`` (gzip'd msgpack) and ``.msgpack`` (raw).
 
-Layout, from ``NVlabs/instant-ngp`` (``src/testbed.cu``, ``Testbed::save_snapshot``
-l. 5288-5355 and ``load_snapshot`` l. 5358-5470): the file is the network config (the
-``encoding``, ``network``, ``dir_encoding``, ``rgb_network``, … of ``configs/nerf``)
-with a ``snapshot`` map holding tiny-cuda-nn's trainer state (``n_params``,
-``params_type``, ``params_binary``: ``include/tiny-cuda-nn/trainer.h`` l. 442-452) and
-instant-ngp's own fields: ``version`` (1), ``mode`` (``"Nerf"``), ``density_grid_size``
-(128), ``density_grid_binary`` (float16, ``(max_cascade + 1)·128³`` cells),
-``nerf.aabb_scale``, ``nerf.dataset`` (``include/neural-graphics-primitives/
-json_binding.h`` l. 112-136: ``scale``, ``offset``, ``from_mitsuba``, the training
-``xforms`` and ``metadata``), ``aabb`` (``{"min", "max"}``), camera and render state.
-``.ingp`` is deflated in a gzip stream (zstr), ``.msgpack`` is not (l. 5345-5352).
-
-The density grid (``include/neural-graphics-primitives/nerf_device.cuh`` l. 317-333,
-``src/testbed_nerf.cu`` l. 100-108, 270-284): ``max_cascade = ⌈log2 aabb_scale⌉``
-(``testbed_nerf.cu`` l. 2433-2436); cascade ``m`` covers ``0.5 ± 2^(m−1)`` per axis in 128
-cells, Morton order; a cell holds the *optical thickness* ``σ·STEPSIZE`` of the
-smallest step (``STEPSIZE = √3/1024``), −1 where no training camera sees it; cells at or
-below ``min(0.01, mean of cascade 0)`` are empty to instant-ngp's marcher
-(``grid_to_bitfield``, l. 348-374).
-
-Frames (``include/neural-graphics-primitives/nerf_loader.h`` l. 91-151): a point ``p``
-of the training cameras' frame (``transforms.json``) is at ``ngp = cycle(p·scale +
-offset)`` with ``cycle(x, y, z) = (y, z, x)`` (no cycle for Mitsuba datasets); camera
-matrices also have their y and z columns negated (OpenGL → instant-ngp's x right, y down,
-z forward). The reader returns the grid and the snapshot's training cameras in the
-training cameras' frame, σ per unit of that frame (``σ_ngp · scale``).
+The file (``NVlabs/instant-ngp`` ``src/testbed.cu``: ``Testbed::save_snapshot`` l. 5288-5355,
+``load_snapshot`` l. 5358-5470) is the network config with a ``snapshot`` map: tiny-cuda-nn's
+trainer state (``params_binary``), ``density_grid_binary`` (float16 cascades of 128³ cells in
+Morton order holding the optical thickness ``σ·STEPSIZE``, −1 where no camera sees),
+``nerf.aabb_scale``, ``nerf.dataset`` (``scale``, ``offset``, training ``xforms``) and
+``aabb``. A training-frame point ``p`` is at ``ngp = cycle(p·scale + offset)`` with
+``cycle(x, y, z) = (y, z, x)`` (``nerf_loader.h`` l. 91-151). The reader returns the grid and
+the training cameras in the training cameras' frame, σ per unit of that frame
+(``σ_ngp · scale``). Layout, cascades and frames in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

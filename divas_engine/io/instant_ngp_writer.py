@@ -1,16 +1,14 @@
 """Build instant-ngp snapshots field by field, as ``Testbed::save_snapshot`` does.
 
 Follows ``NVlabs/instant-ngp`` ``src/testbed.cu`` l. 5288-5355 (the snapshot map, in that
-order: trainer state, ``version``, ``mode``, ``density_grid_size``,
-``density_grid_binary``, ``nerf.{aabb_scale, cam_pos_offset, cam_rot_offset,
-extra_dims_opt}``, ``training_step``, ``loss``, ``aabb``, ``bounding_radius``,
-``render_aabb_to_local``, ``render_aabb``, ``up_dir``, ``sun_dir``, ``exposure``,
-``background_color``, ``camera.{…}``, ``nerf.rgb.{…}``, ``nerf.dataset``), tiny-cuda-nn's
-``Trainer::serialize`` (``trainer.h`` l. 442-452: ``n_params``, ``params_type``,
-``params_binary``) and ``json_binding.h`` l. 112-136 for the dataset. Matrices are lists of
-rows (``tiny-cuda-nn/vec_json.h``); binary values are msgpack ``bin``. Nothing here is
-needed to *read* a snapshot: it makes snapshots of generated scenes (tests, the
-synthetic suite) and of nothing else.
+order: trainer state, ``version``, ``mode``, ``density_grid_size``, ``density_grid_binary``,
+``nerf.{aabb_scale, cam_pos_offset, cam_rot_offset, extra_dims_opt}``, ``training_step``,
+``loss``, ``aabb``, ``bounding_radius``, ``render_aabb_to_local``, ``render_aabb``,
+``up_dir``, ``sun_dir``, ``exposure``, ``background_color``, ``camera.{…}``, ``nerf.rgb.{…}``,
+``nerf.dataset``), tiny-cuda-nn's ``Trainer::serialize`` (``trainer.h`` l. 442-452:
+``n_params``, ``params_type``, ``params_binary``) and ``json_binding.h`` l. 112-136 for the
+dataset. Matrices are lists of rows (``tiny-cuda-nn/vec_json.h``); binary values are msgpack
+``bin``. Reading needs none of this: it makes snapshots of generated scenes (tests, the suite).
 """
 
 from __future__ import annotations

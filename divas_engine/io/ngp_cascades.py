@@ -1,17 +1,15 @@
 """Nested density-grid cascades in Morton order (instant-ngp, torch-ngp) ↔ one lattice.
 
-Both tools keep ``C`` cascades of ``R³`` cells (``R = 128``), each flattened in Morton
-order with ``x`` in bit 0, ``y`` in bit 1, ``z`` in bit 2 (instant-ngp
-``tiny-cuda-nn/common_device.h`` ``morton3D``; torch-ngp ``raymarching.cu``
-``__morton3D``). Cascade ``m`` is the box ``centre ± half_m`` with ``half_m =
-min(half0 · 2^m, cap)``; cell ``i`` of an axis covers ``[lo + i·h, lo + (i+1)·h)`` with
-``h = 2·half_m / R``. A point is looked up in the finest cascade that contains it.
-
-:func:`merge_cascades` resamples them onto one lattice at the cell size of one cascade
-over the box of the occupied cells: a cascade finer than the lattice is mean-pooled
-into it, a coarser one is sampled at the lattice cell centres; finer cascades overwrite
-coarser ones, as a lookup would. :func:`cascade_mask` maps a selection on that lattice
-back to every raw cell (a raw cell is kept when a selected lattice cell overlaps it).
+Both tools keep ``C`` cascades of ``R³`` cells (``R = 128``), each flattened in Morton order
+with ``x`` in bit 0, ``y`` in bit 1, ``z`` in bit 2 (instant-ngp ``tiny-cuda-nn/common_device.h``
+``morton3D``; torch-ngp ``raymarching.cu`` ``__morton3D``). Cascade ``m`` is the box
+``centre ± half_m`` with ``half_m = min(half0 · 2^m, cap)``; cell ``i`` of an axis covers
+``[lo + i·h, lo + (i+1)·h)`` with ``h = 2·half_m / R``. A point is looked up in the finest
+cascade containing it. :func:`merge_cascades` resamples them onto one lattice at the cell size
+of one cascade over the box of the occupied cells: finer cascades are mean-pooled into it,
+coarser ones sampled at its cell centres, finer ones overwriting coarser ones as a lookup
+would. :func:`cascade_mask` maps a selection on that lattice back to the raw cells (a raw cell
+is kept when a selected lattice cell overlaps it).
 """
 
 from __future__ import annotations

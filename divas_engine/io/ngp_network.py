@@ -1,35 +1,14 @@
 """The radiance network of an instant-ngp snapshot, unpacked from ``params_binary``.
 
-instant-ngp's ``NerfNetwork`` (``include/neural-graphics-primitives/nerf_network.h``)
-is a position encoding (tiny-cuda-nn's multiresolution ``HashGrid``), a density MLP
-whose first output is the log density, a direction encoding (``SphericalHarmonics``
-degree 4, possibly inside a ``Composite`` with ``Identity`` for no extra dims) and an
-RGB MLP fed ``[density MLP outputs, direction encoding]``. Its parameters are stored in
-one flat array in the order set by ``NerfNetwork::set_params_impl`` (``nerf_network.h``
-l. 357-372): density MLP, RGB MLP, position encoding, direction encoding.
-
-tiny-cuda-nn layouts (``NVlabs/tiny-cuda-nn``):
-
-* MLP (``src/fully_fused_mlp.cu`` l. 657-671, ``src/cutlass_mlp.cu``): no biases; one
-  row-major ``[out, in]`` matrix per layer: ``[width, in]``, ``n_hidden_layers − 1`` ×
-  ``[width, width]``, ``[padded_out, width]`` (one ``[padded_out, in]`` matrix with no
-  hidden layer); ReLU between layers, no output activation; widths padded to multiples of
-  16 (``REQUIRED_ALIGNMENT``).
-* Grid encoding (``include/tiny-cuda-nn/encodings/grid.h`` l. 690-730): level ``l`` has
-  ``scale = 2^(l·log2 b)·N_min − 1`` and ``resolution = ⌈scale⌉ + 1``
-  (``common_device.h`` ``grid_scale``/``grid_resolution``) and
-  ``min(next_multiple(resolution³, 8), 2^log2_hashmap_size)`` entries of ``F`` features;
-  a point ``x ∈ [0,1]³`` sits at ``x·scale + 0.5`` (``pos_fract``) and blends its 8
-  corners trilinearly; a corner's entry is its dense index ``x + y·res + z·res²`` while
-  that fits the level, else ``x·1 ⊕ y·2654435761 ⊕ z·805459861`` (``coherent_prime_hash``),
-  modulo the level's size (``grid_index``). Features are concatenated level by level.
-* Spherical harmonics (``common_device.h`` ``sh_enc``; input ``(d + 1)/2`` mapped back by
-  ``·2 − 1``): the 16 real SH of degree < 4 in tiny-cuda-nn's order and signs.
-
-instant-ngp feeds the network ``warp_position(p) = (p − aabb.min)/(aabb.max − aabb.min)``
-and ``warp_direction(d) = (d + 1)/2`` (``nerf_device.cuh``); σ = exp(raw density)
-(``network_to_density``), colour = logistic(raw rgb), or exp(clamp(raw, −10, 10)) for
-HDR datasets (``network_to_rgb``; ``testbed_nerf.cu`` l. 2354).
+instant-ngp's ``NerfNetwork`` (``include/neural-graphics-primitives/nerf_network.h``): a
+tiny-cuda-nn multiresolution ``HashGrid`` position encoding, a density MLP whose first output
+is the log density, a degree-4 ``SphericalHarmonics`` direction encoding and an RGB MLP fed
+``[density MLP outputs, direction encoding]``. Its parameters are one flat array in
+``NerfNetwork::set_params_impl`` order (l. 357-372): density MLP, RGB MLP, position encoding,
+direction encoding. MLPs are bias-free, one row-major ``[out, in]`` matrix per layer, ReLU
+between layers, widths padded to 16; σ = exp(raw density), colour = logistic(raw rgb) (exp
+for HDR). tiny-cuda-nn's layouts (MLP, grid encoding, SH) and instant-ngp's input warps, with
+their upstream files and lines: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -239,8 +218,8 @@ def network_from_snapshot(
 ) -> NgpNetwork:
     """Unpack ``params`` (the float16/float32 ``params_binary``) by ``doc``'s config.
 
-    Raises :class:`NetworkLayoutError` when the config is not one described in the module
-    docstring or the parameter count does not match it.
+    Raises :class:`NetworkLayoutError` when the config is not a layout this module reads
+    (docs/design-notes.md) or the parameter count does not match it.
     """
     grid, dens, rgb, dens_out_p, rgb_in = _layouts(doc, aabb_scale, n_extra_dims)
     n_grid = grid.offsets[-1] * grid.n_features

@@ -1,26 +1,14 @@
 """OpenVDB ``.vdb`` density grids (Blender, Houdini, EmberGen), through an OpenVDB module.
 
-The module is ``openvdb`` (OpenVDB ≥ 11; Blender ≥ 4.4 bundles it), ``pyopenvdb`` (older
-Blender), or the ``openvdb`` that an installed ``bpy`` wheel bundles (its
-``bpy.utils.expose_bundled_modules`` adds the same folder; it is loaded by path here, so the
-engine never imports ``bpy``). Without one, reading ``.vdb`` raises one clear
-:class:`~divas_engine.errors.DivasInputError`, and writing goes through the NumPy writer
-(:mod:`.vdb_writer`: uncompressed, what Blender's own reader needs for a Volume).
-
-Reading: the float grid named ``density`` (else the first float grid) over its active
-voxels' bounding box grown by one background cell on every side, and a vector grid named
-``color``/``Cd`` when present; voxel ``(i, j, k)`` is centred at the grid transform's
-``indexToWorld(i, j, k)``, which must be an axis-aligned scale and translation. The
-margin is the support of the trilinear field the renderers sample (cell-centred, clamped
-to the lattice's edge): it fades from an outermost active voxel to the background over
-one cell, as OpenVDB's own trilinear sampler does; a lattice cut at the active voxels'
-faces would hold their value to the face and nothing beyond, so silhouettes would move.
-A file :func:`write_vdb` wrote records its lattice's index box (grid metadata
-``divas_lattice_min``/``divas_lattice_max``), and reads back on that same lattice.
-
-Writing: ``density`` (a fog volume: background 0,
-zero voxels inactive; with its lattice's index box) and ``color`` when the grid has one,
-both with that transform.
+The module is ``openvdb`` (OpenVDB ≥ 11, Blender ≥ 4.4), ``pyopenvdb`` (older Blender) or the
+``openvdb`` an installed ``bpy`` wheel bundles, loaded by path (the engine never imports
+``bpy``). Without one, reading raises one :class:`~divas_engine.errors.DivasInputError` and
+writing goes through the NumPy writer (:mod:`.vdb_writer`). Reading: the float grid
+``density`` (else the first float grid) and a vector grid ``color``/``Cd``, on the active
+voxels' box grown by one background cell (the support of the renderers' trilinear field), or
+on the lattice box a file :func:`write_vdb` wrote records; voxel ``(i, j, k)`` is centred at
+``indexToWorld(i, j, k)`` (axis-aligned scale and translation only). Writing: ``density`` (a
+fog volume, background 0) and ``color``. Why the margin: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,14 +1,13 @@
 """torch-ngp checkpoints (``.pth``, the paper's NeRF backbone), read with the torch extra.
 
 torch-ngp (``ashawkey/torch-ngp``, ``nerf/renderer.py`` l. 61-95, ``nerf/utils.py``
-``save_checkpoint``) saves ``{"model": state_dict, "mean_density": …, …}`` with
-``torch.save``; the model's buffers hold ``density_grid`` ``[C, 128³]`` (σ per unit of its
-frame, −1 where no camera sees it, Morton order: ``raymarching/src/raymarching.cu``
-``__morton3D``) and ``aabb_train`` ``[−b, −b, −b, b, b, b]``. Cascade ``c`` covers
-``±min(2^c, bound)`` (``raymarching.cu`` l. 368-378, ``renderer.py`` l. 414-418); cells at or
-below ``min(mean_density, 0.01)`` are empty to its marcher (``renderer.py`` l. 522-527).
-
-torch-ngp's frame is its dataset loader's (``nerf/provider.py`` ``nerf_matrix_to_ngp``):
+``save_checkpoint``) saves ``{"model": state_dict, "mean_density": …, …}`` with ``torch.save``;
+the model's buffers hold ``density_grid`` ``[C, 128³]`` (σ per unit of its frame, −1 where no
+camera sees it, Morton order: ``raymarching/src/raymarching.cu`` ``__morton3D``) and
+``aabb_train`` ``[−b, −b, −b, b, b, b]``. Cascade ``c`` covers ``±min(2^c, bound)``
+(``raymarching.cu`` l. 368-378, ``renderer.py`` l. 414-418); cells at or below
+``min(mean_density, 0.01)`` are empty to its marcher (``renderer.py`` l. 522-527). Its frame
+is its dataset loader's (``nerf/provider.py`` ``nerf_matrix_to_ngp``):
 ``ngp = (y·s + o₀, z·s + o₁, x·s + o₂)`` of a ``transforms.json`` point, with ``--scale``
 (0.33) and ``--offset`` (0) options the checkpoint does not keep: they are arguments here.
 """

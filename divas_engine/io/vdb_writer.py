@@ -3,22 +3,9 @@
 For Blenders whose Python has no OpenVDB module (the ``bpy`` 4.2 wheel): Blender's own
 C++ reader builds Volume objects from these files. The layout is OpenVDB's file format
 version 224 (``io::Archive`` with grid offsets, ``GridDescriptor``, ``ScaleTranslateMap``
-and the ``Tree_<type>_5_4_3`` tree) with no compression, so each part is plain bytes:
-
-* header: magic ``0x56444220``, file version, library version, "has grid offsets", a
-  36-character UUID, the file's (empty) metadata and the grid count;
-* per grid: its descriptor (name, tree type, no instance parent, the grid's start, its
-  buffers' start and its end), compression flags 0, metadata (``class``, ``name``),
-  the transform, the topology and the leaf buffers;
-* topology: a root of one child per occupied 4096³ block (origins in ascending order),
-  each an internal node of 32³ entries over internal nodes of 16³ entries over 8³ leaves;
-  an internal node stores its child and value masks and all its tile values (the
-  background here: every voxel lives in a leaf), a leaf its value mask;
-* buffers, leaves in the same order: value mask, then all 512 values.
-
-Masks are bit arrays of 64-bit words over the node's entries in ``x``-major order (entry
-``(x·D + y)·D + z``), as are a leaf's values. A voxel is active where its value is
-nonzero (a fog volume: background 0); inactive voxels hold 0.
+and the ``Tree_<type>_5_4_3`` tree) with no compression, so each part is plain bytes; every
+voxel lives in a leaf, active where its value is nonzero (a fog volume: background 0).
+Byte layout in full: docs/design-notes.md.
 """
 
 from __future__ import annotations

@@ -1,20 +1,13 @@
 """instant-ngp snapshots of generated density grids (tests and the synthetic NeRF suite).
 
 No trained snapshot is at hand, so a generated :class:`~divas_engine.scene.DensityGrid`
-is written as one: the training frame is fitted into instant-ngp's unit cube
-(``scale = fill / longest side``, ``offset`` puts the box centre at 0.5); the density grid
-holds, per 128³ cell, the optical thickness ``σ·STEPSIZE`` of the largest density among
-3³ points of the cell (instant-ngp keeps the maximum of its samples per cell).
-
-With ``network=True`` the snapshot also carries a radiance network in tiny-cuda-nn's
-layout that reproduces the grid exactly where it is sampled, built rather than trained:
-a two-level grid encoding whose finest level is dense (one entry per vertex, 8 features:
-the positive and negative parts of ``log σ`` and of the three colour logits at the
-vertex) and whose coarse level is zero; a 16-wide density MLP that passes those parts
-through its ReLU and subtracts them (output 0 = ``log σ``, outputs 1-3 = the colour
-logits); a 16-wide RGB MLP that does the same with the colour logits and adds a small
-view-dependent term from the first degree-1 spherical harmonic. Between vertices the
-network interpolates ``log σ`` and the logits trilinearly.
+is written as one: the training frame is fitted into instant-ngp's unit cube and each 128³
+cell holds the optical thickness ``σ·STEPSIZE`` of the largest density among 3³ points of
+the cell (instant-ngp keeps the maximum of its samples per cell). With ``network=True`` the
+snapshot also carries a radiance network in tiny-cuda-nn's layout, built rather than
+trained: a dense finest grid level holds ``log σ`` and the colour logits at its vertices and
+the MLPs pass them through, so the network reproduces the grid exactly where it is sampled
+and interpolates between vertices trilinearly. Construction in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
