@@ -1,4 +1,4 @@
-"""The weight-free default segmenter: a 3D cut over the scene's primitives (issue 16).
+"""The weight-free default segmenter: a 3D cut over the scene's primitives.
 
 * :mod:`.primitives` — the scene's primitives as graph nodes (position, Lab colour,
   normal and its confidence, opacity) and its supporting planes;

@@ -17,7 +17,7 @@ class WalkSolver(StrEnum):
 
 @dataclass(frozen=True)
 class Graph3DConfig:
-    """Knobs of the 3D graph segmenter (not in the paper; issue 16). Symbols as in the
+    """Knobs of the 3D graph segmenter (not in the paper). Symbols as in the
     module docstrings of :mod:`.voxel_graph` and :mod:`.cut`.
 
     Region and graph:
@@ -41,11 +41,9 @@ class Graph3DConfig:
             (:func:`.voxel_graph._extent_entries`): a large foliage Gaussian whose centre
             sits alone in its voxel is linked to what its footprint overlaps. Only on
             trained 3DGS scenes (``extent_gs3d_only``, True), where a large isolated
-            Gaussian is a volume blob of the object (lod1/plants 0.687 → 0.828; the 3DGS
-            variants under the simulated user: occluded 0.377 → 0.575, ribs and plant
-            equal). On 2DGS surfels an isolated centre is a sparsely sampled surface, and
-            its extent bridged the synthetic vase to its plinth (simulated user: plant /
-            occluded 0.836 / 0.883 → 0.720 / 0.711; BENCHMARKS "Primitive extents").
+            Gaussian is a volume blob of the object. On 2DGS surfels an isolated centre
+            is a sparsely sampled surface, and its extent would bridge an object to what
+            it stands on (a vase to its plinth).
         min_opacity: primitives below this opacity are left out of the graph (0.02;
             near-invisible haze neither bridges objects nor shows in a mask).
 
@@ -100,9 +98,9 @@ class Graph3DConfig:
         neck_min_voxels: the contrast is scaled by the cut's narrowness (:mod:`.cut`
             step 4) only when its boundary holds at least this many voxels (0: always).
             An object resting against another touches it in a few voxels, and that
-            contact is its boundary: with 8, the guitar leaning on its stand (5 boundary
-            voxels, 14 edges, φ = 0.002) scored 0.16 and every view of it was rejected
-            when its anchors rendered at 320×240; 0 changes no other measured scene.
+            contact is its boundary: a guitar leaning on its stand is cut off along a
+            handful of boundary voxels, and a threshold above that would score the
+            clean cut low enough for its views to be rejected.
         ambiguity_ratio: another sweep minimum within this φ ratio of the best and at a
             different size makes the cut ambiguous (1.3): the score is scaled by
             ``ambiguity_penalty`` (0.6).

@@ -1,5 +1,5 @@
 """The graph3d segmenter's cuts by seed set: kept (least recently used dropped) and, for a
-cut started ahead of its prompt (:meth:`CutCache.start`, issue 20), in flight.
+cut started ahead of its prompt (:meth:`CutCache.start`), in flight.
 
 A click's 3D point is known before its centroid view is rendered, and the cut of the
 object's clicks depends on nothing else (the view's default prompt is that point

@@ -1,28 +1,13 @@
 """The scene's primitives as graph nodes: position, colour, normal, opacity.
 
-One :class:`ScenePrimitives` per scene, built once when the segmenter is bound:
-
-* surfel scenes (2DGS, and 3DGS flattened to surfels): the Gaussian centres, their
-  SH DC colour in CIE-Lab, their normal (rotation column 2) with a confidence κ — 1 for
-  a native 2DGS surfel, ``1 − s_n / min(s_1, s_2)`` for a flattened 3DGS Gaussian (a
-  round blob has no normal) —, and their opacity;
-* density grids: the occupied cells (opacity ``1 − exp(−σ h) ≥ 1/255``) on the shell of
-  the occupied set (an empty face neighbour), their RGB grid colour (or grey), the
-  normal ``−∇σ`` with confidence from its magnitude.
-
-A surfel scene's per-primitive features (colour, normal, κ, extent) are not stored at
-construction: they are computed for the rows a prompt reads (``lab_of``, ``normals_of``,
-…) with the same element-wise arithmetic as over the whole scene, so the values are the
-same bit for bit, and nothing but the scene's own arrays stays resident (issue 20: 0.17
-GB at 3M splats). The segmenter's background warm-up then keeps the colour (and κ) of
-every primitive (:meth:`ScenePrimitives.cache_features`, 36 MB at 3M): a click's region
-reads ≈ 1.3M of them at 3M, and computing them there was ≈ 0.08 s of its cut.
-Positions and masses are the scene's arrays when every surfel is kept.
-
-It also finds the scene's ground plane once — the one the shared
-:func:`~divas_engine.views.up_direction.estimate_scene_up` takes as the scene's up (a
-one-sided dense plane elsewhere, such as the top of a box, is not a ground) — and turns
-a per-primitive array into what the renderer's ``render_values`` takes.
+One :class:`ScenePrimitives` per scene, built once when the segmenter is bound: a surfel
+scene's Gaussian centres (SH DC colour in CIE-Lab, normal with a confidence κ, opacity)
+or a density grid's occupied shell cells (grid colour, normal ``−∇σ``). A surfel scene's
+per-primitive features are computed for the rows a prompt reads, bit for bit as over the
+whole scene, so only the scene's own arrays stay resident; the segmenter's warm-up may
+keep every primitive's colour (and κ) (:meth:`ScenePrimitives.cache_features`). It also
+finds the scene's ground plane once and turns a per-primitive array into what the
+renderer's ``render_values`` takes. The node definitions in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -59,7 +44,7 @@ def _lab(rgb: np.ndarray, clipped: bool = False) -> np.ndarray:
 def surfel_frame(means: np.ndarray, block: int = 1 << 18) -> RobustFrame:
     """:func:`~divas_engine.scene_stats.robust_frame` of the surfel centres ``means``
     (eq:scene-norm: median centre, P99 radius), bit for bit, without its float64
-    ``[N,3]`` copies (issue 20: ≈ 0.2 GB transient and 2 s at 3M, in the warm-up): the
+    ``[N,3]`` copies (large transients at millions of splats, in the warm-up): the
     median of each coordinate from its own contiguous float64 column (the same order
     statistics and the same mean of the middle two), the distances by the same
     ``np.linalg.norm`` on ``block`` rows at a time (row by row the same sums)."""
@@ -141,7 +126,7 @@ class ScenePrimitives:
     def _from_surfels(cls, scene: SurfelScene, min_opacity: float) -> ScenePrimitives:
         keep = np.flatnonzero(scene.opacities >= min_opacity)
         if len(keep) == len(scene):  # every surfel: the scene's own arrays, read only
-            pts = np.asarray(scene.means, np.float32)  # (issue 20: 45 MB at 3M)
+            pts = np.asarray(scene.means, np.float32)
             mass = np.asarray(scene.opacities, np.float32)
             index = None  # primitive i is surfel i (no [N] int64 arange)
         else:
@@ -149,7 +134,7 @@ class ScenePrimitives:
             mass = np.asarray(scene.opacities[keep], np.float32)
             index = keep
         # colour, normal, κ, σ and reach are computed per row when a prompt reads them;
-        # OpenCV builds its Lab tables at its first conversion (0.1-0.2 s): here, in the
+        # OpenCV builds its Lab tables at its first conversion (a one-off cost): here, in the
         # session's warm-up, not in the first click's prompt
         _lab(np.full((1, 3), 0.5, np.float32))
         return cls._finish(scene, pts, None, None, None, mass, index)
@@ -245,13 +230,13 @@ class ScenePrimitives:
         once and keep them (:attr:`features`): :meth:`lab_of` and :meth:`kappa_of` then
         gather their rows instead of computing them from the scene's arrays — the same
         element-wise arithmetic on the same values (OpenCV's Lab conversion is per pixel),
-        so the same bits (issue 20: at 3M splats a click's region holds ≈ 1.3M primitives;
-        gathering each one's SH DC row, 192 bytes apart, and converting it took ≈ 0.08 s
-        of the click's cut). The scene-only part of the cut, made once per scene (the
+        so the same bits (a click's region can hold a million primitives, and gathering
+        each one's SH DC row, 192 bytes apart, and converting it is a large share of the
+        click's cut). The scene-only part of the cut, made once per scene (the
         segmenter's warm-up), ``block`` rows at a time (little transient memory). Held: 12
-        bytes a primitive (16 with κ), 36 MB at 3M; the normals are not kept (as much
-        memory again, for ≈ 0.015 s of a cut: :meth:`normals_of` is cheap). Returns the
-        bytes held (0 for a density grid, whose features are stored already)."""
+        bytes a primitive (16 with κ); the normals are not kept (as much memory again,
+        and :meth:`normals_of` is cheap). Returns the bytes held (0 for a density grid,
+        whose features are stored already)."""
         if not isinstance(self.scene, SurfelScene):
             return 0
         if self.features is None:
@@ -300,8 +285,8 @@ class ScenePrimitives:
             out[:, 2] = 1 - 2 * (x * x + y * y)
             return out
         # the same float32 operations in the same order — 2·(xz + wy), 2·(yz − wx),
-        # 1 − 2·(xx + yy) — on contiguous columns (issue 20: 29 → 18 ms for a 3M click's
-        # 1.27M rows)
+        # 1 − 2·(xx + yy) — on contiguous columns (faster than strided ones over a
+        # click's region of a million rows)
         w, x, y, z = (np.ascontiguousarray(c) for c in np.take(q, self.rows_of(idx), axis=0).T)
         n = len(w)
         out = np.empty((3, n), np.float32)

@@ -4,26 +4,13 @@ A click on a pot standing on a table must not select the table: Golovinskiy &
 Funkhouser (2009) remove the ground plane before their cut; here the voxels of every
 supporting surface become sinks of the walk (:mod:`.cut`):
 
-* **the scene's ground planes** — found once per scene by the shared
-  :func:`~divas_engine.views.ground.ground_candidates` (:class:`.primitives.ScenePrimitives`):
-  voxels within ``ground_band · r_fg`` of a plane whose normal lies along it (or is
-  unsure), unless a positive seed is on that plane (the user clicked the floor);
+* **the scene's ground planes** (:class:`.primitives.ScenePrimitives`), unless a
+  positive seed is on the plane (the user clicked the floor);
 * **local supports** below the seeds (a table top, a plinth, a stand's base — not in
-  the paper): along the scene's up (the strongest ground plane's normal), the voxels
-  with a sure, up-facing normal are binned by height (one voxel per bin); a bin that
-  holds a connected patch of at least ``support_min_voxels`` of them (and
-  ``support_min_share`` of the region's voxels) — the plane itself: within ¾ voxel of
-  the patch's median height, so the top of a statue's base a voxel above the cornice is
-  not part of it — that is flat (heights within a third of a voxel RMS) and holds a disc
-  ``support_min_width`` voxels across (a table top, not the top strip of a lying
-  cylinder or a comb of rib tops) — its holes filled when its colour is another
-  material's than the clicked voxels' (mean apart by more than the patch's own spread):
-  what stands on a surface hides its footprint, so a pedestal's cornice is a ring around
-  the statue; a ring of the object's own colour (the top of a statue's base around its
-  body) is not filled —, more than two voxels below the highest positive seed and with
-  no positive seed on the plane, is a horizontal surface the clicked object rests on,
-  and those voxels are sinks. A scene without a ground plane has no up, and no local
-  supports.
+  the paper): flat, wide, up-facing patches below the highest positive seed with no
+  positive seed on them. A scene without a ground plane has no up, and no local supports.
+
+The rules in full (bands, sizes, flatness, hole filling): docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -47,7 +34,7 @@ def support_nodes(
     config: Graph3DConfig,
     negative: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Bool ``[V]``: voxels of a supporting surface (module docstring). A connected
+    """Bool ``[V]``: voxels of a supporting surface (docs/design-notes.md). A connected
     part of them that holds a negative seed stays in the graph: the user's negative
     click must be able to push back what touches it."""
     out = np.zeros(len(graph), bool)

@@ -1,27 +1,15 @@
 """The local neighbourhood graph of one prompt: active voxels around the seeds.
 
-The primitives inside the cube ``c ± R`` (plus one rim layer of cells) are binned
-into ``G³`` voxels of edge ``h = 2R / G``; every occupied voxel is a node with the
-opacity-weighted aggregates of its primitives:
-
-* mass ``m = Σ α``; centroid ``μ = Σ α p / m``; colour ``c = Σ α Lab / m``;
-* normal ``n``: the principal eigenvector of the structure tensor ``T = Σ α κ n nᵀ``
-  (kept normalised, ``T̂ = T / tr T``), confidence ``ν = tr T / Σ α`` (the share of the
-  voxel's mass whose normal is sure: 1 for surfels, ≈ 0 for round 3DGS blobs).
-
-Edges join voxels that touch (26-neighbourhood) with the affinity
-``w_ij = a_d · a_c · a_n · a_m`` (:class:`~.config.Graph3DConfig`): centroid distance,
-contrast-normalised colour difference (GrabCut's β), normal disagreement and the
-smaller mass. Normal agreement is ``sqrt(n_iᵀ T̂_j n_i · n_jᵀ T̂_i n_j)`` — the share of
-each voxel's normal mass along the other's principal normal — so a crease voxel (half
-table, half pot wall) links well to one side only and the contact is cut,
-``a_n = exp(−ν_i ν_j (1 − agreement) / normal_sigma)``; and the smaller mass (thin
-haze bridges nothing). This is
-Golovinskiy & Funkhouser's (2009) neighbourhood graph with Felzenszwalb–Huttenlocher
-style colour and normal terms, over voxels rather than points so one prompt stays cheap
-at a million primitives (binning is linear; no k-NN search).
-
+The primitives inside the cube ``c ± R`` (plus one rim layer of cells) are binned into
+``G³`` voxels of edge ``h = 2R / G``; every occupied voxel is a node with the
+opacity-weighted aggregates of its primitives (mass, centroid, Lab colour, principal
+normal and its confidence ``ν``). Edges join voxels that touch (26-neighbourhood) with
+the affinity ``w_ij = a_d · a_c · a_n · a_m`` (:class:`~.config.Graph3DConfig`):
+centroid distance, contrast-normalised colour difference, normal agreement and the
+smaller mass — Golovinskiy & Funkhouser's (2009) neighbourhood graph over voxels rather
+than points, so one prompt stays cheap at a million primitives (no k-NN search).
 Voxels in the rim layer are the region's outside: the walk of :mod:`.cut` drains there.
+The node aggregates and the affinity terms in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -133,7 +121,7 @@ def build_voxel_graph(
     n_prim = len(sel)
     # each point's cell key c_0 + cells · (c_1 + cells · c_2), c = clip(floor((p − lo) / h)),
     # a coordinate at a time in two scratch columns: the same operations as on the whole
-    # [n,3] array (issue 20: at 3M splats every large temporary is a fresh mapping whose
+    # [n,3] array (at millions of splats every large temporary is a fresh mapping whose
     # pages fault in, in Blender's fixed-threshold heap)
     key = np.zeros(n_prim, np.int64)
     tf = np.empty(n_prim)

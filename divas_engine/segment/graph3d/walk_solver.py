@@ -3,22 +3,14 @@
 ``A u = b`` with ``A = (1 + λ) D_U − W_UU`` (SPD) over the free voxels U.
 
 * :attr:`WalkSolver.JACOBI_CG` (default): conjugate gradients with the Jacobi
-  preconditioner ``M⁻¹ r = r / diag A``, stopping at ``‖r‖ < tol ‖b‖`` or after
-  ``cg_maxiter`` steps — SciPy ``cg``'s steps in its order, except that every inner
-  product is NumPy's pairwise sum (:func:`_dot`) instead of BLAS ``ddot``: OpenBLAS
-  splits long dots across threads, so the rounding — and, on a badly conditioned walk,
-  the cut — depended on the machine's core count. On near-islands (regions joined to
-  the rest by a few weak edges) the 1e-5 leak makes ``A`` badly conditioned
-  (``cond ≈ 1/λ``): hundreds of steps, and the residual test bounds the error only to
-  ``tol · cond``, so potentials there can be off by 0.1–0.3 even when it stops on the
-  tolerance (BENCHMARKS.md, issue 16).
-* :attr:`WalkSolver.TWO_LEVEL`: the same CG with a two-level additive preconditioner
-  ``M⁻¹ r = r / diag A + P A_c⁻¹ Pᵀ r`` — ``P`` the piecewise-constant prolongation
-  from aggregates of ``_AGGREGATE³`` voxel cells, ``A_c = Pᵀ A P`` (SPD, about 1/4 of
-  the unknowns) factorised once (sparse LU). The aggregates solve the smooth, slowly
-  converging part of the error (a near-island's level) exactly, so CG needs tens of
-  steps instead of hundreds and reaches the tolerance: different potentials within the
-  solve's accuracy, hence opt-in until the IoU tables are re-measured with it.
+  preconditioner, SciPy ``cg``'s steps in its order but every inner product NumPy's
+  pairwise sum (:func:`_dot`), so the rounding — and a badly conditioned walk's cut —
+  does not depend on the machine's core count.
+* :attr:`WalkSolver.TWO_LEVEL` (opt-in): the same CG with a two-level additive
+  preconditioner over aggregates of ``_AGGREGATE³`` cells (sparse LU of the coarse
+  system): tens of steps instead of hundreds on near-islands.
+
+Conditioning, stopping rule and the coarse level in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -53,7 +45,7 @@ def solve_walk(
 
 
 def _two_level(a: sparse.csr_matrix, diag: np.ndarray, cells: np.ndarray):
-    """``r -> r / diag + P A_c⁻¹ Pᵀ r`` (module docstring)."""
+    """``r -> r / diag + P A_c⁻¹ Pᵀ r`` (docs/design-notes.md)."""
     c = np.asarray(cells, np.int64) // _AGGREGATE
     c -= c.min(axis=0)
     span = c.max(axis=0) + 1
