@@ -18,7 +18,7 @@ class WalkSolver(StrEnum):
 @dataclass(frozen=True)
 class Graph3DConfig:
     """Knobs of the 3D graph segmenter (not in the paper). Symbols as in the
-    module docstrings of :mod:`.voxel_graph` and :mod:`.cut`.
+    design notes of :mod:`.voxel_graph` (docs/design-notes.md) and :mod:`.cut`.
 
     Region and graph:
         region_min: the smallest local region radius R, × the scene's robust radius

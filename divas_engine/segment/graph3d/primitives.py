@@ -61,7 +61,7 @@ def surfel_frame(means: np.ndarray, block: int = 1 << 18) -> RobustFrame:
 
 @dataclass(eq=False)
 class ScenePrimitives:
-    """Graph-node features of every primitive of a scene (module docstring).
+    """Graph-node features of every primitive of a scene (docs/design-notes.md).
 
     Attributes:
         points: ``[M,3]`` float32 positions; lab: ``[M,3]`` float32 colour;

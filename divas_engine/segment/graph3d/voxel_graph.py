@@ -40,7 +40,7 @@ _OFFSETS = np.array(
 
 @dataclass(eq=False)
 class VoxelGraph:
-    """One prompt's local graph (module docstring).
+    """One prompt's local graph (docs/design-notes.md).
 
     Attributes:
         prim: ``[P]`` indices into :class:`ScenePrimitives` of the region's primitives.
@@ -107,7 +107,7 @@ class VoxelGraph:
 def build_voxel_graph(
     prims: ScenePrimitives, center: np.ndarray, radius: float, config: Graph3DConfig
 ) -> VoxelGraph:
-    """The voxel graph of the cube ``center ± radius`` (module docstring). On a density
+    """The voxel graph of the cube ``center ± radius`` (docs/design-notes.md). On a density
     grid the voxels are at least one grid cell wide (fewer than ``grid_cells`` a side when
     the region is small), else the occupied cells would not touch."""
     g = int(config.grid_cells)
