@@ -258,7 +258,7 @@ def _resegment(
     """Segment each ``(view, pixel)`` of a correction's plan again with the click added
     to its prompts: fused views fused again in their slots (:func:`.fusing.refuse_view`),
     pending ones submitted again, previewed ones previewed. Returns the ids fused again,
-    the ``(id, reason)`` of fused views now rejected, and the seconds by stage."""
+    the ``(id, reason)`` of fused views the new mask rejects, and the seconds by stage."""
     refused, rejected = [], []
     seg_s = kernel_s = 0.0
     for v, xy in plan:

@@ -1,45 +1,18 @@
 """Every click as a 3D constraint on its object — beyond the paper.
 
-In the paper (Sec. 3.3–3.4) a positive click on an anchor prompts the one centroid view
-it spawns, and nothing else ever sees it; this repository's earlier extension made a
-negative click a prompt of the later views of its own anchor. So in a correction loop a
-negative click on a spill changed nothing: the views already fused, and those of other
-anchors, kept voting for it, and a spill made by the fusion or the mapping (no mask
-holds it) had no click that could take it out.
+In the paper (Sec. 3.3–3.4) a positive click on an anchor prompts only the centroid view
+it spawns. Here every click — on an anchor, on a centroid view, through any camera, or
+a world point — is one :class:`~.records.Correction` of its object:
 
-Here every click — on an anchor, on a centroid view, through any camera (a free 3D
-view), or a world point — is one :class:`~.records.Correction` of its object:
+1. a 3D point ``P`` (back-projected with the clicked image's depth) and its surface
+   patch (the backend's ``click_patch``);
+2. a prompt of every view of the object where ``P`` is visible and whose mask disagrees
+   with the click (:func:`prompt_plan`): re-segmented and re-fused in its own slot;
+3. a constraint on the selection: after the mapping the patches are forced in or out,
+   in click order (:func:`constrain`), before the manual edits compose.
 
-1. **A 3D point and its surface patch.** The click is back-projected with the clicked
-   image's depth to a point ``P``; its patch is every primitive (voxel) whose
-   ellipsoid, each axis grown by ``ρ = patch_px · z / f`` (``patch_px`` pixels at the
-   click's depth), holds ``P`` within ``negative_sigmas`` (``positive_sigmas``) standard
-   deviations (the backend's ``click_patch``).
-2. **A prompt of every view that disagrees with it.** Every view of the object —
-   fused, pending or previewed — where ``P`` is visible (in the image, on the surface
-   the view shows: depth within ``tol`` of ``D_ref``, :func:`visible_pixels`) and whose
-   mask disagrees with the click there (:func:`disagrees`: the segmenter's mask ``≥ 0.5``
-   at a negative click; ``< 0.5`` at a positive one, or on 2DGS the band-passed M̃,
-   whose band the positive prompts set; a pending view has no mask yet and always takes
-   it: :func:`prompt_plan`) is segmented again with the point added to its prompts (SAM:
-   the decoder only, its embedding cached per view; graph3d: the cut with the new
-   seed; the oracle: its masks answer the point) and fused again in its own slot
-   (remove + add: exact, :func:`~.fusing.refuse_view`). A view that already agrees is
-   left as it is, so a click costs only the views it changes.
-3. **A constraint on the selection.** After the mapping (and the 3DGS completion) the
-   patches of the object's clicks are forced in or out, in click order
-   (:func:`constrain`), before the manual edits compose (:mod:`.edits`): a negative
-   click never leaves its surface selected, a positive one never leaves it unselected.
-   A positive click on an anchor stands for the centroid view it spawns (the paper's
-   loop: nothing is selected before a view is accepted, and a rejected view changes
-   nothing), so its patch holds while that view is fused.
-
-Views spawned later get the object's visible negative clicks in their default prompt,
-and after their first preview the clicks their mask disagrees with
-(:func:`missing_prompts`; a second segmentation). The corrections are fields of the
-object (:class:`~.state.SessionState`), the re-segmented views' prompts, masks and fusion
-views are view fields: a snapshot holds them, so undo / redo restores the exact labels
-and a saved session replays them (the masks are saved; the patches too).
+Corrections are object and view fields, so undo / redo and save / load are exact.
+Each step in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -167,7 +140,7 @@ def prompt_plan(
     *,
     own: SessionView | None = None,
 ) -> list[tuple[SessionView, tuple[float, float]]]:
-    """The views a click at ``point`` prompts, with its pixel in each (module docstring,
+    """The views a click at ``point`` prompts, with its pixel in each (docs/design-notes.md,
     step 2): fused, pending and previewed views where it is visible and their mask
     disagrees with it (:func:`disagrees`; ``reads``: the backend's depth weighting reads
     the prompts); ``own``, the clicked view, when it is open
