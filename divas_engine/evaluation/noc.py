@@ -1,38 +1,14 @@
 """Number of clicks (NoC): the interactive-segmentation metric of the field, on a session.
 
-The simulated user (RITM / SimpleClick style, evaluation only) and what is measured:
-
-* **What the user sees**: the session's anchor renders. Per anchor ``a`` the truth
-  ``T_a`` (the ground-truth labels rendered there, ``≥ gt_threshold``), the prediction
-  ``P_a`` (the current selection's 0/1 indicator rendered there, ``≥ pred_threshold``)
-  and, when the target has don't-care primitives, ``I_a`` (their indicator rendered
-  there ``≥ 0.5``): those pixels are neither error nor truth.
-* **Errors**: false negatives ``FN_a = T_a ∧ ¬P_a ∧ ¬I_a`` and false positives
-  ``FP_a = P_a ∧ ¬T_a ∧ ¬I_a``. Their *depth* is the Euclidean distance transform of
-  each error set with every other pixel and the image border as border (a pixel of a
-  one-pixel-wide error has depth 1).
-* **The next click** is the deepest error pixel over every anchor and both error
-  kinds — the centre of the largest disc that fits in an error region, the region
-  that is "largest" for a click: positive on a false negative, negative on a false
-  positive. Ties: the deeper first; then a positive before a negative (a missed part
-  before a spill); then the lower anchor index; then the first pixel in row-major
-  order. The click is the pixel centre ``(x + 0.5, y + 0.5)``. No error pixel on any
-  anchor: no click (the step is recorded as ``none``, its IoU the current one).
-* **What a click does**: ``session.click(anchor, xy, positive)`` — the public API;
-  when it returns an open centroid view (a positive click), the user previews it with
-  the default prompts (``session.prompt``) and accepts it (``session.accept``, then
-  ``session.sync``); the session may reject it (low score, empty mask), which
-  changes nothing. A negative click is whatever the session makes of it (today:
-  a negative prompt of its anchor's later centroid views, and a negative seed of the
-  scene-aware segmenter's later cuts). A click on no surface counts and changes
-  nothing. The user never declines a preview and never undoes.
-* **IoU after k clicks** (k = 1 … ``max_clicks``): the mean over the held-out test
-  cameras of the image IoU of the selection against the truth, don't-care pixels
-  left out of both; thresholds by scene kind (:func:`thresholds_for`): trained 3DGS
-  renders both at 0.5 (the truth then scores 1 against itself), 2DGS keeps NOTES'
-  0.1 / 0.5.
-* **NoC@τ**: the first k whose IoU is ≥ τ; ``max_clicks`` when none is (the field's
-  convention), and the run counts as a failure (NoF).
+A simulated user (RITM / SimpleClick style, evaluation only) looks at the session's
+anchor renders: truth ``T_a`` (ground truth rendered ``≥ gt_threshold``), prediction
+``P_a`` (the selection's indicator ``≥ pred_threshold``) and don't-care pixels. It clicks
+the deepest error pixel (Euclidean distance transform of ``FN_a`` or ``FP_a``) over every
+anchor — positive on a false negative, negative on a false positive — through the
+public session API (:func:`next_click`, :func:`_apply`). After each click the IoU is the
+mean over held-out test cameras (:class:`TestViews`); NoC@τ is the first click with
+IoU ≥ τ, ``max_clicks`` when none is (a failure, NoF). Ties, thresholds and the rest of
+the protocol: docs/noc.md.
 """
 
 from __future__ import annotations
@@ -146,7 +122,7 @@ def next_click(
     preds: Sequence[np.ndarray],
     ignores: Sequence[np.ndarray | None] | None = None,
 ) -> NocClick | None:
-    """The simulated user's next click over the anchors (module docstring): the deepest
+    """The simulated user's next click over the anchors (docs/noc.md, step 4): the deepest
     false-negative or false-positive pixel; None when no anchor shows an error."""
     best: tuple | None = None
     for a, (t, p) in enumerate(zip(truths, preds)):
@@ -177,7 +153,7 @@ def number_of_clicks(ious: Sequence[float], threshold: float, max_clicks: int | 
 
 def thresholds_for(scene, config: NocConfig = NocConfig()) -> tuple[float, float]:
     """``(pred_threshold, gt_threshold)`` of a scene: the config's where set, else 0.5 /
-    0.5 for trained 3DGS (``SceneKind.GS3D``) and NOTES' 0.1 / 0.5 otherwise."""
+    0.5 for trained 3DGS (``SceneKind.GS3D``) and the paper's 0.1 / 0.5 otherwise."""
     gs3d = getattr(scene, "kind", None) == SceneKind.GS3D
     pred = config.pred_threshold if config.pred_threshold is not None else (0.5 if gs3d else 0.1)
     gt = config.gt_threshold if config.gt_threshold is not None else 0.5
@@ -248,7 +224,7 @@ class TestViews:
 
 
 def _apply(session, click: NocClick) -> str:
-    """One click through the public session API (module docstring); what it did."""
+    """One click through the public session API (docs/noc.md, step 5); what it did."""
     try:
         res = session.click(click.anchor, click.xy, click.positive)
     except DivasInputError:
@@ -277,7 +253,7 @@ def run_noc(
     renderer=None,
     log=None,
 ) -> NocRun:
-    """One NoC run (module docstring) on a surfel scene.
+    """One NoC run (docs/noc.md) on a surfel scene.
 
     Args:
         cameras: training cameras (the anchor plan and capture type); may be empty.

@@ -2,7 +2,7 @@
 the split into a tuning half and a held-out half, the tables.
 
 **The split** (fixed before any tuning; no choice is made on the held-out half). The
-tuning half holds one case of each failure the default segmenter was to be fixed for
+tuning half holds one case of each failure mode the default segmenter is tuned against
 — ``ribs`` (a single click on a rib refused), ``wheel`` (a thin object a short distance
 in front of a textured background), ``pedestal`` (an object on a support of another
 material) and the ``guitar`` capture (an object on its stand; with the stand and the

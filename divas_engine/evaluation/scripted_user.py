@@ -1,62 +1,14 @@
 """A simulated user that follows the paper's interactive protocol (evaluation only).
 
-Paper Sec. 3.3 ("Iterative centroid processing") and Sec. 3.7 ("Iterative Mask
-Propagation"): after each fused view the running 3D selection is overlaid on the next
-view, and the user prompts only the regions it does not cover yet, until coverage is
-complete. The anchors are the session's own anchor plan (Sec. 3.2: Fibonacci anchors for
-360° scenes, spread training cameras for forward-facing ones) — never the test cameras.
-
-What the simulated user sees is what a user sees, nothing more:
-
-* the anchor renders and the overlay of the current selection on them
-  (:meth:`Session.overlay`: rendered indicator ``≥ overlay_threshold``);
-* the centroid view and the segmenter's mask preview on it;
-* its *intent*: the ground-truth target rendered at the view it is looking at
-  (``≥ target_threshold``) — the stand-in for the user knowing what they want.
-
-Per anchor of the plan, in plan order, until the anchor is complete (step 3) — or the
-user gives up on it after ``max_failed_clicks`` clicks in a row that did not shrink its
-uncovered target by a region's worth (``stalled``), or hits the optional hard cap
-``clicks_per_anchor``:
-
-1. visible target ``T`` (GT render ≥ 0.5) and overlay ``O`` at the anchor;
-2. the connected regions (8-connectivity) of ``T ∧ ¬O`` with at least
-   ``min_region_frac`` of the image's pixels, largest first;
-3. none left: the anchor is complete, go to the next one; else click the pixel of the
-   largest region farthest from its border (Euclidean distance transform) — and from
-   this anchor's earlier clicks, so a region an earlier view failed to cover (or a
-   rejected view) is re-clicked elsewhere, spawning a different centroid view (Sec. 3.3);
-4. optional negative prompt (``negative_clicks``): if the mask preview on the centroid
-   view selects pixels outside the target there (a false-positive region of at least the
-   minimum area), add one negative point at that region's centre and keep the re-prompted
-   mask when it agrees better with the target (IoU), else the default prompt's;
-5. accept the view (SAM → depth weighting → fusion → mapping; NeRF: synced at once) —
-   unless the mask preview it would accept has leaked: more of its pixels lie off the
-   target than on it, boundary imprecision forgiven (precision against the target
-   dilated by two cells of SAM's 256 logit grid, ``2⌈max(H, W)/256⌉`` px, below
-   ``min_accept_precision``). A user looking at a preview that has spilled onto the
-   table does not press accept; the view stays open and unfused, and the region is
-   clicked again elsewhere (step 3). A halo around a thin target is not a leak.
-
-The anchors are the plan's offered ones (top-K), then — ``more_anchors`` — its other
-supported Fibonacci candidates in ranking order (what the user sees on asking for all
-Fibonacci views), visited while the view budget lasts.
-
-Manual anchors (``manual_anchors`` > 0; paper Sec. 1 and limitations: "the GUI exposes
-manual anchor selection" for targets the Fibonacci views do not expose): once the plan's
-anchors are done, the user browses the *training* cameras as thumbnails
-(``browse_scale``), opens the one whose thumbnail shows the largest uncovered target
-region, and — when it shows one at working resolution too — adds it as an anchor
-(:meth:`Session.add_anchor`) and works it like the others; up to ``manual_anchors``
-times. The test cameras are never among them.
-
-The session stops at ``max_views`` centroid views in total — by default the upper end of
-the paper's bounded view processing (App. "Bounded view processing", tab:view-budget:
-5–10 centroid views on LLFF-like forward-facing captures, at most 20 on Mip-NeRF 360
-ones), i.e. 10 on a forward-facing capture and 20 on a 360° one — or when every anchor
-is complete or given up. The paper's loop has no per-anchor cap ("the user re-prompts
-only uncaptured regions", Sec. 3.3): the earlier default of 3 clicks per anchor stopped
-the user one click short of complete coverage on the first ribs anchor in every seed.
+Paper Sec. 3.3 and 3.7: after each fused view the running 3D selection is overlaid on
+the next view, and the user prompts only the regions it does not cover yet, until
+coverage is complete. The anchors are the session's own anchor plan (Sec. 3.2) — never
+the test cameras. The user sees only what a user sees (anchor renders with the overlay,
+the centroid view and its mask preview) plus its intent, the ground-truth target
+rendered at that view. Per anchor it clicks the deepest uncovered target region until
+none is left or it stalls, optionally adds a negative point on a preview's spill, and
+declines a preview that has leaked; then manual anchors from the training cameras, up
+to the paper's view budget (tab:view-budget). Each step in full: docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -112,9 +64,9 @@ class UserBudget:
             Fibonacci candidates in ranking order (Sec. 3.2's "all Fibonacci views"),
             while the view budget lasts, True.
         manual_anchors: training cameras the user may add as manual anchors afterwards
-            (module docstring), 4. The paper's remedy for targets its Fibonacci anchors do
-            not expose (on the synthetic plant, c_scene — the median of all centres — lies
-            on the floor 0.94 below the plant and 10 of the 12 anchors do not show it); a
+            (docs/design-notes.md), 4. The paper's remedy for targets its Fibonacci anchors
+            do not expose (on the synthetic plant, c_scene — the median of all centres —
+            lies on the floor below the plant and most anchors do not show it); a
             user only adds one when a training camera shows uncovered target, so scenes
             whose anchors suffice (ribs, occluded) are unaffected. 0 = automatic anchors
             only.
@@ -122,7 +74,7 @@ class UserBudget:
             0.25.
         min_accept_precision: the user declines a view whose mask preview (``≥ 0.5``)
             has a precision below this against the boundary-tolerant target at that
-            view (module docstring), 0.5: more leaked than target pixels. 0 accepts
+            view (docs/design-notes.md), 0.5: more leaked than target pixels. 0 accepts
             every view.
     """
 
@@ -293,7 +245,7 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 class ScriptedUser:
-    """The simulated user (module docstring).
+    """The simulated user (module docstring; docs/design-notes.md).
 
     Args:
         gt_values: the user's intent — ground truth per surfel ``[N]`` or per voxel
@@ -374,7 +326,8 @@ class ScriptedUser:
         return log
 
     def _visit(self, session, ai: int, log: UserLog, n_views: int) -> int:
-        """Steps 1–5 on anchor ``ai``; returns the session's centroid-view count."""
+        """Steps 1–5 (docs/design-notes.md) on anchor ``ai``; returns the session's
+        centroid-view count."""
         b = self.budget
         if n_views >= log.max_views:
             log.anchor_status.append("not visited")
