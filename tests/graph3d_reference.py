@@ -1,36 +1,13 @@
 """An independent reference of the 3D graph segmenter's per-prompt voxel graph and of its
-supports' primitive test, written from their documented definitions (the module
-docstring of ``divas_engine/segment/graph3d/voxel_graph.py``, ``_extent_entries``'
-docstring, :class:`~divas_engine.segment.graph3d.config.Graph3DConfig`) and not from the
-code: loops over primitives and their extents' lattice samples, dictionaries keyed by
-integer cell, ``np.add.at`` sums, a sorted lookup of neighbour cells, per-edge formulas
-as written. Slow (small test scenes only); it shares nothing with graph3d but the
-:class:`Graph3DConfig` values and the :class:`VoxelGraph` container it fills.
-
-Definitions used:
-
-* primitives: a surfel scene's Gaussians with opacity ``α ≥ min_opacity``, in row
-  order: centre ``p``, mass ``α``, colour = OpenCV's CIE-Lab of the SH DC colour
-  ``clip(0.5 + SH_C0 f_dc, 0, 1)``, normal = rotation column 2 of the (normalised)
-  quaternion, ``κ = clip(1 − s_n / min(s_1, s_2), 0, 1)`` (1 for 2DGS), principal axes
-  ``s_1 t_u, s_2 t_v, s_n n``, ``σ = max(s_1, s_2, s_n)``; a density grid's are the
-  segmenter's own cells (their features are not the graph's definition);
-* region: ``G`` voxels a side (``grid_cells``; on a grid at most ``2R / cell``, at least
-  4), ``h = 2R / G``, one rim layer: corner ``lo = c − R − h``, ``G + 2`` cells a side;
-  the primitives inside the closed box; a centre's cell ``clip(⌊(p − lo) / h⌋)``;
-* extents (3DGS, or every surfel scene when ``extent_gs3d_only`` is off): a primitive
-  with ``σ > extent_min_sigma · h`` whose centre cell has no 26-neighbour holding a
-  centre is sampled at ``u = j · min(k s_i / m_i, h) / s_i`` (σ units) for integer
-  ``|j_i| ≤ m_i = min(⌈k s_i / h⌉, extent_max_steps)``, ``j ≠ 0``, ``|u| ≤ k``; a cell of
-  the cube other than its centre's gets mass ``α exp(−|u|²/2)`` at the sample of largest
-  falloff there (the first in lattice order on a tie);
-* nodes: occupied cells, in ascending ``x + n (y + n z)``; mass, α-weighted centroid and
-  colour, structure tensor ``T = Σ α κ n nᵀ`` → principal eigenvector, ``ν = tr T / m``;
-* edges: 26-neighbour node pairs, ``w = a_d a_c a_n a_m`` (config docstring), ``β`` from
-  the mean squared colour difference over the edges, the mass scale the median mass of
-  the nodes that hold a centre;
-* supports: a primitive with ``|n · up| ≥ cos(ground_normal_deg)`` within one voxel of
-  height (``p · up / h``) of a support node's rounded height ``round(μ · up / h)``.
+supports' primitive test, written from their documented definitions (the
+``voxel_graph.py`` section of docs/design-notes.md, ``_extent_entries``' docstring,
+:class:`~divas_engine.segment.graph3d.config.Graph3DConfig`) and not from the code:
+loops over primitives and their extents' lattice samples, dictionaries keyed by integer
+cell, ``np.add.at`` sums, a sorted lookup of neighbour cells, per-edge formulas as
+written. Slow (small test scenes only); it shares nothing with graph3d but the
+:class:`Graph3DConfig` values and the :class:`VoxelGraph` container it fills. The
+definitions it implements (primitives, region, extents, nodes, edges, supports) are
+listed in docs/design-notes.md.
 """
 
 from __future__ import annotations
@@ -95,7 +72,7 @@ def _unit_quaternion_matrices(q: np.ndarray) -> np.ndarray:
 
 
 def reference_primitives(scene, min_opacity: float, grid_prims=None) -> ReferencePrimitives:
-    """Features of a surfel ``scene`` (module docstring); for a density grid pass the
+    """Features of a surfel ``scene`` (docs/design-notes.md); for a density grid pass the
     segmenter's ``grid_prims`` (:class:`ScenePrimitives`), whose cells are taken as they are."""
     if not isinstance(scene, SurfelScene):
         gp = grid_prims
@@ -147,7 +124,7 @@ def _region(ref: ReferencePrimitives, center, radius: float, config: Graph3DConf
 
 
 def _extent_samples(ref, i, centre_cell, lo, h, cells, config) -> dict:
-    """``{cell: (falloff, position)}`` of primitive ``i``'s extent (module docstring)."""
+    """``{cell: (falloff, position)}`` of primitive ``i``'s extent (docs/design-notes.md)."""
     k = float(config.extent_sigmas)
     s = np.linalg.norm(ref.axes[i], axis=1)
     dirs = ref.axes[i] / np.where(s > 0, s, 1.0)[:, None]
@@ -178,7 +155,7 @@ def reference_voxel_graph(
     config: Graph3DConfig,
     normal_gaps: dict | None = None,
 ) -> VoxelGraph:
-    """The voxel graph of the cube ``center ± radius`` (module docstring).
+    """The voxel graph of the cube ``center ± radius`` (docs/design-notes.md).
     ``normal_gaps``: filled with each node cell's relative gap between the two largest
     eigenvalues of its tensor (near 0: its principal normal is not defined — a voxel
     where two faces carry the same mass — and any unit vector of the plane is one)."""
@@ -294,7 +271,7 @@ def reference_support_primitives(
     planes: np.ndarray,
     config: Graph3DConfig,
 ) -> np.ndarray:
-    """Bool per ``graph.prim``: a support's primitive in a kept voxel (module docstring)."""
+    """Bool per ``graph.prim``: a support's primitive in a kept voxel (docs/design-notes.md)."""
     out = np.zeros(len(graph.prim), bool)
     if up is None or not planes.any():
         return out

@@ -1,6 +1,7 @@
-"""Clicks as 3D constraints (issue 35 item 1): a negative click on a spill removes it
-wherever it came from, a click changes the views of other anchors that disagree with
-it, a positive click adds what was missed; undo / redo and save / load are exact.
+"""Clicks as 3D constraints (:mod:`divas_engine.session.corrections`): a negative click
+on a spill removes it wherever it came from, a click changes the views of other anchors
+that disagree with it, a positive click adds what was missed; undo / redo and save /
+load are exact.
 
 Scene: the synthetic ``occluded`` scene (a vase on a plinth, 20k surfels), one anchor per
 metadata click. Mask sources with a known answer: the oracle without errors (what the
@@ -325,8 +326,8 @@ def test_corrections_off_is_the_paper_loop(vase, tmp_path):
     assert s.current.corrections == []
     with pytest.raises(DivasInputError, match="corrections are off"):
         s.click_view(s.views[0], (10.5, 10.5))
-    # a session saved before corrections existed (no "corrections" anywhere) loads and
-    # replays to its labels
+    # a session file without any "corrections" field (the format without them) loads
+    # and replays to its labels
     path = s.save(tmp_path / "old.json")
     doc = json.loads(path.read_text())
     del doc["config"]["corrections"]
@@ -387,11 +388,10 @@ def test_grid_patch_is_the_voxels_within_the_radius():
 
 
 def test_helmet_with_the_oracle_improves_with_negative_clicks(real_data):
-    """Issue 35: on biker/helmet with the SAM-like oracle, the simulated user's clicks
-    after the first two are on spills (the leg behind the helmet, the hand): each
-    negative click now changes the selection, and the image IoU at the target's test
-    views rises past where two clicks left it (before: negative clicks changed
-    nothing)."""
+    """On biker/helmet with the SAM-like oracle, the simulated user's clicks after the
+    first two are on spills (the leg behind the helmet, the hand): each negative click
+    changes the selection, and the image IoU at the target's test views rises past
+    where two clicks left it."""
     from divas_engine.evaluation.pipeline import make_segmenter
     from divas_engine.evaluation.real_target_defs import CAPTURES
     from divas_engine.evaluation.real_targets import (

@@ -1,4 +1,4 @@
-"""graph3d's scene-only work made once per scene (issue 20, click20g): every primitive's
+"""graph3d's scene-only work made once per scene: every primitive's
 colour and κ computed by the segmenter's warm-up (:meth:`ScenePrimitives.cache_features`)
 give the same features, voxel graphs, cuts, masks and selections as computing them from
 the scene's arrays in each cut — after a negative click and after an undone click too;

@@ -1,5 +1,5 @@
 """graph3d's masks of a click's default prompt rendered in the background while the
-view renders (issue 20, ``Graph3DSegmenter.prefetch_view``): the centroid planner hands
+view renders (``Graph3DSegmenter.prefetch_view``): the centroid planner hands
 the view's camera over before rendering it, the prompt takes the masks the background
 thread made, and they equal those of a session without the prefetch bit for bit. The
 sparse value render it uses gives the same image on one launch thread and beside

@@ -1,5 +1,5 @@
-"""The 3D graph segmenter's fast paths give the reference results (issue 16, cost per
-prompt): the walk's conjugate gradients are SciPy's bit for bit, and the masks rendered
+"""The 3D graph segmenter's fast paths (the cost per prompt) give the reference
+results: the walk's conjugate gradients are SciPy's bit for bit, and the masks rendered
 in the selection's window with only the surfels in front of it are the dense full-image
 render's."""
 

@@ -1,4 +1,4 @@
-"""graph3d on the failure cases of issue 35, by hand: a click point in front of the
+"""graph3d on two failure cases, by hand: a click point in front of the
 Gaussians that draw it (a trained 3DGS surface), and a statue on a pedestal whose top
 is a narrow ring around it (a cornice)."""
 
