@@ -514,7 +514,7 @@ def test_click_on_an_accepted_view_corrects_at_once(scene_dir):
     uv, _ = v.camera.project(v.centroid.target[None])
     uv += 3.0  # beside the view's own prompt: the view takes the click too
     assert bpy.ops.divas.session_click(
-        *undo, view=v.id, xy="{!r} {!r}".format(*uv[0]), positive=False
+        *undo, view=v.id, xy="{!r} {!r}".format(*map(float, uv[0])), positive=False
     ) == {"FINISHED"}
     res = s.last_correction
     assert res.correction.source.view == v.id and before[res.correction.patch].any()
