@@ -252,7 +252,9 @@ def test_advice_names_the_click_that_settles_each_kind_of_doubt():
 def test_an_ambiguous_click_scores_low_and_the_view_record_says_what_to_do():
     # a click on the open floor beside a ball: nothing around it has an edge, so no region
     # is clearly the object (an ambiguous cut) — the preview scores low, the view carries
-    # the segmenter's advice (a negative click on what spilled over), the rejection keeps it
+    # the segmenter's advice (a negative click on what spilled over). Every view shows the
+    # same 3D cut, so the score gates no view: accepted, the view is fused and keeps the
+    # advice; a segmenter that gates its views by score rejects it, with the advice kept
     case = ball_on_floor()
     anchor = _camera((0.0, -1.6, 0.9), (0.0, 0.0, 0.2))
     seg = Graph3DSegmenter()
@@ -265,6 +267,17 @@ def test_an_ambiguous_click_scores_low_and_the_view_record_says_what_to_do():
         assert prev.advice and "negative click" in prev.advice
         assert v.advice == prev.advice and v.to_dict(None)["advice"] == prev.advice
         s.accept(v)
+        assert v.status == "fused" and v.advice == prev.advice
+        report = next(r for r in s.report()["views"] if r["id"] == v.id)
+        assert report["advice"] == prev.advice and report["status"] == "fused"
+        assert s.selection.any()  # a usable mask, not a refusal
+        s.undo()
+        seg.score_gates_views = True
+        try:
+            s.prompt(v)
+            s.accept(v)
+        finally:
+            seg.score_gates_views = False
         assert v.status == "rejected" and v.advice == prev.advice
         report = next(r for r in s.report()["views"] if r["id"] == v.id)
         assert report["advice"] == prev.advice and report["status"] == "rejected"

@@ -14,7 +14,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from divas_engine.kinds import ViewStatus
 
-from ..reporting import rejection_message, report_exception
+from ..reporting import advice_message, rejection_message, report_exception
 from ..session_actions import accept, full_to_session_xy, run_step
 from .session_base import SessionOperator, live_session
 
@@ -45,6 +45,11 @@ def accept_message(live, res) -> tuple[set[str], str]:
             "done (or press Sync)"
         )
     n = int(live.session.selection.sum())
+    if v.advice:  # fused, but the segmenter was unsure: what to click next
+        return {"WARNING"}, (
+            f"View added: {n:,} selected ({res.timings.get('update_s', 0.0):.2f} s), "
+            f"but the segmenter was unsure. {advice_message(v.advice)}"
+        )
     return {"INFO"}, (
         f"View added: {n:,} selected ({res.timings.get('update_s', 0.0):.2f} s). Click "
         "another anchor to add more, or Finish Object when it is complete"

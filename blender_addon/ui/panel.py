@@ -128,8 +128,8 @@ def _draw_session(layout, live) -> None:
         msg = rejection_message(r.rejection, r.score, r.advice, reason=r.reason)
         for line in _wrap(msg):
             sub.label(text=line)
-    hinted = [v for v in live.session.views if v.status == "open" and v.advice]
-    if hinted:  # the segmenter was unsure about a preview: what to click next
+    hinted = [v for v in live.session.views if v.status in ("open", "fused") and v.advice]
+    if hinted:  # the segmenter was unsure about a preview or a fused view: what to click
         sub = box.column(align=True)
         sub.label(text=f"Unsure about view {hinted[-1].id}:", icon="QUESTION")
         for line in _wrap(advice_message(hinted[-1].advice)):

@@ -236,6 +236,12 @@ class Segmenter(ABC):
     #: :meth:`prefetch_view`): a host that previews right after every click switches it
     #: on; a segmenter with nothing to start early ignores it
     prefetch_cuts: bool = False
+    #: the session rejects a view whose mid channel scores below its ``min_score``
+    #: (Sec. 3.4: a per-view mask that may be wrong in that view). False for a segmenter
+    #: whose masks of an object are one 3D selection rendered into each view: its score
+    #: is the same in every view, so a gate would only drop the clicks of an unsure
+    #: object; its mask is fused and its message says what to click next
+    score_gates_views: bool = True
 
     def __init__(self, cache_size: int = 8):
         self.cache_size = int(cache_size)

@@ -96,7 +96,7 @@ def fuse_views(
         timings.add("kernel", dt)
         kernel_s += dt
         v.status, v.reason, v.rejection = ViewStatus.FUSED, None, None
-        v.score, v.advice = prev.score, None
+        v.score, v.advice = prev.score, prev.advice  # an unsure fused view keeps it
         v.mask, v.fusion_id, v.fusion_view = prev.mask, fid, fv
         fused.append(v.id)
     return fused, rejected, kernel_s
@@ -114,7 +114,7 @@ def refuse_view(v: SessionView, prev: MaskPreview, b: RenderBuffers, fusion, tim
     if rejection is None:
         fv = fusion_view(v, prev.mask, b)
         fusion.add_view(fv, slot)
-        v.mask, v.fusion_view, v.score, v.advice = prev.mask, fv, prev.score, None
+        v.mask, v.fusion_view, v.score, v.advice = prev.mask, fv, prev.score, prev.advice
     else:
         v.status, v.reason, v.rejection = ViewStatus.REJECTED, rejection.message, rejection
         v.mask, v.fusion_id, v.fusion_view, v.score = None, None, None, prev.score

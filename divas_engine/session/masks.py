@@ -4,7 +4,8 @@
   plus the visible negative clicks (NOTES "Headless prompts file"; which clicks: the
   object's, or with corrections off its anchor's: :meth:`Session.default_prompts`);
 * :func:`prompt_set` — the user's points, checked;
-* :func:`mask_preview` — a SAM result → channel selection (score ≥ ``min_score``) →
+* :func:`mask_preview` — a SAM result → channel selection (score ≥ ``min_score``, when
+  the segmenter gates views by score) →
   the backend's depth weighting → the "empty mask" rule; the segmenter's hint (what to
   click next when it was unsure, :attr:`~..segment.base.SegResult.message`) is kept as
   the preview's ``advice``.
@@ -95,10 +96,14 @@ def mask_preview(
     config: SessionConfig,
     backend: SessionBackend,
     seconds: float = 0.0,
+    gate: bool = True,
 ) -> MaskPreview:
     """The :class:`MaskPreview` of a segmenter result on ``v`` (rendered as ``buffers``)
-    for prompts ``p``/``lab``."""
-    sel = select_mask(res.masks, res.scores, lab, config.min_score, config.mask_channel)
+    for prompts ``p``/``lab``. ``gate``: reject below ``config.min_score`` (False: the
+    segmenter's :attr:`~..segment.base.Segmenter.score_gates_views` is off; a low score
+    keeps its advice)."""
+    floor = config.min_score if gate else -np.inf
+    sel = select_mask(res.masks, res.scores, lab, floor, config.mask_channel)
     weighted, band, rejection = None, None, sel.rejection
     if sel.accepted:
         weighted, band = backend.depth_weight(sel.mask, buffers, p, lab)

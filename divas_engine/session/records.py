@@ -230,8 +230,8 @@ class SessionView(_Rendered):
             ``"pending"`` (NeRF: accepted, SAM running), ``"fused"`` or ``"rejected"``.
         reason: why it was rejected (the engine's sentence); rejection: the same as data
             (:class:`Rejection`; None in sessions saved before it was kept); advice: the
-            segmenter's hint of its last preview or rejection (what to click next), None
-            once fused or when it was sure.
+            segmenter's hint of its last preview, rejection or fused mask (what to click
+            next), None when it was sure.
         points, labels: the prompt set of the last preview / accept.
         mask: the depth-weighted mask that was fused.
         raw_mask: the segmenter's own mask of that accept, restored from a saved

@@ -183,7 +183,10 @@ class Session(SessionReader):
     def _mask_from(
         self, v: SessionView, res: SegResult, p: np.ndarray, lab: np.ndarray, seconds: float = 0.0
     ) -> MaskPreview:
-        return mask_preview(v, self.render(v), res, p, lab, self.config, self.backend, seconds)
+        gate = self._seg is None or getattr(self._seg.seg, "score_gates_views", True)
+        return mask_preview(
+            v, self.render(v), res, p, lab, self.config, self.backend, seconds, gate
+        )
 
     def _require_segmenter(self) -> TimedSegmenter:
         if self._seg is None:

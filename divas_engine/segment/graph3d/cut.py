@@ -385,7 +385,9 @@ def _on_its_support(
     the score is ½), whose added part ``E`` (no seed in it) is another material
     (:func:`~.voxel_graph.other_material`), lies below the boundary (all but
     ``support_quantile`` of it no higher than the boundary's highest voxel plus one
-    voxel; as many of the dip's voxels no lower than its lowest minus one) and is wider
+    voxel; as many of the dip's voxels no lower than its lowest minus one, and as many
+    higher than that voxel plus two: what stands rises above its contact — a patch whose
+    boundary runs around its sides, level with it, is set in E, not on it) and is wider
     there than what stands on it (the horizontal spread of ``E``'s top two voxels over
     that of the dip's bottom two). What holds the clicked object up — a pedestal of
     another material, a plinth, a table's frame — is not the object, though it makes
@@ -419,6 +421,8 @@ def _on_its_support(
                 continue  # E reaches above the contact: it does not hold the dip up
             if np.quantile(height[inside], q) < bottom - h:
                 continue  # the dip reaches below the contact: it does not stand on E
+            if np.quantile(height[inside], 1.0 - q) <= top + 2.0 * h:
+                continue  # the dip does not rise above the contact: E is around it
             if float(height[positive].min()) < bottom - h:
                 break  # a click below the contact, on E: the user wants it too
             e_top = extra & (height >= float(height[extra].max()) - 2.0 * h)

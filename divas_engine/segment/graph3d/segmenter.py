@@ -140,6 +140,9 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: of a 3M click's cut; 12 bytes a primitive held, 36 MB at 3M); the cuts are the
     #: same bit for bit with and without it (issue 20)
     cache_features: bool = True
+    #: every view shows the same 3D cut, scored once: an unsure cut is fused with its
+    #: advice, not refused (:attr:`~..base.Segmenter.score_gates_views`)
+    score_gates_views: bool = False
 
     def __init__(self, config: Graph3DConfig | None = None, binding: SceneBinding | None = None):
         super().__init__(cache_size=16)
