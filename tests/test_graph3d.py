@@ -1,4 +1,4 @@
-"""The 3D graph segmenter (issue 16) on hand-checkable scenes, and its session wiring.
+"""The 3D graph segmenter on hand-checkable scenes, and its session wiring.
 
 Each scene is a few analytic shapes with one flat colour each (:mod:`tests.graph3d_cases`);
 the expected selections are the shapes themselves, checked per surfel.

@@ -1,35 +1,14 @@
 """Seeded random walk and sweep cut on the local voxel graph: three nested regions.
 
-1. **Random walk with a leak** (Grady 2006, with the prior of Grady 2005): the positive
-   seed voxels hold ``x = 1``; sinks hold ``x = 0`` — the negative seeds and the rim of
-   the region (its outside) and the supporting surfaces (:mod:`.supports`: the ground,
-   a table top); every free voxel leaks ``λ · deg`` to 0. For the sweep the supports
-   then leave the graph, as Golovinskiy & Funkhouser remove the ground plane: their
-   edges are dropped, so an object on a table is an island of its own. The walk solves
-   ``(L_UU + λ D_U) x_U = W_UF 1`` (SPD; conjugate gradients with a Jacobi
-   preconditioner, or two-level: :mod:`.walk_solver`). ``x_i`` is the probability
-   that a walk from voxel ``i`` reaches a positive seed first: it stays high across
-   strong edges and drops across weak ones (a contact, a colour or normal change).
-2. **Sweep cut** (the local-partitioning idea of Andersen, Chung & Lang 2006): sort the
-   voxels by ``x``, and for every prefix ``S_k`` compute its cut ``cut(S_k)`` and volume
-   ``vol(S_k) = Σ deg``, all prefixes at once from a difference array. Conductance
-   ``φ(S) = cut(S) / min(vol(S), vol(V) − vol(S))``: a prefix ending on a weak
-   boundary has low φ. Unlike a min-cut with a distance prior there is no shrinking
-   bias: a thin rod whose every cross-section costs the same is kept up to its real
-   boundary, where the cut is cheapest per volume.
-3. **Granularities** (SAM's small → large contract): the medium region is the prefix of
-   least φ; small and large are the best *local* minima of φ (over a ± ``ratio`` window
-   of log volume) at least ``min_granularity_ratio`` smaller / larger; none → the
-   medium one. So the three are nested.
-4. **Score**: boundary contrast ``c`` = mean affinity of the cut edges / mean affinity
-   inside the region (edges to supporting planes and the rim left out), times the cut's
-   narrowness when below 1 (its boundary voxels over the perimeter ``2√(πn)`` of a disc
-   of the region's ``n`` voxels: a neck is a boundary even without an affinity drop): a
-   real boundary (contact, colour or normal change, a neck) has ``c ≪ 1``, a cut through
-   a continuing surface ``c ≈ 1``. ``score = 1 / (1 + (c / c₀)²)``, times ``1 − rim
-   share`` (a region cut by the rim of the examined region is not an object yet), times
-   ``ambiguity_penalty`` when another local minimum of φ of a different size is nearly as
-   good (the click does not say which object is meant).
+The positive seed voxels hold ``x = 1``; the negative seeds, the region's rim and the
+supporting surfaces are sinks; every free voxel leaks ``λ · deg`` to 0 (Grady's random
+walk with a prior): ``(L_UU + λ D_U) x_U = W_UF 1``. Sorting the voxels by ``x``, the
+prefix of least conductance ``φ(S) = cut(S) / min(vol(S), vol(V) − vol(S))`` is the
+medium region (a sweep cut: no shrinking bias on thin parts); the best local minima of
+φ smaller and larger are the small and large ones (SAM's nested granularities). The
+score is the boundary's contrast ``c`` (cut-edge over inside affinity, times the cut's
+narrowness): ``1 / (1 + (c / c₀)²)``, times ``1 − rim share`` and an ambiguity penalty.
+The steps in full: ``docs/design-notes.md``.
 """
 
 from __future__ import annotations

@@ -1,36 +1,14 @@
 """The weight-free default segmenter: a 3D cut over the scene's own primitives, rendered
-into each view as its mask (issue 16; not in the paper, which takes SAM's masks).
+into each view as its mask (beyond the paper, which takes SAM's masks).
 
-Per prompt set on a view (:meth:`Graph3DSegmenter.predict`):
-
-1. **Seeds.** Every prompt point is back-projected with the view's depth (``D_ref``,
-   the depth tuple's surface estimate); the object's clicks on every anchor
-   (:class:`~..context.ObjectClicks`, the session's 3D click points in the view's
-   :class:`~..context.ViewContext`) are added, so every view of an object cuts with the
-   same seeds.
-2. **Local graph.** The active voxels of the cube ``c ± R`` around the positive seeds
-   (:mod:`.voxel_graph`), ``R = max(region_min · r_fg, region_seed_factor · spread)``.
-3. **Cut.** Random walk from the seeds and a sweep cut by conductance
-   (:mod:`.cut`); the negative seeds, the region's rim and the supporting planes
-   (floor, table) are sinks. When the chosen region leans on the rim (the object goes
-   on beyond the region) ``R`` doubles and the cut is redone, at most twice.
-4. **Masks.** The three nested regions (small, medium, large) go to their primitives and
-   are rendered with the session's renderer into the view at SAM's low-res size
-   (longest side 256) as per-primitive values: coverage ``Σ w_k [k ∈ region]``, then
-   ``sigmoid(8 (coverage − 0.5))`` upsampled — the oracle's convention. So every view
-   shows the same 3D region and the preview is what fusion will certify. Only the
-   window the regions' footprints can reach is rendered (:mod:`.render_box`; the
-   coverage is 0 elsewhere), at the cost of the window.
-5. **Scores** from the cut's conductance (:mod:`.cut`); a low one comes with
-   :attr:`Graph3DSegmenter.last_message` — what the user should do (a negative click
-   on what leaked in, a positive click on what is missing).
-
-The cut of a seed set is cached, so the views of one object (same clicks) cost one cut
-and a render each; :meth:`Graph3DSegmenter.prefetch` can start it in the background from
-the object's 3D clicks alone, before the view is rendered (:mod:`.cut_cache`, issue 20;
-:attr:`Graph3DSegmenter.prefetch_cuts`), and :meth:`Graph3DSegmenter.prefetch_view` the
-default prompt's masks as soon as the view's camera is known, while the view renders
-(:attr:`Graph3DSegmenter.prefetch_masks`).
+Per prompt set on a view (:meth:`Graph3DSegmenter.predict`): the prompts and the
+object's 3D clicks on every anchor become seeds; the active voxels around the positive
+seeds form a local graph (:mod:`.voxel_graph`); a random walk and sweep cut give three
+nested regions and a score (:mod:`.cut`), the region grown when it leans on its rim;
+the regions are rendered into the view as per-primitive coverage at SAM's low-res size,
+so every view shows the same 3D region and the preview is what fusion certifies. Cuts
+are cached per seed set and can be prefetched from the 3D clicks before the view
+renders (:mod:`.cut_cache`). The steps in full: ``docs/design-notes.md``.
 """
 
 from __future__ import annotations
@@ -119,26 +97,22 @@ class Graph3DSegmenter(SceneAwareSegmenter):
     #: (the reference the tests compare with)
     fast_masks: bool = True
     #: :meth:`prefetch` starts the cut in a background thread (False: it does nothing).
-    #: It trades a later view for an earlier mask: on 2 cores the cut competes with the
-    #: view's render (1M, idle: click → view 0.37 → 0.50 s, click + preview 0.74 →
-    #: 0.68 s), so it pays only where the caller previews right after the click — the
-    #: add-on switches it on (its click operator returns view and mask together: 3M,
-    #: idle, 2.27–2.43 → 2.18–2.28 s); with another job holding a core it lost 0.3–1 s
-    #: (BENCHMARKS.md, issue 20, g3d20d and the lead's section after it)
+    #: It trades a later view for an earlier mask: on few cores the cut competes with the
+    #: view's render, so it pays only where the caller previews right after the click —
+    #: the add-on switches it on (its click operator returns view and mask together)
     prefetch_cuts: bool = False
     #: with :attr:`prefetch_cuts`, :meth:`prefetch_view` also renders the masks of the
     #: view's default prompt in the background once the view's camera is known (the
-    #: session calls it before the view renders): the mask render (≈ 0.3 s at 3M) then
-    #: runs beside the view's render instead of after it. On 2 cores it only fills the
-    #: render's serial phases (the work is CPU-bound): Blender 3M click, four
-    #: alternating pairs, median 1.64 → 1.55 s (BENCHMARKS.md, issue 20, 2026-12-04).
-    #: The masks are the same bits (the same function of the seeds and the camera; a
-    #: split is per item, so one launch thread gives the same image)
+    #: session calls it before the view renders): the mask render then runs beside the
+    #: view's render instead of after it; on few cores it fills the render's serial
+    #: phases (the work is CPU-bound). The masks are the same bits (the same function of
+    #: the seeds and the camera; a split is per item, so one launch thread gives the same
+    #: image)
     prefetch_masks: bool = True
     #: :meth:`warm_up` also computes every primitive's colour (and κ) once
     #: (:meth:`ScenePrimitives.cache_features`: the scene-only part of each cut, ≈ 0.08 s
-    #: of a 3M click's cut; 12 bytes a primitive held, 36 MB at 3M); the cuts are the
-    #: same bit for bit with and without it (issue 20)
+    #: of a click's cut; 12 bytes a primitive held); the cuts are the same bit for bit
+    #: with and without it
     cache_features: bool = True
     #: every view shows the same 3D cut, scored once: an unsure cut is fused with its
     #: advice, not refused (:attr:`~..base.Segmenter.score_gates_views`)
@@ -165,7 +139,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
 
     def warm_up(self) -> None:
         """Build the scene's :class:`ScenePrimitives` now (the session's background
-        warm-up): at 3M splats they took seconds of the first click (issue 20). A prompt
+        warm-up), so that the first click does not wait seconds for them. A prompt
         made meanwhile waits for the same build (one lock), never builds twice. Then,
         with :attr:`cache_features`, every primitive's colour / κ (the cut's scene-only
         work; a prompt made meanwhile computes its own rows)."""
@@ -202,7 +176,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         view of the object with these 3D ``clicks`` will use (:meth:`seeds` maps each
         default prompt back to its click, so those seeds are :meth:`seeds_of` the
         clicks): the session calls it as soon as a click's 3D point is known, and the
-        view renders meanwhile (issue 20). The prompt then takes the same
+        view renders meanwhile. The prompt then takes the same
         :class:`RegionCut` from the cache, or waits for it (:mod:`.cut_cache`). Whether
         a cut was started (not when it is kept or running already, or there is no
         positive click)."""
@@ -215,7 +189,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         """Start, in a background thread, the masks a prompt of the default prompts on
         the view with ``camera`` will return (the object's 3D ``clicks`` as seeds:
         :meth:`prefetch`), rendered with one launch thread beside the view's own render
-        (issue 20). The prompt takes them (:meth:`_predict`), or waits for them; they are
+        The prompt takes them (:meth:`_predict`), or waits for them; they are
         what it would render (the same seeds' cut, the same camera). Whether a render
         was started (:attr:`prefetch_cuts` and :attr:`prefetch_masks` on, a positive
         click, not kept or running already)."""
