@@ -259,3 +259,41 @@ def test_auto_picks_ray_only_when_installed_and_a_job_gets_its_cpu_share(monkeyp
     assert cpu_threads() == 3 and cpu_threads(5) == 5
     monkeypatch.setenv(THREADS_ENV, "lots")
     assert cpu_threads() == len(os.sched_getaffinity(0))
+
+
+def _modules_at_start(conn) -> None:
+    """A job process's first act: which engine modules it starts with, its warp state."""
+    conn.send(
+        {
+            "session": "divas_engine.session" in sys.modules,
+            "warp_initialised": _warp_initialised(),
+            "pid": os.getpid(),
+        }
+    )
+    conn.close()
+
+
+def _warp_initialised() -> bool:
+    warp = sys.modules.get("warp")
+    context = getattr(warp, "_src", None) if warp is not None else None
+    runtime = getattr(getattr(context, "context", None), "runtime", None)
+    return runtime is not None
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork server: Linux only")
+def test_job_processes_fork_warm_from_a_server_without_warp_initialised():
+    from divas_engine.cli.batch_executors import _job_context
+
+    ctx = _job_context()
+    assert ctx.get_start_method() == "forkserver"
+    seen = []
+    for _ in range(2):  # each job its own process, both from the same preloaded server
+        recv, send = ctx.Pipe(duplex=False)
+        p = ctx.Process(target=_modules_at_start, args=(send,))
+        p.start()
+        send.close()
+        seen.append(recv.recv())
+        p.join()
+    assert all(s["session"] for s in seen)  # the engine imported before the job began
+    assert not any(s["warp_initialised"] for s in seen)  # no device context before a fork
+    assert seen[0]["pid"] != seen[1]["pid"] != os.getpid()
