@@ -3,8 +3,7 @@
 Generated scenes (``--scenes``, default 3: ribs, plant, occluded, then again with
 another seed; ``--size`` surfels each, their demo prompts), segmented
 
-* **serial**: one ``divas segment`` process per scene, one after the other (what a
-  shell loop does today);
+* **serial**: one ``divas segment`` process per scene, one after the other (a shell loop);
 * **processes**: one ``divas batch`` with ``--executor processes --workers N``;
 * **ray** (when Ray is installed): ``divas batch --executor ray --workers N`` — a local
   Ray started and stopped inside the timing.
@@ -14,8 +13,7 @@ change in the machine's load hits them alike. Printed side by side: each repeat'
 seconds, the median, its ratio to serial, the CPU seconds (the serial runs' processes;
 a batch's jobs' own, the ``cpu_s`` of each job's record: the fork server's one-time
 imports and Ray's own processes are not counted) and the load average before each
-run. The labels of every batch job are checked to be bit-identical to the serial
-run's (same machine).
+run. Every batch job's labels are checked bit-identical to the serial run's.
 
     python benchmarks/bench_batch.py [--size 50000] [--scenes 3] [--repeats 3] [--workers 2]
         [--cpus-per-job C] [--no-ray]
