@@ -72,7 +72,7 @@ class NerfRenderer(MarchedViews):
     midpoints; every sample with α > 0 is blended, those with α ≥ 1/255 are
     "contributing" (``N_samp``, the ``D_max`` fallback); ``D_med`` is reported too.
     Without an RGB grid the colour is an instant-ngp network's baked at the voxels (a grid
-    marched instead of its network, ``config.nerf_network`` off), else
+    marched instead of its network: :func:`.network_views` false), else
     ``config.nerf_color``, or the grid's shape (:mod:`.grid_shading`) when
     ``config.shade_grid`` asks for it.
     """
