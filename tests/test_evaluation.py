@@ -132,6 +132,28 @@ def test_two_planes_iou_by_hand(two_planes):
     assert notes.views[0].pred_pixels >= notes.views[0].gt_pixels
 
 
+def test_3dgs_scores_prediction_and_truth_at_the_same_level(two_planes):
+    """On trained 3DGS the default thresholds are 0.5 / 0.5: the exact selection scores
+    exactly 1 (its soft rim no longer counts against it); 2DGS keeps NOTES' 0.1 / 0.5."""
+    import dataclasses
+
+    from divas_engine.kinds import SceneKind
+
+    scene, labels, cam = two_planes
+    assert EvalConfig().pred_threshold_for(scene) == 0.1
+    gs3d = dataclasses.replace(scene, kind=SceneKind.GS3D)
+    assert EvalConfig().pred_threshold_for(gs3d) == 0.5
+    assert EvalConfig(pred_threshold=0.2).pred_threshold_for(gs3d) == 0.2
+    r2, r3 = make_renderer(scene, device=CPU), make_renderer(gs3d, device=CPU)
+    paper = evaluate_selection(scene, [cam], labels, labels, renderer=r2).views[0]
+    same = evaluate_selection(gs3d, [cam], labels, labels, renderer=r3)
+    assert same.iou == 1.0 and same.views[0].pred_pixels == same.views[0].gt_pixels
+    assert paper.pred_pixels > paper.gt_pixels  # the rim between 0.1 and 0.5 (2DGS)
+    # a selection of both planes: by hand |A| / (|A| + |B|) = 1/2 at 0.5 / 0.5
+    both = evaluate_selection(gs3d, [cam], np.ones(len(gs3d), bool), labels, renderer=r3)
+    assert both.iou == pytest.approx(0.5, abs=1e-9)
+
+
 def test_evaluator_scores_many_selections_in_one_pass(two_planes):
     scene, labels, cam = two_planes
     ev = ViewEvaluator(scene, [cam, cam.scaled(0.5)], labels, renderer=make_renderer(scene, CPU))

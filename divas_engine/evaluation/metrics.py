@@ -1,9 +1,11 @@
 """Rendered-mask and per-primitive metrics (NOTES "Evaluation", paper App. D protocol).
 
 Masks at a test camera: surfel scenes — predicted = ``render_values`` of the foreground
-indicator F ∈ {0, 1} (``Σ_k α_k T_k F_k``) ``≥ pred_threshold`` (0.1), ground truth = the same
-render of the labels ``≥ gt_threshold`` (0.5); density grids — the accumulated opacity of the
-*segmented density* ``≥ nerf_threshold`` (0.5), likewise for the label grid.
+indicator F ∈ {0, 1} (``Σ_k α_k T_k F_k``) ``≥ pred_threshold``, ground truth = the same
+render of the labels ``≥ gt_threshold`` (0.5); the prediction's threshold is NOTES' 0.1 on
+2DGS surfels (the paper's protocol) and 0.5 on trained 3DGS, where the truth then scores 1.0
+against itself (:meth:`EvalConfig.pred_threshold_for`); density grids — the accumulated
+opacity of the *segmented density* ``≥ nerf_threshold`` (0.5), likewise for the label grid.
 
 Per view: IoU = |P ∧ G| / |P ∨ G| (1 when both are empty), pixel accuracy, precision and recall
 (an empty prediction has precision 1 iff the truth is empty; an empty truth has recall 1). Per
@@ -21,6 +23,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..camera import Camera
+from ..kinds import SceneKind
 from ..render import make_renderer
 from ..scene import DensityGrid, Scene, SurfelScene
 
@@ -43,13 +46,14 @@ class EvalConfig:
     """Thresholds and resolution of the evaluation (defaults: NOTES "Evaluation").
 
     Attributes:
-        pred_threshold: surfels: predicted mask = rendered indicator ``≥`` this (0.1).
+        pred_threshold: surfels: predicted mask = rendered indicator ``≥`` this; None: by
+            scene kind (:meth:`pred_threshold_for`: 0.5 on 3DGS, 0.1 otherwise).
         gt_threshold: surfels: ground truth = rendered labels ``≥`` this (0.5).
         nerf_threshold: grids: accumulated opacity ``≥`` this, both masks (0.5).
         scale: test cameras are rendered at this fraction of their resolution (1).
     """
 
-    pred_threshold: float = 0.1
+    pred_threshold: float | None = None
     gt_threshold: float = 0.5
     nerf_threshold: float = 0.5
     scale: float = 1.0
@@ -57,6 +61,14 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if not self.scale > 0:
             raise ValueError(f"EvalConfig.scale must be positive, got {self.scale}")
+
+    def pred_threshold_for(self, scene) -> float:
+        """The prediction's threshold on ``scene``: ``pred_threshold`` where set, else 0.5 on
+        trained 3DGS (``SceneKind.GS3D``: a selection's render and the truth's at the same
+        level, so the truth scores 1.0) and NOTES' 0.1 on 2DGS surfels."""
+        if self.pred_threshold is not None:
+            return float(self.pred_threshold)
+        return 0.5 if getattr(scene, "kind", None) == SceneKind.GS3D else 0.1
 
 
 @dataclass(frozen=True)
@@ -182,14 +194,14 @@ def predicted_masks(
     """Binary ``[H,W]`` masks of each selection at each camera (module docstring rules).
 
     Surfel scenes: one ``render_values`` per camera with one channel per selection,
-    thresholded at ``thresholds[name]`` (default ``config.pred_threshold``). Grids: one
+    thresholded at ``thresholds[name]`` (default ``config.pred_threshold_for(scene)``). Grids: one
     NeRF render of the segmented density per selection and camera.
     """
     names = list(selections)
     out: dict[str, list[np.ndarray]] = {k: [] for k in names}
     if not names:
         return out
-    thr = {k: (thresholds or {}).get(k, config.pred_threshold) for k in names}
+    thr = {k: (thresholds or {}).get(k, config.pred_threshold_for(scene)) for k in names}
     if isinstance(scene, SurfelScene):
         vals = np.stack(
             [

@@ -22,8 +22,8 @@ from scipy import ndimage
 
 from ..camera import Camera
 from ..errors import DivasInputError
-from ..kinds import SceneKind
 from ..scene import SurfelScene
+from .metrics import EvalConfig
 
 __all__ = [
     "NocConfig",
@@ -154,10 +154,9 @@ def number_of_clicks(ious: Sequence[float], threshold: float, max_clicks: int | 
 def thresholds_for(scene, config: NocConfig = NocConfig()) -> tuple[float, float]:
     """``(pred_threshold, gt_threshold)`` of a scene: the config's where set, else 0.5 /
     0.5 for trained 3DGS (``SceneKind.GS3D``) and the paper's 0.1 / 0.5 otherwise."""
-    gs3d = getattr(scene, "kind", None) == SceneKind.GS3D
-    pred = config.pred_threshold if config.pred_threshold is not None else (0.5 if gs3d else 0.1)
+    pred = EvalConfig(pred_threshold=config.pred_threshold).pred_threshold_for(scene)
     gt = config.gt_threshold if config.gt_threshold is not None else 0.5
-    return float(pred), float(gt)
+    return pred, float(gt)
 
 
 def ignoring_iou(pred: np.ndarray, truth: np.ndarray, ignore: np.ndarray | None = None) -> float:

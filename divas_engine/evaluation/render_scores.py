@@ -68,11 +68,12 @@ def render_iou(
     scale: float = 1.0,
     device=None,
     renderer=None,
-    pred_threshold: float = 0.1,
+    pred_threshold: float | None = None,
     gt_threshold: float = 0.5,
 ) -> MaskScores:
     """NOTES "Evaluation" masks of ``selection`` vs ``gt`` at ``cameras``
-    (:func:`.metrics.evaluate_selection`)."""
+    (:func:`.metrics.evaluate_selection`; ``pred_threshold`` None: by scene kind,
+    :meth:`.metrics.EvalConfig.pred_threshold_for`)."""
     cfg = EvalConfig(pred_threshold=pred_threshold, gt_threshold=gt_threshold, scale=scale)
     s = evaluate_selection(
         scene,
