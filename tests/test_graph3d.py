@@ -59,6 +59,41 @@ def test_touching_boxes_split_at_the_contact(boxes):
     assert np.all(sel[0] <= sel[1]) and np.all(sel[1] <= sel[2])  # nested small → large
 
 
+def test_a_positive_click_never_takes_away_what_the_cut_held(boxes):
+    from divas_engine.segment.context import ObjectClicks
+
+    a1, a2, on_b = [-0.088, 0.15, 0.108], [-0.188, 0.15, 0.292], [0.12, 0.0, 0.20]
+    seg = Graph3DSegmenter(None, binding=SceneBinding(boxes.scene))
+    rows = seg.primitives().rows_of
+
+    def share(rc, level, part):
+        full = np.zeros(len(boxes.scene), bool)
+        full[rows(np.arange(rc.selected.shape[1]))] = rc.selected[level]
+        return _share(full, boxes, part)
+
+    def clicks(*pts_pos):
+        pts, pos = zip(*pts_pos)
+        return seg.seeds_of(ObjectClicks(np.array(pts, float), np.array(pos, bool)))
+
+    one = seg.cut(clicks((a1, True)))  # a click on A: the medium region is the pair
+    assert share(one, 1, 1) > 0.95 and share(one, 1, 2) > 0.95
+    # both clicks' cut alone settles on A's own boundary and drops B …
+    joint = seg.cut(Seeds(np.round(np.array([a1, a2]), 6), np.zeros((0, 3))))
+    assert share(joint, 1, 2) < 0.25  # (B's -x face lies on A's)
+    # … but the second positive click keeps what the first click's cut held
+    two = seg.cut(clicks((a1, True), (a2, True)))
+    assert share(two, 1, 1) > 0.95 and share(two, 1, 2) > 0.95
+    assert np.all(one.selected <= two.selected)
+    assert np.array_equal(two.selected, one.selected | joint.selected)
+    # a negative click on B still removes it (every prefix's cut has the negative)
+    three = seg.cut(clicks((a1, True), (a2, True), (on_b, False)))
+    assert share(three, 1, 2) < 0.25 and share(three, 1, 1) > 0.95  # B's face on A stays
+    # the order matters: clicked the other way round, the first cut is A's alone
+    rev = seg.cut(clicks((a2, True), (a1, True)))
+    first = seg.cut(clicks((a2, True)))
+    assert np.array_equal(rev.selected, first.selected | joint.selected)
+
+
 def test_thin_rod_is_kept_whole():
     case = rod_on_floor()
     rc, sel = _cut(case, [[0.01, 0.0, 0.6]])

@@ -41,7 +41,7 @@ __all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice", "seed_nodes"]
 #: the hint when a positive click hits nothing (the add-on's plain-language table knows it)
 NO_SURFACE = "no surface under the click: click on the object itself"
 
-_CUT_CACHE = 8
+_CUT_CACHE = 16  # a state's cut, its joint cut and the cut before its newest click
 _MASK_CACHE = 2  # masks rendered ahead are taken once: 3 × H × W floats each
 _SAME_CLICK_PX = 2.0
 #: the mask render's window margin, pixels: the renderer's screen-space low-pass disc
@@ -51,13 +51,28 @@ _MASK_MARGIN_PX = 4.0
 
 @dataclass(frozen=True, eq=False)
 class Seeds:
-    """3D seed points: ``positive [P,3]``, ``negative [Q,3]``."""
+    """3D seed points: ``positive [P,3]``, ``negative [Q,3]``; ``history [H,3]``: the
+    object's positive 3D clicks among them in click order, when there are two or more
+    (None otherwise): the cut keeps what the seeds before the newest click held
+    (:meth:`Graph3DSegmenter.cut`)."""
 
     positive: np.ndarray
     negative: np.ndarray
+    history: np.ndarray | None = None
 
     def key(self) -> bytes:
-        return np.round(self.positive, 6).tobytes() + b"|" + np.round(self.negative, 6).tobytes()
+        k = np.round(self.positive, 6).tobytes() + b"|" + np.round(self.negative, 6).tobytes()
+        return k if self.history is None else k + b"|+" + self.history.tobytes()
+
+    def joint(self) -> Seeds:
+        """The same seeds without their click order: one cut of them all."""
+        return Seeds(self.positive, self.negative)
+
+    def before_newest(self) -> Seeds:
+        """The seeds as they were before the newest positive click (with its order)."""
+        keep = ~np.all(self.positive == self.history[-1], axis=1)
+        older = self.history[:-1]
+        return Seeds(self.positive[keep], self.negative, older if len(older) >= 2 else None)
 
 
 @dataclass(eq=False)
@@ -183,7 +198,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         seeds = self.seeds_of(clicks)
         if not self.prefetch_cuts or self.binding is None or len(seeds.positive) == 0:
             return False
-        return self.cuts.start(seeds.key(), lambda: self._cut(seeds))
+        return self.cuts.start(seeds.key(), lambda: self._compute(seeds))
 
     def prefetch_view(self, camera: Camera, clicks: ObjectClicks) -> bool:
         """Start, in a background thread, the masks a prompt of the default prompts on
@@ -209,7 +224,8 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         prompts that are all known clicks)."""
         pts = np.asarray(clicks.points)
         pos = np.asarray(clicks.positive, bool)
-        return _seeds([pts[pos]] if len(pts) else [], [pts[~pos]] if len(pts) else [])
+        seeds = _seeds([pts[pos]] if len(pts) else [], [pts[~pos]] if len(pts) else [])
+        return _with_history(seeds, clicks)
 
     # ------------------------------------------------------------------ Segmenter hooks
     def _encode(self, rgb: np.ndarray, depth: np.ndarray | None, view_id) -> Any:
@@ -282,12 +298,29 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         if len(oc.points):
             pos.append(np.asarray(oc.points)[oc.positive])
             neg.append(np.asarray(oc.points)[~oc.positive])
-        return _seeds(pos, neg), missed
+        return _with_history(_seeds(pos, neg), oc), missed
 
     def cut(self, seeds: Seeds) -> RegionCut:
         """Steps 2–3 (cached per seed set; a cut :meth:`prefetch` started is waited
         for): the three nested 3D selections."""
-        return self.cuts.get(seeds.key(), lambda: self._cut(seeds))
+        return self.cuts.get(seeds.key(), lambda: self._compute(seeds))
+
+    def _compute(self, seeds: Seeds) -> RegionCut:
+        """The cut of ``seeds``; with a click order, each of its three selections also
+        keeps what the seeds before the newest positive click held — recursively, the
+        union of the cuts of every prefix of the positive clicks, each with every
+        negative click. A positive click says "this too": it never takes away what the
+        object's cut held (the sweep can otherwise settle on a tighter boundary once
+        another seed moves the walk's level sets); negative clicks are in every cut, so
+        they still remove. Beyond the paper (its SAM masks have no such rule). The cut
+        before is kept in the cache, so a positive click costs one cut; a negative one
+        recomputes the prefixes (one cut per positive click)."""
+        if seeds.history is None:
+            return self._cut(seeds)
+        joint, before = self.cut(seeds.joint()), self.cut(seeds.before_newest())
+        if joint.cut is None or before.cut is None:
+            return joint
+        return replace(joint, selected=joint.selected | before.selected)
 
     def _cut(self, seeds: Seeds) -> RegionCut:
         t0 = time.perf_counter()
@@ -426,6 +459,20 @@ def _masks_key(seeds: Seeds, camera: Camera) -> bytes:
     c = camera
     intr = np.array([c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.near], np.float64)
     return seeds.key() + b"|" + np.asarray(c.c2w, np.float64).tobytes() + intr.tobytes()
+
+
+def _with_history(seeds: Seeds, clicks: ObjectClicks) -> Seeds:
+    """``seeds`` with the click order of the object's positive 3D clicks among them
+    (:class:`Seeds`; repeated points count once, at their first click), when two or more."""
+    pts = np.asarray(clicks.points, np.float64).reshape(-1, 3)
+    pos = np.round(pts[np.asarray(clicks.positive, bool)], 6)
+    if len(pos) < 2:
+        return seeds
+    _, first = np.unique(pos, axis=0, return_index=True)
+    order = pos[np.sort(first)]
+    held = (order[:, None, :] == seeds.positive[None]).all(axis=2).any(axis=1)
+    order = order[held]
+    return seeds if len(order) < 2 else Seeds(seeds.positive, seeds.negative, order)
 
 
 def _seeds(pos: list[np.ndarray], neg: list[np.ndarray]) -> Seeds:
