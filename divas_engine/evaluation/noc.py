@@ -23,7 +23,6 @@ from scipy import ndimage
 from ..camera import Camera
 from ..errors import DivasInputError
 from ..scene import SurfelScene
-from .metrics import EvalConfig
 
 __all__ = [
     "NocConfig",
@@ -46,7 +45,7 @@ class NocConfig:
     Attributes:
         max_clicks: clicks per run (10).
         thresholds: IoU levels of NoC (0.85, 0.90).
-        pred_threshold, gt_threshold: the mask thresholds; None: by scene kind
+        pred_threshold, gt_threshold: the mask thresholds; None: 0.5 each
             (:func:`thresholds_for`).
         eval_scale: the test cameras render at this fraction of their size (1).
     """
@@ -153,8 +152,10 @@ def number_of_clicks(ious: Sequence[float], threshold: float, max_clicks: int | 
 
 def thresholds_for(scene, config: NocConfig = NocConfig()) -> tuple[float, float]:
     """``(pred_threshold, gt_threshold)`` of a scene: the config's where set, else 0.5 /
-    0.5 for trained 3DGS (``SceneKind.GS3D``) and the paper's 0.1 / 0.5 otherwise."""
-    pred = EvalConfig(pred_threshold=config.pred_threshold).pred_threshold_for(scene)
+    0.5 on every kind — the selection's render and the truth's at the same level, so a
+    perfect selection scores 1.0 (the field's NoC; on 2DGS NOTES' 0.1 / 0.5 caps a
+    perfect thin wheel at 0.76: ``pred_threshold=0.1`` gives that protocol)."""
+    pred = 0.5 if config.pred_threshold is None else float(config.pred_threshold)
     gt = config.gt_threshold if config.gt_threshold is not None else 0.5
     return pred, float(gt)
 
