@@ -5,7 +5,7 @@ device arrays are allocated and uploaded here too (:mod:`.device_arrays`).
 """
 
 from . import render_defaults
-from ._launch import THREADS_ENV, cpu_threads, resolve_device
+from ._launch import THREADS_ENV, cpu_threads, resolve_device, set_thread_source
 from .contrib import ContribOutput, accumulate_contributions
 from .coverage import (
     CoverageView,
@@ -65,6 +65,7 @@ from .splat import pixel_window
 
 __all__: list[str] = [
     "cpu_threads",
+    "set_thread_source",
     "THREADS_ENV",
     "resolve_device",
     "render_defaults",

@@ -14,7 +14,7 @@ from __future__ import annotations
 import ctypes
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Literal
 
@@ -32,6 +32,7 @@ __all__ = [
     "resolve_device",
     "launch_split",
     "cpu_threads",
+    "set_thread_source",
     "ensure_loaded",
     "init_warp",
     "THREADS_ENV",
@@ -43,13 +44,27 @@ THREADS_ENV = "DIVAS_CPU_THREADS"
 
 _POOL: ThreadPoolExecutor | None = None
 _LOADED: set[tuple[int, str]] = set()
+_SOURCE: Callable[[], int] | None = None
+
+
+def set_thread_source(source: Callable[[], int] | None) -> None:
+    """Read the process's CPU share at every launch from ``source()`` (a positive
+    integer; ``divas batch`` hands a job the cores that are free as other jobs end);
+    None: back to ``$DIVAS_CPU_THREADS`` and the core count."""
+    global _SOURCE
+    _SOURCE = source
 
 
 def cpu_threads(requested: int | None = None) -> int:
-    """Number of CPU launch threads: ``requested``, else ``$DIVAS_CPU_THREADS`` (a
-    positive integer), else the usable core count."""
+    """Number of CPU launch threads: ``requested``, else the thread source
+    (:func:`set_thread_source`), else ``$DIVAS_CPU_THREADS`` (a positive integer), else
+    the usable core count."""
     if requested is not None and requested > 0:
         return int(requested)
+    if _SOURCE is not None:
+        n = int(_SOURCE())
+        if n > 0:
+            return n
     env = os.environ.get(THREADS_ENV, "")
     if env.isdigit() and int(env) > 0:
         return int(env)

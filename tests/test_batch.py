@@ -297,3 +297,53 @@ def test_job_processes_fork_warm_from_a_server_without_warp_initialised():
     assert all(s["session"] for s in seen)  # the engine imported before the job began
     assert not any(s["warp_initialised"] for s in seen)  # no device context before a fork
     assert seen[0]["pid"] != seen[1]["pid"] != os.getpid()
+
+
+def _threads_seen(share, go, conn) -> None:
+    """A job process's launch threads before and after the batch re-deals its share."""
+    from divas_kernels import cpu_threads, set_thread_source
+
+    set_thread_source(lambda: share.value)
+    conn.send(cpu_threads())
+    go.wait(60)
+    conn.send((cpu_threads(), cpu_threads(7)))
+    conn.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork server: Linux only")
+def test_a_running_job_takes_the_cores_the_batch_deals_it():
+    from divas_engine.cli.batch_executors import _job_context
+
+    ctx = _job_context()
+    share, go = ctx.RawValue("i", 1), ctx.Event()
+    recv, send = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_threads_seen, args=(share, go, send))
+    p.start()
+    send.close()
+    assert recv.recv() == 1
+    share.value = 2  # the other job ended: this one now has both cores
+    go.set()
+    assert recv.recv() == (2, 7)  # an explicit request still wins
+    p.join()
+
+
+def test_the_cores_are_shared_out_among_the_running_jobs():
+    import multiprocessing as mp
+
+    ex = ProcessExecutor(3)
+    ex.cores = 4
+    shares = [mp.RawValue("i", 0) for _ in range(3)]
+    ex._running = {k: (None, None, None, 0.0, s) for k, s in enumerate(shares)}
+    ex._deal()
+    assert [s.value for s in shares] == [2, 1, 1]
+    del ex._running[0]  # a job ended: the two left get two cores each
+    ex._deal()
+    assert [s.value for s in shares[1:]] == [2, 2]
+    ex.cores = 1
+    ex._deal()
+    assert [s.value for s in shares[1:]] == [1, 1]  # never less than one thread
+    fixed = ProcessExecutor(3, cpus_per_job=3)
+    fixed._running = {0: (None, None, None, 0.0, shares[0])}
+    shares[0].value = 3
+    fixed._deal()
+    assert shares[0].value == 3  # --cpus-per-job stays

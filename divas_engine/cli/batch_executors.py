@@ -13,8 +13,10 @@ own, a crash takes only its job down, and nothing leaks from one job into the ne
   ``gpus_per_job`` each process sees one of this machine's CUDA devices
   (``CUDA_VISIBLE_DEVICES``), ``floor(1 / gpus_per_job)`` jobs per device.
 
-Each job's CPU share is its kernels' launch threads (``DIVAS_CPU_THREADS``): jobs side
-by side do not each split every launch over all the cores.
+Each job's CPU share is its kernels' launch threads: jobs side by side do not each split
+every launch over all the cores. Local processes share the cores out among the jobs
+running, again whenever one starts or ends (a job reads its share at every launch), so
+the last job of a batch runs on every core; ``--cpus-per-job`` fixes the share instead.
 
 A worker that dies (killed, out of memory) gives a failed record for its job; the
 other jobs go on.
@@ -54,13 +56,17 @@ class JobExecutor(ABC):
         """Release what the executor started (processes, a local Ray)."""
 
 
-def _child(job: BatchJob, conn, gpu: int | None, threads: int) -> None:
-    """A pool process: one job, its record sent back. Its stdout goes to stderr (the
-    batch's stdout carries one JSON line per job)."""
+def _child(job: BatchJob, conn, gpu: int | None, share) -> None:
+    """A pool process: one job, its record sent back; ``share``: a shared integer, the
+    job's launch threads, read at every launch. Its stdout goes to stderr (the batch's
+    stdout carries one JSON line per job)."""
+    from divas_kernels import set_thread_source
+
     os.dup2(2, 1)
     if gpu is not None:
         os.environ["CUDA_VISIBLE_DEVICES"] = str(gpu)
-    conn.send(run_job(job, threads))
+    set_thread_source(lambda: share.value)
+    conn.send(run_job(job, None))
     conn.close()
 
 
@@ -75,6 +81,13 @@ def _death(code: int | None) -> str:
         hint = " (out of memory?)" if -code == signal.SIGKILL else ""
         return f"the worker process was killed by {name}{hint}"
     return f"the worker process exited with status {code} before reporting"
+
+
+def _usable_cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def _cuda_devices() -> int:
@@ -100,8 +113,9 @@ class ProcessExecutor(JobExecutor):
     name = "processes"
 
     def __init__(self, workers: int, gpus_per_job: float = 0.0, cpus_per_job: int | None = None):
-        cores = os.cpu_count() or 1
-        self.threads = cpus_per_job or max(1, cores // max(1, int(workers)))
+        self.cores = _usable_cores()
+        self.fixed = cpus_per_job
+        self.threads = cpus_per_job or max(1, self.cores // max(1, int(workers)))
         self.gpus: list[int | None] = [None] * max(1, int(workers))
         if gpus_per_job > 0:
             n = _cuda_devices()
@@ -121,14 +135,15 @@ class ProcessExecutor(JobExecutor):
                 while todo and free:
                     job, gpu = todo.pop(0), free.pop(0)
                     recv, send = self._ctx.Pipe(duplex=False)
-                    p = self._ctx.Process(
-                        target=_child, args=(job, send, gpu, self.threads), daemon=True
-                    )
+                    share = self._ctx.RawValue("i", self.threads)
+                    p = self._ctx.Process(target=_child, args=(job, send, gpu, share), daemon=True)
                     p.start()
                     send.close()
-                    self._running[recv] = (p, job, gpu, time.perf_counter())
+                    self._running[recv] = (p, job, gpu, time.perf_counter(), share)
+                    self._deal()
                 for conn in wait(list(self._running)):
-                    p, job, gpu, t0 = self._running.pop(conn)
+                    p, job, gpu, t0, _ = self._running.pop(conn)
+                    self._deal()
                     try:
                         rec = conn.recv()
                     except (EOFError, OSError):
@@ -142,6 +157,16 @@ class ProcessExecutor(JobExecutor):
                     yield rec
         finally:
             self.close()
+
+    def _deal(self) -> None:
+        """Share the cores out among the running jobs (each at least one thread; the
+        first ones get the remainder); a fixed ``cpus_per_job`` stays."""
+        if self.fixed or not self._running:
+            return
+        n = len(self._running)
+        base, extra = divmod(self.cores, n)
+        for k, (*_, share) in enumerate(self._running.values()):
+            share.value = max(1, base + (k < extra))
 
     def close(self) -> None:
         for conn, (p, *_) in list(self._running.items()):
