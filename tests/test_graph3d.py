@@ -92,6 +92,15 @@ def test_a_positive_click_never_takes_away_what_the_cut_held(boxes):
     rev = seg.cut(clicks((a2, True), (a1, True)))
     first = seg.cut(clicks((a2, True)))
     assert np.array_equal(rev.selected, first.selected | joint.selected)
+    # a third positive click keeps the cuts before each of the two newest clicks
+    a3 = [-0.15, -0.15, 0.15]
+    three_pos = seg.cut(clicks((a1, True), (a2, True), (a3, True)))
+    all3 = seg.cut(Seeds(np.unique(np.round(np.array([a1, a2, a3]), 6), axis=0), np.zeros((0, 3))))
+    assert np.array_equal(three_pos.selected, all3.selected | joint.selected | one.selected)
+    # kept_clicks 0: the plain cut of all the seeds
+    plain = Graph3DSegmenter(Graph3DConfig(kept_clicks=0), binding=SceneBinding(boxes.scene))
+    got = plain.cut(plain.seeds_of(ObjectClicks(np.array([a1, a2], float), np.ones(2, bool))))
+    assert np.array_equal(got.selected, joint.selected)
 
 
 def test_thin_rod_is_kept_whole():

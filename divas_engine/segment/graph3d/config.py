@@ -27,6 +27,11 @@ class Graph3DConfig:
             (the largest distance of a seed from their centre) (1.5).
         region_grow: R is multiplied by this when the chosen segment leans on the
             region's rim (2.0), at most ``region_max_grows`` (2) times.
+        kept_clicks: with two or more positive clicks, the object's cut also keeps what
+            the cuts of the seeds before each of the newest ``kept_clicks`` (2) positive
+            clicks held (:meth:`.segmenter.Graph3DSegmenter.cut`): a positive click does
+            not take back what the cut held; a negative click costs ``kept_clicks + 1``
+            cuts.
         rim_share: "leans on the rim": the rim carries more than this share of the
             segment's cut (0.35). R also grows when the medium score is < 0.5 and the
             walk potential next to the rim exceeds ``rim_reach`` (1e-3).
@@ -112,6 +117,7 @@ class Graph3DConfig:
     region_seed_factor: float = 1.5
     region_grow: float = 2.0
     region_max_grows: int = 2
+    kept_clicks: int = 2
     rim_share: float = 0.35
     rim_reach: float = 1e-3
     grid_cells: int = 96

@@ -41,7 +41,7 @@ __all__ = ["Graph3DSegmenter", "RegionCut", "Seeds", "advice", "seed_nodes"]
 #: the hint when a positive click hits nothing (the add-on's plain-language table knows it)
 NO_SURFACE = "no surface under the click: click on the object itself"
 
-_CUT_CACHE = 16  # a state's cut, its joint cut and the cut before its newest click
+_CUT_CACHE = 16  # a state's cut, its joint cut and the cuts before its newest clicks
 _MASK_CACHE = 2  # masks rendered ahead are taken once: 3 × H × W floats each
 _SAME_CLICK_PX = 2.0
 #: the mask render's window margin, pixels: the renderer's screen-space low-pass disc
@@ -68,11 +68,14 @@ class Seeds:
         """The same seeds without their click order: one cut of them all."""
         return Seeds(self.positive, self.negative)
 
-    def before_newest(self) -> Seeds:
-        """The seeds as they were before the newest positive click (with its order)."""
-        keep = ~np.all(self.positive == self.history[-1], axis=1)
-        older = self.history[:-1]
-        return Seeds(self.positive[keep], self.negative, older if len(older) >= 2 else None)
+    def before(self, clicks: int) -> Seeds | None:
+        """The seeds as they were before the newest ``clicks`` positive clicks, without
+        their order (None when no positive click would be left)."""
+        if clicks >= len(self.history):
+            return None
+        drop = self.history[len(self.history) - clicks :]
+        keep = ~np.any(np.all(self.positive[:, None, :] == drop[None], axis=2), axis=1)
+        return Seeds(self.positive[keep], self.negative)
 
 
 @dataclass(eq=False)
@@ -307,20 +310,28 @@ class Graph3DSegmenter(SceneAwareSegmenter):
 
     def _compute(self, seeds: Seeds) -> RegionCut:
         """The cut of ``seeds``; with a click order, each of its three selections also
-        keeps what the seeds before the newest positive click held — recursively, the
-        union of the cuts of every prefix of the positive clicks, each with every
-        negative click. A positive click says "this too": it never takes away what the
-        object's cut held (the sweep can otherwise settle on a tighter boundary once
-        another seed moves the walk's level sets); negative clicks are in every cut, so
-        they still remove. Beyond the paper (its SAM masks have no such rule). The cut
-        before is kept in the cache, so a positive click costs one cut; a negative one
-        recomputes the prefixes (one cut per positive click)."""
+        keeps what the cuts of the seeds before each of the newest ``kept_clicks``
+        positive clicks held (each with every negative click). A positive click says
+        "this too": it does not take away what the object's cut held (the sweep can
+        otherwise settle on a tighter boundary once another seed moves the walk's level
+        sets); negative clicks are in every cut, so they still remove. Beyond the paper
+        (its SAM masks have no such rule). The cuts before are kept in the cache, so a
+        positive click costs one cut; a negative one ``kept_clicks + 1``."""
         if seeds.history is None:
             return self._cut(seeds)
-        joint, before = self.cut(seeds.joint()), self.cut(seeds.before_newest())
-        if joint.cut is None or before.cut is None:
+        olders = [seeds.before(k) for k in range(1, self.config.kept_clicks + 1)]
+        olders = [o for o in olders if o is not None]
+        for o in olders:  # the cuts not kept run beside the joint one (a negative click)
+            self.cuts.start(o.key(), lambda o=o: self._cut(o))
+        joint = self.cut(seeds.joint())
+        if joint.cut is None:
             return joint
-        return replace(joint, selected=joint.selected | before.selected)
+        selected = joint.selected.copy()
+        for o in olders:
+            rc = self.cut(o)
+            if rc.cut is not None:
+                selected |= rc.selected
+        return replace(joint, selected=selected)
 
     def _cut(self, seeds: Seeds) -> RegionCut:
         t0 = time.perf_counter()
