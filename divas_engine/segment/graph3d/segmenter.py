@@ -53,8 +53,8 @@ _MASK_MARGIN_PX = 4.0
 class Seeds:
     """3D seed points: ``positive [P,3]``, ``negative [Q,3]``; ``history [H,3]``: the
     object's positive 3D clicks among them in click order, when there are two or more
-    (None otherwise): the cut keeps what the seeds before the newest click held
-    (:meth:`Graph3DSegmenter.cut`)."""
+    (None otherwise): the cut keeps what the cuts of the seeds before its newest clicks
+    held (:meth:`Graph3DSegmenter.cut`, ``kept_clicks``)."""
 
     positive: np.ndarray
     negative: np.ndarray
