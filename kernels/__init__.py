@@ -5,7 +5,7 @@ device arrays are allocated and uploaded here too (:mod:`.device_arrays`).
 """
 
 from . import render_defaults
-from ._launch import THREADS_ENV, cpu_threads, resolve_device, set_thread_source
+from ._launch import THREADS_ENV, cpu_threads, resolve_device, set_thread_source, usable_cores
 from .contrib import ContribOutput, accumulate_contributions
 from .coverage import (
     CoverageView,
@@ -66,6 +66,7 @@ from .splat import pixel_window
 __all__: list[str] = [
     "cpu_threads",
     "set_thread_source",
+    "usable_cores",
     "THREADS_ENV",
     "resolve_device",
     "render_defaults",

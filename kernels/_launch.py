@@ -33,6 +33,7 @@ __all__ = [
     "launch_split",
     "cpu_threads",
     "set_thread_source",
+    "usable_cores",
     "ensure_loaded",
     "init_warp",
     "THREADS_ENV",
@@ -68,6 +69,11 @@ def cpu_threads(requested: int | None = None) -> int:
     env = os.environ.get(THREADS_ENV, "")
     if env.isdigit() and int(env) > 0:
         return int(env)
+    return usable_cores()
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity; the core count elsewhere)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - non-Linux

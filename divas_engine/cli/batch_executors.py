@@ -83,13 +83,6 @@ def _death(code: int | None) -> str:
     return f"the worker process exited with status {code} before reporting"
 
 
-def _usable_cores() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return max(1, os.cpu_count() or 1)
-
-
 def _cuda_devices() -> int:
     from divas_kernels import cuda_device_count
 
@@ -113,7 +106,9 @@ class ProcessExecutor(JobExecutor):
     name = "processes"
 
     def __init__(self, workers: int, gpus_per_job: float = 0.0, cpus_per_job: int | None = None):
-        self.cores = _usable_cores()
+        from divas_kernels import usable_cores
+
+        self.cores = usable_cores()
         self.fixed = cpus_per_job
         self.threads = cpus_per_job or max(1, self.cores // max(1, int(workers)))
         self.gpus: list[int | None] = [None] * max(1, int(workers))
