@@ -15,7 +15,7 @@ from divas_engine.errors import InputErrorCode
 from divas_engine.io.ply import iter_vertex_chunks, read_ply_header
 from divas_engine.kinds import RejectReason
 from divas_engine.segment import OracleSegmenter, Rejection
-from divas_engine.session import LABEL_PROPERTY, Session, SessionConfig
+from divas_engine.session import LABEL_PROPERTY, Session, SessionConfig, WideningConfig
 from divas_engine.synthetic import generate_scene
 
 from .stub_segmenters import ConstantSegmenter
@@ -78,7 +78,8 @@ def _open_grid(ribs, n_anchors, segmenter=None):
 def test_click_accept_undo_reset_save_replay(ribs, tmp_path):
     sc, scene, anchors, clicks, _ = ribs
     auto = tmp_path / "auto" / "session.json"
-    s = _open(ribs, autosave=str(auto))
+    # the paper's loop, one view per click (wider views: tests/test_widening.py)
+    s = _open(ribs, autosave=str(auto), widening=WideningConfig(enabled=False))
     assert s.kind == "2dgs" and s.forward_facing and len(s.anchors) == 4
     assert s.anchors[0].camera.width == round(anchors[0].width * SCALE)
     v0 = s.click(0, _click_xy(s, 0, clicks[0]))
@@ -212,8 +213,13 @@ def test_overwrite_labels_option(ribs):
     a = s.selection.copy()
     s.finish_object("a")
     s.accept(s.click(0, _click_xy(s, 0, clicks[0])))
-    assert np.array_equal(s.selection, a)  # same click, same view, same selection
-    assert (s.label_set() == 2).sum() == a.sum()  # the later object takes them
+    b = s.selection
+    # the same click selects (almost) the same surfels: the oracle's mask noise is
+    # seeded by the view's id, which names the object
+    assert (a & b).sum() >= 0.99 * max(a.sum(), b.sum())
+    labels = s.label_set()
+    assert np.array_equal(labels == 2, b)  # the later object takes every surfel it selects
+    assert np.array_equal(labels == 1, a & ~b)
     s.close()
 
 

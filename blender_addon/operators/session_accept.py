@@ -13,6 +13,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from divas_engine.kinds import ViewStatus
+from divas_engine.session.widening import widened_from
 
 from ..reporting import advice_message, rejection_message, report_exception
 from ..session_actions import accept, full_to_session_xy, run_step
@@ -45,13 +46,19 @@ def accept_message(live, res) -> tuple[set[str], str]:
             "done (or press Sync)"
         )
     n = int(live.session.selection.sum())
+    wide = sum(widened_from(x)[1] > 0 for x in res.fused)
+    if wide:  # the object ran out of the close-up: the session framed it wider
+        n_views = "one wider view" if wide == 1 else f"{wide} wider views"
+        n = f"{n:,} selected, with {n_views} of the object"
+    else:
+        n = f"{n:,} selected"
     if v.advice:  # fused, but the segmenter was unsure: what to click next
         return {"WARNING"}, (
-            f"View added: {n:,} selected ({res.timings.get('update_s', 0.0):.2f} s), "
+            f"View added: {n} ({res.timings.get('update_s', 0.0):.2f} s), "
             f"but the segmenter was unsure. {advice_message(v.advice)}"
         )
     return {"INFO"}, (
-        f"View added: {n:,} selected ({res.timings.get('update_s', 0.0):.2f} s). Click "
+        f"View added: {n} ({res.timings.get('update_s', 0.0):.2f} s). Click "
         "another anchor to add more, or Finish Object when it is complete"
     )
 

@@ -22,6 +22,7 @@ import numpy as np
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.kinds import ViewStatus
+from divas_engine.session.widening import widened_from
 from divas_engine.viewport import OrthographicViewError, camera_from_region, region_click_pixel
 
 from ..session_registry import LiveSession
@@ -286,8 +287,9 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
     live.record({"what": f"accept {v.id} ({v.status})", **res.timings})
     if res.synced:
         write_selection(obj, live)
-        for vid in res.fused:  # views fused at this sync (NeRF: the whole group)
-            if vid != v.id and vid in live.view_cameras:
+        for vid in res.fused:  # views fused at this sync (NeRF: the whole group), and
+            # the wider views of an object the close-up cut off (cameras made here)
+            if vid != v.id and (vid in live.view_cameras or widened_from(vid)[1] > 0):
                 show_view(context, obj, live, s.view(vid), activate=False)
     if v.status == ViewStatus.REJECTED:
         show_view(context, obj, live, v)  # stay: more prompts, then Enter again
@@ -308,7 +310,7 @@ def sync(context, obj, live: LiveSession):
     if res.synced:
         write_selection(obj, live)
         for vid in res.fused:
-            if vid in live.view_cameras:
+            if vid in live.view_cameras or widened_from(vid)[1] > 0:
                 show_view(context, obj, live, live.session.view(vid), activate=False)
         live.record({"what": "sync", **res.timings})
     return res
@@ -320,6 +322,7 @@ def undo(context, obj, live: LiveSession):
     v = live.session.undo()
     if v is None:
         return None
+    prune_view_cameras(live)  # the wider views the accept added are gone with it
     write_selection(obj, live)
     show_view(context, obj, live, v)
     live.record({"what": f"undo {v.id}", "update_s": time.perf_counter() - t0})

@@ -387,9 +387,10 @@ def run(args: argparse.Namespace) -> int:
     if args.report is not None:
         write_report(args.report, report)
     c = report["counts"]
+    wide = f", {c['wider_views']} of them wider" if c.get("wider_views") else ""
     print(
         f"{c['accepted']} of {c['centroid_views']} centroid views fused "
-        f"({c['rejected']} rejected); {c['selected']} "
+        f"({c['rejected']} rejected{wide}); {c['selected']} "
         f"{'surfels' if report['kind'] == SceneKind.GS2D else 'voxels'} selected → {args.out} "
         f"({report['timings']['T_pipe_s']:.1f} s)"
     )

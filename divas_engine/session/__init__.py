@@ -15,7 +15,13 @@
 * :func:`write_labelled_ply` — the scene with an extra ``divas_label`` column.
 """
 
-from .config import CorrectionConfig, SessionConfig, config_from_dict, config_to_dict
+from .config import (
+    CorrectionConfig,
+    SessionConfig,
+    WideningConfig,
+    config_from_dict,
+    config_to_dict,
+)
 from .labels_io import LABEL_PROPERTY, file_label_values, write_labelled_ply
 from .prompts import (
     AnchorPrompt,
@@ -46,6 +52,7 @@ __all__ = [
     "Session",
     "SessionConfig",
     "CorrectionConfig",
+    "WideningConfig",
     "Correction",
     "CorrectionResult",
     "ClickSource",

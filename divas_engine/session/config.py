@@ -23,7 +23,13 @@ from ..segment.depth_weighting import GsBandpassConfig, NerfDepthWeightConfig
 from ..segment.worker import SYNC_PENDING
 from ..views.config import ViewConfig
 
-__all__ = ["CorrectionConfig", "SessionConfig", "config_to_dict", "config_from_dict"]
+__all__ = [
+    "CorrectionConfig",
+    "WideningConfig",
+    "SessionConfig",
+    "config_to_dict",
+    "config_from_dict",
+]
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,42 @@ class CorrectionConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"CorrectionConfig.{name} must be positive, got {v}")
+
+
+@dataclass(frozen=True)
+class WideningConfig:
+    """Wider views of an object the centroid view cuts off (beyond the paper;
+    :mod:`.widening`).
+
+    The paper frames a centroid view on the click's neighbourhood (alg:centroid-gs), so a
+    click on a large object (a ribcage that fills the anchor) fuses one close-up of a
+    patch of it. When a fused mask covers more than ``border_fraction`` of its view's
+    image border, the session fuses one more view of the same click: the same look-at
+    point and direction, ``factor`` times as far, never past the anchor's own distance
+    to the point; again while the new mask is cut off, at most ``max_views`` per click.
+
+    Attributes:
+        enabled: widen cut-off views (False: the paper's single centroid view).
+        border_fraction: τ_b, the fraction of the border pixels a mask (≥ 0.5) may cover
+            before the object counts as running out of the view.
+        factor: distance ratio of each wider view to the one it widens (> 1).
+        max_views: wider views one click may add.
+    """
+
+    enabled: bool = True
+    border_fraction: float = 0.25
+    factor: float = 2.0
+    max_views: int = 2
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.border_fraction < 1.0):
+            raise ValueError(
+                f"WideningConfig.border_fraction must be in [0, 1), got {self.border_fraction}"
+            )
+        if not (math.isfinite(self.factor) and self.factor > 1.0):
+            raise ValueError(f"WideningConfig.factor must be > 1, got {self.factor}")
+        if int(self.max_views) < 0:
+            raise ValueError(f"WideningConfig.max_views must be ≥ 0, got {self.max_views}")
 
 
 @dataclass(frozen=True)
@@ -92,6 +134,8 @@ class SessionConfig:
             is on the surface the view shows: its depth within ``tol · D_ref`` of the
             view's D_ref (neither hidden behind it nor floating before it).
         corrections: clicks as 3D constraints (:class:`CorrectionConfig`).
+        widening: wider views of an object a centroid view cuts off
+            (:class:`WideningConfig`).
         overlay_color, overlay_alpha: overlay of the selection on a view.
         overlay_threshold: coverage threshold of the binary overlay mask (NOTES
             "Evaluation": 0.1).
@@ -120,6 +164,7 @@ class SessionConfig:
     overwrite_labels: bool = False
     negative_occlusion_tol: float = 0.05
     corrections: CorrectionConfig = field(default_factory=CorrectionConfig)
+    widening: WideningConfig = field(default_factory=WideningConfig)
     overlay_color: tuple[float, float, float] = (1.0, 0.25, 0.1)
     overlay_alpha: float = 0.6
     overlay_threshold: float = 0.1

@@ -34,7 +34,7 @@ from ..segment.base import Rejection, Segmenter, SegResult
 from ..segment.factory import SegmenterSettings, build_segmenter
 from ..segment.worker import SamWorker
 from ..views import Anchor
-from . import clicks, fusing
+from . import clicks, fusing, widening
 from . import corrections as corr
 from . import edits as edit_steps
 from .config import SessionConfig
@@ -264,7 +264,7 @@ class Session(SessionReader):
             )
             if not same:
                 prev = self._prompt(v, p, lab, with_default)
-            result = self._fuse_group([(v, prev)], view=v)
+            result = widening.widen(self, self._fuse_group([(v, prev)], view=v))
         else:
             self._accept_async(v, p, lab)
             end_of_group = not any(
@@ -326,7 +326,7 @@ class Session(SessionReader):
             prev = self._mask_from(v, res, v.points, v.labels)
             v.preview = prev
             items.append((v, prev))
-        out = self._fuse_group(items, view=view)
+        out = widening.widen(self, self._fuse_group(items, view=view))
         out.timings["segmenter_wait_s"] = time.perf_counter() - t0 - out.timings.get("fuse_s", 0)
         return out
 
@@ -380,25 +380,32 @@ class Session(SessionReader):
         return dt
 
     def undo(self) -> SessionView | None:
-        """Undo the last accepted view of the current object (exact); returns it, or None."""
-        obj = self.current
+        """Undo the last accepted view of the current object (exact), with the wider
+        views its accept added (:mod:`.widening`); returns it, or None."""
+        obj, changed = self.current, False
         while obj.accept_order:
             v = self.view(obj.accept_order.pop())
+            wide = widening.widened_from(v.id)[1] > 0
+            changed = changed or wide
             if v.status == ViewStatus.FUSED:
                 with self.timings.measure("undo"):
                     self.fusion.remove_view(int(v.fusion_id))
                 v.status, v.fusion_id, v.fusion_view, v.mask = ViewStatus.OPEN, None, None, None
                 self._update_selection()
-                self.autosave()
-                return v
-            if v.status == ViewStatus.PENDING:
+            elif v.status == ViewStatus.PENDING:
                 self.state.pending.remove(v)
                 if self._worker is not None:
                     self._worker.forget(v.id)
                 v.status = ViewStatus.OPEN
-                self.autosave()
-                return v
-            # rejected accepts changed nothing: keep looking
+            elif not wide:
+                continue  # rejected accepts changed nothing: keep looking
+            if wide:  # part of the accept before it: go on to the click's own view
+                widening.forget(self, v)
+                continue
+            self.autosave()
+            return v
+        if changed:
+            self.autosave()
         return None
 
     def reset(self, all_objects: bool = False) -> None:
