@@ -299,6 +299,45 @@ def test_job_processes_fork_warm_from_a_server_without_warp_initialised():
     assert seen[0]["pid"] != seen[1]["pid"] != os.getpid()
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork server: Linux only")
+def test_the_fork_server_starts_before_the_driver_reads_the_manifest(monkeypatch):
+    import multiprocessing.forkserver as fs
+
+    import divas_engine.cli.batch_executors as be
+
+    started = []
+    monkeypatch.setattr(fs, "ensure_running", lambda: started.append(True))
+    monkeypatch.setattr(be, "ray_available", lambda: True)
+    be.start_pool("auto", None)  # Ray runs the jobs: no pool
+    be.start_pool("ray", None)
+    be.start_pool("processes", None)
+    assert started == [True]
+    monkeypatch.setattr(be, "ray_available", lambda: False)
+    be.start_pool("auto", None)
+    be.start_pool("auto", "ray://head:10001")  # a cluster: Ray
+    assert started == [True, True]
+    read = []
+    monkeypatch.setattr(fs, "ensure_running", lambda: read.append("server"))
+    import divas_engine.cli.batch_manifest as bm
+
+    real = bm.read_manifest
+    monkeypatch.setattr(bm, "read_manifest", lambda p: (read.append("manifest"), real(p))[1])
+    with pytest.raises(DivasInputError):
+        from divas_engine.cli import batch
+
+        batch.run(
+            cli.build_parser().parse_args(["batch", "no-such.json", "--executor", "processes"])
+        )
+    assert read == ["server", "manifest"]
+
+
+def test_ray_is_found_without_importing_it(monkeypatch):
+    from divas_engine.cli.batch_executors import ray_available
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if it could not be imported
+    assert ray_available() is False
+
+
 def _threads_seen(share, go, conn) -> None:
     """A job process's launch threads before and after the batch re-deals its share."""
     from divas_kernels import cpu_threads, set_thread_source

@@ -122,9 +122,12 @@ def _print_line(rec: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .batch_executors import make_executor, start_pool
+
+    start_pool(args.executor, args.address)  # its imports run beside the driver's
+
     from tqdm import tqdm
 
-    from .batch_executors import make_executor
     from .batch_manifest import read_manifest
 
     if args.workers is not None and args.workers < 1:

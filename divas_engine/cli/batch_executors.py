@@ -37,7 +37,14 @@ from typing import Any
 from ..errors import DivasInputError
 from .batch_jobs import BatchJob, job_record, run_job
 
-__all__ = ["JobExecutor", "ProcessExecutor", "RayExecutor", "make_executor", "ray_available"]
+__all__ = [
+    "JobExecutor",
+    "ProcessExecutor",
+    "RayExecutor",
+    "make_executor",
+    "ray_available",
+    "start_pool",
+]
 
 
 class JobExecutor(ABC):
@@ -173,11 +180,28 @@ class ProcessExecutor(JobExecutor):
 
 
 def ray_available() -> bool:
+    """Whether Ray is installed (found, not imported: importing it takes a second)."""
+    from importlib.util import find_spec
+
     try:
-        import ray  # noqa: F401
-    except ImportError:
+        return find_spec("ray") is not None
+    except (ImportError, ValueError):
         return False
-    return True
+
+
+def start_pool(kind: str, address: str | None) -> None:
+    """Start the process pool's fork server now when the batch will use one (``kind`` and
+    ``address`` as :func:`make_executor` takes them), so its imports run beside the
+    driver's reading of the manifest and its own imports instead of before the first
+    job."""
+    if kind == "auto":
+        kind = "ray" if (address is not None or ray_available()) else "processes"
+    if kind != "processes" or not sys.platform.startswith("linux"):
+        return
+    from multiprocessing import forkserver
+
+    _job_context()
+    forkserver.ensure_running()
 
 
 class RayExecutor(JobExecutor):
