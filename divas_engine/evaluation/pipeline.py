@@ -276,6 +276,7 @@ def run_session(
             for v in spawned:
                 s.accept(v)
         s.sync()
+        spawned = list(s.views)  # with the wider views the session added (.widening)
         views, weighted, statuses = [], [], []
         for v in spawned:
             statuses.append((v.id, v.status, v.reason))
