@@ -331,6 +331,33 @@ def test_the_fork_server_starts_before_the_driver_reads_the_manifest(monkeypatch
     assert read == ["server", "manifest"]
 
 
+def test_jobs_start_largest_scene_first(tmp_path):
+    from divas_engine.cli.batch_jobs import BatchJob, largest_first, scene_bytes
+
+    def scene(name: str, sizes: dict[str, int]) -> Path:
+        d = tmp_path / name
+        for rel, n in sizes.items():
+            (d / rel).parent.mkdir(parents=True, exist_ok=True)
+            (d / rel).write_bytes(b"x" * n)
+        return d
+
+    small = scene("a", {"s.ply": 10}) / "s.ply"
+    big = scene("b", {"s.ply": 300}) / "s.ply"
+    same = scene("c", {"s.ply": 10}) / "s.ply"
+    # an LOD tree given as its manifest, a SOG folder as itself: their files summed
+    lod = scene("d", {"lod-meta.json": 5, "0_0/meta.json": 50, "0_0/means_l.webp": 100})
+    sog = scene("e", {"meta.json": 20, "means_l.webp": 80})
+    assert scene_bytes(lod / "lod-meta.json") == 155 and scene_bytes(sog) == 100
+    assert scene_bytes(tmp_path / "only-on-the-workers.ply") == 0
+    paths = [small, tmp_path / "only-on-the-workers.ply", big, same, lod / "lod-meta.json", sog]
+    jobs = [
+        BatchJob(k, f"j{k}", SegmentRequest(scene=p, prompts=None), tmp_path / f"o{k}")
+        for k, p in enumerate(paths)
+    ]
+    # largest first; equal sizes keep the manifest's order; an unreadable size goes last
+    assert [j.index for j in largest_first(jobs)] == [2, 4, 5, 0, 3, 1]
+
+
 def test_ray_is_found_without_importing_it(monkeypatch):
     from divas_engine.cli.batch_executors import ray_available
 

@@ -4,7 +4,9 @@ Each manifest row (:mod:`.batch_manifest`) is one job (:mod:`.batch_jobs`) writi
 selection, ``labels.npy`` and ``report.json`` into its output folder — the labels those
 of ``divas segment`` with the same inputs. Jobs run on Ray (a local one, or the cluster
 at ``--address``; ``pip install 'divas[cluster]'``) or, without Ray, in a pool of local
-processes: the same job function either way (:mod:`.batch_executors`).
+processes: the same job function either way (:mod:`.batch_executors`). Jobs start
+largest scene first (:func:`~.batch_jobs.largest_first`), so a batch does not end on one
+large scene while the other workers idle.
 
 Output: one JSON line per finished job on stdout (``job``, ``status`` —
 ``done``/``skipped``/``failed`` —, ``scene``, ``output``, ``seconds`` in the worker,
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DivasInputError
-from .batch_jobs import job_done, job_record
+from .batch_jobs import job_done, job_record, largest_first
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -171,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
         )
         executor_name = f"{ex.name}" + (f" ({ex.slots} at once)" if ex.slots else "")
         try:
-            for rec in ex.run(todo):
+            for rec in ex.run(largest_first(todo)):
                 _print_line(rec)  # the report goes out with its line; the table needs less
                 records.append({k: v for k, v in rec.items() if k not in ("report", "traceback")})
                 bar.update(1)

@@ -38,6 +38,7 @@ __all__ = [
     "job_done",
     "run_job",
     "job_record",
+    "largest_first",
 ]
 
 REPORT = "report.json"
@@ -102,6 +103,27 @@ def job_done(job: BatchJob) -> dict[str, Any] | None:
     if not all(isinstance(p, str) and Path(p).exists() for p in listed):
         return None
     return rep
+
+
+def scene_bytes(scene: Path) -> int:
+    """Bytes of a scene as the driver sees it: a file's size; a folder's files summed (a
+    SOG folder, an LOD tree: given as its folder or its ``meta.json`` / ``lod-meta.json``);
+    0 when the driver cannot read it (a path only the workers reach)."""
+    try:
+        root = scene.parent if scene.name.lower().endswith("meta.json") else scene
+        if root.is_dir():
+            return sum(f.stat().st_size for f in root.rglob("*") if f.is_file())
+        return scene.stat().st_size
+    except OSError:
+        return 0
+
+
+def largest_first(jobs: list[BatchJob]) -> list[BatchJob]:
+    """The jobs, largest scene first (manifest order among equals; unreadable sizes last):
+    longest-processing-time-first, so a batch does not end on one large scene alone
+    while the other workers idle."""
+    size = {j.index: scene_bytes(Path(j.request.scene)) for j in jobs}
+    return sorted(jobs, key=lambda j: -size[j.index])
 
 
 def job_record(job: BatchJob, status: str, **fields: Any) -> dict[str, Any]:
