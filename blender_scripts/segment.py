@@ -49,7 +49,7 @@ def _request_module():
 
 
 #: ``divas segment`` arguments the add-on's operators do not take.
-_NOT_OFFERED = frozenset({"resume", "up", "completion", "lod"})
+_NOT_OFFERED = frozenset({"resume", "up", "completion", "widening", "lod"})
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:

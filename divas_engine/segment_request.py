@@ -75,6 +75,8 @@ class SegmentRequest:
         seed: the segmenter's seed; mask_channel: the SAM channel kept (paper: 1).
         up: the scene's up for planned anchors (unit vector; None: estimated).
         completion: 3DGS scenes: complete the selection beyond the paper.
+        widening: fuse wider views of an object a close-up cuts off (beyond the paper;
+            ``WideningConfig``); False: one centroid view per click, as the paper.
         lod: level of a streamed-LOD scene (``lod-meta.json``; None: level 0, the finest;
             negative: counted from the coarsest).
         grid_views, network_views: instant-ngp snapshots: march the density grid (the
@@ -103,6 +105,7 @@ class SegmentRequest:
     mask_channel: int = 1
     up: tuple[float, float, float] | None = None
     completion: bool = True
+    widening: bool = True
     lod: int | None = None
     grid_views: bool = False
     network_views: bool = False
@@ -160,9 +163,9 @@ class SegmentRequest:
         left out take their defaults)."""
         kw: dict[str, Any] = {}
         for f in fields(cls):
-            if f.name == "completion":
-                if hasattr(ns, "no_completion"):
-                    kw["completion"] = not ns.no_completion
+            if f.name in ("completion", "widening"):
+                if hasattr(ns, f"no_{f.name}"):
+                    kw[f.name] = not getattr(ns, f"no_{f.name}")
             elif f.name == "up":
                 if getattr(ns, "up", None) is not None:
                     kw["up"] = tuple(parse_up(ns.up))
@@ -205,7 +208,7 @@ def _coerce(name: str, v: Any, base: Path | None, at: str) -> Any:
         if not isinstance(v, str) or not v:
             raise DivasInputError(None, f"{at}: must be a path, got {v!r}")
         return request_path(v, base, at)
-    if name in ("resume", "completion", "grid_views", "network_views"):
+    if name in ("resume", "completion", "widening", "grid_views", "network_views"):
         if not isinstance(v, bool):
             raise DivasInputError(None, f"{at}: must be true or false, got {v!r}")
         return v
@@ -358,6 +361,13 @@ def add_request_arguments(
             action="store_true",
             help="3DGS scenes: the paper's selection only, without the completion of "
             "volumetric scenes (beyond the paper)",
+        )
+    if want("widening"):
+        p.add_argument(
+            "--no-widening",
+            action="store_true",
+            help="one centroid view per click, as the paper: no wider views of an object "
+            "whose close-up cuts it off (beyond the paper)",
         )
     if want("grid_views"):
         p.add_argument(

@@ -114,6 +114,24 @@ def test_segment_default_graph3d_2dgs(scene_dir, tmp_path):
     assert rc == 0 and (tmp_path / "sel.ply").exists() and rep["counts"]["selected"] > 0
 
 
+def test_segment_no_widening_keeps_one_view_per_click(scene_dir, tmp_path):
+    """The ribs' close-ups cut the ribcage off: by default they get wider views; with
+    --no-widening each click fuses its own view only (the paper's loop)."""
+    out, _ = scene_dir
+    reps = {}
+    for flag in ((), ("--no-widening",)):
+        d = tmp_path / ("off" if flag else "on")
+        d.mkdir()
+        oracle = ("--segmenter", "oracle", "--gt-labels", str(out / "labels.npy"))
+        assert _segment(scene_dir, d, "--out", str(d / "sel.ply"), *oracle, *flag) == 0
+        reps[bool(flag)] = json.loads((d / "report.json").read_text())
+    on, off = reps[False], reps[True]
+    assert on["counts"]["wider_views"] > 0 and off["counts"]["wider_views"] == 0
+    assert off["counts"]["centroid_views"] == 4 and off["config"]["widening"]["enabled"] is False
+    assert all(":w" not in v["id"] for v in off["views"])
+    assert on["counts"]["selected"] > off["counts"]["selected"]
+
+
 def test_segment_classic_2dgs(scene_dir, tmp_path):
     rc = _segment(scene_dir, tmp_path, "--out", str(tmp_path / "sel.ply"), "--segmenter", "classic")
     rep = json.loads((tmp_path / "report.json").read_text())

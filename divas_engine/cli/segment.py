@@ -104,7 +104,7 @@ def segment_scene(
     from ..io.load import load_scene, scene_cameras
     from ..render import make_renderer
     from ..segment import SegmenterSettings
-    from ..session import Session, SessionConfig, anchor_plan, load_prompts
+    from ..session import Session, SessionConfig, WideningConfig, anchor_plan, load_prompts
     from ..session.point_prompts import resolve_prompts
     from ..views import ViewConfig
 
@@ -154,6 +154,7 @@ def segment_scene(
         nerf_preset=req.preset,
         seed=int(req.seed),
         mask_channel=int(req.mask_channel),
+        widening=WideningConfig(enabled=bool(req.widening)),
         autosave=None if req.session is None else str(req.session),
     )
     if req.nerf_network is not None:
