@@ -10,7 +10,7 @@ import pytest
 from divas_engine import load_scene
 from divas_engine.segment import OracleSegmenter
 from divas_engine.session import Session, SessionConfig, WideningConfig
-from divas_engine.session.widening import border_fraction, widened_from
+from divas_engine.session.widening import border_fraction, is_wider, widened_from
 from divas_engine.synthetic import generate_scene
 
 SCALE = 0.5
@@ -69,6 +69,7 @@ def test_view_ids_name_the_click_and_the_step():
     assert widened_from("o0:a1:c2:w1") == ("o0:a1:c2", 1)
     assert widened_from("o3:a0:c10:w2") == ("o3:a0:c10", 2)
     assert widened_from("o0:a1:c2:wx") == ("o0:a1:c2:wx", 0)
+    assert is_wider("o0:a1:c2:w1") and not is_wider("o0:a1:c2")
 
 
 def test_a_click_on_a_large_object_fuses_wider_views_of_it(ribs):

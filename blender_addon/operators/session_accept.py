@@ -13,7 +13,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from divas_engine.kinds import ViewStatus
-from divas_engine.session.widening import widened_from
+from divas_engine.session.widening import is_wider
 
 from ..reporting import advice_message, rejection_message, report_exception
 from ..session_actions import accept, full_to_session_xy, run_step
@@ -46,7 +46,7 @@ def accept_message(live, res) -> tuple[set[str], str]:
             "done (or press Sync)"
         )
     n = int(live.session.selection.sum())
-    wide = sum(widened_from(x)[1] > 0 for x in res.fused)
+    wide = sum(is_wider(x) for x in res.fused)
     if wide:  # the object ran out of the close-up: the session framed it wider
         n_views = "one wider view" if wide == 1 else f"{wide} wider views"
         n = f"{n:,} selected, with {n_views} of the object"

@@ -22,7 +22,7 @@ import numpy as np
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.kinds import ViewStatus
-from divas_engine.session.widening import widened_from
+from divas_engine.session.widening import is_wider
 from divas_engine.viewport import OrthographicViewError, camera_from_region, region_click_pixel
 
 from ..session_registry import LiveSession
@@ -289,7 +289,7 @@ def accept(context, obj, live: LiveSession, view_id: str | None = None, points=N
         write_selection(obj, live)
         for vid in res.fused:  # views fused at this sync (NeRF: the whole group), and
             # the wider views of an object the close-up cut off (cameras made here)
-            if vid != v.id and (vid in live.view_cameras or widened_from(vid)[1] > 0):
+            if vid != v.id and (vid in live.view_cameras or is_wider(vid)):
                 show_view(context, obj, live, s.view(vid), activate=False)
     if v.status == ViewStatus.REJECTED:
         show_view(context, obj, live, v)  # stay: more prompts, then Enter again
@@ -310,7 +310,7 @@ def sync(context, obj, live: LiveSession):
     if res.synced:
         write_selection(obj, live)
         for vid in res.fused:
-            if vid in live.view_cameras or widened_from(vid)[1] > 0:
+            if vid in live.view_cameras or is_wider(vid):
                 show_view(context, obj, live, live.session.view(vid), activate=False)
         live.record({"what": "sync", **res.timings})
     return res

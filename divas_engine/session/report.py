@@ -9,7 +9,7 @@ import numpy as np
 
 from ..kinds import ViewStatus
 from .timing import memory_report
-from .widening import widened_from
+from .widening import is_wider
 
 if TYPE_CHECKING:
     from .session import Session
@@ -26,7 +26,7 @@ def session_counts(session: Session, *, wait: bool = True) -> dict[str, Any]:
         "primitives": int(len(session.scene)),
         "anchors": len(session.anchors),
         "centroid_views": len(views),
-        "wider_views": sum(widened_from(v.id)[1] > 0 for v in views),
+        "wider_views": sum(is_wider(v.id) for v in views),
         "accepted": st.count(ViewStatus.FUSED),
         "rejected": st.count(ViewStatus.REJECTED),
         "pending": st.count(ViewStatus.PENDING),

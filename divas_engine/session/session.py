@@ -385,7 +385,7 @@ class Session(SessionReader):
         obj, changed = self.current, False
         while obj.accept_order:
             v = self.view(obj.accept_order.pop())
-            wide = widening.widened_from(v.id)[1] > 0
+            wide = widening.is_wider(v.id)
             changed = changed or wide
             if v.status == ViewStatus.FUSED:
                 with self.timings.measure("undo"):

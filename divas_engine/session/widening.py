@@ -34,7 +34,7 @@ from .records import AcceptResult, SessionView
 if TYPE_CHECKING:
     from .session import Session
 
-__all__ = ["border_fraction", "widened_from", "wider_view", "widen"]
+__all__ = ["border_fraction", "widened_from", "is_wider", "wider_view", "widen", "forget"]
 
 #: the id tag of a wider view: ``<view id>:w<k>``
 WIDE_TAG = ":w"
@@ -57,6 +57,11 @@ def widened_from(view_id: str) -> tuple[str, int]:
     if sep and tail.isdigit() and head:
         return head, int(tail)
     return view_id, 0
+
+
+def is_wider(view_id: str) -> bool:
+    """Whether ``view_id`` names a wider view (one the session added, not a click's own)."""
+    return widened_from(view_id)[1] > 0
 
 
 def wider_view(session: Session, view: SessionView) -> SessionView | None:
