@@ -424,3 +424,29 @@ def test_the_guitar_leaning_on_its_stand_is_a_clear_object(guitar):
         binding=SceneBinding(scene, up=lambda: (0, -1.0, 0)),
     ).cut(Seeds(clicks, np.zeros((0, 3))))
     assert np.array_equal(guarded.selected, rc.selected) and guarded.scores[1] < 0.5
+
+
+def test_rendered_selection_is_the_cut_the_last_masks_of_a_view_showed():
+    # the ball of ball_on_floor clicked from the front: its cut is the ball, and the
+    # view's rendered selection is that cut's mid channel — its primitives' centres and
+    # opacities — until the view is segmented again; a view never segmented has none
+    from divas_engine.render.surfel_renderer import SurfelRenderer
+    from divas_engine.segment.context import ObjectClicks, ViewContext
+
+    case = ball_on_floor()
+    r = SurfelRenderer(case.scene, device="cpu")
+    seg = Graph3DSegmenter(binding=SceneBinding(case.scene, r.render_values))
+    eye, centre, up = np.array([0.0, -2.0, 0.2]), np.array([0.0, 0.0, 0.2]), np.array([0, 0, 1.0])
+    cam = Camera.look_at(eye, centre, up, width=64, height=64, fx=200.0)
+    click = np.array([[0.0, -0.2, 0.2]])
+    clicks = ObjectClicks(click, np.array([True]))
+    ctx = ViewContext("v", np.zeros((64, 64, 3), np.float32), None, cam, clicks)
+    seg.segment_view(ctx, cam.project(click)[0], np.array([1]))
+    prims = seg.primitives()
+    rows = prims.rows_of(np.flatnonzero(seg.last_cut.selected[1]))
+    assert np.mean(case.of(1)[rows]) > 0.99 and len(rows) > 0.9 * case.of(1).sum()
+    pts, mass = seg.rendered_selection("v")
+    np.testing.assert_array_equal(pts, case.scene.means[rows].astype(np.float64))
+    np.testing.assert_array_equal(mass, case.scene.opacities[rows].astype(np.float64))
+    assert len(seg.rendered_selection("v", channel=2)[0]) >= len(pts)
+    assert seg.rendered_selection("another view") is None

@@ -185,3 +185,71 @@ def test_a_nerf_grid_widens_in_its_groups(ribs):
         assert w.centroid.strategy == "widened" and w.centroid.d_cam > v.centroid.d_cam
     assert r.pending == 0 and np.array_equal(r.selection, s.selection)
     s.close()
+
+
+@pytest.fixture(scope="module")
+def guitar_neck():
+    """The guitar capture (tests/data), its neck target's labels and anchors."""
+    from pathlib import Path
+
+    from divas_engine.evaluation.real_target_defs import CAPTURES
+    from divas_engine.evaluation.real_targets import (
+        oracle_anchors,
+        read_targets,
+        target_scene_labels,
+    )
+
+    data = Path(__file__).resolve().parent / "data"
+    cap = CAPTURES["guitar"]
+    scene = load_scene(data / cap.path)
+    doc = read_targets(data / "targets" / "guitar")
+    anchors = oracle_anchors(scene, cap.true_up, doc["targets"]["neck"]["anchors"])
+    neck = target_scene_labels(scene, doc, "neck") > 0.5
+    return scene, [(cam, src, idx) for cam, src, idx, _ in anchors], neck
+
+
+def test_a_3d_selection_out_of_every_view_widens_a_view_its_border_does_not(guitar_neck):
+    # graph3d on the guitar, two clicks down the neck from the front anchor (the
+    # simulated user's first two of the neck target): the second click's close-up shows
+    # a stretch of the neck, which leaves it through a thin strip of the border — far
+    # under τ_b — while the cut holds the whole neck and headstock, most of it out of
+    # the image and shown by no other view of the object. That view is widened; the
+    # wider one shows the rest, and the neck's recall rises. With τ_o out of reach the
+    # border rule alone adds no view
+    from divas_engine.segment import Graph3DSegmenter
+    from divas_engine.session.widening import unseen_outside
+
+    scene, anchors, neck = guitar_neck
+
+    def run(widening: WideningConfig) -> tuple[Session, list]:
+        s = Session.open(
+            scene,
+            [],
+            SessionConfig(widening=widening),
+            Graph3DSegmenter(),
+            "cpu",
+            anchors=anchors,
+            render_anchors=False,
+        )
+        views = []
+        for xy in [(329.5, 82.5), (320.5, 231.5)]:
+            v = s.click(0, xy)
+            s.accept(v)
+            views.append(v)
+        return s, views
+
+    s, (_, v) = run(WideningConfig())
+    cfg = s.config.widening
+    assert border_fraction(v.mask) <= cfg.border_fraction
+    ids = [w.id for w in s.views]
+    assert f"{v.id}:w1" in ids
+    wide = s.view(f"{v.id}:w1")
+    assert unseen_outside(s, wide) <= cfg.outside_fraction
+    recall, precision = _recall(s.selection, neck), float(np.mean(neck[s.selection]))
+    s.close()
+    plain, (_, v0) = run(WideningConfig(outside_fraction=0.999))
+    assert not any(is_wider(w.id) for w in plain.views)
+    assert unseen_outside(plain, v0) > cfg.outside_fraction
+    assert recall > _recall(plain.selection, neck) + 0.02  # 0.875 → 0.905
+    assert precision >= float(np.mean(neck[plain.selection])) - 0.01
+    plain.close()

@@ -324,6 +324,16 @@ class Segmenter(ABC):
         in its background warm-up, after the fusion state); the default has none. A
         failure is left for the first prompt to raise."""
 
+    def rendered_selection(
+        self, view_id: Hashable, channel: int = 1
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """For a segmenter whose masks render a 3D selection: ``([n,3] centres, [n]
+        opacities)`` of the primitives of the selection of ``channel`` behind its last
+        masks of view ``view_id`` (the session widens a view that leaves much of it
+        unseen, :mod:`~divas_engine.session.widening`); None when it has none (an image
+        segmenter: only the mask's border tells)."""
+        return None
+
     @property
     def wants_ground_truth(self) -> bool:
         """Whether the session should hand it each view's ground truth

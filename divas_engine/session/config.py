@@ -69,20 +69,30 @@ class WideningConfig:
     The paper frames a centroid view on the click's neighbourhood (alg:centroid-gs), so a
     click on a large object (a ribcage that fills the anchor) fuses one close-up of a
     patch of it. When a fused mask covers more than ``border_fraction`` of its view's
-    image border, the session fuses one more view of the same click: the same look-at
-    point and direction, ``factor`` times as far, never past the anchor's own distance
-    to the point; again while the new mask is cut off, at most ``max_views`` per click.
+    image border — or, with a segmenter whose masks render a 3D selection (graph3d),
+    when more than ``outside_fraction`` of that selection lies out of the view's image
+    and no other view of the object shows it (a guitar's neck leaving a close-up of its
+    headstock is thin on the border, yet most of the guitar is out of view) — the
+    session fuses one more view of the same
+    click: the same look-at point and direction, ``factor`` times as far, never past
+    the anchor's own distance to the point; again while the new mask is cut off, at
+    most ``max_views`` per click.
 
     Attributes:
         enabled: widen cut-off views (False: the paper's single centroid view).
         border_fraction: τ_b, the fraction of the border pixels a mask (≥ 0.5) may cover
             before the object counts as running out of the view.
+        outside_fraction: τ_o, the opacity share of the segmenter's 3D selection that
+            may lie out of the view's image, shown by no other view of the object, before
+            the object counts as running out of the view
+            (:func:`~.widening.unseen_outside`; ignored for an image segmenter).
         factor: distance ratio of each wider view to the one it widens (> 1).
         max_views: wider views one click may add.
     """
 
     enabled: bool = True
     border_fraction: float = 0.25
+    outside_fraction: float = 0.25
     factor: float = 2.0
     max_views: int = 2
 
@@ -90,6 +100,10 @@ class WideningConfig:
         if not (0.0 <= self.border_fraction < 1.0):
             raise ValueError(
                 f"WideningConfig.border_fraction must be in [0, 1), got {self.border_fraction}"
+            )
+        if not (0.0 <= self.outside_fraction < 1.0):
+            raise ValueError(
+                f"WideningConfig.outside_fraction must be in [0, 1), got {self.outside_fraction}"
             )
         if not (math.isfinite(self.factor) and self.factor > 1.0):
             raise ValueError(f"WideningConfig.factor must be > 1, got {self.factor}")

@@ -9,7 +9,12 @@ patch.
 
 So after a view is fused the session reads its mask's border: when the mask (≥ 0.5) covers
 more than τ_b (:attr:`~.config.WideningConfig.border_fraction`) of the image's border
-pixels, the object runs out of the view, and the session fuses one more view of the same
+pixels — or, when the segmenter renders its masks from a 3D selection (graph3d), when
+more than τ_o (``outside_fraction``) of that selection's opacity lies out of the image
+and no other view of the object shows it (a thin part leaving the view covers little
+border: a close-up of a guitar's headstock with the rest of the guitar below it) — the
+object runs out of the view, and the
+session fuses one more view of the same
 click — the same look-at point x_w (the click's 3D point) and direction, ``factor`` times
 as far, never past the anchor's own distance to x_w (at that distance the view is the
 anchor turned to centre the click). Its prompts are the view's defaults (x_w projected,
@@ -29,12 +34,21 @@ import numpy as np
 from ..errors import DivasInputError, InputErrorCode
 from ..kinds import ViewStatus
 from ..views.centroid_common import CentroidView, build_pose
+from .corrections import visible_pixels
 from .records import AcceptResult, SessionView
 
 if TYPE_CHECKING:
     from .session import Session
 
-__all__ = ["border_fraction", "widened_from", "is_wider", "wider_view", "widen", "forget"]
+__all__ = [
+    "border_fraction",
+    "cut_off",
+    "widened_from",
+    "is_wider",
+    "wider_view",
+    "widen",
+    "forget",
+]
 
 #: the id tag of a wider view: ``<view id>:w<k>``
 WIDE_TAG = ":w"
@@ -49,6 +63,54 @@ def border_fraction(mask: np.ndarray) -> float:
         return float(m.mean()) if m.size else 0.0
     edge = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])
     return float(edge.mean())
+
+
+def cut_off(session: Session, view: SessionView) -> bool:
+    """Whether the object runs out of fused ``view``: its mask covers more than τ_b of
+    the image's border, or more than τ_o of the segmenter's 3D selection behind the mask
+    is out of the view's image and shown by no other view of the object
+    (:func:`unseen_outside`; :class:`~.config.WideningConfig`)."""
+    cfg = session.config.widening
+    if border_fraction(view.mask) > cfg.border_fraction:
+        return True
+    share = unseen_outside(session, view)
+    return share is not None and share > cfg.outside_fraction
+
+
+def unseen_outside(session: Session, view: SessionView) -> float | None:
+    """The opacity share of the segmenter's 3D selection behind ``view``'s mask
+    (:meth:`~..segment.base.Segmenter.rendered_selection`) that projects outside
+    ``view``'s image and that no other view of the object shows: visible (within
+    ``negative_occlusion_tol`` of its D_ref) inside a fused view's mask, or visible in
+    an open view (one the user has yet to accept). What no view shows, the fusion cannot
+    select; what is hidden behind the object in this view, a wider view would not show
+    either, so only the part out of the image counts. None for an image segmenter."""
+    sel = session.segmenter.rendered_selection(view.id, session.config.mask_channel)
+    if sel is None:
+        return None
+    pts, mass = sel
+    total = float(mass.sum())
+    if total <= 0.0:
+        return 0.0
+    uv, z = view.camera.project(pts)
+    unseen = ~view.camera.in_image(uv, z)
+    tol = session.config.negative_occlusion_tol
+    for other in session.objects[view.object_index].views:
+        if other is view or other.buffers is None or not unseen.any():
+            continue
+        if other.status == ViewStatus.FUSED and other.mask is not None:
+            mask = np.asarray(other.mask) >= 0.5
+        elif other.status == ViewStatus.OPEN:
+            mask = None  # to be accepted: what it sees, it will fuse
+        else:
+            continue
+        left = np.flatnonzero(unseen)
+        px, vis = visible_pixels(other.camera, other.buffers.D_ref, pts[left], tol)
+        if mask is not None:
+            hit = np.flatnonzero(vis)
+            vis[hit] = mask[px[hit, 1].astype(np.int64), px[hit, 0].astype(np.int64)]
+        unseen[left[vis]] = False
+    return float(mass[unseen].sum()) / total
 
 
 def widened_from(view_id: str) -> tuple[str, int]:
@@ -71,7 +133,7 @@ def wider_view(session: Session, view: SessionView) -> SessionView | None:
     if not cfg.enabled or view.status != ViewStatus.FUSED or view.mask is None:
         return None
     root, k = widened_from(view.id)
-    if k >= int(cfg.max_views) or border_fraction(view.mask) <= cfg.border_fraction:
+    if k >= int(cfg.max_views) or not cut_off(session, view):
         return None
     anchor = session.anchor(view.anchor).camera
     cv = view.centroid

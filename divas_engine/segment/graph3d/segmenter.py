@@ -16,6 +16,8 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
+from collections import OrderedDict
+from collections.abc import Hashable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -44,6 +46,7 @@ NO_SURFACE = "no surface under the click: click on the object itself"
 _CUT_CACHE = 16  # a state's cut, its joint cut and the cuts before its newest clicks
 _MASK_CACHE = 2  # masks rendered ahead are taken once: 3 × H × W floats each
 _SAME_CLICK_PX = 2.0
+_VIEW_CUTS_KEPT = 8  # views whose rendered selections are kept (rendered_selection)
 #: the mask render's window margin, pixels: the renderer's screen-space low-pass disc
 #: (σ √2/2 px, cut off at 3.33 σ = 2.4 px) and rounding
 _MASK_MARGIN_PX = 4.0
@@ -142,6 +145,9 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         self.prims: ScenePrimitives | None = None
         self.last_message: str | None = None
         self.last_cut: RegionCut | None = None
+        #: per view id: the ``[3, M]`` selections its last masks rendered (the cut's own
+        #: arrays), the newest ``_VIEW_CUTS_KEPT`` views (:meth:`rendered_selection`)
+        self.view_cuts: OrderedDict[Hashable, np.ndarray] = OrderedDict()
         self.cuts: CutCache[RegionCut] = CutCache(_CUT_CACHE)
         #: masks of a default prompt by (seeds, camera), rendered ahead (prefetch_view)
         self.masks: CutCache[np.ndarray] = CutCache(_MASK_CACHE)
@@ -264,6 +270,10 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             return np.zeros((3, h, w), np.float32), np.zeros(3, np.float32)
         rc = self.cut(seeds)
         self.last_cut, self.last_message = rc, rc.message
+        self.view_cuts[view.id] = rc.selected
+        self.view_cuts.move_to_end(view.id)
+        while len(self.view_cuts) > _VIEW_CUTS_KEPT:
+            self.view_cuts.popitem(last=False)
         key = _masks_key(seeds, view.camera)
         if self.masks.peek(key) is None and self.masks.in_flight(key) is None:
             masks = self.render_masks(view.camera, rc.selected)
@@ -271,6 +281,20 @@ class Graph3DSegmenter(SceneAwareSegmenter):
             masks = self.masks.get(key, lambda: self.render_masks(view.camera, rc.selected))
             masks = masks.copy()
         return masks, rc.scores.astype(np.float32)
+
+    def rendered_selection(
+        self, view_id: Hashable, channel: int = 1
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``([n,3] centres, [n] opacities)`` of the primitives of the 3D selection of
+        ``channel`` that the last masks of ``view_id`` rendered; None for a view not
+        segmented lately."""
+        with self._lock:
+            selected = self.view_cuts.get(view_id)
+        if selected is None:
+            return None
+        prims = self.primitives()
+        rows = np.flatnonzero(selected[channel])
+        return np.asarray(prims.points[rows], np.float64), np.asarray(prims.mass[rows], np.float64)
 
     # ------------------------------------------------------------------ steps
     def seeds(self, view: ViewContext, points: np.ndarray, labels: np.ndarray) -> tuple[Seeds, int]:
