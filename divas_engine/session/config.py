@@ -73,10 +73,9 @@ class WideningConfig:
     when more than ``outside_fraction`` of that selection lies out of the view's image
     and no other view of the object shows it (a guitar's neck leaving a close-up of its
     headstock is thin on the border, yet most of the guitar is out of view) — the
-    session fuses one more view of the same
-    click: the same look-at point and direction, ``factor`` times as far, never past
-    the anchor's own distance to the point; again while the new mask is cut off, at
-    most ``max_views`` per click.
+    session fuses one more view of the same click: the same look-at point and
+    direction, ``factor`` times as far, never past the anchor's own distance to the
+    point; again while the new mask is cut off, at most ``max_views`` per click.
 
     Attributes:
         enabled: widen cut-off views (False: the paper's single centroid view).

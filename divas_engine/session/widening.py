@@ -13,8 +13,7 @@ pixels — or, when the segmenter renders its masks from a 3D selection (graph3d
 more than τ_o (``outside_fraction``) of that selection's opacity lies out of the image
 and no other view of the object shows it (a thin part leaving the view covers little
 border: a close-up of a guitar's headstock with the rest of the guitar below it) — the
-object runs out of the view, and the
-session fuses one more view of the same
+object runs out of the view, and the session fuses one more view of the same
 click — the same look-at point x_w (the click's 3D point) and direction, ``factor`` times
 as far, never past the anchor's own distance to x_w (at that distance the view is the
 anchor turned to centre the click). Its prompts are the view's defaults (x_w projected,
@@ -43,6 +42,7 @@ if TYPE_CHECKING:
 __all__ = [
     "border_fraction",
     "cut_off",
+    "unseen_outside",
     "widened_from",
     "is_wider",
     "wider_view",
