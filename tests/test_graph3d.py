@@ -450,3 +450,6 @@ def test_rendered_selection_is_the_cut_the_last_masks_of_a_view_showed():
     np.testing.assert_array_equal(mass, case.scene.opacities[rows].astype(np.float64))
     assert len(seg.rendered_selection("v", channel=2)[0]) >= len(pts)
     assert seg.rendered_selection("another view") is None
+    # a new scene: its view "v" is not the old one's (the session's ids recur)
+    seg.bind_scene(SceneBinding(ball_with_leaves().scene, r.render_values))
+    assert seg.rendered_selection("v") is None

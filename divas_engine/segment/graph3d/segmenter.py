@@ -160,6 +160,7 @@ class Graph3DSegmenter(SceneAwareSegmenter):
         self.prims = None  # built on first use (the session opens without waiting)
         self.cuts.clear()
         self.masks.clear()
+        self.view_cuts.clear()  # another scene's selections (the same view ids recur)
 
     def warm_up(self) -> None:
         """Build the scene's :class:`ScenePrimitives` now (the session's background
