@@ -20,7 +20,7 @@ The full rules: docs/design-notes.md, section ``divas_engine/mapping/completion.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +49,7 @@ from .completion_records import (
 )
 from .completion_records import SURFACE as _SURFACE
 from .completion_records import edge_distance as _edge_distance
+from .completion_sights import deep_repeats, shared_sights, voxel_repeats
 from .config import CompletionConfig
 
 __all__ = ["QSCALE", "CompletionResult", "VolumetricCompletion"]
@@ -168,6 +169,7 @@ class VolumetricCompletion:
         self.n_incons = np.zeros(self.a, np.int32)
         self._records: dict[int, tuple[FusionView, _ViewRecord]] = {}
         self._masks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # centre_evidence
+        self.sights: dict[int, Hashable] = {}  # view key → its sight (:meth:`sync`)
         # the cover the last decision needed (with the gather margin): a new view's
         # records are made for it at once (usually all the next decision reads)
         self._need: np.ndarray | None = None  # cells (indices)
@@ -337,11 +339,19 @@ class VolumetricCompletion:
         self._masks.pop(key, None)
         self._apply(rec, -1)
 
-    def sync(self, views: Sequence[tuple[int, FusionView]]) -> float:
+    def sync(
+        self,
+        views: Sequence[tuple[int, FusionView]],
+        sights: Mapping[int, Hashable] | None = None,
+    ) -> float:
         """Make the live views exactly ``views`` (``(key, view)``; a key whose view
-        object changed is removed and re-added); returns the seconds spent."""
+        object changed is removed and re-added); returns the seconds spent. ``sights``:
+        the keys of views that look along one sight map to one value (a click's view and
+        its wider views, :mod:`.completion_sights`): they count once where views are
+        counted (None: every view a sight of its own)."""
         t = time.perf_counter()
         live = dict(views)
+        self.sights = {} if sights is None else {k: sights[k] for k in live if k in sights}
         for k in [k for k, (v, _) in self._records.items() if live.get(k) is not v]:
             self.remove_view(k)
         for k, v in views:
@@ -390,8 +400,15 @@ class VolumetricCompletion:
         or ``fill_min_views`` views, inconsistent with none (evaluated only for the
         voxels the fill examines, from the integer counters)."""
         ns, nh = self.n_surf[vox], self.n_hidden[vox]
-        ok = (ns >= 1) | (ns + nh >= self.config.fill_min_views)
+        views = ns + nh
+        shared = shared_sights(self.sights, list(self._records))
+        if shared:  # a view that shares a sight adds no cone (:mod:`.completion_sights`)
+            views = views - voxel_repeats(shared, self._record_map(), vox)
+        ok = (ns >= 1) | (views >= self.config.fill_min_views)
         return ok & (self.n_incons[vox] == 0)
+
+    def _record_map(self) -> dict[int, _ViewRecord]:
+        return {k: rec for k, (_, rec) in self._records.items()}
 
     def _live_masks(self) -> list[tuple[FusionView, np.ndarray, np.ndarray]]:
         """``(view, pos, rho)`` of the live views (made once per view, for centre_evidence)."""
@@ -455,7 +472,11 @@ class VolumetricCompletion:
         # every view joins as the fill's hidden voxels do (module docstring)
         ok_deep = self.n_deep_bad[idx] == 0
         shown = self.n_seen[idx] >= 1
-        through = positive & ~(shown | (ok_deep & (self.n_deep_ok[idx] >= cfg.fill_min_views)))
+        deep_views = self.n_deep_ok[idx]
+        shared = shared_sights(self.sights, list(self._records))
+        if shared:
+            deep_views = deep_views - deep_repeats(shared, self._record_map(), idx)
+        through = positive & ~(shown | (ok_deep & (deep_views >= cfg.fill_min_views)))
         positive &= ~through
         if cfg.appearance_k > 0 and through.any():
             # … or when it looks like the object's seen Gaussians next to it (appearance)

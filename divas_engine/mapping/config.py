@@ -120,7 +120,9 @@ class CompletionConfig:
         fill_min_views: a voxel *hidden* behind mask-positive surfaces joins the fill
             only when at least this many fused views are consistent with it (2: the
             intersection of two visual cones is bounded in 3D, one cone alone is not);
-            a voxel seen on the surface inside a mask needs one view.
+            a voxel seen on the surface inside a mask needs one view. Views along one
+            sight (a click's view and its wider views) count once
+            (:mod:`.completion_sights`).
         centre_evidence: a Gaussian that is not contribution-positive and joins only
             because its centre voxel is segmented or filled must also pass the fill's
             test at its own centre: on or within the solid depth behind a mask-positive

@@ -215,6 +215,7 @@ class SurfelBackend(SessionBackend):
         """Completion of a 3DGS-derived scene (beyond the paper): the live views'
         records are added/removed incrementally, then the selection is completed."""
         from ...mapping.completion import VolumetricCompletion
+        from ..widening import widened_from
 
         comp = self.config.mapping.completion
         if self._completion is None or self._completion.config != comp:
@@ -227,7 +228,10 @@ class SurfelBackend(SessionBackend):
                 render_config=self.config.render,
                 renderer=self.renderer,
             )
-        t_views = self._completion.sync([(int(v.fusion_id), self._evidence_view(v)) for v in live])
+        t_views = self._completion.sync(
+            [(int(v.fusion_id), self._evidence_view(v)) for v in live],
+            {int(v.fusion_id): widened_from(v.id)[0] for v in live},  # a view's sight
+        )
         res = self._completion.complete(sel, fused.segmented)
         res.seconds["views"] = t_views
         self.last_completion = res
