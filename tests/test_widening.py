@@ -245,11 +245,15 @@ def test_a_3d_selection_out_of_every_view_widens_a_view_its_border_does_not(guit
     assert f"{v.id}:w1" in ids
     wide = s.view(f"{v.id}:w1")
     assert unseen_outside(s, wide) <= cfg.outside_fraction
+    # the 3DGS completion reads the wider view and its close-up as one sight
+    sights = s.backend._completion.sights
+    assert sights[int(wide.fusion_id)] == sights[int(v.fusion_id)] == v.id
+    assert len(set(sights.values())) == len(sights) - 1
     recall, precision = _recall(s.selection, neck), float(np.mean(neck[s.selection]))
     s.close()
     plain, (_, v0) = run(WideningConfig(outside_fraction=0.999))
     assert not any(is_wider(w.id) for w in plain.views)
     assert unseen_outside(plain, v0) > cfg.outside_fraction
-    assert recall > _recall(plain.selection, neck) + 0.02  # 0.875 → 0.905
+    assert recall > _recall(plain.selection, neck) + 0.02  # 0.806 → 0.849
     assert precision >= float(np.mean(neck[plain.selection])) - 0.01
     plain.close()
