@@ -395,13 +395,13 @@ class VolumetricCompletion:
         return list(self._records)
 
     # ------------------------------------------------------------------ decision
-    def _fill_candidate(self, vox: np.ndarray) -> np.ndarray:
+    def _fill_candidate(self, vox: np.ndarray, shared: list[list[int]]) -> np.ndarray:
         """Voxels ``vox`` (indices) the fill may take: consistent with one surface view
         or ``fill_min_views`` views, inconsistent with none (evaluated only for the
-        voxels the fill examines, from the integer counters)."""
+        voxels the fill examines, from the integer counters); ``shared``: the live views'
+        groups of one sight (:func:`.completion_sights.shared_sights`), counted once."""
         ns, nh = self.n_surf[vox], self.n_hidden[vox]
         views = ns + nh
-        shared = shared_sights(self.sights, list(self._records))
         if shared:  # a view that shares a sight adds no cone (:mod:`.completion_sights`)
             views = views - voxel_repeats(shared, self._record_map(), vox)
         ok = (ns >= 1) | (views >= self.config.fill_min_views)
@@ -446,10 +446,11 @@ class VolumetricCompletion:
         fresh = self.cells.dilate_into(near_cells, np.flatnonzero(seg))
         near_list = [fresh]
         rounds = 0
+        shared = shared_sights(self.sights, list(self._records))  # once per decision
         for _ in range(cfg.fill_rounds):
             vox = self.cells.voxels_in(fresh)
             vox = vox[~cur[vox]]
-            new = vox[self._fill_candidate(vox)]
+            new = vox[self._fill_candidate(vox, shared)]
             if len(new) == 0:
                 break
             cur[new] = True
@@ -473,7 +474,6 @@ class VolumetricCompletion:
         ok_deep = self.n_deep_bad[idx] == 0
         shown = self.n_seen[idx] >= 1
         deep_views = self.n_deep_ok[idx]
-        shared = shared_sights(self.sights, list(self._records))
         if shared:
             deep_views = deep_views - deep_repeats(shared, self._record_map(), idx)
         through = positive & ~(shown | (ok_deep & (deep_views >= cfg.fill_min_views)))
