@@ -88,16 +88,18 @@ def _ball_scene(seed: int = 0):
     return scene, labels, parts
 
 
-def _views(scene, labels, dirs):
+def _views(scene, labels, dirs, distance: float = 4.0):
     r = make_renderer(scene, device=CPU)
     out = []
     for j, d in enumerate(dirs):
         d = np.asarray(d, float) / np.linalg.norm(d)
         up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-        cam = Camera.look_at(4.0 * d, np.zeros(3), up, width=96, height=96, fx=80.0, name=f"v{j}")
+        cam = Camera.look_at(
+            distance * d, np.zeros(3), up, width=96, height=96, fx=80.0, name=f"v{j}"
+        )
         b = r.render(cam)
         m = (r.render_values(cam, labels.astype(np.float32)) >= 0.5).astype(np.float32)
-        out.append(FusionView(cam, m, b.D_min, b.D_med, b.D_max, b.N_samp, 4.0, cam.name))
+        out.append(FusionView(cam, m, b.D_min, b.D_med, b.D_max, b.N_samp, distance, cam.name))
     return out
 
 

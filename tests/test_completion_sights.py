@@ -9,36 +9,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from divas_engine.camera import Camera
 from divas_engine.fusion.occupancy import GridConfig, build_occupancy
-from divas_engine.fusion.views import FusionView
 from divas_engine.mapping import SurfelMapper
 from divas_engine.mapping.completion import VolumetricCompletion
 from divas_engine.mapping.completion_records import HIDDEN, INCONSISTENT, SURFACE, _ViewRecord
 from divas_engine.mapping.completion_sights import deep_repeats, shared_sights, voxel_repeats
 from divas_engine.mapping.config import CompletionConfig
-from divas_engine.render import make_renderer
-from tests.test_completion import CPU, _ball_scene, _divas_like
-
-
-def _view(scene, labels, direction, distance: float, name: str) -> FusionView:
-    r = make_renderer(scene, device=CPU)
-    d = np.asarray(direction, float) / np.linalg.norm(direction)
-    cam = Camera.look_at(
-        distance * d, np.zeros(3), [0.0, 1.0, 0.0], width=96, height=96, fx=80.0, name=name
-    )
-    b = r.render(cam)
-    m = (r.render_values(cam, labels.astype(np.float32)) >= 0.5).astype(np.float32)
-    return FusionView(cam, m, b.D_min, b.D_med, b.D_max, b.N_samp, distance, name)
+from tests.test_completion import CPU, _ball_scene, _divas_like, _views
 
 
 def test_a_wider_view_along_the_same_sight_adds_no_cone():
     scene, labels, parts = _ball_scene()
     grid = build_occupancy(scene, GridConfig(), CPU)
     act = SurfelMapper(scene, grid, device=CPU).active_index
-    close = _view(scene, labels, (0, 0, -1), 4.0, "close")
-    wider = _view(scene, labels, (0, 0, -1), 6.0, "close:w1")  # same point, same direction
-    side = _view(scene, labels, (1, 0, -0.3), 4.0, "side")
+    close, side = _views(scene, labels, [(0, 0, -1), (1, 0, -0.3)])
+    (wider,) = _views(scene, labels, [(0, 0, -1)], distance=6.0)  # same point and direction
     sel, seg = _divas_like(labels, parts, act, len(grid))
     interior = np.zeros(len(labels), bool)
     interior[parts["interior"]] = True
