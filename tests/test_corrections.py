@@ -22,7 +22,7 @@ from divas_engine.kinds import ClickOrigin, ViewStatus
 from divas_engine.segment import OracleSegmenter, Segmenter
 from divas_engine.segment.base import SegResult
 from divas_engine.segment.oracle import OracleConfig
-from divas_engine.session import CorrectionConfig, Session, SessionConfig
+from divas_engine.session import CorrectionConfig, Session, SessionConfig, negative_views
 from divas_engine.synthetic import generate_scene
 
 SCALE = 0.5
@@ -509,4 +509,118 @@ def test_finish_object_commits_the_corrected_selection(vase):
     rec = s.finish_object("vase")
     assert np.array_equal(rec.selection, sel) and not (s.labels[patch] == 1).any()
     assert s.current.corrections == [] and not s.selection.any()  # a new object, no clicks
+    s.close()
+
+
+@pytest.fixture(scope="module")
+def vase3d():
+    """The ``occluded`` scene as trained 3DGS (20k Gaussians): the 3DGS completion runs."""
+    sc = generate_scene("occluded", None, size=20_000, seed=0, kind="3dgs")
+    anchors, clicks = _metadata_anchors(sc)
+    surf = [s.name for s in sc.surfaces]
+    plinth = np.isin(sc.surface_ids, [i for i, nm in enumerate(surf) if nm.startswith("plinth")])
+    return sc, anchors, clicks, plinth
+
+
+def _unseen_click(s: Session, rows: np.ndarray, anchor: int) -> tuple[float, float]:
+    """A pixel of anchor ``anchor`` on a primitive of ``rows`` (its surface there) whose
+    point no view of the object sees."""
+    a = s.anchors[anchor]
+    b = s.render(a)
+    uv, z = a.camera.project(s.scene.means[rows])
+    for k in np.argsort(z):
+        x, y = uv[k]
+        if 0 <= x < a.camera.width and 0 <= y < a.camera.height:
+            d = float(b.D_med[int(y), int(x)])
+            if d > 0 and abs(d - z[k]) < 0.02 * z[k]:
+                point = a.camera.unproject(np.array([[x, y]]), np.array([d]))[0]
+                if not negative_views.seen_by_a_view(s, point):
+                    return float(x), float(y)
+    raise AssertionError("a view sees every primitive of the set on the anchor's surface")
+
+
+def _on_surface(v, points: np.ndarray, tol: float = 0.02) -> np.ndarray:
+    """Bool per point: in view ``v``'s image, on the surface it renders (its centre's
+    depth within ``tol`` of D_med there)."""
+    uv, z = v.camera.project(points)
+    out = v.camera.in_image(uv, z)
+    k = np.flatnonzero(out)
+    d = v.buffers.D_med[uv[k, 1].astype(int), uv[k, 0].astype(int)]
+    out[k] = (d > 0) & (np.abs(d - z[k]) < tol * z[k])
+    return out
+
+
+def test_negative_click_no_view_sees_fuses_a_view_of_its_own(vase3d, tmp_path):
+    """Views of anchors 0 and 1 whose masks hold the vase and its plinth: a negative
+    click on the plinth where neither view sees it (from anchor 3) fuses the click's
+    centroid view, whose mask (the vase alone: the click is on the plinth) takes
+    out the plinth it shows; with ``negative_views`` off only the click's patch leaves."""
+    sc, _, _, plinth = vase3d
+    gt = sc.labels + 0.5 * plinth
+    runs = {}
+    for on in (False, True):
+        s = _open(vase3d, TwoLevel(), gt=gt, corrections=CorrectionConfig(negative_views=on))
+        _accept_clicks(s, vase3d, anchors=[0, 1])
+        h = s.history
+        before = s.selection.copy()
+        assert (before & plinth).sum() > 500
+        rec = s.click(3, _unseen_click(s, np.flatnonzero(before & plinth), 3), positive=False)
+        res = s.last_correction
+        assert not s.selection[res.correction.patch].any()
+        runs[on] = (s, h, before, rec, res)
+    s0, _, before0, rec0, res0 = runs[False]
+    patch = res0.correction.patch
+    assert res0.view is None and res0.resegmented == [] and rec0.view_id is None
+    np.testing.assert_array_equal(s0.selection, before0 & ~np.isin(np.arange(len(before0)), patch))
+    s, h, before, rec, res = runs[True]
+    np.testing.assert_array_equal(before, before0)
+    v = res.view
+    assert v is not None and v.status == ViewStatus.FUSED and rec.view_id == v.id
+    assert negative_views.is_negative_view(s, v) and res.resegmented == [v.id]
+    assert res.views_changed == 1 and v.anchor == 3 and v.id == f"o0:a3:c{rec.index}"
+    # the click's centroid view (the one a positive click there would spawn), moved back
+    # along its ray by the widening factor until it shows a positive click
+    ref = s.backend.centroid_view(s.anchors[3].camera, rec.xy, s.render(s.anchors[3]), v.id)
+    np.testing.assert_allclose(v.camera.c2w[:3, :3], ref.camera.c2w[:3, :3], atol=1e-9)
+    np.testing.assert_allclose(v.centroid.target, ref.target)
+    k = np.log(v.centroid.d_cam / ref.d_cam) / np.log(s.config.widening.factor)
+    reach = np.linalg.norm(ref.target - s.anchors[3].camera.center)
+    assert abs(k - round(k)) < 1e-6 or abs(v.centroid.d_cam - reach) < 1e-6 * reach
+    back = ref.target - v.centroid.d_cam * (ref.target - ref.camera.center) / ref.d_cam
+    np.testing.assert_allclose(v.camera.center, back, atol=1e-6)
+    # its prompts: the object's clicks it sees, this one negative, a positive among them
+    assert v.labels[-1] == 0 and (v.labels == 1).any()
+    np.testing.assert_array_equal(s.default_prompts(v)[1], v.labels)
+    truth = s.view_context(v).truth
+    assert not ((v.mask >= 0.5) & (truth >= 0.25) & (truth < 0.75)).any()  # no plinth
+    # far more of the plinth left than the patch; the vase stays (a few Gaussians of its
+    # foot share voxels with the plinth top)
+    out = np.flatnonzero(before & ~s.selection)
+    np.testing.assert_array_equal(np.sort(res.removed), out)
+    vase = before & sc.labels
+    assert plinth[out].sum() >= 3 * len(patch) and (vase & s.selection).sum() >= 0.97 * vase.sum()
+    # of the plinth it alone shows, most leaves (voxels shared with the plinth's top,
+    # which the two views see in their masks, keep the rest)
+    only = _on_surface(v, s.scene.means) & before & plinth
+    only &= ~_on_surface(s.views[0], s.scene.means) & ~_on_surface(s.views[1], s.scene.means)
+    assert only.sum() >= 10 and (only & s.selection).sum() <= 0.6 * only.sum()
+    # exact under undo / redo, and saved with the session
+    h.record("negative click")
+    sel1, acc1 = s.selection.copy(), s.fusion.accumulators()
+    path = s.save(tmp_path / "negative_view.json")
+    h.undo()
+    np.testing.assert_array_equal(s.selection, before)
+    h.redo()
+    np.testing.assert_array_equal(s.selection, sel1)
+    for k, a in s.fusion.accumulators().items():
+        np.testing.assert_array_equal(a, acc1[k], err_msg=k)
+    s2 = Session.load(path, sc.scene, TwoLevel(), "cpu", gt_values=gt)
+    assert s2.replay_matches
+    np.testing.assert_array_equal(s2.selection, sel1)
+    assert negative_views.is_negative_view(s2, s2.view(v.id))
+    s2.close()
+    # the paper's undo takes the view out of the fusion: the click's patch alone stays out
+    assert s.undo() is v and v.status == ViewStatus.OPEN
+    np.testing.assert_array_equal(s.selection, s0.selection)
+    s0.close()
     s.close()

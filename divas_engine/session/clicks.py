@@ -23,7 +23,7 @@ from ..render.buffers import RenderBuffers
 from ..views.centroid_common import click_point as back_project
 from . import corrections as corr
 from . import edits as edit_steps
-from . import fusing
+from . import fusing, negative_views
 from .records import (
     AnchorClick,
     AnchorView,
@@ -70,7 +70,8 @@ def click(self: Session, anchor_index: int, xy, positive: bool = True) -> Sessio
             rec = AnchorClick(anchor.index, ci, xy, False, point)
             clicks.append(rec)
             if constrained:
-                correct(self, point, anchor.camera, depth, source, False)
+                res = correct(self, point, anchor.camera, depth, source, False)
+                _negative_view(self, rec, res)
             self.autosave()
             return rec
         vid = f"o{obj.index}:a{anchor.index}:c{ci}"
@@ -95,6 +96,26 @@ def click(self: Session, anchor_index: int, xy, positive: bool = True) -> Sessio
         correct(self, cv.target, anchor.camera, cv.depth, source, True, spawned=view)
     self.autosave()
     return view
+
+
+def _negative_view(self: Session, rec: AnchorClick, res: CorrectionResult) -> None:
+    """Fuse the view of a negative anchor click no view of its object sees
+    (:mod:`.negative_views`); the click's correction result ``res`` then counts it among
+    the views the click changed, with the selection after it."""
+    acc = negative_views.fuse_negative_view(self, rec)
+    if acc is None:
+        return
+    flat = res.selection.reshape(-1)
+    before = flat.copy()  # the selection before the click
+    before[res.added], before[res.removed] = False, True
+    after = self.state.selection
+    res.resegmented.append(acc.view.id)
+    res.view = acc.view
+    res.added = np.flatnonzero(after.reshape(-1) & ~before)
+    res.removed = np.flatnonzero(before & ~after.reshape(-1))
+    res.selection = after
+    for k in ("segmenter_s", "update_s"):
+        res.timings[k] = res.timings.get(k, 0.0) + float(acc.timings.get(k, 0.0))
 
 
 def _prefetch(

@@ -47,12 +47,16 @@ class CorrectionConfig:
             lies within this many standard deviations of it (its ellipsoid grown by the
             patch radius): generous for a negative click (everything that draws the
             spot goes), strict for a positive one (no large background splat comes in).
+        negative_views: a negative anchor click that no view of its object sees fuses a
+            view of its own, the click's centroid view (:mod:`.negative_views`).
+            False: it prompts the views that see it and forces its patch out, no more.
     """
 
     enabled: bool = True
     patch_px: float = 2.0
     negative_sigmas: float = 2.0
     positive_sigmas: float = 1.0
+    negative_views: bool = True
 
     def __post_init__(self) -> None:
         for name in ("patch_px", "negative_sigmas", "positive_sigmas"):

@@ -26,6 +26,7 @@ from ..segment.base import Segmenter
 from ..segment.context import SceneBinding, ViewContext
 from ..segment.worker import SamWorker
 from ..views import AnchorPlan, plan_scene_anchors
+from . import negative_views
 from .backends import SessionBackend, backend_class_for
 from .config import SessionConfig
 from .edits import EditLayer
@@ -374,9 +375,12 @@ class SessionReader:
     def default_prompts(self, view: SessionView | str) -> tuple[np.ndarray, np.ndarray]:
         """The click's 3D point projected into the view (positive) plus the visible
         negative clicks (negative): of the view's object (:mod:`.corrections`), or with
-        corrections off of its anchor."""
+        corrections off of its anchor. A negative click's view: the object's clicks
+        visible there (:func:`.negative_views.view_prompts`)."""
         v = self.view(view) if isinstance(view, str) else view
         obj = self.objects[v.object_index]
+        if negative_views.is_negative_view(self, v):
+            return negative_views.view_prompts(self, v)  # its target is a negative click
         if self.config.corrections.enabled:
             oc = self.state.object_clicks(obj)
             negs = oc.points[~oc.positive]

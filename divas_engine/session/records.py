@@ -84,7 +84,7 @@ class AnchorClick:
     xy: tuple[float, float]
     positive: bool
     point: np.ndarray | None = None  # back-projected 3D point
-    view_id: str | None = None  # centroid view it spawned (positive clicks)
+    view_id: str | None = None  # the view it spawned (positive; negative: .negative_views)
 
     def to_dict(self) -> dict[str, Any]:
         return {
