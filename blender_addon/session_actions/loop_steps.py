@@ -22,6 +22,7 @@ import numpy as np
 from divas_engine.camera import Camera
 from divas_engine.errors import DivasInputError
 from divas_engine.kinds import ViewStatus
+from divas_engine.session.negative_views import is_negative_view
 from divas_engine.session.widening import is_wider
 from divas_engine.viewport import OrthographicViewError, camera_from_region, region_click_pixel
 
@@ -166,7 +167,9 @@ def _after_correction(context, obj, live: LiveSession, res) -> dict:
     sel = s.selection
     for vid in res.resegmented:
         v = s.view(vid)
-        if vid in live.view_cameras and v.status == ViewStatus.FUSED:
+        # the view a negative click no view saw fused gets its camera here
+        made = vid in live.view_cameras or is_negative_view(s, v)
+        if made and v.status == ViewStatus.FUSED:
             show_view(context, obj, live, v, lambda v=v: s.overlay(v, sel), activate=False)
     return {"views_changed": res.views_changed, **res.timings}
 

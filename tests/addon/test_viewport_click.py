@@ -171,3 +171,54 @@ def test_negative_click_in_a_free_view_removes_at_once(scene_dir):
         s.scene, bridge.read_attribute(geom, INDEX), bridge.read_attribute(geom, SELECTED)
     )
     np.testing.assert_array_equal(mapped, s.selection)
+
+
+def test_negative_click_no_view_sees_gets_a_camera(scene_dir):
+    """A Shift-click on an anchor on a selected spot that no fused view shows fuses the
+    click's own view (:mod:`divas_engine.session.negative_views`): the points'
+    selection follows in the same step and the new view gets its camera."""
+    from divas_engine.kinds import ViewStatus
+    from divas_engine.session import negative_views
+
+    out, sc = scene_dir
+    obj, live = _start(scene_dir)
+    s, k = live.session, 1
+    _, xy = _region_click(live, k, sc)
+    assert bpy.ops.divas.session_click(*UNDO, anchor=k, xy=f"{xy[0]!r} {xy[1]!r}") == {"FINISHED"}
+    assert bpy.ops.divas.session_accept(*UNDO) == {"FINISHED"}
+    # a pixel of another anchor on a selected surfel there whose point no view sees
+    hit = None
+    for j in (j for j in range(len(s.anchors)) if j != k):
+        a = s.anchors[j]
+        b = s.render(a)
+        rows = np.flatnonzero(s.selection)
+        uv, z = a.camera.project(s.scene.means[rows])
+        for i in np.argsort(z):
+            x, y = uv[i]
+            if not (0 <= x < a.camera.width and 0 <= y < a.camera.height):
+                continue
+            d = float(b.D_med[int(y), int(x)])
+            if d > 0 and abs(d - z[i]) < 0.01 * z[i]:
+                p = a.camera.unproject(np.array([[x, y]]), np.array([d]))[0]
+                if not negative_views.seen_by_a_view(s, p):
+                    hit = (j, float(x), float(y))
+                    break
+        if hit is not None:
+            break
+    assert hit is not None, "every selected surfel on the anchors' surfaces is seen by the view"
+    j, x, y = hit
+    assert bpy.ops.divas.session_click(*UNDO, anchor=j, xy=f"{x!r} {y!r}", positive=False) == {
+        "FINISHED"
+    }
+    res = s.last_correction
+    v = res.view
+    assert v is not None and v.status == ViewStatus.FUSED and res.views_changed == 1
+    assert v.id in live.view_cameras and live.view_cameras[v.id] in bpy.data.objects
+    from blender_addon import bridge
+    from divas_engine.point_attributes import INDEX, SELECTED, scene_selection
+
+    geom = bpy.data.objects[obj.name].data
+    mapped = scene_selection(
+        s.scene, bridge.read_attribute(geom, INDEX), bridge.read_attribute(geom, SELECTED)
+    )
+    np.testing.assert_array_equal(mapped, s.selection)
