@@ -593,6 +593,11 @@ def test_negative_click_no_view_sees_fuses_a_view_of_its_own(vase3d, tmp_path):
     np.testing.assert_array_equal(s.default_prompts(v)[1], v.labels)
     truth = s.view_context(v).truth
     assert not ((v.mask >= 0.5) & (truth >= 0.25) & (truth < 0.75)).any()  # no plinth
+    # it only takes away: its mask holds nothing the selection did not cover there
+    cam = v.camera
+    cov = s.renderer.render_values(cam, s0.selection.astype(np.float32)) >= 0.5
+    raw = v.preview.selection.mask
+    assert (raw >= 0.5).any() and not ((raw >= 0.5) & ~cov.reshape(raw.shape)).any()
     # far more of the plinth left than the patch; the vase stays (a few Gaussians of its
     # foot share voxels with the plinth top)
     out = np.flatnonzero(before & ~s.selection)

@@ -13,7 +13,9 @@ object's clicks visible in it, each with its own label (this click negative); it
 one positive among them (the object is in sight, and an image segmenter has a positive
 prompt), so when it shows none the view moves back along the same ray by the widening
 factor (:class:`~.config.WideningConfig`), up to the anchor's own distance; with none
-even there, no view is made. Fused like any view, it holds the spill outside its mask
+even there, no view is made. A negative click only takes away: the view's masks, each
+time it is segmented, are limited to what the selection covers in it
+(:func:`within_selection`). Fused like any view, it holds the spill outside its mask
 where it sees it, which weighs against the hidden evidence that made it. An ordinary session view
 (``o<object>:a<anchor>:c<click>``, the id a positive click's view would have, named in
 the click's record): saved, re-segmented by later corrections, widened when its mask runs
@@ -29,6 +31,7 @@ import numpy as np
 
 from ..errors import DivasInputError, InputErrorCode
 from ..kinds import ViewStatus
+from ..segment.base import SegResult
 from ..views.centroid_common import build_pose
 from .corrections import visible_pixels
 from .records import AcceptResult, AnchorClick, SessionView
@@ -38,6 +41,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "is_negative_view",
+    "within_selection",
     "seen_by_a_view",
     "negative_view",
     "view_prompts",
@@ -53,6 +57,18 @@ def is_negative_view(session: Session, view: SessionView) -> bool:
     it belongs to is negative."""
     clicks = session.objects[view.object_index].clicks.get(view.anchor, ())
     return 0 <= view.click < len(clicks) and not clicks[view.click].positive
+
+
+def within_selection(session: Session, view: SessionView, res: SegResult) -> SegResult:
+    """``res`` with its masks limited to what the selection covers in ``view`` (its
+    render ≥ 0.5): a negative click only takes away, so its view adds nothing — where
+    its mask holds more than the selection, that is the segmenter's spill (a SAM-like
+    mask bleeding between a wheel's spokes), not the user's."""
+    cam = view.camera
+    sel = np.asarray(session.selection, np.float32)
+    cov = session.renderer.render_values(cam, sel).reshape(cam.height, cam.width) >= 0.5
+    masks = np.asarray(res.masks, np.float32) * cov[None].astype(np.float32)
+    return replace(res, masks=masks)
 
 
 def seen_by_a_view(session: Session, point: np.ndarray) -> bool:

@@ -34,7 +34,7 @@ from ..segment.base import Rejection, Segmenter, SegResult
 from ..segment.factory import SegmenterSettings, build_segmenter
 from ..segment.worker import SamWorker
 from ..views import Anchor
-from . import clicks, fusing, widening
+from . import clicks, fusing, negative_views, widening
 from . import corrections as corr
 from . import edits as edit_steps
 from .config import SessionConfig
@@ -184,6 +184,8 @@ class Session(SessionReader):
         self, v: SessionView, res: SegResult, p: np.ndarray, lab: np.ndarray, seconds: float = 0.0
     ) -> MaskPreview:
         gate = self._seg is None or getattr(self._seg.seg, "score_gates_views", True)
+        if negative_views.is_negative_view(self, v):
+            res = negative_views.within_selection(self, v, res)  # it only takes away
         return mask_preview(
             v, self.render(v), res, p, lab, self.config, self.backend, seconds, gate
         )
