@@ -16,10 +16,11 @@ factor (:class:`~.config.WideningConfig`), up to the anchor's own distance; with
 even there, no view is made. A negative click only takes away: the view's masks, each
 time it is segmented, are limited to what the selection covers in it
 (:func:`within_selection`). Fused like any view, it holds the spill outside its mask
-where it sees it, which weighs against the hidden evidence that made it. An ordinary session view
-(``o<object>:a<anchor>:c<click>``, the id a positive click's view would have, named in
-the click's record): saved, re-segmented by later corrections, widened when its mask runs
-off the image, restored by history, undone by :meth:`~.session.Session.undo`.
+where it sees it, which weighs against the hidden evidence that made it. An ordinary
+session view (``o<object>:a<anchor>:c<click>``, the id a positive click's view would
+have, named in the click's record): saved, re-segmented by later corrections, widened
+when its mask runs off the image, restored by history, undone by
+:meth:`~.session.Session.undo`.
 """
 
 from __future__ import annotations
