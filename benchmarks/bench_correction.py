@@ -4,13 +4,16 @@ and surface patch, the views it re-segments, their re-fusion and the mapping.
 On one synthetic scene (default: the 1M-surfel ``plant``) a session with the oracle or
 ``graph3d`` fuses the first ``--views`` demo-prompt views, then makes the simulated user's next
 clicks on its anchors (``tests/click_user.py``'s rule), then negative clicks on the deepest
-spill (or on the selection, where every fused view showing the spot disagrees). Each correction
+spill (or on the selection, where every fused view showing the spot disagrees), then
+(``--unseen``) a negative click on a selected spot that no fused view sees, which fuses
+the click's own view. Each correction
 is timed ``--repeats`` times (undone exactly between repeats) as wall and CPU seconds, with its
 stages and changed views, beside one full render of the same anchor; the load average is
 printed with the figures.
 
     python benchmarks/bench_correction.py [--size 1000000] [--scene plant]
-        [--segmenter oracle] [--views 4] [--clicks 2] [--negatives 2] [--repeats 3]
+        [--segmenter oracle] [--views 4] [--clicks 2] [--negatives 2] [--unseen 1]
+        [--repeats 3]
         [--device cpu]
     python benchmarks/bench_correction.py --target biker/helmet --segmenter oracle --clicks 8
 
@@ -65,6 +68,31 @@ def _deepest(session, labels: np.ndarray, kinds: tuple[str, ...]):
     return None if best is None else best[1]
 
 
+def _unseen(session, tries: int = 400):
+    """A selected pixel of a rendered anchor (the deepest first) whose surface point no
+    view of the object sees: ``(anchor, xy, False, "unseen")`` — a negative click there
+    fuses the click's own view (``session/negative_views.py``) — or None."""
+    from divas_engine.session.negative_views import seen_by_a_view
+
+    sel = session.selection.astype(np.float32)
+    for a in session.anchors:
+        if not a.rendered:
+            continue
+        cam, b = a.camera, a.buffers
+        p = session.renderer.render_values(cam, sel).reshape(cam.height, cam.width) >= 0.5
+        p &= np.asarray(b.D_med) > 0
+        if not p.any():
+            continue
+        d = ndimage.distance_transform_edt(np.pad(p, 1))[1:-1, 1:-1]
+        for i in np.argsort(-d, axis=None)[:tries]:
+            y, x = divmod(int(i), cam.width)
+            z = float(b.D_med[y, x])
+            point = cam.unproject(np.array([[x + 0.5, y + 0.5]]), np.array([z]))[0]
+            if z > 0 and not seen_by_a_view(session, point):
+                return a.index, (x + 0.5, y + 0.5), False, "unseen"
+    return None
+
+
 def run(args) -> list[dict]:
     from divas_engine.segment.graph3d import Graph3DSegmenter
     from divas_engine.segment.oracle import OracleSegmenter
@@ -96,8 +124,9 @@ def run(args) -> list[dict]:
     h = s.history
     rows = []
     plan = [("missed", "spill")] * args.clicks + [("spill", "selected")] * args.negatives
+    plan += [None] * args.unseen
     for k, kinds in enumerate(plan):
-        click = _deepest(s, labels, kinds)
+        click = _deepest(s, labels, kinds) if kinds else _unseen(s)
         if click is None:
             continue
         ai, xy, positive, kind = click
@@ -216,6 +245,13 @@ def main() -> None:
         type=int,
         default=2,
         help="then negative clicks on the deepest spill (else on the selection itself)",
+    )
+    ap.add_argument(
+        "--unseen",
+        type=int,
+        default=1,
+        help="then negative clicks on a selected spot no fused view sees (the session "
+        "fuses the click's own view)",
     )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--device", default="cpu")

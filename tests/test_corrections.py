@@ -593,7 +593,7 @@ def test_negative_click_no_view_sees_fuses_a_view_of_its_own(vase3d, tmp_path):
     np.testing.assert_array_equal(s.default_prompts(v)[1], v.labels)
     truth = s.view_context(v).truth
     assert not ((v.mask >= 0.5) & (truth >= 0.25) & (truth < 0.75)).any()  # no plinth
-    # it only takes away: its mask holds nothing the selection did not cover there
+    # no mask beyond the selection: it holds nothing the selection did not cover there
     cam = v.camera
     cov = s.renderer.render_values(cam, s0.selection.astype(np.float32)) >= 0.5
     raw = v.preview.selection.mask

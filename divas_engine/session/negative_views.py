@@ -13,9 +13,9 @@ object's clicks visible in it, each with its own label (this click negative); it
 one positive among them (the object is in sight, and an image segmenter has a positive
 prompt), so when it shows none the view moves back along the same ray by the widening
 factor (:class:`~.config.WideningConfig`), up to the anchor's own distance; with none
-even there, no view is made. A negative click only takes away: the view's masks, each
-time it is segmented, are limited to what the selection covers in it
-(:func:`within_selection`). Fused like any view, it holds the spill outside its mask
+even there, no view is made. A negative click's view holds no mask beyond the
+selection: each time it is segmented, its masks are limited to what the selection
+covers in it (:func:`within_selection`). Fused like any view, it holds the spill outside its mask
 where it sees it, which weighs against the hidden evidence that made it. An ordinary
 session view (``o<object>:a<anchor>:c<click>``, the id a positive click's view would
 have, named in the click's record): saved, re-segmented by later corrections, widened
@@ -62,7 +62,7 @@ def is_negative_view(session: Session, view: SessionView) -> bool:
 
 def within_selection(session: Session, view: SessionView, res: SegResult) -> SegResult:
     """``res`` with its masks limited to what the selection covers in ``view`` (its
-    render ≥ 0.5): a negative click only takes away, so its view adds nothing — where
+    render ≥ 0.5): a negative click takes away, so its view holds no more — where
     its mask holds more than the selection, that is the segmenter's spill (a SAM-like
     mask bleeding between a wheel's spokes), not the user's."""
     cam = view.camera

@@ -185,7 +185,7 @@ class Session(SessionReader):
     ) -> MaskPreview:
         gate = self._seg is None or getattr(self._seg.seg, "score_gates_views", True)
         if negative_views.is_negative_view(self, v):
-            res = negative_views.within_selection(self, v, res)  # it only takes away
+            res = negative_views.within_selection(self, v, res)  # no mask beyond the selection
         return mask_preview(
             v, self.render(v), res, p, lab, self.config, self.backend, seconds, gate
         )
