@@ -115,10 +115,11 @@ def _accept_clicks(s: Session, vase, anchors=None) -> None:
         assert s.accept(s.click(i, _xy(s, i, clicks[i]))).status == ViewStatus.FUSED
 
 
-def _front_pixel(s: Session, i: int, rows: np.ndarray, tol: float = 0.01):
+def _front_pixel(s: Session, i: int, rows: np.ndarray, tol: float = 0.01, keep=None):
     """A primitive of ``rows`` on the visible surface of anchor ``i`` (its centre's
     depth within ``tol`` of the render's D_med there), nearest the camera:
-    ``(row, pixel)``, or None."""
+    ``(row, pixel)``, or None. ``keep``: a test of the surface point under the pixel
+    (back-projected with D_med) the primitive must also pass."""
     a = s.anchors[i]
     b = s.render(a)
     uv, z = a.camera.project(s.scene.means[rows])
@@ -126,7 +127,9 @@ def _front_pixel(s: Session, i: int, rows: np.ndarray, tol: float = 0.01):
         x, y = uv[k]
         if 0 <= x < a.camera.width and 0 <= y < a.camera.height:
             d = float(b.D_med[int(y), int(x)])
-            if d > 0 and abs(d - z[k]) < tol * z[k]:
+            if not (d > 0 and abs(d - z[k]) < tol * z[k]):
+                continue
+            if keep is None or keep(a.camera.unproject(np.array([[x, y]]), np.array([d]))[0]):
                 return int(rows[k]), (float(x), float(y))
     return None
 
@@ -525,18 +528,13 @@ def vase3d():
 def _unseen_click(s: Session, rows: np.ndarray, anchor: int) -> tuple[float, float]:
     """A pixel of anchor ``anchor`` on a primitive of ``rows`` (its surface there) whose
     point no view of the object sees."""
-    a = s.anchors[anchor]
-    b = s.render(a)
-    uv, z = a.camera.project(s.scene.means[rows])
-    for k in np.argsort(z):
-        x, y = uv[k]
-        if 0 <= x < a.camera.width and 0 <= y < a.camera.height:
-            d = float(b.D_med[int(y), int(x)])
-            if d > 0 and abs(d - z[k]) < 0.02 * z[k]:
-                point = a.camera.unproject(np.array([[x, y]]), np.array([d]))[0]
-                if not negative_views.seen_by_a_view(s, point):
-                    return float(x), float(y)
-    raise AssertionError("a view sees every primitive of the set on the anchor's surface")
+
+    def unseen(point) -> bool:
+        return not negative_views.seen_by_a_view(s, point)
+
+    hit = _front_pixel(s, anchor, rows, 0.02, keep=unseen)
+    assert hit is not None, "a view sees every primitive of the set on the anchor's surface"
+    return hit[1]
 
 
 def _on_surface(v, points: np.ndarray, tol: float = 0.02) -> np.ndarray:

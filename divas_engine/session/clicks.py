@@ -70,8 +70,9 @@ def click(self: Session, anchor_index: int, xy, positive: bool = True) -> Sessio
             rec = AnchorClick(anchor.index, ci, xy, False, point)
             clicks.append(rec)
             if constrained:
+                before = self.state.selection  # replaced, never written, by the steps
                 res = correct(self, point, anchor.camera, depth, source, False)
-                _negative_view(self, rec, res)
+                _negative_view(self, rec, res, before)
             self.autosave()
             return rec
         vid = f"o{obj.index}:a{anchor.index}:c{ci}"
@@ -98,21 +99,20 @@ def click(self: Session, anchor_index: int, xy, positive: bool = True) -> Sessio
     return view
 
 
-def _negative_view(self: Session, rec: AnchorClick, res: CorrectionResult) -> None:
+def _negative_view(
+    self: Session, rec: AnchorClick, res: CorrectionResult, before: np.ndarray
+) -> None:
     """Fuse the view of a negative anchor click no view of its object sees
     (:mod:`.negative_views`); the click's correction result ``res`` then counts it among
-    the views the click changed, with the selection after it."""
+    the views the click changed, with the selection delta from ``before`` the click."""
     acc = negative_views.fuse_negative_view(self, rec)
     if acc is None:
         return
-    flat = res.selection.reshape(-1)
-    before = flat.copy()  # the selection before the click
-    before[res.added], before[res.removed] = False, True
     after = self.state.selection
     res.resegmented.append(acc.view.id)
     res.view = acc.view
-    res.added = np.flatnonzero(after.reshape(-1) & ~before)
-    res.removed = np.flatnonzero(before & ~after.reshape(-1))
+    res.added = np.flatnonzero(after & ~before)
+    res.removed = np.flatnonzero(before & ~after)
     res.selection = after
     for k in ("segmenter_s", "update_s"):
         res.timings[k] = res.timings.get(k, 0.0) + float(acc.timings.get(k, 0.0))

@@ -36,6 +36,7 @@ from ..segment.base import SegResult
 from ..views.centroid_common import build_pose
 from .corrections import visible_pixels
 from .records import AcceptResult, AnchorClick, SessionView
+from .widening import forget
 
 if TYPE_CHECKING:
     from .session import Session
@@ -117,9 +118,9 @@ def negative_view(
     reach = float(np.linalg.norm(cv.target - anchor.camera.center))
     direction = (cv.target - anchor.camera.center) / max(reach, 1e-300)
     r, factor = cv.d_cam, float(session.config.widening.factor)
+    near = session.config.view.near_fraction
     while not labels.any() and r < reach * (1.0 - 1e-9):
         r = min(r * factor, reach)
-        near = session.config.view.near_fraction
         cam = build_pose(anchor.camera, cv.target, direction, r, vid, near)
         wide = replace(cv, camera=cam, d_cam=r, strategy=f"{cv.strategy}+wider", _buffers=None)
         view = SessionView(vid, obj.index, rec.anchor, rec.index, wide)
@@ -154,11 +155,9 @@ def fuse_negative_view(session: Session, rec: AnchorClick) -> AcceptResult | Non
     except DivasInputError as e:
         if e.code != InputErrorCode.FUSION_FULL:
             raise
-        obj = session.current
-        if view in obj.views:
-            obj.views.remove(view)
-        session.state.views.pop(view.id, None)
-        if obj.accept_order and obj.accept_order[-1] == view.id:
-            obj.accept_order.pop()
+        forget(session, view)  # no slot left: the click stays a patch
+        order = session.current.accept_order
+        if order and order[-1] == view.id:
+            order.pop()
         rec.view_id = None
         return None
