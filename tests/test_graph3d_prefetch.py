@@ -172,6 +172,23 @@ def test_a_prompt_waits_for_the_cut_in_flight_and_never_computes_it_twice():
     assert not cache.start(b"k", bg)  # kept: nothing started
 
 
+def test_a_background_cut_two_waiters_take_counts_once():
+    """The prompt and the masks rendered ahead may both wait for one cut in flight."""
+    cache: CutCache = CutCache(2)
+    gate = threading.Event()
+    assert cache.start(b"k", _Counting("bg", gate))
+    got: list = []
+    waiters = [threading.Thread(target=lambda: got.append(cache.get(b"k", _Counting("fg"))))]
+    waiters.append(threading.Thread(target=lambda: got.append(cache.get(b"k", _Counting("fg")))))
+    for t in waiters:
+        t.start()
+    time.sleep(0.2)
+    gate.set()
+    for t in waiters:
+        t.join(30)
+    assert got == ["bg", "bg"] and cache.prefetch_hits == 1
+
+
 def test_a_failed_or_superseded_background_cut_is_not_kept():
     cache: CutCache = CutCache(2)
     assert cache.start(b"bad", _Counting("x", fail=True)) and cache.wait(30)

@@ -42,7 +42,7 @@ class CutCache(Generic[T]):
         self._lock = threading.Lock()
         self._generation = 0
         self._background: set[bytes] = set()  # kept cuts a background thread made
-        #: how many :meth:`get` calls took a background cut (finished or waited for)
+        #: how many background cuts a :meth:`get` took (finished or waited for), each once
         self.prefetch_hits = 0
 
     def __len__(self) -> int:
@@ -102,8 +102,11 @@ class CutCache(Generic[T]):
             ok = fut.exception() is None  # waits; a failed one is computed again below
             if ok:
                 with self._lock:
-                    self._background.discard(key)
-                    self.prefetch_hits += 1
+                    # counted once per background cut: another waiter (the masks
+                    # rendered ahead) may have taken it first
+                    if key in self._background:
+                        self._background.discard(key)
+                        self.prefetch_hits += 1
                 return fut.result()
         value = compute()
         with self._lock:
