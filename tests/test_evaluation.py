@@ -885,10 +885,12 @@ def test_scripted_user_gives_up_on_an_anchor_without_progress(user_scene):
     anchor exactly ``max_failed_clicks`` times (no hard cap), marks it stalled and
     moves on — it does not spend the whole view budget on one anchor."""
     from divas_engine.evaluation.scripted_user import ScriptedUser, UserBudget
-    from divas_engine.session import Session, SessionConfig, anchor_plan
+    from divas_engine.session import CorrectionConfig, Session, SessionConfig, anchor_plan
 
     sc = user_scene
-    cfg = SessionConfig(render_scale=0.25)
+    # the paper's loop: a refused view changes nothing (with corrections on, its click
+    # would still select the spot it was made on: tests/test_click_pixel.py)
+    cfg = SessionConfig(render_scale=0.25, corrections=CorrectionConfig(enabled=False))
     for k in (1, 2):
         user = ScriptedUser(
             sc.labels,

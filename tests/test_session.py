@@ -277,7 +277,10 @@ def test_bad_clicks_and_rejected_views(ribs):
     assert r.status == "rejected" and "score 0.200 < 0.5" in r.reason
     low = Rejection(RejectReason.LOW_SCORE, pytest.approx(0.2), 0.5, 1)
     assert v.rejection == low and v.rejection.message == r.reason
-    assert not s.selection.any() and s.undo() is None
+    # the click stands (its patch selected: corrections.constrain); undo takes it back
+    patch = s.current.corrections[-1].patch
+    assert len(patch) and np.array_equal(np.flatnonzero(s.selection), patch)
+    assert s.undo() is v and v.status == "open" and not s.selection.any()
     with pytest.raises(DivasInputError, match="already accepted") as e:
         v.status = "fused"  # (as an accept would leave it)
         s.prompt(v)

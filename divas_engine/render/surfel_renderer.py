@@ -353,16 +353,24 @@ class SurfelRenderer(Renderer):
             stats=stats,
         )
 
-    def contributions(self, camera: Camera, positive: np.ndarray) -> ContribOutput:
+    def contributions(
+        self,
+        camera: Camera,
+        positive: np.ndarray,
+        window: tuple[int, int, int, int] | None = None,
+    ) -> ContribOutput:
         """FlashSplat-style split of each primitive's blending weight in ``camera`` by the
         ``[H,W]`` bool mask ``positive``: A₁ inside, A₀ outside — this renderer's own
-        weights, walking the camera's kept binning when it was just rendered (same sums)."""
+        weights, walking the camera's kept binning when it was just rendered (same sums).
+        ``window``: ``(x0, y0, x1, y1)``, only these pixels are walked (the weights at
+        them are the whole pass's; :func:`~divas_kernels.accumulate_contributions`)."""
         return accumulate_contributions(
             self._buf,
             *_projection(camera),
             positive,
             self.config.raster_settings(camera),
-            binning=self.kept_binning(camera),
+            binning=None if window is not None else self.kept_binning(camera),
+            window=window,
         )
 
     @property

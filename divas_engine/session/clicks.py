@@ -243,6 +243,12 @@ def correct(
     sigmas = cfg.positive_sigmas if positive else cfg.negative_sigmas
     point = np.array(point, np.float64)
     patch = self.backend.click_patch(point, float(radius), sigmas)
+    share = cfg.positive_pixel_share if positive else cfg.negative_pixel_share
+    if share > 0 and camera is not None and source.xy:
+        drawn = self.backend.pixel_weights(camera, source.xy)
+        if drawn is not None:
+            z = float(camera.world_to_camera(point[None])[0, 2])
+            patch = corr.pixel_patch(patch, *drawn, z, share, positive)
     views = [v for v in obj.views if v is not spawned]
     tol, reads = self.config.negative_occlusion_tol, self.backend.weight_reads_prompts
     plan = corr.prompt_plan(views, point, positive, tol, reads, own=own)

@@ -47,6 +47,12 @@ class CorrectionConfig:
             lies within this many standard deviations of it (its ellipsoid grown by the
             patch radius): generous for a negative click (everything that draws the
             spot goes), strict for a positive one (no large background splat comes in).
+        positive_pixel_share, negative_pixel_share: a click's patch also takes,
+            nearest the click's depth first, the primitives that draw the clicked pixel,
+            until a positive patch draws at least this share of the pixel's blending
+            weight and a negative one leaves less than it (:func:`.corrections.pixel_patch`):
+            at 0.5, the threshold of the selection's indicator, the clicked pixel shows
+            selected (unselected) whatever else is. 0: the ellipsoid patch alone.
         negative_views: a negative anchor click that no view of its object sees fuses a
             view of its own, the click's centroid view (:mod:`.negative_views`).
             False: it prompts the views that see it and forces its patch out, no more.
@@ -56,6 +62,8 @@ class CorrectionConfig:
     patch_px: float = 2.0
     negative_sigmas: float = 2.0
     positive_sigmas: float = 1.0
+    positive_pixel_share: float = 0.5
+    negative_pixel_share: float = 0.0
     negative_views: bool = True
 
     def __post_init__(self) -> None:
@@ -63,6 +71,10 @@ class CorrectionConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"CorrectionConfig.{name} must be positive, got {v}")
+        for name in ("positive_pixel_share", "negative_pixel_share"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0 <= v <= 1):
+                raise ValueError(f"CorrectionConfig.{name} must be in [0, 1], got {v}")
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ it spawns. Here every click — on an anchor, on a centroid view, through any ca
 a world point — is one :class:`~.records.Correction` of its object:
 
 1. a 3D point ``P`` (back-projected with the clicked image's depth) and its surface
-   patch (the backend's ``click_patch``);
+   patch (the backend's ``click_patch``; on Gaussians a positive patch also holds the
+   clicked pixel, :func:`pixel_patch`);
 2. a prompt of every view of the object where ``P`` is visible and whose mask disagrees
    with the click (:func:`prompt_plan`): re-segmented and re-fused in its own slot;
 3. a constraint on the selection: after the mapping the patches are forced in or out,
@@ -31,6 +32,7 @@ from .records import Correction, SessionView
 __all__ = [
     "constrain",
     "surfel_patch",
+    "pixel_patch",
     "grid_patch",
     "visible_pixels",
     "patch_radius",
@@ -47,13 +49,14 @@ _SAME_POINT_PX = 1.0
 
 
 def constrain(
-    semantic: np.ndarray, corrections: Sequence[Correction], fused: Collection[str] = ()
+    semantic: np.ndarray, corrections: Sequence[Correction], accepted: Collection[str] = ()
 ) -> np.ndarray:
     """``semantic`` with each correction's patch forced in (positive) or out (negative),
     in click order (a later click over an earlier one wins); a click that spawned a
-    view holds only while that view is among the ``fused`` view ids. ``semantic`` itself
-    when none holds (never written)."""
-    held = [c for c in corrections if c.spawned is None or c.spawned in fused]
+    view holds only while that view is among the ``accepted`` view ids (fused, or
+    refused at accept: the user asked for it, and the click stands when its mask could
+    not be fused). ``semantic`` itself when none holds (never written)."""
+    held = [c for c in corrections if c.spawned is None or c.spawned in accepted]
     if not held:
         return semantic
     out = np.array(semantic, dtype=bool, copy=True)
@@ -225,6 +228,43 @@ def surfel_patch(
     s = np.column_stack([scene.scales[cand].astype(np.float64), sn]) + float(radius)
     inside = np.einsum("ki,ki->k", local / s, local / s) <= float(sigmas) ** 2
     return cand[inside].astype(np.int64)
+
+
+def pixel_patch(
+    patch: np.ndarray,
+    rows: np.ndarray,
+    weights: np.ndarray,
+    depths: np.ndarray,
+    click_depth: float,
+    share: float,
+    positive: bool = True,
+) -> np.ndarray:
+    """A click's ``patch`` grown until it settles the clicked pixel at ``share``.
+
+    The primitives that draw the pixel (``rows``, blending weights ``weights`` there,
+    camera depths ``depths`` of their centres) join nearest ``click_depth`` first, until
+    the patch draws at least ``share`` of the pixel (``positive``), or until what it
+    leaves draws less than ``share`` (negative); all of them when that takes all. With
+    ``share`` 0.5, the threshold of the selection's indicator, the selection's render
+    shows the clicked pixel selected after a positive click and unselected after a
+    negative one, whatever else is selected: a click never leaves the spot it was
+    made on as it was. The ellipsoid test alone (:func:`surfel_patch`) can miss the
+    surfel that draws most of the pixel on a slanted surface, or a second layer of the
+    object seen through the first. Sorted flat indices."""
+    patch = np.asarray(patch, np.int64)
+    rows = np.asarray(rows, np.int64)
+    w = np.asarray(weights, np.float64)
+    have = float(w[np.isin(rows, patch)].sum())
+    # settled when the patch draws ``need`` (positive: at least; negative: more than)
+    need = float(share) if positive else float(w.sum()) - float(share)
+    if not len(rows) or (have >= need if positive else have > need):
+        return patch
+    order = np.argsort(np.abs(np.asarray(depths, np.float64) - float(click_depth)), kind="stable")
+    order = order[~np.isin(rows[order], patch)]
+    reach = have + np.cumsum(w[order])
+    side = "left" if positive else "right"
+    k = int(np.searchsorted(reach, need, side=side)) + 1  # the first that settles it, with it
+    return np.union1d(patch, rows[order[:k]])
 
 
 def grid_patch(grid: DensityGrid, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:

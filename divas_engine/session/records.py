@@ -149,7 +149,8 @@ class Correction:
         source: the :class:`ClickSource`.
         views: the views it prompted when it was made (segmented again).
         spawned: the centroid view a positive anchor click spawned (Sec. 3.3): that
-            click stands for its view, so its patch holds while the view is fused.
+            click stands for its view, so its patch holds once the view is accepted —
+            fused, or refused at accept (its mask could not be fused; the click stands).
     """
 
     index: int

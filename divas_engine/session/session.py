@@ -353,6 +353,8 @@ class Session(SessionReader):
             for vid in fused:  # segmented: what the renderer kept for it is done with
                 self.renderer.release(self.view(vid).camera)
             ov, nxt, nov = self._lazy_overlays(view)  # rendered when first read
+        elif rejected:  # a refused view's click holds (corrections.constrain)
+            self.state.selection = self.state.composed()
         timings["fuse_s"] = sum(timings.values())
         return AcceptResult(
             view,
@@ -399,8 +401,12 @@ class Session(SessionReader):
                 if self._worker is not None:
                     self._worker.forget(v.id)
                 v.status = ViewStatus.OPEN
+            elif v.status == ViewStatus.REJECTED and not wide:
+                # a refused accept selected its click's patch (corrections.constrain)
+                v.status, v.reason, v.rejection = ViewStatus.OPEN, None, None
+                self.state.selection = self.state.composed()
             elif not wide:
-                continue  # rejected accepts changed nothing: keep looking
+                continue  # an accept that changed nothing: keep looking
             if wide:  # part of the accept before it: go on to the click's own view
                 widening.forget(self, v)
                 continue

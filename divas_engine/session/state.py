@@ -31,6 +31,8 @@ from .records import AnchorClick, AnchorView, Correction, ObjectRecord, SessionV
 __all__ = ["SessionState", "StateSnapshot"]
 
 #: the view fields a step can change (a snapshot keeps their values)
+#: the statuses of a spawned view whose click holds (:func:`~.corrections.constrain`)
+_CLICK_HOLDS = (ViewStatus.FUSED, ViewStatus.REJECTED)
 _VIEW_FIELDS = (
     "status",
     "reason",
@@ -182,8 +184,9 @@ class SessionState:
         or out (:func:`~.corrections.constrain`), then the manual edits
         (:func:`~.edits.compose`)."""
         cur = self.current
-        fused = {v.id for v in cur.views if v.status == ViewStatus.FUSED}
-        return compose(constrain(self.semantic, cur.corrections, fused), self.edits, cur.index)
+        # a click holds once its view is accepted: fused, or refused (its mask failed)
+        accepted = {v.id for v in cur.views if v.status in _CLICK_HOLDS}
+        return compose(constrain(self.semantic, cur.corrections, accepted), self.edits, cur.index)
 
     def set_semantic(self, semantic: np.ndarray) -> None:
         """The fused selection ``S``; the selection is :meth:`composed` from it."""

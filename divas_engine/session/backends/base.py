@@ -138,6 +138,15 @@ class SessionBackend(ABC):
         grown by ``radius`` (world units), within ``sigmas`` standard deviations
         (:func:`~..corrections.surfel_patch`, :func:`~..corrections.grid_patch`)."""
 
+    def pixel_weights(
+        self, camera: Camera, xy: tuple[float, float]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """What draws pixel ``xy`` of ``camera`` (rendered at its size): ``(rows, w,
+        z)``, the flat indices of the primitives with a blending weight ``w = α·T`` there
+        and the camera depths of their centres; None where the backend has no such
+        weights (the density grid: a click's patch stays its voxels)."""
+        return None
+
     # ---------------------------------------------------------------- masks and fusion
     @abstractmethod
     def depth_weight(

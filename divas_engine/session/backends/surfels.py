@@ -184,6 +184,20 @@ class SurfelBackend(SessionBackend):
             )
         return surfel_patch(sc, point, radius, sigmas, self._reach)
 
+    def pixel_weights(
+        self, camera: Camera, xy: tuple[float, float]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        x, y = int(np.floor(xy[0])), int(np.floor(xy[1]))
+        if not (0 <= x < camera.width and 0 <= y < camera.height):
+            return None
+        pixel = np.zeros((camera.height, camera.width), bool)
+        pixel[y, x] = True
+        out = self.renderer.contributions(camera, pixel, window=(x, y, x + 1, y + 1))
+        w = out.a1.numpy()
+        rows = np.flatnonzero(w > 0)
+        z = camera.world_to_camera(self.scene.means[rows])[:, 2]
+        return rows, w[rows].astype(np.float64), z
+
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
     ) -> tuple[np.ndarray, DepthBand | None]:
