@@ -1,5 +1,5 @@
 """A click never leaves the pixel it was made on as it was: its patch takes the
-primitives that draw the pixel, nearest the click's depth first, until a positive patch
+primitives that draw the pixel, nearest the click's point first, until a positive patch
 holds half of the pixel's blending weight and a negative one leaves less than half
 (:func:`divas_engine.session.corrections.pixel_patch`).
 
@@ -26,33 +26,27 @@ from divas_engine.views.centroid_common import click_point
 from .test_corrections import _accept_clicks, _open, _perfect, _xy, vase  # noqa: F401
 
 
-def test_pixel_patch_adds_nearest_the_click_depth_until_half():
+def test_pixel_patch_adds_nearest_the_click_until_half():
     rows = np.array([10, 11, 12, 13, 14])
     w = np.array([0.30, 0.14, 0.10, 0.03, 0.20])
-    z = np.array([2.56, 1.87, 2.72, 2.70, 0.62])  # 11, 14: occluders in front
+    d = np.array([0.0, 0.69, 0.16, 0.14, 1.94])  # from the click: 11, 14 are occluders
     # the patch (row 10) draws 0.30; 13 (0.14 away) then 12 (0.16) bring it to 0.43,
     # 11 (0.69 away) to 0.57 >= 0.5; 14 (1.94 away) is not needed
-    assert pixel_patch(np.array([10]), rows, w, z, 2.56, 0.5).tolist() == [10, 11, 12, 13]
-    assert pixel_patch(np.array([10]), rows, w, z, 2.56, 0.4).tolist() == [10, 12, 13]
+    assert pixel_patch(np.array([10]), rows, w, d, 0.5).tolist() == [10, 11, 12, 13]
+    assert pixel_patch(np.array([10]), rows, w, d, 0.4).tolist() == [10, 12, 13]
     # a patch that already draws the share is kept as it is, rows off the pixel included
-    assert pixel_patch(np.array([3, 10]), rows, w, z, 2.56, 0.3).tolist() == [3, 10]
+    assert pixel_patch(np.array([3, 10]), rows, w, d, 0.3).tolist() == [3, 10]
     # a pixel with less than the share in all: every primitive that draws it
-    assert pixel_patch(np.array([], np.int64), rows, w * 0.5, z, 2.56, 0.5).tolist() == [
-        10,
-        11,
-        12,
-        13,
-        14,
-    ]
-    assert pixel_patch(np.array([7]), rows[:0], w[:0], z[:0], 1.0, 0.5).tolist() == [7]
+    empty = np.array([], np.int64)
+    assert pixel_patch(empty, rows, w * 0.5, d, 0.5).tolist() == [10, 11, 12, 13, 14]
+    assert pixel_patch(np.array([7]), rows[:0], w[:0], d[:0], 0.5).tolist() == [7]
     # negative: until what the patch leaves of the pixel (0.77 in all) draws less than the
     # share: row 10 leaves 0.47 < 0.5; at 0.4, 13 leaves 0.44, 12 then 0.34 < 0.4
-    empty = np.array([], np.int64)
-    assert pixel_patch(empty, rows, w, z, 2.56, 0.5, positive=False).tolist() == [10]
-    assert pixel_patch(empty, rows, w, z, 2.56, 0.4, positive=False).tolist() == [10, 12, 13]
+    assert pixel_patch(empty, rows, w, d, 0.5, positive=False).tolist() == [10]
+    assert pixel_patch(empty, rows, w, d, 0.4, positive=False).tolist() == [10, 12, 13]
     # leaving exactly the share is not less than it: one more joins
-    assert pixel_patch(empty, rows, w, z, 2.56, 0.47, positive=False).tolist() == [10, 13]
-    assert pixel_patch(np.array([11, 14]), rows, w, z, 2.56, 0.5, False).tolist() == [11, 14]
+    assert pixel_patch(empty, rows, w, d, 0.47, positive=False).tolist() == [10, 13]
+    assert pixel_patch(np.array([11, 14]), rows, w, d, 0.5, False).tolist() == [11, 14]
     with pytest.raises(ValueError, match="positive_pixel_share"):
         CorrectionConfig(positive_pixel_share=1.5)
 

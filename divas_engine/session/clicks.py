@@ -247,8 +247,9 @@ def correct(
     if share > 0 and camera is not None and source.xy:
         drawn = self.backend.pixel_weights(camera, source.xy)
         if drawn is not None:
-            z = float(camera.world_to_camera(point[None])[0, 2])
-            patch = corr.pixel_patch(patch, *drawn, z, share, positive)
+            rows, w, centres = drawn
+            near = np.linalg.norm(centres - point, axis=1)
+            patch = corr.pixel_patch(patch, rows, w, near, share, positive)
     views = [v for v in obj.views if v is not spawned]
     tol, reads = self.config.negative_occlusion_tol, self.backend.weight_reads_prompts
     plan = corr.prompt_plan(views, point, positive, tol, reads, own=own)

@@ -48,7 +48,7 @@ class CorrectionConfig:
             patch radius): generous for a negative click (everything that draws the
             spot goes), strict for a positive one (no large background splat comes in).
         positive_pixel_share, negative_pixel_share: a click's patch also takes,
-            nearest the click's depth first, the primitives that draw the clicked pixel,
+            nearest the click's point first, the primitives that draw the clicked pixel,
             until a positive patch draws at least this share of the pixel's blending
             weight and a negative one leaves less than it (:func:`.corrections.pixel_patch`):
             at 0.5, the threshold of the selection's indicator, the clicked pixel shows

@@ -234,15 +234,14 @@ def pixel_patch(
     patch: np.ndarray,
     rows: np.ndarray,
     weights: np.ndarray,
-    depths: np.ndarray,
-    click_depth: float,
+    distances: np.ndarray,
     share: float,
     positive: bool = True,
 ) -> np.ndarray:
     """A click's ``patch`` grown until it settles the clicked pixel at ``share``.
 
     The primitives that draw the pixel (``rows``, blending weights ``weights`` there,
-    camera depths ``depths`` of their centres) join nearest ``click_depth`` first, until
+    ``distances`` of their centres from the click's point) join nearest first, until
     the patch draws at least ``share`` of the pixel (``positive``), or until what it
     leaves draws less than ``share`` (negative); all of them when that takes all. With
     ``share`` 0.5, the threshold of the selection's indicator, the selection's render
@@ -259,7 +258,7 @@ def pixel_patch(
     need = float(share) if positive else float(w.sum()) - float(share)
     if not len(rows) or (have >= need if positive else have > need):
         return patch
-    order = np.argsort(np.abs(np.asarray(depths, np.float64) - float(click_depth)), kind="stable")
+    order = np.argsort(np.asarray(distances, np.float64), kind="stable")
     order = order[~np.isin(rows[order], patch)]
     reach = have + np.cumsum(w[order])
     side = "left" if positive else "right"

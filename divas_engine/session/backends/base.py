@@ -142,9 +142,9 @@ class SessionBackend(ABC):
         self, camera: Camera, xy: tuple[float, float]
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """What draws pixel ``xy`` of ``camera`` (rendered at its size): ``(rows, w,
-        z)``, the flat indices of the primitives with a blending weight ``w = α·T`` there
-        and the camera depths of their centres; None where the backend has no such
-        weights (the density grid: a click's patch stays its voxels)."""
+        centres)``, the flat indices of the primitives with a blending weight ``w = α·T``
+        there and their ``[K,3]`` centres; None where the backend has no such weights
+        (the density grid: a click's patch stays its voxels)."""
         return None
 
     # ---------------------------------------------------------------- masks and fusion

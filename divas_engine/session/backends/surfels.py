@@ -195,8 +195,7 @@ class SurfelBackend(SessionBackend):
         out = self.renderer.contributions(camera, pixel, window=(x, y, x + 1, y + 1))
         w = out.a1.numpy()
         rows = np.flatnonzero(w > 0)
-        z = camera.world_to_camera(self.scene.means[rows])[:, 2]
-        return rows, w[rows].astype(np.float64), z
+        return rows, w[rows].astype(np.float64), np.asarray(self.scene.means[rows], np.float64)
 
     def depth_weight(
         self, mask: np.ndarray, buffers: RenderBuffers, points: np.ndarray, labels: np.ndarray
