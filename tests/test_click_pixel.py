@@ -1,6 +1,6 @@
-"""A click never leaves the pixel it was made on as it was: its patch takes the
-primitives that draw the pixel, nearest the click's point first, until a positive patch
-holds half of the pixel's blending weight and a negative one leaves less than half
+"""A click's pixel rule (an option, off by default): its patch takes the primitives that
+draw the pixel, nearest the click's point first, until a positive patch holds half of the
+pixel's blending weight and a negative one leaves less than half
 (:func:`divas_engine.session.corrections.pixel_patch`).
 
 The rule is checked on hand-made weights, then in a session on the synthetic vase
@@ -8,7 +8,7 @@ The rule is checked on hand-made weights, then in a session on the synthetic vas
 ellipsoid patch alone draws less than half, the selection's weight at the pixel — summed
 from a full-image contribution pass, not the one-pixel pass the session uses — reaches
 0.5 after the click, and stays below it with the rule off. A click whose view is refused
-at accept still selects its pixel (it used to change nothing).
+at accept still holds its patch (it used to change nothing), with or without the rule.
 """
 
 from __future__ import annotations
@@ -86,8 +86,9 @@ def _missed_pixel(s: Session, sc) -> tuple[object, tuple[float, float]]:
 
 def test_a_positive_click_leaves_its_pixel_selected(vase):  # noqa: F811
     sc = vase[0]
-    on = _open(vase, _perfect())
-    off = _open(vase, _perfect(), corrections=CorrectionConfig(positive_pixel_share=0.0))
+    on = _open(vase, _perfect(), corrections=CorrectionConfig(positive_pixel_share=0.5))
+    off = _open(vase, _perfect())  # the default: the ellipsoid patch alone
+    assert off.config.corrections.positive_pixel_share == 0
     for s in (on, off):
         _accept_clicks(s, vase, anchors=[0])
     np.testing.assert_array_equal(on.selection, off.selection)
@@ -130,7 +131,7 @@ class _Empty(Segmenter):
 
 def test_a_click_whose_view_is_refused_still_selects_its_pixel(vase):  # noqa: F811
     sc, _, clicks, _ = vase
-    s = _open(vase, _Empty())
+    s = _open(vase, _Empty(), corrections=CorrectionConfig(positive_pixel_share=0.5))
     s.history.record("start")
     xy = _xy(s, 0, clicks[0])
     v = s.click(0, xy)
@@ -151,3 +152,9 @@ def test_a_click_whose_view_is_refused_still_selects_its_pixel(vase):  # noqa: F
     assert np.array_equal(s.selection, held)
     assert s.undo() is v and v.status == ViewStatus.OPEN and not s.selection.any()
     s.close()
+    # the default (no pixel rule): the ellipsoid patch holds the same way
+    d = _open(vase, _Empty())
+    assert d.accept(d.click(0, xy)).status == ViewStatus.REJECTED
+    patch = d.current.corrections[-1].patch
+    assert len(patch) and np.array_equal(np.flatnonzero(d.selection), patch)
+    d.close()

@@ -52,7 +52,10 @@ class CorrectionConfig:
             until a positive patch draws at least this share of the pixel's blending
             weight and a negative one leaves less than it (:func:`.corrections.pixel_patch`):
             at 0.5, the threshold of the selection's indicator, the clicked pixel shows
-            selected (unselected) whatever else is. 0: the ellipsoid patch alone.
+            selected (unselected) whatever else is. 0 (the default for both): the
+            ellipsoid patch alone — the rule also takes what the click did not mean
+            when the clicked surface draws less than the share (translucent haze in
+            front of it, a large splat behind it: docs/corrections.md).
         negative_views: a negative anchor click that no view of its object sees fuses a
             view of its own, the click's centroid view (:mod:`.negative_views`).
             False: it prompts the views that see it and forces its patch out, no more.
@@ -62,7 +65,7 @@ class CorrectionConfig:
     patch_px: float = 2.0
     negative_sigmas: float = 2.0
     positive_sigmas: float = 1.0
-    positive_pixel_share: float = 0.5
+    positive_pixel_share: float = 0.0
     negative_pixel_share: float = 0.0
     negative_views: bool = True
 

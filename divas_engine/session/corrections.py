@@ -5,7 +5,7 @@ it spawns. Here every click — on an anchor, on a centroid view, through any ca
 a world point — is one :class:`~.records.Correction` of its object:
 
 1. a 3D point ``P`` (back-projected with the clicked image's depth) and its surface
-   patch (the backend's ``click_patch``; on Gaussians a positive patch also holds the
+   patch (the backend's ``click_patch``; optionally, on Gaussians, grown to hold the
    clicked pixel, :func:`pixel_patch`);
 2. a prompt of every view of the object where ``P`` is visible and whose mask disagrees
    with the click (:func:`prompt_plan`): re-segmented and re-fused in its own slot;
