@@ -30,9 +30,9 @@ from .records import AnchorClick, AnchorView, Correction, ObjectRecord, SessionV
 
 __all__ = ["SessionState", "StateSnapshot"]
 
-#: the view fields a step can change (a snapshot keeps their values)
 #: the statuses of a spawned view whose click holds (:func:`~.corrections.constrain`)
 _CLICK_HOLDS = (ViewStatus.FUSED, ViewStatus.REJECTED)
+#: the view fields a step can change (a snapshot keeps their values)
 _VIEW_FIELDS = (
     "status",
     "reason",
