@@ -17,12 +17,11 @@ import numpy as np
 import pytest
 
 from divas_engine.kinds import ViewStatus
-from divas_engine.segment import Segmenter
-from divas_engine.segment.base import SegResult
 from divas_engine.session import CorrectionConfig, Session
 from divas_engine.session.corrections import patch_radius, pixel_patch
 from divas_engine.views.centroid_common import click_point
 
+from .stub_segmenters import ConstantSegmenter
 from .test_corrections import _accept_clicks, _open, _perfect, _xy, vase  # noqa: F401
 
 
@@ -110,28 +109,9 @@ def test_a_positive_click_leaves_its_pixel_selected(vase):  # noqa: F811
     off.close()
 
 
-class _Empty(Segmenter):
-    """Empty masks: every view is refused at accept."""
-
-    name = "empty"
-
-    def __init__(self) -> None:
-        super().__init__(cache_size=0)
-
-    def segment_view(self, view, points, labels) -> SegResult:
-        h, w = np.shape(view.rgb)[:2]
-        return SegResult(np.zeros((3, h, w), np.float32), np.full(3, 0.9, np.float32))
-
-    def _encode(self, rgb, depth, view_id):  # pragma: no cover - segment_view only
-        raise NotImplementedError
-
-    def _predict(self, state, points, labels):  # pragma: no cover
-        raise NotImplementedError
-
-
 def test_a_click_whose_view_is_refused_still_selects_its_pixel(vase):  # noqa: F811
     sc, _, clicks, _ = vase
-    s = _open(vase, _Empty(), corrections=CorrectionConfig(positive_pixel_share=0.5))
+    s = _open(vase, ConstantSegmenter(0.0), corrections=CorrectionConfig(positive_pixel_share=0.5))
     s.history.record("start")
     xy = _xy(s, 0, clicks[0])
     v = s.click(0, xy)
@@ -153,7 +133,7 @@ def test_a_click_whose_view_is_refused_still_selects_its_pixel(vase):  # noqa: F
     assert s.undo() is v and v.status == ViewStatus.OPEN and not s.selection.any()
     s.close()
     # the default (no pixel rule): the ellipsoid patch holds the same way
-    d = _open(vase, _Empty())
+    d = _open(vase, ConstantSegmenter(0.0))
     assert d.accept(d.click(0, xy)).status == ViewStatus.REJECTED
     patch = d.current.corrections[-1].patch
     assert len(patch) and np.array_equal(np.flatnonzero(d.selection), patch)

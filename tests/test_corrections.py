@@ -67,13 +67,18 @@ def _metadata_anchors(sc):
     return anchors, clicks
 
 
-@pytest.fixture(scope="module")
-def vase():
-    sc = generate_scene("occluded", None, size=20_000, seed=0)
+def _vase(kind: str = "2dgs"):
+    """The ``occluded`` scene (20k), its metadata anchors and clicks, its plinth rows."""
+    sc = generate_scene("occluded", None, size=20_000, seed=0, kind=kind)
     anchors, clicks = _metadata_anchors(sc)
     surf = [s.name for s in sc.surfaces]
     plinth = np.isin(sc.surface_ids, [i for i, nm in enumerate(surf) if nm.startswith("plinth")])
     return sc, anchors, clicks, plinth
+
+
+@pytest.fixture(scope="module")
+def vase():
+    return _vase()
 
 
 def _open(vase, segmenter, gt=None, **cfg) -> Session:
@@ -518,11 +523,7 @@ def test_finish_object_commits_the_corrected_selection(vase):
 @pytest.fixture(scope="module")
 def vase3d():
     """The ``occluded`` scene as trained 3DGS (20k Gaussians): the 3DGS completion runs."""
-    sc = generate_scene("occluded", None, size=20_000, seed=0, kind="3dgs")
-    anchors, clicks = _metadata_anchors(sc)
-    surf = [s.name for s in sc.surfaces]
-    plinth = np.isin(sc.surface_ids, [i for i, nm in enumerate(surf) if nm.startswith("plinth")])
-    return sc, anchors, clicks, plinth
+    return _vase("3dgs")
 
 
 def _unseen_click(s: Session, rows: np.ndarray, anchor: int) -> tuple[float, float]:
