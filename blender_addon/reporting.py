@@ -28,6 +28,7 @@ __all__ = [
     "error_message",
     "advice_message",
     "rejection_message",
+    "view_rejection_message",
     "report_failure",
     "report_exception",
 ]
@@ -129,17 +130,37 @@ def advice_message(advice: str | None) -> str:
     return text.replace("negative click", "negative click (Shift+click)", 1)
 
 
+_CLICK_HOLDS = "The spot you clicked stays selected. "
+
+
 def rejection_message(
     rejection: Rejection | None,
     score: float | None = None,
     advice: str | None = None,
     *,
     reason: str | None = None,
+    click_holds: bool = False,
 ) -> str:
     """Why a view was not added, and what to do next (``rejection``: the engine's, with
     ``reason`` its text — alone for views of sessions saved before rejections were kept;
     ``score``: the view's; ``advice``: the segmenter's own hint, which names the click to
-    add when it has one)."""
+    add when it has one; ``click_holds``: the view's click still holds the spot it was
+    made on, :meth:`~divas_engine.session.reader.SessionReader.click_holds`)."""
+    text = _rejection_text(rejection, score, advice, reason)
+    return _CLICK_HOLDS + text if text and click_holds else text
+
+
+def view_rejection_message(session, view) -> str:
+    """:func:`rejection_message` of a refused ``view`` of ``session``."""
+    v = view
+    return rejection_message(
+        v.rejection, v.score, v.advice, reason=v.reason, click_holds=session.click_holds(v)
+    )
+
+
+def _rejection_text(
+    rejection: Rejection | None, score: float | None, advice: str | None, reason: str | None
+) -> str:
     if rejection is None and not reason:
         return ""
     if advice:

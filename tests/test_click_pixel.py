@@ -119,6 +119,7 @@ def test_a_click_whose_view_is_refused_still_selects_its_pixel(vase):  # noqa: F
     assert c.spawned == v.id and not s.selection.any()  # an open view: nothing yet
     s.history.record("click")
     assert s.accept(v).status == ViewStatus.REJECTED
+    assert s.click_holds(v)  # what the add-on's refusal message says
     s.history.record("accept")
     cam = s.anchors[0].camera
     w = _pixel_weights(s, cam, int(xy[0]), int(xy[1]))
@@ -131,10 +132,18 @@ def test_a_click_whose_view_is_refused_still_selects_its_pixel(vase):  # noqa: F
     s.history.redo()
     assert np.array_equal(s.selection, held)
     assert s.undo() is v and v.status == ViewStatus.OPEN and not s.selection.any()
+    assert not s.click_holds(v)
     s.close()
     # the default (no pixel rule): the ellipsoid patch holds the same way
     d = _open(vase, ConstantSegmenter(0.0))
     assert d.accept(d.click(0, xy)).status == ViewStatus.REJECTED
     patch = d.current.corrections[-1].patch
     assert len(patch) and np.array_equal(np.flatnonzero(d.selection), patch)
+    assert d.click_holds(d.views[-1].id)
     d.close()
+    # the paper's loop (no corrections): a refused view leaves nothing, and says so
+    p = _open(vase, ConstantSegmenter(0.0), corrections=CorrectionConfig(enabled=False))
+    pv = p.click(0, xy)
+    assert p.accept(pv).status == ViewStatus.REJECTED
+    assert not p.selection.any() and not p.click_holds(pv)
+    p.close()

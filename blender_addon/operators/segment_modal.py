@@ -25,7 +25,7 @@ from divas_engine.kinds import ViewStatus
 
 from .. import session_registry
 from ..modal_logic import HEADER_TEXT, KeyKind, Step, StepKind, Target, decide, plan
-from ..reporting import advice_message, rejection_message, report_exception
+from ..reporting import advice_message, report_exception, view_rejection_message
 from ..session_actions import (
     accept,
     add_prompt,
@@ -202,7 +202,7 @@ class ModalController:
             res = run_step(obj, live, what, accept, context, obj, live, step.view_id)
             v = res.view
             if v.status == ViewStatus.REJECTED:
-                msg = rejection_message(v.rejection, v.score, v.advice, reason=v.reason)
+                msg = view_rejection_message(live.session, v)
                 self.report({"WARNING"}, "View not added. " + msg)
         corr = live.session.last_correction
         if k is not StepKind.CORRECT_VIEW and not step.positive and corr is not last:

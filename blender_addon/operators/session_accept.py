@@ -15,7 +15,7 @@ from bpy.props import BoolProperty, StringProperty
 from divas_engine.kinds import ViewStatus
 from divas_engine.session.widening import is_wider
 
-from ..reporting import advice_message, rejection_message, report_exception
+from ..reporting import advice_message, report_exception, view_rejection_message
 from ..session_actions import accept, full_to_session_xy, run_step
 from .session_base import SessionOperator, live_session
 
@@ -37,7 +37,7 @@ def accept_message(live, res) -> tuple[set[str], str]:
     """The report (level, text) of an accept: what happened, what to do next."""
     v = res.view
     if v.status == ViewStatus.REJECTED:
-        msg = rejection_message(v.rejection, v.score, v.advice, reason=v.reason)
+        msg = view_rejection_message(live.session, v)
         return {"WARNING"}, "View not added. " + msg
     if v.status == ViewStatus.PENDING:
         return {"INFO"}, (

@@ -13,7 +13,7 @@ from ..blend_space import BLEND_FLAG
 from ..camera_objects import RESOLUTION_PROP
 from ..preferences import SAM_SEGMENTERS, active_model, active_model_ready, get_preferences
 from ..properties import scene_settings
-from ..reporting import advice_message, rejection_message
+from ..reporting import advice_message, view_rejection_message
 from ..selection import selected_count
 from ..session_actions import saved_session_path
 
@@ -125,7 +125,7 @@ def _draw_session(layout, live) -> None:
         sub.label(text=f"{len(rejected)} view(s) not added. Last one:", icon="ERROR")
         last_rejected = rejected[-1]
         r = last_rejected
-        msg = rejection_message(r.rejection, r.score, r.advice, reason=r.reason)
+        msg = view_rejection_message(live.session, r)
         for line in _wrap(msg):
             sub.label(text=line)
     hinted = [v for v in live.session.views if v.status in ("open", "fused") and v.advice]

@@ -285,6 +285,16 @@ class SessionReader:
         """The first open (not yet accepted) centroid view of the current object."""
         return self.state.next_view()
 
+    def click_holds(self, view: SessionView | str) -> bool:
+        """Whether the click that spawned ``view`` holds its surface patch in the
+        selection although the view was refused at accept (corrections on:
+        :func:`~.corrections.constrain`) — what a refusal message tells the user."""
+        v = self.view(view) if isinstance(view, str) else view
+        if v.status != ViewStatus.REJECTED or not self.config.corrections.enabled:
+            return False
+        obj = next((o for o in self.objects if o.index == v.object_index), self.current)
+        return any(c.spawned == v.id and c.positive and len(c.patch) for c in obj.corrections)
+
     def label_set(self, include_current: bool = True) -> np.ndarray:
         """Committed labels, plus the current object's selection as the next label."""
         return self.state.label_set(self.config.overwrite_labels, include_current)

@@ -26,6 +26,17 @@ def test_rejection_with_advice_says_which_click_to_add():
     assert "confidence 0.31" in plain and "channel" not in plain and "spilled over" in plain
 
 
+def test_a_refused_view_whose_click_holds_says_so():
+    from blender_addon.reporting import rejection_message
+
+    low = Rejection(RejectReason.EMPTY_MASK, 0.0, 0.5, 1)
+    plain = rejection_message(low)
+    held = rejection_message(low, click_holds=True)
+    assert "stays selected" in held and "stays selected" not in plain
+    assert held.endswith(plain)  # the same advice after it
+    assert rejection_message(None, click_holds=True) == ""  # nothing refused: nothing said
+
+
 def test_advice_message_uses_the_add_on_words():
     from blender_addon.reporting import advice_message
 

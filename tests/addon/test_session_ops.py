@@ -385,6 +385,27 @@ class _Layout:
         self.log.append(("prop", name))
 
 
+def test_a_refused_view_says_its_click_stays_selected(scene_dir):
+    """A view refused at accept (here: its only prompt negative) keeps the spot its click
+    was made on selected (corrections on, the default): the accept's report and the
+    panel say so."""
+    from blender_addon.operators.session_accept import accept_message
+
+    out, sc = scene_dir
+    obj, live = _oracle(scene_dir)
+    s = live.session
+    xy = _click_xy(live, 0, sc)
+    assert bpy.ops.divas.session_click(anchor=0, xy="{!r} {!r}".format(*xy)) == {"FINISHED"}
+    v = s.views[0]
+    res = s.accept(v, points=[xy], labels=[0], include_default=False)
+    assert v.status == "rejected" and s.selection.any() and s.click_holds(v)
+    level, text = accept_message(live, res)
+    assert level == {"WARNING"} and "The spot you clicked stays selected" in text
+    log = []
+    bpy.types.DIVAS_PT_main.draw(type("P", (), {"layout": _Layout(log)})(), bpy.context)
+    assert any("stays selected" in t for k, t in log if k == "label")
+
+
 def test_panel_draws_session(scene_dir):
     out, sc = scene_dir
     panel_cls = bpy.types.DIVAS_PT_main
