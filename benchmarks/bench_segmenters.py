@@ -9,7 +9,7 @@ segmenters get the click's 3D point as the one positive prompt; 2D IoU of mask c
 
     .venv/bin/python benchmarks/bench_segmenters.py [--size 100000] [--seed 0] [--clicks 4]
     .venv/bin/python benchmarks/bench_segmenters.py --cost [--sizes 100000,1000000]
-        [--walk-solver two_level]
+        [--walk-solver jacobi_cg]
 
 ``--cost``: the benchmark room of :mod:`benchmarks.scenes` at each size, one click per sphere
 (fresh seeds, so no cut is cached); per prompt the 3D cut and the render of its regions at
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cost", action="store_true", help="graph3d cost per prompt")
     ap.add_argument("--sizes", default="100000,1000000", help="surfel counts for --cost")
-    ap.add_argument("--walk-solver", default=None, help="--cost: jacobi_cg (default), two_level")
+    ap.add_argument("--walk-solver", default=None, help="--cost: two_level (default), jacobi_cg")
     ap.add_argument("--size", type=int, default=100_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clicks", type=int, default=4)

@@ -67,8 +67,10 @@ class Graph3DConfig:
             fades a little with graph distance, so of equally connected voxels the far
             ones rank last.
         cg_tol, cg_maxiter: conjugate-gradient tolerance and iteration cap.
-        walk_solver: :class:`~.walk_solver.WalkSolver` — Jacobi CG (default) or the
-            two-level preconditioned CG (tens of steps instead of hundreds; opt-in).
+        walk_solver: :class:`~.walk_solver.WalkSolver` — the two-level preconditioned
+            CG (default: it reaches the tolerance in tens of steps) or the Jacobi CG
+            (hundreds of steps; it stops short on near-islands, whose potentials then
+            keep its starting guess).
         ground_band: a voxel within this × r_fg of a detected supporting plane whose
             normal is within ``ground_normal_deg`` of the plane's is a sink (0.02, 35°).
         support_min_voxels, support_min_share: a horizontal surface below the seeds
@@ -108,7 +110,9 @@ class Graph3DConfig:
             clean cut low enough for its views to be rejected.
         ambiguity_ratio: another sweep minimum within this φ ratio of the best and at a
             different size makes the cut ambiguous (1.3): the score is scaled by
-            ``ambiguity_penalty`` (0.6).
+            ``ambiguity_penalty`` (0.6). φ's below ``clean_phi`` count as equal; a
+            larger minimum that only adds a piece not touching the region (an object
+            beside it) is no rival.
         low_res: longest side of the mask render (256, SAM's low-res logit grid).
         logit_scale: logits = logit_scale · (coverage − 0.5) (8, as the oracle).
     """
@@ -133,7 +137,7 @@ class Graph3DConfig:
     leak: float = 1e-5
     cg_tol: float = 1e-5
     cg_maxiter: int = 400
-    walk_solver: WalkSolver = WalkSolver.JACOBI_CG
+    walk_solver: WalkSolver = WalkSolver.TWO_LEVEL
     ground_band: float = 0.02
     ground_normal_deg: float = 35.0
     support_min_voxels: int = 40

@@ -201,9 +201,15 @@ def sweep_cut(
         and big[k]
         and not (vol[best] / ratio < vol[k] < vol[best] * ratio)
         and (held_up == best or k < best)
+        and (k < best or _touches(graph, order, best, k))
     ]
     rival_k = min(rival, key=lambda k: phi[k]) if rival else None
-    ambiguous = rival_k is not None and phi[rival_k] <= config.ambiguity_ratio * phi[best]
+    # φ's at or below clean_phi are all "cut off as well as 0" (their differences are
+    # rounding noise): two such regions are equally good
+    floor = config.clean_phi
+    ambiguous = rival_k is not None and max(phi[rival_k], floor) <= config.ambiguity_ratio * max(
+        phi[best], floor
+    )
     levels = []
     for k in (small, best, large):
         nodes = np.zeros(v, bool)
@@ -218,6 +224,20 @@ def sweep_cut(
     share = _rim_cut(graph, levels[1].nodes) / max(float(cut[best]), 1e-300)
     alt = None if rival_k is None else float(vol[rival_k] / max(vol[best], 1e-300))
     return CutResult(tuple(levels), x, float(min(share, 1.0)), bool(ambiguous), alt)
+
+
+def _touches(graph: VoxelGraph, order: np.ndarray, best: int, k: int) -> bool:
+    """Whether what the prefix ``k`` adds to the prefix ``best`` (``k > best``) touches
+    it (an edge of nonzero affinity between them): a larger region that only adds a
+    separate piece (an object beside the clicked one, joined through the removed floor)
+    is another object, not another reading of the clicked one."""
+    inside = np.zeros(len(graph), bool)
+    inside[order[: best + 1]] = True
+    added = np.zeros(len(graph), bool)
+    added[order[best + 1 : k + 1]] = True
+    e = graph.edges
+    cross = (inside[e[:, 0]] & added[e[:, 1]]) | (added[e[:, 0]] & inside[e[:, 1]])
+    return bool(np.any(graph.weights[cross] > 0.0))
 
 
 def _claimed(
@@ -367,8 +387,9 @@ def _on_its_support(
     voxel; as many of the dip's voxels no lower than its lowest minus one, and as many
     higher than that voxel plus two: what stands rises above its contact — a patch whose
     boundary runs around its sides, level with it, is set in E, not on it) and is wider
-    there than what stands on it (the horizontal spread of ``E``'s top two voxels over
-    that of the dip's bottom two). What holds the clicked object up — a pedestal of
+    there than what stands on it (the horizontal spread of the top two voxels of all
+    the dip stands on — E and the layers peeled before it, within the least-φ region —
+    over that of the dip's bottom two). What holds the clicked object up — a pedestal of
     another material, a plinth, a table's frame — is not the object, though it makes
     one island with it once the floor is removed (conductance 0: it would always win
     the sweep). A click on the support (a seed below the contact) keeps it. The upper half
@@ -380,6 +401,7 @@ def _on_its_support(
     e = graph.edges
     q, h = config.support_quantile, graph.h
     dips = _local_minima(np.where(big, phi, np.inf), vol, config.tie_window)
+    whole = best  # the least-φ region: what the dips stand on is measured within it
     changed = True
     while changed:
         changed = False
@@ -404,7 +426,11 @@ def _on_its_support(
                 continue  # the dip does not rise above the contact: E is around it
             if float(height[positive].min()) < bottom - h:
                 break  # a click below the contact, on E: the user wants it too
-            e_top = extra & (height >= float(height[extra].max()) - 2.0 * h)
+            # the width of all it stands on (peeled off in layers, the last one a rim
+            # around its foot as wide as the foot itself; a stem is narrower)
+            below = np.zeros(len(graph), bool)
+            below[order[k + 1 : whole + 1]] = True
+            e_top = below & (height >= float(height[below].max()) - 2.0 * h)
             d_bottom = inside & (height <= float(height[inside].min()) + 2.0 * h)
             if _spread(flat[e_top]) <= _spread(flat[d_bottom]):
                 continue  # E is narrower than what stands on it: a stem, a leg

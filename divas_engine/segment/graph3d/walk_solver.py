@@ -2,13 +2,15 @@
 
 ``A u = b`` with ``A = (1 + λ) D_U − W_UU`` (SPD) over the free voxels U.
 
-* :attr:`WalkSolver.JACOBI_CG` (default): conjugate gradients with the Jacobi
-  preconditioner, SciPy ``cg``'s steps in its order but every inner product NumPy's
-  pairwise sum (:func:`_dot`), so the rounding — and a badly conditioned walk's cut —
-  does not depend on the machine's core count.
-* :attr:`WalkSolver.TWO_LEVEL` (opt-in): the same CG with a two-level additive
+* :attr:`WalkSolver.TWO_LEVEL` (default): conjugate gradients with a two-level additive
   preconditioner over aggregates of ``_AGGREGATE³`` cells (sparse LU of the coarse
-  system): tens of steps instead of hundreds on near-islands.
+  system): tens of steps, and the tolerance is met on near-islands too.
+* :attr:`WalkSolver.JACOBI_CG`: the same CG with the Jacobi preconditioner; on a
+  near-island it stops at the step cap with the potentials still near its starting
+  guess there (such a pocket then keeps ``x`` ≈ 1 and is swept in with the object).
+
+Both: SciPy ``cg``'s steps in its order but every inner product NumPy's pairwise sum
+(:func:`_dot`), so the rounding does not depend on the machine's core count.
 
 Conditioning, stopping rule and the coarse level in full: docs/design-notes.md.
 """
