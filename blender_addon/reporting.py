@@ -152,9 +152,12 @@ def rejection_message(
 
 def view_rejection_message(session, view) -> str:
     """:func:`rejection_message` of a refused ``view`` of ``session``."""
-    v = view
     return rejection_message(
-        v.rejection, v.score, v.advice, reason=v.reason, click_holds=session.click_holds(v)
+        view.rejection,
+        view.score,
+        view.advice,
+        reason=view.reason,
+        click_holds=session.click_holds(view),
     )
 
 
