@@ -122,9 +122,10 @@ def _accept_clicks(s: Session, vase, anchors=None) -> None:
 
 def _front_pixel(s: Session, i: int, rows: np.ndarray, tol: float = 0.01, keep=None):
     """A primitive of ``rows`` on the visible surface of anchor ``i`` (its centre's
-    depth within ``tol`` of the render's D_med there), nearest the camera:
-    ``(row, pixel)``, or None. ``keep``: a test of the surface point under the pixel
-    (back-projected with D_med) the primitive must also pass."""
+    depth within ``tol`` of the render's D_med there, and no nearer surface drawing a
+    third of the pixel: the click lands on it), nearest the camera: ``(row, pixel)``,
+    or None. ``keep``: a test of the surface point under the pixel (back-projected with
+    D_med) the primitive must also pass."""
     a = s.anchors[i]
     b = s.render(a)
     uv, z = a.camera.project(s.scene.means[rows])
@@ -134,6 +135,8 @@ def _front_pixel(s: Session, i: int, rows: np.ndarray, tol: float = 0.01, keep=N
             d = float(b.D_med[int(y), int(x)])
             if not (d > 0 and abs(d - z[k]) < tol * z[k]):
                 continue
+            if s.backend.click_depth_at(a.camera, (float(x), float(y)), b) is not None:
+                continue  # an occluder's edge draws a third of it: the click lands there
             if keep is None or keep(a.camera.unproject(np.array([[x, y]]), np.array([d]))[0]):
                 return int(rows[k]), (float(x), float(y))
     return None

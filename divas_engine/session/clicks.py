@@ -43,7 +43,9 @@ __all__ = ["click", "click_view", "click_camera", "click_point", "correct"]
 def _back_project(self: Session, anchor: AnchorView, xy) -> tuple[float, np.ndarray]:
     b = self.render(anchor)
     depth = self.backend.click_depth(b)
-    return back_project(anchor.camera, xy, depth, b.alpha, self.config.view.min_alpha_click)
+    front = self.backend.click_depth_at(anchor.camera, xy, b)
+    min_alpha = self.config.view.min_alpha_click
+    return back_project(anchor.camera, xy, depth, b.alpha, min_alpha, front)
 
 
 def click(self: Session, anchor_index: int, xy, positive: bool = True) -> SessionView | AnchorClick:
@@ -209,7 +211,8 @@ def _surface_point(
     error)."""
     try:
         min_alpha = self.config.view.min_alpha_click
-        return back_project(camera, xy, self.backend.click_depth(b), b.alpha, min_alpha)
+        front = self.backend.click_depth_at(camera, xy, b)
+        return back_project(camera, xy, self.backend.click_depth(b), b.alpha, min_alpha, front)
     except DivasInputError as e:
         problem = f"{what}: {e.problem}"
         raise DivasInputError(None, problem, code=e.code, details=e.details) from None

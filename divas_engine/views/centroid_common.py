@@ -92,12 +92,20 @@ class CentroidView:
 
 
 def click_point(
-    anchor: Camera, click, depth_map: np.ndarray, alpha: np.ndarray, min_alpha: float
+    anchor: Camera,
+    click,
+    depth_map: np.ndarray,
+    alpha: np.ndarray,
+    min_alpha: float,
+    depth: float | None = None,
 ) -> tuple[float, np.ndarray]:
     """Planar depth at a click and its back-projection.
 
     ``depth_map``/``alpha`` are ``[H,W]`` at the anchor's resolution; the click is a
-    continuous pixel point (+0.5 centres), read at the pixel containing it.
+    continuous pixel point (+0.5 centres), read at the pixel containing it. ``depth``:
+    the click's depth when the caller chose it (a nearer surface than ``depth_map``'s,
+    :class:`~.config.ViewConfig` ``front_share``); the map still decides whether a
+    surface is there.
 
     Raises:
         DivasInputError: the click is outside the image, or no surface is under it
@@ -126,6 +134,8 @@ def click_point(
             code=InputErrorCode.NO_SURFACE,
             details={"x": x, "y": y},
         )
+    if depth is not None:
+        z = float(depth)
     return z, anchor.unproject(np.array([[x, y]]), np.array([z]))[0]
 
 

@@ -153,6 +153,7 @@ class GsCentroidPlanner:
         *,
         name: str = "",
         on_camera: Callable[[Camera], None] | None = None,
+        depth: float | None = None,
     ) -> CentroidView:
         """alg:centroid-gs for one click (continuous pixel point) on ``anchor``.
 
@@ -161,7 +162,8 @@ class GsCentroidPlanner:
         render starts — the first radius's (``probe_full_first``), then, when that one is
         rejected, the final camera before returning (the caller renders it) — so work
         that needs only the view's camera runs while the view renders (graph3d's
-        masks). A rejected first candidate only wastes that work.
+        masks). A rejected first candidate only wastes that work. ``depth``: the click's
+        depth when the caller chose it (:func:`~.centroid_common.click_point`).
 
         Raises:
             DivasInputError: no surface under the click.
@@ -169,7 +171,9 @@ class GsCentroidPlanner:
         cfg = self.config
         if buffers is None:
             buffers = self.renderer.render(anchor)
-        z, x_w = click_point(anchor, click, buffers.D_med, buffers.alpha, cfg.min_alpha_click)
+        z, x_w = click_point(
+            anchor, click, buffers.D_med, buffers.alpha, cfg.min_alpha_click, depth
+        )
         v = x_w - anchor.center
         v /= np.linalg.norm(v)
         tan_half = math.tan(anchor.fov_x / 2.0)

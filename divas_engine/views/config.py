@@ -78,6 +78,15 @@ class ViewConfig:
     Centroid views (Sec. 3.3, App. C.3):
         zoom_forward_facing, zoom_360: λ of alg:centroid_view (NeRF), 0.67 / 0.47.
         min_alpha_click: accumulated opacity at the click below this → no surface (0.5).
+        front_share, front_gap: the surface a click lands on is the pixel's median
+            depth ``D_med``, unless a nearer one draws at least ``front_share`` of the
+            pixel (1/3): then it is the depth ``z`` where ``1 − T`` first reaches that
+            share, when the splats within ``front_gap · z`` of it draw the share
+            themselves (a surface, not faint haze spread in depth) and it lies more than
+            ``front_gap`` × ``D_med`` in front (0.02) — a thin object in front of a
+            background (a spoke drawing 0.41 of the pixel before a wall drawing 0.55) is
+            what the user clicked. Beyond the paper (surfel
+            scenes: :meth:`~divas_engine.session.backends.surfels.SurfelBackend.click_depth_at`).
         p_f: patch fraction of eq:Rphys, 0.25.
         f_fill: target fill fraction of eq:Rinit and central-patch size of eq:occfrac, 0.5.
         alpha_min: α_min of eq:neigh, 0.1.
@@ -146,6 +155,8 @@ class ViewConfig:
     zoom_forward_facing: float = 0.67
     zoom_360: float = 0.47
     min_alpha_click: float = 0.5
+    front_share: float = 1.0 / 3.0
+    front_gap: float = 0.02
     p_f: float = 0.25
     f_fill: float = 0.5
     alpha_min: float = 0.1

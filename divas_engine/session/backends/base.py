@@ -118,6 +118,14 @@ class SessionBackend(ABC):
     def click_depth(self, buffers: RenderBuffers) -> np.ndarray:
         """The depth map a click on an anchor render is back-projected with."""
 
+    def click_depth_at(
+        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers
+    ) -> float | None:
+        """The depth of the surface a click at ``xy`` of ``buffers`` lands on when it is
+        not :meth:`click_depth`'s there (None: the map's; a backend that sees the
+        pixel's layers overrides it)."""
+        return None
+
     @abstractmethod
     def centroid_view(
         self,

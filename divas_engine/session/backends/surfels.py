@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...camera import Camera
+from ...geometry import quat_to_rotmat
 from ...kinds import SceneKind
 from ...render.buffers import RenderBuffers
 from ...scene import Scene, SurfelScene
@@ -30,6 +31,21 @@ if TYPE_CHECKING:
     from ..records import SessionView
 
 __all__ = ["SurfelBackend"]
+
+
+def _ray_splat_depths(
+    camera: Camera, xy, centres: np.ndarray, normals: np.ndarray, z_centre: np.ndarray
+) -> np.ndarray:
+    """Planar depths where the ray through pixel ``xy`` meets each splat's plane (its
+    centre and normal), as the rasterizer evaluates them; a splat the ray runs along
+    keeps its centre's depth."""
+    o = np.asarray(camera.center, np.float64)
+    q = camera.unproject(np.array([[xy[0], xy[1]]], np.float64), np.array([1.0]))[0] - o
+    n = np.asarray(normals, np.float64)
+    den = n @ q
+    num = np.einsum("ij,ij->i", n, np.asarray(centres, np.float64) - o)
+    edge = np.abs(den) < 1e-6 * np.linalg.norm(q)
+    return np.where(edge, z_centre, num / np.where(edge, 1.0, den))
 
 
 @register_backend
@@ -171,7 +187,44 @@ class SurfelBackend(SessionBackend):
         name: str,
         on_camera: Callable[[Camera], None] | None = None,
     ) -> CentroidView:
-        return self.planner.centroid_view(camera, xy, buffers, name=name, on_camera=on_camera)
+        depth = self.click_depth_at(camera, xy, buffers)
+        return self.planner.centroid_view(
+            camera, xy, buffers, name=name, on_camera=on_camera, depth=depth
+        )
+
+    def click_depth_at(
+        self, camera: Camera, xy: tuple[float, float], buffers: RenderBuffers
+    ) -> float | None:
+        """The nearer surface a click lands on, when one draws enough of its pixel
+        (:class:`~divas_engine.views.config.ViewConfig` ``front_share``, ``front_gap``):
+        over the splats drawing the pixel in blend order (centre depth), ``1 − T`` first
+        reaches the share at a splat of ray–splat depth ``z`` — the renderer's ``D_med``
+        rule at a third instead of a half — and the splats within ``front_gap · z`` of
+        that depth draw the share themselves (a surface, not a haze of faint splats
+        spread in depth), more than ``front_gap`` in front of ``D_med``. None when the
+        click's surface is ``D_med``'s. Beyond the paper."""
+        cfg = self.config.view
+        x, y = int(np.floor(xy[0])), int(np.floor(xy[1]))
+        h, w = buffers.D_med.shape
+        if not (0 <= x < w and 0 <= y < h) or cfg.front_share >= 0.5:
+            return None
+        d_med = float(buffers.D_med[y, x])
+        pw = self.pixel_weights(camera, (x + 0.5, y + 0.5))
+        if d_med <= 0.0 or pw is None or len(pw[0]) == 0:
+            return None
+        rows, wts, centres = pw
+        _, z_centre = camera.project(centres)
+        order = np.argsort(z_centre, kind="stable")  # the blend order
+        k = int(np.searchsorted(np.cumsum(wts[order]), cfg.front_share))
+        if k >= len(order):
+            return None
+        normals = quat_to_rotmat(np.asarray(self.scene.quats[rows]))[:, :, 2]
+        z = _ray_splat_depths(camera, (x + 0.5, y + 0.5), centres, normals, z_centre)
+        z_front = float(z[order[k]])
+        if not (camera.near < z_front < d_med * (1.0 - cfg.front_gap)):
+            return None
+        band = np.abs(z - z_front) <= cfg.front_gap * z_front
+        return z_front if float(wts[band].sum()) >= cfg.front_share else None
 
     def click_patch(self, point: np.ndarray, radius: float, sigmas: float) -> np.ndarray:
         from ..corrections import surfel_patch
